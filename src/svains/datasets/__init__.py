@@ -1,0 +1,1 @@
+"""Readers and writers of the ASL/EuRoC layout (extended), KITTI odometry and trajectory files."""

@@ -1,0 +1,25 @@
+"""Typed exceptions raised by the library (never ``SystemExit``; only ``cli/`` prints)."""
+
+
+class SvainsError(Exception):
+    """Base class of every error the library raises on purpose."""
+
+
+class DatasetError(SvainsError):
+    """A data set on disk is missing, malformed or inconsistent."""
+
+
+class CalibrationError(DatasetError):
+    """A calibration file lacks or has invalid fields."""
+
+
+class FilterError(SvainsError):
+    """The estimator reached an invalid state (e.g. a covariance that is not SPD)."""
+
+
+class InitialisationError(SvainsError):
+    """The estimator could not be initialised from the data given."""
+
+
+class ConfigError(SvainsError):
+    """A configuration value is invalid."""

@@ -1,0 +1,1 @@
+"""Trajectory metrics (through evo) and figures."""

@@ -1,0 +1,1 @@
+"""Sigma-point (unscented) Kalman filter on a manifold; knows nothing of sensors."""

@@ -1,0 +1,1 @@
+"""Stereo front end: the only package that imports OpenCV."""

@@ -1,0 +1,1 @@
+"""Rotations, poses and camera models: pure numpy, no I/O."""
