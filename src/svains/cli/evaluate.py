@@ -1,0 +1,81 @@
+"""``svains evaluate EST GT``: ATE (se3/posyaw/none/sim3 alignment) and RPE through evo."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from svains.errors import SvainsError
+
+
+def _num(v: float, fmt: str = ".4f") -> str:
+    return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, fmt)
+
+
+def evaluate(
+    est: Annotated[Path, typer.Argument(help="Estimated trajectory (TUM file).")],
+    gt: Annotated[
+        Path, typer.Argument(help="Reference: TUM file or data-set folder with ground truth.")
+    ],
+    align: Annotated[
+        str, typer.Option("--align", help="Alignment: se3, posyaw, none or sim3.")
+    ] = "se3",
+    delta: Annotated[
+        list[float] | None,
+        typer.Option("--delta", help="RPE segment length in metres (repeatable; default 1 and 5)."),
+    ] = None,
+    max_diff: Annotated[
+        float, typer.Option("--max-diff", help="Max time difference in seconds to pair poses.")
+    ] = 0.01,
+    json_out: Annotated[
+        Path | None, typer.Option("--json", help="Write the results as JSON.")
+    ] = None,
+) -> None:
+    """ATE and RPE of an estimate against ground truth (numbers as evo_ape / evo_rpe)."""
+    from svains.evaluation.metrics import ALIGNMENTS
+    from svains.evaluation.report import evaluate_files
+
+    err = Console(stderr=True)
+    if align not in ALIGNMENTS:
+        err.print(
+            f"[red]error:[/red] --align must be one of {', '.join(ALIGNMENTS)}, got {align!r}",
+            soft_wrap=True,
+        )
+        raise typer.Exit(2)
+    try:
+        deltas = delta if delta else [1.0, 5.0]
+        rep = evaluate_files(est, gt, align=align, delta_m=deltas, max_diff_s=max_diff)  # type: ignore[arg-type]
+    except SvainsError as exc:
+        err.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
+        raise typer.Exit(1) from exc
+    console = Console()
+    a = rep.ate
+    t = Table(title=f"ATE \\[m], {a.alignment} alignment, {a.n} matched poses")
+    for col in ("rmse", "mean", "median", "std", "min", "max", "rot rmse [deg]"):
+        t.add_column(escape(col), justify="right")
+    t.add_row(*(_num(v) for v in (a.rmse, a.mean, a.median, a.std, a.min, a.max)),
+              _num(a.rot_rmse_deg, ".3f"))  # fmt: skip
+    console.print(t)
+    if a.alignment == "sim3":
+        console.print(f"sim3 scale: {a.scale:.6f}")
+    r = Table(title="RPE over travelled distance")
+    for col in ("delta [m]", "pairs", "trans rmse [m]", "trans mean [m]", "trans max [m]",
+                "rot rmse [deg]"):  # fmt: skip
+        r.add_column(escape(col), justify="right")
+    for x in rep.rpe:
+        r.add_row(_num(x.delta_m, "g"), str(x.n_pairs), _num(x.trans_rmse), _num(x.trans_mean),
+                  _num(x.trans_max), _num(x.rot_rmse_deg, ".3f"))  # fmt: skip
+    console.print(r)
+    if json_out is not None:
+        rep.to_json(json_out)
+        console.print(f"wrote {json_out}")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("evaluate")(evaluate)

@@ -1,0 +1,99 @@
+"""``svains info DATASET``: streams, counts, rates, span, gaps, missing files, calibration."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from svains.errors import SvainsError
+
+
+def _f(v: Any, fmt: str) -> str:
+    return "-" if v is None else format(v, fmt)
+
+
+def _print(summary: dict[str, Any], console: Console) -> None:
+    console.print(f"[bold]{summary['name']}[/bold]  ({summary['root']})")
+    t = Table(title="Streams (times from the earliest sample)")
+    for col in ("stream", "count", "rate [Hz]", "start [s]", "span [s]", "largest gap [s]",
+                "gap at [s]"):  # fmt: skip
+        t.add_column(escape(col), justify="left" if col == "stream" else "right")
+    for s in summary["streams"].values():
+        t.add_row(
+            s["label"], str(s["count"]), _f(s["rate_hz"], ".2f"), _f(s["start_s"], ".3f"),
+            _f(s["span_s"], ".3f"), _f(s["largest_gap_s"], ".4f"), _f(s["largest_gap_at_s"], ".3f"),
+        )  # fmt: skip
+    console.print(t)
+    missing = summary["missing_images"]
+    if missing:
+        detail = ", ".join(f"{k}: {v}" for k, v in missing.items())
+        console.print(
+            f"[yellow]Missing files:[/yellow] {sum(missing.values())} image(s) listed without "
+            f"a file, skipped ({detail})"
+        )
+    else:
+        console.print("Missing files: none")
+    cal = summary["calibration"]
+    console.print(escape(f"gravity_W: {cal['gravity_W']} m/s²"))
+    cams = cal["cameras"]
+    for name, c in cams.items():
+        if not isinstance(c, dict):
+            continue
+        fu, fv, cu, cv = c["intrinsics_fu_fv_cu_cv"]
+        console.print(
+            escape(
+                f"{name}: {c['resolution'][0]}x{c['resolution'][1]} px, fu={fu:.3f} fv={fv:.3f} "
+                f"cu={cu:.3f} cv={cv:.3f}, {c['distortion_model']} "
+                f"[{', '.join(f'{d:.3g}' for d in c['distortion'])}]"
+            )
+        )
+    if "baseline_m" in cams:
+        console.print(
+            f"stereo baseline (from T_BS of cam0/cam1): {cams['baseline_m']:.4f} m, relative "
+            f"rotation {cams['relative_rotation_deg']:.3f} deg"
+        )
+    if "imu" in cal:
+        i = cal["imu"]
+        console.print(
+            f"imu0: {i['rate_hz']:g} Hz, gyro noise {i['gyro_noise_density']:.4g} rad/s/√Hz, "
+            f"gyro bias walk {i['gyro_random_walk']:.4g}, accel noise "
+            f"{i['accel_noise_density']:.4g} m/s²/√Hz, accel bias walk {i['accel_random_walk']:.4g}"
+        )
+    for key in ("gps", "mag", "sonar", "features"):
+        if key in cal:
+            console.print(escape(f"{key}: " + ", ".join(f"{k}={v}" for k, v in cal[key].items())))
+
+
+def info(
+    dataset: Annotated[
+        Path, typer.Argument(help="ASL/EuRoC folder (root or mav0/) or KITTI folder.")
+    ],
+    json_out: Annotated[
+        Path | None, typer.Option("--json", help="Also write the summary as JSON.")
+    ] = None,
+) -> None:
+    """Describe a data set: streams, counts, rates, time span, gaps, missing files, calibration."""
+    from svains.datasets import load_dataset
+    from svains.datasets.summary import dataset_summary
+
+    console = Console()
+    try:
+        summary = dataset_summary(load_dataset(dataset))
+    except SvainsError as exc:
+        Console(stderr=True).print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
+        raise typer.Exit(1) from exc
+    _print(summary, console)
+    if json_out is not None:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(summary, indent=2) + "\n")
+        console.print(f"wrote {json_out}")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("info")(info)

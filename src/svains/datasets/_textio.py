@@ -1,0 +1,233 @@
+"""Text file edges of the ASL layout: ``%YAML:1.0`` sensor files and ``data.csv`` tables.
+
+Floats are written with Python's shortest round-trip ``repr`` so reading back is bit-exact;
+timestamps are parsed as Python ints (int64 ns exceed float64's 53-bit mantissa).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+from svains.errors import CalibrationError, DatasetError
+
+YAML_DIRECTIVE = "%YAML:1.0"
+
+
+def format_float(x: float) -> str:
+    """Shortest exact text of ``x`` that YAML 1.1 (PyYAML) also reads as a float."""
+    x = float(x)
+    if math.isnan(x):
+        return ".nan"
+    if math.isinf(x):
+        return ".inf" if x > 0 else "-.inf"
+    r = repr(x)
+    # PyYAML's float pattern needs a dot in the mantissa ("1e-05" would load as a string).
+    if "e" in r and "." not in r.split("e")[0]:
+        mant, exp = r.split("e")
+        r = f"{mant}.0e{exp}"
+    return r
+
+
+def _yaml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
+        return format_float(float(v))
+    if isinstance(v, str):
+        return v
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_yaml_value(e) for e in np.asarray(v).tolist()) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to sensor.yaml")
+
+
+def write_sensor_yaml(path: Path, entries: Sequence[tuple[str, Any]], comment: str = "") -> None:
+    """Write a Kalibr/EuRoC style yaml (``%YAML:1.0`` first line).
+
+    ``entries`` keep their order; a 4x4 array under ``T_BS`` is written as the EuRoC
+    ``cols/rows/data`` matrix (row-major).
+    """
+    lines = [YAML_DIRECTIVE]
+    if comment:
+        lines.append(f"comment: {comment}")
+    for key, value in entries:
+        if key == "T_BS":
+            T = np.asarray(value, dtype=float).reshape(4, 4)
+            lines += ["T_BS:", "  cols: 4", "  rows: 4"]
+            rows = [", ".join(format_float(e) for e in r) for r in T.tolist()]
+            lines.append("  data: [" + ",\n         ".join(rows) + "]")
+        else:
+            lines.append(f"{key}: {_yaml_value(value)}")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def read_sensor_yaml(path: Path) -> dict[str, Any]:
+    """Load a ``%YAML:1.0`` file (the directive, which PyYAML rejects, is stripped)."""
+    if not path.is_file():
+        raise DatasetError(f"missing file: {path}")
+    text = path.read_text()
+    if text.lstrip().startswith("%YAML"):
+        text = text.split("\n", 1)[1] if "\n" in text else ""
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise CalibrationError(f"{path}: invalid YAML: {exc}") from exc
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise CalibrationError(f"{path}: expected a mapping of keys, got {type(data).__name__}")
+    return data
+
+
+def yaml_float(data: dict[str, Any], key: str, path: Path, default: float | None = None) -> float:
+    """A float field of a sensor.yaml (CalibrationError naming file and key if absent/invalid)."""
+    if key not in data:
+        if default is not None:
+            return default
+        raise CalibrationError(f"{path}: missing field '{key}'")
+    try:
+        return float(data[key])
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(f"{path}: field '{key}' is not a number: {data[key]!r}") from exc
+
+
+def yaml_vector(data: dict[str, Any], key: str, path: Path, n: int) -> NDArray[np.float64]:
+    """A list of ``n`` floats from a sensor.yaml."""
+    if key not in data or data[key] is None:
+        raise CalibrationError(f"{path}: missing field '{key}'")
+    try:
+        v = np.asarray([float(e) for e in data[key]], dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(f"{path}: field '{key}' must be {n} numbers") from exc
+    if v.shape != (n,):
+        raise CalibrationError(f"{path}: field '{key}' must have {n} numbers, has {v.size}")
+    return v
+
+
+def yaml_T_BS(data: dict[str, Any], path: Path, required: bool = True) -> NDArray[np.float64]:
+    """The 4x4 ``T_BS`` (sensor to body) of a sensor.yaml; identity when absent and optional."""
+    node = data.get("T_BS")
+    if node is None:
+        if required:
+            raise CalibrationError(f"{path}: missing field 'T_BS'")
+        return np.eye(4)
+    values = node.get("data") if isinstance(node, dict) else node
+    try:
+        T = np.asarray([float(e) for e in values], dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(f"{path}: 'T_BS' data must be 16 numbers") from exc
+    if T.size != 16:
+        raise CalibrationError(f"{path}: 'T_BS' data must be 16 numbers, has {T.size}")
+    return T.reshape(4, 4)
+
+
+def write_csv(path: Path, header: str | Sequence[str], blocks: Sequence[NDArray[Any]]) -> None:
+    """Write a ``#``-headed CSV from column blocks (1-D or 2-D, same length).
+
+    Integer blocks are written as integers, float blocks with exact ``repr``, string blocks as is.
+    """
+    cols: list[list[str]] = []
+    n: int | None = None
+    for block in blocks:
+        arr = np.asarray(block)
+        if arr.ndim == 1:
+            arr = arr[:, None]
+        if n is None:
+            n = arr.shape[0]
+        elif arr.shape[0] != n:
+            raise ValueError(f"{path.name}: column blocks have {n} and {arr.shape[0]} rows")
+        if arr.dtype.kind in "iu":
+            cols += [[str(v) for v in arr[:, j].tolist()] for j in range(arr.shape[1])]
+        elif arr.dtype.kind == "f":
+            cols += [[repr(v) for v in arr[:, j].tolist()] for j in range(arr.shape[1])]
+        else:
+            cols += [[str(v) for v in arr[:, j].tolist()] for j in range(arr.shape[1])]
+    head = header if isinstance(header, str) else ",".join(header)
+    body = "\n".join(",".join(row) for row in zip(*cols, strict=True)) if cols else ""
+    path.write_text("#" + head + "\n" + body + ("\n" if body else ""))
+
+
+def read_csv_rows(path: Path, n_cols: int) -> tuple[list[list[str]], list[int]]:
+    """Split a ``#``-headed CSV into rows of ``n_cols`` fields and their 1-based line numbers.
+
+    Blank lines and ``#`` comment lines are skipped; a row with another field count raises a
+    DatasetError naming the file and line.
+    """
+    if not path.is_file():
+        raise DatasetError(f"missing file: {path}")
+    rows: list[list[str]] = []
+    line_no: list[int] = []
+    with path.open() as fh:
+        for k, raw in enumerate(fh, start=1):
+            line = raw.strip()
+            if not line or line.startswith("#"):
+                continue
+            fields = [f.strip() for f in line.split(",")]
+            if len(fields) != n_cols:
+                raise DatasetError(
+                    f"{path}:{k}: malformed row, expected {n_cols} fields, got {len(fields)}: "
+                    f"{line[:80]!r}"
+                )
+            rows.append(fields)
+            line_no.append(k)
+    return rows, line_no
+
+
+def parse_timestamps(
+    path: Path, rows: list[list[str]], line_no: list[int], strict: bool = True
+) -> NDArray[np.int64]:
+    """Column 0 as int64 ns; ``strict`` demands strictly increasing, else non-decreasing."""
+    try:
+        t = np.array([int(r[0]) for r in rows], dtype=np.int64)
+    except ValueError:
+        for r, k in zip(rows, line_no, strict=True):
+            try:
+                int(r[0])
+            except ValueError:
+                raise DatasetError(
+                    f"{path}:{k}: malformed timestamp {r[0]!r} (expected integer nanoseconds)"
+                ) from None
+        raise
+    d = np.diff(t)
+    bad = np.flatnonzero(d <= 0) if strict else np.flatnonzero(d < 0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        kind = "duplicate" if d[i - 1] == 0 else "non-increasing"
+        raise DatasetError(
+            f"{path}:{line_no[i]}: {kind} timestamp {t[i]} after {t[i - 1]} "
+            f"(timestamps must be strictly increasing)"
+            if strict
+            else f"{path}:{line_no[i]}: decreasing timestamp {t[i]} after {t[i - 1]}"
+        )
+    return t
+
+
+def parse_floats(
+    path: Path, rows: list[list[str]], line_no: list[int], cols: slice
+) -> NDArray[np.float64]:
+    """Columns ``cols`` as float64 (N, K); a bad number or a NaN names its file and line."""
+    try:
+        a = np.array([r[cols] for r in rows], dtype=float)
+    except ValueError:
+        for r, k in zip(rows, line_no, strict=True):
+            for f in r[cols]:
+                try:
+                    float(f)
+                except ValueError:
+                    raise DatasetError(f"{path}:{k}: malformed number {f!r}") from None
+        raise
+    if a.size == 0:
+        return a.reshape(len(rows), -1)
+    nan_rows = np.flatnonzero(~np.all(np.isfinite(a), axis=1))
+    if nan_rows.size:
+        k = line_no[int(nan_rows[0])]
+        raise DatasetError(f"{path}:{k}: NaN or infinite value ({nan_rows.size} row(s) affected)")
+    return a

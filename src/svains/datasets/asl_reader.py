@@ -1,0 +1,289 @@
+"""Read the ASL/EuRoC layout, extended with gps0/mag0/sonar0/features0 (``docs/formats.md``).
+
+Every stream is optional. CSVs are parsed eagerly (they are small); images are only listed and
+checked for existence here, decoded later by ``ImageStream.load``.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from svains.datasets._image_io import read_grey
+from svains.datasets._textio import (
+    parse_floats,
+    parse_timestamps,
+    read_csv_rows,
+    read_sensor_yaml,
+    yaml_float,
+    yaml_T_BS,
+    yaml_vector,
+)
+from svains.datasets.types import (
+    DEFAULT_GRAVITY_W,
+    CameraCalib,
+    Dataset,
+    FeatureStream,
+    GpsCalib,
+    GpsStream,
+    GroundTruth,
+    ImageStream,
+    ImuCalib,
+    ImuStream,
+    MagCalib,
+    MagStream,
+    SonarCalib,
+    SonarStream,
+)
+from svains.errors import CalibrationError, DatasetError
+
+log = logging.getLogger(__name__)
+
+STREAM_FOLDERS = (
+    "imu0",
+    "cam0",
+    "cam1",
+    "state_groundtruth_estimate0",
+    "gps0",
+    "mag0",
+    "sonar0",
+    "features0",
+)
+
+
+def find_mav0(path: Path) -> Path | None:
+    """The ``mav0`` folder of an ASL data set given its root or ``mav0`` itself, else None."""
+    if (path / "mav0").is_dir():
+        return path / "mav0"
+    if (path / "body.yaml").is_file() or any((path / s).is_dir() for s in STREAM_FOLDERS):
+        return path
+    return None
+
+
+def _rate(calib: dict[str, Any], path: Path, t_ns: np.ndarray) -> float:
+    """``rate_hz`` of a sensor.yaml, else the median sample rate of the data."""
+    if "rate_hz" in calib:
+        return yaml_float(calib, "rate_hz", path)
+    u = np.unique(t_ns)
+    return float(1e9 / np.median(np.diff(u))) if u.size > 1 else 0.0
+
+
+def _table(folder: Path, n_cols: int, strict: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """``data.csv`` of a numeric stream: (t_ns (N,), values (N, n_cols - 1))."""
+    path = folder / "data.csv"
+    rows, lines = read_csv_rows(path, n_cols)
+    t = parse_timestamps(path, rows, lines, strict=strict)
+    return t, parse_floats(path, rows, lines, slice(1, None))
+
+
+def read_imu(folder: Path) -> tuple[ImuStream, ImuCalib]:
+    t, a = _table(folder, 7)
+    ypath = folder / "sensor.yaml"
+    y = read_sensor_yaml(ypath)
+    calib = ImuCalib(
+        T_B_S=yaml_T_BS(y, ypath),
+        rate_hz=_rate(y, ypath, t),
+        gyro_noise_density=yaml_float(y, "gyroscope_noise_density", ypath),
+        gyro_random_walk=yaml_float(y, "gyroscope_random_walk", ypath),
+        accel_noise_density=yaml_float(y, "accelerometer_noise_density", ypath),
+        accel_random_walk=yaml_float(y, "accelerometer_random_walk", ypath),
+    )
+    return ImuStream(t_ns=t, gyro_B=a[:, 0:3], accel_B=a[:, 3:6]), calib
+
+
+def read_camera_calib(folder: Path, t_ns: np.ndarray | None = None) -> CameraCalib:
+    """Kalibr pinhole/radial-tangential ``sensor.yaml`` of a camera folder."""
+    ypath = folder / "sensor.yaml"
+    y = read_sensor_yaml(ypath)
+    if "intrinsics" not in y:
+        raise CalibrationError(f"{ypath}: camera calibration without 'intrinsics' [fu, fv, cu, cv]")
+    model = str(y.get("camera_model", "pinhole"))
+    if model != "pinhole":
+        raise CalibrationError(f"{ypath}: camera_model '{model}' is not supported (pinhole only)")
+    dist_model = str(y.get("distortion_model", "radial-tangential"))
+    dist = (
+        yaml_vector(y, "distortion_coefficients", ypath, 4)
+        if "distortion_coefficients" in y
+        else np.zeros(4)
+    )
+    res = yaml_vector(y, "resolution", ypath, 2)
+    return CameraCalib(
+        name=folder.name,
+        T_B_C=yaml_T_BS(y, ypath),
+        rate_hz=_rate(y, ypath, t_ns if t_ns is not None else np.zeros(0, np.int64)),
+        resolution=(int(res[0]), int(res[1])),
+        intrinsics=yaml_vector(y, "intrinsics", ypath, 4),
+        distortion_model=dist_model,
+        distortion=dist,
+    )
+
+
+def read_camera(folder: Path) -> tuple[ImageStream, CameraCalib, int]:
+    """Camera folder: (images present on disk, calibration, number of listed-but-absent files)."""
+    path = folder / "data.csv"
+    rows, lines = read_csv_rows(path, 2)
+    t = parse_timestamps(path, rows, lines)
+    data = folder / "data"
+    on_disk = set(os.listdir(data)) if data.is_dir() else set()
+    keep = np.array([r[1] in on_disk for r in rows], dtype=bool)
+    paths = tuple(data / r[1] for r, k in zip(rows, keep, strict=True) if k)
+    stream = ImageStream(t_ns=t[keep], paths=paths, loader=read_grey)
+    return stream, read_camera_calib(folder, t), int((~keep).sum())
+
+
+def read_groundtruth(folder: Path) -> GroundTruth:
+    t, a = _table(folder, 17)
+    return GroundTruth(
+        t_ns=t, p_W_B=a[:, 0:3], q_W_B_wxyz=a[:, 3:7], v_W_B=a[:, 7:10], bg_B=a[:, 10:13],
+        ba_B=a[:, 13:16],
+    )  # fmt: skip
+
+
+def read_gps(folder: Path) -> tuple[GpsStream, GpsCalib]:
+    t, a = _table(folder, 7)
+    ypath = folder / "sensor.yaml"
+    y = read_sensor_yaml(ypath)
+    calib = GpsCalib(
+        p_B_G=yaml_T_BS(y, ypath)[:3, 3].copy(),
+        rate_hz=_rate(y, ypath, t),
+        position_noise_std=yaml_float(y, "position_noise_std", ypath),
+        velocity_noise_std=yaml_float(y, "velocity_noise_std", ypath),
+    )
+    return GpsStream(t_ns=t, p_W_G=a[:, 0:3], v_W_G=a[:, 3:6]), calib
+
+
+def read_mag(folder: Path) -> tuple[MagStream, MagCalib]:
+    t, a = _table(folder, 4)
+    ypath = folder / "sensor.yaml"
+    y = read_sensor_yaml(ypath)
+    calib = MagCalib(
+        T_B_S=yaml_T_BS(y, ypath),
+        rate_hz=_rate(y, ypath, t),
+        m_W=yaml_vector(y, "reference_field_W", ypath, 3),
+        noise_std=yaml_float(y, "noise_std", ypath),
+    )
+    return MagStream(t_ns=t, m_S=a), calib
+
+
+def read_sonar(folder: Path) -> tuple[SonarStream, SonarCalib]:
+    t, a = _table(folder, 2)
+    ypath = folder / "sensor.yaml"
+    y = read_sensor_yaml(ypath)
+    calib = SonarCalib(
+        T_B_S=yaml_T_BS(y, ypath),
+        rate_hz=_rate(y, ypath, t),
+        noise_std=yaml_float(y, "noise_std", ypath),
+        ground_height=yaml_float(y, "ground_height", ypath, default=0.0),
+    )
+    return SonarStream(t_ns=t, range_m=a[:, 0]), calib
+
+
+def read_features(folder: Path) -> FeatureStream:
+    """``features0``: rows share a frame's timestamp, so times need only be non-decreasing."""
+    path = folder / "data.csv"
+    rows, lines = read_csv_rows(path, 6)
+    t = parse_timestamps(path, rows, lines, strict=False)
+    ids_f = parse_floats(path, rows, lines, slice(1, 2))[:, 0]
+    if np.any(ids_f != np.round(ids_f)):
+        k = lines[int(np.flatnonzero(ids_f != np.round(ids_f))[0])]
+        raise DatasetError(f"{path}:{k}: track_id must be an integer")
+    ids = np.array([int(r[1]) for r in rows], dtype=np.int64)
+    uv = parse_floats(path, rows, lines, slice(2, 6))
+    if t.size > 1:
+        order = np.lexsort((ids, t))
+        dup = np.flatnonzero((np.diff(t[order]) == 0) & (np.diff(ids[order]) == 0))
+        if dup.size:
+            i = int(order[dup[0] + 1])
+            raise DatasetError(
+                f"{path}:{lines[i]}: duplicate observation of track {ids[i]} at {t[i]}"
+            )
+    ypath = folder / "sensor.yaml"
+    y = read_sensor_yaml(ypath) if ypath.is_file() else {}
+    return FeatureStream(
+        t_ns=t,
+        track_id=ids,
+        uv_left=uv[:, 0:2],
+        uv_right=uv[:, 2:4],
+        pixel_noise_std=yaml_float(y, "pixel_noise_std", ypath, default=1.0),
+    )
+
+
+def _read_extras(folder: Path) -> dict[str, object]:
+    """Simulator extras beside the ground truth (kinematics.csv, landmarks.csv, scenario.yaml).
+
+    They are optional diagnostics: a malformed one is skipped with a warning naming the error
+    rather than making the whole data set unreadable.
+    """
+    extras: dict[str, object] = {}
+    kin = folder / "kinematics.csv"
+    lm = folder / "landmarks.csv"
+    try:
+        if kin.is_file():
+            rows, lines = read_csv_rows(kin, 13)
+            t = parse_timestamps(kin, rows, lines)
+            a = parse_floats(kin, rows, lines, slice(1, None))
+            extras["kinematics"] = {
+                "t_ns": t, "omega_B": a[:, 0:3], "alpha_B": a[:, 3:6], "a_W": a[:, 6:9],
+                "f_B": a[:, 9:12],
+            }  # fmt: skip
+        if lm.is_file():
+            rows, lines = read_csv_rows(lm, 4)
+            a = parse_floats(lm, rows, lines, slice(1, None))
+            ids = parse_floats(lm, rows, lines, slice(0, 1))[:, 0].astype(np.int64)
+            extras["landmarks"] = {"id": ids, "p_W_F": a}
+    except DatasetError as exc:
+        log.warning("simulator extra skipped: %s", exc)
+    if (folder / "scenario.yaml").is_file():
+        extras["scenario_path"] = folder / "scenario.yaml"
+    return extras
+
+
+def read_asl(path: Path) -> Dataset:
+    """Read an ASL data set (root folder or its ``mav0``); absent streams stay ``None``."""
+    mav0 = find_mav0(path)
+    if mav0 is None:
+        raise DatasetError(f"{path}: not an ASL data set (no mav0/ or stream folders)")
+    root = mav0.parent if mav0.name == "mav0" else mav0
+    ds = Dataset(root=root, name=root.name)
+    body = mav0 / "body.yaml"
+    if body.is_file():
+        y = read_sensor_yaml(body)
+        if "gravity_W" in y:
+            ds.gravity_W = yaml_vector(y, "gravity_W", body, 3)
+    else:
+        ds.gravity_W = np.array(DEFAULT_GRAVITY_W)
+    if (mav0 / "imu0").is_dir():
+        ds.imu, ds.imu_calib = read_imu(mav0 / "imu0")
+    missing: dict[str, int] = {}
+    for cam, attr in (("cam0", "left"), ("cam1", "right")):
+        if (mav0 / cam).is_dir():
+            stream, calib, n_missing = read_camera(mav0 / cam)
+            setattr(ds, attr, stream)
+            setattr(ds, cam, calib)
+            if n_missing:
+                missing[cam] = n_missing
+    gt = mav0 / "state_groundtruth_estimate0"
+    if gt.is_dir():
+        ds.groundtruth = read_groundtruth(gt)
+        ds.extras.update(_read_extras(gt))
+    if (mav0 / "gps0").is_dir():
+        ds.gps, ds.gps_calib = read_gps(mav0 / "gps0")
+    if (mav0 / "mag0").is_dir():
+        ds.mag, ds.mag_calib = read_mag(mav0 / "mag0")
+    if (mav0 / "sonar0").is_dir():
+        ds.sonar, ds.sonar_calib = read_sonar(mav0 / "sonar0")
+    if (mav0 / "features0").is_dir():
+        ds.features = read_features(mav0 / "features0")
+    ds.missing_images = missing
+    if missing:
+        # One warning for the whole data set: the frames are skipped, the count is kept.
+        detail = ", ".join(f"{k}: {v}" for k, v in missing.items())
+        log.warning(
+            "%s: %d image(s) listed in data.csv but absent on disk, skipped (%s)",
+            root, sum(missing.values()), detail,
+        )  # fmt: skip
+    return ds

@@ -1,0 +1,113 @@
+"""Open any supported data set and walk its streams in time order."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from svains.datasets.asl_reader import find_mav0, read_asl
+from svains.datasets.kitti import is_kitti, read_kitti
+from svains.datasets.types import Dataset
+from svains.errors import DatasetError
+
+# Tie order at equal timestamps: IMU first (a filter propagates up to t before updating at t).
+STREAM_ORDER: tuple[str, ...] = (
+    "imu", "groundtruth", "gps", "mag", "sonar", "left", "right", "features",
+)  # fmt: skip
+
+
+def load_dataset(path: Path | str) -> Dataset:
+    """Read an ASL/EuRoC folder (root or ``mav0/``) or a KITTI odometry folder (auto-detected)."""
+    p = Path(path)
+    if not p.exists():
+        raise DatasetError(f"data set folder not found: {p}")
+    if not p.is_dir():
+        raise DatasetError(f"not a folder: {p}")
+    if find_mav0(p) is not None:
+        return read_asl(p)
+    if is_kitti(p):
+        return read_kitti(p)
+    raise DatasetError(
+        f"{p}: unrecognised data set (expected an ASL mav0/ folder or KITTI calib.txt + image_0/)"
+    )
+
+
+def stream_times(ds: Dataset) -> dict[str, np.ndarray]:
+    """Timestamps (int64 ns) of every present stream, keyed by its ``Dataset`` attribute name.
+
+    ``features`` gives its distinct frame times.
+    """
+    out: dict[str, np.ndarray] = {}
+    for name in STREAM_ORDER:
+        s = getattr(ds, name)
+        if s is None:
+            continue
+        out[name] = s.frame_times() if name == "features" else np.asarray(s.t_ns, np.int64)
+    return out
+
+
+def stereo_pairs(ds: Dataset, tol_ns: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frames present in both cameras: (t_ns (P,), index into ``ds.left``, index into ``ds.right``).
+
+    A left frame is paired with the nearest right frame within ``tol_ns``; ``t_ns`` is the left
+    time. Frames whose partner image is absent are dropped.
+    """
+    if ds.left is None or ds.right is None:
+        raise DatasetError(f"{ds.root}: stereo pairs need both cam0 and cam1 images")
+    tl = np.asarray(ds.left.t_ns, np.int64)
+    tr = np.asarray(ds.right.t_ns, np.int64)
+    if tr.size == 0 or tl.size == 0:
+        e = np.zeros(0, np.int64)
+        return e, e, e
+    j = np.clip(np.searchsorted(tr, tl), 1, max(tr.size - 1, 1))
+    j_lo = np.clip(j - 1, 0, tr.size - 1)
+    j_hi = np.clip(j, 0, tr.size - 1)
+    pick = np.where(np.abs(tr[j_lo] - tl) <= np.abs(tr[j_hi] - tl), j_lo, j_hi)
+    ok = np.abs(tr[pick] - tl) <= tol_ns
+    idx_l = np.flatnonzero(ok).astype(np.int64)
+    idx_r = pick[ok].astype(np.int64)
+    return tl[idx_l], idx_l, idx_r
+
+
+def iter_events(
+    ds: Dataset,
+    streams: Sequence[str] | None = None,
+    t_start_ns: int | None = None,
+    t_end_ns: int | None = None,
+) -> Iterator[tuple[int, str, int]]:
+    """Yield ``(t_ns, stream_name, index)`` of every sample of ``streams`` in time order.
+
+    Names are ``Dataset`` attributes (see ``STREAM_ORDER``); ``index`` indexes that stream (for
+    ``features``: the frame in ``features.frame_times()``). ``None`` means every present stream.
+    The window is ``t_start_ns <= t <= t_end_ns``. Ties follow ``STREAM_ORDER`` (IMU first), then
+    index. The merge order is computed once (int arrays); samples are yielded lazily.
+    """
+    times = stream_times(ds)
+    names = list(times) if streams is None else list(streams)
+    for n in names:
+        if n not in STREAM_ORDER:
+            raise ValueError(f"unknown stream '{n}' (expected one of {', '.join(STREAM_ORDER)})")
+        if n not in times:
+            raise DatasetError(f"{ds.root}: stream '{n}' is not in this data set")
+    t_parts, prio_parts, idx_parts = [], [], []
+    for n in names:
+        t = times[n]
+        sel = np.ones(t.size, bool)
+        if t_start_ns is not None:
+            sel &= t >= t_start_ns
+        if t_end_ns is not None:
+            sel &= t <= t_end_ns
+        idx = np.flatnonzero(sel)
+        t_parts.append(t[idx])
+        idx_parts.append(idx)
+        prio_parts.append(np.full(idx.size, STREAM_ORDER.index(n)))
+    if not t_parts:
+        return
+    t_all = np.concatenate(t_parts)
+    prio = np.concatenate(prio_parts)
+    idx_all = np.concatenate(idx_parts)
+    order = np.lexsort((idx_all, prio, t_all))
+    for k in order.tolist():
+        yield int(t_all[k]), STREAM_ORDER[prio[k]], int(idx_all[k])

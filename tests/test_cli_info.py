@@ -1,0 +1,59 @@
+"""``svains info`` on the real micro EuRoC set, KITTI, and a bad path (typer CliRunner)."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from svains.cli.main import app
+
+runner = CliRunner()
+
+
+def _row(out: str, label: str) -> list[str]:
+    line = next(ln for ln in out.splitlines() if ln.startswith(f"│ {label} "))
+    return [c.strip() for c in line.strip("│").split("│")]
+
+
+def test_info_euroc_micro(euroc_micro: Path, tmp_path: Path) -> None:
+    res = runner.invoke(app, ["info", str(euroc_micro), "--json", str(tmp_path / "i.json")],
+                        env={"COLUMNS": "140"})  # fmt: skip
+    assert res.exit_code == 0, res.output
+    out = res.output
+    assert _row(out, "cam0 (left)")[:2] == ["cam0 (left)", "95"]
+    assert _row(out, "cam1 (right)")[:2] == ["cam1 (right)", "95"]
+    imu = _row(out, "imu0")
+    assert imu[1] == "29120" and imu[2] == "200.00" and imu[4] == "145.595"
+    gt = _row(out, "ground truth")
+    assert gt[1] == "2895" and gt[2] == "20.00"
+    assert "4 image(s) listed without a file, skipped (cam1: 4)" in out
+    assert re.search(r"stereo baseline \(from T_BS of cam0/cam1\): 0\.110\d m", out)
+    assert "fu=458.654 fv=457.296 cu=367.215 cv=248.375" in out
+    summary = json.loads((tmp_path / "i.json").read_text())
+    assert summary["missing_images"] == {"cam1": 4}
+    assert summary["streams"]["imu"]["span_s"] == pytest.approx(145.595, abs=1e-3)
+    assert summary["streams"]["groundtruth"]["rate_hz"] == pytest.approx(20.0, rel=1e-3)
+
+
+def test_info_kitti(kitti_a: Path) -> None:
+    res = runner.invoke(app, ["info", str(kitti_a)], env={"COLUMNS": "140"})
+    assert res.exit_code == 0, res.output
+    assert _row(res.output, "cam0 (left)")[1] == "51"
+    assert "stereo baseline (from T_BS of cam0/cam1): 0.5372 m" in res.output
+    assert "Missing files: none" in res.output
+
+
+def test_info_missing_folder(tmp_path: Path) -> None:
+    res = runner.invoke(app, ["info", str(tmp_path / "nope")])
+    assert res.exit_code == 1
+    assert "data set folder not found" in res.output
+
+
+def test_info_help() -> None:
+    res = runner.invoke(app, ["info", "--help"])
+    assert res.exit_code == 0
+    assert "dataset" in res.output.lower() and "--json" in res.output

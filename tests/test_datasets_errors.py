@@ -1,0 +1,220 @@
+"""Bad input gets a clear, typed error (or one warning for absent images); messages checked."""
+
+from __future__ import annotations
+
+import logging
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from svains.datasets import load_dataset
+from svains.errors import CalibrationError, DatasetError
+from test_datasets_roundtrip import write_full
+
+
+@pytest.fixture
+def ds_dir(tmp_path: Path) -> Path:
+    write_full(tmp_path / "ds")
+    return tmp_path / "ds"
+
+
+def _edit_line(path: Path, line_no: int, new: str) -> None:
+    lines = path.read_text().splitlines()
+    lines[line_no - 1] = new
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_missing_folder(tmp_path: Path) -> None:
+    with pytest.raises(DatasetError, match=r"data set folder not found: .*nowhere"):
+        load_dataset(tmp_path / "nowhere")
+
+
+def test_unrecognised_folder(tmp_path: Path) -> None:
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(DatasetError, match="unrecognised data set"):
+        load_dataset(tmp_path / "empty")
+
+
+@pytest.mark.parametrize(
+    "rel", ["mav0/cam0/data.csv", "mav0/imu0/sensor.yaml", "mav0/gps0/data.csv"]
+)
+def test_missing_file(ds_dir: Path, rel: str) -> None:
+    (ds_dir / rel).unlink()
+    with pytest.raises(DatasetError, match=f"missing file: .*{re.escape(rel)}"):
+        load_dataset(ds_dir)
+
+
+def test_malformed_row_names_file_and_line(ds_dir: Path) -> None:
+    _edit_line(ds_dir / "mav0/imu0/data.csv", 5, "1403715273282142976,0.1,0.2")
+    with pytest.raises(DatasetError, match=r"imu0/data\.csv:5: malformed row, expected 7 fields"):
+        load_dataset(ds_dir)
+
+
+def test_malformed_number_names_file_and_line(ds_dir: Path) -> None:
+    path = ds_dir / "mav0/state_groundtruth_estimate0/data.csv"
+    fields = path.read_text().splitlines()[3].split(",")
+    fields[4] = "abc"
+    _edit_line(path, 4, ",".join(fields))
+    with pytest.raises(DatasetError, match=r"estimate0/data\.csv:4: malformed number 'abc'"):
+        load_dataset(ds_dir)
+
+
+def test_malformed_timestamp(ds_dir: Path) -> None:
+    path = ds_dir / "mav0/sonar0/data.csv"
+    _edit_line(path, 2, "12.5e9,1.0")
+    with pytest.raises(DatasetError, match=r"sonar0/data\.csv:2: malformed timestamp '12.5e9'"):
+        load_dataset(ds_dir)
+
+
+def test_duplicate_timestamp(ds_dir: Path) -> None:
+    path = ds_dir / "mav0/imu0/data.csv"
+    lines = path.read_text().splitlines()
+    lines[3] = lines[2]
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DatasetError, match=r"imu0/data\.csv:4: duplicate timestamp"):
+        load_dataset(ds_dir)
+
+
+def test_non_increasing_timestamp(ds_dir: Path) -> None:
+    path = ds_dir / "mav0/mag0/data.csv"
+    lines = path.read_text().splitlines()
+    lines[3], lines[4] = lines[4], lines[3]
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DatasetError, match=r"mag0/data\.csv:5: non-increasing timestamp"):
+        load_dataset(ds_dir)
+
+
+def test_nan_value(ds_dir: Path) -> None:
+    path = ds_dir / "mav0/imu0/data.csv"
+    fields = path.read_text().splitlines()[2].split(",")
+    fields[3] = "nan"
+    _edit_line(path, 3, ",".join(fields))
+    with pytest.raises(DatasetError, match=r"imu0/data\.csv:3: NaN or infinite value"):
+        load_dataset(ds_dir)
+
+
+def test_duplicate_feature_observation(ds_dir: Path) -> None:
+    path = ds_dir / "mav0/features0/data.csv"
+    lines = path.read_text().splitlines()
+    lines[2] = lines[1]
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DatasetError, match=r"features0/data\.csv:3: duplicate observation of trac"):
+        load_dataset(ds_dir)
+
+
+def test_absent_images_warn_once_and_skip(ds_dir: Path, caplog: pytest.LogCaptureFixture) -> None:
+    for cam, k in (("cam0", 0), ("cam0", 2), ("cam1", 1)):
+        sorted((ds_dir / f"mav0/{cam}/data").iterdir())[k].unlink()
+    with caplog.at_level(logging.WARNING):
+        ds = load_dataset(ds_dir)
+    msgs = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert len(msgs) == 1
+    assert "3 image(s) listed in data.csv but absent on disk, skipped (cam0: 2, cam1: 1)" in msgs[0]
+    assert ds.missing_images == {"cam0": 2, "cam1": 1}
+    assert len(ds.left) == 2 and len(ds.right) == 3
+    assert all(p.is_file() for p in ds.left.paths)
+
+
+def test_unreadable_image_names_the_file(ds_dir: Path) -> None:
+    first = sorted((ds_dir / "mav0/cam0/data").iterdir())[0]
+    first.write_bytes(b"not a png at all")
+    ds = load_dataset(ds_dir)  # listing does not decode
+    with pytest.raises(DatasetError, match=f"unreadable image: .*{re.escape(first.name)}"):
+        ds.left.load(0)
+
+
+def test_camera_yaml_without_intrinsics(ds_dir: Path) -> None:
+    path = ds_dir / "mav0/cam1/sensor.yaml"
+    text = "\n".join(ln for ln in path.read_text().splitlines() if not ln.startswith("intrinsics"))
+    path.write_text(text + "\n")
+    with pytest.raises(
+        CalibrationError, match=r"cam1/sensor\.yaml: camera calibration without 'int"
+    ):
+        load_dataset(ds_dir)
+
+
+def test_imu_yaml_missing_noise_field(ds_dir: Path) -> None:
+    path = ds_dir / "mav0/imu0/sensor.yaml"
+    text = "\n".join(ln for ln in path.read_text().splitlines() if "gyroscope_noise" not in ln)
+    path.write_text(text + "\n")
+    with pytest.raises(CalibrationError, match="missing field 'gyroscope_noise_density'"):
+        load_dataset(ds_dir)
+
+
+@pytest.fixture
+def kitti_dir(tmp_path: Path) -> Path:
+    d = tmp_path / "kitti"
+    for sub in ("image_0", "image_1"):
+        (d / sub).mkdir(parents=True)
+    from svains.datasets._image_io import write_grey
+
+    for i in range(3):
+        for sub in ("image_0", "image_1"):
+            write_grey(d / sub / f"{i:06d}.png", np.full((4, 6), i, np.uint8))
+    p0 = "P0: 700 0 300 0 0 700 180 0 0 0 1 0"
+    p1 = "P1: 700 0 300 -350 0 700 180 0 0 0 1 0"
+    (d / "calib.txt").write_text(f"{p0}\n{p1}\n")
+    (d / "times.txt").write_text("0.0\n0.1\n0.2\n")
+    pose = "1 0 0 {x} 0 1 0 0 0 0 1 {z}"
+    (d / "poses.txt").write_text("\n".join(pose.format(x=0, z=i) for i in range(3)) + "\n")
+    return d
+
+
+def test_kitti_minimal(kitti_dir: Path) -> None:
+    ds = load_dataset(kitti_dir)
+    assert ds.cam1.T_B_C[0, 3] == 0.5 and ds.cam0.resolution == (6, 4)
+    np.testing.assert_allclose(ds.groundtruth.v_W_B[:, 2], 10.0)
+
+
+def test_kitti_missing_p1(kitti_dir: Path) -> None:
+    (kitti_dir / "calib.txt").write_text("P0: 700 0 300 0 0 700 180 0 0 0 1 0\n")
+    with pytest.raises(CalibrationError, match="missing projection matrix 'P1:'"):
+        load_dataset(kitti_dir)
+
+
+def test_kitti_missing_calib(kitti_dir: Path) -> None:
+    (kitti_dir / "calib.txt").unlink()
+    with pytest.raises(DatasetError, match=r"missing file: .*calib\.txt"):
+        load_dataset(kitti_dir)
+
+
+def test_kitti_missing_times(kitti_dir: Path) -> None:
+    (kitti_dir / "times.txt").unlink()
+    with pytest.raises(DatasetError, match=r"missing file: .*times\.txt"):
+        load_dataset(kitti_dir)
+
+
+def test_kitti_pose_count_mismatch(kitti_dir: Path) -> None:
+    (kitti_dir / "times.txt").write_text("0.0\n0.1\n0.2\n0.3\n")
+    shutil.copy(kitti_dir / "image_0/000000.png", kitti_dir / "image_0/000003.png")
+    with pytest.raises(DatasetError, match="3 poses for 4 timestamps"):
+        load_dataset(kitti_dir)
+
+
+def test_kitti_nan_pose(kitti_dir: Path) -> None:
+    (kitti_dir / "poses.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 nan\n" * 3)
+    with pytest.raises(DatasetError, match=r"poses\.txt:1: NaN"):
+        load_dataset(kitti_dir)
+
+
+def test_kitti_non_increasing_times(kitti_dir: Path) -> None:
+    (kitti_dir / "times.txt").write_text("0.0\n0.2\n0.2\n")
+    with pytest.raises(DatasetError, match=r"times\.txt:3: non-increasing timestamp"):
+        load_dataset(kitti_dir)
+
+
+def test_malformed_extra_is_skipped_with_warning(
+    ds_dir: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    path = ds_dir / "mav0/state_groundtruth_estimate0/kinematics.csv"
+    _edit_line(path, 3, "123,1.0")
+    with caplog.at_level(logging.WARNING):
+        ds = load_dataset(ds_dir)
+    assert "kinematics" not in ds.extras
+    assert any(
+        "simulator extra skipped" in r.getMessage() and "kinematics.csv:3" in r.getMessage()
+        for r in caplog.records
+    )
