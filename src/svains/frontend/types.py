@@ -19,6 +19,7 @@ class Egomotion:
     """Frame-to-frame camera motion ``T_Ck_Ckm1``: ``p_Ck = R_Ck_Ckm1 p_Ckm1 + p_Ck_Ckm1``.
 
     ``cov`` (6, 6) over (rotation vector of ``R_Ck_Ckm1`` [rad], ``p_Ck_Ckm1`` [m]).
+    The rotation error is local, ``R_Ck_Ckm1 = R̂ Exp(δθ)`` (docs/conventions.md).
     """
 
     R_Ck_Ckm1: F64

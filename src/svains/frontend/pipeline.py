@@ -1,0 +1,317 @@
+"""The stereo front end: raw stereo pairs in, ``StereoTracks`` (tracks + egomotion) out.
+
+Per frame: rectify, build pyramids, track the previous frame's features (KLT, forward-backward),
+match them left to right, estimate egomotion by RANSAC (eqs. 11-12), apply the epipolar check,
+then top up the feature set with new corners for the next frame.
+
+Degenerate frames (missing/dropped, black, saturated, textureless) give a ``StereoTracks`` with no
+features and ``egomotion=None`` and do *not* replace the reference frame, so the next good frame is
+tracked against the last good one.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from svains.datasets.types import CameraCalib
+from svains.frontend.egomotion import RansacOptions, estimate_egomotion
+from svains.frontend.features import DetectorOptions, detect_corners
+from svains.frontend.rectify import StereoRectifier
+from svains.frontend.stereo import StereoMatchOptions, dense_disparity, match_dense, match_sparse
+from svains.frontend.tracking import KltOptions, Pyramid, track_klt
+from svains.frontend.types import Egomotion, StereoTracks
+from svains.geometry.camera import RectifiedStereo
+from svains.geometry.rotation import so3_log
+
+F64 = NDArray[np.float64]
+U8 = NDArray[np.uint8]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class FrontendOptions:
+    """All front-end settings. ``min_texture_std`` grey levels below which a frame is treated as
+    textureless; ``epipolar_final_px`` row tolerance of the final inlier check (both times);
+    ``prior_gate_chi2`` Mahalanobis gate of the estimate against a given motion prior;
+    ``max_translation_m``/``max_rotation_deg`` plausibility limits per frame (None: no limit);
+    ``max_hold_frames`` consecutive rejected frames (motion contradicting the prior, implausible)
+    for which the reference frame is kept before the front end re-initialises on the new view;
+    ``predict_tracks`` starts KLT where the last motion (or the prior) predicts each feature."""
+
+    detector: DetectorOptions = field(default_factory=DetectorOptions)
+    klt: KltOptions = field(default_factory=KltOptions)
+    stereo: StereoMatchOptions = field(default_factory=StereoMatchOptions)
+    ransac: RansacOptions = field(default_factory=RansacOptions)
+    min_texture_std: float = 3.0
+    epipolar_final_px: float = 1.0
+    prior_gate_chi2: float = 50.0
+    max_translation_m: float | None = None
+    max_rotation_deg: float | None = None
+    max_hold_frames: int = 3
+    predict_tracks: bool = True
+
+
+_HOLD_STATUSES = ("contradicts_prior", "implausible")
+
+
+@dataclass
+class FrameStats:
+    """Counts and per-stage timings (ms) of the last processed frame."""
+
+    t_ns: int = 0
+    status: str = ""
+    tracked: int = 0
+    new: int = 0
+    inliers: int = 0
+    outliers: int = 0
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class _Reference:
+    """Features of the last good frame (N of them)."""
+
+    t_ns: int
+    left: Pyramid
+    right: Pyramid
+    track_id: NDArray[np.int64]
+    uv_left: F64
+    uv_right: F64
+    p_C_F: F64  # (N, 3) m, triangulated
+
+
+def _as_grey(img: object, shape: tuple[int, int] | None) -> U8 | None:
+    """uint8 (H, W) image, or None for a missing/malformed/wrong-size image."""
+    if img is None:
+        return None
+    a = np.asarray(img)
+    if a.ndim == 3 and a.shape[2] in (3, 4):
+        code = cv2.COLOR_BGR2GRAY if a.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+        a = cv2.cvtColor(np.clip(a, 0, 255).astype(np.uint8), code)
+    if a.ndim != 2 or a.size == 0:
+        return None
+    if shape is not None and a.shape != shape:
+        return None
+    if a.dtype != np.uint8:
+        if np.issubdtype(a.dtype, np.floating) and not np.all(np.isfinite(a)):
+            return None
+        a = np.clip(a, 0, 255).astype(np.uint8)
+    return np.ascontiguousarray(a)
+
+
+class StereoFrontend:
+    """Stateful stereo front end; ``process`` one raw stereo pair per call."""
+
+    def __init__(self, rectifier: StereoRectifier, options: FrontendOptions | None = None) -> None:
+        self.rectifier = rectifier
+        self.rig: RectifiedStereo = rectifier.rig
+        self.options = options or FrontendOptions()
+        self.stats = FrameStats()
+        self._ref: _Reference | None = None
+        self._next_id = 0
+        self._last_motion: Egomotion | None = None
+        self._held = 0
+        self._rng = np.random.default_rng(self.options.ransac.seed)
+        self.last_rectified: tuple[U8, U8] | None = None
+
+    @classmethod
+    def from_calibration(
+        cls, cam0: CameraCalib, cam1: CameraCalib, options: FrontendOptions | None = None
+    ) -> StereoFrontend:
+        """Front end for a raw calibrated pair (rectified internally)."""
+        return cls(StereoRectifier.from_calibration(cam0, cam1), options)
+
+    @classmethod
+    def from_rig(
+        cls, rig: RectifiedStereo, options: FrontendOptions | None = None
+    ) -> StereoFrontend:
+        """Front end for images already rectified to ``rig`` (no remapping)."""
+        return cls(StereoRectifier.for_rectified_rig(rig), options)
+
+    # ------------------------------------------------------------------ helpers
+    def _stereo(self, left: Pyramid, right: Pyramid, uv: F64, disp_guess: F64 | None,
+                disparity: F64 | None) -> tuple[F64, NDArray[np.bool_]]:
+        if disparity is not None:
+            return match_dense(disparity, uv, self.options.stereo)
+        return match_sparse(left, right, uv, self.options.stereo, self.options.klt, disp_guess)
+
+    def _empty(self, t_ns: int, status: str) -> StereoTracks:
+        self.stats.status = status
+        t_prev = self._ref.t_ns if self._ref is not None else t_ns
+        z2 = np.zeros((0, 2))
+        return StereoTracks(
+            t_prev_ns=int(t_prev), t_ns=int(t_ns), track_id=np.zeros(0, np.int64),
+            uv_left_prev=z2, uv_right_prev=z2, uv_left=z2, uv_right=z2, p_Ckm1_F=np.zeros((0, 3)),
+            inlier=np.zeros(0, bool), egomotion=None,
+        )
+
+    def _prior_ok(self, ego: Egomotion, prior: Egomotion) -> bool:
+        """Mahalanobis test of the estimate against an external motion prior."""
+        d = np.concatenate([
+            so3_log(prior.R_Ck_Ckm1.T @ ego.R_Ck_Ckm1), ego.p_Ck_Ckm1 - prior.p_Ck_Ckm1
+        ])
+        S = ego.cov + prior.cov
+        try:
+            m2 = float(d @ np.linalg.solve(S, d))
+        except np.linalg.LinAlgError:
+            return False
+        return bool(np.isfinite(m2) and m2 <= self.options.prior_gate_chi2)
+
+    def _plausible(self, ego: Egomotion) -> bool:
+        o = self.options
+        if not (np.all(np.isfinite(ego.R_Ck_Ckm1)) and np.all(np.isfinite(ego.p_Ck_Ckm1))):
+            return False
+        if o.max_translation_m is not None and np.linalg.norm(ego.p_Ck_Ckm1) > o.max_translation_m:
+            return False
+        ang = np.degrees(np.linalg.norm(so3_log(ego.R_Ck_Ckm1)))
+        return o.max_rotation_deg is None or ang <= o.max_rotation_deg
+
+    # ------------------------------------------------------------------ main entry
+    def process(
+        self, t_ns: int, img_left_raw: object, img_right_raw: object,
+        motion_prior: Egomotion | None = None,
+    ) -> StereoTracks | None:
+        """Process one raw stereo pair taken at ``t_ns``.
+
+        Returns ``None`` until a first good frame has been seen; afterwards ``StereoTracks`` of
+        the features seen at the reference frame and now (egomotion ``None`` if no measurement).
+        ``motion_prior`` (e.g. IMU-predicted ``T_Ck_Ckm1`` with covariance) rejects estimates that
+        contradict it (e.g. all features on a moving object). Never raises on bad images.
+        """
+        o = self.options
+        tm: dict[str, float] = {}
+        t0 = time.perf_counter()
+        self.stats = FrameStats(t_ns=int(t_ns), timings_ms=tm)
+        shape = (self.rig.height, self.rig.width)
+        gl, gr = _as_grey(img_left_raw, shape), _as_grey(img_right_raw, shape)
+        if gl is None or gr is None:
+            log.info("frame %d: missing or malformed image", t_ns)
+            self.stats.status = "dropped"
+            return None if self._ref is None else self._empty(t_ns, "dropped")
+        left, right = self.rectifier.rectify_pair(gl, gr)
+        self.last_rectified = (left, right)
+        tm["rectify"] = (time.perf_counter() - t0) * 1e3
+        if float(left.std()) < o.min_texture_std or float(right.std()) < o.min_texture_std:
+            log.info("frame %d: textureless (black, saturated or blank)", t_ns)
+            self.stats.status = "textureless"
+            return None if self._ref is None else self._empty(t_ns, "textureless")
+
+        t1 = time.perf_counter()
+        pl, pr = Pyramid(left, o.klt), Pyramid(right, o.klt)
+        disparity = None
+        if o.stereo.method != "sparse":
+            disparity = dense_disparity(left, right, o.stereo)
+        tm["pyramid"] = (time.perf_counter() - t1) * 1e3 if disparity is None else 0.0
+        if disparity is not None:
+            tm["dense"] = (time.perf_counter() - t1) * 1e3
+
+        ref = self._ref
+        result: StereoTracks | None = None
+        keep_id = np.zeros(0, np.int64)
+        keep_l, keep_r = np.zeros((0, 2)), np.zeros((0, 2))
+        if ref is not None:
+            result, keep_id, keep_l, keep_r = self._track(
+                t_ns, ref, pl, pr, disparity, motion_prior, tm
+            )
+            if self.stats.status in _HOLD_STATUSES and self._held < o.max_hold_frames:
+                # Probably a transient (object filling the view): keep tracking from the last
+                # trusted frame rather than adopting this one as the reference.
+                self._held += 1
+                tm["total"] = (time.perf_counter() - t0) * 1e3
+                return result
+        self._held = 0
+
+        # Top up features for the next frame.
+        t4 = time.perf_counter()
+        new_l = detect_corners(left, keep_l, o.detector)
+        tm["detect"] = (time.perf_counter() - t4) * 1e3
+        t5 = time.perf_counter()
+        new_r, ok = self._stereo(pl, pr, new_l, None, disparity)
+        tm["stereo_new"] = (time.perf_counter() - t5) * 1e3
+        new_l, new_r = new_l[ok], new_r[ok]
+        ids = np.arange(self._next_id, self._next_id + new_l.shape[0], dtype=np.int64)
+        self._next_id += new_l.shape[0]
+        self.stats.new = int(new_l.shape[0])
+        uv_l = np.concatenate([keep_l, new_l])
+        uv_r = np.concatenate([keep_r, new_r])
+        self._ref = _Reference(
+            t_ns=int(t_ns), left=pl, right=pr, track_id=np.concatenate([keep_id, ids]),
+            uv_left=uv_l, uv_right=uv_r, p_C_F=self.rig.triangulate(uv_l, uv_r),
+        )
+        tm["total"] = (time.perf_counter() - t0) * 1e3
+        if result is None:
+            self.stats.status = "first"
+        return result
+
+    def _track(
+        self, t_ns: int, ref: _Reference, pl: Pyramid, pr: Pyramid, disparity: F64 | None,
+        motion_prior: Egomotion | None, tm: dict[str, float],
+    ) -> tuple[StereoTracks, NDArray[np.int64], F64, F64]:
+        """Track the reference features into this frame and estimate egomotion."""
+        o = self.options
+        t2 = time.perf_counter()
+        guess = None
+        disp_prev = ref.uv_left[:, 0] - ref.uv_right[:, 0]
+        predict = motion_prior or self._last_motion
+        if predict is not None and ref.p_C_F.shape[0] and o.predict_tracks:
+            # Constant-velocity (or prior) prediction of where features land: helps large flows.
+            q = ref.p_C_F @ predict.R_Ck_Ckm1.T + predict.p_Ck_Ckm1
+            uv_pred = self.rig.project(q)
+            good = np.isfinite(uv_pred).all(1) & (q[:, 2] > 0.1) & self.rig.in_image(uv_pred)
+            guess = np.where(good[:, None], uv_pred, ref.uv_left)
+            # Predicted disparity seeds the left-right match (it grows as the camera approaches).
+            with np.errstate(divide="ignore", invalid="ignore"):
+                d_pred = self.rig.f * self.rig.baseline / q[:, 2]
+            disp_prev = np.where(good & np.isfinite(d_pred), d_pred, disp_prev)
+        uv_l, ok_t = track_klt(ref.left, pl, ref.uv_left, o.klt, guess=guess)
+        tm["track"] = (time.perf_counter() - t2) * 1e3
+        t3 = time.perf_counter()
+        uv_r = np.zeros_like(uv_l)
+        ok_s = np.zeros(uv_l.shape[0], dtype=bool)
+        if ok_t.any():
+            uv_r[ok_t], ok_s[ok_t] = self._stereo(pl, pr, uv_l[ok_t], disp_prev[ok_t], disparity)
+        tm["stereo"] = (time.perf_counter() - t3) * 1e3
+        sel = ok_t & ok_s & np.isfinite(ref.p_C_F).all(1)
+        self.stats.tracked = int(sel.sum())
+        p_prev = ref.p_C_F[sel]
+        uvl, uvr = uv_l[sel], uv_r[sel]
+        t6 = time.perf_counter()
+        prior = motion_prior or self._last_motion
+        res = estimate_egomotion(
+            p_prev, uvl, uvr, self.rig, o.ransac, p_cur=self.rig.triangulate(uvl, uvr),
+            prior=prior, rng=self._rng,
+        )
+        tm["ransac"] = (time.perf_counter() - t6) * 1e3
+        epi = (np.abs(uvl[:, 1] - uvr[:, 1]) <= o.epipolar_final_px) & (
+            np.abs(ref.uv_left[sel, 1] - ref.uv_right[sel, 1]) <= o.epipolar_final_px
+        )
+        inlier = res.inlier & epi
+        ego = res.egomotion
+        status = "ok"
+        if ego is None or inlier.sum() < o.ransac.min_inliers:
+            ego, status = None, "no_consensus"
+        elif not self._plausible(ego):
+            ego, status = None, "implausible"
+        elif motion_prior is not None and not self._prior_ok(ego, motion_prior):
+            ego, status = None, "contradicts_prior"
+        if ego is None:
+            inlier = np.zeros_like(inlier)
+        self._last_motion = ego
+        self.stats.status = status
+        self.stats.inliers = int(inlier.sum())
+        self.stats.outliers = int(inlier.size - inlier.sum())
+        tracks = StereoTracks(
+            t_prev_ns=int(ref.t_ns), t_ns=int(t_ns), track_id=ref.track_id[sel].copy(),
+            uv_left_prev=ref.uv_left[sel].copy(), uv_right_prev=ref.uv_right[sel].copy(),
+            uv_left=uvl, uv_right=uvr, p_Ckm1_F=p_prev, inlier=inlier, egomotion=ego,
+        )
+        # Carry forward: RANSAC outliers are dropped only when the motion was trusted.
+        keep = inlier if ego is not None else np.ones(inlier.size, dtype=bool)
+        return tracks, ref.track_id[sel][keep], uvl[keep], uvr[keep]

@@ -1,0 +1,170 @@
+"""Stereo rectification: two raw calibrated cameras -> one ideal pinhole pair (``RectifiedStereo``).
+
+OpenCV's ``stereoRectify`` rotates both cameras about their optical centres so that epipolar lines
+become image rows (zero-disparity flag: both principal points equal). ``R1`` maps raw left-camera
+components to rectified ones, ``p_Crect = R1 p_C0``, so the rectified left camera sits on the body
+with ``R_B_Crect = R_B_C0 R1^T`` and the same optical centre ``p_B_C0``.
+
+Already-rectified input (KITTI, the simulator: no distortion, equal intrinsics and orientation,
+baseline along x) is recognised and passed through untouched, so pixels stay exact.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from svains.datasets.types import CameraCalib
+from svains.errors import CalibrationError
+from svains.geometry.camera import RectifiedStereo
+
+F64 = NDArray[np.float64]
+U8 = NDArray[np.uint8]
+
+log = logging.getLogger(__name__)
+
+# Tolerances for declaring a pair already rectified (rotation rad, offsets m, pixels).
+_IDENT_ROT_TOL = 1e-9
+_IDENT_OFFSET_TOL = 1e-9
+_IDENT_PIXEL_TOL = 1e-9
+
+
+def _relative_pose(cam0: CameraCalib, cam1: CameraCalib) -> tuple[F64, F64]:
+    """``R_C1_C0`` (3, 3), ``p_C1_C0`` (3,) m: maps left-camera points into the right camera."""
+    T_C1_C0 = np.linalg.inv(np.asarray(cam1.T_B_C, dtype=float)) @ np.asarray(cam0.T_B_C, float)
+    return T_C1_C0[:3, :3], T_C1_C0[:3, 3]
+
+
+def _check_calib(cam: CameraCalib) -> None:
+    if cam.distortion_model not in ("radial-tangential", "radtan", "none", ""):
+        raise CalibrationError(
+            f"{cam.name}: distortion model {cam.distortion_model!r} is not radial-tangential"
+        )
+    if np.asarray(cam.distortion).shape != (4,):
+        raise CalibrationError(f"{cam.name}: expected 4 distortion coefficients (k1, k2, p1, p2)")
+    if np.asarray(cam.T_B_C).shape != (4, 4):
+        raise CalibrationError(f"{cam.name}: T_B_C must be 4x4")
+
+
+def is_already_rectified(cam0: CameraCalib, cam1: CameraCalib) -> bool:
+    """True if the pair needs no rectification: no distortion, same K and orientation, and the
+    right camera offset purely along the left camera's +x axis."""
+    R_C1_C0, p_C1_C0 = _relative_pose(cam0, cam1)
+    return bool(
+        np.allclose(cam0.distortion, 0.0, atol=0.0)
+        and np.allclose(cam1.distortion, 0.0, atol=0.0)
+        and np.allclose(cam0.K, cam1.K, atol=_IDENT_PIXEL_TOL, rtol=0.0)
+        and abs(cam0.intrinsics[0] - cam0.intrinsics[1]) <= _IDENT_PIXEL_TOL
+        and np.allclose(R_C1_C0, np.eye(3), atol=_IDENT_ROT_TOL, rtol=0.0)
+        and np.allclose(p_C1_C0[1:], 0.0, atol=_IDENT_OFFSET_TOL)
+        # Right camera at +b along x of the left one: a left point at x maps to x - b.
+        and p_C1_C0[0] < 0.0
+        and tuple(cam0.resolution) == tuple(cam1.resolution)
+    )
+
+
+@dataclass(frozen=True)
+class StereoRectifier:
+    """Rectification of one stereo rig: the ideal pair ``rig`` plus the OpenCV maps.
+
+    ``R1``/``R2`` (3, 3) rotate raw camera components into rectified ones; ``maps_*`` are the
+    ``cv2.remap`` fixed-point maps; ``identity`` means input images are already rectified.
+    """
+
+    rig: RectifiedStereo
+    cam0: CameraCalib | None
+    cam1: CameraCalib | None
+    R1: F64
+    R2: F64
+    P1: F64
+    P2: F64
+    identity: bool
+    maps_left: tuple[NDArray, NDArray] | None
+    maps_right: tuple[NDArray, NDArray] | None
+
+    @classmethod
+    def for_rectified_rig(cls, rig: RectifiedStereo) -> StereoRectifier:
+        """Pass-through rectifier for images already rectified to ``rig`` (e.g. the simulator)."""
+        P1 = np.hstack([rig.K, np.zeros((3, 1))])
+        P2 = P1.copy()
+        P2[0, 3] = -rig.f * rig.baseline
+        return cls(rig, None, None, np.eye(3), np.eye(3), P1, P2, True, None, None)
+
+    @classmethod
+    def from_calibration(
+        cls, cam0: CameraCalib, cam1: CameraCalib, alpha: float = 0.0
+    ) -> StereoRectifier:
+        """Rectify ``cam0`` (left) / ``cam1`` (right). ``alpha`` = 0 keeps only valid pixels
+        (OpenCV's free scaling parameter), 1 keeps every source pixel."""
+        _check_calib(cam0)
+        _check_calib(cam1)
+        w, h = (int(v) for v in cam0.resolution)
+        R_B_C0 = np.asarray(cam0.T_B_C, dtype=float)[:3, :3]
+        p_B_C0 = np.asarray(cam0.T_B_C, dtype=float)[:3, 3].copy()
+        R_C1_C0, p_C1_C0 = _relative_pose(cam0, cam1)
+        if is_already_rectified(cam0, cam1):
+            fu, _, cu, cv = (float(x) for x in cam0.intrinsics)
+            rig = RectifiedStereo(
+                f=fu, cu=cu, cv=cv, baseline=float(-p_C1_C0[0]),
+                R_B_C=R_B_C0.copy(), p_B_C=p_B_C0, width=w, height=h,
+            )
+            P1 = np.hstack([cam0.K, np.zeros((3, 1))])
+            P2 = P1.copy()
+            P2[0, 3] = -fu * rig.baseline
+            return cls(rig, cam0, cam1, np.eye(3), np.eye(3), P1, P2, True, None, None)
+
+        R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(
+            cam0.K, np.asarray(cam0.distortion, float), cam1.K, np.asarray(cam1.distortion, float),
+            (w, h), R_C1_C0, p_C1_C0.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=alpha,
+        )
+        f = float(P1[0, 0])
+        baseline = float(-P2[0, 3] / P2[0, 0])
+        if not np.isfinite(baseline) or baseline <= 0.0:
+            raise CalibrationError(
+                f"stereo rectification gave baseline {baseline}: cam1 must be right of cam0"
+            )
+        rig = RectifiedStereo(
+            f=f, cu=float(P1[0, 2]), cv=float(P1[1, 2]), baseline=baseline,
+            R_B_C=R_B_C0 @ R1.T, p_B_C=p_B_C0, width=w, height=h,
+        )
+        maps_left = cv2.initUndistortRectifyMap(
+            cam0.K, np.asarray(cam0.distortion, float), R1, P1, (w, h), cv2.CV_16SC2
+        )
+        maps_right = cv2.initUndistortRectifyMap(
+            cam1.K, np.asarray(cam1.distortion, float), R2, P2, (w, h), cv2.CV_16SC2
+        )
+        log.debug("rectified: f=%.2f px, b=%.4f m, c=(%.1f, %.1f)", f, baseline, rig.cu, rig.cv)
+        return cls(rig, cam0, cam1, R1, R2, P1, P2, False, maps_left, maps_right)
+
+    def rectify_left(self, img: U8) -> U8:
+        """Rectified left image (same size); identity pairs are returned as they are."""
+        if self.identity or self.maps_left is None:
+            return img
+        return cv2.remap(img, self.maps_left[0], self.maps_left[1], cv2.INTER_LINEAR)
+
+    def rectify_right(self, img: U8) -> U8:
+        """Rectified right image (same size); identity pairs are returned as they are."""
+        if self.identity or self.maps_right is None:
+            return img
+        return cv2.remap(img, self.maps_right[0], self.maps_right[1], cv2.INTER_LINEAR)
+
+    def rectify_pair(self, img_left: U8, img_right: U8) -> tuple[U8, U8]:
+        """Both rectified images (H, W) uint8."""
+        return self.rectify_left(img_left), self.rectify_right(img_right)
+
+    def rectify_points(self, uv_raw: ArrayLike, right: bool = False) -> F64:
+        """Raw (distorted) pixels (N, 2) of the left (or right) camera -> rectified (N, 2) px."""
+        uv = np.asarray(uv_raw, dtype=float).reshape(-1, 2)
+        if self.identity or uv.shape[0] == 0:
+            return uv.copy()
+        cam = self.cam1 if right else self.cam0
+        assert cam is not None  # only identity rectifiers lack calibrations
+        R, P = (self.R2, self.P2) if right else (self.R1, self.P1)
+        out = cv2.undistortPoints(
+            uv.reshape(-1, 1, 2), cam.K, np.asarray(cam.distortion, float), R=R, P=P
+        )
+        return out.reshape(-1, 2).astype(float)

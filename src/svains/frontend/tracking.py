@@ -1,0 +1,100 @@
+"""Pyramidal Lucas-Kanade tracking with a forward-backward consistency check."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+F64 = NDArray[np.float64]
+U8 = NDArray[np.uint8]
+Bool = NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class KltOptions:
+    """KLT settings: window ``win_px`` (odd), ``levels`` pyramid levels above the base,
+    forward-backward error limit ``fb_max_px``, termination ``iterations``/``epsilon``."""
+
+    win_px: int = 21
+    levels: int = 3
+    fb_max_px: float = 0.5
+    iterations: int = 30
+    epsilon: float = 0.01
+
+
+def _pyramid_input_supported() -> bool:
+    """OpenCV 4 takes prebuilt pyramids in ``calcOpticalFlowPyrLK``; OpenCV 5's binding does not."""
+    img = np.zeros((64, 64), np.uint8)
+    try:
+        _, pyr = cv2.buildOpticalFlowPyramid(img, (9, 9), 1, withDerivatives=True)
+        cv2.calcOpticalFlowPyrLK(
+            pyr, pyr, np.zeros((1, 1, 2), np.float32), None, winSize=(9, 9), maxLevel=1
+        )
+    except cv2.error:
+        return False
+    return True
+
+
+_PYRAMIDS = _pyramid_input_supported()
+
+
+class Pyramid:
+    """An image pyramid built once and reused by every KLT call on that image (where the OpenCV
+    binding allows it; otherwise the image itself, and OpenCV builds the pyramid per call)."""
+
+    def __init__(self, img: U8, opts: KltOptions) -> None:
+        self.image = img
+        if _PYRAMIDS:
+            self.levels, self.pyr = cv2.buildOpticalFlowPyramid(
+                img, (opts.win_px, opts.win_px), opts.levels, withDerivatives=True
+            )
+        else:
+            self.levels, self.pyr = opts.levels, img
+
+
+def _lk(
+    src: Pyramid, dst: Pyramid, uv: F64, guess: F64 | None, opts: KltOptions, max_level: int
+) -> tuple[F64, Bool]:
+    """One LK pass ``src`` -> ``dst`` of ``uv`` (N, 2): positions (N, 2) and status (N,)."""
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, opts.iterations, opts.epsilon)
+    p0 = uv.astype(np.float32).reshape(-1, 1, 2)
+    flags = 0
+    p1 = None
+    if guess is not None:
+        p1 = guess.astype(np.float32).reshape(-1, 1, 2).copy()
+        flags = cv2.OPTFLOW_USE_INITIAL_FLOW
+    p1, status, _ = cv2.calcOpticalFlowPyrLK(
+        src.pyr, dst.pyr, p0, p1, winSize=(opts.win_px, opts.win_px),
+        maxLevel=min(src.levels, dst.levels, max_level), criteria=crit, flags=flags,
+    )
+    out = p1.reshape(-1, 2).astype(float)
+    ok = status.reshape(-1).astype(bool) & np.all(np.isfinite(out), axis=1)
+    return out, ok
+
+
+def track_klt(
+    src: Pyramid, dst: Pyramid, uv: F64, opts: KltOptions, guess: F64 | None = None,
+    max_level: int | None = None, fb_check: bool = True,
+) -> tuple[F64, Bool]:
+    """Track ``uv`` (N, 2) px from ``src`` into ``dst``; a point survives if both passes succeed,
+    it stays in the image, and tracking back lands within ``opts.fb_max_px`` of where it started.
+
+    ``fb_check=False`` skips the backward pass (when other checks guard the match).
+    ``max_level`` caps the pyramid levels (a good ``guess`` needs few; coarse levels can jump to
+    another repetition of a periodic texture). Returns tracked pixels (N, 2) and validity (N,).
+    """
+    lv = opts.levels if max_level is None else max_level
+    uv = np.asarray(uv, dtype=float).reshape(-1, 2)
+    if uv.shape[0] == 0:
+        return uv.copy(), np.zeros(0, dtype=bool)
+    fwd, ok_f = _lk(src, dst, uv, guess, opts, lv)
+    h, w = dst.image.shape[:2]
+    inside = (fwd[:, 0] >= 0) & (fwd[:, 1] >= 0) & (fwd[:, 0] <= w - 1) & (fwd[:, 1] <= h - 1)
+    if not fb_check:
+        return fwd, ok_f & inside
+    back, ok_b = _lk(dst, src, fwd, uv, opts, lv)
+    fb = np.linalg.norm(back - uv, axis=1)
+    return fwd, ok_f & ok_b & inside & (fb <= opts.fb_max_px)
