@@ -1,1 +1,15 @@
-"""Sigma-point (unscented) Kalman filter on a manifold; knows nothing of sensors."""
+"""Generic sigma-point (unscented) Kalman filter on a manifold; knows nothing about sensors."""
+
+from svains.filter.manifold import Euclidean, Manifold
+from svains.filter.sigma_points import MerweScaledSigmaPoints, safe_cholesky
+from svains.filter.ukf import UKF, UpdateStats, chi2_gate
+
+__all__ = [
+    "UKF",
+    "Euclidean",
+    "Manifold",
+    "MerweScaledSigmaPoints",
+    "UpdateStats",
+    "chi2_gate",
+    "safe_cholesky",
+]

@@ -142,7 +142,7 @@ class WorldConfig:
     clearance: float = 3.5  # min distance from the path to any object (m)
     moving_object: bool = False
     moving_amplitude: float = 3.0  # m
-    moving_period_s: float = 8.0
+    moving_period_s: float = 12.0
 
 
 @dataclass

@@ -287,7 +287,8 @@ def _scenario_text(scene: Scene) -> str:
             "moving_landmark_ids": [int(moving.min()), int(moving.max())] if len(moving) else [],
             "moving_direction_W": world.moving_direction_W.tolist(),
             "note": "landmarks.csv holds positions at t = 0; moving landmarks are displaced by "
-                    "moving_amplitude * sin(2 pi t / moving_period_s) * moving_direction_W",
+                    "moving_amplitude * asin(0.99 sin(2 pi t / moving_period_s)) / asin(0.99)"
+                    " * moving_direction_W (a near-constant-speed walk)",
         },
         "camera_R_B_C": scene.rig.R_B_C.tolist(),
         "camera_p_B_C": np.asarray(scene.rig.p_B_C).tolist(),

@@ -152,3 +152,42 @@ def band_texture(width_px: int, height_px: int, band_px: int) -> tuple[U8, F64]:
     t = np.arange(height_px)[:, None] // band_px
     img = np.where(t % 2 == 0, 30, 215) * np.ones((1, width_px))
     return img.astype(np.uint8), np.zeros((0, 2))
+
+
+def object_texture(width_px: int, height_px: int, rng: np.random.Generator) -> tuple[U8, F64]:
+    """Moving object's side (vehicle/person-like clutter): randomly sized and placed dark or
+    light panels and thin strokes on a mottled mid-grey, never periodic; their L-corners returned.
+
+    Dart throwing with a 3-texel gap keeps every returned corner a clean L-corner (no other
+    panel inside a 3-texel ring) and random sizes/positions make every neighbourhood different,
+    so a tracker cannot slip onto a look-alike neighbour as it can on a checker.
+    """
+    img = 120.0 + 18.0 * periodic_noise((height_px, width_px), rng, 5)
+    img += rng.normal(0, 3.0, (height_px, width_px))
+    gap = 3
+    busy = np.zeros((height_px + 2 * gap, width_px + 2 * gap), bool)  # padded occupancy
+    rects: list[tuple[int, int, int, int]] = []
+    attempts = max(20, int(6 * width_px * height_px / 18.0**2))
+    for _ in range(attempts):
+        if rng.random() < 0.3:  # text-like stroke: thin bar, either orientation
+            w, h = int(rng.integers(3, 6)), int(rng.integers(10, 24))
+            if rng.random() < 0.5:
+                w, h = h, w
+        else:  # panel / label
+            w, h = int(rng.integers(6, 26)), int(rng.integers(6, 26))
+        if w > width_px - 2 * gap or h > height_px - 2 * gap:
+            continue
+        s0 = int(rng.integers(gap, width_px - gap - w + 1))
+        t0 = int(rng.integers(gap, height_px - gap - h + 1))
+        # padded coordinates: the rectangle's gap-dilated box is [t0, t0 + h + 2 gap)
+        if busy[t0 : t0 + h + 2 * gap, s0 : s0 + w + 2 * gap].any():
+            continue
+        busy[t0 + gap : t0 + h + gap, s0 + gap : s0 + w + gap] = True
+        tone = rng.uniform(15, 60) if rng.random() < 0.5 else rng.uniform(185, 240)
+        img[t0 : t0 + h, s0 : s0 + w] = tone + rng.normal(0, 3.0, (h, w))
+        rects.append((s0, t0, s0 + w, t0 + h))
+    if not rects:
+        return np.clip(img, 0, 255).astype(np.uint8), np.zeros((0, 2))
+    r = np.array(rects, dtype=float)
+    corners = _rect_corners(r[:, 0], r[:, 1], r[:, 2], r[:, 3])
+    return np.clip(img, 0, 255).astype(np.uint8), corners

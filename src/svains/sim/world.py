@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -20,6 +21,7 @@ from svains.sim.textures import (
     band_texture,
     checker_texture,
     ground_texture,
+    object_texture,
     roof_texture,
     wall_texture,
 )
@@ -32,6 +34,8 @@ GROUND_TEXEL_M = 0.01
 GROUND_TILE_PX = 2048
 GROUND_CELL_PX = 110
 _UP = np.array([0.0, 0.0, 1.0])
+MOVING_SHARPNESS = 0.99  # 1 = triangle wave (instant turn), 0 = sine; 0.99 turns in ~2% of a period
+MOVING_DIRECTION_W = np.array([1.0, 0.0, 0.0])
 TextureMaker = Callable[[int, int], tuple[U8, F64]]
 
 
@@ -83,9 +87,37 @@ class World:
     _spheres: tuple[F64, F64] | None = field(default=None, repr=False)
 
     def moving_offset_W(self, t_s: float) -> F64:
-        """Displacement (3,) m of the moving solid at time ``t_s``."""
+        """Displacement (3,) m of the moving solid at time ``t_s``: a walk back and forth.
+
+        ``A asin(k sin(w t)) / asin(k) * direction`` with ``k`` = :data:`MOVING_SHARPNESS`: a
+        triangle wave with rounded turns (smooth, 0 at t = 0, ``A`` at a quarter period), i.e.
+        a nearly constant speed ``≈ 4 A / period`` (walking pace for the defaults) that stops
+        only briefly to turn, unlike a sine, which dawdles near both ends."""
         w = 2 * np.pi / self.moving_period_s
-        return self.moving_amplitude * np.sin(w * t_s) * self.moving_direction_W
+        k = MOVING_SHARPNESS
+        shape = np.arcsin(k * np.sin(w * t_s)) / np.arcsin(k)
+        return self.moving_amplitude * shape * self.moving_direction_W
+
+    def first_hit(self, t_s: float, o_W: F64, d_W: F64) -> tuple[F64, NDArray[np.intp]]:
+        """First surface hit by rays ``o_W + t d_W`` (origin (3,), directions (N, 3)) with the
+        solids placed at time ``t_s``: ray parameter (N,) (inf: sky) and solid index (N,)
+        (-1: ground or sky). With unit-z camera rays, the parameter is the depth."""
+        n, d = self.planes_at(t_s)  # (M, P, 3), (M, P)
+        den = np.einsum("mpk,nk->nmp", n, d_W)
+        num = d[None] - np.einsum("mpk,k->mp", n, o_W)[None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tt = num / den
+        enter = np.where(den < 0, tt, -np.inf).max(axis=2)
+        leave = np.where(den > 0, tt, np.inf).min(axis=2)
+        parallel_out = np.any((den == 0) & (num < 0), axis=2)
+        hit = (enter <= leave) & (leave > 0) & ~parallel_out
+        t_solid = np.where(hit, np.maximum(enter, 0.0), np.inf)
+        best = np.argmin(t_solid, axis=1)
+        t_best = t_solid[np.arange(len(best)), best]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_ground = np.where(d_W[:, 2] < 0, (self.ground_height - o_W[2]) / d_W[:, 2], np.inf)
+        solid = np.where(t_best < t_ground, best, -1)
+        return np.minimum(t_best, t_ground), solid
 
     def landmarks_at(self, t_s: float) -> F64:
         """Landmark positions (N, 3) at time ``t_s`` (moving ones displaced)."""
@@ -195,7 +227,10 @@ def _path_distance(xy: F64, path_xy: F64) -> F64:
 
 def build_world(cfg: WorldConfig, path_xy: F64, seed: int, ground_height: float = 0.0) -> World:
     """Village around the flight path ``path_xy`` (M, 2): houses in a ring outside it, houses,
-    crates and poles inside it, none closer than ``cfg.clearance`` m to the path."""
+    crates and poles inside it, none closer than ``cfg.clearance`` m to the path. With
+    ``cfg.moving_object``, a vehicle-sized box with a non-periodic texture walks back and forth
+    along :data:`MOVING_DIRECTION_W` straight ahead of a flight leg (see :func:`_crossing_spot`),
+    drawn from its own RNG stream so the rest of the village is unchanged."""
     rng = np.random.default_rng(seed)
     lo, hi = path_xy.min(0), path_xy.max(0)
     faces: list[Face] = []
@@ -262,15 +297,14 @@ def build_world(cfg: WorldConfig, path_xy: F64, seed: int, ground_height: float 
         solids.append(_planes_from_faces(roof_faces, [(np.array([0, 0, -1.0]), -(ground_height
                                                                                    + h))]))
 
-    def crate(c: F64, yaw: float, moving: bool = False) -> None:
-        size = (rng.uniform(0.8, 2.0), rng.uniform(0.8, 2.0), rng.uniform(0.8, 2.0))
+    def crate(c: F64, yaw: float, size: tuple[float, float, float] | None = None,
+              tex: TextureMaker | None = None, moving: bool = False) -> None:
+        if size is None:
+            size = (rng.uniform(0.8, 2.0), rng.uniform(0.8, 2.0), rng.uniform(0.8, 2.0))
         corners = _box(c, size, yaw, ground_height)
-        sq = int(rng.integers(10, 16))
-
-        def check(wp: int, hp: int):
-            return checker_texture(wp, hp, rng, sq)
-
-        fs, pts = _add_box(faces, corners, len(solids), check, check, WALL_TEXEL_M)
+        if tex is None:
+            tex = partial(checker_texture, rng=rng, square_px=int(rng.integers(10, 16)))
+        fs, pts = _add_box(faces, corners, len(solids), tex, tex, WALL_TEXEL_M)
         s = _planes_from_faces(fs, [(np.array([0, 0, -1.0]), -ground_height)])
         s.moving = moving
         solids.append(s)
@@ -306,10 +340,34 @@ def build_world(cfg: WorldConfig, path_xy: F64, seed: int, ground_height: float 
             pole(c)
     direction = np.zeros(3)
     if cfg.moving_object:
-        c = sample(True, 1.5 + cfg.moving_amplitude)
+        # own stream: the moving object does not change the rest of the village
+        mrng = np.random.default_rng([seed, 2])
+        # vehicle-sized box, long side along its motion (length, width, height) m
+        size = (mrng.uniform(2.0, 2.6), mrng.uniform(1.0, 1.4), mrng.uniform(1.4, 1.8))
+        half = 0.5 * float(np.hypot(size[0], size[1]))
+        swing = cfg.moving_amplitude * MOVING_DIRECTION_W[:2]
+
+        def fits(c: F64) -> bool:
+            # the object sweeps a capsule: segment c ± swing, radius ``half``
+            a = np.linspace(-1.0, 1.0, 9)[:, None] * swing + c
+            if _path_distance(a, path_xy).min() < cfg.clearance + half:
+                return False
+            return all(np.linalg.norm(a - pc, axis=1).min() > half + pr + 0.3 for pc, pr in placed)
+
+        c = _crossing_spot(path_xy, fits)
+        if c is None:  # no straight stretch looks across the motion: anywhere inside
+            c = sample(True, half + cfg.moving_amplitude)
+        else:
+            placed.append((c, half + cfg.moving_amplitude))
         if c is not None:
-            direction = np.array([1.0, 0.0, 0.0])
-            crate(c, 0.0, moving=True)
+            direction = MOVING_DIRECTION_W.copy()
+
+            def clutter(wp: int, hp: int):
+                # non-periodic: on a checker, KLT slips onto look-alike neighbouring corners
+                return object_texture(wp, hp, mrng)
+
+            yaw = float(np.arctan2(direction[1], direction[0]))  # long side along the motion
+            crate(c, yaw, size, clutter, moving=True)
 
     # own stream: the ground does not change when objects are added or removed
     tex, st = ground_texture(GROUND_TILE_PX, np.random.default_rng([seed, 1]), GROUND_CELL_PX)
@@ -326,6 +384,34 @@ def build_world(cfg: WorldConfig, path_xy: F64, seed: int, ground_height: float 
     world.landmarks_W = np.concatenate([*marks, ground_pts])
     world.landmark_moving = np.concatenate([*moving_mask, np.zeros(len(ground_pts))]) > 0.5
     return world
+
+
+def _crossing_spot(path_xy: F64, fits: Callable[[F64], bool]) -> F64 | None:
+    """Where a walker crosses the view: straight ahead of the first straight stretch of the path
+    (M, 2) that heads across :data:`MOVING_DIRECTION_W`, beyond its end, at the nearest spot
+    ``fits(c)`` accepts (None if there is none). Seen head-on for the whole stretch,
+    the object's motion is then almost perpendicular to the line of sight."""
+    seg = np.diff(path_xy, axis=0)
+    length = np.linalg.norm(seg, axis=1)
+    ok = length > 1e-9
+    tangent = np.zeros_like(seg)
+    tangent[ok] = seg[ok] / length[ok, None]
+    step = float(np.median(length[ok])) if ok.any() else 0.0
+    if step <= 0.0:
+        return None
+    look = max(1, round(10.0 / step))  # straight = same heading 10 m further on
+    j = np.arange(len(tangent) - look)
+    straight = (np.abs(tangent[j] @ MOVING_DIRECTION_W[:2]) < 0.2) & (
+        np.einsum("nk,nk->n", tangent[j], tangent[j + look]) > 0.999)
+    starts = np.nonzero(straight & ~np.r_[False, straight[:-1]])[0]
+    for j in starts:  # one try per straight stretch, in flight order
+        side = np.array([-tangent[j, 1], tangent[j, 0]])
+        for dist in np.arange(10.0, 60.0, 1.0):
+            for lateral in (0.0, 1.5, -1.5, 3.0, -3.0):
+                c = path_xy[j] + dist * tangent[j] + lateral * side
+                if fits(c):
+                    return c
+    return None
 
 
 def _tile_landmarks(st: F64, origin_W: F64, lo: F64, hi: F64) -> F64:

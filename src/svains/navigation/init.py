@@ -1,0 +1,221 @@
+"""Initial state and covariance: from a static IMU interval or from ground truth."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from svains.datasets.types import Dataset
+from svains.errors import InitialisationError
+from svains.geometry.rotation import quat_normalize, rotmat_to_quat
+from svains.models.imu import stencil_consistent_rate
+from svains.models.state import BA, BG, DBA, DBG, DP, DTH, DV, DW, P, Q, StateLayout, V, W
+from svains.navigation.options import InitOptions
+
+F64 = NDArray[np.float64]
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class InitialState:
+    """Filter start: time ``t_ns`` (an IMU sample time), state ``x`` (nx,), covariance ``P``."""
+
+    t_ns: int
+    x: F64
+    P: F64
+    info: dict[str, object] = field(default_factory=dict)
+
+
+def _triad(a_B: F64, b_B: F64, a_W: F64, b_W: F64) -> F64:
+    """``R_W_B`` aligning body vectors with world vectors (a exactly, b in the a-b plane)."""
+
+    def frame(a: F64, b: F64) -> F64:
+        e1 = a / np.linalg.norm(a)
+        e2 = np.cross(a, b)
+        n2 = np.linalg.norm(e2)
+        if n2 < 1e-9:
+            raise InitialisationError("magnetic field is parallel to gravity: no heading")
+        e2 /= n2
+        return np.column_stack([e1, e2, np.cross(e1, e2)])
+
+    return frame(a_W, b_W) @ frame(a_B, b_B).T
+
+
+def _align_up(up_B: F64, up_W: F64) -> F64:
+    """Smallest rotation ``R_W_B`` with ``R_W_B up_B = up_W`` (heading left arbitrary)."""
+    a = up_B / np.linalg.norm(up_B)
+    axis = np.cross(a, up_W)
+    s = np.linalg.norm(axis)
+    c = float(a @ up_W)
+    if s < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    k = axis / s
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + s * K + (1 - c) * (K @ K)
+
+
+def _covariance(layout: StateLayout, stds: list[tuple[slice, object]]) -> F64:
+    P0 = np.zeros((layout.ndx, layout.ndx))
+    for sl, std in stds:
+        if sl.start < layout.ndx:
+            P0[sl, sl] = np.diag(np.broadcast_to(np.asarray(std, dtype=float), (3,)) ** 2)
+    return P0
+
+
+def initialise(
+    dataset: Dataset, layout: StateLayout, options: InitOptions, t_start_ns: int | None = None
+) -> InitialState:
+    """Initial state per ``options.mode``; ``InitialisationError`` when the data cannot give one.
+
+    ``t_start_ns`` (ground-truth mode only): start at the first IMU sample at or after it instead
+    of at the start of the ground truth.
+    """
+    if dataset.imu is None or len(dataset.imu.t_ns) < 3:
+        raise InitialisationError(f"{dataset.name}: no IMU stream (at least 3 samples needed)")
+    if options.mode == "groundtruth":
+        return _from_groundtruth(dataset, layout, options, t_start_ns)
+    if options.mode == "static":
+        return _from_static(dataset, layout, options)
+    raise InitialisationError(f"unknown init mode {options.mode!r} (static|groundtruth)")
+
+
+def _imu_R_B_S(dataset: Dataset) -> F64:
+    return np.eye(3) if dataset.imu_calib is None else dataset.imu_calib.T_B_S[:3, :3]
+
+
+def _from_static(dataset: Dataset, layout: StateLayout, o: InitOptions) -> InitialState:
+    imu = dataset.imu
+    assert imu is not None
+    # Start at the third sample so the stencil of eq. 3 has its history.
+    t0 = int(imu.t_ns[2])
+    sel = imu.t_ns - int(imu.t_ns[0]) <= int(o.static_s * 1e9)
+    if sel.sum() < 10:
+        raise InitialisationError(
+            f"static interval of {o.static_s} s holds {int(sel.sum())} IMU samples (need >= 10)"
+        )
+    R_B_S = _imu_R_B_S(dataset)
+    gyro = imu.gyro_B[sel] @ R_B_S.T
+    acc = imu.accel_B[sel] @ R_B_S.T
+    dt_s = max(1e-9, float(np.median(np.diff(imu.t_ns[sel]))) * 1e-9)
+    n_block = max(1, round(o.block_s / dt_s))
+    n_use = (len(acc) // n_block) * n_block
+    if n_use < 2 * n_block:
+        raise InitialisationError(f"static interval of {o.static_s} s is shorter than two blocks")
+    acc_blocks = acc[:n_use].reshape(-1, n_block, 3).mean(axis=1)
+    gyro_blocks = gyro[:n_use].reshape(-1, n_block, 3).mean(axis=1)
+    acc_dev = float(np.abs(acc_blocks - acc_blocks.mean(axis=0)).max())
+    gyro_dev = float(np.abs(gyro_blocks - gyro_blocks.mean(axis=0)).max())
+    if acc_dev > o.max_accel_dev or gyro_dev > o.max_gyro_dev:
+        raise InitialisationError(
+            f"IMU is not static during the first {o.static_s} s: {o.block_s} s block means "
+            f"deviate by up to {acc_dev:.3f} m/s² (max {o.max_accel_dev}) and {gyro_dev:.4f} "
+            f"rad/s (max {o.max_gyro_dev}); use --init groundtruth or a data set with a "
+            "static start"
+        )
+    f_B = acc.mean(axis=0)
+    bg = gyro.mean(axis=0)
+    g_W = np.asarray(dataset.gravity_W, dtype=float)
+    up_W = -g_W / np.linalg.norm(g_W)
+    info: dict[str, object] = {
+        "mode": "static",
+        "static_samples": int(sel.sum()),
+        "accel_block_dev": acc_dev,
+        "gyro_block_dev": gyro_dev,
+    }
+    yaw_std = o.yaw_std_unknown
+    mag_sel = None
+    if dataset.mag is not None and dataset.mag_calib is not None:
+        mag_sel = dataset.mag.t_ns - t0 <= int(o.static_s * 1e9)
+    if mag_sel is not None and mag_sel.any():
+        assert dataset.mag is not None and dataset.mag_calib is not None
+        m_B = dataset.mag_calib.T_B_S[:3, :3] @ dataset.mag.m_S[mag_sel].mean(axis=0)
+        R_W_B = _triad(f_B, m_B, up_W, np.asarray(dataset.mag_calib.m_W, dtype=float))
+        yaw_std = o.yaw_std
+        info["heading"] = "magnetometer"
+    else:
+        R_W_B = _align_up(f_B, up_W)
+        info["heading"] = "none (arbitrary yaw)"
+        log.warning("no magnetometer in the static interval: heading starts arbitrary")
+    x = np.zeros(layout.nx)
+    x[Q] = quat_normalize(rotmat_to_quat(R_W_B))
+    if dataset.gps is not None and dataset.gps_calib is not None and len(dataset.gps.t_ns):
+        x[P] = dataset.gps.p_W_G[0] - R_W_B @ dataset.gps_calib.p_B_G
+        info["position"] = "first GPS fix"
+    if layout.biased:
+        x[BG] = bg
+        info["gyro_bias_B"] = bg.tolist()
+    # Static: the true rate is zero. The paper model's ω follows the gyro's changes from ω_0;
+    # starting it at the stencil-consistent gyro value minus the bias keeps it offset-free.
+    k0 = min(2, len(gyro) - 1)
+    x[W] = 0.0 if layout.biased else stencil_consistent_rate(gyro, k0) - bg
+    P0 = _covariance(
+        layout,
+        [
+            (DP, o.position_std),
+            (DV, o.velocity_std),
+            (DTH, np.array([o.roll_pitch_std, o.roll_pitch_std, yaw_std])),
+            (DW, o.omega_std),
+            (DBG, o.gyro_bias_std),
+            (DBA, o.accel_bias_std),
+        ],
+    )
+    # The attitude std above is (roll, pitch, yaw) about world axes: rotate it to body axes.
+    P0[DTH, DTH] = R_W_B.T @ P0[DTH, DTH] @ R_W_B if _is_z_vertical(up_W) else P0[DTH, DTH]
+    return InitialState(t0, x, P0, info)
+
+
+def _is_z_vertical(up_W: F64) -> bool:
+    return abs(abs(up_W[2]) - 1.0) < 1e-9
+
+
+def _from_groundtruth(
+    dataset: Dataset, layout: StateLayout, o: InitOptions, t_start_ns: int | None = None
+) -> InitialState:
+    gt = dataset.groundtruth
+    imu = dataset.imu
+    assert imu is not None
+    if gt is None or len(gt.t_ns) == 0:
+        raise InitialisationError(f"{dataset.name}: --init groundtruth needs a ground-truth stream")
+    t_first = int(gt.t_ns[0]) if t_start_ns is None else max(int(gt.t_ns[0]), int(t_start_ns))
+    # At least the third IMU sample, so the stencil of eq. 3 has its history.
+    k = max(2, int(np.searchsorted(imu.t_ns, t_first)))
+    if k >= len(imu.t_ns) - 2 or t_first > gt.t_ns[-1]:
+        raise InitialisationError("no IMU and ground truth overlap after the requested start")
+    t0 = int(imu.t_ns[k])
+    j = int(np.clip(np.searchsorted(gt.t_ns, t0), 1, len(gt.t_ns) - 1))
+    s = float((t0 - gt.t_ns[j - 1]) / max(1, gt.t_ns[j] - gt.t_ns[j - 1]))
+    s = min(max(s, 0.0), 1.0)
+
+    def lerp(a: F64) -> F64:
+        return (1 - s) * a[j - 1] + s * a[j]
+
+    x = np.zeros(layout.nx)
+    x[P] = lerp(gt.p_W_B)
+    x[V] = lerp(gt.v_W_B)
+    q0, q1 = gt.q_W_B_wxyz[j - 1], gt.q_W_B_wxyz[j]
+    x[Q] = quat_normalize((1 - s) * q0 + s * (q1 if q0 @ q1 >= 0 else -q1))
+    R_B_S = _imu_R_B_S(dataset)
+    bg = lerp(gt.bg_B)
+    gyro_B = imu.gyro_B[max(0, k - 2) : k + 1] @ R_B_S.T
+    # Paper model: ω is integrated from the stencil α, so start it offset-free (see
+    # stencil_consistent_rate); the biased model re-reads the gyro at every sample anyway.
+    g_k = gyro_B[-1] if layout.biased else stencil_consistent_rate(gyro_B, len(gyro_B) - 1)
+    x[W] = g_k - bg
+    if layout.biased:
+        x[BG] = bg
+        x[BA] = lerp(gt.ba_B)
+    P0 = _covariance(
+        layout,
+        [
+            (DP, o.gt_position_std),
+            (DV, o.gt_velocity_std),
+            (DTH, o.gt_attitude_std),
+            (DW, o.omega_std),
+            (DBG, o.gt_gyro_bias_std),
+            (DBA, o.gt_accel_bias_std),
+        ],
+    )
+    return InitialState(t0, x, P0, {"mode": "groundtruth"})

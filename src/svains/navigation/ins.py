@@ -1,0 +1,253 @@
+"""The inertial navigation filter: IMU propagation to any time, non-vision measurement updates.
+
+``InsFilter`` owns a ``UKF`` on the navigation manifold. ``propagate_to(t_ns)`` integrates the
+IMU exactly to ``t_ns`` (the IMU input at a time between two samples is linearly interpolated), in
+chunks of at most ``FilterOptions.max_predict_steps`` IMU steps per sigma-point draw.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from functools import partial
+
+import numpy as np
+from numpy.typing import NDArray
+
+from svains.datasets.types import Dataset
+from svains.errors import ConfigError, FilterError
+from svains.filter.sigma_points import MerweScaledSigmaPoints
+from svains.filter.ukf import UKF, UpdateStats
+from svains.models.gps import gps_position, gps_position_velocity
+from svains.models.imu import ImuChunk, ImuModel, ImuNoise, angular_acceleration, process_noise
+from svains.models.magnetometer import magnetic_field
+from svains.models.manifold import NavManifold
+from svains.models.sonar import sonar_range
+from svains.models.state import StateLayout
+from svains.navigation.base import MeasurementBlock
+from svains.navigation.init import InitialState
+from svains.navigation.options import FilterOptions, NoiseOptions
+
+F64 = NDArray[np.float64]
+
+# EuRoC ADIS16448 values, used when a data set has no IMU calibration.
+_DEFAULT_NOISE = ImuNoise(1.6968e-4, 1.9393e-5, 2.0e-3, 3.0e-3)
+
+
+def imu_noise(dataset: Dataset, layout: StateLayout, options: NoiseOptions) -> ImuNoise:
+    """Noise densities: the data set's calibration, overridden and scaled by ``options``."""
+    c = dataset.imu_calib
+    base = (
+        _DEFAULT_NOISE
+        if c is None
+        else ImuNoise(
+            c.gyro_noise_density, c.gyro_random_walk, c.accel_noise_density, c.accel_random_walk
+        )
+    )
+
+    def pick(override: float | None, value: float) -> float:
+        return value if override is None else override
+
+    accel_white = pick(options.accel_noise_density, base.accel_noise_density) * options.white_scale
+    if not layout.biased:
+        accel_white = float(np.hypot(accel_white, options.paper_extra_accel_density))
+    return ImuNoise(
+        pick(options.gyro_noise_density, base.gyro_noise_density) * options.white_scale,
+        pick(options.gyro_random_walk, base.gyro_random_walk) * options.random_walk_scale,
+        accel_white,
+        pick(options.accel_random_walk, base.accel_random_walk) * options.random_walk_scale,
+    )
+
+
+class InsFilter:
+    """UKF + IMU timeline; ``t_ns`` is the time of the current estimate ``ukf.x``, ``ukf.P``."""
+
+    def __init__(
+        self,
+        dataset: Dataset,
+        layout: StateLayout,
+        init: InitialState,
+        filter_options: FilterOptions,
+        noise_options: NoiseOptions,
+    ) -> None:
+        imu = dataset.imu
+        if imu is None:
+            raise ConfigError("InsFilter needs an IMU stream")
+        if filter_options.max_predict_steps < 1:
+            raise ConfigError("max_predict_steps must be >= 1")
+        T_B_S = np.eye(4) if dataset.imu_calib is None else dataset.imu_calib.T_B_S
+        R_B_S = T_B_S[:3, :3]
+        self.layout = layout
+        self.dataset = dataset
+        self.options = filter_options
+        self.t_imu = np.asarray(imu.t_ns, dtype=np.int64)
+        self._t_s = (self.t_imu - self.t_imu[0]) * 1e-9
+        self.gyro_B = imu.gyro_B @ R_B_S.T
+        self.accel_B = imu.accel_B @ R_B_S.T
+        self.alpha_B = angular_acceleration(self._t_s, self.gyro_B)
+        if filter_options.propagation not in ("preintegrated", "exact"):
+            raise ConfigError(f"unknown propagation {filter_options.propagation!r}")
+        self.model = ImuModel(
+            layout,
+            np.asarray(dataset.gravity_W, dtype=float),
+            T_B_S[:3, 3],
+            filter_options.propagation == "preintegrated",
+        )
+        self.noise = imu_noise(dataset, layout, noise_options)
+        self._h_imu = float(np.median(np.diff(self._t_s))) if len(self._t_s) > 1 else 0.005
+        points = MerweScaledSigmaPoints(
+            layout.ndx, filter_options.alpha, filter_options.beta, filter_options.kappa
+        )
+        self.ukf = UKF(NavManifold(layout), points, init.x, init.P)
+        k = int(np.searchsorted(self.t_imu, init.t_ns))
+        if k >= len(self.t_imu) or self.t_imu[k] != init.t_ns:
+            raise ConfigError("the initial time must be an IMU sample time")
+        self.t_ns = int(init.t_ns)
+        self._k_next = k + 1
+        self._u = (self.gyro_B[k], self.accel_B[k], self.alpha_B[k])
+        self._q_cache: dict[int, F64] = {}
+
+    @property
+    def t_end_ns(self) -> int:
+        """Last IMU sample time: the filter cannot propagate beyond it."""
+        return int(self.t_imu[-1])
+
+    def _interp(self, t_ns: int) -> tuple[F64, F64, F64]:
+        k = int(np.searchsorted(self.t_imu, t_ns))
+        if self.t_imu[k] == t_ns:
+            return self.gyro_B[k], self.accel_B[k], self.alpha_B[k]
+        s = (t_ns - self.t_imu[k - 1]) / (self.t_imu[k] - self.t_imu[k - 1])
+        return tuple(  # type: ignore[return-value]
+            (1 - s) * a[k - 1] + s * a[k] for a in (self.gyro_B, self.accel_B, self.alpha_B)
+        )
+
+    def _noise(self, duration_ns: int) -> F64:
+        Q = self._q_cache.get(duration_ns)
+        if Q is None:
+            Q = process_noise(self.layout, self.noise, duration_ns * 1e-9, self._h_imu)
+            if len(self._q_cache) < 64:
+                self._q_cache[duration_ns] = Q
+        return Q
+
+    def propagate_to(self, t_ns: int) -> None:
+        """Predict the state at ``t_ns`` (>= current time, <= last IMU sample)."""
+        t_ns = int(t_ns)
+        if t_ns < self.t_ns:
+            raise FilterError(f"cannot propagate backwards ({t_ns} < {self.t_ns})")
+        if t_ns > self.t_end_ns:
+            raise FilterError(f"{t_ns} ns is after the last IMU sample ({self.t_end_ns} ns)")
+        if t_ns == self.t_ns:
+            return
+        k_end = int(np.searchsorted(self.t_imu, t_ns, side="right"))
+        k_cur = self._k_next - 1
+        if self.t_imu[k_cur] == self.t_ns and self.t_imu[k_end - 1] == t_ns:
+            # Fast path: both ends are IMU samples, the nodes are slices (no copies).
+            self._predict_nodes(
+                self.t_imu[k_cur:k_end],
+                self.gyro_B[k_cur:k_end],
+                self.accel_B[k_cur:k_end],
+                self.alpha_B[k_cur:k_end],
+            )
+            self.t_ns = t_ns
+            self._k_next = k_end
+            self._u = (self.gyro_B[k_end - 1], self.accel_B[k_end - 1], self.alpha_B[k_end - 1])
+            return
+        ks = np.arange(self._k_next, k_end)
+        times = [np.array([self.t_ns]), self.t_imu[ks]]
+        u_end = None
+        if len(ks) == 0 or self.t_imu[ks[-1]] != t_ns:
+            u_end = self._interp(t_ns)
+            times.append(np.array([t_ns]))
+        t_nodes = np.concatenate(times)
+        arrays = []
+        for i, a in enumerate((self.gyro_B, self.accel_B, self.alpha_B)):
+            parts = [self._u[i][None], a[ks]]
+            if u_end is not None:
+                parts.append(u_end[i][None])
+            arrays.append(np.concatenate(parts))
+        self._predict_nodes(t_nodes, *arrays)
+        self.t_ns = t_ns
+        self._k_next = k_end
+        self._u = (arrays[0][-1], arrays[1][-1], arrays[2][-1])
+
+    def _predict_nodes(self, t_nodes: NDArray[np.int64], gyro: F64, accel: F64, alpha: F64) -> None:
+        """UKF predictions over the nodes, at most ``max_predict_steps`` steps per draw."""
+        step = self.options.max_predict_steps
+        n_steps = len(t_nodes) - 1
+        for j0 in range(0, n_steps, step):
+            j1 = min(j0 + step, n_steps) + 1
+            tt = t_nodes[j0:j1]
+            chunk = ImuChunk(np.diff(tt) * 1e-9, gyro[j0:j1], accel[j0:j1], alpha[j0:j1])
+            self.ukf.predict(self.model, chunk, 0.0, self._noise(int(tt[-1] - tt[0])))
+
+    # ---- measurement blocks -------------------------------------------------------------
+    def gps_block(self, i: int, use_velocity: bool = True) -> MeasurementBlock:
+        gps, cal = self.dataset.gps, self.dataset.gps_calib
+        assert gps is not None and cal is not None
+        if use_velocity:
+            z = np.concatenate([gps.p_W_G[i], gps.v_W_G[i]])
+            R = np.r_[np.full(3, cal.position_noise_std**2), np.full(3, cal.velocity_noise_std**2)]
+            return MeasurementBlock("gps", partial(gps_position_velocity, p_B_G=cal.p_B_G), z, R)
+        R = np.full(3, cal.position_noise_std**2)
+        return MeasurementBlock("gps", partial(gps_position, p_B_G=cal.p_B_G), gps.p_W_G[i], R)
+
+    def mag_block(self, i: int) -> MeasurementBlock:
+        mag, cal = self.dataset.mag, self.dataset.mag_calib
+        assert mag is not None and cal is not None
+        h = partial(magnetic_field, m_W=cal.m_W, R_B_S=cal.T_B_S[:3, :3])
+        return MeasurementBlock("mag", h, mag.m_S[i], np.full(3, cal.noise_std**2))
+
+    def sonar_block(self, i: int) -> MeasurementBlock:
+        son, cal = self.dataset.sonar, self.dataset.sonar_calib
+        assert son is not None and cal is not None
+        h = partial(
+            sonar_range, T_B_S=cal.T_B_S, g_W=self.model.g_W, ground_height=cal.ground_height
+        )
+        return MeasurementBlock(
+            "sonar", h, np.array([son.range_m[i]]), np.array([cal.noise_std**2])
+        )
+
+    def apply(
+        self, blocks: Sequence[MeasurementBlock], gate_probability: float | None = None
+    ) -> UpdateStats:
+        """One UKF update with the blocks stacked (one gate on the stacked innovation)."""
+        if len(blocks) == 0:
+            raise ConfigError("apply() needs at least one measurement block")
+        if len(blocks) == 1:
+            b = blocks[0]
+            return self.ukf.update(b.h, b.z, b.R, gate_probability, b.residual, b.name)
+        return self.ukf.update(*stack_blocks(blocks), gate_probability, *_stacked_tail(blocks))
+
+
+def stack_blocks(blocks: Sequence[MeasurementBlock]) -> tuple:
+    """``(h, z, R)`` of the stacked measurement (R diagonal when every block's is)."""
+    sizes = [b.z.size for b in blocks]
+    edges = np.cumsum([0, *sizes])
+    z = np.concatenate([np.ravel(b.z) for b in blocks])
+
+    def h(X: F64) -> F64:
+        return np.concatenate([np.reshape(b.h(X), (X.shape[0], -1)) for b in blocks], axis=1)
+
+    if all(np.ndim(b.R) == 1 for b in blocks):
+        R = np.concatenate([b.R for b in blocks])
+    else:
+        R = np.zeros((edges[-1], edges[-1]))
+        for b, a, e in zip(blocks, edges[:-1], edges[1:], strict=True):
+            R[a:e, a:e] = np.diag(b.R) if np.ndim(b.R) == 1 else b.R
+    return h, z, R
+
+
+def _stacked_tail(blocks: Sequence[MeasurementBlock]) -> tuple:
+    """``(residual, name)`` of the stacked measurement."""
+    name = "+".join(b.name for b in blocks)
+    if all(b.residual is None for b in blocks):
+        return None, name
+    edges = np.cumsum([0, *[b.z.size for b in blocks]])
+
+    def residual(a: F64, b_: F64) -> F64:
+        out = a - b_
+        for blk, s, e in zip(blocks, edges[:-1], edges[1:], strict=True):
+            if blk.residual is not None:
+                out[..., s:e] = blk.residual(a[..., s:e], b_[..., s:e])
+        return out
+
+    return residual, name

@@ -1,0 +1,137 @@
+"""The UKF on a linear-Gaussian model equals the Kalman filter; gating; large measurements."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from svains.errors import ConfigError, FilterError
+from svains.filter import UKF, Euclidean, MerweScaledSigmaPoints, chi2_gate
+
+
+def _linear_problem(seed: int = 0, n: int = 4, nz: int = 2):
+    rng = np.random.default_rng(seed)
+    F = np.eye(n) + 0.1 * rng.normal(size=(n, n))
+    H = rng.normal(size=(nz, n))
+    Q = np.diag(rng.uniform(0.01, 0.1, n))
+    R = np.diag(rng.uniform(0.1, 0.5, nz))
+    x0 = rng.normal(size=n)
+    P0 = np.eye(n) * 0.5
+    return rng, F, H, Q, R, x0, P0
+
+
+def test_ukf_equals_kalman_filter_on_a_linear_model() -> None:
+    rng, F, H, Q, R, x0, P0 = _linear_problem()
+    n = F.shape[0]
+    ukf = UKF(Euclidean(n), MerweScaledSigmaPoints(n, alpha=0.7), x0, P0)
+    x, P = x0.copy(), P0.copy()
+    for _ in range(20):
+        u = rng.normal(size=n)
+        ukf.predict(lambda X, u, dt: X @ F.T + u, u, 0.1, Q)
+        x, P = F @ x + u, F @ P @ F.T + Q
+        z = rng.normal(size=H.shape[0])
+        stats = ukf.update(lambda X: X @ H.T, z, R, name="lin")
+        S = H @ P @ H.T + R
+        K = P @ H.T @ np.linalg.inv(S)
+        r = z - H @ x
+        assert stats.accepted and stats.nis == pytest.approx(r @ np.linalg.solve(S, r), rel=1e-9)
+        x, P = x + K @ r, P - K @ S @ K.T
+        np.testing.assert_allclose(ukf.x, x, rtol=1e-9, atol=1e-10)
+        np.testing.assert_allclose(ukf.P, P, rtol=1e-9, atol=1e-10)
+
+
+def test_woodbury_path_equals_dense_path_for_large_measurements() -> None:
+    rng = np.random.default_rng(3)
+    n, nz = 6, 400  # nz > 2 * (2n + 1): the diagonal-R update takes the Woodbury path
+    A = rng.normal(size=(n, n))
+    P0 = A @ A.T + np.eye(n)
+    x0 = rng.normal(size=n)
+    H = rng.normal(size=(nz, n))
+    z = H @ x0 + rng.normal(size=nz)
+    Rdiag = rng.uniform(0.5, 2.0, nz)
+
+    def h(X: np.ndarray) -> np.ndarray:
+        return np.sin(X) @ H.T  # nonlinear so the sigma-point statistics matter
+
+    a = UKF(Euclidean(n), MerweScaledSigmaPoints(n), x0, P0)
+    b = UKF(Euclidean(n), MerweScaledSigmaPoints(n), x0, P0)
+    sa = a.update(h, z, Rdiag)
+    sb = b.update(h, z, np.diag(Rdiag))  # full R: dense Cholesky path
+    assert sa.nis == pytest.approx(sb.nis, rel=1e-9)
+    np.testing.assert_allclose(a.x, b.x, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(a.P, b.P, rtol=1e-8, atol=1e-12)
+
+
+def test_chi_square_gate_rejects_an_outlier_and_leaves_the_state() -> None:
+    _, F, H, _, R, x0, P0 = _linear_problem(1)
+    n = F.shape[0]
+    ukf = UKF(Euclidean(n), MerweScaledSigmaPoints(n), x0, P0)
+    good = ukf.update(lambda X: X @ H.T, H @ x0 + 0.1, R, gate_probability=0.999, name="g")
+    assert good.accepted and good.gate == pytest.approx(chi2_gate(0.999, 2))
+    x, P = ukf.x.copy(), ukf.P.copy()
+    bad = ukf.update(lambda X: X @ H.T, H @ x0 + 100.0, R, gate_probability=0.999, name="g")
+    assert not bad.accepted and bad.nis > bad.gate
+    np.testing.assert_array_equal(ukf.x, x)
+    np.testing.assert_array_equal(ukf.P, P)
+
+
+def test_residual_function_wraps_angles() -> None:
+    ukf = UKF(Euclidean(1), MerweScaledSigmaPoints(1), np.array([3.1]), np.eye(1) * 0.01)
+
+    def wrap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return (a - b + np.pi) % (2 * np.pi) - np.pi
+
+    # A heading of -3.1 rad is 0.083 rad from 3.1 rad, not 6.2 rad.
+    stats = ukf.update(lambda X: X, np.array([-3.1]), np.array([0.01]), 0.99, wrap)
+    assert stats.accepted
+    assert abs(wrap(ukf.x, np.array([3.1 + 0.0416]))[0]) < 1e-3
+
+
+def test_bad_inputs_raise_clear_errors() -> None:
+    m, sp = Euclidean(2), MerweScaledSigmaPoints(2)
+    with pytest.raises(ConfigError, match="do not match"):
+        UKF(m, sp, np.zeros(3), np.eye(2))
+    with pytest.raises(ConfigError, match="sigma points for n=3"):
+        UKF(m, MerweScaledSigmaPoints(3), np.zeros(2), np.eye(2))
+    with pytest.raises(FilterError, match="initial covariance is not positive definite"):
+        UKF(m, sp, np.zeros(2), np.diag([1.0, -1.0]))
+    ukf = UKF(m, sp, np.zeros(2), np.eye(2))
+    with pytest.raises(ConfigError, match="R has shape"):
+        ukf.update(lambda X: X, np.zeros(2), np.eye(3))
+    with pytest.raises(FilterError, match="non-finite sigma points"):
+        ukf.predict(lambda X, u, dt: X * np.nan, None, 0.1, np.zeros(2))
+    ukf.P = np.diag([1.0, -2.0])
+    with pytest.raises(FilterError, match="sigma-point covariance is not positive definite"):
+        ukf.predict(lambda X, u, dt: X, None, 0.1, np.zeros(2))
+
+
+def test_update_blocks_gates_each_block_and_fuses_the_rest_together() -> None:
+    rng, _, H, _, R, x0, P0 = _linear_problem(2, n=4, nz=2)
+    n = 4
+    H2 = rng.normal(size=(3, n))
+    R2 = np.full(3, 0.2)
+    z1 = H @ x0 + 0.05
+    z2 = H2 @ x0 - 0.05
+
+    def fresh() -> UKF:
+        return UKF(Euclidean(n), MerweScaledSigmaPoints(n), x0, P0)
+
+    a, b = fresh(), fresh()
+    stats = a.update_blocks(
+        [(lambda X: X @ H.T, z1, R, None, "one"), (lambda X: X @ H2.T, z2, R2, None, "two")], 0.999
+    )
+    assert [s.accepted for s in stats] == [True, True]
+    HH = np.vstack([H, H2])
+    b.update(lambda X: X @ HH.T, np.r_[z1, z2], np.diag(np.r_[np.diag(R), R2]))
+    np.testing.assert_allclose(a.x, b.x, atol=1e-12)
+    np.testing.assert_allclose(a.P, b.P, atol=1e-12)
+    # A gross error in block two rejects only block two.
+    c, d = fresh(), fresh()
+    stats = c.update_blocks(
+        [(lambda X: X @ H.T, z1, R, None, "one"), (lambda X: X @ H2.T, z2 + 50, R2, None, "two")],
+        0.999,
+    )
+    assert [s.accepted for s in stats] == [True, False] and stats[1].name == "two"
+    d.update(lambda X: X @ H.T, z1, R)
+    np.testing.assert_allclose(c.x, d.x, atol=1e-12)
+    np.testing.assert_allclose(c.P, d.P, atol=1e-12)

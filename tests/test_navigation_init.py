@@ -1,0 +1,68 @@
+"""Initialisation from a static interval (gravity, gyro mean, magnetometer) or ground truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from _ins_truth import make_dataset, static_dataset
+from svains.datasets.types import ImuStream
+from svains.errors import InitialisationError
+from svains.geometry.rotation import quat_box_minus, quat_to_rotmat
+from svains.models.state import BIASED, PAPER
+from svains.navigation.init import initialise
+from svains.navigation.options import InitOptions
+
+G_W = np.array([0.0, 0.0, -9.81])
+M_W = np.array([0.2, 0.0, -0.4])
+
+
+def test_static_start_recovers_attitude_and_gyro_bias() -> None:
+    ds, q = static_dataset()
+    init = initialise(ds, BIASED, InitOptions())
+    assert init.t_ns == ds.imu.t_ns[2]
+    assert np.degrees(np.linalg.norm(quat_box_minus(init.x[6:10], q))) < 0.5
+    np.testing.assert_allclose(init.x[13:16], [0.01, -0.02, 0.005], atol=3e-3)
+    assert init.info["heading"] == "magnetometer"
+    assert np.all(np.linalg.eigvalsh(init.P) > 0)
+
+
+def test_static_start_without_magnetometer_levels_and_widens_yaw() -> None:
+    ds, q = static_dataset(with_mag=False)
+    init = initialise(ds, PAPER, InitOptions())
+    R = quat_to_rotmat(init.x[6:10])
+    # Gravity direction right, heading arbitrary: the body z axis matches the truth's.
+    np.testing.assert_allclose(R[2], quat_to_rotmat(q)[2], atol=5e-3)
+    assert "arbitrary" in init.info["heading"]
+    up_B = R.T @ [0, 0, 1.0]
+    assert up_B @ init.P[6:9, 6:9] @ up_B == pytest.approx(0.5**2, rel=1e-6)
+
+
+def test_moving_start_is_refused_with_a_clear_message() -> None:
+    ds = make_dataset(5.0)
+    with pytest.raises(InitialisationError, match=r"not static during the first 2\.0 s"):
+        initialise(ds, BIASED, InitOptions())
+
+
+def test_missing_streams_are_refused() -> None:
+    ds, _ = static_dataset()
+    with pytest.raises(InitialisationError, match="needs a ground-truth stream"):
+        initialise(ds, BIASED, InitOptions(mode="groundtruth"))
+    ds.imu = None
+    with pytest.raises(InitialisationError, match="no IMU stream"):
+        initialise(ds, BIASED, InitOptions())
+    ds2, _ = static_dataset()
+    ds2.imu = ImuStream(ds2.imu.t_ns[:5], ds2.imu.gyro_B[:5], ds2.imu.accel_B[:5])
+    with pytest.raises(InitialisationError, match="holds 5 IMU samples"):
+        initialise(ds2, BIASED, InitOptions())
+
+
+def test_groundtruth_start_copies_the_truth() -> None:
+    ds = make_dataset(5.0)
+    init = initialise(ds, BIASED, InitOptions(mode="groundtruth"), t_start_ns=1_234_000_000)
+    k = int(np.searchsorted(ds.imu.t_ns, 1_234_000_000))
+    j = int(np.searchsorted(ds.groundtruth.t_ns, init.t_ns))
+    assert init.t_ns == ds.imu.t_ns[k]
+    np.testing.assert_allclose(init.x[0:3], ds.groundtruth.p_W_B[j], atol=1e-9)
+    np.testing.assert_allclose(init.x[13:16], ds.groundtruth.bg_B[j], atol=1e-12)
+    np.testing.assert_allclose(init.x[10:13], ds.imu.gyro_B[k] - ds.groundtruth.bg_B[j])
