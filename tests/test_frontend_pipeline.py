@@ -153,3 +153,39 @@ def test_kitti_frames_and_black_frame(kitti_a: Path) -> None:
     assert tr2 is not None and tr2.has_motion and tr2.t_prev_ns == 1
     R_true, p_true = relative_motion(T(1), T(2))
     assert np.linalg.norm(tr2.egomotion.p_Ck_Ckm1 - p_true) < 0.03 * np.linalg.norm(p_true)  # type: ignore[union-attr]
+
+
+def test_blocked_corners_are_not_proposed_again_and_keep_no_quota() -> None:
+    from svains.frontend.features import DetectorOptions, detect_corners
+
+    img = _texture(5, (240, 320))
+    opts = DetectorOptions()
+    first = detect_corners(img, np.zeros((0, 2)), opts)
+    blocked = first[::5]
+    again = detect_corners(img, np.zeros((0, 2)), opts, uv_blocked=blocked)
+    d = np.linalg.norm(again[:, None] - blocked[None], axis=2).min(axis=1)
+    assert np.all(d >= opts.min_distance_px)  # neither the corner nor a neighbour comes back
+    # Blocked places do not count as features: the buckets are refilled from other corners.
+    assert again.shape[0] >= 0.9 * first.shape[0]
+
+
+def test_still_camera_searches_new_corners_only_when_tracks_are_lost() -> None:
+    fe = _frontend(redetect_every=4)
+    left, right = _pair(_texture(0))
+    fe.process(0, left, right)
+    assert "detect" in fe.stats.timings_ms and fe.stats.new > 100
+    n0 = fe.stats.new
+    for k in range(1, 4):  # nothing lost: no corner search, the same tracks go on
+        tr = fe.process(k, left, right)
+        assert tr is not None and tr.egomotion is not None
+        assert "detect" not in fe.stats.timings_ms and fe.stats.new == 0
+        assert fe.stats.inliers >= 0.95 * n0
+    fe.process(4, left, right)  # every 4th frame regardless
+    assert "detect" in fe.stats.timings_ms
+    # Half of the view goes blank: many tracks are lost, so corners are sought at once.
+    blank_l, blank_r = left.copy(), right.copy()
+    blank_l[:, 160:] = 128
+    blank_r[:, 150:] = 128
+    fe.process(5, blank_l, blank_r)
+    assert fe.stats.status == "ok" and fe.stats.inliers < 0.7 * n0
+    assert "detect" in fe.stats.timings_ms

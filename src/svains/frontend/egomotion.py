@@ -18,7 +18,6 @@ from numpy.typing import NDArray
 
 from svains.frontend.types import Egomotion
 from svains.geometry.camera import RectifiedStereo
-from svains.geometry.rotation import so3_exp
 
 F64 = NDArray[np.float64]
 Bool = NDArray[np.bool_]
@@ -29,15 +28,17 @@ _MIN_DEPTH_M = 1e-3
 @dataclass(frozen=True)
 class RansacOptions:
     """RANSAC/Gauss-Newton settings: ``iterations`` random triples; ``inlier_px`` limit on the
-    larger of the left and right reprojection errors; ``gn_iterations`` per hypothesis and for the
-    refinement; ``min_inliers`` for a motion measurement; ``seed`` of the sampler;
+    larger of the left and right reprojection errors; ``gn_iterations`` per hypothesis,
+    ``refine_iterations`` (at most, stopping once updates fall below ``refine_tol`` rad/m) for the
+    refinement on all inliers; ``min_inliers`` for a motion measurement; ``seed`` of the sampler;
     ``depth_weighting`` models each point's depth uncertainty at k-1 (stereo matching noise equal
     to the pixel noise in each image) in the refinement and the covariance."""
 
     iterations: int = 50
     inlier_px: float = 1.5
-    gn_iterations: int = 4
+    gn_iterations: int = 2
     refine_iterations: int = 5
+    refine_tol: float = 1e-6
     min_inliers: int = 8
     seed: int = 0
     depth_weighting: bool = True
@@ -57,17 +58,26 @@ def reprojection_residuals(
     R: F64, t: F64, p_prev: F64, uv_left: F64, uv_right: F64, rig: RectifiedStereo
 ) -> tuple[F64, F64]:
     """Residuals (H, M, 4) px (left u, v, right u, v; predicted minus measured) and the moved
-    points (H, M, 3) for motions ``R`` (H, 3, 3), ``t`` (H, 3) and points ``p_prev`` (H, M, 3)."""
-    q = p_prev @ np.swapaxes(R, 1, 2) + t[:, None, :]
+    points (H, M, 3) for motions ``R`` (H, 3, 3), ``t`` (H, 3) and points ``p_prev`` (H, M, 3),
+    or (M, 3) with pixels (M, 2) shared by every motion (then one matrix product moves them all).
+    """
+    h = R.shape[0]
+    if p_prev.ndim == 2:
+        # (M, 3) @ (3, 3H): all hypotheses in one BLAS call instead of H tiny ones.
+        m = p_prev.shape[0]
+        q = (p_prev @ R.transpose(2, 0, 1).reshape(3, 3 * h)).reshape(m, h, 3).transpose(1, 0, 2)
+        q = q + t[:, None, :]
+    else:
+        q = p_prev @ np.swapaxes(R, 1, 2) + t[:, None, :]
     z = q[..., 2]
-    zs = np.where(z > _MIN_DEPTH_M, z, np.nan)
-    ul = rig.f * q[..., 0] / zs + rig.cu
-    vl = rig.f * q[..., 1] / zs + rig.cv
-    ur = rig.f * (q[..., 0] - rig.baseline) / zs + rig.cu
-    r = np.stack(
-        [ul - uv_left[..., 0], vl - uv_left[..., 1], ur - uv_right[..., 0], vl - uv_right[..., 1]],
-        axis=-1,
-    )
+    iz = rig.f / np.where(z > _MIN_DEPTH_M, z, np.nan)
+    vl = q[..., 1] * iz + rig.cv
+    ul = q[..., 0] * iz + rig.cu
+    r = np.empty((*q.shape[:-1], 4))
+    r[..., 0] = ul - uv_left[..., 0]
+    r[..., 1] = vl - uv_left[..., 1]
+    r[..., 2] = ul - rig.baseline * iz - uv_right[..., 0]
+    r[..., 3] = vl - uv_right[..., 1]
     return r, q
 
 
@@ -76,20 +86,31 @@ def _jacobian(q: F64, t: F64, rig: RectifiedStereo) -> F64:
     x, y = q[..., 0], q[..., 1]
     z = np.where(q[..., 2] > _MIN_DEPTH_M, q[..., 2], np.nan)
     fz = rig.f / z
-    # Projection Jacobians d(u, v)/dq, rows: left u, left v, right u, right v (right: x - b).
-    Jp = np.zeros((*q.shape[:-1], 4, 3))
-    Jp[..., 0, 0] = fz
-    Jp[..., 0, 2] = -fz * x / z
-    Jp[..., 1, 1] = fz
-    Jp[..., 1, 2] = -fz * y / z
-    Jp[..., 2, 0] = fz
-    Jp[..., 2, 2] = -fz * (x - rig.baseline) / z
-    Jp[..., 3, :] = Jp[..., 1, :]
-    # q = Exp(δθ) R p + t + δt: dq/dδθ = -[R p]x, so each row a^T maps to (R p) x a; dq/dδt = I.
-    Rp = (q - t[:, None, :])[..., None, :]
-    J = np.empty((*q.shape[:-1], 4, 6))
-    J[..., :3] = np.cross(np.broadcast_to(Rp, Jp.shape), Jp)
-    J[..., 3:] = Jp
+    # Projection Jacobian rows d(u, v)/dq: left u = (fz, 0, c0), left v = right v = (0, fz, c1),
+    # right u = (fz, 0, c2) (right camera: x - b).
+    c0 = -fz * x / z
+    c1 = -fz * y / z
+    c2 = -fz * (x - rig.baseline) / z
+    # q = Exp(δθ) R p + t + δt: dq/dδθ = -[R p]x, so each row a maps to (R p) x a; dq/dδt = I.
+    # The cross products are written out (np.cross on tiny trailing axes is slow).
+    px, py, pz = (q[..., i] - t[:, None, i] for i in range(3))
+    J = np.zeros((*q.shape[:-1], 4, 6))
+    J[..., 0, 0] = py * c0
+    J[..., 0, 1] = pz * fz - px * c0
+    J[..., 0, 2] = -py * fz
+    J[..., 0, 3] = fz
+    J[..., 0, 5] = c0
+    J[..., 1, 0] = py * c1 - pz * fz
+    J[..., 1, 1] = -px * c1
+    J[..., 1, 2] = px * fz
+    J[..., 1, 4] = fz
+    J[..., 1, 5] = c1
+    J[..., 2, 0] = py * c2
+    J[..., 2, 1] = J[..., 0, 1] - px * (c2 - c0)
+    J[..., 2, 2] = J[..., 0, 2]
+    J[..., 2, 3] = fz
+    J[..., 2, 5] = c2
+    J[..., 3, :] = J[..., 1, :]
     return J
 
 
@@ -108,9 +129,11 @@ def _normal_equations(
     """
     r, q = reprojection_residuals(R, t, p_prev, uv_left, uv_right, rig)
     J = _jacobian(q, t, rig)
-    w = np.where(np.isfinite(r).all(-1), weight, 0.0)
-    r = np.where(np.isfinite(r), r, 0.0)
-    J = np.where(np.isfinite(J), J, 0.0)
+    w = weight
+    if not np.isfinite(r).all():  # points behind the camera: no say in the fit
+        w = np.where(np.isfinite(r).all(-1), weight, 0.0)
+        r = np.where(np.isfinite(r), r, 0.0)
+        J = np.where(np.isfinite(J), J, 0.0)
     Jw = (J * w[..., None, None]).reshape(J.shape[0], -1, 6)
     A = np.swapaxes(Jw, 1, 2) @ J.reshape(J.shape[0], -1, 6)
     g = (np.swapaxes(Jw, 1, 2) @ r.reshape(r.shape[0], -1, 1))[..., 0]
@@ -123,21 +146,37 @@ def _normal_equations(
         Ja = np.einsum("hmki,hmk->hmi", J, a)
         ar = (a * r).sum(-1)
         wc = w * c
-        A = A - np.einsum("hm,hmi,hmj->hij", wc, Ja, Ja)
-        g = g - np.einsum("hm,hmi->hi", wc * ar, Ja)
+        A = A - np.swapaxes(Ja * wc[..., None], 1, 2) @ Ja
+        g = g - ((wc * ar)[:, None, :] @ Ja)[:, 0]
         e2 = e2 - c * ar * ar
     return A, g, r, e2
 
 
+def _rodrigues(w: F64) -> F64:
+    """``Exp`` of rotation vectors (H, 3) -> (H, 3, 3), written out for the small batched
+    updates of Gauss-Newton (series coefficients below 1e-4 rad)."""
+    th2 = np.einsum("hi,hi->h", w, w)
+    th = np.sqrt(th2)
+    small = th < 1e-4
+    ths = np.where(small, 1.0, th)
+    a = np.where(small, 1.0 - th2 / 6.0, np.sin(ths) / ths)
+    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
+    K = np.zeros((w.shape[0], 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+    return np.eye(3) + a[:, None, None] * K + b[:, None, None] * (K @ K)
+
+
 def gauss_newton(
     R: F64, t: F64, p_prev: F64, uv_left: F64, uv_right: F64, weight: F64,
-    rig: RectifiedStereo, iterations: int, depth_var_px2: F64 | None = None,
+    rig: RectifiedStereo, iterations: int, depth_var_px2: F64 | None = None, tol: float = 1e-9,
 ) -> tuple[F64, F64]:
     """Batched Gauss-Newton on eq. 12 for H problems at once.
 
     ``R`` (H, 3, 3), ``t`` (H, 3) initial motions; ``p_prev`` (H, M, 3) m; ``uv_left``/``uv_right``
     (H, M, 2) px at k; ``weight`` (H, M) in {0, 1} selects features; optional ``depth_var_px2``
-    (H, M) models depth uncertainty (see ``_normal_equations``). Returns refined ``R``, ``t``.
+    (H, M) models depth uncertainty (see ``_normal_equations``); stops early once every update is
+    below ``tol`` (rad, m). Returns refined ``R``, ``t``.
     """
     R = R.copy()
     t = t.copy()
@@ -150,9 +189,9 @@ def gauss_newton(
         except np.linalg.LinAlgError:
             delta = -(np.linalg.pinv(A) @ g[..., None])[..., 0]
         delta = np.where(np.isfinite(delta), delta, 0.0)
-        R = so3_exp(delta[:, :3]) @ R
+        R = _rodrigues(delta[:, :3]) @ R
         t = t + delta[:, 3:]
-        if np.max(np.abs(delta)) < 1e-9:
+        if np.max(np.abs(delta)) < tol:
             break
     return R, t
 
@@ -177,6 +216,31 @@ def _max_error(r: F64) -> F64:
     r2 = r * r
     e2 = np.maximum(r2[..., 0] + r2[..., 1], r2[..., 2] + r2[..., 3])
     return np.sqrt(np.where(np.isfinite(e2), e2, np.inf))
+
+
+def _score(
+    R: F64, t: F64, p_prev: F64, uv_left: F64, uv_right: F64, rig: RectifiedStereo,
+    inlier_px: float,
+) -> tuple[F64, Bool]:
+    """RANSAC score (H,) and inlier masks (H, M) of motions ``R`` (H, 3, 3), ``t`` (H, 3) on
+    shared features ``p_prev`` (M, 3), pixels (M, 2): the inlier count minus a small penalty
+    growing with the inliers' errors (ties go to the tighter fit). Squared errors avoid a
+    square root per hypothesis and feature; a point behind the camera is never an inlier."""
+    h, m = R.shape[0], p_prev.shape[0]
+    q = (p_prev @ R.transpose(2, 0, 1).reshape(3, 3 * h)).reshape(m, h, 3)
+    q += t[None]
+    z = q[..., 2]
+    iz = rig.f / np.where(z > _MIN_DEPTH_M, z, np.nan)
+    du = q[..., 0] * iz + (rig.cu - uv_left[:, None, 0])
+    dv = q[..., 1] * iz + rig.cv
+    dur = du - rig.baseline * iz + (uv_left[:, None, 0] - uv_right[:, None, 0])
+    dvl = dv - uv_left[:, None, 1]
+    dvr = dv - uv_right[:, None, 1]
+    e2 = np.maximum(du * du + dvl * dvl, dur * dur + dvr * dvr).T  # (H, M), NaN behind camera
+    inl = e2 < inlier_px * inlier_px
+    err_sum = np.sqrt(np.where(inl, e2, 0.0)).sum(axis=1)
+    score = inl.sum(axis=1) - err_sum / (inlier_px * (m + 1))
+    return score, inl
 
 
 def _covariance(
@@ -223,7 +287,8 @@ def estimate_egomotion(
         return nothing
     rng = rng if rng is not None else np.random.default_rng(opts.seed)
     h = opts.iterations
-    triples = idx[np.argsort(rng.random((h, idx.size)), axis=1)[:, :3]]  # (H, 3) distinct
+    # Three distinct features per hypothesis: the 3 smallest of a random key per feature.
+    triples = idx[np.argpartition(rng.random((h, idx.size)), 2, axis=1)[:, :3]]  # (H, 3)
     P3, L3, R3 = p_prev[triples], uv_left[triples], uv_right[triples]
     R0 = np.broadcast_to(np.eye(3), (h, 3, 3)).copy()
     t0 = np.zeros((h, 3))
@@ -248,30 +313,27 @@ def estimate_egomotion(
         # The prior itself also competes unrefined (it may be better than any triple).
         Rh = np.concatenate([Rh, prior.R_Ck_Ckm1[None]])
         th = np.concatenate([th, prior.p_Ck_Ckm1[None]])
-    nh = Rh.shape[0]
-    P = np.broadcast_to(p_prev[idx], (nh, idx.size, 3))
-    L = np.broadcast_to(uv_left[idx], (nh, idx.size, 2))
-    Rr = np.broadcast_to(uv_right[idx], (nh, idx.size, 2))
-    err = _max_error(reprojection_residuals(Rh, th, P, L, Rr, rig)[0])
-    inl = err < opts.inlier_px
-    count = inl.sum(axis=1)
-    score = count - np.where(inl, err, 0.0).sum(axis=1) / (opts.inlier_px * (idx.size + 1))
+    score, inl = _score(Rh, th, p_prev[idx], uv_left[idx], uv_right[idx], rig, opts.inlier_px)
     best = int(np.argmax(score))
-    if count[best] < opts.min_inliers:
+    if inl[best].sum() < opts.min_inliers:
         return nothing
     R, t = Rh[best : best + 1], th[best : best + 1]
     w = inl[best].astype(float)
     # Depth variance / pixel variance of eq. 10: σ_z = z² σ_d / (f b), σ_d² = 2 σ_px².
     zf = p_prev[idx, 2] ** 2 / (rig.f * rig.baseline)
     dvar = 2.0 * zf * zf if opts.depth_weighting else None
-    for _ in range(2):  # refine on inliers, re-select, refine again
+    P1, L1, R1 = p_prev[idx][None], uv_left[idx][None], uv_right[idx][None]
+    for _ in range(2):  # refine on inliers, re-select, refine again (if the selection changed)
         R, t = gauss_newton(
-            R, t, p_prev[idx][None], uv_left[idx][None], uv_right[idx][None], w[None], rig,
-            opts.refine_iterations, None if dvar is None else dvar[None],
+            R, t, P1, L1, R1, w[None], rig, opts.refine_iterations,
+            None if dvar is None else dvar[None], tol=opts.refine_tol,
         )
-        e = _max_error(reprojection_residuals(R, t, p_prev[idx][None], uv_left[idx][None],
-                                              uv_right[idx][None], rig)[0])[0]
-        w = (e < opts.inlier_px).astype(float)
+        e = _max_error(reprojection_residuals(R, t, P1, L1, R1, rig)[0])[0]
+        w_new = (e < opts.inlier_px).astype(float)
+        same = bool(np.array_equal(w_new, w))
+        w = w_new
+        if same:
+            break
     inlier_sub = w > 0
     if inlier_sub.sum() < opts.min_inliers:
         return nothing

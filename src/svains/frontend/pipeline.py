@@ -1,8 +1,12 @@
 """The stereo front end: raw stereo pairs in, ``StereoTracks`` (tracks + egomotion) out.
 
-Per frame: rectify, build pyramids, track the previous frame's features (KLT, forward-backward),
-match them left to right, estimate egomotion by RANSAC (eqs. 11-12), apply the epipolar check,
-then top up the feature set with new corners for the next frame.
+Per frame: track the previous frame's features (KLT, forward-backward), match them left to right,
+estimate egomotion by RANSAC (eqs. 11-12), apply the epipolar check, then top up the feature set
+with new corners once tracks have been lost.
+
+Rigs that need rectification are tracked on the raw images: only feature pixels are rectified
+(and row-search patches resampled), which saves two whole-image remaps per frame; all pixels
+handed out (``StereoTracks``) are rectified. The dense disparity methods rectify whole images.
 
 Degenerate frames (missing/dropped, black, saturated, textureless) give a ``StereoTracks`` with no
 features and ``egomotion=None`` and do *not* replace the reference frame, so the next good frame is
@@ -15,13 +19,13 @@ import logging
 import time
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from svains.datasets.types import CameraCalib
 from svains.frontend.egomotion import RansacOptions, estimate_egomotion
 from svains.frontend.features import DetectorOptions, detect_corners
+from svains.frontend.images import as_grey, texture_std
 from svains.frontend.rectify import StereoRectifier
 from svains.frontend.stereo import StereoMatchOptions, dense_disparity, match_dense, match_sparse
 from svains.frontend.tracking import KltOptions, Pyramid, track_klt
@@ -43,7 +47,14 @@ class FrontendOptions:
     ``max_translation_m``/``max_rotation_deg`` plausibility limits per frame (None: no limit);
     ``max_hold_frames`` consecutive rejected frames (motion contradicting the prior, implausible)
     for which the reference frame is kept before the front end re-initialises on the new view;
-    ``predict_tracks`` starts KLT where the last motion (or the prior) predicts each feature."""
+    ``predict_tracks`` starts KLT where the last motion (or the prior) predicts each feature;
+    ``retry_failed_after`` frames during which a new corner that found no left-right match is
+    not proposed again (edges and occlusions otherwise cost a row search every frame), as long
+    as the image is nearly still (median feature flow below ``retry_max_flow_px``; with larger
+    motion the remembered places no longer mean anything); new corners are sought only once
+    more than ``redetect_lost_fraction`` of the features kept after the last search are lost,
+    or ``redetect_every`` frames after it (a still or slow camera keeps its tracks, and each
+    search costs a detection, a row search and a left-right KLT pass)."""
 
     detector: DetectorOptions = field(default_factory=DetectorOptions)
     klt: KltOptions = field(default_factory=KltOptions)
@@ -56,6 +67,10 @@ class FrontendOptions:
     max_rotation_deg: float | None = None
     max_hold_frames: int = 3
     predict_tracks: bool = True
+    retry_failed_after: int = 3
+    retry_max_flow_px: float = 2.0
+    redetect_lost_fraction: float = 0.05
+    redetect_every: int = 5
 
 
 _HOLD_STATUSES = ("contradicts_prior", "implausible")
@@ -87,25 +102,6 @@ class _Reference:
     p_C_F: F64  # (N, 3) m, triangulated
 
 
-def _as_grey(img: object, shape: tuple[int, int] | None) -> U8 | None:
-    """uint8 (H, W) image, or None for a missing/malformed/wrong-size image."""
-    if img is None:
-        return None
-    a = np.asarray(img)
-    if a.ndim == 3 and a.shape[2] in (3, 4):
-        code = cv2.COLOR_BGR2GRAY if a.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
-        a = cv2.cvtColor(np.clip(a, 0, 255).astype(np.uint8), code)
-    if a.ndim != 2 or a.size == 0:
-        return None
-    if shape is not None and a.shape != shape:
-        return None
-    if a.dtype != np.uint8:
-        if np.issubdtype(a.dtype, np.floating) and not np.all(np.isfinite(a)):
-            return None
-        a = np.clip(a, 0, 255).astype(np.uint8)
-    return np.ascontiguousarray(a)
-
-
 class StereoFrontend:
     """Stateful stereo front end; ``process`` one raw stereo pair per call."""
 
@@ -118,8 +114,34 @@ class StereoFrontend:
         self._next_id = 0
         self._last_motion: Egomotion | None = None
         self._held = 0
+        self._failed: list[F64] = []  # unmatched new corners of the last few frames
+        self._flow_px = 0.0  # median image motion of the features tracked into the last frame
+        self._n_after_detect = 0  # reference features right after the last corner search
+        self._since_detect = 0  # frames since the last corner search
         self._rng = np.random.default_rng(self.options.ransac.seed)
-        self.last_rectified: tuple[U8, U8] | None = None
+        # Sparse matching on a rig that needs rectification tracks on the raw images and
+        # rectifies only the feature pixels (two whole-image remaps per frame saved); the dense
+        # methods need rectified images.
+        raw = not rectifier.identity and self.options.stereo.method == "sparse"
+        self._geo: StereoRectifier | None = rectifier if raw else None
+        self._last_images: tuple[U8, U8] | None = None
+
+    @property
+    def last_rectified(self) -> tuple[U8, U8] | None:
+        """Rectified left and right images (H, W) of the last good frame (for figures)."""
+        if self._last_images is None:
+            return None
+        if self._geo is None:
+            return self._last_images
+        return self.rectifier.rectify_pair(*self._last_images)
+
+    def _to_img(self, uv: F64, right: bool = False) -> F64:
+        """Rectified pixels (N, 2) -> pixels of the tracked images (raw or rectified)."""
+        return uv if self._geo is None else self._geo.unrectify_points(uv, right)
+
+    def _to_rect(self, uv: F64, right: bool = False) -> F64:
+        """Pixels (N, 2) of the tracked images -> rectified pixels."""
+        return uv if self._geo is None else self._geo.rectify_points(uv, right)
 
     @classmethod
     def from_calibration(
@@ -140,7 +162,9 @@ class StereoFrontend:
                 disparity: F64 | None) -> tuple[F64, NDArray[np.bool_]]:
         if disparity is not None:
             return match_dense(disparity, uv, self.options.stereo)
-        return match_sparse(left, right, uv, self.options.stereo, self.options.klt, disp_guess)
+        return match_sparse(
+            left, right, uv, self.options.stereo, self.options.klt, disp_guess, self._geo
+        )
 
     def _empty(self, t_ns: int, status: str) -> StereoTracks:
         self.stats.status = status
@@ -170,8 +194,11 @@ class StereoFrontend:
             return False
         if o.max_translation_m is not None and np.linalg.norm(ego.p_Ck_Ckm1) > o.max_translation_m:
             return False
-        ang = np.degrees(np.linalg.norm(so3_log(ego.R_Ck_Ckm1)))
-        return o.max_rotation_deg is None or ang <= o.max_rotation_deg
+        if o.max_rotation_deg is None:
+            return True
+        # Rotation angle from the trace (no full matrix logarithm needed for a threshold).
+        c = np.clip((np.trace(ego.R_Ck_Ckm1) - 1.0) / 2.0, -1.0, 1.0)
+        return bool(np.degrees(np.arccos(c)) <= o.max_rotation_deg)
 
     # ------------------------------------------------------------------ main entry
     def process(
@@ -190,15 +217,16 @@ class StereoFrontend:
         t0 = time.perf_counter()
         self.stats = FrameStats(t_ns=int(t_ns), timings_ms=tm)
         shape = (self.rig.height, self.rig.width)
-        gl, gr = _as_grey(img_left_raw, shape), _as_grey(img_right_raw, shape)
+        gl, gr = as_grey(img_left_raw, shape), as_grey(img_right_raw, shape)
         if gl is None or gr is None:
             log.info("frame %d: missing or malformed image", t_ns)
             self.stats.status = "dropped"
             return None if self._ref is None else self._empty(t_ns, "dropped")
-        left, right = self.rectifier.rectify_pair(gl, gr)
-        self.last_rectified = (left, right)
+        left, right = (gl, gr) if self._geo is not None else self.rectifier.rectify_pair(gl, gr)
+        self._last_images = (left, right)
         tm["rectify"] = (time.perf_counter() - t0) * 1e3
-        if float(left.std()) < o.min_texture_std or float(right.std()) < o.min_texture_std:
+        # Every 4th pixel in each direction: the spread of grey levels, at 1/16 of the cost.
+        if texture_std(left) < o.min_texture_std or texture_std(right) < o.min_texture_std:
             log.info("frame %d: textureless (black, saturated or blank)", t_ns)
             self.stats.status = "textureless"
             return None if self._ref is None else self._empty(t_ns, "textureless")
@@ -217,8 +245,17 @@ class StereoFrontend:
         keep_id = np.zeros(0, np.int64)
         keep_l, keep_r = np.zeros((0, 2)), np.zeros((0, 2))
         if ref is not None:
-            result, keep_id, keep_l, keep_r = self._track(
-                t_ns, ref, pl, pr, disparity, motion_prior, tm
+            uv_l, ok_t, disp_guess = self._track_temporal(ref, pl, motion_prior, tm)
+            t3 = time.perf_counter()
+            uv_r = np.zeros_like(uv_l)
+            ok_s = np.zeros(uv_l.shape[0], dtype=bool)
+            if ok_t.any():
+                uv_r[ok_t], ok_s[ok_t] = self._stereo(
+                    pl, pr, uv_l[ok_t], disp_guess[ok_t], disparity
+                )
+            tm["stereo"] = (time.perf_counter() - t3) * 1e3
+            result, keep_id, keep_l, keep_r = self._egomotion(
+                t_ns, ref, uv_l, uv_r, ok_t & ok_s, motion_prior, tm
             )
             if self.stats.status in _HOLD_STATUSES and self._held < o.max_hold_frames:
                 # Probably a transient (object filling the view): keep tracking from the last
@@ -228,14 +265,16 @@ class StereoFrontend:
                 return result
         self._held = 0
 
-        # Top up features for the next frame.
-        t4 = time.perf_counter()
-        new_l = detect_corners(left, keep_l, o.detector)
-        tm["detect"] = (time.perf_counter() - t4) * 1e3
-        t5 = time.perf_counter()
-        new_r, ok = self._stereo(pl, pr, new_l, None, disparity)
-        tm["stereo_new"] = (time.perf_counter() - t5) * 1e3
-        new_l, new_r = new_l[ok], new_r[ok]
+        # Top up features for the next frame where tracks were lost (after RANSAC, so that
+        # outliers' places are refilled at once), skipping corners that recently found no match.
+        self._since_detect += 1
+        lost = keep_l.shape[0] < (1.0 - o.redetect_lost_fraction) * self._n_after_detect
+        if ref is None or lost or self._since_detect >= o.redetect_every:
+            new_l, new_r = self._new_features(left, pl, pr, keep_l, disparity, tm)
+            self._n_after_detect = keep_l.shape[0] + new_l.shape[0]
+            self._since_detect = 0
+        else:
+            new_l = new_r = np.zeros((0, 2))
         ids = np.arange(self._next_id, self._next_id + new_l.shape[0], dtype=np.int64)
         self._next_id += new_l.shape[0]
         self.stats.new = int(new_l.shape[0])
@@ -250,36 +289,74 @@ class StereoFrontend:
             self.stats.status = "first"
         return result
 
-    def _track(
-        self, t_ns: int, ref: _Reference, pl: Pyramid, pr: Pyramid, disparity: F64 | None,
-        motion_prior: Egomotion | None, tm: dict[str, float],
-    ) -> tuple[StereoTracks, NDArray[np.int64], F64, F64]:
-        """Track the reference features into this frame and estimate egomotion."""
+    def _new_features(
+        self, left: U8, pl: Pyramid, pr: Pyramid, keep_l: F64, disparity: F64 | None,
+        tm: dict[str, float],
+    ) -> tuple[F64, F64]:
+        """New corners away from the kept features ``keep_l`` (N, 2) rectified px, matched left
+        to right: left and right rectified pixels (M, 2) of those that matched."""
+        o = self.options
+        t4 = time.perf_counter()
+        blocked = np.concatenate([np.zeros((0, 2)), *self._failed])
+        new_l = detect_corners(left, self._to_img(keep_l), o.detector, uv_blocked=blocked)
+        if self._geo is not None:  # corners come from the raw image
+            new_l = self._to_rect(new_l)
+            new_l = new_l[self.rig.in_image(new_l)]
+        tm["detect"] = (time.perf_counter() - t4) * 1e3
+        t5 = time.perf_counter()
+        new_r, ok = self._stereo(pl, pr, new_l, None, disparity)
+        tm["stereo_new"] = (time.perf_counter() - t5) * 1e3
+        if o.retry_failed_after > 0 and self._flow_px <= o.retry_max_flow_px:
+            self._failed = [*self._failed, self._to_img(new_l[~ok])][-o.retry_failed_after :]
+        else:
+            self._failed = []
+        new_l, new_r = new_l[ok], new_r[ok]
+        return new_l, new_r
+
+    def _track_temporal(
+        self, ref: _Reference, pl: Pyramid, motion_prior: Egomotion | None,
+        tm: dict[str, float],
+    ) -> tuple[F64, NDArray[np.bool_], F64]:
+        """Track the reference features into this frame's left image: pixels (N, 2), validity
+        (N,) and the disparity (N,) px expected now (seed of the left-right match)."""
         o = self.options
         t2 = time.perf_counter()
         guess = None
         disp_prev = ref.uv_left[:, 0] - ref.uv_right[:, 0]
         predict = motion_prior or self._last_motion
+        levels = o.klt.levels
         if predict is not None and ref.p_C_F.shape[0] and o.predict_tracks:
             # Constant-velocity (or prior) prediction of where features land: helps large flows.
             q = ref.p_C_F @ predict.R_Ck_Ckm1.T + predict.p_Ck_Ckm1
             uv_pred = self.rig.project(q)
             good = np.isfinite(uv_pred).all(1) & (q[:, 2] > 0.1) & self.rig.in_image(uv_pred)
             guess = np.where(good[:, None], uv_pred, ref.uv_left)
+            levels = o.klt.levels_predicted
             # Predicted disparity seeds the left-right match (it grows as the camera approaches).
             with np.errstate(divide="ignore", invalid="ignore"):
                 d_pred = self.rig.f * self.rig.baseline / q[:, 2]
             disp_prev = np.where(good & np.isfinite(d_pred), d_pred, disp_prev)
-        uv_l, ok_t = track_klt(ref.left, pl, ref.uv_left, o.klt, guess=guess)
+        uv_img, ok_t = track_klt(
+            ref.left, pl, self._to_img(ref.uv_left), o.klt,
+            guess=None if guess is None else self._to_img(guess), max_level=levels,
+            fb_max_level=o.klt.fb_levels,
+        )
+        uv_l = self._to_rect(uv_img)
+        ok_t &= np.isfinite(uv_l).all(1) & self.rig.in_image(uv_l)
+        # A tracked feature never falls back to the row search: no finite seed, no match.
+        ok_t &= np.isfinite(disp_prev) & np.isfinite(ref.p_C_F).all(1)
         tm["track"] = (time.perf_counter() - t2) * 1e3
-        t3 = time.perf_counter()
-        uv_r = np.zeros_like(uv_l)
-        ok_s = np.zeros(uv_l.shape[0], dtype=bool)
-        if ok_t.any():
-            uv_r[ok_t], ok_s[ok_t] = self._stereo(pl, pr, uv_l[ok_t], disp_prev[ok_t], disparity)
-        tm["stereo"] = (time.perf_counter() - t3) * 1e3
-        sel = ok_t & ok_s & np.isfinite(ref.p_C_F).all(1)
+        return uv_l, ok_t, disp_prev
+
+    def _egomotion(
+        self, t_ns: int, ref: _Reference, uv_l: F64, uv_r: F64, sel: NDArray[np.bool_],
+        motion_prior: Egomotion | None, tm: dict[str, float],
+    ) -> tuple[StereoTracks, NDArray[np.int64], F64, F64]:
+        """Egomotion from the reference features matched now (``sel``, (N,)), then the checks."""
+        o = self.options
         self.stats.tracked = int(sel.sum())
+        flow = np.linalg.norm(uv_l[sel] - ref.uv_left[sel], axis=1)
+        self._flow_px = float(np.median(flow)) if flow.size else np.inf
         p_prev = ref.p_C_F[sel]
         uvl, uvr = uv_l[sel], uv_r[sel]
         t6 = time.perf_counter()

@@ -31,6 +31,8 @@ log = logging.getLogger(__name__)
 _IDENT_ROT_TOL = 1e-9
 _IDENT_OFFSET_TOL = 1e-9
 _IDENT_PIXEL_TOL = 1e-9
+# Iterative undistortion of points: run to convergence (1e-12 in normalised coordinates).
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 60, 1e-12)
 
 
 def _relative_pose(cam0: CameraCalib, cam1: CameraCalib) -> tuple[F64, F64]:
@@ -72,7 +74,8 @@ class StereoRectifier:
     """Rectification of one stereo rig: the ideal pair ``rig`` plus the OpenCV maps.
 
     ``R1``/``R2`` (3, 3) rotate raw camera components into rectified ones; ``maps_*`` are the
-    ``cv2.remap`` fixed-point maps; ``identity`` means input images are already rectified.
+    ``cv2.remap`` fixed-point maps, ``xymap_*`` (H, W, 2) float32 the raw (x, y) pixel of each
+    rectified pixel; ``identity`` means input images are already rectified.
     """
 
     rig: RectifiedStereo
@@ -85,6 +88,8 @@ class StereoRectifier:
     identity: bool
     maps_left: tuple[NDArray, NDArray] | None
     maps_right: tuple[NDArray, NDArray] | None
+    xymap_left: NDArray[np.float32] | None = None
+    xymap_right: NDArray[np.float32] | None = None
 
     @classmethod
     def for_rectified_rig(cls, rig: RectifiedStereo) -> StereoRectifier:
@@ -131,14 +136,16 @@ class StereoRectifier:
             f=f, cu=float(P1[0, 2]), cv=float(P1[1, 2]), baseline=baseline,
             R_B_C=R_B_C0 @ R1.T, p_B_C=p_B_C0, width=w, height=h,
         )
-        maps_left = cv2.initUndistortRectifyMap(
-            cam0.K, np.asarray(cam0.distortion, float), R1, P1, (w, h), cv2.CV_16SC2
-        )
-        maps_right = cv2.initUndistortRectifyMap(
-            cam1.K, np.asarray(cam1.distortion, float), R2, P2, (w, h), cv2.CV_16SC2
-        )
+        fmaps = []
+        for cam, R, P in ((cam0, R1, P1), (cam1, R2, P2)):
+            fmaps.append(cv2.initUndistortRectifyMap(
+                cam.K, np.asarray(cam.distortion, float), R, P, (w, h), cv2.CV_32FC1
+            ))  # fmt: skip
+        maps_left, maps_right = (cv2.convertMaps(mx, my, cv2.CV_16SC2) for mx, my in fmaps)
+        xy_left, xy_right = (np.ascontiguousarray(np.stack(m, axis=-1)) for m in fmaps)
         log.debug("rectified: f=%.2f px, b=%.4f m, c=(%.1f, %.1f)", f, baseline, rig.cu, rig.cv)
-        return cls(rig, cam0, cam1, R1, R2, P1, P2, False, maps_left, maps_right)
+        return cls(rig, cam0, cam1, R1, R2, P1, P2, False, maps_left, maps_right, xy_left,
+                   xy_right)  # fmt: skip
 
     def rectify_left(self, img: U8) -> U8:
         """Rectified left image (same size); identity pairs are returned as they are."""
@@ -157,7 +164,10 @@ class StereoRectifier:
         return self.rectify_left(img_left), self.rectify_right(img_right)
 
     def rectify_points(self, uv_raw: ArrayLike, right: bool = False) -> F64:
-        """Raw (distorted) pixels (N, 2) of the left (or right) camera -> rectified (N, 2) px."""
+        """Raw (distorted) pixels (N, 2) of the left (or right) camera -> rectified (N, 2) px.
+
+        The iterative undistortion runs to convergence (OpenCV's default 5 iterations leave up
+        to 0.4 px error in the EuRoC image corners)."""
         uv = np.asarray(uv_raw, dtype=float).reshape(-1, 2)
         if self.identity or uv.shape[0] == 0:
             return uv.copy()
@@ -165,6 +175,47 @@ class StereoRectifier:
         assert cam is not None  # only identity rectifiers lack calibrations
         R, P = (self.R2, self.P2) if right else (self.R1, self.P1)
         out = cv2.undistortPoints(
-            uv.reshape(-1, 1, 2), cam.K, np.asarray(cam.distortion, float), R=R, P=P
+            uv.reshape(-1, 1, 2), cam.K, np.asarray(cam.distortion, float), R=R, P=P,
+            criteria=_UNDISTORT_CRITERIA,
         )
         return out.reshape(-1, 2).astype(float)
+
+    def unrectify_points(self, uv_rect: ArrayLike, right: bool = False) -> F64:
+        """Rectified pixels (N, 2) -> raw (distorted) pixels (N, 2) of the left (or right) camera:
+        back through the rectifying rotation, then the radial-tangential model (closed form)."""
+        uv = np.asarray(uv_rect, dtype=float).reshape(-1, 2)
+        if self.identity or uv.shape[0] == 0:
+            return uv.copy()
+        cam = self.cam1 if right else self.cam0
+        assert cam is not None
+        R, P = (self.R2, self.P2) if right else (self.R1, self.P1)
+        ray = np.stack(
+            [(uv[:, 0] - P[0, 2]) / P[0, 0], (uv[:, 1] - P[1, 2]) / P[1, 1], np.ones(len(uv))],
+            axis=1,
+        ) @ R  # rows R^T ray: rectified -> raw camera axes
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x, y = ray[:, 0] / ray[:, 2], ray[:, 1] / ray[:, 2]
+        k1, k2, p1, p2 = (float(c) for c in cam.distortion)
+        r2 = x * x + y * y
+        radial = 1.0 + k1 * r2 + k2 * r2 * r2
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        K = cam.K
+        return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=1)
+
+    def sample_rectified(
+        self, img: U8, rows: NDArray[np.int64], cols: NDArray[np.int64], right: bool = False
+    ) -> NDArray[np.float32]:
+        """Grey levels of the rectified image at integer rectified pixels (``rows``, ``cols``
+        broadcast together, inside the image), read from the *input* image ``img``: bilinear
+        samples at the raw positions, i.e. what a full ``cv2.remap`` would give there, for the
+        cost of the few pixels needed. Identity rigs index ``img`` directly."""
+        xy = self.xymap_right if right else self.xymap_left
+        if self.identity or xy is None:
+            return img[rows, cols].astype(np.float32)
+        flat = rows * xy.shape[1] + cols  # broadcast (..., n) flat pixel indices
+        # One gather of 8-byte (x, y) pairs, then one remap of just these pixels.
+        pairs = np.take(xy.view(np.complex64).reshape(-1), flat)
+        m = pairs.view(np.float32).reshape(-1, flat.shape[-1], 2)
+        out = cv2.remap(img, m, None, cv2.INTER_LINEAR)
+        return out.reshape(flat.shape).astype(np.float32)

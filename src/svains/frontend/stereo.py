@@ -9,9 +9,11 @@ from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
 from svains.errors import ConfigError
+from svains.frontend.rectify import StereoRectifier
 from svains.frontend.tracking import KltOptions, Pyramid, track_klt
 
 F64 = NDArray[np.float64]
@@ -43,7 +45,6 @@ class StereoMatchOptions:
     epipolar_max_px: float = 1.0
     min_disparity_px: float = 0.3
     max_disparity_px: float = 128.0
-    initial_disparity_px: float = 0.0
     sgbm_block: int = 5
     klt_levels: int = 1
     klt_win_px: int = 13
@@ -52,13 +53,15 @@ class StereoMatchOptions:
 
 def block_match_rows(
     img_left: U8, img_right: U8, uv_left: F64, max_disparity_px: float, half: int = 5,
-    min_ncc: float = 0.8, uniqueness: float = 0.97,
+    min_ncc: float = 0.8, uniqueness: float = 0.97, rectifier: StereoRectifier | None = None,
 ) -> tuple[F64, Bool]:
     """Integer disparity (N,) px of left corners (N, 2) by a 1-D zero-mean NCC search along the
     same row of the right image, vectorised over features; validity (N,) requires a correlation
     above ``min_ncc`` and no second peak (> 1 px away) within ``uniqueness`` of the best one.
 
     Gives the KLT refinement a start that is robust to repetitive texture and large disparities.
+    ``uv_left`` is rectified; with a ``rectifier`` the images are the raw ones and only the
+    patches and strips searched are resampled to rectified geometry.
     """
     uv = np.asarray(uv_left, dtype=float).reshape(-1, 2)
     n = uv.shape[0]
@@ -69,12 +72,22 @@ def block_match_rows(
     k = 2 * half + 1
     col = np.rint(uv[:, 0]).astype(np.int64)
     row = np.rint(uv[:, 1]).astype(np.int64)
-    off = np.arange(-half, half + 1)
-    # Clipped indices replicate the border (as edge padding would) without copying the image.
-    rows = np.clip(row[:, None] + off, 0, h - 1)[:, :, None]  # (N, k, 1)
-    lp = img_left[rows, np.clip(col[:, None] + off, 0, w - 1)[:, None, :]].astype(np.float32)
-    sc = np.arange(-half - D, half + 1)  # right strip columns, disparity D .. 0
-    rs = img_right[rows, np.clip(col[:, None] + sc, 0, w - 1)[:, None, :]].astype(np.float32)
+    row, col = np.clip(row, 0, h - 1), np.clip(col, 0, w - 1)
+    if rectifier is None:
+        # Edge-replicated borders, then each patch/strip is one window of a strided view:
+        # a block copy per feature instead of per-pixel fancy indexing.
+        pad_l = cv2.copyMakeBorder(img_left, half, half, half, half, cv2.BORDER_REPLICATE)
+        lp = sliding_window_view(pad_l, (k, k))[row, col].astype(np.float32)  # (N, k, k)
+        pad_r = cv2.copyMakeBorder(img_right, half, half, half + D, half, cv2.BORDER_REPLICATE)
+        rs = sliding_window_view(pad_r, (k, D + k))[row, col].astype(np.float32)  # (N, k, D+k)
+    else:
+        off = np.arange(-half, half + 1)
+        rows = np.clip(row[:, None] + off, 0, h - 1)[:, :, None]  # (N, k, 1)
+        cols_l = np.clip(col[:, None] + off, 0, w - 1)[:, None, :]
+        lp = rectifier.sample_rectified(img_left, rows, cols_l)
+        sc = np.arange(-half - D, half + 1)  # right strip columns, disparity D .. 0
+        cols_r = np.clip(col[:, None] + sc, 0, w - 1)[:, None, :]
+        rs = rectifier.sample_rectified(img_right, rows, cols_r, right=True)
     a = lp - lp.mean(axis=(1, 2), keepdims=True)  # (N, k, k) zero mean
     # Correlation of the zero-mean left patch with every right window (sum over patch columns j);
     # a zero-mean template makes the right window's mean drop out of the numerator.
@@ -101,34 +114,49 @@ def block_match_rows(
 
 def match_sparse(
     left: Pyramid, right: Pyramid, uv_left: F64, opts: StereoMatchOptions, klt: KltOptions,
-    disparity_guess: F64 | None = None,
+    disparity_guess: F64 | None = None, rectifier: StereoRectifier | None = None,
 ) -> tuple[F64, Bool]:
     """Right pixels (N, 2) of left corners ``uv_left`` (N, 2) by KLT, and validity (N,):
     forward-backward consistent, on the same row within ``epipolar_max_px``, disparity in range.
 
-    ``disparity_guess`` (N,) px (NaN = unknown) seeds the search, e.g. the previous disparity.
+    ``disparity_guess`` (N,) px seeds the search, e.g. the previous disparity of a tracked
+    feature; where it is NaN (or for all corners when it is ``None``) a row search gives the start.
+    Pixels in and out are rectified. Without ``rectifier`` (or with an identity one) the pyramids
+    hold rectified images; otherwise they hold the raw images: KLT then runs between the raw
+    positions of the rectified start and guess, and its result is rectified for the checks.
     """
     uv_left = np.asarray(uv_left, dtype=float).reshape(-1, 2)
-    if uv_left.shape[0] == 0:
+    n = uv_left.shape[0]
+    if n == 0:
         return uv_left.copy(), np.zeros(0, dtype=bool)
+    geo = None if rectifier is None or rectifier.identity else rectifier
     if disparity_guess is None:
-        # New corners: a row search gives the start; known tracks reuse their last disparity.
-        d0, ok0 = block_match_rows(left.image, right.image, uv_left, opts.max_disparity_px)
+        d0 = np.full(n, np.nan)
     else:
-        d0 = np.asarray(disparity_guess, dtype=float)
-        ok0 = np.isfinite(d0)
-        d0 = np.where(ok0, d0, opts.initial_disparity_px)
+        d0 = np.asarray(disparity_guess, dtype=float).reshape(-1).copy()
+    searched = ~np.isfinite(d0)
+    ok0 = np.ones(n, dtype=bool)
+    if searched.any():
+        d_row, ok_row = block_match_rows(
+            left.image, right.image, uv_left[searched], opts.max_disparity_px, rectifier=geo
+        )
+        d0[searched] = d_row
+        ok0[searched] = ok_row
     guess = uv_left - np.stack([d0, np.zeros_like(d0)], axis=1)
+    start = uv_left
+    if geo is not None:
+        start, guess = geo.unrectify_points(uv_left), geo.unrectify_points(guess, right=True)
     klt_lr = replace(klt, win_px=opts.klt_win_px)
     uv_right, ok = track_klt(
-        left, right, uv_left, klt_lr, guess=guess, max_level=opts.klt_levels,
+        left, right, start, klt_lr, guess=guess, max_level=opts.klt_levels,
         fb_check=opts.fb_check,
     )
-    ok &= ok0
-    # KLT must refine, not wander off to another repetition of the texture.
-    if disparity_guess is None:
-        ok &= np.abs((uv_left[:, 0] - uv_right[:, 0]) - d0) <= 2.0
+    if geo is not None:
+        uv_right = geo.rectify_points(uv_right, right=True)
+    ok &= ok0 & np.isfinite(uv_right).all(axis=1)
     disp = uv_left[:, 0] - uv_right[:, 0]
+    # KLT must refine a row-search start, not wander off to another repetition of the texture.
+    ok &= ~searched | (np.abs(disp - d0) <= 2.0)
     ok &= np.abs(uv_right[:, 1] - uv_left[:, 1]) <= opts.epipolar_max_px
     ok &= (disp >= opts.min_disparity_px) & (disp <= opts.max_disparity_px)
     return uv_right, ok

@@ -16,17 +16,27 @@ Bool = NDArray[np.bool_]
 @dataclass(frozen=True)
 class KltOptions:
     """KLT settings: window ``win_px`` (odd), ``levels`` pyramid levels above the base,
-    forward-backward error limit ``fb_max_px``, termination ``iterations``/``epsilon``."""
+    ``levels_predicted`` when the start is predicted (motion prior or constant velocity; fewer
+    levels are cheaper, but at the onset of a turn the prediction is off by more than two levels
+    can recover: 2 lost the egomotion on a sharp turn of the simulated village flight),
+    ``fb_levels`` for the backward check (it starts where the feature came from, so a consistent
+    track needs no coarse level), forward-backward error limit ``fb_max_px``, termination
+    ``iterations``/``epsilon``."""
 
-    win_px: int = 21
+    win_px: int = 11
     levels: int = 3
+    levels_predicted: int = 3
+    fb_levels: int = 1
     fb_max_px: float = 0.5
     iterations: int = 30
     epsilon: float = 0.01
 
 
 def _pyramid_input_supported() -> bool:
-    """OpenCV 4 takes prebuilt pyramids in ``calcOpticalFlowPyrLK``; OpenCV 5's binding does not."""
+    """OpenCV 4 takes prebuilt pyramids in ``calcOpticalFlowPyrLK``; the OpenCV 5.0 Python binding
+    does not: it rejects the pyramid as a tuple, a list or a list of ``UMat``, built with or
+    without derivatives and with the call's own window and level count (checked 2026-11). The
+    front end therefore keeps KLT calls few and cheap instead (see ``KltOptions``)."""
     img = np.zeros((64, 64), np.uint8)
     try:
         _, pyr = cv2.buildOpticalFlowPyramid(img, (9, 9), 1, withDerivatives=True)
@@ -77,14 +87,15 @@ def _lk(
 
 def track_klt(
     src: Pyramid, dst: Pyramid, uv: F64, opts: KltOptions, guess: F64 | None = None,
-    max_level: int | None = None, fb_check: bool = True,
+    max_level: int | None = None, fb_check: bool = True, fb_max_level: int | None = None,
 ) -> tuple[F64, Bool]:
     """Track ``uv`` (N, 2) px from ``src`` into ``dst``; a point survives if both passes succeed,
     it stays in the image, and tracking back lands within ``opts.fb_max_px`` of where it started.
 
     ``fb_check=False`` skips the backward pass (when other checks guard the match).
     ``max_level`` caps the pyramid levels (a good ``guess`` needs few; coarse levels can jump to
-    another repetition of a periodic texture). Returns tracked pixels (N, 2) and validity (N,).
+    another repetition of a periodic texture); ``fb_max_level`` caps those of the backward pass
+    (default: as the forward one). Returns tracked pixels (N, 2) and validity (N,).
     """
     lv = opts.levels if max_level is None else max_level
     uv = np.asarray(uv, dtype=float).reshape(-1, 2)
@@ -95,6 +106,6 @@ def track_klt(
     inside = (fwd[:, 0] >= 0) & (fwd[:, 1] >= 0) & (fwd[:, 0] <= w - 1) & (fwd[:, 1] <= h - 1)
     if not fb_check:
         return fwd, ok_f & inside
-    back, ok_b = _lk(dst, src, fwd, uv, opts, lv)
+    back, ok_b = _lk(dst, src, fwd, uv, opts, lv if fb_max_level is None else fb_max_level)
     fb = np.linalg.norm(back - uv, axis=1)
     return fwd, ok_f & ok_b & inside & (fb <= opts.fb_max_px)
