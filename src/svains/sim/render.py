@@ -6,15 +6,23 @@ depth is *affine* in the pixel, ``1/z = n_C·K⁻¹(u, v, 1) / d_C``. Each visib
 (``cv2.warpPerspective``, bilinear) only inside its projected bounding box, masked by its
 near-plane-clipped polygon and composited where its ``1/z`` beats the z-buffer: correct
 occlusion in any drawing order, no GPU, no display. The ground is one infinite plane rendered
-straight from a periodic tile (``BORDER_WRAP``) in depth bands, each band from the texture
-pyramid level that matches its pixel footprint (no aliasing far away); far pixels fade into haze.
+from a periodic tile in depth bands, each band from the texture pyramid level that matches its
+pixel footprint (no aliasing far away); far pixels fade into haze.
 
-This is the only module of ``svains.sim`` allowed to import OpenCV (documented exception).
+Speed (about 8 ms of one core per 752x480 image, ~16 ms per stereo pair, was ~12 and ~24):
+OpenCV's warp costs 20-45 ns per pixel with ``BORDER_WRAP`` or where ``BORDER_REPLICATE``
+samples outside the source, 5-8 ns otherwise. So the ground bands sample a copy of each level
+tiled to GROUND_TILE_SIDE, shifted by whole periods (``BORDER_TRANSPARENT`` beyond it), and
+face textures carry a replicated border so ``BORDER_CONSTANT`` is safe whenever the face's
+1-px hull maps inside (checked per face). The per-face set-up (clipping, boxes, levels, warp
+matrices) is vectorised over faces in :mod:`svains.sim.raster`.
+
+With :mod:`svains.sim.raster`, the only modules of ``svains.sim`` importing OpenCV
+(documented exception).
 """
 
 from __future__ import annotations
 
-import math
 from concurrent.futures import ThreadPoolExecutor
 
 import cv2
@@ -22,7 +30,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from svains.geometry.camera import RectifiedStereo
-from svains.sim.world import Face, World
+from svains.sim.raster import (
+    clip_polygon_2d,
+    face_setup,
+    face_table,
+    level_scale,
+    padded_face_pyramid,
+    pyramid,
+    tile,
+)
+from svains.sim.world import World
 
 F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]
@@ -31,42 +48,7 @@ Z_NEAR = 0.05  # m
 HAZE_START = 30.0  # m
 HAZE_FULL = 80.0  # m
 SKY = 200.0
-
-
-def _pyramid(tex: U8, levels: int, wrap: bool) -> list[U8]:
-    """Texture pyramid (level 0 = ``tex``); ``wrap`` keeps a periodic tile periodic."""
-    out = [tex]
-    for _ in range(levels):
-        prev = out[-1]
-        if min(prev.shape) < 8:
-            break
-        if wrap:
-            pad = np.pad(prev, 4, mode="wrap")
-            out.append(cv2.pyrDown(pad)[2:-2, 2:-2].copy())
-        else:
-            out.append(cv2.pyrDown(prev))
-    return out
-
-
-def _level_scale(level: int) -> F64:
-    """Level-``level`` texel coords -> level-0 texel coords (pyrDown halves about centres)."""
-    k = float(2**level)
-    return np.array([[k, 0, 0.5 * (k - 1)], [0, k, 0.5 * (k - 1)], [0, 0, 1.0]])
-
-
-def _clip_polygon_2d(poly: F64, a: F64, c: float) -> F64:
-    """Part of convex polygon (K, 2) where ``a·x + c >= 0`` (Sutherland-Hodgman, one plane)."""
-    if len(poly) == 0:
-        return poly
-    s = poly @ a + c
-    out = []
-    for k in range(len(poly)):
-        j = (k + 1) % len(poly)
-        if s[k] >= 0:
-            out.append(poly[k])
-        if (s[k] >= 0) != (s[j] >= 0):
-            out.append(poly[k] + (poly[j] - poly[k]) * (s[k] / (s[k] - s[j])))
-    return np.array(out).reshape(-1, poly.shape[1])
+GROUND_TILE_SIDE = 1536  # texels: every ground band of the default camera fits (measured)
 
 
 class Renderer:
@@ -80,24 +62,21 @@ class Renderer:
         h, w = rig.height, rig.width
         self._uu = np.arange(w, dtype=np.float32)[None, :]
         self._vv = np.arange(h, dtype=np.float32)[:, None]
-        self._ground = _pyramid(world.ground_texture, 6, wrap=True)
-        # Each level padded by half a period on every side (wrap-around copy): a band whose
-        # texture coordinates fit after shifting by whole periods is warped with the cheap
-        # BORDER_REPLICATE instead of BORDER_WRAP (2.5x slower per pixel, measured).
-        self._ground_pad = [np.pad(g, g.shape[0] // 2, mode="wrap") for g in self._ground]
+        self._ground = pyramid(world.ground_texture, 6, wrap=True)
+        # Each level tiled periodically to GROUND_TILE_SIDE (at least 2 periods): a band whose
+        # texture coordinates fit after a shift by whole periods is warped from it with
+        # BORDER_TRANSPARENT, 5-10x cheaper per pixel than BORDER_WRAP (measured).
+        self._ground_tiled = [tile(g, max(GROUND_TILE_SIDE, 2 * g.shape[0]))
+                              for g in self._ground]
         self._face_pyr: dict[int, list[U8]] = {}
         self._pool: ThreadPoolExecutor | None = None
         self.last_inv_depth: NDArray[np.float32] | None = None
-        # per-face constants, stacked so culling is one vectorised pass per image
+        # per-face constants, stacked so culling and set-up are vectorised passes per image
         faces = world.faces
         self._normals_W = np.array([f.normal_W for f in faces]).reshape(-1, 3)
         self._v0_W = np.array([f.vertices_W[0] for f in faces]).reshape(-1, 3)
-        self._n_verts = np.array([len(f.vertices_W) for f in faces], dtype=int)
-        pad = np.zeros((len(faces), 4, 3))
-        for k, f in enumerate(faces):
-            pad[k, : len(f.vertices_W)] = f.vertices_W
-            pad[k, len(f.vertices_W):] = f.vertices_W[0]  # repeat: harmless for bounds
-        self._verts_W = pad
+        self._table = face_table(faces)
+        self._verts_W = self._table.verts_W
         moving = [k for k, s in enumerate(world.solids) if s.moving]
         self._face_moving = np.array([f.solid in moving for f in faces], dtype=bool)
         sky_rows = SKY - 25.0 * (1.0 - np.arange(h) / h)
@@ -129,10 +108,7 @@ class Renderer:
         # a face: the z-buffer holds faces only (0 = no face yet) and the ground's 1/z, affine
         # in the pixel, is evaluated only where it is needed (haze rows, depth output).
         zbuf = np.zeros((h, w), np.float32)
-        off = self.world.moving_offset_W(t_s)
-        for idx in self._candidate_faces(R_C_W, t_C, p_W_C, off):
-            shift = off if self._face_moving[idx] else None
-            self._render_face(idx, self.world.faces[idx], img, zbuf, R_C_W, t_C, p_W_C, shift)
+        self._draw_faces(img, zbuf, R_C_W, t_C, p_W_C, self.world.moving_offset_W(t_s))
         # haze: fade far pixels to the sky brightness (hides minified far detail, as air does);
         # only rows where the ground (or the sky) is farther than HAZE_START are touched: an
         # object point above the ground is never below the ground line of its own depth
@@ -147,11 +123,15 @@ class Renderer:
         if r1 > r0:
             zr = self._combined_depth(zbuf, ground, r0, r1)
             with np.errstate(divide="ignore"):
-                z = 1.0 / zr
-            fog = np.clip((z - HAZE_START) * (1.0 / (HAZE_FULL - HAZE_START)), 0.0, 1.0)
+                fog = np.divide(1.0, zr, out=zr)  # z (inf = sky), in place: fewer passes
+            fog -= HAZE_START
+            fog *= 1.0 / (HAZE_FULL - HAZE_START)
+            np.clip(fog, 0.0, 1.0, out=fog)
             band = img[r0:r1].astype(np.float32)
-            band += fog * (self._sky[r0:r1] - band)
-            img[r0:r1] = np.rint(band).astype(np.uint8)
+            sky = self._sky[r0:r1] - band
+            sky *= fog
+            band += sky
+            cv2.convertScaleAbs(band, dst=img[r0:r1])  # rounds half to even like np.rint
         return img, self._combined_depth(zbuf, ground, 0, h) if full_depth else None
 
     def _combined_depth(
@@ -174,8 +154,8 @@ class Renderer:
         if len(self._v0_W) == 0:
             return np.zeros(0, int)
         shift = np.where(self._face_moving[:, None], off[None], 0.0)
-        front = np.einsum("fk,fk->f", self._normals_W, p_W_C - self._v0_W - shift) > 1e-9
-        v_C = np.einsum("ij,fkj->fki", R_C_W, self._verts_W + shift[:, None]) + t_C
+        front = (self._normals_W * (p_W_C - self._v0_W - shift)).sum(axis=1) > 1e-9
+        v_C = (self._verts_W + shift[:, None]) @ R_C_W.T + t_C
         z = v_C[..., 2]
         any_front = (z > Z_NEAR).any(axis=1)
         all_front = (z > Z_NEAR).all(axis=1)
@@ -216,16 +196,17 @@ class Renderer:
         levels = len(self._ground)
         z_lim = [(self.rig.f * np.sqrt(height) * tau * 2.0**lv) ** (2.0 / 3.0)
                  for lv in range(1, levels)]
-        inv_lim = [np.inf] + [1.0 / z for z in z_lim] + [1.0 / (HAZE_FULL * 2.0)]
+        # beyond HAZE_FULL the haze replaces every pixel by the sky: no band needed there
+        inv_lim = [np.inf] + [1.0 / z for z in z_lim] + [1.0 / HAZE_FULL]
         rect = np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], float)
         coef = np.array([a, b])
         # far to near, each band's whole bounding box: a nearer band overwrites the overlap with
         # a sharper level of the same texture (no masks needed; sky pixels get hazed away)
         for lv in reversed(range(levels)):
             hi_inv, lo_inv = inv_lim[lv], inv_lim[lv + 1]
-            poly = _clip_polygon_2d(rect, coef, c - lo_inv)
+            poly = clip_polygon_2d(rect, coef, c - lo_inv)
             if np.isfinite(hi_inv):
-                poly = _clip_polygon_2d(poly, -coef, hi_inv - c)
+                poly = clip_polygon_2d(poly, -coef, hi_inv - c)
             if len(poly) < 3:
                 continue
             x0, y0 = np.floor(poly.min(0)).astype(int)
@@ -234,77 +215,78 @@ class Renderer:
             if x1 <= x0 or y1 <= y0:
                 continue
             T = np.array([[1.0, 0, -x0], [0, 1.0, -y0], [0, 0, 1.0]])
-            M = np.linalg.inv(T @ H0 @ _level_scale(lv))
-            src, border = self._ground[lv], cv2.BORDER_WRAP
-            corners = np.array([[0, 0, 1], [x1 - x0, 0, 1], [0, y1 - y0, 1],
-                                [x1 - x0, y1 - y0, 1]], float) @ M.T
-            if np.all(corners[:, 2] > 1e-9):
-                st = corners[:, :2] / corners[:, 2:]
-                period = src.shape[0]
-                pad = period // 2
-                k = np.floor(st.min(0) / period)
-                lo_st = st.min(0) - k * period
-                hi_st = st.max(0) - k * period
-                if np.all(lo_st >= 0) and np.all(hi_st < period + pad - 2):
-                    sh = pad - k * period
-                    M = np.array([[1.0, 0, sh[0]], [0, 1.0, sh[1]], [0, 0, 1.0]]) @ M
-                    src, border = self._ground_pad[lv], cv2.BORDER_REPLICATE
-            cv2.warpPerspective(
-                src, M, (x1 - x0, y1 - y0), dst=img[y0:y1, x0:x1],
-                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=border,
-            )
+            M = np.linalg.inv(T @ H0 @ level_scale(lv))
+            self._warp_ground_band(img, lv, M, x0, y0, x1, y1, poly)
         return a, b, c
 
-    def _render_face(
-        self, idx: int, face: Face, img: U8, zbuf: NDArray[np.float32],
-        R_C_W: F64, t_C: F64, p_W_C: F64, shift: F64 | None,
+    def _warp_ground_band(
+        self, img: U8, lv: int, M: F64, x0: int, y0: int, x1: int, y1: int, band: F64
     ) -> None:
-        verts = face.vertices_W if shift is None else face.vertices_W + shift
-        origin = face.origin_W if shift is None else face.origin_W + shift
-        n_W = self._normals_W[idx]
-        v_C = verts @ R_C_W.T + t_C
-        if v_C[:, 2].min() < Z_NEAR:
-            v_C = _clip_polygon_2d(v_C, np.array([0.0, 0.0, 1.0]), -Z_NEAR)
-        rig = self.rig
-        u = v_C[:, 0] / v_C[:, 2] * rig.f + rig.cu
-        v = v_C[:, 1] / v_C[:, 2] * rig.f + rig.cv
-        x0, x1 = max(math.floor(u.min()), 0), min(math.ceil(u.max()) + 1, rig.width)
-        y0, y1 = max(math.floor(v.min()), 0), min(math.ceil(v.max()) + 1, rig.height)
-        if x1 <= x0 or y1 <= y0:
-            return
-        n_C = R_C_W @ n_W
-        a, b, c = self._inv_depth(n_C, float(n_C @ v_C[0]))
-        iz = self._uu[:, x0:x1] * np.float32(a) + (self._vv[y0:y1] * np.float32(b)
-                                                   + np.float32(c))
-        visible = iz > zbuf[y0:y1, x0:x1]
-        if not visible.any():
-            return
-        mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
-        pts = np.rint(np.column_stack([u - x0, v - y0]) * 16.0).astype(np.int32)  # 4 frac bits
-        cv2.fillConvexPoly(mask, pts, 1, lineType=cv2.LINE_8, shift=4)
-        np.logical_and(visible, mask.view(bool), out=visible)
-        if not visible.any():
-            return
-        # pyramid level from the face's footprint at its centroid (geometric mean over slant)
-        texel = float(np.linalg.norm(face.u_W))
-        centre = v_C.mean(0)
-        cos = abs(float(n_C @ centre)) / float(np.linalg.norm(centre))
-        foot = centre[2] / (self.rig.f * np.sqrt(max(cos, 1e-3)))
+        """Warp ground level ``lv`` into ``img[y0:y1, x0:x1]``; ``M`` maps box pixels to level
+        texels, ``band`` (K, 2) is the band's polygon in image pixels. When the band fits in
+        the tiled level after a shift by whole periods, BORDER_TRANSPARENT leaves the box
+        pixels beyond the tile as they are (farther: drawn by a coarser band; nearer: drawn
+        next; above the horizon: hazed to sky), else BORDER_WRAP (5-10x slower per pixel)."""
+        dst = img[y0:y1, x0:x1]
+        flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+        hom = (band - [x0, y0]) @ M[:, :2].T + M[:, 2]
+        if np.all(hom[:, 2] > 1e-9):
+            st = hom[:, :2] / hom[:, 2:]
+            period = self._ground[lv].shape[0]
+            tiled = self._ground_tiled[lv]
+            k = np.floor((st.min(0) - 2.0) / period)  # >= 2 texels of margin (bilinear)
+            if np.all(st.max(0) - k * period < tiled.shape[0] - 3.0):
+                sh = -k * period
+                M = np.array([[1.0, 0, sh[0]], [0, 1.0, sh[1]], [0, 0, 1.0]]) @ M
+                cv2.warpPerspective(tiled, M, dst.shape[::-1], dst=dst, flags=flags,
+                                    borderMode=cv2.BORDER_TRANSPARENT)
+                return
+        cv2.warpPerspective(self._ground[lv], M, dst.shape[::-1], dst=dst, flags=flags,
+                            borderMode=cv2.BORDER_WRAP)
+
+    def _face_pyramid(self, idx: int) -> list[U8]:
+        """Padded texture pyramid of face ``idx``, built at first use (idempotent fill)."""
         pyr = self._face_pyr.get(idx)
         if pyr is None:
-            pyr = self._face_pyr[idx] = _pyramid(face.texture, 4, wrap=False)
-        lv = int(np.clip(np.floor(np.log2(max(foot / texel, 1.0))), 0, len(pyr) - 1))
-        H0 = self.K @ np.column_stack(
-            [R_C_W @ face.u_W, R_C_W @ face.v_W, R_C_W @ origin + t_C]
-        )
-        T = np.array([[1.0, 0, -x0], [0, 1.0, -y0], [0, 0, 1.0]])
-        M = np.linalg.inv(T @ H0 @ _level_scale(lv))
-        patch = cv2.warpPerspective(
-            pyr[lv], M, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-            borderMode=cv2.BORDER_REPLICATE,
-        )
-        np.copyto(img[y0:y1, x0:x1], patch, where=visible)
-        np.copyto(zbuf[y0:y1, x0:x1], iz, where=visible)
+            pyr = self._face_pyr[idx] = padded_face_pyramid(self.world.faces[idx].texture)
+        return pyr
+
+    def _draw_faces(
+        self, img: U8, zbuf: NDArray[np.float32], R_C_W: F64, t_C: F64, p_W_C: F64, off: F64
+    ) -> None:
+        """Draw every candidate face into ``img`` where it beats ``zbuf`` (both updated).
+        The set-up is vectorised over faces; each face costs one warp over its bounding box,
+        masked by its polygon and the z-test; faces crossing the near plane are clipped."""
+        order = self._candidate_faces(R_C_W, t_C, p_W_C, off)
+        if len(order) == 0:
+            return
+        shift = np.where(self._face_moving[order, None], off[None], 0.0)
+        fs = face_setup(self._table, order, shift, R_C_W, t_C, self.K, self.K_inv,
+                        (self.rig.width, self.rig.height), Z_NEAR)
+        iz_coef = fs.inv_depth.astype(np.float32)
+        for k, (idx, box) in enumerate(zip(order.tolist(), fs.box.tolist(), strict=True)):
+            x0, y0, x1, y1 = box
+            if x1 <= x0 or y1 <= y0:
+                continue
+            a, b, c = iz_coef[k]
+            iz = self._uu[:, x0:x1] * a + (self._vv[y0:y1] * b + c)
+            visible = iz > zbuf[y0:y1, x0:x1]
+            if not visible.any():
+                continue
+            mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+            pts = np.rint((fs.uv[k] - [x0, y0]) * 16.0).astype(np.int32)  # 4 frac bits
+            cv2.fillConvexPoly(mask, pts, 1, lineType=cv2.LINE_8, shift=4)
+            np.logical_and(visible, mask.view(bool), out=visible)
+            if not visible.any():
+                continue
+            patch = cv2.warpPerspective(
+                self._face_pyramid(idx)[fs.level[k]], fs.M[k], (x1 - x0, y1 - y0),
+                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                borderMode=cv2.BORDER_CONSTANT if fs.constant_border[k] else
+                cv2.BORDER_REPLICATE,
+            )
+            np.copyto(img[y0:y1, x0:x1], patch, where=visible)
+            np.copyto(zbuf[y0:y1, x0:x1], iz, where=visible)
 
     def render_pair(
         self, R_W_B: F64, p_W_B: F64, t_s: float = 0.0
@@ -349,6 +331,6 @@ def finish_image(
     out = img.astype(np.float32)
     if noise_std > 0:
         unit = bank.draw() if bank is not None else rng.standard_normal(img.shape, np.float32)
-        out += np.float32(noise_std) * unit
+        cv2.scaleAdd(unit, float(noise_std), out, dst=out)  # fused: 5x faster than numpy
     # values stay >= 0 after rounding except for noise on black, which abs() mirrors harmlessly
     return cv2.convertScaleAbs(out, alpha=float(gain))
