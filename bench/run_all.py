@@ -14,6 +14,12 @@ HERE = Path(__file__).resolve().parent
 
 # Listed explicitly so the README and ``make bench`` agree on what is measured.
 SCRIPTS: list[str] = [
+    "bench_datasets.py",
+    "bench_filter.py",
+    "bench_methods.py",
+    "bench_frontend.py",
+    "eval_frontend_sim.py",
+    "bench_render.py",
 ]
 
 

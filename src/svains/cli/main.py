@@ -13,6 +13,13 @@ import typer
 
 # One line per sub-command module, in the order ``svains --help`` lists them.
 COMMAND_MODULES: list[str] = [
+    "info",
+    "run",
+    "evaluate",
+    "compare",
+    "frontend",
+    "simulate",
+    "demo",
 ]
 
 app = typer.Typer(

@@ -1,0 +1,123 @@
+"""``svains compare DATASET --out DIR``: run every navigation method, write a table and figures."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+import yaml
+from rich.console import Console
+from rich.progress import Progress
+
+from svains.errors import SvainsError
+
+
+def parse_settings(items: list[str] | None) -> dict[str, Any]:
+    """``key=value`` strings -> dict (values parsed as YAML scalars/lists)."""
+    out: dict[str, Any] = {}
+    for item in items or []:
+        if "=" not in item:
+            raise typer.BadParameter(f"expected key=value, got {item!r}")
+        k, v = item.split("=", 1)
+        out[k.strip()] = yaml.safe_load(v)
+    return out
+
+
+def build_options(
+    model: str, init: str, gps: bool, mag: bool, duration: float | None, source: str,
+    settings: dict[str, Any],
+) -> Any:
+    """``RunOptions`` from the command-line switches."""
+    from svains.navigation.options import InitOptions, RunOptions
+    from svains.navigation.vision import VisionOptions
+
+    VisionOptions.from_mapping({"source": source, **settings})  # fail fast on a bad --set
+    base = RunOptions()
+    return replace(
+        base, model=model, init=replace(base.init if base.init else InitOptions(), mode=init),
+        use_gps=gps, use_mag=mag, duration_s=duration,
+        method_options={"source": source, **settings},
+    )
+
+
+def run_compare(
+    dataset: Path, out: Path, methods: list[str], options: Any, figures: bool, console: Console,
+    synthetic_features_hz: float | None = None,
+) -> dict[str, Any]:
+    """Load, run each method with a progress bar, write compare.json/.md and the figures."""
+    from svains.datasets.loader import load_dataset
+    from svains.navigation.compare import run_methods, write_comparison
+
+    ds = load_dataset(dataset)
+    if synthetic_features_hz is not None:
+        from svains.navigation.vision_synthetic import with_synthetic_features
+
+        ds = with_synthetic_features(ds, rate_hz=synthetic_features_hz)
+        console.print(f"simulated features0 at {synthetic_features_hz:g} Hz along the ground truth")
+    with Progress(console=console, transient=True) as bar:
+        tasks = {m: bar.add_task(m, total=1.0) for m in methods}
+        results = run_methods(
+            ds, methods, options, out, lambda m, f: bar.update(tasks[m], completed=f)
+        )
+    reports = write_comparison(out, results, f"svains compare: {ds.name}")
+    if figures:
+        from svains.evaluation.figures import comparison_figures
+
+        for p in comparison_figures(ds, results, out):
+            console.print(f"figure: {p}")
+    console.print((out / "compare.md").read_text(encoding="utf-8"), markup=False)
+    return reports
+
+
+def compare(
+    dataset: Annotated[Path, typer.Argument(help="Data set folder (ASL layout).")],
+    out: Annotated[Path, typer.Option("--out", help="Output folder.")],
+    methods: Annotated[
+        str, typer.Option("--methods", help="Comma-separated methods: ins,vo,lc,tc,3d.")
+    ] = "ins,vo,lc,tc,3d",
+    features: Annotated[
+        bool | None,
+        typer.Option("--features/--images",
+                     help="Tracks from features0 or from images (default: features0 if present)."),
+    ] = None,
+    model: Annotated[str, typer.Option("--model", help="State model: paper or biased.")] = "biased",
+    rotation: Annotated[
+        str,
+        typer.Option("--rotation", help="Vision motion model: linear (paper eq. 18), exp or imu."),
+    ] = "imu",
+    init: Annotated[
+        str, typer.Option("--init", help="Initialisation: static or groundtruth.")
+    ] = "groundtruth",
+    gps: Annotated[bool, typer.Option("--gps/--no-gps", help="Fuse GPS when present.")] = True,
+    mag: Annotated[bool, typer.Option("--mag/--no-mag", help="Fuse magnetometer.")] = True,
+    duration: Annotated[
+        float | None, typer.Option("--duration", help="Use only the first S seconds.")
+    ] = None,
+    figures: Annotated[bool, typer.Option("--figures/--no-figures", help="Write PNGs.")] = True,
+    setting: Annotated[
+        list[str] | None,
+        typer.Option("--set", help="Vision option key=value (e.g. frame_stride=4); repeatable."),
+    ] = None,
+    synthetic_features: Annotated[
+        float | None,
+        typer.Option("--synthetic-features",
+                     help="Simulate features0 at this rate [Hz] along the ground truth."),
+    ] = None,
+) -> None:
+    """Run all methods on DATASET; write DIR/compare.md, DIR/compare.json and the figures."""
+    err = Console(stderr=True)
+    try:
+        source = {None: "auto", True: "features", False: "images"}[features]
+        settings = {"rotation": rotation, **parse_settings(setting)}
+        opts = build_options(model, init, gps, mag, duration, source, settings)
+        run_compare(dataset, out, [m.strip() for m in methods.split(",") if m.strip()], opts,
+                    figures, Console(), synthetic_features)
+    except SvainsError as exc:
+        err.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(1) from exc
+
+
+def register(app: typer.Typer) -> None:
+    app.command("compare")(compare)

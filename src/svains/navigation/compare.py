@@ -1,0 +1,225 @@
+"""Run several navigation methods on one data set and tabulate them (``svains compare``).
+
+Per method: the runner's ``report.json`` content plus
+- ``ate_m`` with the alignment that fits the run (``ate_alignment``): ``none`` when GPS fixes the
+  world frame, ``posyaw`` (yaw + translation: what a GPS-denied visual-inertial filter cannot
+  observe) otherwise, ``se3`` for pure VO (no gravity);
+- ``outage_max_error_m``: the largest position error inside each GPS outage (gaps in ``gps0``);
+- ``final_position_error_m``, ``path_length_m`` and their ratio ``final_error_pct_of_path``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from svains.datasets.types import Dataset, GroundTruth
+from svains.errors import ConfigError
+from svains.navigation.options import RunOptions
+from svains.navigation.report import interpolate_groundtruth
+from svains.navigation.runner import RunResult, run_method
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+log = logging.getLogger(__name__)
+
+METHODS: tuple[str, ...] = ("ins", "vo", "lc", "tc", "3d")
+
+
+def gps_outages(ds: Dataset, min_gap_factor: float = 3.0) -> list[tuple[int, int]]:
+    """GPS outages ``(t_start_ns, t_end_ns)``: gaps longer than ``min_gap_factor`` median periods
+    (the last fix before and the first after)."""
+    if ds.gps is None or len(ds.gps.t_ns) < 3:
+        return []
+    t = np.asarray(ds.gps.t_ns, np.int64)
+    dt = np.diff(t)
+    gaps = np.flatnonzero(dt > min_gap_factor * np.median(dt))
+    return [(int(t[i]), int(t[i + 1])) for i in gaps]
+
+
+def _position_errors(t_ns: I64, p_W_B: F64, gt: GroundTruth) -> tuple[I64, F64]:
+    inside, p_gt, _, _ = interpolate_groundtruth(gt, t_ns)
+    return t_ns[inside], np.linalg.norm(p_W_B[inside] - p_gt, axis=1)
+
+
+def outage_max_errors(
+    t_ns: I64, p_W_B: F64, gt: GroundTruth, outages: Sequence[tuple[int, int]]
+) -> list[float | None]:
+    """Max position error (m, no alignment) of the estimate inside each outage."""
+    t, err = _position_errors(t_ns, p_W_B, gt)
+    out: list[float | None] = []
+    for a, b in outages:
+        sel = (t >= a) & (t <= b)
+        out.append(float(err[sel].max()) if sel.any() else None)
+    return out
+
+
+def align_yaw_translation(p_est: F64, p_ref: F64, up_W: F64) -> F64:
+    """``p_est`` (N, 3) after the least-squares rotation about ``up_W`` and translation onto
+    ``p_ref`` (4-DoF alignment; private twin of ``evaluation.alignment``, which sits above)."""
+    u = up_W / np.linalg.norm(up_W)
+    a, b = p_est - p_est.mean(0), p_ref - p_ref.mean(0)
+    a_perp, b_perp = a - np.outer(a @ u, u), b - np.outer(b @ u, u)
+    psi = np.arctan2(np.sum(np.cross(a_perp, b_perp) @ u), np.sum(a_perp * b_perp))
+    K = np.array([[0, -u[2], u[1]], [u[2], 0, -u[0]], [-u[1], u[0], 0]])
+    R = np.eye(3) + np.sin(psi) * K + (1 - np.cos(psi)) * K @ K
+    return (p_est - p_est.mean(0)) @ R.T + p_ref.mean(0)
+
+
+def umeyama_se3(p_est: F64, p_ref: F64) -> F64:
+    a, b = p_est - p_est.mean(0), p_ref - p_ref.mean(0)
+    U, _, Vt = np.linalg.svd(b.T @ a)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    return a @ R.T + p_ref.mean(0)
+
+
+def trajectory_metrics(
+    result: RunResult, ds: Dataset, method: str, gps_used: bool
+) -> dict[str, Any]:
+    """Extra report keys for one run (see the module docstring); empty without ground truth."""
+    gt = ds.groundtruth
+    if gt is None or len(result.t_ns) < 3:
+        return {}
+    inside, p_gt, _, _ = interpolate_groundtruth(gt, result.t_ns)
+    p_est = result.x[inside, 0:3]
+    if len(p_est) < 3:
+        return {}
+    gps_ok = gps_used and ds.gps is not None and method != "vo"
+    if method == "vo":
+        align, p_al = "se3", umeyama_se3(p_est, p_gt)
+    elif gps_ok:
+        align, p_al = "none", p_est
+    else:
+        up = -np.asarray(ds.gravity_W, float)
+        align, p_al = "posyaw", align_yaw_translation(p_est, p_gt, up)
+    ate = float(np.sqrt(np.mean(np.sum((p_al - p_gt) ** 2, axis=1))))
+    path = float(np.sum(np.linalg.norm(np.diff(p_gt, axis=0), axis=1)))
+    final = float(np.linalg.norm(p_est[-1] - p_gt[-1]))
+    out: dict[str, Any] = {
+        "ate_m": ate, "ate_alignment": align, "path_length_m": path,
+        "final_position_error_m": final,
+        "final_error_pct_of_path": 100.0 * final / path if path > 0 else None,
+    }
+    outages = gps_outages(ds) if gps_ok else []
+    if outages:
+        errs = outage_max_errors(result.t_ns, result.x[:, 0:3], gt, outages)
+        out["gps_outages_ns"] = outages
+        out["outage_max_error_m"] = errs
+        valid = [e for e in errs if e is not None]
+        out["outage_max_error_worst_m"] = max(valid) if valid else None
+    return out
+
+
+def run_methods(
+    ds: Dataset,
+    methods: Sequence[str] = METHODS,
+    options: RunOptions | None = None,
+    out_dir: Path | None = None,
+    progress: Callable[[str, float], None] | None = None,
+) -> dict[str, RunResult]:
+    """Run each method (outputs in ``out_dir/<method>/``); reports gain ``trajectory_metrics``.
+
+    A method that fails with a library error is logged and reported as ``{"error": message}``.
+    """
+    from svains.errors import SvainsError
+
+    options = options or RunOptions()
+    results: dict[str, RunResult] = {}
+    for m in methods:
+        if m not in METHODS:
+            raise ConfigError(f"unknown method {m!r}; known: {', '.join(METHODS)}")
+        sub = None if out_dir is None else Path(out_dir) / m
+        prog = None if progress is None else (lambda f, m=m: progress(m, f))
+        t0 = time.perf_counter()
+        try:
+            if m == "vo":
+                from svains.navigation.vo import run as run_vo
+
+                res = run_vo(ds, options, prog, out_dir=sub)
+            else:
+                from svains.navigation.vision import tune_run_options
+
+                res = run_method(ds, m, tune_run_options(ds, m, options), sub, prog)
+        except SvainsError as exc:
+            log.error("%s failed: %s", m, exc)
+            results[m] = RunResult(
+                np.zeros(0, np.int64), np.zeros((0, 13)), np.zeros((0, 12)),
+                np.zeros((0, 9, 9)), {"method": m, "error": str(exc)},
+            )
+            continue
+        res.report.update(trajectory_metrics(res, ds, m, options.use_gps))
+        log.info("%s done in %.1f s", m, time.perf_counter() - t0)
+        if sub is not None:
+            (sub / "report.json").write_text(json.dumps(res.report, indent=2, default=_jsonable)
+                                             + "\n", encoding="utf-8")
+        results[m] = res
+    return results
+
+
+def _jsonable(o: object) -> object:
+    return o.tolist() if hasattr(o, "tolist") else str(o)
+
+
+_COLUMNS = (
+    ("method", "method", "{}"),
+    ("ATE [m]", "ate_m", "{:.3f}"),
+    ("align", "ate_alignment", "{}"),
+    ("pos RMSE [m]", "position_rmse_m", "{:.3f}"),
+    ("vel RMSE [m/s]", "velocity_rmse_mps", "{:.3f}"),
+    ("max err in outages [m]", "outage_max_error_m", "{}"),
+    ("final err [% path]", "final_error_pct_of_path", "{:.2f}"),
+    ("real-time factor", "realtime_factor", "{:.1f}"),
+)
+
+
+def _cell(report: dict[str, Any], key: str, fmt: str) -> str:
+    v = report.get(key)
+    if v is None:
+        return "-"
+    if isinstance(v, list):
+        return ", ".join("-" if e is None else f"{e:.2f}" for e in v)
+    try:
+        return fmt.format(v)
+    except (TypeError, ValueError):
+        return str(v)
+
+
+def comparison_markdown(reports: dict[str, dict[str, Any]], title: str) -> str:
+    """The ``compare.md`` table (one row per method)."""
+    head = "| " + " | ".join(c[0] for c in _COLUMNS) + " |"
+    sep = "|" + "|".join("---" for _ in _COLUMNS) + "|"
+    rows = []
+    for m, rep in reports.items():
+        if "error" in rep:
+            rows.append(f"| {m} | failed: {rep['error']} |")
+            continue
+        rows.append("| " + " | ".join(_cell({**rep, "method": m}, k, f) for _, k, f in _COLUMNS)
+                    + " |")
+    return f"# {title}\n\n" + "\n".join([head, sep, *rows]) + "\n"
+
+
+def write_comparison(out_dir: Path, results: dict[str, RunResult], title: str) -> dict[str, Any]:
+    """Write ``compare.json`` (method -> report) and ``compare.md``; return the mapping."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    reports = {m: r.report for m, r in results.items()}
+    (out_dir / "compare.json").write_text(
+        json.dumps(reports, indent=2, default=_jsonable) + "\n", encoding="utf-8"
+    )
+    (out_dir / "compare.md").write_text(comparison_markdown(reports, title), encoding="utf-8")
+    return reports
+
+
+def with_method_options(options: RunOptions, **method_options: Any) -> RunOptions:
+    """``options`` with extra vision method options merged in."""
+    return replace(options, method_options={**options.method_options, **method_options})

@@ -1,0 +1,105 @@
+"""Stereo tracks between consecutive frames from a recorded ``features0`` stream.
+
+``FeatureStream`` holds one row per (frame, track): track id and rectified left/right pixels. This
+module pairs consecutive frames into ``svains.frontend.types.StereoTracks`` (the same type the
+image front end produces), so the vision updaters do not care where tracks came from.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from svains.datasets.types import FeatureStream
+from svains.errors import DatasetError
+from svains.frontend.types import Egomotion, StereoTracks
+from svains.geometry.camera import RectifiedStereo
+
+F64 = NDArray[np.float64]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class TrackOptions:
+    """How recorded features become tracks.
+
+    ``max_row_diff_px``: stereo epipolar gate ``|v_left - v_right|`` at both frames (``None`` = no
+    gate); ``min_disparity_px``: smallest disparity at k-1 (eq. 10 depth must be finite);
+    ``egomotion``: run the front end's RANSAC + Gauss-Newton egomotion on each frame pair (needed
+    by ``lc``/``vo``; its inlier mask then replaces the all-true default).
+    """
+
+    max_row_diff_px: float | None = 2.0
+    min_disparity_px: float = 0.5
+    egomotion: bool = False
+
+
+def _frame_slices(fs: FeatureStream) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Distinct frame times (F,) and start offsets (F+1,) of their rows (rows sorted by time)."""
+    t = np.asarray(fs.t_ns, dtype=np.int64)
+    if t.size and np.any(np.diff(t) < 0):
+        raise DatasetError("features0 rows are not sorted by timestamp")
+    times, starts = np.unique(t, return_index=True)
+    return times, np.append(starts, t.size)
+
+
+def _estimate(
+    p_prev: F64, uv_left: F64, uv_right: F64, rig: RectifiedStereo, p_cur: F64, seed: int,
+    prior: Egomotion | None,
+) -> tuple[Egomotion | None, NDArray[np.bool_]]:
+    # Imported lazily: the front end's egomotion is only needed by lc/vo.
+    from svains.frontend.egomotion import RansacOptions, estimate_egomotion
+
+    res = estimate_egomotion(
+        p_prev, uv_left, uv_right, rig, RansacOptions(seed=seed), p_cur=p_cur, prior=prior
+    )
+    return res.egomotion, res.inlier
+
+
+def tracks_from_features(
+    fs: FeatureStream, rig: RectifiedStereo, options: TrackOptions | None = None
+) -> list[StereoTracks]:
+    """One ``StereoTracks`` per consecutive frame pair (F-1 of them, possibly with M = 0).
+
+    Tracks are matched by id between frame k-1 and k; ``p_Ckm1_F`` is triangulated at k-1 (eq. 10).
+    ``inlier`` is all-true except features failing the disparity/epipolar gates (or, with
+    ``options.egomotion``, the RANSAC outliers); ``egomotion`` is ``None`` unless requested.
+    """
+    opts = options or TrackOptions()
+    times, bounds = _frame_slices(fs)
+    ids = np.asarray(fs.track_id, dtype=np.int64)
+    uvl_all = np.asarray(fs.uv_left, dtype=float)
+    uvr_all = np.asarray(fs.uv_right, dtype=float)
+    out: list[StereoTracks] = []
+    prior: Egomotion | None = None
+    for k in range(1, len(times)):
+        a = slice(bounds[k - 1], bounds[k])
+        b = slice(bounds[k], bounds[k + 1])
+        _, ia, ib = np.intersect1d(ids[a], ids[b], assume_unique=False, return_indices=True)
+        uvl0, uvr0 = uvl_all[a][ia], uvr_all[a][ia]
+        uvl1, uvr1 = uvl_all[b][ib], uvr_all[b][ib]
+        p_prev = rig.triangulate(uvl0, uvr0)
+        ok = np.isfinite(p_prev).all(axis=1) & (uvl0[:, 0] - uvr0[:, 0] >= opts.min_disparity_px)
+        ok &= np.isfinite(uvl1).all(axis=1) & np.isfinite(uvr1).all(axis=1)
+        if opts.max_row_diff_px is not None:
+            ok &= np.abs(uvl0[:, 1] - uvr0[:, 1]) <= opts.max_row_diff_px
+            ok &= np.abs(uvl1[:, 1] - uvr1[:, 1]) <= opts.max_row_diff_px
+        ego: Egomotion | None = None
+        if opts.egomotion and ok.sum() >= 3:
+            p_cur = rig.triangulate(uvl1, uvr1)
+            ego, inl = _estimate(p_prev, uvl1, uvr1, rig, p_cur, seed=k, prior=prior)
+            ok &= inl
+            prior = ego
+        out.append(
+            StereoTracks(
+                t_prev_ns=int(times[k - 1]), t_ns=int(times[k]), track_id=ids[a][ia],
+                uv_left_prev=uvl0, uv_right_prev=uvr0, uv_left=uvl1, uv_right=uvr1,
+                p_Ckm1_F=p_prev, inlier=ok, egomotion=ego,
+            )
+        )
+    log.debug("built %d stereo track sets from %d frames", len(out), len(times))
+    return out

@@ -1,0 +1,188 @@
+"""Noise pieces of the pixel updates: per-feature innovation gate and IMU-increment noise."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from svains.filter.ukf import chi2_gate
+from svains.geometry.camera import RectifiedStereo
+from svains.geometry.rotation import skew, so3_exp
+from svains.models.vision_common import ImuIncrement
+
+F64 = NDArray[np.float64]
+
+_EPS_ROT = 1e-6  # rad
+_EPS_POS = 1e-6  # m
+
+
+def feature_gate(
+    Y: F64, Wm: F64, Wc: F64, z: F64, R_blocks: F64, probability: float | None,
+    G: F64 | None = None,
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Per-feature innovation gate: (keep (M,), finite (M,)).
+
+    ``Y`` (S, 4M) predicted pixels of the sigma points, weights ``Wm``/``Wc`` (S,), ``z`` (4M,),
+    ``R_blocks`` (M, 4, 4) each feature's measurement noise.
+    A feature is kept when its predictions are finite and ``r^T S_m^-1 r`` (S_m its 4x4 innovation
+    covariance, plus the block of ``G G^T`` when given) is below the chi-square(4) quantile of
+    ``probability``.
+    """
+    S, n = Y.shape
+    m = n // 4
+    finite = np.isfinite(Y).reshape(S, m, 4).all(axis=(0, 2))
+    if probability is None:
+        return finite, finite
+    Yf = np.where(np.isfinite(Y), Y, 0.0)
+    y = Wm @ Yf
+    dY = (Yf - y).reshape(S, m, 4)
+    cov = np.einsum("s,smi,smj->mij", Wc, dY, dY) + R_blocks
+    if G is not None:
+        Gm = G.reshape(m, 4, -1)
+        cov += np.einsum("mik,mjk->mij", Gm, Gm)
+    r = (z - y).reshape(m, 4)
+    # Features behind/at the camera give huge or non-finite predictions: never kept.
+    ok = finite & np.isfinite(cov).all(axis=(1, 2)) & (np.abs(r).max(axis=1) < 1e6)
+    d2 = np.full(m, np.inf)
+    if ok.any():
+        try:
+            sol = np.linalg.solve(cov[ok], r[ok][:, :, None])[:, :, 0]
+            d2[ok] = np.einsum("mi,mi->m", r[ok], sol)
+        except np.linalg.LinAlgError:
+            d2[ok] = np.einsum("mi,mi->m", r[ok], np.einsum(
+                "mij,mj->mi", np.linalg.pinv(cov[ok]), r[ok]))
+    return ok & (d2 <= chi2_gate(probability, 4)), finite
+
+
+def increment_noise_factor(
+    h_mean: Callable[[ImuIncrement], F64],
+    inc: ImuIncrement,
+    dt_s: float,
+    gyro_noise_density: float,
+    accel_noise_density: float,
+) -> F64:
+    """``G`` (nz, 6) with ``G G^T`` the pixel covariance caused by IMU noise in ``inc``.
+
+    ``h_mean(inc) -> (nz,)`` predicts the pixels at the mean state. The integrated gyro noise
+    rotates ``ΔR`` by ``δθ ~ N(0, σ_g² Δt I)``; the accelerometer noise moves ``J_B`` by
+    ``N(0, σ_a² Δt³/3 I)`` (densities per √Hz). Columns are central differences times the std.
+    """
+    std_rot = gyro_noise_density * np.sqrt(dt_s)
+    std_pos = accel_noise_density * np.sqrt(dt_s**3 / 3.0)
+    cols = []
+    for i in range(3):
+        e = np.zeros(3)
+        e[i] = _EPS_ROT
+        plus = h_mean(replace(inc, dR_Bkm1_Bk=inc.dR_Bkm1_Bk @ so3_exp(e)))
+        minus = h_mean(replace(inc, dR_Bkm1_Bk=inc.dR_Bkm1_Bk @ so3_exp(-e)))
+        cols.append((plus - minus) / (2 * _EPS_ROT) * std_rot)
+    for i in range(3):
+        e = np.zeros(3)
+        e[i] = _EPS_POS
+        plus = h_mean(replace(inc, J_B=inc.J_B + e))
+        minus = h_mean(replace(inc, J_B=inc.J_B - e))
+        cols.append((plus - minus) / (2 * _EPS_POS) * std_pos)
+    return np.column_stack(cols)
+
+
+def previous_pixel_noise(
+    h_prev: Callable[[F64, F64], F64], uvl0: F64, uvr0: F64, sigma_px: float
+) -> F64:
+    """Per-feature noise (M, 4, 4) px² of the 4 predicted-vs-tracked numbers.
+
+    ``σ² I`` for the tracked pixels at k plus ``σ² J J^T``, ``J`` (4, 3) the derivative of the
+    prediction ``h_prev(uvl0, uvr0) -> (4M,)`` (at the mean state) w.r.t. the k-1 pixels
+    ``u_left, v_left, u_right``: triangulation noise grows with depth², which the paper's constant
+    pixel noise ignores. Central differences, all features at once (each feature's prediction
+    depends only on its own pixels).
+    """
+    m = len(uvl0)
+    eps = 1e-3  # px
+    J = np.empty((m, 4, 3))
+    for j, (which, col) in enumerate(((0, 0), (0, 1), (1, 0))):
+        plus = [uvl0.copy(), uvr0.copy()]
+        minus = [uvl0.copy(), uvr0.copy()]
+        plus[which][:, col] += eps
+        minus[which][:, col] -= eps
+        J[:, :, j] = ((h_prev(*plus) - h_prev(*minus)) / (2 * eps)).reshape(m, 4)
+    J = np.where(np.isfinite(J), J, 0.0)
+    return sigma_px**2 * (np.eye(4) + np.einsum("mik,mjk->mij", J, J))
+
+
+def whiten(Y: F64, W_inv: F64) -> F64:
+    """Apply per-feature whitening ``W_inv`` (K, 4, 4) to rows of stacked 4-vectors (..., 4K)."""
+    k = W_inv.shape[0]
+    Yk = Y.reshape(*Y.shape[:-1], k, 4)
+    return np.einsum("kij,...kj->...ki", W_inv, Yk).reshape(Y.shape)
+
+
+def lowrank_whiten(Y: F64, G: F64 | None) -> F64:
+    """Rows of ``Y`` (..., n) times ``(I + G G^T)^-1/2`` (``G`` (n, k), thin): with ``G = U Σ V^T``,
+    ``(I + G G^T)^-1/2 = I - U diag(1 - (1 + σ²)^-1/2) U^T``. ``G=None`` returns ``Y``."""
+    if G is None:
+        return Y
+    U, sv, _ = np.linalg.svd(G, full_matrices=False)
+    d = 1.0 - 1.0 / np.sqrt(1.0 + sv**2)
+    return Y - ((Y @ U) * d) @ U.T
+
+
+def _pixel_jacobian(p_C: F64, f: float, baseline: float) -> F64:
+    """d(uL, vL, uR, vR)/d(p_C) (M, 4, 3) of left-camera points ``p_C`` (M, 3)."""
+    x, y, z = p_C[:, 0], p_C[:, 1], p_C[:, 2]
+    J = np.zeros((len(p_C), 4, 3))
+    J[:, 0, 0] = J[:, 1, 1] = J[:, 2, 0] = J[:, 3, 1] = f / z
+    J[:, 0, 2] = -f * x / z**2
+    J[:, 1, 2] = J[:, 3, 2] = -f * y / z**2
+    J[:, 2, 2] = -f * (x - baseline) / z**2
+    return J
+
+
+def _triangulation_jacobian(uvl: F64, uvr: F64, f: float, cu: float, cv: float,
+                            baseline: float) -> F64:
+    """d(p_C)/d(u_left, v_left, u_right) (M, 3, 3) of eq. 10."""
+    disp = uvl[:, 0] - uvr[:, 0]
+    z = f * baseline / disp
+    dz = z / disp  # dz/du_right = -dz/du_left
+    J = np.zeros((len(uvl), 3, 3))
+    J[:, 2, 0], J[:, 2, 2] = -dz, dz
+    J[:, 0, 0] = z / f - (uvl[:, 0] - cu) / f * dz
+    J[:, 0, 2] = (uvl[:, 0] - cu) / f * dz
+    J[:, 1, 1] = z / f
+    J[:, 1, 0] = -(uvl[:, 1] - cv) / f * dz
+    J[:, 1, 2] = (uvl[:, 1] - cv) / f * dz
+    return J
+
+
+def analytic_noise(
+    R_c: F64, r_c: F64, uvl0: F64, uvr0: F64, rig: RectifiedStereo, sigma_px: float,
+    inc: ImuIncrement | None = None, dt_s: float = 0.0,
+    densities: tuple[float, float] | None = None,
+) -> tuple[F64, F64 | None]:
+    """Closed-form twins of ``previous_pixel_noise`` and ``increment_noise_factor`` for the
+    rigid-motion prediction ``d_k = R_c d - r_c`` (both ``3d`` and, in a rectified pair, ``tc``):
+    ``R_blocks`` (M, 4, 4) and ``G`` (4M, 6) (None without ``inc``/``densities``).
+
+    ``R_c`` (3, 3), ``r_c`` (3,) at the mean state (``vision_common.camera_motion``).
+    """
+    d = rig.triangulate(uvl0, uvr0)
+    d_k = d @ R_c.T - r_c
+    P = _pixel_jacobian(d_k, rig.f, rig.baseline)  # (M, 4, 3)
+    T = _triangulation_jacobian(uvl0, uvr0, rig.f, rig.cu, rig.cv, rig.baseline)
+    J = np.einsum("mij,jk,mkl->mil", P, R_c, T)
+    J = np.where(np.isfinite(J), J, 0.0)
+    R_blocks = sigma_px**2 * (np.eye(4) + np.einsum("mik,mjk->mij", J, J))
+    if inc is None or densities is None:
+        return R_blocks, None
+    C = np.asarray(rig.R_B_C, dtype=float)
+    # d_k = C^T dRt (C d + c) - ...; ΔR -> ΔR Exp(δ) moves d_k by C^T [a]x δ, a = dRt (C d + c).
+    dRt = np.asarray(inc.dR_Bkm1_Bk, dtype=float).T
+    a = (d @ C.T + np.asarray(rig.p_B_C, float)) @ dRt.T
+    std_rot = densities[0] * np.sqrt(dt_s)
+    std_pos = densities[1] * np.sqrt(dt_s**3 / 3.0)
+    D_rot = np.einsum("ji,mjk->mik", C, skew(a)) * std_rot  # C^T [a]x, (M, 3, 3)
+    D_pos = np.broadcast_to(C.T * std_pos, D_rot.shape)
+    G = np.einsum("mij,mjk->mik", P, np.concatenate([D_rot, D_pos], axis=2))  # (M, 4, 6)
+    return R_blocks, np.where(np.isfinite(G), G, 0.0).reshape(-1, 6)

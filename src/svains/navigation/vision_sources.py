@@ -1,0 +1,122 @@
+"""Where the vision updaters get their stereo tracks: ``features0`` or images via the front end.
+
+Both sources give ``frame_times()`` (int64 ns, the frames that carry tracks from a previous frame)
+and ``tracks_at(t_ns) -> StereoTracks | None``.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from svains.datasets.types import Dataset, FeatureStream
+from svains.errors import ConfigError, DatasetError
+from svains.frontend.types import StereoTracks
+from svains.geometry.camera import RectifiedStereo
+from svains.navigation.tracks import TrackOptions, tracks_from_features
+
+I64 = NDArray[np.int64]
+
+log = logging.getLogger(__name__)
+
+SourceName = Literal["auto", "features", "images"]
+
+
+def rig_from_dataset(ds: Dataset) -> RectifiedStereo:
+    """The rectified pair that ``cam0``/``cam1`` define (``features0`` pixels live in it)."""
+    if ds.cam0 is None or ds.cam1 is None:
+        raise DatasetError(f"{ds.root}: vision methods need cam0 and cam1 calibrations")
+    from svains.frontend.rectify import StereoRectifier
+
+    return StereoRectifier.from_calibration(ds.cam0, ds.cam1).rig
+
+
+def decimate_features(fs: FeatureStream, stride: int) -> FeatureStream:
+    """Keep every ``stride``-th frame of a feature stream (e.g. 20 Hz -> 5 Hz with 4)."""
+    if stride < 1:
+        raise ConfigError(f"frame_stride must be >= 1, got {stride}")
+    if stride == 1:
+        return fs
+    times = fs.frame_times()[::stride]
+    keep = np.isin(fs.t_ns, times)
+    return FeatureStream(
+        t_ns=fs.t_ns[keep], track_id=fs.track_id[keep], uv_left=fs.uv_left[keep],
+        uv_right=fs.uv_right[keep], pixel_noise_std=fs.pixel_noise_std,
+    )
+
+
+class FeatureTrackSource:
+    """Tracks precomputed from the recorded ``features0`` stream."""
+
+    kind = "features"
+
+    def __init__(
+        self, ds: Dataset, rig: RectifiedStereo, track_options: TrackOptions, frame_stride: int = 1
+    ) -> None:
+        if ds.features is None:
+            raise DatasetError(f"{ds.root}: no features0 stream (use images instead)")
+        self.rig = rig
+        self.pixel_noise_std = float(ds.features.pixel_noise_std)
+        fs = decimate_features(ds.features, frame_stride)
+        tracks = tracks_from_features(fs, rig, track_options)
+        self._by_time = {tr.t_ns: tr for tr in tracks}
+        self._times = np.array(sorted(self._by_time), dtype=np.int64)
+
+    def frame_times(self) -> I64:
+        return self._times
+
+    def tracks_at(self, t_ns: int) -> StereoTracks | None:
+        return self._by_time.get(int(t_ns))
+
+
+class ImageTrackSource:
+    """Tracks computed on the fly by the stereo front end (``svains.frontend.pipeline``)."""
+
+    kind = "images"
+
+    def __init__(self, ds: Dataset, frame_stride: int = 1) -> None:
+        from svains.datasets.loader import stereo_pairs
+        from svains.frontend.pipeline import StereoFrontend
+
+        if ds.cam0 is None or ds.cam1 is None or ds.left is None or ds.right is None:
+            raise DatasetError(f"{ds.root}: image-based vision needs cam0/cam1 images")
+        self._ds = ds
+        self.frontend = StereoFrontend.from_calibration(ds.cam0, ds.cam1)
+        self.rig = self.frontend.rig
+        self.pixel_noise_std = 1.0
+        t, il, ir = stereo_pairs(ds)
+        sel = slice(None, None, max(1, frame_stride))
+        self._times = np.asarray(t[sel], np.int64)
+        self._index = {int(tt): (int(a), int(b)) for tt, a, b in zip(t[sel], il[sel], ir[sel],
+                                                                     strict=True)}
+        self.frontend_ms: list[float] = []
+
+    def frame_times(self) -> I64:
+        return self._times
+
+    def tracks_at(self, t_ns: int) -> StereoTracks | None:
+        ij = self._index.get(int(t_ns))
+        if ij is None:
+            return None
+        assert self._ds.left is not None and self._ds.right is not None
+        import time
+
+        t0 = time.perf_counter()
+        tracks = self.frontend.process(int(t_ns), self._ds.left.load(ij[0]),
+                                       self._ds.right.load(ij[1]))
+        self.frontend_ms.append((time.perf_counter() - t0) * 1e3)
+        return tracks
+
+
+def make_source(
+    ds: Dataset, source: SourceName, track_options: TrackOptions, frame_stride: int = 1
+) -> FeatureTrackSource | ImageTrackSource:
+    """``features`` (recorded tracks), ``images`` (front end) or ``auto`` (features if present)."""
+    if source not in ("auto", "features", "images"):
+        raise ConfigError(f"vision source must be auto, features or images, got {source!r}")
+    if source == "features" or (source == "auto" and ds.features is not None):
+        return FeatureTrackSource(ds, rig_from_dataset(ds), track_options, frame_stride)
+    return ImageTrackSource(ds, frame_stride)

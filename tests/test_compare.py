@@ -1,0 +1,108 @@
+"""Comparison helpers (outages, alignment, table) and figures on synthetic runs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from svains.datasets.types import Dataset, GpsStream, GroundTruth
+from svains.evaluation.figures import comparison_figures
+from svains.geometry.rotation import so3_exp
+from svains.navigation.compare import (
+    align_yaw_translation,
+    comparison_markdown,
+    gps_outages,
+    outage_max_errors,
+    trajectory_metrics,
+    umeyama_se3,
+)
+from svains.navigation.runner import RunResult
+
+
+def _truth(n: int = 201) -> GroundTruth:
+    t = np.linspace(0, 20, n)
+    p = np.column_stack([10 * np.cos(0.3 * t), 6 * np.sin(0.3 * t), 2 + 0.1 * t])
+    v = np.gradient(p, t, axis=0)
+    q = np.tile([1.0, 0, 0, 0], (n, 1))
+    z = np.zeros((n, 3))
+    return GroundTruth((t * 1e9).astype(np.int64), p, q, v, z, z)
+
+
+def _dataset(gt: GroundTruth) -> Dataset:
+    t_gps = np.arange(0, 21, 1.0)
+    t_gps = t_gps[(t_gps < 5) | (t_gps > 9)]  # one outage 4 s -> 10 s
+    gps = GpsStream((t_gps * 1e9).astype(np.int64), np.zeros((len(t_gps), 3)),
+                    np.zeros((len(t_gps), 3)))
+    return Dataset(root=Path("memory"), name="synthetic", groundtruth=gt, gps=gps)
+
+
+def _run(gt: GroundTruth, offset: np.ndarray, method: str) -> RunResult:
+    n = len(gt.t_ns)
+    x = np.zeros((n, 13))
+    x[:, 0:3] = gt.p_W_B + offset
+    x[:, 3:6] = gt.v_W_B
+    x[:, 6:10] = gt.q_W_B_wxyz
+    return RunResult(gt.t_ns, x, np.full((n, 12), 0.1), np.tile(np.eye(9), (n, 1, 1)),
+                     {"method": method, "realtime_factor": 10.0})
+
+
+def test_gps_outage_detected_and_max_error_inside() -> None:
+    gt = _truth()
+    ds = _dataset(gt)
+    assert gps_outages(ds) == [(4_000_000_000, 10_000_000_000)]
+    x = gt.p_W_B.copy()
+    bump = (gt.t_ns >= 6e9) & (gt.t_ns <= 7e9)
+    x[bump, 0] += 0.7
+    x[gt.t_ns > 15e9, 1] += 3.0  # outside the outage: must not count
+    (err,) = outage_max_errors(gt.t_ns, x, gt, gps_outages(ds))
+    assert err == pytest.approx(0.7)
+
+
+def test_alignments_remove_the_right_degrees_of_freedom() -> None:
+    gt = _truth()
+    rng = np.random.default_rng(0)
+    R_yaw = so3_exp(np.array([0.0, 0.0, 0.4]))
+    moved = gt.p_W_B @ R_yaw.T + np.array([3.0, -2.0, 1.0])
+    np.testing.assert_allclose(align_yaw_translation(moved, gt.p_W_B, np.array([0, 0, 1.0])),
+                               gt.p_W_B, atol=1e-9)
+    R_any = so3_exp(rng.normal(0, 0.3, 3))
+    moved = gt.p_W_B @ R_any.T + 1.0
+    np.testing.assert_allclose(umeyama_se3(moved, gt.p_W_B), gt.p_W_B, atol=1e-9)
+    # A roll/pitch error is NOT removed by the 4-DoF alignment.
+    R_roll = so3_exp(np.array([0.2, 0.0, 0.0]))
+    res = align_yaw_translation(gt.p_W_B @ R_roll.T, gt.p_W_B, np.array([0, 0, 1.0]))
+    assert np.abs(res - gt.p_W_B).max() > 0.1
+
+
+def test_trajectory_metrics_and_table() -> None:
+    gt = _truth()
+    ds = _dataset(gt)
+    r = _run(gt, np.array([0.3, 0.0, 0.4]), "3d")
+    m = trajectory_metrics(r, ds, "3d", gps_used=True)
+    assert m["ate_alignment"] == "none"
+    assert m["ate_m"] == pytest.approx(0.5)
+    assert m["outage_max_error_m"] == [pytest.approx(0.5)]
+    assert m["final_error_pct_of_path"] == pytest.approx(100 * 0.5 / m["path_length_m"])
+    m_denied = trajectory_metrics(r, ds, "3d", gps_used=False)
+    assert m_denied["ate_alignment"] == "posyaw" and m_denied["ate_m"] < 1e-9
+    assert "outage_max_error_m" not in m_denied
+    r.report.update(m)
+    md = comparison_markdown({"3d": r.report, "lc": {"error": "no egomotion"}}, "t")
+    assert "| 3d | 0.500 | none |" in md and "| lc | failed: no egomotion |" in md
+
+
+def test_figures_are_written(tmp_path: Path) -> None:
+    gt = _truth()
+    ds = _dataset(gt)
+    runs = {m: _run(gt, np.array([0.1 * i, 0, 0]), m) for i, m in enumerate(("lc", "tc", "3d"))}
+    vo = _run(gt, np.zeros(3), "vo")
+    vo.report["vo"] = {"break_t_ns": [int(gt.t_ns[50])]}
+    runs["vo"] = vo
+    for m, r in runs.items():
+        r.report.update(trajectory_metrics(r, ds, m, gps_used=True))
+    paths = comparison_figures(ds, runs, tmp_path)
+    names = sorted(p.name for p in paths)
+    assert names == ["fig10_tc.png", "fig11_3d.png", "fig5.png", "fig7_vo.png", "fig9_lc.png"]
+    assert all(p.stat().st_size > 10_000 for p in paths)

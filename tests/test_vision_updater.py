@@ -1,0 +1,191 @@
+"""Vision updaters (tc, 3d, lc) on one exact stereo frame pair, with the real UKF."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from _vision_truth import TwoFrames, make_rig, two_frames
+from svains.datasets.types import CameraCalib, Dataset, FeatureStream
+from svains.errors import ConfigError
+from svains.filter.sigma_points import MerweScaledSigmaPoints
+from svains.filter.ukf import UKF
+from svains.models.manifold import NavManifold
+from svains.models.state import PAPER, V
+from svains.navigation.base import FrameContext
+from svains.navigation.options import RunOptions
+from svains.navigation.vision import VisionOptions, make_vision_updater
+
+RIG = make_rig()
+T0 = 5_000_000_000
+DT_S = 0.2
+
+
+def _calibs() -> tuple[CameraCalib, CameraCalib]:
+    T0_ = np.eye(4)
+    T0_[:3, :3], T0_[:3, 3] = RIG.R_B_C, RIG.p_B_C
+    T1_ = T0_.copy()
+    T1_[:3, 3] = RIG.p_B_C + RIG.R_B_C @ np.array([RIG.baseline, 0.0, 0.0])
+    intr = np.array([RIG.f, RIG.f, RIG.cu, RIG.cv])
+    mk = lambda n, T: CameraCalib(n, T, 2.0, (RIG.width, RIG.height), intr, "radtan", np.zeros(4))  # noqa: E731
+    return mk("cam0", T0_), mk("cam1", T1_)
+
+
+def _dataset(tf: TwoFrames, corrupt: int = 0, seed: int = 0) -> Dataset:
+    m = len(tf.p_Ckm1_F)
+    uvl = tf.uv_left.copy()
+    # Columns only: rows stay on the epipolar line, so only the innovation gate can catch them.
+    uvl[:corrupt, 0] += np.random.default_rng(seed).choice([-40.0, 40.0], corrupt)
+    fs = FeatureStream(
+        t_ns=np.repeat(np.array([T0, T0 + int(DT_S * 1e9)], np.int64), m),
+        track_id=np.tile(np.arange(m, dtype=np.int64), 2),
+        uv_left=np.vstack([tf.uv_left_prev, uvl]),
+        uv_right=np.vstack([tf.uv_right_prev, tf.uv_right]),
+        pixel_noise_std=0.3,
+    )
+    cam0, cam1 = _calibs()
+    return Dataset(root=Path("memory"), name="two-frames", cam0=cam0, cam1=cam1, features=fs)
+
+
+def _ukf(x_true: np.ndarray, dv: np.ndarray) -> UKF:
+    x0 = x_true.copy()
+    x0[V] += dv
+    P0 = np.diag(np.r_[np.full(3, 0.01), np.full(3, 0.25), np.full(3, 1e-4), np.full(3, 1e-3)])
+    return UKF(NavManifold(PAPER), MerweScaledSigmaPoints(12), x0, P0)
+
+
+def _ctx(ukf: UKF) -> FrameContext:
+    return FrameContext(ukf, PAPER, T0 + int(DT_S * 1e9), T0, None, [], None)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("method", ["3d", "tc", "lc"])
+def test_update_pulls_velocity_towards_truth(method: str) -> None:
+    tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
+    upd = make_vision_updater(method, _dataset(tf), RunOptions(model="paper"))
+    assert list(upd.frame_times()) == [T0 + int(DT_S * 1e9)]
+    ukf = _ukf(tf.x_k, np.array([0.4, -0.3, 0.2]))
+    stats = upd.update(_ctx(ukf))
+    assert stats is not None and stats.accepted
+    err = np.linalg.norm(ukf.x[V] - tf.x_k[V])
+    # 0.54 m/s prior error; one frame of noise-free features removes most of it.
+    assert err < 0.1, err
+    assert upd.summary()["frames_fused"] == 1
+
+
+def test_feature_gate_drops_and_counts_corrupted_features() -> None:
+    tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
+    upd = make_vision_updater("3d", _dataset(tf, corrupt=5), RunOptions(model="paper"))
+    ukf = _ukf(tf.x_k, np.array([0.05, -0.05, 0.02]))
+    stats = upd.update(_ctx(ukf))
+    assert stats is not None and stats.accepted
+    s = upd.summary()
+    assert s["features_gated"] == 5 and s["features_fused"] == 55, s
+    assert np.linalg.norm(ukf.x[V] - tf.x_k[V]) < 0.04  # prior error 0.073 m/s
+
+
+def test_no_tracks_gives_no_update() -> None:
+    tf = two_frames(RIG, DT_S, np.zeros(3), np.zeros(3), n_features=2)
+    upd = make_vision_updater("3d", _dataset(tf), RunOptions(model="paper"))
+    ukf = _ukf(tf.x_k, np.zeros(3))
+    x_before = ukf.x.copy()
+    assert upd.update(_ctx(ukf)) is None
+    np.testing.assert_array_equal(ukf.x, x_before)
+    assert upd.summary()["frames_without_tracks"] == 1
+
+
+def test_unknown_option_is_rejected() -> None:
+    with pytest.raises(ConfigError, match=r"unknown vision options \['pixel_sigma'\]"):
+        VisionOptions.from_mapping({"pixel_sigma": 1.0})
+    with pytest.raises(ConfigError, match="rotation must be one of"):
+        VisionOptions.from_mapping({"rotation": "cubic"})
+
+
+def test_whitening_turns_noise_into_identity() -> None:
+    from svains.navigation.vision_noise import lowrank_whiten, whiten
+
+    rng = np.random.default_rng(4)
+    A = rng.normal(size=(3, 4, 4))
+    R_blocks = A @ np.swapaxes(A, 1, 2) + np.eye(4)
+    G = rng.normal(size=(12, 6))
+    W_inv = np.linalg.inv(np.linalg.cholesky(R_blocks))
+    R_full = np.zeros((12, 12))
+    for k in range(3):
+        R_full[4 * k : 4 * k + 4, 4 * k : 4 * k + 4] = R_blocks[k]
+    R_full += G @ G.T
+    # T = transform applied to every stacked vector; T R T^T must be the identity.
+    Gw = whiten(G.T, W_inv).T
+    T = lowrank_whiten(whiten(np.eye(12), W_inv), Gw).T  # rows transformed -> transpose
+    np.testing.assert_allclose(T @ R_full @ T.T, np.eye(12), atol=1e-10)
+
+
+def test_previous_pixel_noise_is_identity_map_without_motion() -> None:
+    from svains.models.vision_3d import predict_pixels_3d
+    from svains.navigation.vision_noise import previous_pixel_noise
+
+    tf = two_frames(RIG, DT_S, np.zeros(3), np.zeros(3), n_features=5)
+    x = tf.x_k.copy()
+    x[3:6] = 0.0  # at rest: predicted pixels at k = tracked pixels at k-1
+
+    def h_prev(uvl: np.ndarray, uvr: np.ndarray) -> np.ndarray:
+        return predict_pixels_3d(x, RIG.triangulate(uvl, uvr), DT_S, RIG)
+
+    R = previous_pixel_noise(h_prev, tf.uv_left_prev, tf.uv_right_prev, 0.5)
+    # d(uL, vL, uR, vR at k)/d(uL, vL, uR at k-1): vR follows vL in a rectified pair.
+    J = np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1], [0, 1, 0]])
+    np.testing.assert_allclose(R, np.broadcast_to(0.25 * (np.eye(4) + J @ J.T), R.shape),
+                               atol=1e-6)
+
+
+@pytest.mark.parametrize("rotation", ["linear", "imu"])
+def test_analytic_noise_matches_finite_differences(rotation: str) -> None:
+    from _vision_truth import imu_samples
+    from svains.models.vision_3d import predict_pixels_3d
+    from svains.models.vision_common import camera_motion
+    from svains.models.vision_imu import imu_increment
+    from svains.navigation.vision_noise import (
+        analytic_noise,
+        increment_noise_factor,
+        previous_pixel_noise,
+    )
+
+    omega, acc, g = np.array([0.1, -0.2, 0.3]), np.array([0.3, 0.1, 0.0]), np.array([0, 0, -9.81])
+    tf = two_frames(RIG, DT_S, omega, acc, n_features=20)
+    inc = None
+    if rotation == "imu":
+        t_ns, gyro, accel = imu_samples(tf, omega, acc, g)
+        inc = imu_increment(t_ns, gyro, accel, 0, int(DT_S * 1e9), g)
+    x = tf.x_k[None, :]
+
+    def h_prev(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return predict_pixels_3d(x, RIG.triangulate(a, b), DT_S, RIG, rotation, inc)[0]
+
+    R_fd = previous_pixel_noise(h_prev, tf.uv_left_prev, tf.uv_right_prev, 0.5)
+    R_c, r_c = camera_motion(x, DT_S, RIG, rotation, inc)
+    dens = (0.01, 0.05)
+    R_an, G_an = analytic_noise(R_c[0], r_c[0], tf.uv_left_prev, tf.uv_right_prev, RIG, 0.5,
+                                inc, DT_S, dens)
+    np.testing.assert_allclose(R_an, R_fd, rtol=1e-5, atol=1e-6)
+    if inc is not None:
+        G_fd = increment_noise_factor(
+            lambda i: predict_pixels_3d(x, tf.p_Ckm1_F, DT_S, RIG, "imu", i)[0], inc, DT_S, *dens
+        )
+        assert G_an is not None
+        np.testing.assert_allclose(G_an, G_fd, rtol=1e-4, atol=1e-6)
+
+
+def test_tune_run_options_sets_frame_gyro_walk() -> None:
+    from svains.datasets.types import ImuCalib
+    from svains.navigation.vision import tune_run_options
+
+    tf = two_frames(RIG, DT_S, np.zeros(3), np.zeros(3), n_features=10)
+    ds = _dataset(tf)
+    ds.imu_calib = ImuCalib(np.eye(4), 100.0, 0.012, 1e-5, 0.07, 1e-4)
+    opts = RunOptions(model="biased", method_options={"rotation": "imu"})
+    tuned = tune_run_options(ds, "3d", opts)
+    assert tuned.noise.gyro_random_walk == pytest.approx(0.012 / DT_S)
+    assert tuned.method_options["imu_noise"] is False
+    assert tune_run_options(ds, "vo", opts) is opts
+    paper = RunOptions(model="biased", method_options={"rotation": "linear"})
+    assert tune_run_options(ds, "3d", paper) is paper
