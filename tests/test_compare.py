@@ -8,16 +8,15 @@ import numpy as np
 import pytest
 
 from svains.datasets.types import Dataset, GpsStream, GroundTruth
-from svains.evaluation.figures import comparison_figures
-from svains.geometry.rotation import so3_exp
-from svains.navigation.compare import (
-    align_yaw_translation,
+from svains.evaluation.compare import (
+    align_to_groundtruth,
     comparison_markdown,
     gps_outages,
     outage_max_errors,
     trajectory_metrics,
-    umeyama_se3,
 )
+from svains.evaluation.figures import comparison_figures
+from svains.geometry.rotation import so3_exp
 from svains.navigation.runner import RunResult
 
 
@@ -60,20 +59,44 @@ def test_gps_outage_detected_and_max_error_inside() -> None:
     assert err == pytest.approx(0.7)
 
 
+def _run_at(gt: GroundTruth, p_W_B: np.ndarray, method: str) -> RunResult:
+    r = _run(gt, np.zeros(3), method)
+    r.x[:, 0:3] = p_W_B
+    return r
+
+
 def test_alignments_remove_the_right_degrees_of_freedom() -> None:
     gt = _truth()
+    ds = _dataset(gt)
     rng = np.random.default_rng(0)
     R_yaw = so3_exp(np.array([0.0, 0.0, 0.4]))
     moved = gt.p_W_B @ R_yaw.T + np.array([3.0, -2.0, 1.0])
-    np.testing.assert_allclose(align_yaw_translation(moved, gt.p_W_B, np.array([0, 0, 1.0])),
-                               gt.p_W_B, atol=1e-9)
+    res = align_to_groundtruth(_run_at(gt, moved, "3d"), ds, "posyaw")
+    assert res is not None and res.alignment == "posyaw"
+    np.testing.assert_allclose(res.p_est_aligned, gt.p_W_B, atol=1e-9)
+    assert res.rmse < 1e-9
     R_any = so3_exp(rng.normal(0, 0.3, 3))
     moved = gt.p_W_B @ R_any.T + 1.0
-    np.testing.assert_allclose(umeyama_se3(moved, gt.p_W_B), gt.p_W_B, atol=1e-9)
+    res = align_to_groundtruth(_run_at(gt, moved, "vo"), ds, "se3")
+    assert res is not None
+    np.testing.assert_allclose(res.p_est_aligned, gt.p_W_B, atol=1e-9)
     # A roll/pitch error is NOT removed by the 4-DoF alignment.
     R_roll = so3_exp(np.array([0.2, 0.0, 0.0]))
-    res = align_yaw_translation(gt.p_W_B @ R_roll.T, gt.p_W_B, np.array([0, 0, 1.0]))
-    assert np.abs(res - gt.p_W_B).max() > 0.1
+    res = align_to_groundtruth(_run_at(gt, gt.p_W_B @ R_roll.T, "3d"), ds, "posyaw")
+    assert res is not None and res.max > 0.1
+
+
+def test_straight_run_falls_back_to_no_alignment() -> None:
+    n = 50
+    t = np.linspace(0, 5, n)
+    p = np.column_stack([2.0 * t, np.zeros(n), np.full(n, 2.0)])
+    q = np.tile([1.0, 0, 0, 0], (n, 1))
+    z = np.zeros((n, 3))
+    gt = GroundTruth((t * 1e9).astype(np.int64), p, q, np.tile([2.0, 0, 0], (n, 1)), z, z)
+    ds = Dataset(root=Path("memory"), name="line", groundtruth=gt)
+    m = trajectory_metrics(_run_at(gt, p + np.array([0.0, 0.3, 0.4]), "vo"), ds, "vo", False)
+    assert m["ate_alignment"] == "none"
+    assert m["ate_m"] == pytest.approx(0.5)
 
 
 def test_trajectory_metrics_and_table() -> None:

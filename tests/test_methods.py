@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from svains.datasets.loader import load_dataset
-from svains.navigation.compare import run_methods, write_comparison
+from svains.evaluation.compare import run_methods, write_comparison
 from svains.navigation.options import InitOptions, RunOptions
 from svains.sim import SimConfig, simulate
 

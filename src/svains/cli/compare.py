@@ -48,7 +48,7 @@ def run_compare(
 ) -> dict[str, Any]:
     """Load, run each method with a progress bar, write compare.json/.md and the figures."""
     from svains.datasets.loader import load_dataset
-    from svains.navigation.compare import run_methods, write_comparison
+    from svains.evaluation.compare import run_methods, write_comparison
 
     ds = load_dataset(dataset)
     if synthetic_features_hz is not None:

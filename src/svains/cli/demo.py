@@ -20,8 +20,13 @@ def demo(
     duration: Annotated[float, typer.Option("--duration", help="Flight length [s].")] = 110.0,
     camera_rate: Annotated[float, typer.Option("--camera-rate", help="Stereo rate [Hz].")] = 2.0,
     images: Annotated[
-        bool, typer.Option("--images/--no-images", help="Render images (slower) or features only.")
-    ] = False,
+        bool,
+        typer.Option(
+            "--images/--no-images",
+            help="Render images and run the real stereo front end on them (default), or "
+            "simulate feature tracks only (seconds, for quick looks).",
+        ),
+    ] = True,
     rotation: Annotated[
         str,
         typer.Option("--rotation", help="Vision motion model: linear (paper eq. 18), exp or imu."),
@@ -44,7 +49,9 @@ def demo(
         root = simulate(cfg, out / "dataset")
         console.print(f"simulated {duration:.0f} s village flight in "
                       f"{time.perf_counter() - t0:.1f} s -> {root}")
-        opts = build_options("biased", "groundtruth", True, True, None, "auto",
+        # With images the tracks come from the real front end, not from the true features0.
+        source = "images" if images else "features"
+        opts = build_options("biased", "groundtruth", True, True, None, source,
                              {"rotation": rotation})
         run_compare(root, out / "compare", [m.strip() for m in methods.split(",") if m.strip()],
                     opts, True, console)

@@ -19,10 +19,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from evo.core.geometry import GeometryException
 from numpy.typing import NDArray
 
 from svains.datasets.types import Dataset, GroundTruth
 from svains.errors import ConfigError
+from svains.evaluation.metrics import AteResult, ate
 from svains.navigation.options import RunOptions
 from svains.navigation.report import interpolate_groundtruth
 from svains.navigation.runner import RunResult, run_method
@@ -63,24 +65,32 @@ def outage_max_errors(
     return out
 
 
-def align_yaw_translation(p_est: F64, p_ref: F64, up_W: F64) -> F64:
-    """``p_est`` (N, 3) after the least-squares rotation about ``up_W`` and translation onto
-    ``p_ref`` (4-DoF alignment; private twin of ``evaluation.alignment``, which sits above)."""
-    u = up_W / np.linalg.norm(up_W)
-    a, b = p_est - p_est.mean(0), p_ref - p_ref.mean(0)
-    a_perp, b_perp = a - np.outer(a @ u, u), b - np.outer(b @ u, u)
-    psi = np.arctan2(np.sum(np.cross(a_perp, b_perp) @ u), np.sum(a_perp * b_perp))
-    K = np.array([[0, -u[2], u[1]], [u[2], 0, -u[0]], [-u[1], u[0], 0]])
-    R = np.eye(3) + np.sin(psi) * K + (1 - np.cos(psi)) * K @ K
-    return (p_est - p_est.mean(0)) @ R.T + p_ref.mean(0)
+def ate_alignment(method: str, gps_used: bool) -> str:
+    """The alignment that fits a run: ``se3`` for pure VO (no gravity), ``none`` when GPS fixes
+    the world frame, ``posyaw`` (the 4 unobservable DoF of a GPS-denied VIO filter) otherwise."""
+    if method == "vo":
+        return "se3"
+    return "none" if gps_used else "posyaw"
 
 
-def umeyama_se3(p_est: F64, p_ref: F64) -> F64:
-    a, b = p_est - p_est.mean(0), p_ref - p_ref.mean(0)
-    U, _, Vt = np.linalg.svd(b.T @ a)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    R = U @ D @ Vt
-    return a @ R.T + p_ref.mean(0)
+def align_to_groundtruth(result: RunResult, ds: Dataset, align: str) -> AteResult | None:
+    """ATE of a run (through evo, :func:`svains.evaluation.metrics.ate`) against the ground truth
+    interpolated at the run's own timestamps, so association is exact; ``None`` if < 3 poses."""
+    gt = ds.groundtruth
+    if gt is None:
+        return None
+    inside, p_gt, _, q_gt = interpolate_groundtruth(gt, result.t_ns)
+    if int(inside.sum()) < 3:
+        return None
+    t = result.t_ns[inside]
+    args = (t, result.x[inside, 0:3], result.x[inside, 6:10], t, p_gt, q_gt)
+    up_W = -np.asarray(ds.gravity_W, float)
+    try:
+        return ate(*args, align=align, up_W=up_W)
+    except GeometryException as exc:
+        # A straight-line run leaves Umeyama's rotation undetermined: report it unaligned.
+        log.warning("%s alignment impossible (%s); ATE reported without alignment", align, exc)
+        return ate(*args, align="none", up_W=up_W)
 
 
 def trajectory_metrics(
@@ -95,18 +105,15 @@ def trajectory_metrics(
     if len(p_est) < 3:
         return {}
     gps_ok = gps_used and ds.gps is not None and method != "vo"
-    if method == "vo":
-        align, p_al = "se3", umeyama_se3(p_est, p_gt)
-    elif gps_ok:
-        align, p_al = "none", p_est
-    else:
-        up = -np.asarray(ds.gravity_W, float)
-        align, p_al = "posyaw", align_yaw_translation(p_est, p_gt, up)
-    ate = float(np.sqrt(np.mean(np.sum((p_al - p_gt) ** 2, axis=1))))
+    align = ate_alignment(method, gps_ok)
+    res = align_to_groundtruth(result, ds, align)
+    if res is None:
+        return {}
+    ate_m = res.rmse
     path = float(np.sum(np.linalg.norm(np.diff(p_gt, axis=0), axis=1)))
     final = float(np.linalg.norm(p_est[-1] - p_gt[-1]))
     out: dict[str, Any] = {
-        "ate_m": ate, "ate_alignment": align, "path_length_m": path,
+        "ate_m": ate_m, "ate_alignment": res.alignment, "path_length_m": path,
         "final_position_error_m": final,
         "final_error_pct_of_path": 100.0 * final / path if path > 0 else None,
     }

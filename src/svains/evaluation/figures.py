@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
 from svains.datasets.types import Dataset
-from svains.navigation.compare import align_yaw_translation, gps_outages, umeyama_se3
+from svains.evaluation.compare import align_to_groundtruth, gps_outages
 from svains.navigation.report import interpolate_groundtruth
 from svains.navigation.runner import RunResult
 
@@ -98,12 +98,8 @@ def figure_estimates_errors(
 
 def _aligned(ds: Dataset, r: RunResult) -> tuple[F64, F64, NDArray[np.bool_]]:
     inside, p_gt, _ = _truth(ds, r.t_ns)
-    p = r.x[inside, 0:3]
-    align = r.report.get("ate_alignment", "none")
-    if align == "se3" and len(p) >= 3:
-        p = umeyama_se3(p, p_gt)
-    elif align == "posyaw" and len(p) >= 2:
-        p = align_yaw_translation(p, p_gt, -np.asarray(ds.gravity_W, float))
+    res = align_to_groundtruth(r, ds, r.report.get("ate_alignment", "none"))
+    p = res.p_est_aligned if res is not None else r.x[inside, 0:3]
     return p, p_gt, inside
 
 
