@@ -122,3 +122,87 @@ def test_run_without_ground_truth_reports_none_and_writes_outputs(tmp_path) -> N
     # Static: the estimate stays put (velocity near zero after 3 s of IMU + magnetometer).
     assert np.linalg.norm(res.x[-1, 3:6]) < 0.2
     assert (tmp_path / "report.json").is_file() and (tmp_path / "states.csv").is_file()
+
+
+def test_accuracy_report_survives_a_straight_trajectory() -> None:
+    # A straight line leaves the rotation about itself undetermined: evo's se3 (Umeyama) fit
+    # raises on it; the report falls back to fewer degrees of freedom and says which.
+    from svains.datasets.types import GroundTruth
+    from svains.navigation.report import accuracy_report
+
+    n = 50
+    t_ns = (np.arange(n) * 1e8).astype(np.int64)
+    p = np.column_stack([np.linspace(0.0, 10.0, n), np.zeros(n), np.full(n, 2.0)])
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+    v = np.tile([2.0, 0.0, 0.0], (n, 1))
+    gt = GroundTruth(t_ns, p, q, v, np.zeros((n, 3)), np.zeros((n, 3)))
+    x = np.zeros((n, 13))
+    x[:, 0:3] = p + np.array([0.3, 0.0, 0.0])
+    x[:, 3:6], x[:, 6:10] = v, q
+    rep = accuracy_report(t_ns, x, np.tile(np.eye(9), (n, 1, 1)), gt)
+    assert rep["alignment"] == "posyaw"
+    assert rep["ate_rmse_m"] == pytest.approx(0.0, abs=1e-9)  # a pure translation is aligned
+    assert rep["position_rmse_m"] == pytest.approx(0.3)
+    # Two poses only (se3 needs three): the fallback applies too.
+    rep2 = accuracy_report(t_ns[:2], x[:2], np.tile(np.eye(9), (2, 1, 1)), gt)
+    assert rep2["alignment"] == "posyaw" and rep2["ate_rmse_m"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_outage_max_error_reported_per_gps_outage() -> None:
+    ds = make_dataset(20.0, seed=2, outages=((6.0, 12.0),))
+    rep = run_method(ds, "ins", RunOptions(init=GT_INIT)).report
+    (outage,) = rep["gps_outages"]
+    assert rep["outage_max_error_m"] == [outage["error_max_m"]]
+    assert 0.0 < rep["outage_max_error_m"][0] < 5.0
+    assert "vision" not in rep  # ins has no vision counters
+
+
+def test_paper_model_vision_update_sees_omega_white_noise(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The paper model's ω̂ carries the gyro's white noise (stencil anchor, 0.875 σ²/h): a vision
+    # update, whose rotation model uses ω, must see it in P; GPS updates and P between frames not.
+    from svains.models.state import DW
+
+    ds = make_dataset(6.0, seed=4, noise_scale=20.0)
+    seen: list[float] = []
+
+    class _Probe:
+        method = "probe"
+
+        def frame_times(self) -> np.ndarray:
+            return (np.arange(1.0, 5.0, 0.5) * 1e9).astype(np.int64) + 7
+
+        def update(self, ctx: FrameContext):
+            seen.append(float(np.diag(ctx.ukf.P)[DW].min()))
+            return None
+
+    mod = types.ModuleType("svains_probe_vision")
+    mod.make_updater = lambda dataset, options: _Probe()  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "svains_probe_vision", mod)
+    monkeypatch.setitem(base.VISION_METHOD_MODULES, "probe", "svains_probe_vision")
+    res = run_method(ds, "probe", RunOptions(model="paper", init=GT_INIT))
+    white = 0.875 * (2e-4 * 20.0) ** 2 / 0.01
+    assert len(seen) == 8 and min(seen) >= white
+    # The logged ω deviations include it too (the logged std is of ω̂ − ω).
+    assert res.std[:, DW].min() ** 2 >= white
+
+
+def test_paper_model_vision_update_treats_omega_white_noise_as_measurement_noise() -> None:
+    from svains.models.state import DW, PAPER
+
+    ds = make_dataset(3.0, seed=4, noise_scale=20.0)
+    ins = InsFilter(ds, PAPER, initialise(ds, PAPER, GT_INIT), FilterOptions(), NoiseOptions())
+    ins.propagate_to(int(1e9))
+    P_w = np.diag(ins.ukf.P)[DW].copy()
+    white = ins.omega_white
+    assert white > 5 * P_w.max()  # the white part dominates ω's uncertainty here
+    w0 = ins.ukf.x[10:13].copy()
+    ins.add_omega_white()  # what the runner does before a vision updater runs
+    assert np.allclose(np.diag(ins.ukf.P)[DW], P_w + white)
+    block = MeasurementBlock("omega", lambda X: X[:, 10:13], w0 + 0.1, np.full(3, 1e-6))
+    ins.apply([block])
+    ins.remove_omega_white()  # no-op: the update consumed it
+    # As a state error the whole 0.1 rad/s would be "corrected"; as measurement noise only the
+    # persistent part's share P/(P + W) is.
+    shift = ins.ukf.x[10:13] - w0
+    np.testing.assert_allclose(shift, 0.1 * P_w / (P_w + white + 1e-6), rtol=0.05)
+    assert np.all(np.diag(ins.ukf.P)[DW] < P_w)

@@ -178,13 +178,34 @@ class ImuNoise:
     accel_random_walk: float  # m/s³/√Hz
 
 
+# Variance, in units of σ_g²/h, of the gyro white noise left in the paper model's ω: summing the
+# stencil (eq. 3) with the trapezoid anchors ω to ¾g_K + ½g_{K−1} − ¼g_{K−2} (see
+# ``stencil_consistent_rate``), whose white-noise variance is (9 + 4 + 1)/16 = 0.875 σ_g²/h.
+STENCIL_RATE_VARIANCE = 0.875
+
+
+def omega_white_variance(layout: StateLayout, noise: ImuNoise, h_imu_s: float) -> float:
+    """Variance (rad²/s²) of the gyro white noise carried by the estimate of ω_B.
+
+    Biased model: ω = gyro − bg at the last sample, σ_g²/h. Paper model: ω follows the stencil's
+    anchor value, ``STENCIL_RATE_VARIANCE`` σ_g²/h. It is fresh at every IMU sample, so it does
+    not accumulate: in the paper model ``navigation.ins.InsFilter`` adds it to the state's ω
+    variance where ω̂ is compared with the world (vision updates, logged deviations) instead of
+    letting it random-walk in P.
+    """
+    coef = 1.0 if layout.biased else STENCIL_RATE_VARIANCE
+    return coef * noise.gyro_noise_density**2 / h_imu_s
+
+
 def process_noise(layout: StateLayout, noise: ImuNoise, duration_s: float, h_imu_s: float) -> F64:
     """Tangent-space process noise ``Q`` (ndx, ndx) accumulated over ``duration_s``.
 
     Accelerometer white noise integrates into v and p with the exact double-integrator
     covariance (T, T²/2, T³/3); gyro white noise gives the attitude random walk σ² T. In the
     biased model ω is re-read from the gyro at each sample, so its noise is the white sample
-    variance σ²/h (not accumulated); in the paper model ω random-walks with the gyro bias drift.
+    variance σ²/h (not accumulated); in the paper model ω random-walks with the gyro bias drift
+    here, and its white part (``omega_white_variance``, not accumulated either: ω re-anchors to
+    the latest gyro samples) is handled by ``navigation.ins.InsFilter`` (``omega_white``).
     """
     T = duration_s
     Qm = np.zeros((layout.ndx, layout.ndx))

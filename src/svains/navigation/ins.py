@@ -7,7 +7,7 @@ chunks of at most ``FilterOptions.max_predict_steps`` IMU steps per sigma-point 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from functools import partial
 
 import numpy as np
@@ -16,13 +16,21 @@ from numpy.typing import NDArray
 from svains.datasets.types import Dataset
 from svains.errors import ConfigError, FilterError
 from svains.filter.sigma_points import MerweScaledSigmaPoints
-from svains.filter.ukf import UKF, UpdateStats
+from svains.filter.ukf import UKF, UpdateStats, _dense_gain, _woodbury_gain, chi2_gate
 from svains.models.gps import gps_position, gps_position_velocity
-from svains.models.imu import ImuChunk, ImuModel, ImuNoise, angular_acceleration, process_noise
+from svains.models.imu import (
+    ImuChunk,
+    ImuModel,
+    ImuNoise,
+    angular_acceleration,
+    omega_white_variance,
+    process_noise,
+)
 from svains.models.magnetometer import magnetic_field
 from svains.models.manifold import NavManifold
 from svains.models.sonar import sonar_range
-from svains.models.state import StateLayout
+from svains.models.state import DW, StateLayout
+from svains.models.state import W as W_SLICE
 from svains.navigation.base import MeasurementBlock
 from svains.navigation.init import InitialState
 from svains.navigation.options import FilterOptions, NoiseOptions
@@ -97,6 +105,19 @@ class InsFilter:
         points = MerweScaledSigmaPoints(
             layout.ndx, filter_options.alpha, filter_options.beta, filter_options.kappa
         )
+        # Paper model: ω̂ follows the stencil's anchor on the latest gyro samples, so its error is
+        # a persistent part (the state's P) plus the white noise of those samples, variance
+        # ``omega_white`` (``models.imu.omega_white_variance``), fresh at every IMU sample: not a
+        # random walk in P (it does not accumulate) and invisible to GPS/mag/sonar. Vision
+        # updates (their rotation models use ω) see it: in P while the updater gates features
+        # (``add_omega_white``), as measurement noise in the update itself (``apply``). The
+        # logged ω deviations include it (``tangent_std``). The initial ω is the
+        # stencil-consistent gyro value (``init.initialise``), so no anchor noise persists.
+        # The biased model re-reads ω from the gyro and needs none of this.
+        self.omega_white = (
+            0.0 if layout.biased else omega_white_variance(layout, self.noise, self._h_imu)
+        )
+        self._white_in_P = False
         self.ukf = UKF(NavManifold(layout), points, init.x, init.P)
         k = int(np.searchsorted(self.t_imu, init.t_ns))
         if k >= len(self.t_imu) or self.t_imu[k] != init.t_ns:
@@ -179,6 +200,44 @@ class InsFilter:
             chunk = ImuChunk(np.diff(tt) * 1e-9, gyro[j0:j1], accel[j0:j1], alpha[j0:j1])
             self.ukf.predict(self.model, chunk, 0.0, self._noise(int(tt[-1] - tt[0])))
 
+    def add_omega_white(self) -> None:
+        """Paper model: add ω̂'s gyro white noise to P while a vision updater inspects the filter
+        (its feature gates then see it); ``apply`` and ``remove_omega_white`` take it out again.
+        """
+        if self.omega_white <= 0.0 or self._white_in_P:
+            return
+        self._shift_omega_variance(self.omega_white)
+        self._white_in_P = True
+
+    def remove_omega_white(self) -> None:
+        """Undo ``add_omega_white`` if no update consumed it (exact: P is unchanged since)."""
+        if self._white_in_P:
+            self._shift_omega_variance(-self.omega_white)
+            self._white_in_P = False
+
+    def _shift_omega_variance(self, d: float) -> None:
+        P = self.ukf.P.copy()
+        idx = np.arange(P.shape[0])[DW]
+        P[idx, idx] += d
+        self.ukf.P = P
+
+    def _omega_white_D(self, h: Callable[[F64], F64], nz: int) -> F64:
+        """``D`` (3, nz): ω̂'s white part through ``h`` (its measurement covariance is
+        ``D^T D``), central differences at the mean for ω ± σ_white on each axis."""
+        X = np.repeat(self.ukf.x[None, :], 6, axis=0)
+        step = np.sqrt(self.omega_white)
+        for i in range(3):
+            X[2 * i, W_SLICE.start + i] += step
+            X[2 * i + 1, W_SLICE.start + i] -= step
+        Y = np.reshape(h(X), (6, nz))
+        return 0.5 * (Y[0::2] - Y[1::2])
+
+    def tangent_std(self) -> F64:
+        """Standard deviations (ndx,) of the estimate's error, ω's white part included."""
+        var = np.diag(self.ukf.P).copy()
+        var[DW] += self.omega_white
+        return np.sqrt(var)
+
     # ---- measurement blocks -------------------------------------------------------------
     def gps_block(self, i: int, use_velocity: bool = True) -> MeasurementBlock:
         gps, cal = self.dataset.gps, self.dataset.gps_calib
@@ -214,8 +273,57 @@ class InsFilter:
             raise ConfigError("apply() needs at least one measurement block")
         if len(blocks) == 1:
             b = blocks[0]
-            return self.ukf.update(b.h, b.z, b.R, gate_probability, b.residual, b.name)
-        return self.ukf.update(*stack_blocks(blocks), gate_probability, *_stacked_tail(blocks))
+            h, z, R, tail = b.h, b.z, b.R, (b.residual, b.name)
+        else:
+            (h, z, R), tail = stack_blocks(blocks), _stacked_tail(blocks)
+        if self._white_in_P:
+            # Paper model, vision update: ω̂'s white gyro noise is fresh at every sample, so it
+            # is measurement noise of this update (through h), not a state error to correct
+            # (correcting it would leave a persistent ω offset integrating into the attitude).
+            self.remove_omega_white()
+            D = self._omega_white_D(h, np.size(z))
+            if np.ndim(R) == 1:
+                return self._update_low_rank_noise(h, z, R, D, gate_probability, *tail)
+            R = np.asarray(R) + D.T @ D
+        return self.ukf.update(h, z, R, gate_probability, *tail)
+
+    def _update_low_rank_noise(
+        self,
+        h: Callable[[F64], F64],
+        z: F64,
+        Rdiag: F64,
+        D: F64,
+        gate_probability: float | None,
+        residual: Callable[[F64, F64], F64] | None,
+        name: str,
+    ) -> UpdateStats:
+        """``UKF.update`` with noise ``diag(Rdiag) + D^T D`` (D (k, nz)), kept O(S² nz): the rows
+        of D join the sigma points' measurement deviations with zero state deviation and unit
+        weight (then ``A^T A = Pzz + D^T D`` in the UKF's matrix-inversion-lemma gain)."""
+        ukf = self.ukf
+        z = np.asarray(z, dtype=float).ravel()
+        X, dX = ukf.sigma_points()
+        Y = np.asarray(h(X), dtype=float).reshape(X.shape[0], z.size)
+        Wm, Wc = ukf.points.Wm, ukf.points.Wc
+        y = Wm @ Y
+        dY = Y - y if residual is None else residual(Y, y)
+        r = z - y if residual is None else residual(z, y)
+        dY_aug = np.vstack([dY, D])
+        dX_aug = np.vstack([dX, np.zeros((D.shape[0], dX.shape[1]))])
+        Wc_aug = np.concatenate([Wc, np.ones(D.shape[0])])
+        if np.all(Wc >= 0.0):
+            dx, nis, dP = _woodbury_gain(dX_aug, dY_aug, Wc_aug, np.asarray(Rdiag, float), r)
+        else:
+            dx, nis, dP = _dense_gain(dX, dY, Wc, np.diag(Rdiag) + D.T @ D, r, name)
+        gate = chi2_gate(gate_probability, z.size) if gate_probability is not None else np.inf
+        if not np.isfinite(nis):
+            raise FilterError(f"{name or 'measurement'}: non-finite innovation")
+        if nis > gate:
+            return UpdateStats(name, False, float(nis), z.size, float(gate))
+        ukf.x = ukf.manifold.retract(ukf.x[None, :], dx[None, :])[0]
+        P = ukf.P - dP
+        ukf.P = 0.5 * (P + P.T)
+        return UpdateStats(name, True, float(nis), z.size, float(gate))
 
 
 def stack_blocks(blocks: Sequence[MeasurementBlock]) -> tuple:

@@ -49,14 +49,17 @@ def _umeyama_se3(est: F64, ref: F64) -> tuple[F64, F64]:
     return R, mu_r - R @ mu_e
 
 
-def ate_rmse(
-    t_ns: I64, p_est: F64, q_est: F64, p_ref: F64, q_ref: F64, alignment: str = "se3"
-) -> float:
-    """Absolute trajectory error RMSE (m) after ``alignment``, reference sampled at ``t_ns``.
+# Fallback order when an alignment is degenerate (a straight or too short trajectory leaves the
+# rotation about its own line undetermined and evo raises): drop to fewer degrees of freedom.
+_FALLBACK: dict[str, tuple[str, ...]] = {
+    "se3": ("se3", "posyaw", "none"),
+    "sim3": ("sim3", "se3", "posyaw", "none"),
+    "posyaw": ("posyaw", "none"),
+    "none": ("none",),
+}
 
-    Uses ``svains.evaluation.metrics.ate`` (evo) when importable; otherwise a private fallback
-    (Umeyama rigid fit for "se3", none otherwise).
-    """
+
+def _ate_once(t_ns: I64, p_est: F64, q_est: F64, p_ref: F64, q_ref: F64, alignment: str) -> float:
     try:
         from svains.evaluation.metrics import ate
     except ImportError:  # evaluation package absent: local fallback
@@ -67,6 +70,46 @@ def ate_rmse(
         R, t = _umeyama_se3(p_est, p_ref)
         p_est = p_est @ R.T + t
     return float(np.sqrt(np.mean(np.sum((p_est - p_ref) ** 2, axis=1))))
+
+
+def ate_with_fallback(
+    t_ns: I64, p_est: F64, q_est: F64, p_ref: F64, q_ref: F64, alignment: str = "se3"
+) -> tuple[float, str]:
+    """ATE RMSE (m) and the alignment actually used, reference sampled at ``t_ns`` (N,).
+
+    Tries ``alignment`` first, then fewer degrees of freedom (``_FALLBACK``) when the fit is
+    degenerate (evo's ``GeometryException`` on a straight trajectory, too few poses, or a
+    non-finite result); never raises for a degenerate geometry.
+    """
+    from svains.errors import SvainsError
+
+    try:
+        from evo import EvoException
+    except ImportError:  # pragma: no cover - evo is a dependency
+        EvoException = ArithmeticError
+    for align in _FALLBACK.get(alignment, (alignment, "none")):
+        try:
+            value = _ate_once(t_ns, p_est, q_est, p_ref, q_ref, align)
+        except (EvoException, SvainsError, np.linalg.LinAlgError) as exc:
+            log.warning(
+                "ATE with %s alignment failed (%s); trying fewer degrees of freedom", align, exc
+            )
+            continue
+        if np.isfinite(value):
+            return value, align
+    return float(np.sqrt(np.mean(np.sum((p_est - p_ref) ** 2, axis=1)))), "none"
+
+
+def ate_rmse(
+    t_ns: I64, p_est: F64, q_est: F64, p_ref: F64, q_ref: F64, alignment: str = "se3"
+) -> float:
+    """Absolute trajectory error RMSE (m) after ``alignment`` (with ``ate_with_fallback``'s
+    fallback when it is degenerate), reference sampled at ``t_ns``.
+
+    Uses ``svains.evaluation.metrics.ate`` (evo) when importable; otherwise a private fallback
+    (Umeyama rigid fit for "se3", none otherwise).
+    """
+    return ate_with_fallback(t_ns, p_est, q_est, p_ref, q_ref, alignment)[0]
 
 
 def nees_of(e: F64, P: F64) -> F64:
@@ -98,8 +141,11 @@ def accuracy_report(
     P = P9[inside]
     nees = nees_of(e, P)
     std = np.sqrt(np.einsum("nii->ni", P))
+    ate_m, out["alignment"] = ate_with_fallback(
+        t_ns[inside], xe[:, 0:3], xe[:, 6:10], p, q, alignment
+    )
     out.update(
-        ate_rmse_m=ate_rmse(t_ns[inside], xe[:, 0:3], xe[:, 6:10], p, q, alignment),
+        ate_rmse_m=ate_m,
         position_rmse_m=float(np.sqrt(np.mean(np.sum(e[:, 0:3] ** 2, axis=1)))),
         velocity_rmse_mps=float(np.sqrt(np.mean(np.sum(e[:, 3:6] ** 2, axis=1)))),
         attitude_rmse_deg=float(np.degrees(np.sqrt(np.mean(np.sum(e[:, 6:9] ** 2, axis=1))))),

@@ -113,7 +113,8 @@ def run_method(
     if method != "ins":
         module = _make_updater(dataset, method, options)
         if not hasattr(module, "make_updater"):
-            return module.run(dataset, options, progress)  # type: ignore[no-any-return]
+            # Filter-free method (vo): it writes its own outputs into ``out_dir``.
+            return module.run(dataset, options, progress, out_dir=out_dir)  # type: ignore[no-any-return]
         updater = module.make_updater(dataset, options)
     layout = BIASED if options.model == "biased" else PAPER
     init = initialise(dataset, layout, options.init)
@@ -125,7 +126,7 @@ def run_method(
     counts: dict[str, dict[str, int]] = {}
     updates: list[UpdateStats] = []
     log_t, log_x, log_std, log_P9 = [ins.t_ns], [ins.ukf.x.copy()], [], []
-    log_std.append(np.sqrt(np.diag(ins.ukf.P)))
+    log_std.append(ins.tangent_std())
     log_P9.append(ins.ukf.P[:9, :9].copy())
     t_prev_frame: int | None = None
 
@@ -169,14 +170,16 @@ def run_method(
         if has_frame:
             assert updater is not None
             ctx = FrameContext(ins.ukf, layout, t, t_prev_frame, gate, blocks, apply)
+            ins.add_omega_white()  # paper model: the vision models see ω's gyro white noise
             stats = updater.update(ctx)
+            ins.remove_omega_white()
             if stats is not None:
                 count(stats, method)
             t_prev_frame = t
         if has_tick:
             log_t.append(t)
             log_x.append(ins.ukf.x.copy())
-            log_std.append(np.sqrt(np.diag(ins.ukf.P)))
+            log_std.append(ins.tangent_std())
             log_P9.append(ins.ukf.P[:9, :9].copy())
         e = e_end
         if progress is not None and e >= next_report:
@@ -207,13 +210,18 @@ def run_method(
         "measurements": counts,
         "states_rate_hz": 1.0 / options.output_period_s,
     }
+    if updater is not None and hasattr(updater, "summary"):
+        # Vision counters: frames fused/rejected, features gated (see the updater's summary).
+        report["vision"] = updater.summary()
     report.update(accuracy_report(result.t_ns, result.x, result.P9, dataset.groundtruth))
     if dataset.groundtruth is not None and dataset.gps is not None and options.use_gps:
-        report.update(
-            gps_outage_report(
-                result.t_ns, result.x, result.std, dataset.gps.t_ns, dataset.groundtruth
-            )
+        outages = gps_outage_report(
+            result.t_ns, result.x, result.std, dataset.gps.t_ns, dataset.groundtruth
         )
+        report.update(outages)
+        if outages["gps_outages"]:
+            # Issue 6's key: the largest position error inside each GPS outage (m).
+            report["outage_max_error_m"] = [o["error_max_m"] for o in outages["gps_outages"]]
     result.report = report
     if out_dir is not None:
         write_outputs(Path(out_dir), result, layout)

@@ -1,0 +1,123 @@
+"""``svains run`` for every method: outputs, report keys, vision counters, option parsing."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from svains.cli.main import app
+from svains.sim import SimConfig, simulate
+
+INS_KEYS = {"method", "wall_s", "realtime_factor", "ate_rmse_m", "alignment", "position_rmse_m",
+            "velocity_rmse_mps", "attitude_rmse_deg", "nees_mean"}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def village_short(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """6 s village flight, stereo 5 Hz, features only, GPS-denied (fast to simulate)."""
+    cfg = SimConfig()
+    cfg = replace(
+        cfg,
+        duration_s=6.0,
+        seed=2,
+        camera=replace(cfg.camera, rate_hz=5.0, render_images=False),
+        gps=replace(cfg.gps, enabled=False),
+    )
+    return simulate(cfg, tmp_path_factory.mktemp("village") / "ds")
+
+
+def _run(args: list[str]) -> dict:
+    res = CliRunner().invoke(app, ["run", *args])
+    assert res.exit_code == 0, res.output
+    out = Path(args[args.index("--out") + 1])
+    for name in ("trajectory.tum", "states.csv", "report.json"):
+        assert (out / name).is_file(), name
+    return json.loads((out / "report.json").read_text())
+
+
+def test_run_vo_writes_outputs(village_short: Path, tmp_path: Path) -> None:
+    rep = _run(
+        [
+            str(village_short),
+            "--method",
+            "vo",
+            "--out",
+            str(tmp_path / "vo"),
+            "--init",
+            "groundtruth",
+        ]
+    )
+    assert set(rep) >= INS_KEYS
+    assert rep["method"] == "vo" and rep["vo"]["frames"] >= 25  # 6 s at 5 Hz
+    assert rep["position_rmse_m"] < 1.0
+
+
+@pytest.mark.parametrize("method", ["3d", "lc"])
+def test_run_vision_method_reports_vision_counters(
+    village_short: Path, tmp_path: Path, method: str
+) -> None:
+    rep = _run(
+        [
+            str(village_short),
+            "--method",
+            method,
+            "--features",
+            "--init",
+            "groundtruth",
+            "--rotation",
+            "imu",
+            "--set",
+            "frame_stride=2",
+            "--out",
+            str(tmp_path / method),
+        ]
+    )
+    assert set(rep) >= INS_KEYS
+    v = rep["vision"]
+    assert v["source"] == "features"
+    # frame_stride=2 on 5 Hz frames over 6 s: about 15 frames, nearly all fused.
+    assert 12 <= v["frames"] <= 16
+    assert v["frames_fused"] >= v["frames"] - 3
+    assert v["frames_fused"] == rep["measurements"][method]["fused"]
+    assert {"features_fused", "features_gated", "frames_rejected"} <= set(v)
+    if method == "3d":
+        assert v["rotation"] == "imu" and v["features_fused"] > 100
+
+
+def test_run_refuses_bad_settings(village_short: Path, tmp_path: Path) -> None:
+    res = CliRunner().invoke(
+        app,
+        ["run", str(village_short), "--method", "3d", "--set", "nope=1", "--out", str(tmp_path)],
+    )
+    assert res.exit_code == 1
+    assert "unknown vision options ['nope']" in res.output
+    res = CliRunner().invoke(
+        app, ["run", str(village_short), "--set", "frame_stride", "--out", str(tmp_path)]
+    )
+    assert res.exit_code != 0 and "expected key=value" in res.output
+
+
+def test_run_with_synthetic_features(village_short: Path, tmp_path: Path) -> None:
+    rep = _run(
+        [
+            str(village_short),
+            "--method",
+            "tc",
+            "--synthetic-features",
+            "2",
+            "--init",
+            "groundtruth",
+            "--duration",
+            "4",
+            "--out",
+            str(tmp_path / "tc"),
+        ]
+    )
+    # Features simulated at 2 Hz along the ground truth replace the data set's 5 Hz ones.
+    assert rep["vision"]["source"] == "features"
+    assert 6 <= rep["vision"]["frames"] <= 9
+    assert rep["vision"]["frames_fused"] >= 5
