@@ -6,9 +6,12 @@ import logging
 from typing import Any
 
 import numpy as np
+from evo import EvoException
 from numpy.typing import NDArray
 
 from svains.datasets.types import GroundTruth
+from svains.errors import SvainsError
+from svains.evaluation.metrics import ate
 from svains.geometry.rotation import quat_box_minus, quat_box_plus
 
 F64 = NDArray[np.float64]
@@ -39,16 +42,6 @@ def navigation_errors(x: F64, p_gt: F64, v_gt: F64, q_gt: F64) -> F64:
     return e
 
 
-def _umeyama_se3(est: F64, ref: F64) -> tuple[F64, F64]:
-    """Rotation and translation minimising ``|ref - (R est + t)|`` (no scale)."""
-    mu_e, mu_r = est.mean(axis=0), ref.mean(axis=0)
-    H = (est - mu_e).T @ (ref - mu_r)
-    U, _, Vt = np.linalg.svd(H)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    return R, mu_r - R @ mu_e
-
-
 # Fallback order when an alignment is degenerate (a straight or too short trajectory leaves the
 # rotation about its own line undetermined and evo raises): drop to fewer degrees of freedom.
 _FALLBACK: dict[str, tuple[str, ...]] = {
@@ -60,16 +53,7 @@ _FALLBACK: dict[str, tuple[str, ...]] = {
 
 
 def _ate_once(t_ns: I64, p_est: F64, q_est: F64, p_ref: F64, q_ref: F64, alignment: str) -> float:
-    try:
-        from svains.evaluation.metrics import ate
-    except ImportError:  # evaluation package absent: local fallback
-        ate = None
-    if ate is not None:
-        return float(ate(t_ns, p_est, q_est, t_ns, p_ref, q_ref, align=alignment).rmse)  # type: ignore[arg-type]
-    if alignment == "se3" and len(p_est) >= 3:
-        R, t = _umeyama_se3(p_est, p_ref)
-        p_est = p_est @ R.T + t
-    return float(np.sqrt(np.mean(np.sum((p_est - p_ref) ** 2, axis=1))))
+    return float(ate(t_ns, p_est, q_est, t_ns, p_ref, q_ref, align=alignment).rmse)  # type: ignore[arg-type]
 
 
 def ate_with_fallback(
@@ -81,12 +65,6 @@ def ate_with_fallback(
     degenerate (evo's ``GeometryException`` on a straight trajectory, too few poses, or a
     non-finite result); never raises for a degenerate geometry.
     """
-    from svains.errors import SvainsError
-
-    try:
-        from evo import EvoException
-    except ImportError:  # pragma: no cover - evo is a dependency
-        EvoException = ArithmeticError
     for align in _FALLBACK.get(alignment, (alignment, "none")):
         try:
             value = _ate_once(t_ns, p_est, q_est, p_ref, q_ref, align)
@@ -106,8 +84,7 @@ def ate_rmse(
     """Absolute trajectory error RMSE (m) after ``alignment`` (with ``ate_with_fallback``'s
     fallback when it is degenerate), reference sampled at ``t_ns``.
 
-    Uses ``svains.evaluation.metrics.ate`` (evo) when importable; otherwise a private fallback
-    (Umeyama rigid fit for "se3", none otherwise).
+    Computed by ``svains.evaluation.metrics.ate`` (evo), so it equals ``evo_ape``.
     """
     return ate_with_fallback(t_ns, p_est, q_est, p_ref, q_ref, alignment)[0]
 
