@@ -33,7 +33,7 @@ from svains.frontend.stereo import StereoMatchOptions, elas_available
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 FRAMES = 40
-STAGES = ("rectify", "pyramid", "dense", "track", "stereo", "ransac", "detect", "stereo_new",
+STAGES = ("rectify", "pyramid", "dense", "track", "stereo", "ransac", "detect",
           "total")  # fmt: skip
 Images = list[tuple[int, np.ndarray, np.ndarray]]
 

@@ -32,9 +32,15 @@ class RansacOptions:
     ``refine_iterations`` (at most, stopping once updates fall below ``refine_tol`` rad/m) for the
     refinement on all inliers; ``min_inliers`` for a motion measurement; ``seed`` of the sampler;
     ``depth_weighting`` models each point's depth uncertainty at k-1 (stereo matching noise equal
-    to the pixel noise in each image) in the refinement and the covariance."""
+    to the pixel noise in each image) in the refinement and the covariance. Hypotheses come in
+    two batches: ``first_batch`` triples (plus the prior), and the rest of ``iterations`` only
+    if the best inlier ratio ``w`` so far leaves a chance above ``1 - confidence`` that no
+    all-inlier triple was drawn (``(1 - w³)^n``): a clean frame then costs a third of the
+    hypotheses, a frame with many outliers (a moving object) gets all of them."""
 
     iterations: int = 50
+    first_batch: int = 16
+    confidence: float = 0.999
     inlier_px: float = 1.5
     gn_iterations: int = 2
     refine_iterations: int = 5
@@ -262,31 +268,13 @@ def _covariance(
     return 0.5 * (cov + cov.T)
 
 
-def estimate_egomotion(
-    p_prev: F64, uv_left: F64, uv_right: F64, rig: RectifiedStereo, opts: RansacOptions,
-    p_cur: F64 | None = None, prior: Egomotion | None = None,
-    rng: np.random.Generator | None = None,
-) -> EgomotionResult:
-    """RANSAC + Gauss-Newton egomotion from N features.
-
-    ``p_prev`` (N, 3) m in C_{k-1} (NaN rows are never inliers); ``uv_left``/``uv_right`` (N, 2) px
-    rectified at k; ``p_cur`` (N, 3) m triangulated at k seeds hypotheses by 3-point alignment;
-    ``prior`` (e.g. the previous motion) is one extra hypothesis. Never raises on degenerate input.
-    """
-    p_prev = np.asarray(p_prev, dtype=float).reshape(-1, 3)
-    uv_left = np.asarray(uv_left, dtype=float).reshape(-1, 2)
-    uv_right = np.asarray(uv_right, dtype=float).reshape(-1, 2)
-    n = p_prev.shape[0]
-    usable = np.isfinite(p_prev).all(1) & (p_prev[:, 2] > _MIN_DEPTH_M)
-    usable &= np.isfinite(uv_left).all(1) & np.isfinite(uv_right).all(1)
-    if p_cur is not None:
-        p_cur = np.asarray(p_cur, dtype=float).reshape(-1, 3)
-    nothing = EgomotionResult(None, np.zeros(n, dtype=bool), np.full(n, np.inf))
-    idx = np.flatnonzero(usable)
-    if idx.size < max(opts.min_inliers, 3):
-        return nothing
-    rng = rng if rng is not None else np.random.default_rng(opts.seed)
-    h = opts.iterations
+def _hypotheses(
+    h: int, idx: NDArray[np.int64], p_prev: F64, uv_left: F64, uv_right: F64, p_cur: F64 | None,
+    prior: Egomotion | None, rig: RectifiedStereo, opts: RansacOptions, rng: np.random.Generator,
+) -> tuple[F64, F64]:
+    """``h`` motions (R (H', 3, 3), t (H', 3)) fitted to random triples of the usable features
+    ``idx``, seeded by 3-point alignment of ``p_cur``; with a ``prior`` it is refined on one more
+    triple and also competes unrefined (H' = h + 2)."""
     # Three distinct features per hypothesis: the 3 smallest of a random key per feature.
     triples = idx[np.argpartition(rng.random((h, idx.size)), 2, axis=1)[:, :3]]  # (H, 3)
     P3, L3, R3 = p_prev[triples], uv_left[triples], uv_right[triples]
@@ -313,7 +301,47 @@ def estimate_egomotion(
         # The prior itself also competes unrefined (it may be better than any triple).
         Rh = np.concatenate([Rh, prior.R_Ck_Ckm1[None]])
         th = np.concatenate([th, prior.p_Ck_Ckm1[None]])
-    score, inl = _score(Rh, th, p_prev[idx], uv_left[idx], uv_right[idx], rig, opts.inlier_px)
+    return Rh, th
+
+
+def estimate_egomotion(
+    p_prev: F64, uv_left: F64, uv_right: F64, rig: RectifiedStereo, opts: RansacOptions,
+    p_cur: F64 | None = None, prior: Egomotion | None = None,
+    rng: np.random.Generator | None = None,
+) -> EgomotionResult:
+    """RANSAC + Gauss-Newton egomotion from N features.
+
+    ``p_prev`` (N, 3) m in C_{k-1} (NaN rows are never inliers); ``uv_left``/``uv_right`` (N, 2) px
+    rectified at k; ``p_cur`` (N, 3) m triangulated at k seeds hypotheses by 3-point alignment;
+    ``prior`` (e.g. the previous motion) is one extra hypothesis. Never raises on degenerate input.
+    """
+    p_prev = np.asarray(p_prev, dtype=float).reshape(-1, 3)
+    uv_left = np.asarray(uv_left, dtype=float).reshape(-1, 2)
+    uv_right = np.asarray(uv_right, dtype=float).reshape(-1, 2)
+    n = p_prev.shape[0]
+    usable = np.isfinite(p_prev).all(1) & (p_prev[:, 2] > _MIN_DEPTH_M)
+    usable &= np.isfinite(uv_left).all(1) & np.isfinite(uv_right).all(1)
+    if p_cur is not None:
+        p_cur = np.asarray(p_cur, dtype=float).reshape(-1, 3)
+    nothing = EgomotionResult(None, np.zeros(n, dtype=bool), np.full(n, np.inf))
+    idx = np.flatnonzero(usable)
+    if idx.size < max(opts.min_inliers, 3):
+        return nothing
+    rng = rng if rng is not None else np.random.default_rng(opts.seed)
+    h1 = min(opts.iterations, max(opts.first_batch, 1))
+    Rh, th = _hypotheses(h1, idx, p_prev, uv_left, uv_right, p_cur, prior, rig, opts, rng)
+    P_i, L_i, R_i = p_prev[idx], uv_left[idx], uv_right[idx]
+    score, inl = _score(Rh, th, P_i, L_i, R_i, rig, opts.inlier_px)
+    h2 = opts.iterations - h1
+    if h2 > 0:
+        w3 = (inl.sum(axis=1).max() / idx.size) ** 3
+        # Chance that none of the h1 triples was all inliers, at the best ratio found so far.
+        miss = (1.0 - w3) ** h1 if w3 < 1.0 else 0.0
+        if miss > 1.0 - opts.confidence:
+            R2, t2 = _hypotheses(h2, idx, p_prev, uv_left, uv_right, p_cur, None, rig, opts, rng)
+            s2, i2 = _score(R2, t2, P_i, L_i, R_i, rig, opts.inlier_px)
+            Rh, th = np.concatenate([Rh, R2]), np.concatenate([th, t2])
+            score, inl = np.concatenate([score, s2]), np.concatenate([inl, i2])
     best = int(np.argmax(score))
     if inl[best].sum() < opts.min_inliers:
         return nothing

@@ -1,8 +1,9 @@
 """The stereo front end: raw stereo pairs in, ``StereoTracks`` (tracks + egomotion) out.
 
-Per frame: track the previous frame's features (KLT, forward-backward), match them left to right,
-estimate egomotion by RANSAC (eqs. 11-12), apply the epipolar check, then top up the feature set
-with new corners once tracks have been lost.
+Per frame: track the previous frame's features (KLT; forward-backward unless the start was
+predicted from a motion), seek new corners where tracks have been lost, match tracked and new
+features left to right in one pass, estimate egomotion by RANSAC (eqs. 11-12) and apply the
+epipolar check.
 
 Rigs that need rectification are tracked on the raw images: only feature pixels are rectified
 (and row-search patches resampled), which saves two whole-image remaps per frame; all pixels
@@ -244,16 +245,42 @@ class StereoFrontend:
         result: StereoTracks | None = None
         keep_id = np.zeros(0, np.int64)
         keep_l, keep_r = np.zeros((0, 2)), np.zeros((0, 2))
+        uv_l, ok_t, disp_guess = np.zeros((0, 2)), np.zeros(0, bool), np.zeros(0)
         if ref is not None:
             uv_l, ok_t, disp_guess = self._track_temporal(ref, pl, motion_prior, tm)
-            t3 = time.perf_counter()
+            flow = np.linalg.norm(uv_l[ok_t] - ref.uv_left[ok_t], axis=1)
+            self._flow_px = float(np.median(flow)) if flow.size else np.inf
+
+        # New corners are sought before the left-right match, away from the features tracked
+        # now, so that one left-right KLT pass serves the tracked and the new features alike.
+        # A search happens once tracks were lost, or every few frames (after a RANSAC that
+        # dropped outliers the next frame sees fewer features than were kept and searches).
+        self._since_detect += 1
+        lost = int(ok_t.sum()) < (1.0 - o.redetect_lost_fraction) * self._n_after_detect
+        search = ref is None or lost or self._since_detect >= o.redetect_every
+        new_l = self._detect(left, uv_l[ok_t], tm) if search else np.zeros((0, 2))
+        t3 = time.perf_counter()
+        n_t = int(ok_t.sum())
+        q = np.concatenate([uv_l[ok_t], new_l])
+        # NaN seed: a row search starts the match of a new corner.
+        seed = np.concatenate([disp_guess[ok_t], np.full(new_l.shape[0], np.nan)])
+        uv_q, ok_q = (q.copy(), np.zeros(0, bool)) if q.shape[0] == 0 else self._stereo(
+            pl, pr, q, seed, disparity
+        )
+        tm["stereo"] = (time.perf_counter() - t3) * 1e3
+        new_r, ok_new = uv_q[n_t:], ok_q[n_t:]
+        if search:
+            if o.retry_failed_after > 0 and self._flow_px <= o.retry_max_flow_px:
+                self._failed = [*self._failed, self._to_img(new_l[~ok_new])]
+                self._failed = self._failed[-o.retry_failed_after :]
+            else:
+                self._failed = []
+        new_l, new_r = new_l[ok_new], new_r[ok_new]
+
+        if ref is not None:
             uv_r = np.zeros_like(uv_l)
             ok_s = np.zeros(uv_l.shape[0], dtype=bool)
-            if ok_t.any():
-                uv_r[ok_t], ok_s[ok_t] = self._stereo(
-                    pl, pr, uv_l[ok_t], disp_guess[ok_t], disparity
-                )
-            tm["stereo"] = (time.perf_counter() - t3) * 1e3
+            uv_r[ok_t], ok_s[ok_t] = uv_q[:n_t], ok_q[:n_t]
             result, keep_id, keep_l, keep_r = self._egomotion(
                 t_ns, ref, uv_l, uv_r, ok_t & ok_s, motion_prior, tm
             )
@@ -264,17 +291,9 @@ class StereoFrontend:
                 tm["total"] = (time.perf_counter() - t0) * 1e3
                 return result
         self._held = 0
-
-        # Top up features for the next frame where tracks were lost (after RANSAC, so that
-        # outliers' places are refilled at once), skipping corners that recently found no match.
-        self._since_detect += 1
-        lost = keep_l.shape[0] < (1.0 - o.redetect_lost_fraction) * self._n_after_detect
-        if ref is None or lost or self._since_detect >= o.redetect_every:
-            new_l, new_r = self._new_features(left, pl, pr, keep_l, disparity, tm)
+        if search:
             self._n_after_detect = keep_l.shape[0] + new_l.shape[0]
             self._since_detect = 0
-        else:
-            new_l = new_r = np.zeros((0, 2))
         ids = np.arange(self._next_id, self._next_id + new_l.shape[0], dtype=np.int64)
         self._next_id += new_l.shape[0]
         self.stats.new = int(new_l.shape[0])
@@ -289,29 +308,18 @@ class StereoFrontend:
             self.stats.status = "first"
         return result
 
-    def _new_features(
-        self, left: U8, pl: Pyramid, pr: Pyramid, keep_l: F64, disparity: F64 | None,
-        tm: dict[str, float],
-    ) -> tuple[F64, F64]:
-        """New corners away from the kept features ``keep_l`` (N, 2) rectified px, matched left
-        to right: left and right rectified pixels (M, 2) of those that matched."""
-        o = self.options
+    def _detect(self, left: U8, uv_have: F64, tm: dict[str, float]) -> F64:
+        """New corners (M, 2) rectified px away from the features ``uv_have`` (N, 2) rectified px
+        and from corners that recently found no left-right match."""
         t4 = time.perf_counter()
         blocked = np.concatenate([np.zeros((0, 2)), *self._failed])
-        new_l = detect_corners(left, self._to_img(keep_l), o.detector, uv_blocked=blocked)
+        new_l = detect_corners(left, self._to_img(uv_have), self.options.detector,
+                               uv_blocked=blocked)
         if self._geo is not None:  # corners come from the raw image
             new_l = self._to_rect(new_l)
             new_l = new_l[self.rig.in_image(new_l)]
         tm["detect"] = (time.perf_counter() - t4) * 1e3
-        t5 = time.perf_counter()
-        new_r, ok = self._stereo(pl, pr, new_l, None, disparity)
-        tm["stereo_new"] = (time.perf_counter() - t5) * 1e3
-        if o.retry_failed_after > 0 and self._flow_px <= o.retry_max_flow_px:
-            self._failed = [*self._failed, self._to_img(new_l[~ok])][-o.retry_failed_after :]
-        else:
-            self._failed = []
-        new_l, new_r = new_l[ok], new_r[ok]
-        return new_l, new_r
+        return new_l
 
     def _track_temporal(
         self, ref: _Reference, pl: Pyramid, motion_prior: Egomotion | None,
@@ -339,7 +347,7 @@ class StereoFrontend:
         uv_img, ok_t = track_klt(
             ref.left, pl, self._to_img(ref.uv_left), o.klt,
             guess=None if guess is None else self._to_img(guess), max_level=levels,
-            fb_max_level=o.klt.fb_levels,
+            fb_max_level=o.klt.fb_levels, fb_check=guess is None or o.klt.fb_when_predicted,
         )
         uv_l = self._to_rect(uv_img)
         ok_t &= np.isfinite(uv_l).all(1) & self.rig.in_image(uv_l)
@@ -355,8 +363,6 @@ class StereoFrontend:
         """Egomotion from the reference features matched now (``sel``, (N,)), then the checks."""
         o = self.options
         self.stats.tracked = int(sel.sum())
-        flow = np.linalg.norm(uv_l[sel] - ref.uv_left[sel], axis=1)
-        self._flow_px = float(np.median(flow)) if flow.size else np.inf
         p_prev = ref.p_C_F[sel]
         uvl, uvr = uv_l[sel], uv_r[sel]
         t6 = time.perf_counter()

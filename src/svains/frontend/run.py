@@ -110,7 +110,7 @@ def run_frontend(
 
 
 STAGES: tuple[str, ...] = (
-    "rectify", "pyramid", "dense", "track", "stereo", "ransac", "detect", "stereo_new", "total",
+    "rectify", "pyramid", "dense", "track", "stereo", "ransac", "detect", "total",
 )  # fmt: skip
 
 

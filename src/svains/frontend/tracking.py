@@ -21,7 +21,9 @@ class KltOptions:
     can recover: 2 lost the egomotion on a sharp turn of the simulated village flight),
     ``fb_levels`` for the backward check (it starts where the feature came from, so a consistent
     track needs no coarse level), forward-backward error limit ``fb_max_px``, termination
-    ``iterations``/``epsilon``."""
+    ``iterations``/``epsilon``; ``fb_when_predicted=False`` skips the backward pass when the
+    start was predicted from a motion (RANSAC against that motion and the epipolar checks then
+    guard the tracks, and one of the front end's four KLT passes is saved)."""
 
     win_px: int = 11
     levels: int = 3
@@ -30,6 +32,7 @@ class KltOptions:
     fb_max_px: float = 0.5
     iterations: int = 30
     epsilon: float = 0.01
+    fb_when_predicted: bool = False
 
 
 def _pyramid_input_supported() -> bool:
