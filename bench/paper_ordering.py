@@ -64,8 +64,9 @@ def main() -> None:
     idx = {m: j for j, m in enumerate(METHODS)}
     print("paper's pair (better > worse): seeds where it holds by ATE")
     for a, b in PAPER_PAIRS:
-        wins = int(np.sum(ate[:, idx[a]] < ate[:, idx[b]]))
-        ties = int(np.sum(np.isclose(ate[:, idx[a]], ate[:, idx[b]], rtol=1e-6)))
+        tie = np.isclose(ate[:, idx[a]], ate[:, idx[b]], rtol=1e-6)
+        wins = int(np.sum((ate[:, idx[a]] < ate[:, idx[b]]) & ~tie))
+        ties = int(np.sum(tie))
         print(f"  {a} > {b}: {wins}/{args.seeds}" + (f" (equal in {ties})" if ties else ""))
     order = sorted(METHODS, key=lambda m: np.mean(ate[:, idx[m]]))
     print("ordering by mean ATE (best first): " + " , ".join(order))

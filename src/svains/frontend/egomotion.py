@@ -36,10 +36,12 @@ class RansacOptions:
     two batches: ``first_batch`` triples (plus the prior), and the rest of ``iterations`` only
     if the best inlier ratio ``w`` so far leaves a chance above ``1 - confidence`` that no
     all-inlier triple was drawn (``(1 - w³)^n``): a clean frame then costs a third of the
-    hypotheses, a frame with many outliers (a moving object) gets all of them."""
+    hypotheses, a frame with many outliers (a moving object) gets all of them. The default draws
+    all 50 at once (the paper's RANSAC): with 16 first, a sharp turn of the 2 Hz village flight
+    (frame at t = 35 s, seed 0) ended without consensus and broke stereo VO there."""
 
     iterations: int = 50
-    first_batch: int = 16
+    first_batch: int = 50
     confidence: float = 0.999
     inlier_px: float = 1.5
     gn_iterations: int = 2
