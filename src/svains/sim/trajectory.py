@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from svains.datasets.trajectory import read_tum as datasets_read_tum
 from svains.errors import ConfigError, DatasetError
 from svains.geometry.rotation import rotmat_to_quat, so3_exp, so3_log
 
@@ -227,15 +228,17 @@ def village_trajectory(
 
 
 def read_tum(path: Path | str) -> tuple[F64, F64, F64]:
-    """TUM file -> times (N,) s, positions (N, 3) m, quaternions (N, 4) wxyz."""
+    """TUM file -> times (N,) s, positions (N, 3) m, quaternions (N, 4) wxyz (>= 8 rows).
+
+    Parsing is ``svains.datasets.trajectory.read_tum``'s; this adds the spline's minimum length.
+    """
     try:
-        data = np.loadtxt(path, comments="#", ndmin=2)
-    except (OSError, ValueError) as exc:
+        t_ns, p, q_wxyz = datasets_read_tum(path)
+    except DatasetError as exc:
         raise DatasetError(f"cannot read TUM trajectory {path}: {exc}") from exc
-    if data.shape[1] != 8 or len(data) < 8:
+    if len(t_ns) < 8:
         raise DatasetError(f"TUM trajectory {path}: need >= 8 rows of 't x y z qx qy qz qw'")
-    q_wxyz = np.column_stack([data[:, 7], data[:, 4:7]])
-    return data[:, 0], data[:, 1:4], q_wxyz
+    return t_ns * 1e-9, p, q_wxyz
 
 
 def tum_trajectory(
