@@ -21,13 +21,13 @@ import numpy as np
 from scipy.stats import chi2
 
 from svains.datasets import load_dataset
+from svains.evaluation.run import run_method
 from svains.models.imu import ImuChunk
 from svains.models.state import BIASED
 from svains.navigation.init import initialise
 from svains.navigation.ins import InsFilter
 from svains.navigation.options import FilterOptions, InitOptions, NoiseOptions, RunOptions
 from svains.navigation.report import nees_series
-from svains.navigation.runner import run_method
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "euroc_v101_micro"
 TARGET = 20_000

@@ -2,7 +2,9 @@
 
 1. Cost of one vision observation model evaluation (all sigma points x all features): 3d, tc, lc.
 2. Real-time factor and per-stage profile of ``3d`` from images on a simulated 20 Hz 752x480
-   village flight, best of ``--repeat N`` runs (default 2); ``--profile`` adds a cProfile list.
+   village flight, best of ``--repeat N`` runs (default 2); ``--profile`` adds a cProfile list;
+   accuracy with the other setting of the IMU motion prior; the filter side alone on the
+   recorded tracks.
 
 Plain script: prints its figures; timings depend on the machine's load.
 """
@@ -65,33 +67,88 @@ def _stage_profile(src: object, n_frames: int, wall_s: float) -> dict[str, float
     return out
 
 
+class _Replay:
+    """Tracks recorded from a front-end run, served again (filter-only timing)."""
+
+    kind = "images"
+    pixel_noise_std = 1.0
+
+    def __init__(self, rig: object, tracks: dict[int, object]) -> None:
+        self.rig = rig
+        self._tracks = tracks
+        self._times = np.array(sorted(tracks), np.int64)
+
+    def frame_times(self) -> np.ndarray:
+        return self._times
+
+    def tracks_at(self, t_ns: int, motion_prior: object = None) -> object:
+        return self._tracks.get(int(t_ns))
+
+
+def bench_filter_replay(ds: object, opts: object, tracks: dict[int, object], repeat: int) -> None:
+    """The filter side alone (IMU propagation, other sensors, vision update, runner loop): the
+    front end's tracks of one run replayed, best of ``repeat``; CPU time of this process (less
+    sensitive to other processes than wall time)."""
+    import svains.navigation.vision_pixels as vp
+    from svains.evaluation.run import run_method
+    from svains.navigation.vision_sources import rig_from_dataset
+
+    make = vp.make_source
+    src = _Replay(rig_from_dataset(ds), tracks)  # type: ignore[arg-type]
+    vp.make_source = lambda *a, **k: src  # type: ignore[assignment]
+    try:
+        best_cpu, best_wall = np.inf, np.inf
+        for _ in range(max(repeat, 1)):
+            c0, w0 = time.process_time(), time.perf_counter()
+            rep = run_method(ds, "3d", opts).report  # type: ignore[arg-type]
+            best_cpu = min(best_cpu, time.process_time() - c0)
+            best_wall = min(best_wall, time.perf_counter() - w0)
+    finally:
+        vp.make_source = make  # type: ignore[assignment]
+    n = len(tracks)
+    print(f"filter side only (recorded tracks replayed, {n} frames), best of {max(repeat, 1)}: "
+          f"{best_cpu * 1e3 / n:.2f} ms CPU, {best_wall * 1e3 / n:.2f} ms wall per frame; "
+          f"position RMSE {rep.get('position_rmse_m', float('nan')):.4f} m")
+
+
 def bench_images_3d(duration_s: float = 20.0, repeat: int = 2, profile: bool = False) -> None:
     """``3d`` from rendered images (front end + filter) on a 20 Hz 752x480 village flight.
 
     The run is repeated ``repeat`` times on the same data set; the fastest (least disturbed by
     other processes) is reported with its per-stage profile, with the load average. PNG decoding
     runs in the image source's prefetch thread, so ``png_wait`` is only what the main thread
-    still waits for. ``--profile`` adds a cProfile listing (which inflates the timings).
+    still waits for. ``--profile`` adds a cProfile listing (which inflates the timings). Then
+    one run with the other setting of the IMU motion prior (``VisionOptions.motion_prior``:
+    accuracy and front-end status counts) and the filter side alone (``bench_filter_replay``).
     """
     import os
     from dataclasses import replace
 
     import svains.navigation.vision_sources as vs
     from svains.datasets.loader import load_dataset
+    from svains.evaluation.run import run_method
     from svains.navigation.options import InitOptions, RunOptions
-    from svains.navigation.runner import run_method
     from svains.navigation.vision import tune_run_options
     from svains.sim import SimConfig, simulate
 
-    # The runner builds its image source internally: keep a handle on it for the stage timings.
+    # The runner builds its image source internally: keep a handle on it for the stage timings,
+    # and record the tracks it hands to the filter (for the filter-only replay).
     sources: list[vs.ImageTrackSource] = []
+    recorded: dict[int, object] = {}
     init = vs.ImageTrackSource.__init__
+    tracks_at = vs.ImageTrackSource.tracks_at
 
     def _init(self: vs.ImageTrackSource, *a: object, **k: object) -> None:
         init(self, *a, **k)  # type: ignore[arg-type]
         sources.append(self)
 
+    def _tracks_at(self: vs.ImageTrackSource, t_ns: int, motion_prior: object = None) -> object:
+        tr = tracks_at(self, t_ns, motion_prior)  # type: ignore[arg-type]
+        recorded[int(t_ns)] = tr
+        return tr
+
     vs.ImageTrackSource.__init__ = _init  # type: ignore[method-assign]
+    vs.ImageTrackSource.tracks_at = _tracks_at  # type: ignore[assignment,method-assign]
     with tempfile.TemporaryDirectory() as tmp:
         cfg = SimConfig()
         cfg = replace(cfg, duration_s=duration_s, camera=replace(cfg.camera, rate_hz=20.0))
@@ -100,8 +157,8 @@ def bench_images_3d(duration_s: float = 20.0, repeat: int = 2, profile: bool = F
         took = time.perf_counter() - t0
         print(f"simulated {duration_s:.0f} s at 20 Hz with images in {took:.1f} s")
         ds = load_dataset(root)
-        opts = RunOptions(model="biased", init=InitOptions(mode="groundtruth"),
-                          method_options={"source": "images", "rotation": "imu"})
+        mo = {"source": "images", "rotation": "imu"}
+        opts = RunOptions(model="biased", init=InitOptions(mode="groundtruth"), method_options=mo)
         opts = tune_run_options(ds, "3d", opts)
         runs = []
         for _ in range(max(repeat, 1)):
@@ -124,7 +181,7 @@ def bench_images_3d(duration_s: float = 20.0, repeat: int = 2, profile: bool = F
               f"of data, {n} stereo frames, in {rep['wall_s']:.2f} s (load average "
               f"{load_avg:.1f} on {os.cpu_count()} cores) -> real-time factor "
               f"{rep['realtime_factor']:.2f}x (target >= 3x); position RMSE "
-              f"{rep['position_rmse_m']:.3f} m")
+              f"{rep['position_rmse_m']:.4f} m; front end {rep['vision'].get('frontend_status')}")
         print("per-stage profile, ms per stereo frame (20 Hz: 3x real time = 16.7 ms):")
         for key, val in stages.items():
             print(f"  {key:<14} {val:7.2f}")
@@ -134,7 +191,17 @@ def bench_images_3d(duration_s: float = 20.0, repeat: int = 2, profile: bool = F
                 r"(frontend/pipeline|frontend/egomotion|frontend/tracking|frontend/stereo|"
                 r"frontend/features|navigation/vision|navigation/ins|filter/ukf|models/imu)"
             )
-    vs.ImageTrackSource.__init__ = init  # type: ignore[method-assign]
+        tracks = dict(recorded)
+        # The other setting of the IMU motion prior (VisionOptions.motion_prior), for comparison.
+        prior_on = bool(opts.method_options.get("motion_prior", False))
+        other = replace(opts, method_options={**opts.method_options, "motion_prior": not prior_on})
+        rep_o = run_method(ds, "3d", other).report
+        print(f"{'without' if prior_on else 'with'} the IMU motion prior: position RMSE "
+              f"{rep_o['position_rmse_m']:.4f} m (default: {rep['position_rmse_m']:.4f} m); "
+              f"front end {rep_o['vision'].get('frontend_status')}")
+        vs.ImageTrackSource.__init__ = init  # type: ignore[method-assign]
+        vs.ImageTrackSource.tracks_at = tracks_at  # type: ignore[method-assign]
+        bench_filter_replay(ds, opts, tracks, repeat)
 
 
 if __name__ == "__main__":

@@ -14,6 +14,12 @@ measures against the simulator's exact world:
 
 Then the same flight without the object (same village otherwise), for the egomotion error.
 
+Both runs also check the egomotion covariance (``svains.frontend.egomotion_cov``): the NEES of
+the true frame-to-frame motion error against ``Egomotion.cov`` (mean, median, per axis; 6, 3,
+1 if consistent) and the pixel noise the four-pixel model implies at the true motion (robust
+whitened residual of the inliers), i.e. the measured KLT/stereo error to set
+``RansacOptions.pixel_sigma_px`` from.
+
 Usage: ``python bench/eval_frontend_sim.py [DURATION_S] [OUT_DIR] [SEED]`` (default 110 s, a temp
 dir, seed 0; seed 1 puts the object nearer the leg's end, larger in the images;
 an existing data set in ``OUT_DIR/with_object`` or ``OUT_DIR/without_object`` is reused).
@@ -28,8 +34,10 @@ from pathlib import Path
 import numpy as np
 
 from svains.datasets import load_dataset, stereo_pairs
+from svains.frontend.egomotion_cov import whitened_residuals
 from svains.frontend.run import run_frontend, summarize
 from svains.frontend.types import StereoTracks
+from svains.geometry.rotation import so3_log
 from svains.sim.config import SimConfig
 from svains.sim.simulate import build_scene, simulate
 
@@ -131,6 +139,7 @@ def evaluate(
         frac_big = big_flagged / big_moving if big_moving else float("nan")
         print(f"  of which the object's own motion shifts > 3 px (2x the inlier threshold): "
               f"{big_moving}, flagged: {big_flagged} ({frac_big:.1%})")  # fmt: skip
+    report_covariance(collected, T, index_of, rig)
     err = ze - zt
     print(f"depth error of {err.size} static inliers vs stereo model sigma_z = z^2 sigma_d/(f b):")
     print(f"{'depth bin [m]':>14} {'n':>6} {'median err [m]':>15} {'rms err [m]':>12} "
@@ -146,6 +155,37 @@ def evaluate(
         print(f"{lo:>6}-{hi:<7} {int(m.sum()):>6} {np.median(err[m]):>15.3f} "
               f"{np.sqrt(np.mean(err[m] ** 2)):>12.3f} {sigma_d:>21.3f}")  # fmt: skip
     return seen
+
+
+def report_covariance(
+    collected: list[StereoTracks], T_W_C: np.ndarray, index_of: dict[int, int], rig: object
+) -> None:
+    """NEES of the true egomotion error against the front end's covariance, and the pixel noise
+    implied by the inliers' residuals at the true motion."""
+    nees, per_axis, w2 = [], [], []
+    for tr in collected:
+        if tr.egomotion is None:
+            continue
+        T_rel = np.linalg.inv(T_W_C[index_of[tr.t_ns]]) @ T_W_C[index_of[tr.t_prev_ns]]
+        R_true, p_true = T_rel[:3, :3], T_rel[:3, 3]
+        ego = tr.egomotion
+        e = np.r_[so3_log(ego.R_Ck_Ckm1.T @ R_true), p_true - ego.p_Ck_Ckm1]
+        nees.append(float(e @ np.linalg.solve(ego.cov, e)))
+        per_axis.append(e * e / np.diag(ego.cov))
+        m = tr.inlier
+        w2.append(whitened_residuals(R_true, p_true, tr.p_Ckm1_F[m], tr.uv_left[m],
+                                     tr.uv_right[m], rig))  # type: ignore[arg-type]
+    if not nees:
+        return
+    n = np.array(nees)
+    ax = np.mean(per_axis, axis=0)
+    print(f"egomotion NEES over {n.size} frames (6 if consistent): mean {n.mean():.2f}, median "
+          f"{np.median(n):.2f} (chi2(6) median 5.35); per axis (rx ry rz tx ty tz) "
+          + " ".join(f"{v:.2f}" for v in ax))  # fmt: skip
+    w = np.concatenate(w2)
+    w = w[np.isfinite(w)]
+    print(f"pixel noise implied at the true motion (four-pixel model, {w.size} inlier "
+          f"residuals): sigma = {np.sqrt(np.median(w) / 3.356694):.3f} px (robust)")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -19,6 +19,8 @@ SCRIPTS: list[str] = [
     "bench_methods.py",
     "bench_frontend.py",
     "eval_frontend_sim.py",
+    "bench_egomotion_cov.py",
+    "euroc_rotation_check.py",
     "bench_render.py",
 ]
 

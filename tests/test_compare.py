@@ -116,6 +116,21 @@ def test_trajectory_metrics_and_table() -> None:
     assert "| 3d | 0.500 | none |" in md and "| lc | failed: no egomotion |" in md
 
 
+def test_final_error_of_a_static_start_without_gps_is_taken_after_alignment() -> None:
+    # A local world frame (static start, no GPS): yaw and position are arbitrary, so the final
+    # error is measured after the ATE's posyaw alignment; a ground-truth start keeps it raw.
+    gt = _truth()
+    ds = Dataset(root=Path("memory"), name="synthetic", groundtruth=gt)
+    moved = gt.p_W_B @ so3_exp(np.array([0.0, 0.0, 0.7])).T + np.array([3.0, -2.0, 1.0])
+    r = _run_at(gt, moved, "3d")
+    raw = trajectory_metrics(r, ds, "3d", gps_used=False)
+    assert raw["final_position_error_m"] > 3.0
+    r.world_frame = "local"
+    local = trajectory_metrics(r, ds, "3d", gps_used=False)
+    assert local["ate_alignment"] == "posyaw" and local["final_position_error_m"] < 1e-9
+    assert local["ate_m"] == pytest.approx(raw["ate_m"], abs=1e-12)
+
+
 def test_figures_are_written(tmp_path: Path) -> None:
     gt = _truth()
     ds = _dataset(gt)

@@ -135,3 +135,79 @@ def test_update_blocks_gates_each_block_and_fuses_the_rest_together() -> None:
     d.update(lambda X: X @ H.T, z1, R)
     np.testing.assert_allclose(c.x, d.x, atol=1e-12)
     np.testing.assert_allclose(c.P, d.P, atol=1e-12)
+
+
+def _low_rank_problem(seed: int = 5, n: int = 6, nz: int = 120):
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(n, n))
+    P0 = A @ A.T + np.eye(n)
+    x0 = rng.normal(size=n)
+    H = rng.normal(size=(nz, n))
+    z = np.sin(x0) @ H.T + rng.normal(size=nz)
+    Rdiag = rng.uniform(0.5, 2.0, nz)
+    D = rng.normal(size=(3, nz))  # e.g. one shared 3-vector input's error seen by all rows
+    return x0, P0, H, z, Rdiag, D
+
+
+def test_low_rank_noise_update_equals_the_dense_formula() -> None:
+    x0, P0, H, z, Rdiag, D = _low_rank_problem()
+    n = x0.size
+
+    def h(X: np.ndarray) -> np.ndarray:
+        return np.sin(X) @ H.T
+
+    a = UKF(Euclidean(n), MerweScaledSigmaPoints(n), x0, P0)
+    b = UKF(Euclidean(n), MerweScaledSigmaPoints(n), x0, P0)
+    sa = a.update(h, z, Rdiag, R_low_rank=D)  # diagonal + low rank: matrix-inversion lemma
+    sb = b.update(h, z, np.diag(Rdiag) + D.T @ D)  # the same noise as one dense matrix
+    assert sa.accepted and sb.accepted
+    assert sa.nis == pytest.approx(sb.nis, rel=1e-9)
+    np.testing.assert_allclose(a.x, b.x, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(a.P, b.P, rtol=1e-8, atol=1e-12)
+    # ... and it is not a no-op: without D the answer differs.
+    c = UKF(Euclidean(n), MerweScaledSigmaPoints(n), x0, P0)
+    c.update(h, z, Rdiag)
+    assert np.abs(c.x - a.x).max() > 1e-3
+
+
+def test_kalman_correction_matches_the_textbook_gain() -> None:
+    from svains.filter import kalman_correction
+
+    x0, P0, H, z, Rdiag, D = _low_rank_problem(seed=6, nz=40)
+    n = x0.size
+    points = MerweScaledSigmaPoints(n)
+    dX = points.offsets(P0)
+    dY = np.sin(x0 + dX) @ H.T
+    y = points.Wm @ dY
+    dY = dY - y
+    r = z - y
+    S = dY.T @ (points.Wc[:, None] * dY) + np.diag(Rdiag) + D.T @ D
+    Pxz = dX.T @ (points.Wc[:, None] * dY)
+    K = Pxz @ np.linalg.inv(S)
+    for allow in (True, False):  # Woodbury and dense paths
+        dx, nis, dP = kalman_correction(dX, dY, points.Wc, Rdiag, r, D, allow_woodbury=allow)
+        np.testing.assert_allclose(dx, K @ r, rtol=1e-9, atol=1e-12)
+        assert nis == pytest.approx(r @ np.linalg.solve(S, r), rel=1e-9)
+        np.testing.assert_allclose(dP, K @ S @ K.T, rtol=1e-8, atol=1e-12)
+
+
+def test_low_rank_noise_with_a_wrong_shape_is_rejected() -> None:
+    x0, P0, H, z, Rdiag, D = _low_rank_problem()
+    ukf = UKF(Euclidean(x0.size), MerweScaledSigmaPoints(x0.size), x0, P0)
+    with pytest.raises(ConfigError, match=r"R_low_rank has shape \(120, 3\), expected \(k, 120\)"):
+        ukf.update(lambda X: X @ H.T, z, Rdiag, R_low_rank=D.T)
+
+
+def test_sigma_points_are_reused_until_the_state_changes() -> None:
+    x0, P0, *_ = _low_rank_problem()
+    ukf = UKF(Euclidean(x0.size), MerweScaledSigmaPoints(x0.size), x0, P0)
+    X1, dX1 = ukf.sigma_points()
+    X2, _ = ukf.sigma_points()
+    assert X2 is X1 and not X1.flags.writeable and not dX1.flags.writeable
+    ukf.P = ukf.P * 2.0  # a new covariance: new points, spread by sqrt(2)
+    X3, dX3 = ukf.sigma_points()
+    assert X3 is not X1
+    np.testing.assert_allclose(dX3, np.sqrt(2.0) * dX1, rtol=1e-12, atol=1e-14)
+    ukf.x[0] += 1.0  # in-place edits of x are seen too
+    X4, _ = ukf.sigma_points()
+    np.testing.assert_allclose(X4[:, 0], X3[:, 0] + 1.0, rtol=1e-12)

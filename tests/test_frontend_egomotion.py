@@ -137,3 +137,15 @@ def test_static_camera_gives_zero_motion(seed: int) -> None:
     assert res.egomotion is not None
     assert np.linalg.norm(res.egomotion.p_Ck_Ckm1) < 2e-3
     assert np.degrees(np.linalg.norm(so3_log(res.egomotion.R_Ck_Ckm1))) < 0.02
+
+
+def test_distinct_triples_are_distinct_and_uniform() -> None:
+    from svains.frontend.egomotion import _distinct_triples
+
+    t = _distinct_triples(np.random.default_rng(0), 60_000, 6)
+    assert (t[:, 0] != t[:, 1]).all() and (t[:, 0] != t[:, 2]).all() and (t[:, 1] != t[:, 2]).all()
+    assert t.min() == 0 and t.max() == 5
+    s = np.sort(t, axis=1)
+    _, counts = np.unique(s[:, 0] * 36 + s[:, 1] * 6 + s[:, 2], return_counts=True)
+    assert counts.size == 20  # every unordered triple of 6 occurs, about equally often
+    assert counts.min() > 0.9 * 3000 and counts.max() < 1.1 * 3000

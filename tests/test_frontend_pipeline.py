@@ -189,3 +189,44 @@ def test_still_camera_searches_new_corners_only_when_tracks_are_lost() -> None:
     fe.process(5, blank_l, blank_r)
     assert fe.stats.status == "ok" and fe.stats.inliers < 0.7 * n0
     assert "detect" in fe.stats.timings_ms
+
+
+@pytest.mark.parametrize("retry_levels", [0, 4])
+def test_sudden_reversal_is_recovered_by_the_unpredicted_retry(retry_levels: int) -> None:
+    """The plane moves 40 px per frame, then reverses: the constant-velocity prediction is 80 px
+    off. Without the retry the predicted tracks give no consensus; with it the motion is found."""
+    tex = _texture(3, (240, 700))
+    fe = _frontend(retry_levels=retry_levels)
+    tracks = [fe.process(k, *_pair(tex, s)) for k, s in enumerate([100, 140, 180, 140])]
+    for tr in tracks[1:3]:
+        assert tr is not None and tr.egomotion is not None
+        assert tr.egomotion.p_Ck_Ckm1 == pytest.approx([-0.4, 0.0, 0.0], abs=0.01)
+    last = tracks[3]
+    assert last is not None
+    if retry_levels == 0:
+        assert fe.stats.status == "no_consensus" and last.egomotion is None
+    else:
+        assert fe.stats.status == "ok" and last.egomotion is not None
+        assert last.egomotion.p_Ck_Ckm1 == pytest.approx([0.4, 0.0, 0.0], abs=0.01)
+
+
+def test_small_consensus_among_many_tracks_is_no_measurement() -> None:
+    """A motion is measured only if at least ``min_inlier_fraction`` of the matched features
+    are RANSAC inliers: the same frame passes just below its inlier fraction, fails just above."""
+    tex = _texture(0)
+    left, right = _pair(tex)
+    right_bad = right.copy()
+    rows = np.random.default_rng(0).permutation(240)[:60]  # a quarter of the rows mismatched
+    right_bad[rows] = np.roll(right_bad[rows], 3, axis=1)
+
+    def run(fraction: float) -> tuple[str, float]:
+        fe = _frontend(min_inlier_fraction=fraction)
+        fe.process(0, left, right)
+        fe.process(1, left, right_bad)
+        n = fe.stats.tracked
+        return fe.stats.status, (fe.stats.inliers / n if n else 0.0)
+
+    status, frac = run(0.0)
+    assert status == "ok" and 0.3 < frac < 0.98
+    assert run(frac - 0.02)[0] == "ok"
+    assert run(frac + 0.02)[0] == "no_consensus"

@@ -74,3 +74,25 @@ def test_motion_prior_reaches_the_front_end(euroc_micro: Path) -> None:
     assert tr is not None and tr.egomotion is not None
     assert np.linalg.norm(tr.egomotion.p_Ck_Ckm1) < 0.005
     src.close()
+
+
+def test_reference_time_and_status_counts_follow_the_front_end(euroc_micro: Path) -> None:
+    """A prior must span [reference, t_k]: a frame rejected against its prior is held, so the
+    reference stays at the last good frame (the updater then builds the next prior from it)."""
+    from svains.frontend.types import Egomotion
+
+    ds = load_dataset(euroc_micro)
+    src = ImageTrackSource(ds, frame_stride=2)
+    t = [int(v) for v in src.frame_times()[:3]]
+    assert src.reference_time_ns() is None
+    src.tracks_at(t[0])
+    assert src.reference_time_ns() == t[0]
+    wrong = Egomotion(R_Ck_Ckm1=np.eye(3), p_Ck_Ckm1=np.array([1.0, 0.0, 0.0]),
+                      cov=np.eye(6) * 1e-6)
+    src.tracks_at(t[1], motion_prior=wrong)
+    assert src.reference_time_ns() == t[0]  # held: still the last good frame
+    tr = src.tracks_at(t[2])
+    assert tr is not None and tr.t_prev_ns == t[0]
+    assert src.reference_time_ns() == t[2]
+    assert src.status_counts == {"first": 1, "contradicts_prior": 1, "ok": 1}
+    src.close()

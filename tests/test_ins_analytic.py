@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from _ins_truth import make_dataset
+from svains.evaluation.run import run_method
 from svains.navigation.options import FilterOptions, InitOptions, RunOptions
-from svains.navigation.runner import run_method
 
 GT_INIT = InitOptions(mode="groundtruth")
 REPORT_KEYS = {

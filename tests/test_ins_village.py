@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 
 from svains.datasets import load_dataset
+from svains.evaluation.run import run_method
 from svains.navigation.options import InitOptions, RunOptions
-from svains.navigation.runner import run_method
 
 sim = pytest.importorskip("svains.sim.simulate")
 config = pytest.importorskip("svains.sim.config")

@@ -10,15 +10,15 @@ import pytest
 
 from _ins_truth import make_dataset, static_dataset, truth
 from svains.errors import ConfigError, FilterError
+from svains.evaluation.run import run_method  # navigation run + accuracy keys
 from svains.geometry.rotation import quat_box_minus
 from svains.models.gps import gps_position
 from svains.models.state import BIASED
-from svains.navigation import base
+from svains.navigation import base, runner
 from svains.navigation.base import FrameContext, MeasurementBlock, VisionUpdater
 from svains.navigation.init import initialise
 from svains.navigation.ins import InsFilter
 from svains.navigation.options import FilterOptions, InitOptions, NoiseOptions, RunOptions
-from svains.navigation.runner import run_method
 
 GT_INIT = InitOptions(mode="groundtruth")
 
@@ -124,11 +124,25 @@ def test_run_without_ground_truth_reports_none_and_writes_outputs(tmp_path) -> N
     assert (tmp_path / "report.json").is_file() and (tmp_path / "states.csv").is_file()
 
 
+def test_navigation_report_has_no_accuracy_keys_and_says_what_fixes_the_frame(tmp_path) -> None:
+    # Layering: the navigation runner knows no ground-truth metrics; evaluation adds them.
+    ds = make_dataset(3.0)
+    res = runner.run_method(ds, "ins", RunOptions(init=GT_INIT), out_dir=tmp_path)
+    assert "ate_rmse_m" not in res.report and "position_rmse_m" not in res.report
+    assert res.report["wall_s"] > 0 and res.report["measurements"]["gps"]["fused"] >= 2
+    assert res.world_frame == "groundtruth" and res.gps_used and res.has_covariance
+    assert (tmp_path / "trajectory.tum").is_file() and (tmp_path / "report.json").is_file()
+    static = runner.run_method(static_dataset()[0], "ins", RunOptions())
+    assert static.world_frame == "local" and not static.gps_used  # no GPS in it
+    no_gt = runner.run_method(ds, "ins", RunOptions(init=GT_INIT, use_gps=False))
+    assert no_gt.world_frame == "groundtruth" and not no_gt.gps_used
+
+
 def test_accuracy_report_survives_a_straight_trajectory() -> None:
     # A straight line leaves the rotation about itself undetermined: evo's se3 (Umeyama) fit
     # raises on it; the report falls back to fewer degrees of freedom and says which.
     from svains.datasets.types import GroundTruth
-    from svains.navigation.report import accuracy_report
+    from svains.evaluation.accuracy import accuracy_report
 
     n = 50
     t_ns = (np.arange(n) * 1e8).astype(np.int64)

@@ -75,19 +75,28 @@ def test_lc_model_with_true_state_matches_true_egomotion(village: Dataset) -> No
 
 
 def test_lc_measurement_covariance_is_consistent(village: Dataset) -> None:
-    """NEES of the true egomotion error against the covariance the updater fuses averages near 6
-    (the front end's raw covariance gives ~200: lc then gated ~20% of frames). If the front end's
-    covariance is made consistent, this fails until ``LC_COV_SCALE`` is set back to ~1."""
-    up = LcUpdater(village, VisionOptions(source="features"))
-    nees = []
-    for tr, z_true, _ in _frames(village, up):
+    """NEES of the true egomotion error against the front end's own covariance (factor 1) and
+    against the one the updater fuses (default ``LC_COV_SCALE``).
+
+    The old residual-scaled normal matrix gave 140-200 (6 if consistent). The four-pixel
+    covariance (``frontend.egomotion_cov``) gives 18-29 on features0 (seeds 0, 3, 5), the rest
+    being the RANSAC refinement stopping before its selection settles (4.7 when iterated); the
+    bound 45 fails if the covariance regresses. ``LC_COV_SCALE`` = 30 is chosen for lc's
+    accuracy, not consistency, so the fused covariance is conservative (NEES ~1)."""
+    raw = LcUpdater(village, VisionOptions(source="features", lc_cov_scale=1.0))
+    fused = LcUpdater(village, VisionOptions(source="features"))
+    nees_raw, nees_fused = [], []
+    for tr, z_true, _ in _frames(village, raw):
         assert tr.egomotion is not None
-        z, cov = up.measurement(tr)
-        e = np.concatenate([so3_log(so3_exp(z_true[:3]).T @ tr.egomotion.R_Ck_Ckm1),
-                            z[3:] - z_true[3:]])
-        nees.append(e @ np.linalg.solve(cov, e))
-    assert len(nees) > 40
-    assert 2.0 < np.mean(nees) < 15.0
+        for up, out in ((raw, nees_raw), (fused, nees_fused)):
+            z, cov = up.measurement(tr)
+            e = np.concatenate([so3_log(so3_exp(z_true[:3]).T @ tr.egomotion.R_Ck_Ckm1),
+                                z[3:] - z_true[3:]])
+            out.append(e @ np.linalg.solve(cov, e))
+    assert len(nees_raw) > 40
+    assert 2.0 < np.mean(nees_raw) < 45.0
+    assert 0.2 < np.mean(nees_fused) < 6.0
+    assert np.mean(nees_fused) < np.mean(nees_raw) / 10.0
 
 
 def test_lc_measurement_scales_and_floors_the_covariance(village: Dataset) -> None:

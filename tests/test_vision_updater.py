@@ -118,6 +118,13 @@ def test_whitening_turns_noise_into_identity() -> None:
     Gw = whiten(G.T, W_inv).T
     T = lowrank_whiten(whiten(np.eye(12), W_inv), Gw).T  # rows transformed -> transpose
     np.testing.assert_allclose(T @ R_full @ T.T, np.eye(12), atol=1e-10)
+    # The updater's form: the Cholesky factors (forward substitution), same transform.
+    from svains.navigation.vision_noise import whiten_chol
+
+    L = np.linalg.cholesky(R_blocks)
+    Y = rng.normal(size=(5, 12))
+    np.testing.assert_allclose(whiten_chol(Y, L), whiten(Y, W_inv), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(whiten_chol(Y[0], L), whiten(Y[0], W_inv), rtol=1e-12, atol=1e-12)
 
 
 def test_previous_pixel_noise_is_identity_map_without_motion() -> None:

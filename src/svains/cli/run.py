@@ -57,7 +57,7 @@ def run(
 ) -> None:
     """Run METHOD over DATASET; write trajectory.tum, states.csv and report.json into OUT."""
     from svains.datasets import load_dataset
-    from svains.navigation.runner import run_method
+    from svains.evaluation.run import run_method
     from svains.navigation.vision import tune_run_options
 
     console = Console()
@@ -99,6 +99,9 @@ def run(
         table.add_row(
             key, "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.4g}"
         )
+    if rep.get("errors_alignment") is not None:
+        # Which degrees of freedom were aligned before the RMSE/NEES rows (none: raw errors).
+        table.add_row("errors alignment", str(rep["errors_alignment"]))
     for name, c in rep.get("measurements", {}).items():
         table.add_row(f"{name} fused/rejected", f"{c['fused']}/{c['rejected']}")
     for name, v in rep.get("vision", {}).items():

@@ -52,3 +52,51 @@ def align_posyaw(p_est: ArrayLike, p_ref: ArrayLike, up_W: ArrayLike = (0.0, 0.0
     T[:3, :3] = R
     T[:3, 3] = mu_b - R @ mu_a
     return T
+
+
+def align_posyaw_poses(
+    p_est: ArrayLike,
+    R_est: ArrayLike,
+    p_ref: ArrayLike,
+    R_ref: ArrayLike,
+    up_W: ArrayLike = (0.0, 0.0, 1.0),
+    lever_m: float = 0.1,
+) -> F64:
+    """Yaw + translation taking estimated poses onto reference poses (positions (N, 3) in m,
+    body-in-world rotations ``R_W_B`` (N, 3, 3)), using positions *and* headings.
+
+    Minimises ``Σ |R p_est_i + t − p_ref_i|² + lever_m² Σ ||R R_est_i − R_ref_i||_F²``: every
+    pose also counts as three points ``lever_m`` along its body axes. Positions alone leave the
+    yaw undetermined when the trajectory barely moves (a hovering or resting vehicle); the
+    heading term then fixes it, while on a trajectory much larger than ``lever_m`` it changes the
+    result of :func:`align_posyaw` negligibly. With ``K = [u]×`` and ``M = Σ R_est_i R_ref_iᵀ``,
+    ``tr(R_u(ψ) M) = tr M + sin ψ tr(K M) + (1 − cos ψ) tr(K² M)``, so
+    ``ψ = atan2(S + L² tr(K M), C − L² tr(K² M))`` with C, S of :func:`align_posyaw`.
+    Returns the 4x4 transform to left-multiply the estimated poses with.
+    """
+    a = np.asarray(p_est, dtype=float)
+    b = np.asarray(p_ref, dtype=float)
+    Ra = np.asarray(R_est, dtype=float)
+    Rb = np.asarray(R_ref, dtype=float)
+    if a.shape != b.shape or a.ndim != 2 or a.shape[1] != 3:
+        raise ConfigError(f"posyaw alignment needs two (N, 3) arrays, got {a.shape}, {b.shape}")
+    if Ra.shape != (a.shape[0], 3, 3) or Rb.shape != Ra.shape:
+        raise ConfigError(f"posyaw alignment needs (N, 3, 3) rotations, got {Ra.shape}, {Rb.shape}")
+    if a.shape[0] < 1:
+        raise ConfigError("posyaw alignment needs at least 1 matched pose")
+    u = np.asarray(up_W, dtype=float)
+    u = u / np.linalg.norm(u)
+    mu_a, mu_b = a.mean(axis=0), b.mean(axis=0)
+    ac, bc = a - mu_a, b - mu_b
+    a_perp = ac - np.outer(ac @ u, u)
+    b_perp = bc - np.outer(bc @ u, u)
+    K = skew(u)
+    M = np.einsum("nij,nkj->ik", Ra, Rb)
+    w = lever_m**2
+    sin_term = float(np.sum(np.cross(a_perp, b_perp) @ u)) + w * float(np.trace(K @ M))
+    cos_term = float(np.sum(a_perp * b_perp)) - w * float(np.trace(K @ K @ M))
+    R = rotation_about_axis(u, np.arctan2(sin_term, cos_term))
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = mu_b - R @ mu_a
+    return T

@@ -5,7 +5,9 @@ Per method: the runner's ``report.json`` content plus
   world frame, ``posyaw`` (yaw + translation: what a GPS-denied visual-inertial filter cannot
   observe) otherwise, ``se3`` for pure VO (no gravity);
 - ``outage_max_error_m``: the largest position error inside each GPS outage (gaps in ``gps0``);
-- ``final_position_error_m``, ``path_length_m`` and their ratio ``final_error_pct_of_path``.
+- ``final_position_error_m``, ``path_length_m`` and their ratio ``final_error_pct_of_path``
+  (the final error is taken after the ATE's alignment when the run's world frame is local, i.e. a
+  static start without GPS; raw otherwise).
 """
 
 from __future__ import annotations
@@ -25,9 +27,11 @@ from numpy.typing import NDArray
 from svains.datasets.types import Dataset, GroundTruth
 from svains.errors import ConfigError
 from svains.evaluation.metrics import AteResult, ate
+from svains.evaluation.run import run_accuracy
 from svains.navigation.options import RunOptions
 from svains.navigation.report import interpolate_groundtruth
 from svains.navigation.runner import RunResult, run_method
+from svains.navigation.writers import write_outputs
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -111,7 +115,12 @@ def trajectory_metrics(
         return {}
     ate_m = res.rmse
     path = float(np.sum(np.linalg.norm(np.diff(p_gt, axis=0), axis=1)))
-    final = float(np.linalg.norm(p_est[-1] - p_gt[-1]))
+    if result.world_frame == "local":
+        # Static start without GPS: the raw final error measures the arbitrary initial yaw and
+        # position, not the drift; take it after the ATE's alignment instead.
+        final = float(np.linalg.norm(res.p_est_aligned[-1] - res.p_ref[-1]))
+    else:
+        final = float(np.linalg.norm(p_est[-1] - p_gt[-1]))
     out: dict[str, Any] = {
         "ate_m": ate_m, "ate_alignment": res.alignment, "path_length_m": path,
         "final_position_error_m": final,
@@ -150,13 +159,11 @@ def run_methods(
         t0 = time.perf_counter()
         try:
             if m == "vo":
-                from svains.navigation.vo import run as run_vo
-
-                res = run_vo(ds, options, prog, out_dir=sub)
+                res = run_method(ds, m, options, None, prog)
             else:
                 from svains.navigation.vision import tune_run_options
 
-                res = run_method(ds, m, tune_run_options(ds, m, options), sub, prog)
+                res = run_method(ds, m, tune_run_options(ds, m, options), None, prog)
         except SvainsError as exc:
             log.error("%s failed: %s", m, exc)
             results[m] = RunResult(
@@ -164,11 +171,11 @@ def run_methods(
                 np.zeros((0, 9, 9)), {"method": m, "error": str(exc)},
             )
             continue
+        res.report.update(run_accuracy(res, ds))
         res.report.update(trajectory_metrics(res, ds, m, options.use_gps))
         log.info("%s done in %.1f s", m, time.perf_counter() - t0)
         if sub is not None:
-            (sub / "report.json").write_text(json.dumps(res.report, indent=2, default=_jsonable)
-                                             + "\n", encoding="utf-8")
+            write_outputs(sub, res)
         results[m] = res
     return results
 

@@ -2,7 +2,7 @@
 
 from svains.filter.manifold import Euclidean, Manifold
 from svains.filter.sigma_points import MerweScaledSigmaPoints, safe_cholesky
-from svains.filter.ukf import UKF, UpdateStats, chi2_gate
+from svains.filter.ukf import UKF, UpdateStats, chi2_gate, kalman_correction
 
 __all__ = [
     "UKF",
@@ -11,5 +11,6 @@ __all__ = [
     "MerweScaledSigmaPoints",
     "UpdateStats",
     "chi2_gate",
+    "kalman_correction",
     "safe_cholesky",
 ]

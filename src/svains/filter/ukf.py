@@ -71,11 +71,23 @@ class UKF:
         self.x = x0.copy()
         self.P = 0.5 * (P0 + P0.T)
         safe_cholesky(self.P, "initial covariance")
+        self._sigma_cache: tuple[bytes, F64, F64] | None = None
 
     def sigma_points(self) -> tuple[F64, F64]:
-        """Sigma points ``X`` (S, nx) of the current state and their tangent offsets (S, ndx)."""
+        """Sigma points ``X`` (S, nx) of the current state and their tangent offsets (S, ndx).
+
+        Read-only arrays, reused while ``x`` and ``P`` keep their values (an updater that gates
+        features on the sigma points, then updates, draws them once: one Cholesky, not two).
+        """
+        key = self.x.tobytes() + self.P.tobytes()
+        cached = self._sigma_cache
+        if cached is not None and cached[0] == key:
+            return cached[1], cached[2]
         dX = self.points.offsets(self.P)
         X = self.manifold.retract(np.broadcast_to(self.x, (dX.shape[0], self.x.size)), dX)
+        X.flags.writeable = False
+        dX.flags.writeable = False
+        self._sigma_cache = (key, X, dX)
         return X, dX
 
     def predict(self, f: ProcessFn, u: Any, dt: float, Q: F64) -> None:
@@ -150,9 +162,13 @@ class UKF:
         gate_probability: float | None = None,
         residual: ResidualFn | None = None,
         name: str = "",
+        R_low_rank: F64 | None = None,
     ) -> UpdateStats:
         """Fuse ``z`` (nz,) with model ``h`` and noise ``R`` (nz, nz) or diagonal (nz,).
 
+        ``R_low_rank`` ``D`` (k, nz), k small, adds ``D^T D`` to the noise (noise common to many
+        measurement components, e.g. a shared input's error seen through ``h``); with a diagonal
+        ``R`` the update then stays O(S² nz) (see ``kalman_correction``).
         With ``gate_probability`` the update is skipped (``accepted=False``) when the NIS exceeds
         the chi-square quantile of that probability with nz degrees of freedom.
         """
@@ -161,16 +177,20 @@ class UKF:
         nz = z.size
         if R.shape not in ((nz,), (nz, nz)):
             raise ConfigError(f"{name or 'measurement'}: R has shape {R.shape}, z has {nz} entries")
+        D = None if R_low_rank is None else np.asarray(R_low_rank, dtype=float)
+        if D is not None and (D.ndim != 2 or D.shape[1] != nz):
+            raise ConfigError(
+                f"{name or 'measurement'}: R_low_rank has shape {D.shape}, expected (k, {nz})"
+            )
         X, dX = self.sigma_points()
         Y = np.asarray(h(X), dtype=float).reshape(X.shape[0], nz)
-        Wm, Wc = self.points.Wm, self.points.Wc
-        y = Wm @ Y
+        Wc = self.points.Wc
+        y = self.points.Wm @ Y
         dY = Y - y if residual is None else residual(Y, y)
         r = z - y if residual is None else residual(z, y)
-        if R.ndim == 1 and nz > 2 * X.shape[0] and np.all(Wc >= 0.0):
-            dx, nis, dP = _woodbury_gain(dX, dY, Wc, R, r)
-        else:
-            dx, nis, dP = _dense_gain(dX, dY, Wc, R, r, name)
+        # The matrix-inversion-lemma path pays off for many measurements (or a low-rank term).
+        fast = R.ndim == 1 and (nz > 2 * X.shape[0] or D is not None)
+        dx, nis, dP = kalman_correction(dX, dY, Wc, R, r, D, name, allow_woodbury=fast)
         gate = chi2_gate(gate_probability, nz) if gate_probability is not None else np.inf
         if not np.isfinite(nis):
             raise FilterError(f"{name or 'measurement'}: non-finite innovation")
@@ -180,6 +200,42 @@ class UKF:
         P = self.P - dP
         self.P = 0.5 * (P + P.T)
         return UpdateStats(name, True, float(nis), nz, float(gate))
+
+
+def kalman_correction(
+    dX: F64,
+    dY: F64,
+    Wc: F64,
+    R: F64,
+    r: F64,
+    R_low_rank: F64 | None = None,
+    name: str = "",
+    allow_woodbury: bool = True,
+) -> tuple[F64, float, F64]:
+    """Sigma-point Kalman correction: state step ``dx`` (ndx,), NIS and covariance decrease.
+
+    ``dX`` (S, ndx) tangent offsets of the sigma points, ``dY`` (S, nz) their measurement
+    deviations from the predicted mean, ``Wc`` (S,) covariance weights, ``r`` (nz,) innovation,
+    noise ``R`` (nz, nz) or its diagonal (nz,) plus ``D^T D`` for ``R_low_rank`` = D (k, nz).
+    ``dx = K r``, ``NIS = r^T S^-1 r``, ``dP = K S K^T`` with ``S = dY^T Wc dY + R (+ D^T D)``.
+
+    A diagonal ``R`` with non-negative weights takes the matrix-inversion-lemma path in
+    O(S² nz) when ``allow_woodbury``: the rows of D join the sigma points' deviations with zero
+    state offset and unit weight (their ``A^T A`` adds ``D^T D``). Otherwise S (nz, nz) is
+    formed and Cholesky-solved.
+    """
+    R = np.asarray(R, dtype=float)
+    D = R_low_rank
+    if allow_woodbury and R.ndim == 1 and np.all(Wc >= 0.0):
+        if D is not None:
+            dY = np.vstack([dY, D])
+            dX = np.vstack([dX, np.zeros((D.shape[0], dX.shape[1]))])
+            Wc = np.concatenate([Wc, np.ones(D.shape[0])])
+        return _woodbury_gain(dX, dY, Wc, R, r)
+    Rm = np.diag(R) if R.ndim == 1 else R
+    if D is not None:
+        Rm = Rm + D.T @ D
+    return _dense_gain(dX, dY, Wc, Rm, r, name)
 
 
 def _dense_gain(dX: F64, dY: F64, Wc: F64, R: F64, r: F64, name: str) -> tuple[F64, float, F64]:
@@ -208,7 +264,8 @@ def _woodbury_gain(dX: F64, dY: F64, Wc: F64, Rdiag: F64, r: F64) -> tuple[F64, 
     M = np.eye(A.shape[0]) + B @ A.T
     L = safe_cholesky(0.5 * (M + M.T), "Woodbury capacitance matrix")
     Br = B @ r
-    MiBr = scipy.linalg.cho_solve((L, True), Br, check_finite=False)
-    MiC = scipy.linalg.cho_solve((L, True), C, check_finite=False)
+    # One solve for both right-hand sides (S, 1 + ndx).
+    Mi = scipy.linalg.cho_solve((L, True), np.column_stack([Br, C]), check_finite=False)
+    MiBr, MiC = Mi[:, 0], Mi[:, 1:]
     nis = float(r @ (r / Rdiag) - Br @ MiBr)
-    return C.T @ MiBr, nis, C.T @ C - C.T @ MiC
+    return C.T @ MiBr, nis, C.T @ (C - MiC)

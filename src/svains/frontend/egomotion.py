@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from svains.frontend import egomotion_kernels as kern
+from svains.frontend.egomotion_cov import egomotion_covariance
 from svains.frontend.types import Egomotion
 from svains.geometry.camera import RectifiedStereo
 
@@ -30,7 +32,10 @@ class RansacOptions:
     """RANSAC/Gauss-Newton settings: ``iterations`` random triples; ``inlier_px`` limit on the
     larger of the left and right reprojection errors; ``gn_iterations`` per hypothesis,
     ``refine_iterations`` (at most, stopping once updates fall below ``refine_tol`` rad/m) for the
-    refinement on all inliers; ``min_inliers`` for a motion measurement; ``seed`` of the sampler;
+    refinement on all inliers, re-selected and refined again for at most ``refine_rounds`` rounds
+    until the inlier set stops changing (two rounds left the estimate near the RANSAC
+    hypothesis when noise cuts many features: 3x the translation error on 0.5 px features);
+    ``min_inliers`` for a motion measurement; ``seed`` of the sampler;
     ``depth_weighting`` models each point's depth uncertainty at k-1 (stereo matching noise equal
     to the pixel noise in each image) in the refinement and the covariance. Hypotheses come in
     two batches: ``first_batch`` triples (plus the prior), and the rest of ``iterations`` only
@@ -46,10 +51,23 @@ class RansacOptions:
     inlier_px: float = 1.5
     gn_iterations: int = 2
     refine_iterations: int = 5
+    refine_rounds: int = 10
     refine_tol: float = 1e-6
     min_inliers: int = 8
     seed: int = 0
     depth_weighting: bool = True
+    # Covariance of the result (``svains.frontend.egomotion_cov``, all four pixels, the gate
+    # above). ``pixel_sigma_px``: white pixel noise, measured on the simulated village images
+    # (KLT + stereo KLT, inliers at the true motion: 0.099-0.100 px, seeds 0-1, 2 Hz,
+    # bench/eval_frontend_sim.py). ``cov_robust``: a larger white noise seen in the residuals
+    # (features0 at 0.5 px) takes over. ``cov_inflation``: floor on the effective pixel variance,
+    # in units of pixel_sigma_px²: the image front end's errors are shared across features (a
+    # per-frame scale error of ~0.9 %, the motion pulled toward its prediction), so they do not
+    # average down. Fitted on seeds 0-1 (1.0 gives NEES 80); 13 gives a mean NEES of 6.2-6.7
+    # on seeds 0-3, with and without the moving object (30 s each).
+    pixel_sigma_px: float = 0.1
+    cov_robust: bool = True
+    cov_inflation: float = 13.0
 
 
 @dataclass(frozen=True)
@@ -89,133 +107,45 @@ def reprojection_residuals(
     return r, q
 
 
-def _jacobian(q: F64, t: F64, rig: RectifiedStereo) -> F64:
-    """d residual / d (δθ, δt), (H, M, 4, 6), at moved points ``q`` (H, M, 3)."""
-    x, y = q[..., 0], q[..., 1]
-    z = np.where(q[..., 2] > _MIN_DEPTH_M, q[..., 2], np.nan)
-    fz = rig.f / z
-    # Projection Jacobian rows d(u, v)/dq: left u = (fz, 0, c0), left v = right v = (0, fz, c1),
-    # right u = (fz, 0, c2) (right camera: x - b).
-    c0 = -fz * x / z
-    c1 = -fz * y / z
-    c2 = -fz * (x - rig.baseline) / z
-    # q = Exp(δθ) R p + t + δt: dq/dδθ = -[R p]x, so each row a maps to (R p) x a; dq/dδt = I.
-    # The cross products are written out (np.cross on tiny trailing axes is slow).
-    px, py, pz = (q[..., i] - t[:, None, i] for i in range(3))
-    J = np.zeros((*q.shape[:-1], 4, 6))
-    J[..., 0, 0] = py * c0
-    J[..., 0, 1] = pz * fz - px * c0
-    J[..., 0, 2] = -py * fz
-    J[..., 0, 3] = fz
-    J[..., 0, 5] = c0
-    J[..., 1, 0] = py * c1 - pz * fz
-    J[..., 1, 1] = -px * c1
-    J[..., 1, 2] = px * fz
-    J[..., 1, 4] = fz
-    J[..., 1, 5] = c1
-    J[..., 2, 0] = py * c2
-    J[..., 2, 1] = J[..., 0, 1] - px * (c2 - c0)
-    J[..., 2, 2] = J[..., 0, 2]
-    J[..., 2, 3] = fz
-    J[..., 2, 5] = c2
-    J[..., 3, :] = J[..., 1, :]
-    return J
-
-
-def _normal_equations(
+def gauss_newton(
     R: F64, t: F64, p_prev: F64, uv_left: F64, uv_right: F64, weight: F64,
-    rig: RectifiedStereo, depth_var_px2: F64 | None,
-) -> tuple[F64, F64, F64, F64]:
-    """Gauss-Newton normal matrix (H, 6, 6), gradient (H, 6), residuals (H, M, 4) and the
-    per-feature whitened squared residual (H, M).
+    rig: RectifiedStereo, iterations: int, depth_var_px2: F64 | None = None, tol: float = 1e-9,
+) -> tuple[F64, F64]:
+    """Batched Gauss-Newton on eq. 12 for H problems at once (compiled loop,
+    ``egomotion_kernels.gauss_newton_batch``).
+
+    ``R`` (H, 3, 3), ``t`` (H, 3) initial motions; ``p_prev`` (H, M, 3) m; ``uv_left``/``uv_right``
+    (H, M, 2) px at k; ``weight`` (H, M) in {0, 1} selects features; each problem stops once its
+    update is below ``tol`` (rad, m). Returns refined ``R``, ``t``.
 
     ``depth_var_px2`` (H, M): variance of each point's depth at k-1 (m²) divided by the pixel
     variance. The point is then uncertain along its ray, which adds ``σ_z² a aᵀ`` to its 4x4
     residual covariance (``a`` = residual change per metre of depth); the rank-one inverse
     (Sherman-Morrison) down-weights exactly that direction. Without it far points, whose depth
-    is poor, bias the translation scale.
+    is poor, bias the translation scale. Points behind the camera get no weight.
     """
-    r, q = reprojection_residuals(R, t, p_prev, uv_left, uv_right, rig)
-    J = _jacobian(q, t, rig)
-    w = weight
-    if not np.isfinite(r).all():  # points behind the camera: no say in the fit
-        w = np.where(np.isfinite(r).all(-1), weight, 0.0)
-        r = np.where(np.isfinite(r), r, 0.0)
-        J = np.where(np.isfinite(J), J, 0.0)
-    Jw = (J * w[..., None, None]).reshape(J.shape[0], -1, 6)
-    A = np.swapaxes(Jw, 1, 2) @ J.reshape(J.shape[0], -1, 6)
-    g = (np.swapaxes(Jw, 1, 2) @ r.reshape(r.shape[0], -1, 1))[..., 0]
-    e2 = (r * r).sum(-1)
-    if depth_var_px2 is not None:
-        ray = (q - t[:, None, :]) / p_prev[..., 2:3]  # R p / z: d(moved point)/d(depth)
-        a = np.einsum("hmkj,hmj->hmk", J[..., 3:], np.where(np.isfinite(ray), ray, 0.0))
-        s2 = np.where(np.isfinite(depth_var_px2), depth_var_px2, 0.0)
-        c = s2 / (1.0 + s2 * (a * a).sum(-1))
-        Ja = np.einsum("hmki,hmk->hmi", J, a)
-        ar = (a * r).sum(-1)
-        wc = w * c
-        A = A - np.swapaxes(Ja * wc[..., None], 1, 2) @ Ja
-        g = g - ((wc * ar)[:, None, :] @ Ja)[:, 0]
-        e2 = e2 - c * ar * ar
-    return A, g, r, e2
-
-
-def _rodrigues(w: F64) -> F64:
-    """``Exp`` of rotation vectors (H, 3) -> (H, 3, 3), written out for the small batched
-    updates of Gauss-Newton (series coefficients below 1e-4 rad)."""
-    th2 = np.einsum("hi,hi->h", w, w)
-    th = np.sqrt(th2)
-    small = th < 1e-4
-    ths = np.where(small, 1.0, th)
-    a = np.where(small, 1.0 - th2 / 6.0, np.sin(ths) / ths)
-    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
-    K = np.zeros((w.shape[0], 3, 3))
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
-    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
-    return np.eye(3) + a[:, None, None] * K + b[:, None, None] * (K @ K)
-
-
-def gauss_newton(
-    R: F64, t: F64, p_prev: F64, uv_left: F64, uv_right: F64, weight: F64,
-    rig: RectifiedStereo, iterations: int, depth_var_px2: F64 | None = None, tol: float = 1e-9,
-) -> tuple[F64, F64]:
-    """Batched Gauss-Newton on eq. 12 for H problems at once.
-
-    ``R`` (H, 3, 3), ``t`` (H, 3) initial motions; ``p_prev`` (H, M, 3) m; ``uv_left``/``uv_right``
-    (H, M, 2) px at k; ``weight`` (H, M) in {0, 1} selects features; optional ``depth_var_px2``
-    (H, M) models depth uncertainty (see ``_normal_equations``); stops early once every update is
-    below ``tol`` (rad, m). Returns refined ``R``, ``t``.
-    """
-    R = R.copy()
-    t = t.copy()
-    damping = 1e-9 * np.eye(6)
-    for _ in range(iterations):
-        A, g, _, _ = _normal_equations(R, t, p_prev, uv_left, uv_right, weight, rig, depth_var_px2)
-        A = A + damping
-        try:
-            delta = -np.linalg.solve(A, g[..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            delta = -(np.linalg.pinv(A) @ g[..., None])[..., 0]
-        delta = np.where(np.isfinite(delta), delta, 0.0)
-        R = _rodrigues(delta[:, :3]) @ R
-        t = t + delta[:, 3:]
-        if np.max(np.abs(delta)) < tol:
-            break
+    R = np.array(R, dtype=float, order="C")
+    t = np.array(t, dtype=float, order="C")
+    c = np.ascontiguousarray
+    use_dv = depth_var_px2 is not None
+    dv = c(depth_var_px2, dtype=float) if use_dv else np.zeros(np.shape(weight))
+    kern.gauss_newton_batch(
+        R, t, c(p_prev, dtype=float), c(uv_left, dtype=float), c(uv_right, dtype=float),
+        c(weight, dtype=float), dv, use_dv, rig.f, rig.cu, rig.cv, rig.baseline, int(iterations),
+        float(tol),
+    )
     return R, t
 
 
 def kabsch(p_prev: F64, p_cur: F64) -> tuple[F64, F64]:
     """Batched rigid alignment ``p_cur ≈ R p_prev + t`` of point sets (H, M, 3) -> R (H, 3, 3),
-    t (H, 3) (least squares, Umeyama/Kabsch without scale)."""
-    mu_a = p_prev.mean(axis=1)
-    mu_b = p_cur.mean(axis=1)
-    Hm = np.einsum("hmi,hmj->hij", p_cur - mu_b[:, None], p_prev - mu_a[:, None])
-    U, _, Vt = np.linalg.svd(Hm)
-    d = np.sign(np.linalg.det(U @ Vt))
-    D = np.broadcast_to(np.eye(3), Hm.shape).copy()
-    D[:, 2, 2] = d
-    R = U @ D @ Vt
-    t = mu_b - np.einsum("hij,hj->hi", R, mu_a)
+    t (H, 3) (least squares without scale; compiled, ``egomotion_kernels.align_batch``). A set
+    with a non-finite point gets the identity."""
+    P = np.ascontiguousarray(p_prev, dtype=float)
+    C = np.ascontiguousarray(p_cur, dtype=float)
+    R = np.empty((P.shape[0], 3, 3))
+    t = np.empty((P.shape[0], 3))
+    kern.align_batch(P, C, R, t)
     return R, t
 
 
@@ -232,42 +162,25 @@ def _score(
 ) -> tuple[F64, Bool]:
     """RANSAC score (H,) and inlier masks (H, M) of motions ``R`` (H, 3, 3), ``t`` (H, 3) on
     shared features ``p_prev`` (M, 3), pixels (M, 2): the inlier count minus a small penalty
-    growing with the inliers' errors (ties go to the tighter fit). Squared errors avoid a
-    square root per hypothesis and feature; a point behind the camera is never an inlier."""
-    h, m = R.shape[0], p_prev.shape[0]
-    q = (p_prev @ R.transpose(2, 0, 1).reshape(3, 3 * h)).reshape(m, h, 3)
-    q += t[None]
-    z = q[..., 2]
-    iz = rig.f / np.where(z > _MIN_DEPTH_M, z, np.nan)
-    du = q[..., 0] * iz + (rig.cu - uv_left[:, None, 0])
-    dv = q[..., 1] * iz + rig.cv
-    dur = du - rig.baseline * iz + (uv_left[:, None, 0] - uv_right[:, None, 0])
-    dvl = dv - uv_left[:, None, 1]
-    dvr = dv - uv_right[:, None, 1]
-    e2 = np.maximum(du * du + dvl * dvl, dur * dur + dvr * dvr).T  # (H, M), NaN behind camera
-    inl = e2 < inlier_px * inlier_px
-    err_sum = np.sqrt(np.where(inl, e2, 0.0)).sum(axis=1)
-    score = inl.sum(axis=1) - err_sum / (inlier_px * (m + 1))
-    return score, inl
-
-
-def _covariance(
-    R: F64, t: F64, p: F64, uvl: F64, uvr: F64, rig: RectifiedStereo, depth_var_px2: F64 | None
-) -> F64:
-    """(6, 6) covariance of (local rotation vector, translation) from the normal matrix scaled by
-    the residual variance, for one motion and inlier points (M, 3)."""
-    dv = None if depth_var_px2 is None else depth_var_px2[None]
-    A, _, _, e2 = _normal_equations(
-        R[None], t[None], p[None], uvl[None], uvr[None], np.ones((1, p.shape[0])), rig, dv
+    growing with the inliers' errors (ties go to the tighter fit); a point behind the camera is
+    never an inlier (compiled loop, ``egomotion_kernels.score_batch``)."""
+    c = np.ascontiguousarray
+    return kern.score_batch(
+        c(R, dtype=float), c(t, dtype=float), c(p_prev, dtype=float), c(uv_left, dtype=float),
+        c(uv_right, dtype=float), rig.f, rig.cu, rig.cv, rig.baseline, float(inlier_px),
     )
-    dof = max(4 * p.shape[0] - 6, 1)
-    sigma2 = float(np.sum(e2)) / dof
-    cov_left = sigma2 * np.linalg.pinv(A[0])
-    # Left perturbation δθ_l = R δθ_local  =>  Σ_local = R^T Σ_l R.
-    Tm = np.eye(6)
-    Tm[:3, :3] = R.T
-    cov = Tm @ cov_left @ Tm.T
-    return 0.5 * (cov + cov.T)
+
+
+def _distinct_triples(rng: np.random.Generator, h: int, n: int) -> NDArray[np.int64]:
+    """``h`` rows of 3 distinct indices in [0, n), uniform over unordered triples: draws from
+    [0, n), [0, n-1), [0, n-2) shifted past the indices already taken (no per-row loop, no
+    (h, n) random keys)."""
+    a, b, c = (rng.integers(0, n - k, h) for k in range(3))
+    b = b + (b >= a)
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    c = c + (c >= lo)
+    c = c + (c >= hi)
+    return np.stack([a, b, c], axis=1)
 
 
 def _hypotheses(
@@ -277,20 +190,12 @@ def _hypotheses(
     """``h`` motions (R (H', 3, 3), t (H', 3)) fitted to random triples of the usable features
     ``idx``, seeded by 3-point alignment of ``p_cur``; with a ``prior`` it is refined on one more
     triple and also competes unrefined (H' = h + 2)."""
-    # Three distinct features per hypothesis: the 3 smallest of a random key per feature.
-    triples = idx[np.argpartition(rng.random((h, idx.size)), 2, axis=1)[:, :3]]  # (H, 3)
+    triples = idx[_distinct_triples(rng, h, idx.size)]  # (H, 3)
     P3, L3, R3 = p_prev[triples], uv_left[triples], uv_right[triples]
-    R0 = np.broadcast_to(np.eye(3), (h, 3, 3)).copy()
-    t0 = np.zeros((h, 3))
-    if p_cur is not None:
-        C3 = p_cur[triples]
-        good = np.isfinite(C3).all(axis=(1, 2))
-        if good.any():
-            try:
-                Rk, tk = kabsch(P3[good], C3[good])
-                R0[good], t0[good] = Rk, tk
-            except np.linalg.LinAlgError:  # degenerate triples: start from identity instead
-                pass
+    if p_cur is not None:  # triples with a non-finite point at k start from the identity
+        R0, t0 = kabsch(P3, p_cur[triples])
+    else:
+        R0, t0 = np.broadcast_to(np.eye(3), (h, 3, 3)).copy(), np.zeros((h, 3))
     if prior is not None:
         R0 = np.concatenate([R0, prior.R_Ck_Ckm1[None]], axis=0)
         t0 = np.concatenate([t0, prior.p_Ck_Ckm1[None]], axis=0)
@@ -353,7 +258,7 @@ def estimate_egomotion(
     zf = p_prev[idx, 2] ** 2 / (rig.f * rig.baseline)
     dvar = 2.0 * zf * zf if opts.depth_weighting else None
     P1, L1, R1 = p_prev[idx][None], uv_left[idx][None], uv_right[idx][None]
-    for _ in range(2):  # refine on inliers, re-select, refine again (if the selection changed)
+    for _ in range(max(opts.refine_rounds, 1)):  # refine, re-select, until the set settles
         R, t = gauss_newton(
             R, t, P1, L1, R1, w[None], rig, opts.refine_iterations,
             None if dvar is None else dvar[None], tol=opts.refine_tol,
@@ -373,6 +278,10 @@ def estimate_egomotion(
     error[idx] = e
     sel = idx[inlier_sub]
     dsel = None if dvar is None else dvar[inlier_sub]
-    cov = _covariance(R[0], t[0], p_prev[sel], uv_left[sel], uv_right[sel], rig, dsel)
+    cov = egomotion_covariance(
+        R[0], t[0], p_prev[sel], uv_left[sel], uv_right[sel], rig, opts.pixel_sigma_px,
+        robust=opts.cov_robust, inflation=opts.cov_inflation, estimator_depth_var_px2=dsel,
+        gate_px=opts.inlier_px,
+    )
     ego = Egomotion(R_Ck_Ckm1=R[0], p_Ck_Ckm1=t[0], cov=cov)
     return EgomotionResult(ego, inlier, error)

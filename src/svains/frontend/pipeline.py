@@ -18,18 +18,19 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from svains.datasets.types import CameraCalib
-from svains.frontend.egomotion import RansacOptions, estimate_egomotion
-from svains.frontend.features import DetectorOptions, detect_corners
+from svains.frontend.egomotion import estimate_egomotion
+from svains.frontend.features import detect_corners
 from svains.frontend.images import as_grey, texture_std
+from svains.frontend.options import HOLD_STATUSES, FrameStats, FrontendOptions
 from svains.frontend.rectify import StereoRectifier
-from svains.frontend.stereo import StereoMatchOptions, dense_disparity, match_dense, match_sparse
-from svains.frontend.tracking import KltOptions, Pyramid, track_klt
+from svains.frontend.stereo import dense_disparity, match_dense, match_sparse
+from svains.frontend.tracking import Pyramid, track_klt
 from svains.frontend.types import Egomotion, StereoTracks
 from svains.geometry.camera import RectifiedStereo
 from svains.geometry.rotation import so3_log
@@ -38,56 +39,6 @@ F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class FrontendOptions:
-    """All front-end settings. ``min_texture_std`` grey levels below which a frame is treated as
-    textureless; ``epipolar_final_px`` row tolerance of the final inlier check (both times);
-    ``prior_gate_chi2`` Mahalanobis gate of the estimate against a given motion prior;
-    ``max_translation_m``/``max_rotation_deg`` plausibility limits per frame (None: no limit);
-    ``max_hold_frames`` consecutive rejected frames (motion contradicting the prior, implausible)
-    for which the reference frame is kept before the front end re-initialises on the new view;
-    ``predict_tracks`` starts KLT where the last motion (or the prior) predicts each feature;
-    ``retry_failed_after`` frames during which a new corner that found no left-right match is
-    not proposed again (edges and occlusions otherwise cost a row search every frame), as long
-    as the image is nearly still (median feature flow below ``retry_max_flow_px``; with larger
-    motion the remembered places no longer mean anything); new corners are sought only once
-    more than ``redetect_lost_fraction`` of the features kept after the last search are lost,
-    or ``redetect_every`` frames after it (a still or slow camera keeps its tracks, and each
-    search costs a detection, a row search and a left-right KLT pass)."""
-
-    detector: DetectorOptions = field(default_factory=DetectorOptions)
-    klt: KltOptions = field(default_factory=KltOptions)
-    stereo: StereoMatchOptions = field(default_factory=StereoMatchOptions)
-    ransac: RansacOptions = field(default_factory=RansacOptions)
-    min_texture_std: float = 3.0
-    epipolar_final_px: float = 1.0
-    prior_gate_chi2: float = 50.0
-    max_translation_m: float | None = None
-    max_rotation_deg: float | None = None
-    max_hold_frames: int = 3
-    predict_tracks: bool = True
-    retry_failed_after: int = 3
-    retry_max_flow_px: float = 2.0
-    redetect_lost_fraction: float = 0.05
-    redetect_every: int = 5
-
-
-_HOLD_STATUSES = ("contradicts_prior", "implausible")
-
-
-@dataclass
-class FrameStats:
-    """Counts and per-stage timings (ms) of the last processed frame."""
-
-    t_ns: int = 0
-    status: str = ""
-    tracked: int = 0
-    new: int = 0
-    inliers: int = 0
-    outliers: int = 0
-    timings_ms: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -246,8 +197,9 @@ class StereoFrontend:
         keep_id = np.zeros(0, np.int64)
         keep_l, keep_r = np.zeros((0, 2)), np.zeros((0, 2))
         uv_l, ok_t, disp_guess = np.zeros((0, 2)), np.zeros(0, bool), np.zeros(0)
+        predicted = False
         if ref is not None:
-            uv_l, ok_t, disp_guess = self._track_temporal(ref, pl, motion_prior, tm)
+            uv_l, ok_t, disp_guess, predicted = self._track_temporal(ref, pl, motion_prior, tm)
             flow = np.linalg.norm(uv_l[ok_t] - ref.uv_left[ok_t], axis=1)
             self._flow_px = float(np.median(flow)) if flow.size else np.inf
 
@@ -284,7 +236,10 @@ class StereoFrontend:
             result, keep_id, keep_l, keep_r = self._egomotion(
                 t_ns, ref, uv_l, uv_r, ok_t & ok_s, motion_prior, tm
             )
-            if self.stats.status in _HOLD_STATUSES and self._held < o.max_hold_frames:
+            if self.stats.status == "no_consensus" and predicted and o.retry_levels > 0:
+                result, keep_id, keep_l, keep_r = self._retry(t_ns, ref, pl, pr, motion_prior,
+                                                              disparity, tm)  # fmt: skip
+            if self.stats.status in HOLD_STATUSES and self._held < o.max_hold_frames:
                 # Probably a transient (object filling the view): keep tracking from the last
                 # trusted frame rather than adopting this one as the reference.
                 self._held += 1
@@ -323,16 +278,17 @@ class StereoFrontend:
 
     def _track_temporal(
         self, ref: _Reference, pl: Pyramid, motion_prior: Egomotion | None,
-        tm: dict[str, float],
-    ) -> tuple[F64, NDArray[np.bool_], F64]:
+        tm: dict[str, float], levels: int | None = None, use_prediction: bool = True,
+    ) -> tuple[F64, NDArray[np.bool_], F64, bool]:
         """Track the reference features into this frame's left image: pixels (N, 2), validity
-        (N,) and the disparity (N,) px expected now (seed of the left-right match)."""
+        (N,), the disparity (N,) px expected now (seed of the left-right match) and whether the
+        KLT start was predicted from a motion."""
         o = self.options
         t2 = time.perf_counter()
         guess = None
         disp_prev = ref.uv_left[:, 0] - ref.uv_right[:, 0]
-        predict = motion_prior or self._last_motion
-        levels = o.klt.levels
+        predict = (motion_prior or self._last_motion) if use_prediction else None
+        levels = o.klt.levels if levels is None else levels
         if predict is not None and ref.p_C_F.shape[0] and o.predict_tracks:
             # Constant-velocity (or prior) prediction of where features land: helps large flows.
             q = ref.p_C_F @ predict.R_Ck_Ckm1.T + predict.p_Ck_Ckm1
@@ -353,8 +309,28 @@ class StereoFrontend:
         ok_t &= np.isfinite(uv_l).all(1) & self.rig.in_image(uv_l)
         # A tracked feature never falls back to the row search: no finite seed, no match.
         ok_t &= np.isfinite(disp_prev) & np.isfinite(ref.p_C_F).all(1)
-        tm["track"] = (time.perf_counter() - t2) * 1e3
-        return uv_l, ok_t, disp_prev
+        tm["track"] = tm.get("track", 0.0) + (time.perf_counter() - t2) * 1e3
+        return uv_l, ok_t, disp_prev, guess is not None
+
+    def _retry(
+        self, t_ns: int, ref: _Reference, pl: Pyramid, pr: Pyramid,
+        motion_prior: Egomotion | None, disparity: F64 | None, tm: dict[str, float],
+    ) -> tuple[StereoTracks, NDArray[np.int64], F64, F64]:
+        """Second attempt after predicted tracks gave no consensus: unpredicted temporal KLT
+        over ``retry_levels`` pyramid levels, left-right match, RANSAC (no prior hypothesis)."""
+        o = self.options
+        uv_l, ok_t, disp_guess, _ = self._track_temporal(
+            ref, pl, motion_prior, tm, levels=o.retry_levels, use_prediction=False
+        )
+        t3 = time.perf_counter()
+        uv_r = np.zeros_like(uv_l)
+        ok_s = np.zeros(uv_l.shape[0], dtype=bool)
+        if ok_t.any():
+            uv_r[ok_t], ok_s[ok_t] = self._stereo(pl, pr, uv_l[ok_t], disp_guess[ok_t], disparity)
+        tm["stereo"] = tm.get("stereo", 0.0) + (time.perf_counter() - t3) * 1e3
+        self._last_motion = None
+        log.info("frame %d: no consensus from predicted tracks, retried unpredicted", t_ns)
+        return self._egomotion(t_ns, ref, uv_l, uv_r, ok_t & ok_s, motion_prior, tm)
 
     def _egomotion(
         self, t_ns: int, ref: _Reference, uv_l: F64, uv_r: F64, sel: NDArray[np.bool_],
@@ -371,14 +347,15 @@ class StereoFrontend:
             p_prev, uvl, uvr, self.rig, o.ransac, p_cur=self.rig.triangulate(uvl, uvr),
             prior=prior, rng=self._rng,
         )
-        tm["ransac"] = (time.perf_counter() - t6) * 1e3
+        tm["ransac"] = tm.get("ransac", 0.0) + (time.perf_counter() - t6) * 1e3
         epi = (np.abs(uvl[:, 1] - uvr[:, 1]) <= o.epipolar_final_px) & (
             np.abs(ref.uv_left[sel, 1] - ref.uv_right[sel, 1]) <= o.epipolar_final_px
         )
         inlier = res.inlier & epi
         ego = res.egomotion
         status = "ok"
-        if ego is None or inlier.sum() < o.ransac.min_inliers:
+        n_inl = int(inlier.sum())
+        if ego is None or n_inl < max(o.ransac.min_inliers, o.min_inlier_fraction * inlier.size):
             ego, status = None, "no_consensus"
         elif not self._plausible(ego):
             ego, status = None, "implausible"

@@ -57,7 +57,7 @@ def propagate_points_3d(
     d = as_points(p_Ckm1_F)
     if rotation != "linear":
         R_c, r_c = camera_motion(x, dt_s, rig, rotation, imu)
-        return np.einsum("sij,mj->smi", R_c, d) - r_c[:, None, :]
+        return move_points(R_c, r_c, d)
     C = np.asarray(rig.R_B_C, dtype=float)
     c_B = np.asarray(rig.p_B_C, dtype=float)
     R_W_B = quat_to_rotmat(x[:, Q])
@@ -67,6 +67,24 @@ def propagate_points_3d(
     inner = v_B[:, None, :] + np.cross(omega_B[:, None, :], p_B_F[None, :, :])  # (S, M, 3)
     # C^T y == y @ C for row vectors y.
     return d[None, :, :] - dt_s * (inner @ C)
+
+
+def move_points(R_c: F64, r_c: F64, p_Ckm1_F: F64) -> F64:
+    """Eq. 15 for every sigma point: ``d_k = R_c d - r_c``, (S, M, 3) m.
+
+    ``R_c`` (S, 3, 3), ``r_c`` (S, 3) from ``vision_common.camera_motion``; ``p_Ckm1_F`` (M, 3).
+    """
+    return p_Ckm1_F @ np.swapaxes(R_c, -1, -2) - r_c[:, None, :]
+
+
+def pixels_from_motion(R_c: F64, r_c: F64, p_Ckm1_F: F64, rig: RectifiedStereo) -> F64:
+    """``3d`` pixels (S, 4M) from the camera motion of each sigma point (eqs. 15, 26).
+
+    The same prediction as ``predict_pixels_3d`` once ``R_c, r_c`` are known (for
+    ``rotation="linear"`` eq. 25 is ``R_c = I - Δt [C^T ω]x``, equal up to rounding), so an
+    updater that also needs the motion at the mean computes it once.
+    """
+    return project_stereo(move_points(R_c, r_c, p_Ckm1_F), rig)
 
 
 def predict_pixels_3d(

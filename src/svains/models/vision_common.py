@@ -17,7 +17,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from svains.geometry.camera import RectifiedStereo
-from svains.geometry.rotation import quat_to_rotmat, skew, so3_exp
+from svains.geometry.rotation import skew, so3_exp
+from svains.models._quat import qexp, rotmat_rows
 from svains.models.state import BA, BG, Q, V, W
 
 F64 = NDArray[np.float64]
@@ -95,24 +96,26 @@ def camera_motion(
         raise ValueError(f"rotation must be one of {ROTATION_MODELS}, got {rotation!r}")
     C = np.asarray(rig.R_B_C, dtype=float)
     c_B = np.asarray(rig.p_B_C, dtype=float)
-    R_W_B = quat_to_rotmat(x[:, Q])
+    # Row-major kernels (``models._quat``): same values as ``quat_to_rotmat``/``so3_exp``, fewer
+    # NumPy calls at sigma-point sizes.
+    R_W_B = rotmat_rows(x[:, Q])
     omega_B = x[:, W]
-    v_B = np.einsum("sji,sj->si", R_W_B, x[:, V])  # R^T v_W
+    v_B = (x[:, None, V] @ R_W_B)[:, 0]  # R^T v_W
     if rotation == "imu":
         if imu is None:
             raise ValueError("rotation='imu' needs the IMU increment between the frames")
-        S = x.shape[0]
-        dRt = np.broadcast_to(np.asarray(imu.dR_Bkm1_Bk, dtype=float).T, (S, 3, 3))  # R_k^T R_km1
-        J_B = np.broadcast_to(np.asarray(imu.J_B, dtype=float), (S, 3))
+        dRt = np.asarray(imu.dR_Bkm1_Bk, dtype=float).T  # R_k^T R_km1
+        J_B = np.asarray(imu.J_B, dtype=float)
         if x.shape[1] >= BA.stop and imu.bg_ref_B is not None and imu.ba_ref_B is not None:
             M_g = dt_s * np.eye(3) if imu.dR_dbg is None else np.asarray(imu.dR_dbg, float)
             M_a = -0.5 * dt_s**2 * np.eye(3) if imu.dJ_dba is None else np.asarray(imu.dJ_dba)
             # (ΔR Exp(-M_g δbg))^T = Exp(M_g δbg) ΔR^T.
-            dRt = so3_exp((x[:, BG] - imu.bg_ref_B) @ M_g.T) @ dRt
+            dRt = rotmat_rows(qexp(((x[:, BG] - imu.bg_ref_B) @ M_g.T).T).T) @ dRt
             J_B = J_B + (x[:, BA] - imu.ba_ref_B) @ M_a.T
-        g_B = np.einsum("sji,j->si", R_W_B, np.asarray(imu.g_W, dtype=float))  # R^T g_W
+        g_B = R_W_B.transpose(0, 2, 1) @ np.asarray(imu.g_W, dtype=float)  # R^T g_W
         r_B = dt_s * v_B - 0.5 * dt_s**2 * g_B - J_B + c_B - dRt @ c_B
-        return C.T @ dRt @ C, r_B @ C
+        R_c = C.T @ dRt @ C
+        return np.broadcast_to(R_c, (x.shape[0], 3, 3)) if R_c.ndim == 2 else R_c, r_B @ C
     # C^T y == y @ C for row vectors y.
     r_c = dt_s * (v_B + np.cross(omega_B, c_B)) @ C
     omega_C = omega_B @ C
@@ -130,10 +133,14 @@ def project_stereo(p_Ck_F: F64, rig: RectifiedStereo) -> F64:
     z = p_Ck_F[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         inv_z = rig.f / z
-    u_left = p_Ck_F[..., 0] * inv_z + rig.cu
-    v_px = p_Ck_F[..., 1] * inv_z + rig.cv
-    u_right = (p_Ck_F[..., 0] - rig.baseline) * inv_z + rig.cu
-    out = np.stack([u_left, v_px, u_right, v_px], axis=-1)
+    out = np.empty((*p_Ck_F.shape[:-1], 4))
+    x_inv_z = p_Ck_F[..., 0] * inv_z
+    np.add(x_inv_z, rig.cu, out=out[..., 0])
+    np.multiply(p_Ck_F[..., 1], inv_z, out=out[..., 1])
+    out[..., 1] += rig.cv
+    # u_right = (x - b) f / z + cu = u_left - b f / z.
+    np.subtract(out[..., 0], rig.baseline * inv_z, out=out[..., 2])
+    out[..., 3] = out[..., 1]
     return out.reshape(*out.shape[:-2], -1)
 
 

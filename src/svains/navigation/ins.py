@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from svains.datasets.types import Dataset
 from svains.errors import ConfigError, FilterError
 from svains.filter.sigma_points import MerweScaledSigmaPoints
-from svains.filter.ukf import UKF, UpdateStats, _dense_gain, _woodbury_gain, chi2_gate
+from svains.filter.ukf import UKF, UpdateStats
 from svains.models.gps import gps_position, gps_position_velocity
 from svains.models.imu import (
     ImuChunk,
@@ -276,54 +276,15 @@ class InsFilter:
             h, z, R, tail = b.h, b.z, b.R, (b.residual, b.name)
         else:
             (h, z, R), tail = stack_blocks(blocks), _stacked_tail(blocks)
+        D = None
         if self._white_in_P:
             # Paper model, vision update: ω̂'s white gyro noise is fresh at every sample, so it
-            # is measurement noise of this update (through h), not a state error to correct
-            # (correcting it would leave a persistent ω offset integrating into the attitude).
+            # is measurement noise of this update (through h, rank 3: ``D^T D``), not a state
+            # error to correct (correcting it would leave a persistent ω offset integrating into
+            # the attitude).
             self.remove_omega_white()
             D = self._omega_white_D(h, np.size(z))
-            if np.ndim(R) == 1:
-                return self._update_low_rank_noise(h, z, R, D, gate_probability, *tail)
-            R = np.asarray(R) + D.T @ D
-        return self.ukf.update(h, z, R, gate_probability, *tail)
-
-    def _update_low_rank_noise(
-        self,
-        h: Callable[[F64], F64],
-        z: F64,
-        Rdiag: F64,
-        D: F64,
-        gate_probability: float | None,
-        residual: Callable[[F64, F64], F64] | None,
-        name: str,
-    ) -> UpdateStats:
-        """``UKF.update`` with noise ``diag(Rdiag) + D^T D`` (D (k, nz)), kept O(S² nz): the rows
-        of D join the sigma points' measurement deviations with zero state deviation and unit
-        weight (then ``A^T A = Pzz + D^T D`` in the UKF's matrix-inversion-lemma gain)."""
-        ukf = self.ukf
-        z = np.asarray(z, dtype=float).ravel()
-        X, dX = ukf.sigma_points()
-        Y = np.asarray(h(X), dtype=float).reshape(X.shape[0], z.size)
-        Wm, Wc = ukf.points.Wm, ukf.points.Wc
-        y = Wm @ Y
-        dY = Y - y if residual is None else residual(Y, y)
-        r = z - y if residual is None else residual(z, y)
-        dY_aug = np.vstack([dY, D])
-        dX_aug = np.vstack([dX, np.zeros((D.shape[0], dX.shape[1]))])
-        Wc_aug = np.concatenate([Wc, np.ones(D.shape[0])])
-        if np.all(Wc >= 0.0):
-            dx, nis, dP = _woodbury_gain(dX_aug, dY_aug, Wc_aug, np.asarray(Rdiag, float), r)
-        else:
-            dx, nis, dP = _dense_gain(dX, dY, Wc, np.diag(Rdiag) + D.T @ D, r, name)
-        gate = chi2_gate(gate_probability, z.size) if gate_probability is not None else np.inf
-        if not np.isfinite(nis):
-            raise FilterError(f"{name or 'measurement'}: non-finite innovation")
-        if nis > gate:
-            return UpdateStats(name, False, float(nis), z.size, float(gate))
-        ukf.x = ukf.manifold.retract(ukf.x[None, :], dx[None, :])[0]
-        P = ukf.P - dP
-        ukf.P = 0.5 * (P + P.T)
-        return UpdateStats(name, True, float(nis), z.size, float(gate))
+        return self.ukf.update(h, z, R, gate_probability, *tail, R_low_rank=D)
 
 
 def stack_blocks(blocks: Sequence[MeasurementBlock]) -> tuple:

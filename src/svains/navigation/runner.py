@@ -1,5 +1,9 @@
 """``run_method``: run one navigation method over a data set, write its outputs.
 
+The result carries what the navigation knows (estimates, covariances, timings, counters, what
+anchors its world frame); accuracy against ground truth is added above this layer, by
+:func:`svains.evaluation.run.run_method` (what ``svains run`` calls).
+
 Events (IMU-propagated to their exact time, ties in this order): GPS, magnetometer, sonar, vision
 frame, output tick. Output ticks every ``RunOptions.output_period_s`` (default 20 Hz) plus the
 last IMU time fill ``states.csv`` and ``trajectory.tum``.
@@ -13,7 +17,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,7 +30,6 @@ from svains.navigation.base import VISION_METHOD_MODULES, FrameContext, Measurem
 from svains.navigation.init import initialise
 from svains.navigation.ins import InsFilter
 from svains.navigation.options import RunOptions
-from svains.navigation.report import accuracy_report, gps_outage_report
 from svains.navigation.writers import write_outputs
 
 F64 = NDArray[np.float64]
@@ -38,10 +41,19 @@ _GPS, _MAG, _SONAR, _FRAME, _TICK = range(5)
 _NAMES = {_GPS: "gps", _MAG: "mag", _SONAR: "sonar"}
 
 
+WorldFrame = Literal["groundtruth", "gps", "local"]
+
+
 @dataclass
 class RunResult:
     """Logged estimates: ``t_ns`` (T,), ``x`` (T, nx), ``std`` (T, ndx) tangent std devs,
-    ``P9`` (T, 9, 9) covariance of (p, v, δθ); ``report`` = the ``report.json`` content."""
+    ``P9`` (T, 9, 9) covariance of (p, v, δθ); ``report`` = the ``report.json`` content.
+
+    ``world_frame`` says what ties the estimate's world frame to the ground truth's:
+    ``groundtruth`` (initialised from it), ``gps`` (GPS fixes fused) or ``local`` (static start
+    without GPS: yaw and position are arbitrary, so raw errors against ground truth mean nothing).
+    ``gps_used``: GPS was enabled and present; ``has_covariance``: False for filter-free methods.
+    """
 
     t_ns: I64
     x: F64
@@ -49,6 +61,9 @@ class RunResult:
     P9: F64
     report: dict[str, Any]
     updates: list[UpdateStats] = field(default_factory=list, repr=False)
+    world_frame: WorldFrame = "groundtruth"
+    gps_used: bool = False
+    has_covariance: bool = True
 
 
 def _events(ins: InsFilter, dataset: Dataset, options: RunOptions, frames: I64) -> F64:
@@ -85,6 +100,14 @@ def _events(ins: InsFilter, dataset: Dataset, options: RunOptions, frames: I64) 
     return ev[np.lexsort((ev[:, 1], ev[:, 0]))]
 
 
+def _world_frame(init_mode: str, counts: dict[str, dict[str, int]]) -> WorldFrame:
+    if init_mode == "groundtruth":
+        return "groundtruth"
+    # A static start sets roll and pitch from gravity only; GPS fixes tie position (and, through
+    # the trajectory, yaw) to the world frame.
+    return "gps" if counts.get("gps", {}).get("fused", 0) > 0 else "local"
+
+
 def _make_updater(dataset: Dataset, method: str, options: RunOptions) -> Any:
     if method not in VISION_METHOD_MODULES:
         raise ConfigError(
@@ -102,6 +125,9 @@ def run_method(
     progress: ProgressFn | None = None,
 ) -> RunResult:
     """Run ``method`` ("ins" or a vision method) over ``dataset``; write outputs to ``out_dir``.
+
+    The report holds the run's own figures (timings, counters, initialisation) but no accuracy
+    keys: :func:`svains.evaluation.run.run_method` adds those and writes the outputs.
 
     ``progress(fraction)`` is called now and then with the fraction of data processed.
     """
@@ -195,6 +221,8 @@ def run_method(
         np.array(log_P9),
         {},
         updates,
+        world_frame=_world_frame(str(init.info.get("mode")), counts),
+        gps_used=bool(options.use_gps and dataset.gps is not None),
     )
     duration = (result.t_ns[-1] - result.t_ns[0]) * 1e-9
     report: dict[str, Any] = {
@@ -213,15 +241,6 @@ def run_method(
     if updater is not None and hasattr(updater, "summary"):
         # Vision counters: frames fused/rejected, features gated (see the updater's summary).
         report["vision"] = updater.summary()
-    report.update(accuracy_report(result.t_ns, result.x, result.P9, dataset.groundtruth))
-    if dataset.groundtruth is not None and dataset.gps is not None and options.use_gps:
-        outages = gps_outage_report(
-            result.t_ns, result.x, result.std, dataset.gps.t_ns, dataset.groundtruth
-        )
-        report.update(outages)
-        if outages["gps_outages"]:
-            # Issue 6's key: the largest position error inside each GPS outage (m).
-            report["outage_max_error_m"] = [o["error_max_m"] for o in outages["gps_outages"]]
     result.report = report
     if out_dir is not None:
         write_outputs(Path(out_dir), result, layout)

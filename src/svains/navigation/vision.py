@@ -12,7 +12,9 @@ At each stereo frame k (the runner has propagated the filter to t_k):
 - ``lc``: the front end's egomotion (rotation vector, translation) with its covariance is the
   measurement of the state-predicted camera motion (eqs. 30-33, ``models.vision_lc``).
 
-Options come from ``RunOptions.method_options`` (keys of :class:`VisionOptions`).
+Options come from ``RunOptions.method_options`` (keys of :class:`VisionOptions`). The pixel
+updater lives in ``vision_pixels``, its noise model in ``vision_noise``, the IMU increments and
+the front end's motion prior in ``vision_motion``; this module re-exports ``PixelUpdater``.
 """
 
 from __future__ import annotations
@@ -28,43 +30,38 @@ from svains.datasets.types import Dataset
 from svains.errors import ConfigError, DatasetError
 from svains.filter.ukf import UpdateStats
 from svains.frontend.types import StereoTracks
-from svains.models.state import BA, BG
-from svains.models.vision_3d import predict_pixels_3d
-from svains.models.vision_common import (
-    ROTATION_MODELS,
-    ImuIncrement,
-    camera_motion,
-    stack_pixels,
-)
-from svains.models.vision_imu import imu_increment
+from svains.models.vision_common import ROTATION_MODELS
 from svains.models.vision_lc import egomotion_measurement, predict_egomotion_lc
-from svains.models.vision_tc import predict_pixels_tc
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.tracks import TrackOptions
-from svains.navigation.vision_noise import (
-    analytic_noise,
-    feature_gate,
-    lowrank_whiten,
-    whiten,
+from svains.navigation.vision_pixels import (
+    PixelUpdater,
+    VisionCounters,
+    apply_blocks,
+    imu_and_prior,
+    tracks_with_prior,
 )
-from svains.navigation.vision_sources import (
-    FeatureTrackSource,
-    ImageTrackSource,
-    SourceName,
-    make_source,
-)
+from svains.navigation.vision_sources import SourceName, make_source
+
+__all__ = ["LcUpdater", "PixelUpdater", "VisionOptions", "make_vision_updater", "tune_run_options"]
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 log = logging.getLogger(__name__)
 
-# Variance factor on the front end's egomotion covariance for ``lc``. Measured (village, 5 Hz,
-# features0, 0.5 px): the NEES of the true egomotion error against ``Egomotion.cov`` averages
-# 140-200 over 4 seeds instead of 6 (per axis 15-70x), and 100 in a Monte Carlo with exact
-# geometry and Gaussian pixel noise, so the overconfidence is the estimator's (noisy k-1
-# triangulation, far points), not the data's. Unscaled, the filter's gate rejects ~25% of the
-# frames and the rest pull the state too hard (run NEES 65).
+# Variance factor on the front end's egomotion covariance for ``lc``: a measured allowance for
+# what the lc model leaves out, no longer a repair of the covariance. ``Egomotion.cov`` now
+# propagates all four pixels (``svains.frontend.egomotion_cov``): its NEES is 6.2-6.7 on the
+# rendered village images and 4.3-7.1 in Monte Carlo; on features0 (0.5 px) it is 18-29 (12 s,
+# seeds 0, 3, 5), because the RANSAC refinement stops before its inlier selection settles. Yet
+# lc is most accurate with far more than that (ATE [m] by factor, vo/lc only, 2026-11):
+#   factor                            1      4      8     16     30     64    128    512
+#   village 60 s x 10 seeds (mean)  1.24   0.92   0.77   0.66  ~0.62   0.60   0.57   0.49
+#   EuRoC V1_01 + synthetic 5 Hz    1.09     -    0.21   0.17   0.09   0.10   0.12   0.17
+# (village factor 30 interpolated: 32 gave 0.62). Likely cause: the lc model treats each
+# egomotion as independent of the state error at k-1 (no clone). 30 is the best on EuRoC and
+# close on the village (whose optimum, ~512, is worse on EuRoC).
 LC_COV_SCALE = 30.0
 
 
@@ -78,12 +75,18 @@ class VisionOptions:
     off); ``max_features`` per frame (evenly subsampled; None: all); ``rotation`` "linear" (paper
     eq. 18), "exp" or "imu" (relative motion from the IMU samples between the frames, beyond the
     paper: ``models.vision_imu``); ``frame_stride`` uses every n-th stereo frame;
-    ``lc_cov_scale`` multiplies the egomotion covariance (default 30: the front end's
-    Gauss-Newton covariance is ~30x too small in variance, see ``LC_COV_SCALE``);
+    ``lc_cov_scale`` multiplies the egomotion covariance (default 30, measured for lc's
+    accuracy, see ``LC_COV_SCALE``);
     ``lc_min_std`` (rad, m) floors its standard deviations; ``imu_noise`` adds the IMU
     increment's noise (``rotation="imu"``) to the pixel covariance as a feature-correlated
     term; ``frame_gyro_walk`` (``imu`` only, applied by ``tune_run_options``) instead lets
-    the gyro-bias state absorb it, see there.
+    the gyro-bias state absorb it, see there; ``motion_prior`` hands the image front end the
+    camera motion the filter predicts between its frames (``vision_motion.MotionPrior``), with
+    ``motion_prior_inflation`` (variance factor) and ``motion_prior_min_std`` (rad, m) floors
+    (off by default: on the simulated village sets, whose gyro is noisy, the IMU-predicted
+    rotation is worse than the front end's own constant-velocity prediction it replaces, and
+    ``3d`` accuracy changed by -3% to +18% over 3 seeds; no frame was rejected; see
+    ``bench/bench_methods.py``).
     """
 
     source: SourceName = "auto"
@@ -99,6 +102,9 @@ class VisionOptions:
     lc_min_std: tuple[float, float] = (1e-4, 1e-3)
     imu_noise: bool = True
     frame_gyro_walk: bool = True
+    motion_prior: bool = False
+    motion_prior_inflation: float = 4.0
+    motion_prior_min_std: tuple[float, float] = (2e-3, 5e-3)
 
     @classmethod
     def from_mapping(cls, values: dict[str, Any] | None) -> VisionOptions:
@@ -108,186 +114,13 @@ class VisionOptions:
         unknown = sorted(set(values) - names)
         if unknown:
             raise ConfigError(f"unknown vision options {unknown}; known: {sorted(names)}")
-        if "lc_min_std" in values:
-            values["lc_min_std"] = tuple(values["lc_min_std"])
+        for key in ("lc_min_std", "motion_prior_min_std"):
+            if key in values:
+                values[key] = tuple(values[key])
         opts = cls(**values)
         if opts.rotation not in ROTATION_MODELS:
             raise ConfigError(f"rotation must be one of {ROTATION_MODELS}, got {opts.rotation!r}")
         return opts
-
-
-@dataclass
-class VisionCounters:
-    """Per-run counts of the vision updates (go into ``report.json`` under ``vision``)."""
-
-    frames: int = 0
-    frames_without_tracks: int = 0
-    frames_fused: int = 0
-    frames_rejected: int = 0
-    features_fused: int = 0
-    features_gated: int = 0
-    features_invalid: int = 0
-
-    def as_dict(self) -> dict[str, int]:
-        return {f.name: int(getattr(self, f.name)) for f in fields(self)}
-
-
-def _subsample(idx: I64, n_max: int | None) -> I64:
-    """At most ``n_max`` of ``idx``, evenly spread (tracks are ordered by id, i.e. by age)."""
-    if n_max is None or idx.size <= n_max:
-        return idx
-    return idx[np.linspace(0, idx.size - 1, n_max).round().astype(np.int64)]
-
-
-class _CachedModel:
-    """``h`` restricted to kept features, reusing the gate pass's predictions for the same X."""
-
-    def __init__(self, h_sub: Any, X0: F64, Y0: F64) -> None:
-        self._h = h_sub
-        self._X0 = X0
-        self._Y0 = Y0
-
-    def __call__(self, X: F64) -> F64:
-        if X.shape == self._X0.shape and np.array_equal(X, self._X0):
-            return self._Y0
-        return self._h(X)
-
-
-class _ImuIncrements:
-    """IMU samples for the ``rotation="imu"`` increments between frames (body frame)."""
-
-    def __init__(self, ds: Dataset, options: VisionOptions) -> None:
-        if ds.imu is None:
-            raise ConfigError("rotation='imu' needs the data set's IMU")
-        R_B_S = np.eye(3) if ds.imu_calib is None else ds.imu_calib.T_B_S[:3, :3]
-        self.t_ns = np.asarray(ds.imu.t_ns, np.int64)
-        self.gyro_B = np.asarray(ds.imu.gyro_B, float) @ R_B_S.T
-        self.accel_B = np.asarray(ds.imu.accel_B, float) @ R_B_S.T
-        self.g_W = np.asarray(ds.gravity_W, float)
-        cal = ds.imu_calib
-        self.noise: tuple[float, float] | None = (
-            None if cal is None or not options.imu_noise
-            else (cal.gyro_noise_density, cal.accel_noise_density)
-        )
-
-    def between(self, ctx: FrameContext, t0_ns: int, t1_ns: int) -> ImuIncrement:
-        """Increment over [t0, t1] with the filter's mean biases removed."""
-        x = ctx.ukf.x
-        biased = ctx.layout.biased
-        return imu_increment(
-            self.t_ns, self.gyro_B, self.accel_B, t0_ns, t1_ns, self.g_W,
-            x[BG] if biased else None, x[BA] if biased else None,
-        )
-
-
-class PixelUpdater:
-    """``tc`` or ``3d`` updater: 4 pixels per inlier feature, see the module docstring."""
-
-    def __init__(self, method: str, ds: Dataset, options: VisionOptions) -> None:
-        if method not in ("tc", "3d"):
-            raise ConfigError(f"pixel updater serves tc or 3d, got {method!r}")
-        self.method = method
-        self.options = options
-        track_opts = TrackOptions(max_row_diff_px=options.max_row_diff_px)
-        self.source: FeatureTrackSource | ImageTrackSource = make_source(
-            ds, options.source, track_opts, options.frame_stride
-        )
-        self.rig = self.source.rig
-        std = options.pixel_noise_std
-        std = self.source.pixel_noise_std if std is None else std
-        self.sigma_px = max(float(std), 0.05) * options.pixel_noise_scale
-        self.counters = VisionCounters()
-        self._imu = _ImuIncrements(ds, options) if options.rotation == "imu" else None
-        self._imu_noise = None if self._imu is None else self._imu.noise
-
-    def frame_times(self) -> I64:
-        return self.source.frame_times()
-
-    def _model(self, uvl0: F64, uvr0: F64, dt_s: float, inc: ImuIncrement | None) -> Any:
-        """``h(X)`` from the k-1 pixels (M, 2): ``3d`` triangulates them (eq. 10), ``tc``
-        transfers them (eq. 21)."""
-        rot = self.options.rotation
-        if self.method == "3d":
-            p = self.rig.triangulate(uvl0, uvr0)
-            return lambda X: predict_pixels_3d(X, p, dt_s, self.rig, rot, inc)
-        return lambda X: predict_pixels_tc(X, uvl0, uvr0, dt_s, self.rig, rot, inc)
-
-    def _increment(self, ctx: FrameContext, tr: StereoTracks) -> ImuIncrement | None:
-        """IMU increment between the two frames (``rotation="imu"`` only), biases from the mean."""
-        return None if self._imu is None else self._imu.between(ctx, tr.t_prev_ns, tr.t_ns)
-
-    def update(self, ctx: FrameContext) -> UpdateStats | None:
-        """Fuse the frame at ``ctx.t_ns`` (see the module docstring)."""
-        c = self.counters
-        c.frames += 1
-        tr = self.source.tracks_at(ctx.t_ns)
-        usable = (
-            np.zeros(0, bool) if tr is None
-            else tr.inlier & np.isfinite(tr.p_Ckm1_F).all(axis=1) & (tr.p_Ckm1_F[:, 2] > 0)
-        )
-        if tr is None or usable.sum() < self.options.min_features or tr.t_ns <= tr.t_prev_ns:
-            c.frames_without_tracks += 1
-            return None
-        dt_s = (tr.t_ns - tr.t_prev_ns) * 1e-9
-        idx = _subsample(np.flatnonzero(usable), self.options.max_features)
-        z = stack_pixels(tr.uv_left[idx], tr.uv_right[idx])
-        uvl0, uvr0 = tr.uv_left_prev[idx], tr.uv_right_prev[idx]
-        inc = self._increment(ctx, tr)
-        X, _ = ctx.ukf.sigma_points()
-        Y = self._model(uvl0, uvr0, dt_s, inc)(X)
-        # Per-feature 4x4 noise: pixel noise at k plus the k-1 pixel noise carried through
-        # triangulation/transfer (dominant for far points), and in "imu" mode the IMU
-        # increment's noise as a feature-correlated factor G (4M, 6). Closed form at the mean
-        # state (``analytic_noise``; tests check it against finite differences of the model).
-        R_c, r_c = camera_motion(ctx.ukf.x[None, :], dt_s, self.rig, self.options.rotation, inc)
-        R_blocks, G = analytic_noise(
-            R_c[0], r_c[0], uvl0, uvr0, self.rig, self.sigma_px, inc, dt_s, self._imu_noise
-        )
-        pts = ctx.ukf.points
-        keep, finite = feature_gate(
-            Y, pts.Wm, pts.Wc, z, R_blocks, self.options.feature_gate_probability, G
-        )
-        # Near-zero disparity makes the prediction hypersensitive to the k-1 pixels (|J| > 100):
-        # such features carry no information and would make R_blocks numerically singular.
-        sane = np.abs(R_blocks).max(axis=(1, 2)) < (100.0 * self.sigma_px) ** 2
-        finite &= sane
-        keep &= sane
-        c.features_invalid += int((~finite).sum())
-        c.features_gated += int((finite & ~keep).sum())
-        if keep.sum() < self.options.min_features:
-            c.frames_without_tracks += 1
-            return None
-        kept = np.flatnonzero(keep)
-        rows = (4 * kept[:, None] + np.arange(4)).reshape(-1)
-        # Whiten each feature's 4 numbers so the stacked noise is diagonal (the filter's fast
-        # Woodbury path instead of a dense nz x nz Cholesky).
-        W_inv = np.linalg.inv(np.linalg.cholesky(R_blocks[kept]))  # (K, 4, 4)
-        h_kept = self._model(uvl0[kept], uvr0[kept], dt_s, inc)
-        # The IMU term, common to all features, is whitened too: (I + Gw Gw^T)^-1/2 is
-        # identity minus a rank-6 correction, so the stacked noise stays diagonal.
-        Gw = None if G is None else whiten(G[rows].T, W_inv).T
-
-        def white(Yr: F64) -> F64:
-            return lowrank_whiten(whiten(Yr, W_inv), Gw)
-
-        h = _CachedModel(lambda X_: white(h_kept(X_)), X, white(Y[:, rows]))
-        block = MeasurementBlock(
-            name=f"vision_{self.method}", h=h, z=white(z[rows][None, :])[0],
-            R=np.ones(rows.size),
-        )
-        stats = _apply(ctx, [block, *ctx.extra])
-        if stats.accepted:
-            c.frames_fused += 1
-            c.features_fused += int(keep.sum())
-        else:
-            c.frames_rejected += 1
-        return stats
-
-    def summary(self) -> dict[str, Any]:
-        """Counters and settings for ``report.json``."""
-        out: dict[str, Any] = self.counters.as_dict()
-        out.update(source=self.source.kind, sigma_px=self.sigma_px, rotation=self.options.rotation)
-        return out
 
 
 class LcUpdater:
@@ -301,7 +134,7 @@ class LcUpdater:
         self.source = make_source(ds, options.source, track_opts, options.frame_stride)
         self.rig = self.source.rig
         self.counters = VisionCounters()
-        self._imu = _ImuIncrements(ds, options) if options.rotation == "imu" else None
+        self._imu, self._prior = imu_and_prior(ds, options, self.source)
         self._nis_per_dof: list[float] = []  # consistency check: should average ~1
 
     def frame_times(self) -> I64:
@@ -322,18 +155,21 @@ class LcUpdater:
         """Fuse the egomotion of the frame at ``ctx.t_ns`` (None if the front end gave none)."""
         c = self.counters
         c.frames += 1
-        tr = self.source.tracks_at(ctx.t_ns)
+        tr, inc = tracks_with_prior(self.source, self._prior, ctx)
         if tr is None or tr.egomotion is None or tr.t_ns <= tr.t_prev_ns:
             c.frames_without_tracks += 1
             return None
         dt_s = (tr.t_ns - tr.t_prev_ns) * 1e-9
         z, cov = self.measurement(tr)
         rig, rot = self.rig, self.options.rotation
-        inc = None if self._imu is None else self._imu.between(ctx, tr.t_prev_ns, tr.t_ns)
+        if self._imu is None or rot != "imu":
+            inc = None
+        elif inc is None:  # no prior, or it spanned another interval
+            inc = self._imu.between(ctx, tr.t_prev_ns, tr.t_ns)
         block = MeasurementBlock(
             name="vision_lc", h=lambda X: predict_egomotion_lc(X, dt_s, rig, rot, inc), z=z, R=cov
         )
-        stats = _apply(ctx, [block, *ctx.extra])
+        stats = apply_blocks(ctx, [block, *ctx.extra])
         if stats.dof > 0 and np.isfinite(stats.nis):
             self._nis_per_dof.append(stats.nis / stats.dof)
         if stats.accepted:
@@ -348,20 +184,11 @@ class LcUpdater:
         nis = np.asarray(self._nis_per_dof)
         out.update(
             source=self.source.kind, lc_cov_scale=self.options.lc_cov_scale,
+            frontend_status=dict(getattr(self.source, "status_counts", {})),
             nis_per_dof_mean=float(nis.mean()) if nis.size else None,
             nis_per_dof_median=float(np.median(nis)) if nis.size else None,
         )
         return out
-
-
-def _apply(ctx: FrameContext, blocks: list[MeasurementBlock]) -> UpdateStats:
-    """One stacked update through the runner (``ctx.apply``) or the filter directly."""
-    if ctx.apply is not None:
-        return ctx.apply(blocks)
-    if len(blocks) != 1:
-        raise ConfigError("stacked updates need the runner's ctx.apply")
-    b = blocks[0]
-    return ctx.ukf.update(b.h, b.z, b.R, ctx.gate_probability, b.residual, b.name)
 
 
 def tune_run_options(ds: Dataset, method: str, options: Any) -> Any:

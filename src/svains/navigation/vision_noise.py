@@ -33,27 +33,34 @@ def feature_gate(
     """
     S, n = Y.shape
     m = n // 4
-    finite = np.isfinite(Y).reshape(S, m, 4).all(axis=(0, 2))
+    # Reductions over the long axis first: NumPy is slow reducing many axes of length 4.
+    fin_rows = np.isfinite(Y)
+    finite = fin_rows.all(axis=0).reshape(m, 4).all(axis=1)
     if probability is None:
         return finite, finite
-    Yf = np.where(np.isfinite(Y), Y, 0.0)
+    Yf = Y if finite.all() else np.where(fin_rows, Y, 0.0)
     y = Wm @ Yf
     dY = (Yf - y).reshape(S, m, 4)
-    cov = np.einsum("s,smi,smj->mij", Wc, dY, dY) + R_blocks
+    A = dY.transpose(1, 2, 0)  # (m, 4, S)
+    cov = (A * Wc) @ A.transpose(0, 2, 1) + R_blocks  # batched products: faster than einsum
     if G is not None:
         Gm = G.reshape(m, 4, -1)
-        cov += np.einsum("mik,mjk->mij", Gm, Gm)
+        cov += Gm @ Gm.transpose(0, 2, 1)
     r = (z - y).reshape(m, 4)
     # Features behind/at the camera give huge or non-finite predictions: never kept.
-    ok = finite & np.isfinite(cov).all(axis=(1, 2)) & (np.abs(r).max(axis=1) < 1e6)
+    ok = (
+        finite
+        & np.isfinite(cov.reshape(m, 16)).all(axis=1)
+        & (np.abs(r).max(axis=1) < 1e6)
+    )
     d2 = np.full(m, np.inf)
     if ok.any():
+        c, rk = (cov, r) if ok.all() else (cov[ok], r[ok])
         try:
-            sol = np.linalg.solve(cov[ok], r[ok][:, :, None])[:, :, 0]
-            d2[ok] = np.einsum("mi,mi->m", r[ok], sol)
+            sol = np.linalg.solve(c, rk[:, :, None])[:, :, 0]
         except np.linalg.LinAlgError:
-            d2[ok] = np.einsum("mi,mi->m", r[ok], np.einsum(
-                "mij,mj->mi", np.linalg.pinv(cov[ok]), r[ok]))
+            sol = (np.linalg.pinv(c) @ rk[:, :, None])[:, :, 0]
+        d2[ok] = (rk * sol) @ np.ones(4)
     return ok & (d2 <= chi2_gate(probability, 4)), finite
 
 
@@ -119,14 +126,39 @@ def whiten(Y: F64, W_inv: F64) -> F64:
     return np.einsum("kij,...kj->...ki", W_inv, Yk).reshape(Y.shape)
 
 
+def whiten_chol(Y: F64, L: F64) -> F64:
+    """``whiten`` with the Cholesky factors ``L`` (K, 4, 4) (``R_m = L_m L_m^T``) instead of their
+    inverses: each feature's 4 numbers of every row of ``Y`` (..., 4K) times ``L_m^-1``, one
+    batched solve for all rows (no explicit inverse)."""
+    k = L.shape[0]
+    b = Y.reshape(-1, k, 4)  # (rows, K, 4)
+    out = np.empty_like(b)
+    # Forward substitution written out term by term, vectorised over rows and features (a
+    # batched LU solve of 4x4 systems, or a reduction over an axis of 4, costs several times more).
+    o = [out[..., i] for i in range(4)]
+    for i in range(4):
+        acc = b[..., i].copy()
+        for j in range(i):
+            acc -= L[:, i, j] * o[j]
+        np.divide(acc, L[:, i, i], out=o[i])
+    return out.reshape(Y.shape)
+
+
 def lowrank_whiten(Y: F64, G: F64 | None) -> F64:
     """Rows of ``Y`` (..., n) times ``(I + G G^T)^-1/2`` (``G`` (n, k), thin): with ``G = U Σ V^T``,
     ``(I + G G^T)^-1/2 = I - U diag(1 - (1 + σ²)^-1/2) U^T``. ``G=None`` returns ``Y``."""
-    if G is None:
+    U, d = lowrank_factors(G)
+    if U is None:
         return Y
-    U, sv, _ = np.linalg.svd(G, full_matrices=False)
-    d = 1.0 - 1.0 / np.sqrt(1.0 + sv**2)
     return Y - ((Y @ U) * d) @ U.T
+
+
+def lowrank_factors(G: F64 | None) -> tuple[F64 | None, F64 | None]:
+    """``U`` (n, k) and ``d`` (k,) of ``lowrank_whiten`` (compute once, apply to many rows)."""
+    if G is None:
+        return None, None
+    U, sv, _ = np.linalg.svd(G, full_matrices=False)
+    return U, 1.0 - 1.0 / np.sqrt(1.0 + sv**2)
 
 
 def _pixel_jacobian(p_C: F64, f: float, baseline: float) -> F64:
@@ -160,20 +192,22 @@ def analytic_noise(
     R_c: F64, r_c: F64, uvl0: F64, uvr0: F64, rig: RectifiedStereo, sigma_px: float,
     inc: ImuIncrement | None = None, dt_s: float = 0.0,
     densities: tuple[float, float] | None = None,
+    p_Ckm1_F: F64 | None = None,
 ) -> tuple[F64, F64 | None]:
     """Closed-form twins of ``previous_pixel_noise`` and ``increment_noise_factor`` for the
     rigid-motion prediction ``d_k = R_c d - r_c`` (both ``3d`` and, in a rectified pair, ``tc``):
     ``R_blocks`` (M, 4, 4) and ``G`` (4M, 6) (None without ``inc``/``densities``).
 
-    ``R_c`` (3, 3), ``r_c`` (3,) at the mean state (``vision_common.camera_motion``).
+    ``R_c`` (3, 3), ``r_c`` (3,) at the mean state (``vision_common.camera_motion``);
+    ``p_Ckm1_F`` (M, 3) the k-1 pixels triangulated (eq. 10), if the caller has them already.
     """
-    d = rig.triangulate(uvl0, uvr0)
+    d = rig.triangulate(uvl0, uvr0) if p_Ckm1_F is None else p_Ckm1_F
     d_k = d @ R_c.T - r_c
     P = _pixel_jacobian(d_k, rig.f, rig.baseline)  # (M, 4, 3)
     T = _triangulation_jacobian(uvl0, uvr0, rig.f, rig.cu, rig.cv, rig.baseline)
-    J = np.einsum("mij,jk,mkl->mil", P, R_c, T)
+    J = (P @ R_c) @ T
     J = np.where(np.isfinite(J), J, 0.0)
-    R_blocks = sigma_px**2 * (np.eye(4) + np.einsum("mik,mjk->mij", J, J))
+    R_blocks = sigma_px**2 * (np.eye(4) + J @ J.transpose(0, 2, 1))
     if inc is None or densities is None:
         return R_blocks, None
     C = np.asarray(rig.R_B_C, dtype=float)
@@ -182,7 +216,7 @@ def analytic_noise(
     a = (d @ C.T + np.asarray(rig.p_B_C, float)) @ dRt.T
     std_rot = densities[0] * np.sqrt(dt_s)
     std_pos = densities[1] * np.sqrt(dt_s**3 / 3.0)
-    D_rot = np.einsum("ji,mjk->mik", C, skew(a)) * std_rot  # C^T [a]x, (M, 3, 3)
+    D_rot = (C.T @ skew(a)) * std_rot  # C^T [a]x, (M, 3, 3)
     D_pos = np.broadcast_to(C.T * std_pos, D_rot.shape)
-    G = np.einsum("mij,mjk->mik", P, np.concatenate([D_rot, D_pos], axis=2))  # (M, 4, 6)
+    G = P @ np.concatenate([D_rot, D_pos], axis=2)  # (M, 4, 6)
     return R_blocks, np.where(np.isfinite(G), G, 0.0).reshape(-1, 6)

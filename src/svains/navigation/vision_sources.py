@@ -83,7 +83,8 @@ class ImageTrackSource:
     (``prefetch=True``) while the front end and the filter work on the current one: PNG decoding
     in OpenCV releases the GIL, and on a 752x480 pair it costs about half the front end.
     Per-frame wall times (ms) are kept for profiles: ``load_ms`` (waiting for the images),
-    ``frontend_ms`` (``StereoFrontend.process``) and ``stage_ms`` (its stages).
+    ``frontend_ms`` (``StereoFrontend.process``) and ``stage_ms`` (its stages);
+    ``status_counts`` counts the front end's per-frame status (``ok``, ``contradicts_prior``, ...).
     """
 
     kind = "images"
@@ -109,9 +110,19 @@ class ImageTrackSource:
         self.load_ms: list[float] = []
         self.frontend_ms: list[float] = []
         self.stage_ms: list[dict[str, float]] = []
+        self.status_counts: dict[str, int] = {}
 
     def frame_times(self) -> I64:
         return self._times
+
+    def reference_time_ns(self) -> int | None:
+        """Time of the front end's reference frame (the k-1 of the next tracks; None before the
+        first good frame). A motion prior for ``tracks_at`` must span [reference, t_k]: after a
+        held or dropped frame the reference is older than the previous frame."""
+        # The front end keeps it privately (``_ref``); read it defensively.
+        ref = getattr(self.frontend, "_ref", None)
+        t_ref = getattr(ref, "t_ns", None)
+        return None if t_ref is None else int(t_ref)
 
     def _load(self, ij: tuple[int, int]) -> tuple[U8, U8]:
         assert self._ds.left is not None and self._ds.right is not None
@@ -148,6 +159,8 @@ class ImageTrackSource:
         self.load_ms.append((t1 - t0) * 1e3)
         self.frontend_ms.append((time.perf_counter() - t1) * 1e3)
         self.stage_ms.append(dict(self.frontend.stats.timings_ms))
+        status = self.frontend.stats.status or "none"
+        self.status_counts[status] = self.status_counts.get(status, 0) + 1
         return tracks
 
     def close(self) -> None:

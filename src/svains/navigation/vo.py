@@ -23,7 +23,7 @@ from svains.frontend.vo_chain import chain_egomotion
 from svains.geometry.rotation import quat_to_rotmat, rotmat_to_quat
 from svains.models.state import PAPER
 from svains.navigation.options import RunOptions
-from svains.navigation.report import accuracy_report, interpolate_groundtruth
+from svains.navigation.report import interpolate_groundtruth
 from svains.navigation.runner import RunResult
 from svains.navigation.tracks import TrackOptions
 from svains.navigation.vision import VisionOptions
@@ -36,18 +36,19 @@ I64 = NDArray[np.int64]
 log = logging.getLogger(__name__)
 
 
-def _start_pose(ds: Dataset, t0_ns: int, R_B_C: F64, p_B_C: F64) -> F64:
-    """``T_W_C`` (4, 4) at the first frame from ground truth (identity camera pose without)."""
+def _start_pose(ds: Dataset, t0_ns: int, R_B_C: F64, p_B_C: F64) -> tuple[F64, bool]:
+    """``T_W_C`` (4, 4) at the first frame from ground truth (identity camera pose without), and
+    whether it came from the ground truth."""
     T_W_C = np.eye(4)
     if ds.groundtruth is None:
-        return T_W_C
+        return T_W_C, False
     inside, p, _, q = interpolate_groundtruth(ds.groundtruth, np.array([t0_ns], np.int64))
     if not inside[0]:
-        return T_W_C
+        return T_W_C, False
     R_W_B = quat_to_rotmat(q[0])
     T_W_C[:3, :3] = R_W_B @ R_B_C
     T_W_C[:3, 3] = p[0] + R_W_B @ p_B_C
-    return T_W_C
+    return T_W_C, True
 
 
 def body_states_from_camera_poses(t_ns: I64, T_W_C: F64, R_B_C: F64, p_B_C: F64) -> F64:
@@ -68,7 +69,7 @@ def run(
     progress: Callable[[float], None] | None = None,
     out_dir: Path | None = None,
 ) -> RunResult:
-    """Chain the egomotion of every stereo frame; report like ``run_method`` (NEES not defined)."""
+    """Chain the egomotion of every stereo frame; report like ``run_method`` (no covariance)."""
     options = options or RunOptions()
     vopts = VisionOptions.from_mapping(options.method_options)
     wall0 = time.perf_counter()
@@ -95,7 +96,9 @@ def run(
     t_ns = np.array(t_list, dtype=np.int64)
     breaks = [int(t) for t, e in zip(t_ns[1:], egos, strict=True) if e is None]
     R_B_C, p_B_C = np.asarray(rig.R_B_C, float), np.asarray(rig.p_B_C, float)
-    T0 = _start_pose(dataset, int(t_ns[0]), R_B_C, p_B_C) if t_ns.size else np.eye(4)
+    T0, from_gt = (
+        _start_pose(dataset, int(t_ns[0]), R_B_C, p_B_C) if t_ns.size else (np.eye(4), False)
+    )
     T_W_C = chain_egomotion(egos, T0)
     x = body_states_from_camera_poses(t_ns, T_W_C, R_B_C, p_B_C)
     wall = time.perf_counter() - wall0
@@ -104,7 +107,10 @@ def run(
     n = len(t_ns)
     # VO carries no covariance: identity keeps the shared report code working, NEES is dropped.
     P9 = np.broadcast_to(np.eye(9), (n, 9, 9)).copy()
-    result = RunResult(t_ns, x, np.full((n, PAPER.ndx), np.nan), P9, {})
+    result = RunResult(
+        t_ns, x, np.full((n, PAPER.ndx), np.nan), P9, {},
+        world_frame="groundtruth" if from_gt else "local", has_covariance=False,
+    )  # fmt: skip
     duration = (t_ns[-1] - t_ns[0]) * 1e-9 if n >= 2 else 0.0
     report: dict[str, Any] = {
         "method": "vo",
@@ -115,9 +121,6 @@ def run(
         "realtime_factor": duration / wall if wall > 0 else None,
         "vo": {"frames": n, "breaks": len(breaks), "break_t_ns": breaks, "source": source.kind},
     }
-    report.update(accuracy_report(t_ns, x, P9, dataset.groundtruth))
-    report["nees_mean"] = None
-    report.pop("position_within_3sigma", None)
     result.report = report
     if out_dir is not None:
         write_outputs(Path(out_dir), result, PAPER)

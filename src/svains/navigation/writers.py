@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from svains.models.state import StateLayout
+from svains.models.state import BIASED, PAPER, StateLayout
 
 if TYPE_CHECKING:
     from svains.navigation.runner import RunResult
@@ -29,9 +29,13 @@ def _json_default(o: object) -> object:
     return o.tolist() if hasattr(o, "tolist") else str(o)
 
 
-def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout) -> None:
-    """Write the three files into ``out_dir`` (created if needed)."""
+def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None = None) -> None:
+    """Write the three files into ``out_dir`` (created if needed); ``layout`` defaults to the one
+    whose state size matches ``result.x``."""
+    out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    if layout is None:
+        layout = BIASED if result.x.shape[-1] == BIASED.nx else PAPER
     x = result.x
     with open(out_dir / "trajectory.tum", "w", encoding="utf-8") as fh:
         fh.write("# t x y z qx qy qz qw\n")

@@ -1,22 +1,31 @@
-"""The village: textured ground plane and convex textured solids (houses, roofs, crates, poles).
+"""The village: textured ground plane and convex textured solids (houses, roofs, crates, poles)
+laid out around the flight path, and the landmarks (texture corners lifted to 3-D).
 
-World frame W: z up, ground plane at ``ground_height``. Every solid is a convex polyhedron kept
-twice: as outward textured faces (for rendering) and as half-spaces ``n·x <= d`` (for the
-vectorised ray occlusion test of landmarks). A face maps texture coordinates ``(s, t)`` (texel
-centres at integers) to ``origin_W + s u_W + t v_W``. Landmarks are texture corners lifted to
-3-D. Pure numpy.
+The solids, their faces and the ray casting on them are in :mod:`svains.sim.solids`; this module
+places them (:func:`build_world`). Pure numpy.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from functools import partial
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from svains.sim.config import WorldConfig
+from svains.sim.solids import (
+    MOVING_DIRECTION_W,
+    MOVING_SHARPNESS,
+    Face,
+    Solid,
+    TextureMaker,
+    World,
+    add_box,
+    box_corners,
+    make_face,
+    planes_from_faces,
+)
 from svains.sim.textures import (
     band_texture,
     checker_texture,
@@ -26,197 +35,19 @@ from svains.sim.textures import (
     wall_texture,
 )
 
+# Re-exported: the renderer, sensors and tests import the world types from here.
+__all__ = [
+    "GROUND_CELL_PX", "GROUND_TEXEL_M", "GROUND_TILE_PX", "MOVING_DIRECTION_W", "MOVING_SHARPNESS",
+    "WALL_TEXEL_M", "Face", "Solid", "World", "build_world",
+]  # fmt: skip
+
 F64 = NDArray[np.float64]
-U8 = NDArray[np.uint8]
 
 WALL_TEXEL_M = 0.02
 GROUND_TEXEL_M = 0.01
 GROUND_TILE_PX = 2048
 GROUND_CELL_PX = 110
 _UP = np.array([0.0, 0.0, 1.0])
-MOVING_SHARPNESS = 0.99  # 1 = triangle wave (instant turn), 0 = sine; 0.99 turns in ~2% of a period
-MOVING_DIRECTION_W = np.array([1.0, 0.0, 0.0])
-TextureMaker = Callable[[int, int], tuple[U8, F64]]
-
-
-@dataclass
-class Face:
-    """Planar convex polygon ``vertices_W`` (K, 3), counter-clockwise seen from outside.
-
-    Texel ``(s, t)`` is at ``origin_W + s u_W + t v_W``; ``u_W``, ``v_W`` (3,) m per texel.
-    """
-
-    vertices_W: F64
-    origin_W: F64
-    u_W: F64
-    v_W: F64
-    texture: U8
-    solid: int
-
-    @property
-    def normal_W(self) -> F64:
-        n = np.cross(self.u_W, self.v_W)
-        # u right, v down seen from outside: u × v points into the solid
-        return -n / np.linalg.norm(n)
-
-
-@dataclass
-class Solid:
-    """Convex polyhedron: ``normals_W`` (P, 3), ``offsets`` (P,) with inside = ``n·x <= d``."""
-
-    normals_W: F64
-    offsets: F64
-    moving: bool = False
-
-
-@dataclass
-class World:
-    """Ground (periodic tile), solids, faces and landmarks (ids = row index)."""
-
-    ground_height: float
-    ground_texture: U8
-    ground_texel_m: float
-    ground_origin_W: F64
-    solids: list[Solid]
-    faces: list[Face]
-    landmarks_W: F64
-    landmark_moving: NDArray[np.bool_]
-    moving_direction_W: F64 = field(default_factory=lambda: np.zeros(3))
-    moving_amplitude: float = 0.0
-    moving_period_s: float = 1.0
-    _spheres: tuple[F64, F64] | None = field(default=None, repr=False)
-
-    def moving_offset_W(self, t_s: float) -> F64:
-        """Displacement (3,) m of the moving solid at time ``t_s``: a walk back and forth.
-
-        ``A asin(k sin(w t)) / asin(k) * direction`` with ``k`` = :data:`MOVING_SHARPNESS`: a
-        triangle wave with rounded turns (smooth, 0 at t = 0, ``A`` at a quarter period), i.e.
-        a nearly constant speed ``≈ 4 A / period`` (walking pace for the defaults) that stops
-        only briefly to turn, unlike a sine, which dawdles near both ends."""
-        w = 2 * np.pi / self.moving_period_s
-        k = MOVING_SHARPNESS
-        shape = np.arcsin(k * np.sin(w * t_s)) / np.arcsin(k)
-        return self.moving_amplitude * shape * self.moving_direction_W
-
-    def first_hit(self, t_s: float, o_W: F64, d_W: F64) -> tuple[F64, NDArray[np.intp]]:
-        """First surface hit by rays ``o_W + t d_W`` (origin (3,), directions (N, 3)) with the
-        solids placed at time ``t_s``: ray parameter (N,) (inf: sky) and solid index (N,)
-        (-1: ground or sky). With unit-z camera rays, the parameter is the depth."""
-        n, d = self.planes_at(t_s)  # (M, P, 3), (M, P)
-        den = np.einsum("mpk,nk->nmp", n, d_W)
-        num = d[None] - np.einsum("mpk,k->mp", n, o_W)[None]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tt = num / den
-        enter = np.where(den < 0, tt, -np.inf).max(axis=2)
-        leave = np.where(den > 0, tt, np.inf).min(axis=2)
-        parallel_out = np.any((den == 0) & (num < 0), axis=2)
-        hit = (enter <= leave) & (leave > 0) & ~parallel_out
-        t_solid = np.where(hit, np.maximum(enter, 0.0), np.inf)
-        best = np.argmin(t_solid, axis=1)
-        t_best = t_solid[np.arange(len(best)), best]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t_ground = np.where(d_W[:, 2] < 0, (self.ground_height - o_W[2]) / d_W[:, 2], np.inf)
-        solid = np.where(t_best < t_ground, best, -1)
-        return np.minimum(t_best, t_ground), solid
-
-    def landmarks_at(self, t_s: float) -> F64:
-        """Landmark positions (N, 3) at time ``t_s`` (moving ones displaced)."""
-        if not self.landmark_moving.any():
-            return self.landmarks_W
-        out = self.landmarks_W.copy()
-        out[self.landmark_moving] += self.moving_offset_W(t_s)
-        return out
-
-    def bounding_spheres_at(self, t_s: float) -> tuple[F64, F64]:
-        """Centres (M, 3) m and radii (M,) m of spheres enclosing each solid at ``t_s``."""
-        if self._spheres is None:
-            verts: list[list[F64]] = [[] for _ in self.solids]
-            for f in self.faces:
-                verts[f.solid].append(f.vertices_W)
-            centres, radii = [], []
-            for v in verts:
-                pts = np.concatenate(v)
-                c = 0.5 * (pts.min(0) + pts.max(0))
-                centres.append(c)
-                radii.append(np.linalg.norm(pts - c, axis=1).max())
-            self._spheres = (np.array(centres).reshape(-1, 3), np.array(radii))
-        centres, radii = self._spheres
-        moving = np.array([s.moving for s in self.solids], dtype=bool)
-        if moving.any():
-            centres = centres.copy()
-            centres[moving] += self.moving_offset_W(t_s)
-        return centres, radii
-
-    def planes_at(self, t_s: float) -> tuple[F64, F64]:
-        """Half-spaces of every solid padded to P planes: normals (M, P, 3), offsets (M, P)."""
-        p = max(len(s.offsets) for s in self.solids)
-        n = np.zeros((len(self.solids), p, 3))
-        d = np.ones((len(self.solids), p))  # padding 0·x <= 1 always holds
-        off = self.moving_offset_W(t_s)
-        for k, s in enumerate(self.solids):
-            n[k, : len(s.offsets)] = s.normals_W
-            d[k, : len(s.offsets)] = s.offsets + (s.normals_W @ off if s.moving else 0.0)
-        return n, d
-
-
-def _face(quad_W: F64, texel: float, solid: int, make_tex: TextureMaker) -> tuple[Face, F64]:
-    """Face on polygon ``quad_W`` whose first three vertices are the texture's top-left,
-    top-right and bottom-right corners; ``make_tex(w_px, h_px)`` -> (texture, corners_st)."""
-    tl, tr, br = quad_W[0], quad_W[1], quad_W[2]
-    width_m = np.linalg.norm(tr - tl)
-    height_m = np.linalg.norm(br - tr)
-    w_px = max(2, round(width_m / texel))
-    h_px = max(2, round(height_m / texel))
-    u = (tr - tl) / w_px
-    v = (br - tr) / h_px
-    tex, corners = make_tex(w_px, h_px)
-    origin = tl + 0.5 * u + 0.5 * v
-    face = Face(np.asarray(quad_W, float), origin, u, v, tex, solid)
-    pts = origin + corners[:, :1] * u + corners[:, 1:2] * v if len(corners) else np.zeros((0, 3))
-    return face, pts
-
-
-def _planes_from_faces(faces: list[Face], extra: list[tuple[F64, float]]) -> Solid:
-    normals = [f.normal_W for f in faces] + [n for n, _ in extra]
-    offsets = [float(f.normal_W @ f.vertices_W[0]) for f in faces] + [d for _, d in extra]
-    return Solid(np.array(normals), np.array(offsets))
-
-
-def _box(
-    centre_xy: ArrayLike, size: tuple[float, float, float], yaw: float, z0: float
-) -> F64:
-    """Box corners (8, 3): bottom 0-3 then top 4-7, counter-clockwise seen from above."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    hx, hy = 0.5 * size[0], 0.5 * size[1]
-    local = np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]])
-    xy = local @ np.array([[c, s], [-s, c]]) + np.asarray(centre_xy, float)
-    bottom = np.column_stack([xy, np.full(4, z0)])
-    top = np.column_stack([xy, np.full(4, z0 + size[2])])
-    return np.vstack([bottom, top])
-
-
-def _add_box(
-    world_faces: list[Face],
-    corners: F64,
-    solid: int,
-    side_tex: TextureMaker,
-    top_tex: TextureMaker | None,
-    texel: float,
-) -> tuple[list[Face], F64]:
-    """Four walls (+ top if ``top_tex``) of a box from :func:`_box`; returns faces, landmarks."""
-    faces, pts = [], []
-    for k in range(4):
-        a, b = corners[k], corners[(k + 1) % 4]
-        at, bt = corners[4 + k], corners[4 + (k + 1) % 4]
-        f, p = _face(np.array([at, bt, b, a]), texel, solid, side_tex)
-        faces.append(f)
-        pts.append(p)
-    if top_tex is not None:
-        f, p = _face(corners[[7, 6, 5, 4]], texel, solid, top_tex)
-        faces.append(f)
-        pts.append(p)
-    world_faces.extend(faces)
-    return faces, np.concatenate(pts)
 
 
 def _path_distance(xy: F64, path_xy: F64) -> F64:
@@ -260,16 +91,16 @@ def build_world(cfg: WorldConfig, path_xy: F64, seed: int, ground_height: float 
     def house(c: F64, yaw: float) -> None:
         w, d = rng.uniform(4.0, 9.0), rng.uniform(4.0, 7.0)
         h, rh = rng.uniform(3.0, 6.0), rng.uniform(1.2, 2.2)
-        corners = _box(c, (w, d, h), yaw, ground_height)
+        corners = box_corners(c, (w, d, h), yaw, ground_height)
         sid = len(solids)
 
         def wall(wp: int, hp: int):
             return wall_texture(wp, hp, rng, WALL_TEXEL_M, windows=True)
 
-        fs, pts = _add_box(faces, corners, sid, wall, None, WALL_TEXEL_M)
+        fs, pts = add_box(faces, corners, sid, wall, None, WALL_TEXEL_M)
         top = corners[4:]
-        solids.append(_planes_from_faces(fs, [(np.array([0, 0, 1.0]), ground_height + h),
-                                              (np.array([0, 0, -1.0]), -ground_height)]))
+        solids.append(planes_from_faces(fs, [(np.array([0, 0, 1.0]), ground_height + h),
+                                             (np.array([0, 0, -1.0]), -ground_height)]))
         marks.append(pts)
         moving_mask.append(np.zeros(len(pts)))
         # gable roof along the box's local x axis: ridge over the middle of sides 1-2 and 3-0
@@ -284,42 +115,42 @@ def build_world(cfg: WorldConfig, path_xy: F64, seed: int, ground_height: float 
             return wall_texture(wp, hp, rng, WALL_TEXEL_M, windows=False)[0], np.zeros((0, 2))
 
         roof_faces = [
-            _face(np.array([r0, r1, top[1], top[0]]), WALL_TEXEL_M, rid, roof)[0],
-            _face(np.array([r1, r0, top[3], top[2]]), WALL_TEXEL_M, rid, roof)[0],
+            make_face(np.array([r0, r1, top[1], top[0]]), WALL_TEXEL_M, rid, roof)[0],
+            make_face(np.array([r1, r0, top[3], top[2]]), WALL_TEXEL_M, rid, roof)[0],
         ]
         # gable triangles: texture spans the triangle's bounding rectangle
         for a, b, r in ((top[1], top[2], r1), (top[3], top[0], r0)):
-            f, _ = _face(np.array([a + rh * _UP, b + rh * _UP, b, a]), WALL_TEXEL_M, rid,
-                         gable)
+            f, _ = make_face(np.array([a + rh * _UP, b + rh * _UP, b, a]), WALL_TEXEL_M, rid,
+                             gable)
             f.vertices_W = np.array([r, b, a])
             roof_faces.append(f)
         faces.extend(roof_faces)
-        solids.append(_planes_from_faces(roof_faces, [(np.array([0, 0, -1.0]), -(ground_height
-                                                                                   + h))]))
+        roof_floor = (np.array([0, 0, -1.0]), -(ground_height + h))
+        solids.append(planes_from_faces(roof_faces, [roof_floor]))
 
     def crate(c: F64, yaw: float, size: tuple[float, float, float] | None = None,
               tex: TextureMaker | None = None, moving: bool = False) -> None:
         if size is None:
             size = (rng.uniform(0.8, 2.0), rng.uniform(0.8, 2.0), rng.uniform(0.8, 2.0))
-        corners = _box(c, size, yaw, ground_height)
+        corners = box_corners(c, size, yaw, ground_height)
         if tex is None:
             tex = partial(checker_texture, rng=rng, square_px=int(rng.integers(10, 16)))
-        fs, pts = _add_box(faces, corners, len(solids), tex, tex, WALL_TEXEL_M)
-        s = _planes_from_faces(fs, [(np.array([0, 0, -1.0]), -ground_height)])
+        fs, pts = add_box(faces, corners, len(solids), tex, tex, WALL_TEXEL_M)
+        s = planes_from_faces(fs, [(np.array([0, 0, -1.0]), -ground_height)])
         s.moving = moving
         solids.append(s)
         marks.append(pts)
         moving_mask.append(np.full(len(pts), 1.0 if moving else 0.0))
 
     def pole(c: F64) -> None:
-        corners = _box(c, (0.25, 0.25, rng.uniform(3.0, 5.0)), rng.uniform(0, np.pi), 0.0)
+        corners = box_corners(c, (0.25, 0.25, rng.uniform(3.0, 5.0)), rng.uniform(0, np.pi), 0.0)
         corners[:, 2] += ground_height
 
         def bands(wp: int, hp: int):
             return band_texture(wp, hp, 25)
 
-        fs, _ = _add_box(faces, corners, len(solids), bands, bands, WALL_TEXEL_M)
-        solids.append(_planes_from_faces(fs, [(np.array([0, 0, -1.0]), -ground_height)]))
+        fs, _ = add_box(faces, corners, len(solids), bands, bands, WALL_TEXEL_M)
+        solids.append(planes_from_faces(fs, [(np.array([0, 0, -1.0]), -ground_height)]))
 
     # houses face the path: yaw a multiple of 90 deg plus a little
     for _ in range(cfg.n_outer_houses):

@@ -1,0 +1,72 @@
+"""One evaluated run (what ``svains run`` does): navigation, then accuracy, then output files.
+
+:func:`svains.navigation.runner.run_method` produces the estimates, covariances, timings and
+counters; this module adds the accuracy keys of ``report.json`` (:func:`run_accuracy`) and writes
+``trajectory.tum``, ``states.csv`` and ``report.json``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from svains.datasets.types import Dataset
+from svains.evaluation.accuracy import accuracy_report, gps_outage_report
+from svains.navigation import runner
+from svains.navigation.options import RunOptions
+from svains.navigation.runner import RunResult
+from svains.navigation.writers import write_outputs
+
+
+def errors_alignment_for(result: RunResult) -> str:
+    """Alignment applied before the per-state error keys of ``result``.
+
+    ``none`` when the run's world frame is the ground truth's (``world_frame`` ``groundtruth``
+    or ``gps``); otherwise the degrees of freedom the method cannot observe: ``posyaw`` (yaw and
+    translation) for a filter, whose roll and pitch follow gravity, ``se3`` for pure VO.
+    """
+    if result.world_frame in ("groundtruth", "gps"):
+        return "none"
+    return "se3" if result.report.get("method") == "vo" else "posyaw"
+
+
+def run_accuracy(result: RunResult, dataset: Dataset) -> dict[str, Any]:
+    """The accuracy keys of ``report.json`` for ``result`` (see ``docs/formats.md``): ATE,
+    RMSE and NEES after :func:`errors_alignment_for`, GPS-outage figures when GPS was used."""
+    g_W = np.asarray(dataset.gravity_W, dtype=float)
+    out = accuracy_report(
+        result.t_ns, result.x, result.P9, dataset.groundtruth,
+        errors_alignment=errors_alignment_for(result), up_W=-g_W / np.linalg.norm(g_W),
+    )  # fmt: skip
+    if not result.has_covariance:
+        # No covariance (VO): NEES and the 3σ coverage are not defined.
+        out["nees_mean"] = None
+        out.pop("position_within_3sigma", None)
+    if dataset.groundtruth is not None and dataset.gps is not None and result.gps_used:
+        outages = gps_outage_report(
+            result.t_ns, result.x, result.std, dataset.gps.t_ns, dataset.groundtruth
+        )
+        out.update(outages)
+        if outages["gps_outages"]:
+            # Issue 6's key: the largest position error inside each GPS outage (m).
+            out["outage_max_error_m"] = [o["error_max_m"] for o in outages["gps_outages"]]
+    return out
+
+
+def run_method(
+    dataset: Dataset,
+    method: str = "ins",
+    options: RunOptions | None = None,
+    out_dir: Path | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> RunResult:
+    """:func:`svains.navigation.runner.run_method` with the accuracy keys added to its report;
+    writes ``trajectory.tum``, ``states.csv`` and ``report.json`` into ``out_dir`` if given."""
+    result = runner.run_method(dataset, method, options, None, progress)
+    result.report.update(run_accuracy(result, dataset))
+    if out_dir is not None:
+        write_outputs(Path(out_dir), result)
+    return result

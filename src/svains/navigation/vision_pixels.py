@@ -1,0 +1,256 @@
+"""The ``tc``/``3d`` vision updater: 4 pixels per inlier feature tracked from frame k-1.
+
+See ``navigation.vision`` (module docstring) for the per-frame procedure; this module holds the
+updater, its counters and the helpers it shares with ``lc`` (tracks with the front end's motion
+prior, the stacked update).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from svains.datasets.types import Dataset
+from svains.errors import ConfigError
+from svains.filter.ukf import UpdateStats
+from svains.frontend.types import StereoTracks
+from svains.models.vision_3d import pixels_from_motion
+from svains.models.vision_common import ImuIncrement, camera_motion, stack_pixels
+from svains.models.vision_tc import predict_pixels_tc
+from svains.navigation.base import FrameContext, MeasurementBlock
+from svains.navigation.tracks import TrackOptions
+from svains.navigation.vision_motion import (
+    CachedModel,
+    ImuIncrements,
+    MotionPrior,
+    MotionPriorOptions,
+)
+from svains.navigation.vision_noise import (
+    analytic_noise,
+    feature_gate,
+    lowrank_factors,
+    whiten_chol,
+)
+from svains.navigation.vision_sources import FeatureTrackSource, ImageTrackSource, make_source
+
+if TYPE_CHECKING:
+    from svains.navigation.vision import VisionOptions
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+
+@dataclass
+class VisionCounters:
+    """Per-run counts of the vision updates (go into ``report.json`` under ``vision``)."""
+
+    frames: int = 0
+    frames_without_tracks: int = 0
+    frames_fused: int = 0
+    frames_rejected: int = 0
+    features_fused: int = 0
+    features_gated: int = 0
+    features_invalid: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        return {f.name: int(getattr(self, f.name)) for f in fields(self)}
+
+
+def _subsample(idx: I64, n_max: int | None) -> I64:
+    """At most ``n_max`` of ``idx``, evenly spread (tracks are ordered by id, i.e. by age)."""
+    if n_max is None or idx.size <= n_max:
+        return idx
+    return idx[np.linspace(0, idx.size - 1, n_max).round().astype(np.int64)]
+
+
+class PixelUpdater:
+    """``tc`` or ``3d`` updater: 4 pixels per inlier feature, see the module docstring."""
+
+    def __init__(
+        self, method: str, ds: Dataset, options: VisionOptions,
+        source: FeatureTrackSource | ImageTrackSource | None = None,
+    ) -> None:
+        """``source`` replaces the one ``options.source`` selects (e.g. recorded tracks)."""
+        if method not in ("tc", "3d"):
+            raise ConfigError(f"pixel updater serves tc or 3d, got {method!r}")
+        self.method = method
+        self.options = options
+        track_opts = TrackOptions(max_row_diff_px=options.max_row_diff_px)
+        self.source: FeatureTrackSource | ImageTrackSource = (
+            make_source(ds, options.source, track_opts, options.frame_stride)
+            if source is None else source
+        )
+        self.rig = self.source.rig
+        std = options.pixel_noise_std
+        std = self.source.pixel_noise_std if std is None else std
+        self.sigma_px = max(float(std), 0.05) * options.pixel_noise_scale
+        self.counters = VisionCounters()
+        self._imu, self._prior = imu_and_prior(ds, options, self.source)
+        self._imu_noise = (
+            None if options.rotation != "imu" or self._imu is None else self._imu.noise
+        )
+
+    def frame_times(self) -> I64:
+        return self.source.frame_times()
+
+    def _model(
+        self, uvl0: F64, uvr0: F64, dt_s: float, inc: ImuIncrement | None,
+        p_F: F64 | None = None,
+    ) -> Any:
+        """``h(X)`` from the k-1 pixels (M, 2): ``3d`` triangulates them (eq. 10; or takes
+        ``p_F`` (M, 3)) and moves the points with each sigma point's camera motion, ``tc``
+        transfers them (eq. 21)."""
+        rot, rig = self.options.rotation, self.rig
+        if self.method == "3d":
+            p = rig.triangulate(uvl0, uvr0) if p_F is None else p_F
+            return lambda X: pixels_from_motion(*camera_motion(X, dt_s, rig, rot, inc), p, rig)
+        return lambda X: predict_pixels_tc(X, uvl0, uvr0, dt_s, rig, rot, inc)
+
+    def _predict(
+        self, ctx: FrameContext, X: F64, uvl0: F64, uvr0: F64, dt_s: float,
+        inc: ImuIncrement | None,
+    ) -> tuple[F64, F64, F64, F64 | None]:
+        """Predicted pixels ``Y`` (S, 4M) of the sigma points ``X``, the camera motion ``R_c``
+        (3, 3), ``r_c`` (3,) at the mean state, and (``3d``) the k-1 points (M, 3)."""
+        rot = self.options.rotation
+        if self.method == "3d":
+            # One camera-motion evaluation for the sigma points and the mean (last row).
+            R_all, r_all = camera_motion(np.vstack([X, ctx.ukf.x[None, :]]), dt_s, self.rig,
+                                         rot, inc)
+            p_F = self.rig.triangulate(uvl0, uvr0)
+            Y = pixels_from_motion(R_all[:-1], r_all[:-1], p_F, self.rig)
+            return Y, R_all[-1], r_all[-1], p_F
+        Y = self._model(uvl0, uvr0, dt_s, inc)(X)
+        R_m, r_m = camera_motion(ctx.ukf.x[None, :], dt_s, self.rig, rot, inc)
+        return Y, R_m[0], r_m[0], None
+
+    def update(self, ctx: FrameContext) -> UpdateStats | None:
+        """Fuse the frame at ``ctx.t_ns`` (see the module docstring)."""
+        c = self.counters
+        c.frames += 1
+        tr, inc = tracks_with_prior(self.source, self._prior, ctx)
+        usable = (
+            np.zeros(0, bool) if tr is None
+            else tr.inlier & np.isfinite(tr.p_Ckm1_F).all(axis=1) & (tr.p_Ckm1_F[:, 2] > 0)
+        )
+        if tr is None or usable.sum() < self.options.min_features or tr.t_ns <= tr.t_prev_ns:
+            c.frames_without_tracks += 1
+            return None
+        dt_s = (tr.t_ns - tr.t_prev_ns) * 1e-9
+        idx = _subsample(np.flatnonzero(usable), self.options.max_features)
+        z = stack_pixels(tr.uv_left[idx], tr.uv_right[idx])
+        uvl0, uvr0 = tr.uv_left_prev[idx], tr.uv_right_prev[idx]
+        if self._imu is None or self.options.rotation != "imu":
+            inc = None
+        elif inc is None:  # no prior, or it spanned another interval
+            inc = self._imu.between(ctx, tr.t_prev_ns, tr.t_ns)
+        X, _ = ctx.ukf.sigma_points()  # reused by the update below (same state)
+        Y, R_c, r_c, p_F = self._predict(ctx, X, uvl0, uvr0, dt_s, inc)
+        # Per-feature 4x4 noise: pixel noise at k plus the k-1 pixel noise carried through
+        # triangulation/transfer (dominant for far points), and in "imu" mode the IMU
+        # increment's noise as a feature-correlated factor G (4M, 6). Closed form at the mean
+        # state (``analytic_noise``; tests check it against finite differences of the model).
+        R_blocks, G = analytic_noise(
+            R_c, r_c, uvl0, uvr0, self.rig, self.sigma_px, inc, dt_s, self._imu_noise, p_F
+        )
+        pts = ctx.ukf.points
+        keep, finite = feature_gate(
+            Y, pts.Wm, pts.Wc, z, R_blocks, self.options.feature_gate_probability, G
+        )
+        # Near-zero disparity makes the prediction hypersensitive to the k-1 pixels (|J| > 100):
+        # such features carry no information and would make R_blocks numerically singular.
+        sane = np.abs(R_blocks.reshape(-1, 16)).max(axis=1) < (100.0 * self.sigma_px) ** 2
+        finite &= sane
+        keep &= sane
+        c.features_invalid += int((~finite).sum())
+        c.features_gated += int((finite & ~keep).sum())
+        if keep.sum() < self.options.min_features:
+            c.frames_without_tracks += 1
+            return None
+        kept = np.flatnonzero(keep)
+        h_kept = self._model(uvl0[kept], uvr0[kept], dt_s, inc,
+                             None if p_F is None else p_F[kept])
+        block = _whitened_block(f"vision_{self.method}", kept, X, Y, z, R_blocks, G, h_kept)
+        stats = apply_blocks(ctx, [block, *ctx.extra])
+        if stats.accepted:
+            c.frames_fused += 1
+            c.features_fused += int(keep.sum())
+        else:
+            c.frames_rejected += 1
+        return stats
+
+    def summary(self) -> dict[str, Any]:
+        """Counters and settings for ``report.json``."""
+        out: dict[str, Any] = self.counters.as_dict()
+        out.update(source=self.source.kind, sigma_px=self.sigma_px, rotation=self.options.rotation,
+                   frontend_status=dict(getattr(self.source, "status_counts", {})))
+        return out
+
+
+def _whitened_block(
+    name: str, kept: I64, X: F64, Y: F64, z: F64, R_blocks: F64, G: F64 | None, h_kept: Any
+) -> MeasurementBlock:
+    """The kept features (K,) as one block with unit diagonal noise: each feature's 4 numbers
+    whitened (rows times ``L_m^-1``, ``R_m = L_m L_m^T``) so the filter takes its fast Woodbury
+    path instead of a dense nz x nz Cholesky. The IMU term ``G`` (4M, 6), common to all features,
+    is whitened too: ``(I + Gw Gw^T)^-1/2`` is identity minus a rank-6 correction. ``h`` reuses
+    the predictions ``Y`` (S, 4M) made for the sigma points ``X`` (and calls ``h_kept`` for any
+    other points)."""
+    rows = (4 * kept[:, None] + np.arange(4)).reshape(-1)
+    L = np.linalg.cholesky(R_blocks[kept])  # (K, 4, 4)
+    Gw = None if G is None else whiten_chol(G[rows].T, L).T
+    U, d = lowrank_factors(Gw)
+
+    def white(Yr: F64) -> F64:
+        Yw = whiten_chol(Yr, L)
+        return Yw if U is None else Yw - ((Yw @ U) * d) @ U.T
+
+    # The sigma points' predictions and z whitened in one pass.
+    YZ = white(np.vstack([Y[:, rows], z[rows][None, :]]))
+    h = CachedModel(lambda X_: white(h_kept(X_)), X, YZ[:-1])
+    return MeasurementBlock(name=name, h=h, z=YZ[-1], R=np.ones(rows.size))
+
+
+def imu_and_prior(
+    ds: Dataset, options: VisionOptions, source: FeatureTrackSource | ImageTrackSource
+) -> tuple[ImuIncrements | None, MotionPrior | None]:
+    """IMU samples when the ``imu`` rotation or the motion prior needs them; a prior only for the
+    image front end (recorded tracks need none) on a data set with an IMU."""
+    use_prior = (
+        options.motion_prior and isinstance(source, ImageTrackSource) and ds.imu is not None
+    )
+    if options.rotation != "imu" and not use_prior:
+        return None, None
+    imu = ImuIncrements(ds, options.imu_noise)
+    if not use_prior:
+        return imu, None
+    prior_opts = MotionPriorOptions(options.motion_prior_inflation, options.motion_prior_min_std)
+    return imu, MotionPrior(imu, source.rig, prior_opts)
+
+
+def tracks_with_prior(
+    source: FeatureTrackSource | ImageTrackSource, prior: MotionPrior | None, ctx: FrameContext
+) -> tuple[StereoTracks | None, ImuIncrement | None]:
+    """Tracks at ``ctx.t_ns`` (the image front end gets the motion prior when there is one) and
+    the prior's IMU increment when the tracks span the same interval (reusable)."""
+    if prior is None or not isinstance(source, ImageTrackSource):
+        return source.tracks_at(ctx.t_ns), None
+    t_ref = source.reference_time_ns()
+    ego, inc = prior.for_frame(ctx, t_ref)
+    tr = source.tracks_at(ctx.t_ns, ego)
+    if tr is None or inc is None or tr.t_prev_ns != t_ref:
+        return tr, None
+    return tr, inc
+
+
+def apply_blocks(ctx: FrameContext, blocks: list[MeasurementBlock]) -> UpdateStats:
+    """One stacked update through the runner (``ctx.apply``) or the filter directly."""
+    if ctx.apply is not None:
+        return ctx.apply(blocks)
+    if len(blocks) != 1:
+        raise ConfigError("stacked updates need the runner's ctx.apply")
+    b = blocks[0]
+    return ctx.ukf.update(b.h, b.z, b.R, ctx.gate_probability, b.residual, b.name)

@@ -1,0 +1,197 @@
+"""Accuracy keys of report.json: unaligned when the run's frame is the ground truth's, after a
+posyaw alignment (positions and headings) when a static start leaves yaw and position free."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from _ins_truth import make_dataset, static_dataset
+from svains.cli.main import app
+from svains.datasets.types import GpsCalib, GpsStream, GroundTruth
+from svains.errors import ConfigError
+from svains.evaluation.accuracy import accuracy_report, align_states
+from svains.evaluation.alignment import align_posyaw, align_posyaw_poses, rotation_about_axis
+from svains.evaluation.run import errors_alignment_for, run_method
+from svains.geometry.rotation import (
+    quat_box_plus,
+    quat_exp,
+    quat_multiply,
+    quat_to_rotmat,
+    rotmat_to_quat,
+)
+from svains.navigation.options import InitOptions, RunOptions
+from svains.navigation.report import interpolate_groundtruth, navigation_errors, nees_of
+from svains.navigation.runner import RunResult
+
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def _yaw_T(psi: float, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = rotation_about_axis(UP, psi)
+    T[:3, 3] = t
+    return T
+
+
+def _inverse(T: np.ndarray) -> np.ndarray:
+    Ti = np.eye(4)
+    Ti[:3, :3] = T[:3, :3].T
+    Ti[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return Ti
+
+
+def _truth_states(n: int, rng: np.random.Generator, spread_m: float) -> np.ndarray:
+    x = np.zeros((n, 13))
+    x[:, 0:3] = spread_m * np.cumsum(rng.normal(size=(n, 3)), axis=0) + [1.0, -2.0, 1.5]
+    x[:, 3:6] = rng.normal(size=(n, 3))
+    x[:, 6:10] = quat_exp(rng.normal(scale=0.4, size=(n, 3)))
+    return x
+
+
+def test_align_states_maps_estimate_errors_and_covariance_between_frames() -> None:
+    # An estimate made in a frame yawed and shifted from the truth's: mapping it back with the
+    # same transform must give the errors and the NEES it has in the truth's frame.
+    rng = np.random.default_rng(3)
+    n = 40
+    x_true = _truth_states(n, rng, 0.5)
+    A = rng.normal(size=(n, 9, 9))
+    P = A @ A.transpose(0, 2, 1) * 0.01 + np.eye(9) * 1e-3
+    e = np.einsum("nij,nj->ni", np.linalg.cholesky(P), rng.normal(size=(n, 9)))
+    x_est = x_true.copy()  # truth ⊟ estimate = e
+    x_est[:, 0:3] -= e[:, 0:3]
+    x_est[:, 3:6] -= e[:, 3:6]
+    x_est[:, 6:10] = quat_box_plus(x_true[:, 6:10], -e[:, 6:9])
+    np.testing.assert_allclose(
+        navigation_errors(x_est, x_true[:, 0:3], x_true[:, 3:6], x_true[:, 6:10]), e, atol=1e-9
+    )
+    T0 = _yaw_T(2.1, np.array([4.0, -1.0, 0.3]))
+    R0 = T0[:3, :3]
+    x_loc = x_est.copy()  # the same estimate expressed in the local frame: T0^-1 applied
+    x_loc[:, 0:3] = (x_est[:, 0:3] - T0[:3, 3]) @ R0
+    x_loc[:, 3:6] = x_est[:, 3:6] @ R0
+    x_loc[:, 6:10] = quat_multiply(rotmat_to_quat(R0.T)[None], x_est[:, 6:10])
+    J = np.eye(9)
+    J[0:3, 0:3] = J[3:6, 3:6] = R0.T
+    P_loc = J @ P @ J.T
+    xa, Pa = align_states(x_loc, P_loc, T0)
+    ea = navigation_errors(xa, x_true[:, 0:3], x_true[:, 3:6], x_true[:, 6:10])
+    np.testing.assert_allclose(ea, e, atol=1e-9)
+    np.testing.assert_allclose(nees_of(ea, Pa), nees_of(e, P), rtol=1e-9)
+
+
+def test_pose_posyaw_finds_yaw_when_positions_barely_move() -> None:
+    rng = np.random.default_rng(5)
+    n = 30
+    x_ref = _truth_states(n, rng, 0.0003)  # a resting vehicle: sub-millimetre jitter
+    T0 = _yaw_T(-2.5, np.array([0.4, 3.0, -0.2]))
+    Ti = _inverse(T0)
+    p_est = x_ref[:, 0:3] @ Ti[:3, :3].T + Ti[:3, 3]
+    R_ref = quat_to_rotmat(x_ref[:, 6:10])
+    R_est = np.einsum("ij,njk->nik", Ti[:3, :3], R_ref)
+    T = align_posyaw_poses(p_est, R_est, x_ref[:, 0:3], R_ref, UP)
+    np.testing.assert_allclose(T, T0, atol=1e-9)
+    # Positions alone cannot tell the yaw once they are noisy at the millimetre level.
+    noisy = p_est + rng.normal(scale=0.003, size=p_est.shape)
+    T_pos = align_posyaw(noisy, x_ref[:, 0:3], UP)
+    T_pose = align_posyaw_poses(noisy, R_est, x_ref[:, 0:3], R_ref, UP)
+    assert abs(np.arctan2(T_pos[1, 0], T_pos[0, 0]) + 2.5) > 0.2
+    assert abs(np.arctan2(T_pose[1, 0], T_pose[0, 0]) + 2.5) < 5e-3
+    # On a trajectory much larger than the lever, headings barely change the position fit.
+    big = _truth_states(n, rng, 5.0)
+    p_big = big[:, 0:3] + rng.normal(scale=0.5, size=(n, 3))
+    R_big = quat_to_rotmat(big[:, 6:10])
+    R_off = np.einsum("ij,njk->nik", rotation_about_axis(UP, 0.3), R_big)
+    np.testing.assert_allclose(
+        align_posyaw_poses(p_big, R_off, big[:, 0:3], R_big, UP),
+        align_posyaw(p_big, big[:, 0:3], UP),
+        atol=2e-3,
+    )
+    with pytest.raises(ConfigError, match=r"needs \(N, 3, 3\) rotations"):
+        align_posyaw_poses(p_est, R_est[:3], x_ref[:, 0:3], R_ref, UP)
+
+
+def _gt_of(t_ns: np.ndarray, x: np.ndarray) -> GroundTruth:
+    n = len(t_ns)
+    return GroundTruth(t_ns, x[:, 0:3], x[:, 6:10], x[:, 3:6], np.zeros((n, 3)), np.zeros((n, 3)))
+
+
+def test_accuracy_report_aligns_errors_only_when_asked() -> None:
+    rng = np.random.default_rng(8)
+    n = 60
+    t_ns = (np.arange(n) * 1e8).astype(np.int64)
+    x_true = _truth_states(n, rng, 0.3)
+    T0 = _yaw_T(1.0, np.array([2.0, 2.0, 0.0]))
+    x_loc, _ = align_states(x_true, np.tile(np.eye(9), (n, 1, 1)), _inverse(T0))
+    P9 = np.tile(np.eye(9) * 0.01, (n, 1, 1))
+    raw = accuracy_report(t_ns, x_loc, P9, _gt_of(t_ns, x_true))
+    aligned = accuracy_report(t_ns, x_loc, P9, _gt_of(t_ns, x_true), errors_alignment="posyaw")
+    assert raw["errors_alignment"] == "none" and aligned["errors_alignment"] == "posyaw"
+    assert raw["position_rmse_m"] > 1.0 and raw["attitude_rmse_deg"] > 30.0
+    assert aligned["position_rmse_m"] < 1e-9 and aligned["attitude_rmse_deg"] < 1e-6
+    assert aligned["velocity_rmse_mps"] < 1e-9 and aligned["nees_mean"] < 1e-9
+    assert aligned["ate_rmse_m"] == pytest.approx(raw["ate_rmse_m"], abs=1e-12)  # se3 either way
+    with pytest.raises(ConfigError, match="unknown errors alignment 'sim3'"):
+        accuracy_report(t_ns, x_loc, P9, _gt_of(t_ns, x_true), errors_alignment="sim3")
+
+
+def _unaligned_position_rmse(res: RunResult, gt: GroundTruth) -> float:
+    inside, p, _, _ = interpolate_groundtruth(gt, res.t_ns)
+    return float(np.sqrt(np.mean(np.sum((p - res.x[inside, 0:3]) ** 2, axis=1))))
+
+
+def test_simulated_gps_runs_keep_unaligned_errors() -> None:
+    # GPS fixes the world frame: the report's errors are the raw ones, no alignment.
+    ds = make_dataset(12.0, seed=6)
+    res = run_method(ds, "ins", RunOptions(init=InitOptions(mode="groundtruth")))
+    assert res.world_frame == "groundtruth" and errors_alignment_for(res) == "none"
+    assert res.report["errors_alignment"] == "none"
+    assert res.report["position_rmse_m"] == pytest.approx(
+        _unaligned_position_rmse(res, ds.groundtruth), rel=1e-12
+    )
+    # A static start with GPS (position from the first fix, heading from the magnetometer).
+    st, q = static_dataset(seed=1)
+    p0 = np.array([3.0, -4.0, 1.0])
+    t_gps = np.arange(0, 3_000_000_000, 200_000_000, dtype=np.int64)
+    rng = np.random.default_rng(1)
+    st.gps = GpsStream(t_gps, p0 + rng.normal(scale=0.05, size=(len(t_gps), 3)),
+                       np.zeros((len(t_gps), 3)))  # fmt: skip
+    st.gps_calib = GpsCalib(np.zeros(3), 5.0, 0.05, 0.05)
+    t_gt = np.arange(0, 3_000_000_000, 10_000_000, dtype=np.int64)
+    x_gt = np.zeros((len(t_gt), 13))
+    x_gt[:, 0:3], x_gt[:, 6:10] = p0, q
+    st.groundtruth = _gt_of(t_gt, x_gt)
+    res = run_method(st, "ins", RunOptions())
+    assert res.report["init"]["mode"] == "static" and res.report["measurements"]["gps"]["fused"] > 5
+    assert res.world_frame == "gps" and res.report["errors_alignment"] == "none"
+    assert res.report["position_rmse_m"] == pytest.approx(
+        _unaligned_position_rmse(res, st.groundtruth), rel=1e-12
+    )
+    assert res.report["position_rmse_m"] < 0.2
+    # Without GPS, the same start is local: errors after posyaw.
+    local = run_method(replace(st, gps=None, gps_calib=None), "ins", RunOptions())
+    assert local.world_frame == "local" and local.report["errors_alignment"] == "posyaw"
+
+
+@pytest.mark.slow
+def test_static_euroc_run_reports_errors_after_posyaw(euroc_micro: Path, tmp_path: Path) -> None:
+    # The EuRoC drone rests for the first seconds: a static start has arbitrary yaw and a zero
+    # position, so the unaligned errors were 2.54 m and 166 deg against an ATE of 2 mm.
+    out = tmp_path / "run"
+    args = ["run", str(euroc_micro), "--method", "3d", "--images", "--init", "static",
+            "--duration", "4.6", "--out", str(out)]  # fmt: skip
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0, res.output
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["init"]["mode"] == "static" and rep["errors_alignment"] == "posyaw"
+    assert rep["alignment"] == "se3" and rep["ate_rmse_m"] < 0.01
+    assert rep["position_rmse_m"] < 0.01  # was 2.54 m unaligned
+    assert rep["attitude_rmse_deg"] < 3.0  # was 166 deg
+    assert rep["velocity_rmse_mps"] < 0.05
+    assert rep["nees_mean"] < 9.0 * 3  # was 684
+    assert rep["position_within_3sigma"] > 0.9
