@@ -47,7 +47,8 @@ def test_all_methods_beat_pure_inertial_when_gps_denied(
     reports = write_comparison(tmp_path, res, "test")
     data = json.loads((tmp_path / "compare.json").read_text())
     assert set(data) == {"ins", "vo", "lc", "tc", "3d"} == set(reports)
-    assert data["3d"]["ate_alignment"] == "posyaw" and data["vo"]["ate_alignment"] == "se3"
+    # VO started from the true pose is aligned like the filters (its roll/pitch drift counts).
+    assert data["3d"]["ate_alignment"] == "posyaw" and data["vo"]["ate_alignment"] == "posyaw"
     assert "| 3d |" in (tmp_path / "compare.md").read_text()
     for m in ("ins", "vo", "3d"):
         assert (tmp_path / m / "trajectory.tum").is_file()

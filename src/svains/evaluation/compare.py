@@ -3,7 +3,7 @@
 Per method: the runner's ``report.json`` content plus
 - ``ate_m`` with the alignment that fits the run (``ate_alignment``): ``none`` when GPS fixes the
   world frame, ``posyaw`` (yaw + translation: what a GPS-denied visual-inertial filter cannot
-  observe) otherwise, ``se3`` for pure VO (no gravity);
+  observe) otherwise, also for VO started from the true pose; ``se3`` for VO in a local frame;
 - ``outage_max_error_m``: the largest position error inside each GPS outage (gaps in ``gps0``);
 - ``final_position_error_m``, ``path_length_m`` and their ratio ``final_error_pct_of_path``
   (the final error is taken after the ATE's alignment when the run's world frame is local, i.e. a
@@ -69,11 +69,14 @@ def outage_max_errors(
     return out
 
 
-def ate_alignment(method: str, gps_used: bool) -> str:
-    """The alignment that fits a run: ``se3`` for pure VO (no gravity), ``none`` when GPS fixes
-    the world frame, ``posyaw`` (the 4 unobservable DoF of a GPS-denied VIO filter) otherwise."""
+def ate_alignment(method: str, gps_used: bool, world_frame: str = "groundtruth") -> str:
+    """The alignment that fits a run: ``none`` when GPS fixes the world frame, ``posyaw`` (the 4
+    DoF a GPS-denied visual-inertial filter cannot observe) otherwise; ``se3`` for pure VO only
+    when it started in a local frame. VO started from the true pose is aligned like the filters
+    (``posyaw``): they had the same information at the start, and its roll and pitch drift is a
+    real error that gravity spares the filters (aligning it away would favour VO)."""
     if method == "vo":
-        return "se3"
+        return "posyaw" if world_frame == "groundtruth" else "se3"
     return "none" if gps_used else "posyaw"
 
 
@@ -109,7 +112,7 @@ def trajectory_metrics(
     if len(p_est) < 3:
         return {}
     gps_ok = gps_used and ds.gps is not None and method != "vo"
-    align = ate_alignment(method, gps_ok)
+    align = ate_alignment(method, gps_ok, result.world_frame)
     res = align_to_groundtruth(result, ds, align)
     if res is None:
         return {}
