@@ -21,6 +21,8 @@ SCRIPTS: list[str] = [
     "eval_frontend_sim.py",
     "bench_egomotion_cov.py",
     "euroc_rotation_check.py",
+    "paper_ordering.py",
+    "tc_noise_scan.py",
     "bench_render.py",
 ]
 
