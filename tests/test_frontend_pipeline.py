@@ -230,3 +230,17 @@ def test_small_consensus_among_many_tracks_is_no_measurement() -> None:
     assert status == "ok" and 0.3 < frac < 0.98
     assert run(frac - 0.02)[0] == "ok"
     assert run(frac + 0.02)[0] == "no_consensus"
+
+
+def test_reference_time_is_the_last_good_frame() -> None:
+    fe = _frontend()
+    tex = _texture(0)
+    assert fe.reference_t_ns is None
+    fe.process(10, None, None)  # dropped before any good frame
+    assert fe.reference_t_ns is None
+    fe.process(20, *_pair(tex))
+    assert fe.reference_t_ns == 20
+    fe.process(30, np.zeros((240, 320), np.uint8), np.zeros((240, 320), np.uint8))  # black
+    assert fe.reference_t_ns == 20  # a degenerate frame does not replace the reference
+    fe.process(40, *_pair(tex))
+    assert fe.reference_t_ns == 40

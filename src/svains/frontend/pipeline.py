@@ -79,6 +79,12 @@ class StereoFrontend:
         self._last_images: tuple[U8, U8] | None = None
 
     @property
+    def reference_t_ns(self) -> int | None:
+        """Time (ns) of the frame the next one will be tracked against (the last good frame;
+        held frames do not replace it), ``None`` before the first good frame."""
+        return None if self._ref is None else int(self._ref.t_ns)
+
+    @property
     def last_rectified(self) -> tuple[U8, U8] | None:
         """Rectified left and right images (H, W) of the last good frame (for figures)."""
         if self._last_images is None:

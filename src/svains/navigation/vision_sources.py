@@ -119,10 +119,7 @@ class ImageTrackSource:
         """Time of the front end's reference frame (the k-1 of the next tracks; None before the
         first good frame). A motion prior for ``tracks_at`` must span [reference, t_k]: after a
         held or dropped frame the reference is older than the previous frame."""
-        # The front end keeps it privately (``_ref``); read it defensively.
-        ref = getattr(self.frontend, "_ref", None)
-        t_ref = getattr(ref, "t_ns", None)
-        return None if t_ref is None else int(t_ref)
+        return self.frontend.reference_t_ns
 
     def _load(self, ij: tuple[int, int]) -> tuple[U8, U8]:
         assert self._ds.left is not None and self._ds.right is not None
