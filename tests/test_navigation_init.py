@@ -66,3 +66,62 @@ def test_groundtruth_start_copies_the_truth() -> None:
     np.testing.assert_allclose(init.x[0:3], ds.groundtruth.p_W_B[j], atol=1e-9)
     np.testing.assert_allclose(init.x[13:16], ds.groundtruth.bg_B[j], atol=1e-12)
     np.testing.assert_allclose(init.x[10:13], ds.imu.gyro_B[k] - ds.groundtruth.bg_B[j])
+
+
+@pytest.fixture(scope="module")
+def village_flight(tmp_path_factory: pytest.TempPathFactory):
+    """30 s simulated village flight (helicopter flying at t = 0), GPS without outages +
+    magnetometer, no images."""
+    from dataclasses import replace
+
+    from svains.datasets import load_dataset
+    from svains.sim import SimConfig, simulate
+
+    cfg = SimConfig()
+    cfg = replace(cfg, duration_s=30.0, seed=4, gps=replace(cfg.gps, outages=[]),
+                  camera=replace(cfg.camera, rate_hz=1.0, render_images=False))  # fmt: skip
+    return load_dataset(simulate(cfg, tmp_path_factory.mktemp("flight") / "ds"))
+
+
+def test_in_flight_gps_start_matches_the_truth(village_flight) -> None:
+    from svains.navigation.report import interpolate_groundtruth
+
+    ds = village_flight
+    init = initialise(ds, BIASED, InitOptions(mode="gps"))
+    assert init.info["heading"] == "magnetometer"
+    _, p, v, q = interpolate_groundtruth(ds.groundtruth, np.array([init.t_ns], np.int64))
+    # Within a few GPS noise figures and a few degrees (the specific force is averaged over the
+    # first GPS interval while the helicopter manoeuvres).
+    cal = ds.gps_calib
+    assert np.linalg.norm(init.x[0:3] - p[0]) < 4.0 * cal.position_noise_std * np.sqrt(3)
+    assert np.linalg.norm(init.x[3:6] - v[0]) < 4.0 * cal.velocity_noise_std * np.sqrt(3) + 0.05
+    assert np.all(np.abs(init.x[0:3] - p[0]) < 3.0 * np.sqrt(np.diag(init.P)[0:3]))
+    assert np.degrees(np.linalg.norm(quat_box_minus(init.x[6:10], q[0]))) < 4.0
+    # The covariance admits the error it starts with (3σ per attitude axis).
+    err = quat_box_minus(init.x[6:10], q[0])
+    assert np.all(np.abs(err) < 3.0 * np.sqrt(np.diag(init.P)[6:9]))
+    # A static start refuses this data: the helicopter is flying.
+    with pytest.raises(InitialisationError, match="not static"):
+        initialise(ds, BIASED, InitOptions(mode="static"))
+
+
+def test_in_flight_gps_start_tracks_like_a_ground_truth_start(village_flight) -> None:
+    from svains.evaluation.run import run_method
+    from svains.navigation.options import RunOptions
+    from svains.navigation.report import interpolate_groundtruth
+
+    rmse = {}
+    for mode in ("groundtruth", "gps"):
+        res = run_method(village_flight, "ins", RunOptions(init=InitOptions(mode=mode)))
+        late = res.t_ns >= res.t_ns[0] + 10e9  # after the start-up transient
+        inside, p, _, _ = interpolate_groundtruth(village_flight.groundtruth, res.t_ns[late])
+        err = res.x[late][inside, 0:3] - p
+        rmse[mode] = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
+    # Once the GPS start has converged it tracks as well as a start from the true state.
+    assert rmse["gps"] < 1.3 * rmse["groundtruth"] + 0.1, rmse
+
+
+def test_gps_start_without_gps_is_refused() -> None:
+    ds, _ = static_dataset()
+    with pytest.raises(InitialisationError, match="needs a GPS stream"):
+        initialise(ds, BIASED, InitOptions(mode="gps"))

@@ -88,7 +88,7 @@ def compare(
         typer.Option("--rotation", help="Vision motion model: linear (paper eq. 18), exp or imu."),
     ] = "imu",
     init: Annotated[
-        str, typer.Option("--init", help="Initialisation: static or groundtruth.")
+        str, typer.Option("--init", help="static, gps (in flight) or groundtruth.")
     ] = "groundtruth",
     gps: Annotated[bool, typer.Option("--gps/--no-gps", help="Fuse GPS when present.")] = True,
     mag: Annotated[bool, typer.Option("--mag/--no-mag", help="Fuse magnetometer.")] = True,

@@ -25,7 +25,9 @@ def run(
     model: Annotated[
         str, typer.Option("--model", help="paper (eq. 14 state) or biased (+ IMU biases).")
     ] = "biased",
-    init: Annotated[str, typer.Option("--init", help="static or groundtruth.")] = "static",
+    init: Annotated[
+        str, typer.Option("--init", help="static, gps (in flight) or groundtruth.")
+    ] = "static",
     gps: Annotated[bool, typer.Option("--gps/--no-gps", help="Fuse GPS when present.")] = True,
     mag: Annotated[bool, typer.Option("--mag/--no-mag", help="Fuse magnetometer.")] = True,
     sonar: Annotated[bool, typer.Option("--sonar/--no-sonar", help="Fuse sonar.")] = True,
@@ -63,8 +65,8 @@ def run(
     console = Console()
     if model not in ("paper", "biased"):
         raise typer.BadParameter(f"--model must be paper or biased, got {model!r}")
-    if init not in ("static", "groundtruth"):
-        raise typer.BadParameter(f"--init must be static or groundtruth, got {init!r}")
+    if init not in ("static", "gps", "groundtruth"):
+        raise typer.BadParameter(f"--init must be static, gps or groundtruth, got {init!r}")
     try:
         source = {None: "auto", True: "features", False: "images"}[features]
         settings = {"rotation": rotation, **parse_settings(setting)}

@@ -1,4 +1,5 @@
-"""Initial state and covariance: from a static IMU interval or from ground truth."""
+"""Initial state and covariance: from a static IMU interval, in flight from GPS (+ magnetometer),
+or from ground truth."""
 
 from __future__ import annotations
 
@@ -79,7 +80,9 @@ def initialise(
         return _from_groundtruth(dataset, layout, options, t_start_ns)
     if options.mode == "static":
         return _from_static(dataset, layout, options)
-    raise InitialisationError(f"unknown init mode {options.mode!r} (static|groundtruth)")
+    if options.mode == "gps":
+        return _from_gps(dataset, layout, options)
+    raise InitialisationError(f"unknown init mode {options.mode!r} (static|gps|groundtruth)")
 
 
 def _imu_R_B_S(dataset: Dataset) -> F64:
@@ -219,3 +222,66 @@ def _from_groundtruth(
         ],
     )
     return InitialState(t0, x, P0, {"mode": "groundtruth"})
+
+
+def _from_gps(dataset: Dataset, layout: StateLayout, o: InitOptions) -> InitialState:
+    """In-flight start (no static interval needed): position and velocity from the first GPS
+    fixes; roll and pitch from the mean specific force over the first GPS interval against the
+    acceleration the GPS velocities show (``f_B = R^T (a_W - g_W)``); heading from the
+    magnetometer (TRIAD on that same vector), else arbitrary with ``yaw_std_unknown``. Biases
+    start at zero with their prior standard deviations."""
+    imu, gps = dataset.imu, dataset.gps
+    assert imu is not None
+    if gps is None or dataset.gps_calib is None or len(gps.t_ns) < 2:
+        raise InitialisationError(
+            f"{dataset.name}: --init gps needs a GPS stream with at least 2 fixes and its "
+            "calibration"
+        )
+    ta, tb = int(gps.t_ns[0]), int(gps.t_ns[1])
+    k = max(2, int(np.searchsorted(imu.t_ns, ta)))
+    win = (imu.t_ns >= ta) & (imu.t_ns <= tb)
+    if k >= len(imu.t_ns) - 2 or win.sum() < 3:
+        raise InitialisationError("fewer than 3 IMU samples between the first two GPS fixes")
+    t0 = int(imu.t_ns[k])
+    R_B_S = _imu_R_B_S(dataset)
+    f_B = (imu.accel_B[win] @ R_B_S.T).mean(axis=0)
+    g_W = np.asarray(dataset.gravity_W, dtype=float)
+    a_W = (gps.v_W_G[1] - gps.v_W_G[0]) / ((tb - ta) * 1e-9)
+    f_W = a_W - g_W  # the specific force the GPS implies, world frame
+    info: dict[str, object] = {"mode": "gps", "gps_acceleration_W": a_W.tolist()}
+    yaw_std = o.yaw_std_unknown
+    mag = dataset.mag
+    mag_sel = None if mag is None else (mag.t_ns >= ta) & (mag.t_ns <= tb)
+    if mag is not None and dataset.mag_calib is not None and mag_sel is not None and mag_sel.any():
+        m_B = dataset.mag_calib.T_B_S[:3, :3] @ mag.m_S[mag_sel].mean(axis=0)
+        R_W_B = _triad(f_B, m_B, f_W, np.asarray(dataset.mag_calib.m_W, dtype=float))
+        yaw_std = o.yaw_std
+        info["heading"] = "magnetometer"
+    else:
+        R_W_B = _align_up(f_B, f_W / np.linalg.norm(f_W))
+        info["heading"] = "none (arbitrary yaw)"
+        log.warning("no magnetometer at the start: heading starts arbitrary")
+    x = np.zeros(layout.nx)
+    x[Q] = quat_normalize(rotmat_to_quat(R_W_B))
+    # Position and velocity of the body at t0 from the first fix (t0 is within one IMU period).
+    x[P] = gps.p_W_G[0] + gps.v_W_G[0] * (t0 - ta) * 1e-9 - R_W_B @ dataset.gps_calib.p_B_G
+    x[V] = gps.v_W_G[0]
+    gyro_B = imu.gyro_B[max(0, k - 2) : k + 1] @ R_B_S.T
+    x[W] = gyro_B[-1] if layout.biased else stencil_consistent_rate(gyro_B, len(gyro_B) - 1)
+    pos_std = max(o.position_std, 3.0 * dataset.gps_calib.position_noise_std)
+    vel_std = max(o.velocity_std, 3.0 * dataset.gps_calib.velocity_noise_std)
+    # Roll/pitch: the mean over a GPS interval hides the attitude changing inside it.
+    P0 = _covariance(
+        layout,
+        [
+            (DP, pos_std),
+            (DV, vel_std),
+            (DTH, np.array([o.flight_roll_pitch_std, o.flight_roll_pitch_std, yaw_std])),
+            (DW, o.omega_std),
+            (DBG, o.gyro_bias_std),
+            (DBA, o.accel_bias_std),
+        ],
+    )
+    up_W = -g_W / np.linalg.norm(g_W)
+    P0[DTH, DTH] = R_W_B.T @ P0[DTH, DTH] @ R_W_B if _is_z_vertical(up_W) else P0[DTH, DTH]
+    return InitialState(t0, x, P0, info)

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 ModelName = Literal["paper", "biased"]
-InitMode = Literal["static", "groundtruth"]
+InitMode = Literal["static", "gps", "groundtruth"]
 
 
 @dataclass(frozen=True)
@@ -49,7 +49,9 @@ class NoiseOptions:
 
 @dataclass(frozen=True)
 class InitOptions:
-    """Initialisation: ``mode`` static (gravity, gyro mean, magnetometer heading) or groundtruth.
+    """Initialisation: ``mode`` static (gravity, gyro mean, magnetometer heading), gps (in
+    flight: GPS position, velocity and acceleration, specific force, magnetometer heading;
+    ``flight_roll_pitch_std`` then) or groundtruth.
 
     The static interval is the first ``static_s`` seconds. Rotors make a resting vehicle's IMU
     vibrate (EuRoC: 0.3 m/s², 0.08 rad/s sample std), so "static" is tested on the means of
@@ -64,6 +66,7 @@ class InitOptions:
     position_std: float = 0.1  # m
     velocity_std: float = 0.05  # m/s
     roll_pitch_std: float = 0.02  # rad
+    flight_roll_pitch_std: float = 0.05  # rad (in-flight start from GPS)
     yaw_std: float = 0.1  # rad (with magnetometer or ground truth)
     yaw_std_unknown: float = 0.5  # rad (no heading source)
     omega_std: float = 0.01  # rad/s
