@@ -38,6 +38,13 @@ def align_posyaw(p_est: ArrayLike, p_ref: ArrayLike, up_W: ArrayLike = (0.0, 0.0
         raise ConfigError(f"posyaw alignment needs two (N, 3) arrays, got {a.shape}, {b.shape}")
     if a.shape[0] < 2:
         raise ConfigError("posyaw alignment needs at least 2 matched poses")
+    u, sin_term, cos_term, mu_a, mu_b = _yaw_terms(a, b, up_W)
+    return _yaw_transform(u, sin_term, cos_term, mu_a, mu_b)
+
+
+def _yaw_terms(a: F64, b: F64, up_W: ArrayLike) -> tuple[F64, float, float, F64, F64]:
+    """Unit ``up_W``, the sine and cosine sums of the positions-only yaw fit (see
+    :func:`align_posyaw`) and the two centroids, for points ``a`` (estimate), ``b`` (N, 3)."""
     u = np.asarray(up_W, dtype=float)
     u = u / np.linalg.norm(u)
     mu_a, mu_b = a.mean(axis=0), b.mean(axis=0)
@@ -45,9 +52,13 @@ def align_posyaw(p_est: ArrayLike, p_ref: ArrayLike, up_W: ArrayLike = (0.0, 0.0
     a_perp = ac - np.outer(ac @ u, u)
     b_perp = bc - np.outer(bc @ u, u)
     sin_term = float(np.sum(np.cross(a_perp, b_perp) @ u))
-    cos_term = float(np.sum(a_perp * b_perp))
-    psi = np.arctan2(sin_term, cos_term)
-    R = rotation_about_axis(u, psi)
+    return u, sin_term, float(np.sum(a_perp * b_perp)), mu_a, mu_b
+
+
+def _yaw_transform(u: F64, sin_term: float, cos_term: float, mu_a: F64, mu_b: F64) -> F64:
+    """4x4 transform: rotation about ``u`` by ``atan2(sin_term, cos_term)``, then the
+    translation taking the rotated centroid ``mu_a`` onto ``mu_b``."""
+    R = rotation_about_axis(u, np.arctan2(sin_term, cos_term))
     T = np.eye(4)
     T[:3, :3] = R
     T[:3, 3] = mu_b - R @ mu_a
@@ -84,19 +95,10 @@ def align_posyaw_poses(
         raise ConfigError(f"posyaw alignment needs (N, 3, 3) rotations, got {Ra.shape}, {Rb.shape}")
     if a.shape[0] < 1:
         raise ConfigError("posyaw alignment needs at least 1 matched pose")
-    u = np.asarray(up_W, dtype=float)
-    u = u / np.linalg.norm(u)
-    mu_a, mu_b = a.mean(axis=0), b.mean(axis=0)
-    ac, bc = a - mu_a, b - mu_b
-    a_perp = ac - np.outer(ac @ u, u)
-    b_perp = bc - np.outer(bc @ u, u)
+    u, sin_term, cos_term, mu_a, mu_b = _yaw_terms(a, b, up_W)
     K = skew(u)
     M = np.einsum("nij,nkj->ik", Ra, Rb)
     w = lever_m**2
-    sin_term = float(np.sum(np.cross(a_perp, b_perp) @ u)) + w * float(np.trace(K @ M))
-    cos_term = float(np.sum(a_perp * b_perp)) - w * float(np.trace(K @ K @ M))
-    R = rotation_about_axis(u, np.arctan2(sin_term, cos_term))
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = mu_b - R @ mu_a
-    return T
+    sin_term += w * float(np.trace(K @ M))
+    cos_term -= w * float(np.trace(K @ K @ M))
+    return _yaw_transform(u, sin_term, cos_term, mu_a, mu_b)
