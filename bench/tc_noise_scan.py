@@ -2,8 +2,10 @@
 
 Per seed: a 60 s GPS-denied, magnetometer-free village flight (feature-level simulation, stereo
 5 Hz, as ``bench/paper_ordering.py``), then ``3d`` with the default vision options and with
-``pixel_noise_scale`` 1.0 / 1.4, all features instead of ``max_features=120``, and both. Prints
-ATE (posyaw) m / final error % of path / mean NEES (9 dof) per variant.
+``pixel_noise_scale`` 1.0 / 1.4, all features instead of ``max_features=120``, both, and (all
+features) the inter-frame gyro noise modelled as a feature-correlated term instead of a
+per-frame gyro-bias walk, or not modelled. Prints ATE (posyaw) m / final error % of path / mean
+NEES (9 dof) per variant.
 
     python bench/tc_noise_scan.py [SEED ...]   (default seeds 0 1 2)
 """
@@ -27,6 +29,10 @@ VARIANTS: dict[str, dict[str, object]] = {
     "scale1.4": {"pixel_noise_scale": 1.4},
     "all_feats": {"max_features": None},
     "scale1.4_all": {"pixel_noise_scale": 1.4, "max_features": None},
+    # The gyro noise integrated between frames, shared by all features of a frame: modelled as a
+    # feature-correlated noise term instead of the per-frame bias walk, or not at all.
+    "G_term_all": {"max_features": None, "frame_gyro_walk": False},
+    "no_imu_noise_all": {"max_features": None, "frame_gyro_walk": False, "imu_noise": False},
 }
 
 
