@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 TESTSTAMP := $(VENV)/.installed-test
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test lint bench elas clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -28,6 +28,12 @@ test: $(TESTSTAMP)
 
 bench: $(TESTSTAMP)
 	$(BIN)/python bench/run_all.py
+
+# Optional: the paper's ELAS dense disparity (pyelas, GPL-3). Its build needs numpy's headers,
+# which a plain `pip install pyelas` does not find.
+elas: $(STAMP)
+	CFLAGS="-I$$($(BIN)/python -c 'import numpy; print(numpy.get_include())')" \
+		$(BIN)/python -m pip install --quiet --no-build-isolation pyelas
 
 clean:
 	rm -rf $(VENV) demo_out .pytest_cache
