@@ -23,7 +23,10 @@ _DAMPING = 1e-9
 
 
 @njit(cache=True, nogil=True)
-def _accumulate(R, t, P, L, Rr, W, dvar, use_dvar, f, cu, cv, b, A, g):  # type: ignore[no-untyped-def]
+def _accumulate(
+    R: F64, t: F64, P: F64, L: F64, Rr: F64, W: F64, dvar: F64, use_dvar: bool, f: float,
+    cu: float, cv: float, b: float, A: F64, g: F64,
+) -> float:
     """Normal matrix ``A`` (6, 6) and gradient ``g`` (6,) (both overwritten) of one problem:
     points ``P`` (M, 3), pixels ``L``/``Rr`` (M, 2), weights ``W`` (M,), depth variance over
     pixel variance ``dvar`` (M,) (used if ``use_dvar``). Returns the weighted squared error."""
@@ -114,7 +117,7 @@ def _accumulate(R, t, P, L, Rr, W, dvar, use_dvar, f, cu, cv, b, A, g):  # type:
 
 
 @njit(cache=True, nogil=True)
-def _solve6(A, g, delta):  # type: ignore[no-untyped-def]
+def _solve6(A: F64, g: F64, delta: F64) -> bool:
     """``delta = -(A + εI)^-1 g`` by Cholesky; False (and delta 0) if A is not positive definite."""
     Lc = np.zeros((6, 6))
     for i in range(6):
@@ -144,7 +147,7 @@ def _solve6(A, g, delta):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def _rotate_left(R, w0, w1, w2):  # type: ignore[no-untyped-def]
+def _rotate_left(R: F64, w0: float, w1: float, w2: float) -> None:
     """``R <- Exp(w) R`` in place (Rodrigues; series below 1e-4 rad)."""
     th2 = w0 * w0 + w1 * w1 + w2 * w2
     if th2 < 1e-8:
@@ -173,7 +176,10 @@ def _rotate_left(R, w0, w1, w2):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def gauss_newton_batch(R, t, P, L, Rr, W, dvar, use_dvar, f, cu, cv, b, iterations, tol):  # type: ignore[no-untyped-def]
+def gauss_newton_batch(
+    R: F64, t: F64, P: F64, L: F64, Rr: F64, W: F64, dvar: F64, use_dvar: bool, f: float,
+    cu: float, cv: float, b: float, iterations: int, tol: float,
+) -> None:
     """Refine H motions ``R`` (H, 3, 3), ``t`` (H, 3) in place, problem h on points ``P[h]``
     (M, 3), pixels ``L[h]``/``Rr[h]`` (M, 2), weights ``W[h]`` (M,), depth variances
     ``dvar[h]`` (M,). Each stops once its update is below ``tol`` (rad, m)."""
@@ -198,7 +204,10 @@ def gauss_newton_batch(R, t, P, L, Rr, W, dvar, use_dvar, f, cu, cv, b, iteratio
 
 
 @njit(cache=True, nogil=True)
-def normal_equations(R, t, P, L, Rr, W, dvar, use_dvar, f, cu, cv, b):  # type: ignore[no-untyped-def]
+def normal_equations(
+    R: F64, t: F64, P: F64, L: F64, Rr: F64, W: F64, dvar: F64, use_dvar: bool, f: float,
+    cu: float, cv: float, b: float,
+) -> tuple[F64, F64, float]:
     """Normal matrix (6, 6), gradient (6,) and weighted squared error of one problem (tests)."""
     A = np.zeros((6, 6))
     g = np.zeros(6)
@@ -207,7 +216,10 @@ def normal_equations(R, t, P, L, Rr, W, dvar, use_dvar, f, cu, cv, b):  # type: 
 
 
 @njit(cache=True, nogil=True)
-def score_batch(R, t, P, L, Rr, f, cu, cv, b, inlier_px):  # type: ignore[no-untyped-def]
+def score_batch(
+    R: F64, t: F64, P: F64, L: F64, Rr: F64, f: float, cu: float, cv: float, b: float,
+    inlier_px: float,
+) -> tuple[F64, NDArray[np.bool_]]:
     """RANSAC score (H,) and inlier mask (H, M) of H motions on shared features ``P`` (M, 3),
     ``L``/``Rr`` (M, 2): inlier count minus a small penalty growing with the inliers' errors
     (the larger of the left and right pixel errors; ties go to the tighter fit)."""
@@ -239,7 +251,7 @@ def score_batch(R, t, P, L, Rr, f, cu, cv, b, inlier_px):  # type: ignore[no-unt
 
 
 @njit(cache=True, nogil=True)
-def align_batch(P, C, R, t):  # type: ignore[no-untyped-def]
+def align_batch(P: F64, C: F64, R: F64, t: F64) -> None:
     """Rigid alignment ``C ≈ R P + t`` of H point sets ``P``/``C`` (H, M, 3) into ``R`` (H, 3, 3),
     ``t`` (H, 3) (least squares; Horn's unit-quaternion method). The quaternion is the dominant
     eigenvector of Horn's 4x4 matrix, found by repeated squaring of the matrix shifted to be
