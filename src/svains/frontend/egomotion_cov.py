@@ -119,6 +119,48 @@ def _truncated_sigma2(e2: F64, Z: F64, r: F64, gate_px: float, s2: float) -> flo
     return s2
 
 
+def _stereo_residuals(q: F64, uvl: F64, uvr: F64, rig: RectifiedStereo) -> F64:
+    """Predicted minus measured pixels (M, 4) ``(u_l, v_l, u_r, v_r)`` of moved points ``q``
+    (M, 3) in C_k against the rectified pixels ``uvl``/``uvr`` (M, 2)."""
+    fz = rig.f / q[:, 2]
+    r = np.empty((q.shape[0], 4))
+    r[:, 0] = fz * q[:, 0] + rig.cu - uvl[:, 0]
+    r[:, 1] = r[:, 3] = fz * q[:, 1] + rig.cv
+    r[:, 1] -= uvl[:, 1]
+    r[:, 3] -= uvr[:, 1]
+    r[:, 2] = fz * (q[:, 0] - rig.baseline) + rig.cu - uvr[:, 0]
+    return r
+
+
+def _projection_jacobian(q: F64, f: float, b: float) -> F64:
+    """d (u_l, v_l, u_r, v_r) / d q (M, 4, 3) of the stereo projection at points ``q`` (M, 3)."""
+    x, y, z = q[:, 0], q[:, 1], q[:, 2]
+    fz = f / z
+    P = np.zeros((q.shape[0], 4, 3))
+    P[:, 0, 0] = P[:, 2, 0] = P[:, 1, 1] = P[:, 3, 1] = fz
+    P[:, 0, 2] = -fz * x / z
+    P[:, 1, 2] = P[:, 3, 2] = -fz * y / z
+    P[:, 2, 2] = -fz * (x - b) / z
+    return P
+
+
+def _previous_pixel_factor(PR: F64, p: F64, f: float, b: float) -> tuple[F64, F64]:
+    """``G`` (M, 4, 3): residual change per pixel (u_l, v_l, u_r) at k-1 through the
+    triangulation (eq. 10), from ``PR`` = d residual / d p_Ckm1 (M, 4, 3) and the points ``p``
+    (M, 3); also ``PR p`` (M, 4) (the residual change along each point's ray, times its depth).
+
+    d p/d u_r = p z/(f b) (along the ray), d p/d u_l = (z/f, 0, 0) - p z/(f b),
+    d p/d v_l = (0, z/f, 0)."""
+    zp = p[:, 2]
+    ray = np.einsum("mkj,mj->mk", PR, p)
+    a = ray * (zp / (f * b))[:, None]  # residual per px of u_r at k-1
+    G = np.empty((p.shape[0], 4, 3))
+    G[:, :, 0] = PR[..., 0] * (zp / f)[:, None] - a
+    G[:, :, 1] = PR[..., 1] * (zp / f)[:, None]
+    G[:, :, 2] = a
+    return G, ray
+
+
 def egomotion_covariance(
     R: F64, t: F64, p_prev: F64, uv_left: F64, uv_right: F64, rig: RectifiedStereo,
     pixel_sigma_px: float, *, robust: bool = False, inflation: float = 1.0,
@@ -148,24 +190,16 @@ def egomotion_covariance(
     if estimator_depth_var_px2 is not None:
         s_e = np.asarray(estimator_depth_var_px2, dtype=float).reshape(-1)
     f, b = rig.f, rig.baseline
-    Rp = p @ R.T  # rotated points before translation (M, 3)
-    q = Rp + t
+    q = p @ R.T + t  # moved points in C_k (M, 3)
     ok = (p[:, 2] > _MIN_DEPTH_M) & (q[:, 2] > _MIN_DEPTH_M)
     ok &= np.isfinite(q).all(1) & np.isfinite(uvl).all(1) & np.isfinite(uvr).all(1)
     if ok.sum() < 3:
         return np.diag(np.full(6, np.inf))
     if not ok.all():
-        p, Rp, q, uvl, uvr = p[ok], Rp[ok], q[ok], uvl[ok], uvr[ok]
+        p, q, uvl, uvr = p[ok], q[ok], uvl[ok], uvr[ok]
         s_e = None if s_e is None else s_e[ok]
     m = p.shape[0]
-    x, y, z = q[:, 0], q[:, 1], q[:, 2]
-    fz = f / z
-    # Projection Jacobian P (M, 4, 3) at k: rows left u, left v, right u, right v.
-    P = np.zeros((m, 4, 3))
-    P[:, 0, 0] = P[:, 2, 0] = P[:, 1, 1] = P[:, 3, 1] = fz
-    P[:, 0, 2] = -fz * x / z
-    P[:, 1, 2] = P[:, 3, 2] = -fz * y / z
-    P[:, 2, 2] = -fz * (x - b) / z
+    P = _projection_jacobian(q, f, b)  # (M, 4, 3) at k: rows left u, left v, right u, right v
     PR = (P.reshape(-1, 3) @ R).reshape(m, 4, 3)  # d residual / d p_prev, one BLAS call
     # Motion Jacobian (local): q = R Exp(δθ) p + t + δt, dq/dδθ = -R [p]x, so each row of PR
     # becomes (row x p); written out (np.cross on 3-vectors is slow).
@@ -176,16 +210,8 @@ def egomotion_covariance(
     J[..., 1] = a0 * p2 - a2 * p0
     J[..., 2] = a1 * p0 - a0 * p1
     J[..., 3:] = P
-    # Triangulation Jacobian (eq. 10) in terms of the point, columns (u_l, v_l, u_r) at k-1:
-    # d p/d u_r = p z/(f b) (along the ray), d p/d u_l = (z/f, 0, 0) - p z/(f b),
-    # d p/d v_l = (0, z/f, 0).
+    G, ray = _previous_pixel_factor(PR, p, f, b)  # k-1 pixels through eq. 10
     zp = p[:, 2]
-    ray = a0 * p0 + a1 * p1 + a2 * p2  # PR p (M, 4)
-    a = ray * (zp / (f * b))[:, None]  # residual per px of u_r at k-1
-    G = np.empty((m, 4, 3))
-    G[:, :, 0] = a0 * (zp / f)[:, None] - a
-    G[:, :, 1] = a1 * (zp / f)[:, None]
-    G[:, :, 2] = a
     Gt = np.swapaxes(G, 1, 2)
     # The estimator's weights: identity minus its rank-one depth term (Sherman-Morrison) on the
     # residual per metre of depth, PR p / z.
@@ -200,14 +226,8 @@ def egomotion_covariance(
     if robust:
         # On at most _ROBUST_FEATURES features spread over the set: a median needs no more.
         sub = np.linspace(0, m - 1, min(m, _ROBUST_FEATURES)).astype(np.int64)
-        Gs, qs = G[sub], q[sub]
-        fs = fz[sub]
-        r = np.empty((sub.size, 4))
-        r[:, 0] = fs * qs[:, 0] + rig.cu - uvl[sub, 0]
-        r[:, 1] = r[:, 3] = fs * qs[:, 1] + rig.cv
-        r[:, 1] -= uvl[sub, 1]
-        r[:, 3] -= uvr[sub, 1]
-        r[:, 2] = fs * (qs[:, 0] - b) + rig.cu - uvr[sub, 0]
+        Gs = G[sub]
+        r = _stereo_residuals(q[sub], uvl[sub], uvr[sub], rig)
         # rᵀ S⁻¹ r with S⁻¹ = I - G (I + GᵀG)⁻¹ Gᵀ (Woodbury: a 3x3 inverse, not a 4x4 one).
         Gst = np.swapaxes(Gs, 1, 2)
         yv = (Gst @ r[..., None])[..., 0]
@@ -255,23 +275,15 @@ def whitened_residuals(
     whitened by the four-pixel noise model for unit pixel noise (same inputs as
     ``egomotion_covariance``; NaN for points behind a camera). At the true motion its median over
     features divided by the chi-square(4) median (3.357) estimates the pixel variance σ²."""
+    R = np.asarray(R, dtype=float)
     p = np.asarray(p_prev, dtype=float).reshape(-1, 3)
-    q = p @ np.asarray(R, dtype=float).T + np.asarray(t, dtype=float)
-    f, b = rig.f, rig.baseline
+    q = p @ R.T + np.asarray(t, dtype=float)
+    # Points behind either camera: NaN depth, so NaN rows below.
+    q = np.where(((q[:, 2] > _MIN_DEPTH_M) & (p[:, 2] > _MIN_DEPTH_M))[:, None], q, np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
-        fz = f / np.where((q[:, 2] > _MIN_DEPTH_M) & (p[:, 2] > _MIN_DEPTH_M), q[:, 2], np.nan)
-        x, y, z = q[:, 0], q[:, 1], q[:, 2]
-        r = np.stack([fz * x + rig.cu - uv_left[:, 0], fz * y + rig.cv - uv_left[:, 1],
-                      fz * (x - b) + rig.cu - uv_right[:, 0], fz * y + rig.cv - uv_right[:, 1]], 1)
-        P = np.zeros((p.shape[0], 4, 3))
-        P[:, 0, 0] = P[:, 2, 0] = P[:, 1, 1] = P[:, 3, 1] = fz
-        P[:, 0, 2] = -fz * x / z
-        P[:, 1, 2] = P[:, 3, 2] = -fz * y / z
-        P[:, 2, 2] = -fz * (x - b) / z
-        PR = P @ R
-        zp = p[:, 2]
-        a = (PR @ (p * (zp / (f * b))[:, None])[..., None])[..., 0]
-        G = np.stack([PR[:, :, 0] * (zp / f)[:, None] - a, PR[:, :, 1] * (zp / f)[:, None], a], 2)
+        r = _stereo_residuals(q, np.asarray(uv_left, float), np.asarray(uv_right, float), rig)
+        G, _ = _previous_pixel_factor(_projection_jacobian(q, rig.f, rig.baseline) @ R, p,
+                                      rig.f, rig.baseline)  # fmt: skip
         S = G @ np.swapaxes(G, 1, 2) + np.eye(4)
         good = np.isfinite(S).all((1, 2)) & np.isfinite(r).all(1)
         out = np.full(p.shape[0], np.nan)
