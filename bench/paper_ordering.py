@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from svains.datasets.loader import load_dataset
+from svains.datasets.types import Dataset
 from svains.evaluation.compare import align_to_groundtruth, run_methods
 from svains.navigation.options import InitOptions, RunOptions
 from svains.sim import SimConfig, simulate
@@ -30,6 +31,24 @@ METHODS = ("vo", "lc", "tc", "3d")
 PAPER_PAIRS = (("3d", "tc"), ("tc", "lc"), ("lc", "vo"), ("3d", "vo"), ("tc", "vo"))
 
 
+def denied_village(seed: int, duration_s: float, rate_hz: float, root: Path) -> Dataset:
+    """A GPS-denied-ready village flight (feature-level simulation, no images) written to
+    ``root`` and loaded."""
+    cfg = SimConfig()
+    cfg = replace(cfg, seed=seed, duration_s=duration_s,
+                  camera=replace(cfg.camera, rate_hz=rate_hz, render_images=False))  # fmt: skip
+    return load_dataset(simulate(cfg, root))
+
+
+def denied_options(**method_options: object) -> RunOptions:
+    """Run options of the GPS-denied, magnetometer-free runs (ground-truth start, features0,
+    ``imu`` motion model), with extra vision ``method_options``."""
+    return RunOptions(
+        model="biased", init=InitOptions(mode="groundtruth"), use_gps=False, use_mag=False,
+        method_options={"source": "features", "rotation": "imu", **method_options},
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
@@ -37,20 +56,14 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=5.0, help="stereo rate [Hz]")
     args = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)
-    opts = RunOptions(
-        model="biased", init=InitOptions(mode="groundtruth"), use_gps=False, use_mag=False,
-        method_options={"source": "features", "rotation": "imu"},
-    )
+    opts = denied_options()
     ate = np.full((args.seeds, len(METHODS)), np.nan)
     final = np.full_like(ate, np.nan)
     vo_se3 = np.full(args.seeds, np.nan)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(args.seeds):
-            cfg = SimConfig()
-            cfg = replace(cfg, seed=seed, duration_s=args.duration,
-                          camera=replace(cfg.camera, rate_hz=args.rate, render_images=False))
-            ds = load_dataset(simulate(cfg, Path(tmp) / f"s{seed}"))
+            ds = denied_village(seed, args.duration, args.rate, Path(tmp) / f"s{seed}")
             res = run_methods(ds, METHODS, opts, None)
             for j, m in enumerate(METHODS):
                 ate[seed, j] = res[m].report.get("ate_m", np.nan)

@@ -15,13 +15,11 @@ from __future__ import annotations
 import logging
 import sys
 import tempfile
-from dataclasses import replace
 from pathlib import Path
 
-from svains.datasets.loader import load_dataset
+from paper_ordering import denied_options, denied_village  # same runs as the ordering bench
+
 from svains.evaluation.compare import run_methods
-from svains.navigation.options import InitOptions, RunOptions
-from svains.sim import SimConfig, simulate
 
 VARIANTS: dict[str, dict[str, object]] = {
     "default": {},
@@ -41,18 +39,10 @@ def main() -> int:
     seeds = [int(a) for a in sys.argv[1:]] or [0, 1, 2]
     with tempfile.TemporaryDirectory() as tmp:
         for seed in seeds:
-            cfg = SimConfig()
-            cfg = replace(cfg, seed=seed, duration_s=60.0,
-                          camera=replace(cfg.camera, rate_hz=5.0, render_images=False))
-            ds = load_dataset(simulate(cfg, Path(tmp) / f"s{seed}"))
+            ds = denied_village(seed, 60.0, 5.0, Path(tmp) / f"s{seed}")
             row = []
             for name, extra in VARIANTS.items():
-                opts = RunOptions(
-                    model="biased", init=InitOptions(mode="groundtruth"), use_gps=False,
-                    use_mag=False,
-                    method_options={"source": "features", "rotation": "imu", **extra},
-                )
-                r = run_methods(ds, ("3d",), opts, None)["3d"].report
+                r = run_methods(ds, ("3d",), denied_options(**extra), None)["3d"].report
                 row.append(f"{name} {r['ate_m']:.3f}/{r['final_error_pct_of_path']:.2f}%/"
                            f"nees {r.get('nees_mean', float('nan')):.1f}")  # fmt: skip
             print(f"seed {seed}: " + " | ".join(row), flush=True)

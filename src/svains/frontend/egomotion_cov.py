@@ -122,14 +122,7 @@ def _truncated_sigma2(e2: F64, Z: F64, r: F64, gate_px: float, s2: float) -> flo
 def _stereo_residuals(q: F64, uvl: F64, uvr: F64, rig: RectifiedStereo) -> F64:
     """Predicted minus measured pixels (M, 4) ``(u_l, v_l, u_r, v_r)`` of moved points ``q``
     (M, 3) in C_k against the rectified pixels ``uvl``/``uvr`` (M, 2)."""
-    fz = rig.f / q[:, 2]
-    r = np.empty((q.shape[0], 4))
-    r[:, 0] = fz * q[:, 0] + rig.cu - uvl[:, 0]
-    r[:, 1] = r[:, 3] = fz * q[:, 1] + rig.cv
-    r[:, 1] -= uvl[:, 1]
-    r[:, 3] -= uvr[:, 1]
-    r[:, 2] = fz * (q[:, 0] - rig.baseline) + rig.cu - uvr[:, 0]
-    return r
+    return np.concatenate([rig.project(q) - uvl, rig.project_right(q) - uvr], axis=1)
 
 
 def _projection_jacobian(q: F64, f: float, b: float) -> F64:

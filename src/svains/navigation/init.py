@@ -154,20 +154,32 @@ def _from_static(dataset: Dataset, layout: StateLayout, o: InitOptions) -> Initi
     # starting it at the stencil-consistent gyro value minus the bias keeps it offset-free.
     k0 = min(2, len(gyro) - 1)
     x[W] = 0.0 if layout.biased else stencil_consistent_rate(gyro, k0) - bg
+    P0 = _levelled_covariance(layout, o, R_W_B, up_W, o.position_std, o.velocity_std,
+                              o.roll_pitch_std, yaw_std)  # fmt: skip
+    return InitialState(t0, x, P0, info)
+
+
+def _levelled_covariance(
+    layout: StateLayout, o: InitOptions, R_W_B: F64, up_W: F64, position_std: float,
+    velocity_std: float, roll_pitch_std: float, yaw_std: float,
+) -> F64:
+    """Start covariance of a start levelled from the specific force (static or in flight):
+    the given position/velocity std, the attitude std as (roll, pitch, yaw) about world axes
+    rotated to body axes (for a z-vertical world), rate and bias std from ``o``."""
     P0 = _covariance(
         layout,
         [
-            (DP, o.position_std),
-            (DV, o.velocity_std),
-            (DTH, np.array([o.roll_pitch_std, o.roll_pitch_std, yaw_std])),
+            (DP, position_std),
+            (DV, velocity_std),
+            (DTH, np.array([roll_pitch_std, roll_pitch_std, yaw_std])),
             (DW, o.omega_std),
             (DBG, o.gyro_bias_std),
             (DBA, o.accel_bias_std),
         ],
     )
-    # The attitude std above is (roll, pitch, yaw) about world axes: rotate it to body axes.
-    P0[DTH, DTH] = R_W_B.T @ P0[DTH, DTH] @ R_W_B if _is_z_vertical(up_W) else P0[DTH, DTH]
-    return InitialState(t0, x, P0, info)
+    if _is_z_vertical(up_W):
+        P0[DTH, DTH] = R_W_B.T @ P0[DTH, DTH] @ R_W_B
+    return P0
 
 
 def _is_z_vertical(up_W: F64) -> bool:
@@ -271,17 +283,6 @@ def _from_gps(dataset: Dataset, layout: StateLayout, o: InitOptions) -> InitialS
     pos_std = max(o.position_std, 3.0 * dataset.gps_calib.position_noise_std)
     vel_std = max(o.velocity_std, 3.0 * dataset.gps_calib.velocity_noise_std)
     # Roll/pitch: the mean over a GPS interval hides the attitude changing inside it.
-    P0 = _covariance(
-        layout,
-        [
-            (DP, pos_std),
-            (DV, vel_std),
-            (DTH, np.array([o.flight_roll_pitch_std, o.flight_roll_pitch_std, yaw_std])),
-            (DW, o.omega_std),
-            (DBG, o.gyro_bias_std),
-            (DBA, o.accel_bias_std),
-        ],
-    )
-    up_W = -g_W / np.linalg.norm(g_W)
-    P0[DTH, DTH] = R_W_B.T @ P0[DTH, DTH] @ R_W_B if _is_z_vertical(up_W) else P0[DTH, DTH]
+    P0 = _levelled_covariance(layout, o, R_W_B, -g_W / np.linalg.norm(g_W), pos_std, vel_std,
+                              o.flight_roll_pitch_std, yaw_std)  # fmt: skip
     return InitialState(t0, x, P0, info)
