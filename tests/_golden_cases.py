@@ -1,0 +1,107 @@
+"""Regression cases recorded from the pre-Navigator batch runner (``tests/golden/*.npz``).
+
+Each case is (data set, method, model, init mode, vision settings, duration). The data sets:
+EuRoC micro (real IMU, synthetic 5 Hz features along the ground truth, or its 95 real stereo
+pairs through the image front end) and a 30 s simulated village flight (features0 at 2 Hz, GPS,
+magnetometer, sonar), generated from a seed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+GOLDEN_DIR = Path(__file__).resolve().parent / "golden"
+EUROC_MICRO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "euroc_v101_micro"
+# Stored subsampling: x every X_STEP-th tick, P9 (upper triangle) every P_STEP-th tick.
+X_STEP, P_STEP = 3, 10
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    data: str  # "euroc_synth", "euroc_images" or "village"
+    method: str
+    model: str = "biased"
+    init: str = "static"
+    duration_s: float | None = None
+    vision: dict[str, Any] = field(default_factory=dict)
+
+
+CASES = [
+    Case("euroc_ins", "euroc_synth", "ins", duration_s=15.0),
+    Case("euroc_ins_paper", "euroc_synth", "ins", model="paper", duration_s=15.0),
+    Case("euroc_lc", "euroc_synth", "lc", duration_s=15.0),
+    Case("euroc_tc", "euroc_synth", "tc", duration_s=15.0),
+    Case("euroc_3d", "euroc_synth", "3d", duration_s=15.0),
+    Case("euroc_images_3d", "euroc_images", "3d", duration_s=4.4,
+         vision={"source": "images", "motion_prior": True}),
+    Case("village_ins", "village", "ins", init="groundtruth"),
+    Case("village_ins_gpsinit", "village", "ins", init="gps"),
+    Case("village_lc", "village", "lc", init="groundtruth"),
+    Case("village_tc", "village", "tc", init="groundtruth"),
+    Case("village_3d", "village", "3d", init="groundtruth"),
+    Case("village_3d_paper", "village", "3d", model="paper", init="groundtruth"),
+]  # fmt: skip
+
+
+def village_root(tmp: Path) -> Path:
+    """The 30 s village flight (seed 7, feature level, no images), simulated once into ``tmp``."""
+    from svains.sim.config import SimConfig
+    from svains.sim.simulate import simulate
+
+    root = tmp / "village30"
+    if not (root / "mav0").is_dir():
+        cfg = SimConfig(seed=7, duration_s=30.0)
+        cfg.camera.render_images = False
+        simulate(cfg, root)
+    return root
+
+
+def summarise(t_ns: Any, x: Any, P9: Any, report: dict[str, Any]) -> dict[str, np.ndarray]:
+    """The stored arrays of one run."""
+    iu = np.triu_indices(9)
+    return {
+        "t_ns": np.asarray(t_ns, np.int64),
+        "x": np.asarray(x)[::X_STEP],
+        "P9": np.asarray(P9)[::P_STEP][:, iu[0], iu[1]],
+        "counts": np.array(sorted(
+            (k, v["fused"], v["rejected"]) for k, v in report["measurements"].items()
+        ), dtype=object).astype(str),
+    }  # fmt: skip
+
+
+def load_case_dataset(case: Case, tmp: Path) -> Any:
+    """The case's data set (a ``Dataset``)."""
+    from svains.datasets import load_dataset
+
+    if case.data == "village":
+        return load_dataset(village_root(tmp))
+    ds = load_dataset(EUROC_MICRO)
+    if case.data == "euroc_synth":
+        from svains.navigation.vision_synthetic import with_synthetic_features
+
+        ds = with_synthetic_features(ds, rate_hz=5.0)
+    return ds
+
+
+def case_options(case: Case, ds: Any) -> Any:
+    """The run options of ``case`` as ``svains run`` builds them (vision: ``rotation=imu``)."""
+    from svains.navigation.options import InitOptions, RunOptions
+    from svains.navigation.vision import tune_run_options
+
+    mo = {"rotation": "imu", **case.vision} if case.method != "ins" else {}
+    opts = RunOptions(model=case.model, init=InitOptions(mode=case.init),  # type: ignore[arg-type]
+                      duration_s=case.duration_s, method_options=mo)
+    return tune_run_options(ds, case.method, opts)
+
+
+def run_case(case: Case, tmp: Path) -> Any:
+    """Run ``case`` through the library's run entry; returns its ``RunResult``."""
+    from svains.navigation.runner import run_method
+
+    ds = load_case_dataset(case, tmp)
+    return run_method(ds, case.method, case_options(case, ds))
