@@ -82,26 +82,26 @@ def load_case_dataset(case: Case, tmp: Path) -> Any:
         return load_dataset(village_root(tmp))
     ds = load_dataset(EUROC_MICRO)
     if case.data == "euroc_synth":
-        from svains.navigation.vision_synthetic import with_synthetic_features
+        from svains.replay.synthetic import with_synthetic_features
 
         ds = with_synthetic_features(ds, rate_hz=5.0)
     return ds
 
 
 def case_options(case: Case, ds: Any) -> Any:
-    """The run options of ``case`` as ``svains run`` builds them (vision: ``rotation=imu``)."""
-    from svains.navigation.options import InitOptions, RunOptions
-    from svains.navigation.vision import tune_run_options
+    """The run configuration of ``case`` as ``svains run`` builds it (resolved against ``ds``)."""
+    from svains.navigation.options import InitOptions, RunConfig, VisionOptions
+    from svains.replay import resolve_config
 
-    mo = {"rotation": "imu", **case.vision} if case.method != "ins" else {}
-    opts = RunOptions(model=case.model, init=InitOptions(mode=case.init),  # type: ignore[arg-type]
-                      duration_s=case.duration_s, method_options=mo)
-    return tune_run_options(ds, case.method, opts)
+    cfg = RunConfig(method=case.method, model=case.model,  # type: ignore[arg-type]
+                    init=InitOptions(mode=case.init),  # type: ignore[arg-type]
+                    duration_s=case.duration_s, vision=VisionOptions(**case.vision))
+    return resolve_config(ds, cfg)
 
 
 def run_case(case: Case, tmp: Path) -> Any:
-    """Run ``case`` through the library's run entry; returns its ``RunResult``."""
-    from svains.navigation.runner import run_method
+    """Replay ``case`` through the Navigator; returns its ``RunResult``."""
+    from svains.replay import replay
 
     ds = load_case_dataset(case, tmp)
-    return run_method(ds, case.method, case_options(case, ds))
+    return replay(ds, case_options(case, ds))

@@ -17,7 +17,7 @@ from svains.evaluation.compare import (
 )
 from svains.evaluation.figures import comparison_figures
 from svains.geometry.rotation import so3_exp
-from svains.navigation.runner import RunResult
+from svains.navigation.outputs import RunResult
 
 
 def _truth(n: int = 201) -> GroundTruth:

@@ -26,8 +26,8 @@ from svains.geometry.rotation import (
     rotmat_to_quat,
 )
 from svains.navigation.options import InitOptions, RunOptions
-from svains.navigation.report import interpolate_groundtruth, navigation_errors, nees_of
-from svains.navigation.runner import RunResult
+from svains.navigation.outputs import RunResult
+from svains.replay.groundtruth import interpolate_groundtruth, navigation_errors, nees_of
 
 UP = np.array([0.0, 0.0, 1.0])
 

@@ -84,7 +84,7 @@ def village_flight(tmp_path_factory: pytest.TempPathFactory):
 
 
 def test_in_flight_gps_start_matches_the_truth(village_flight) -> None:
-    from svains.navigation.report import interpolate_groundtruth
+    from svains.replay.groundtruth import interpolate_groundtruth
 
     ds = village_flight
     init = initialise(ds, BIASED, InitOptions(mode="gps"))
@@ -108,7 +108,7 @@ def test_in_flight_gps_start_matches_the_truth(village_flight) -> None:
 def test_in_flight_gps_start_tracks_like_a_ground_truth_start(village_flight) -> None:
     from svains.evaluation.run import run_method
     from svains.navigation.options import RunOptions
-    from svains.navigation.report import interpolate_groundtruth
+    from svains.replay.groundtruth import interpolate_groundtruth
 
     rmse = {}
     for mode in ("groundtruth", "gps"):

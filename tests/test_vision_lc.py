@@ -16,8 +16,8 @@ from svains.frontend.types import Egomotion, StereoTracks
 from svains.geometry.rotation import quat_to_rotmat, so3_exp, so3_log
 from svains.models.vision_imu import imu_increment
 from svains.models.vision_lc import egomotion_from_state_pair, predict_egomotion_lc
-from svains.navigation.report import interpolate_groundtruth
 from svains.navigation.vision import LcUpdater, VisionOptions
+from svains.replay.groundtruth import interpolate_groundtruth
 from svains.sim import SimConfig, simulate
 
 

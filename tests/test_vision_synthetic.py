@@ -8,7 +8,7 @@ from _vision_truth import make_rig
 from svains.datasets.types import GroundTruth
 from svains.geometry.rotation import quat_to_rotmat, rotmat_to_quat, so3_exp
 from svains.navigation.tracks import tracks_from_features
-from svains.navigation.vision_synthetic import room_landmarks, synthesize_features
+from svains.replay.synthetic import room_landmarks, synthesize_features
 
 RIG = make_rig()
 

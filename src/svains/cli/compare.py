@@ -52,7 +52,7 @@ def run_compare(
 
     ds = load_dataset(dataset)
     if synthetic_features_hz is not None:
-        from svains.navigation.vision_synthetic import with_synthetic_features
+        from svains.replay.synthetic import with_synthetic_features
 
         ds = with_synthetic_features(ds, rate_hz=synthetic_features_hz)
         console.print(f"simulated features0 at {synthetic_features_hz:g} Hz along the ground truth")

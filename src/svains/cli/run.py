@@ -73,7 +73,7 @@ def run(
         options = build_run_options(model, init, gps, mag, sonar, duration, source, settings)
         ds = load_dataset(dataset)
         if synthetic_features is not None:
-            from svains.navigation.vision_synthetic import with_synthetic_features
+            from svains.replay.synthetic import with_synthetic_features
 
             ds = with_synthetic_features(ds, rate_hz=synthetic_features)
             console.print(

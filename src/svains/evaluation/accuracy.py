@@ -24,7 +24,7 @@ from svains.errors import ConfigError, SvainsError
 from svains.evaluation.alignment import align_posyaw_poses
 from svains.evaluation.metrics import AteResult, ate
 from svains.geometry.rotation import quat_multiply, quat_to_rotmat, rotmat_to_quat
-from svains.navigation.report import interpolate_groundtruth, navigation_errors, nees_of
+from svains.replay.groundtruth import interpolate_groundtruth, navigation_errors, nees_of
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]

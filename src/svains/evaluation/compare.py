@@ -28,10 +28,11 @@ from svains.datasets.types import Dataset, GroundTruth
 from svains.errors import ConfigError
 from svains.evaluation.metrics import AteResult, ate
 from svains.evaluation.run import run_accuracy
-from svains.navigation.options import RunOptions
-from svains.navigation.report import interpolate_groundtruth
-from svains.navigation.runner import RunResult, run_method
-from svains.navigation.writers import write_outputs
+from svains.navigation.options import RunConfig
+from svains.navigation.outputs import RunResult
+from svains.replay import replay, resolve_config
+from svains.replay.groundtruth import interpolate_groundtruth
+from svains.replay.writers import write_outputs
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -142,7 +143,7 @@ def trajectory_metrics(
 def run_methods(
     ds: Dataset,
     methods: Sequence[str] = METHODS,
-    options: RunOptions | None = None,
+    options: RunConfig | None = None,
     out_dir: Path | None = None,
     progress: Callable[[str, float], None] | None = None,
 ) -> dict[str, RunResult]:
@@ -152,7 +153,7 @@ def run_methods(
     """
     from svains.errors import SvainsError
 
-    options = options or RunOptions()
+    options = options or RunConfig()
     results: dict[str, RunResult] = {}
     for m in methods:
         if m not in METHODS:
@@ -161,12 +162,7 @@ def run_methods(
         prog = None if progress is None else (lambda f, m=m: progress(m, f))
         t0 = time.perf_counter()
         try:
-            if m == "vo":
-                res = run_method(ds, m, options, None, prog)
-            else:
-                from svains.navigation.vision import tune_run_options
-
-                res = run_method(ds, m, tune_run_options(ds, m, options), None, prog)
+            res = replay(ds, resolve_config(ds, replace(options, method=m)), prog)
         except SvainsError as exc:
             log.error("%s failed: %s", m, exc)
             results[m] = RunResult(
@@ -237,6 +233,6 @@ def write_comparison(out_dir: Path, results: dict[str, RunResult], title: str) -
     return reports
 
 
-def with_method_options(options: RunOptions, **method_options: Any) -> RunOptions:
-    """``options`` with extra vision method options merged in."""
-    return replace(options, method_options={**options.method_options, **method_options})
+def with_vision_options(options: RunConfig, **vision: Any) -> RunConfig:
+    """``options`` with vision options replaced."""
+    return replace(options, vision=replace(options.vision, **vision))

@@ -20,8 +20,8 @@ from numpy.typing import NDArray
 
 from svains.datasets.types import Dataset
 from svains.evaluation.compare import align_to_groundtruth, gps_outages
-from svains.navigation.report import interpolate_groundtruth
-from svains.navigation.runner import RunResult
+from svains.navigation.outputs import RunResult
+from svains.replay.groundtruth import interpolate_groundtruth
 
 F64 = NDArray[np.float64]
 log = logging.getLogger(__name__)

@@ -1,13 +1,15 @@
 """One evaluated run (what ``svains run`` does): navigation, then accuracy, then output files.
 
-:func:`svains.navigation.runner.run_method` produces the estimates, covariances, timings and
-counters; this module adds the accuracy keys of ``report.json`` (:func:`run_accuracy`) and writes
+:func:`svains.replay.replay` (the data set fed through a ``svains.Navigator``) produces the
+estimates, covariances, timings and counters; this module adds the accuracy keys of
+``report.json`` (:func:`run_accuracy`) and writes
 ``trajectory.tum``, ``states.csv`` and ``report.json``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -15,10 +17,10 @@ import numpy as np
 
 from svains.datasets.types import Dataset
 from svains.evaluation.accuracy import accuracy_report, gps_outage_report
-from svains.navigation import runner
-from svains.navigation.options import RunOptions
-from svains.navigation.runner import RunResult
-from svains.navigation.writers import write_outputs
+from svains.navigation.options import RunConfig
+from svains.navigation.outputs import RunResult
+from svains.replay import replay, resolve_config
+from svains.replay.writers import write_outputs
 
 
 def errors_alignment_for(result: RunResult) -> str:
@@ -58,14 +60,21 @@ def run_accuracy(result: RunResult, dataset: Dataset) -> dict[str, Any]:
 
 def run_method(
     dataset: Dataset,
-    method: str = "ins",
-    options: RunOptions | None = None,
+    method: str | None = None,
+    options: RunConfig | None = None,
     out_dir: Path | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> RunResult:
-    """:func:`svains.navigation.runner.run_method` with the accuracy keys added to its report;
-    writes ``trajectory.tum``, ``states.csv`` and ``report.json`` into ``out_dir`` if given."""
-    result = runner.run_method(dataset, method, options, None, progress)
+    """Replay ``dataset`` through the estimator with ``options`` (a ``RunConfig``; ``method``,
+    when given, replaces ``options.method``), add the accuracy keys to the report; write
+    ``trajectory.tum``, ``states.csv`` and ``report.json`` (and the other output files) into
+    ``out_dir`` if given. The configuration is first resolved against the data set
+    (``svains.replay.resolve_config``)."""
+    config = options or RunConfig()
+    if method is not None and method != config.method:
+        config = replace(config, method=method)  # type: ignore[arg-type]
+    config = resolve_config(dataset, config)
+    result = replay(dataset, config, progress)
     result.report.update(run_accuracy(result, dataset))
     if out_dir is not None:
         write_outputs(Path(out_dir), result)

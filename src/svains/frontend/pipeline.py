@@ -23,7 +23,6 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.datasets.types import CameraCalib
 from svains.frontend.egomotion import estimate_egomotion
 from svains.frontend.features import detect_corners
 from svains.frontend.images import as_grey, texture_std
@@ -34,6 +33,7 @@ from svains.frontend.tracking import Pyramid, track_klt
 from svains.frontend.types import Egomotion, StereoTracks
 from svains.geometry.camera import RectifiedStereo
 from svains.geometry.rotation import so3_log
+from svains.sensors.types import CameraCalib
 
 F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]

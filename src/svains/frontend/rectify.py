@@ -18,9 +18,9 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from svains.datasets.types import CameraCalib
 from svains.errors import CalibrationError
 from svains.geometry.camera import RectifiedStereo
+from svains.sensors.types import CameraCalib
 
 F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]

@@ -52,7 +52,7 @@ VISION_METHOD_MODULES: dict[str, str] = {
     "tc": "svains.navigation.tc",
     "3d": "svains.navigation.threed",
     "lc": "svains.navigation.lc",
-    "vo": "svains.navigation.vo",
+    "vo": "svains.replay.vo",
 }
 
 

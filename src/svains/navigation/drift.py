@@ -12,7 +12,7 @@ from svains.models.state import BIASED, PAPER
 from svains.navigation.init import initialise
 from svains.navigation.ins import InsFilter
 from svains.navigation.options import FilterOptions, InitOptions, NoiseOptions
-from svains.navigation.report import interpolate_groundtruth, navigation_errors
+from svains.replay.groundtruth import interpolate_groundtruth, navigation_errors
 
 
 @dataclass(frozen=True)

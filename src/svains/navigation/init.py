@@ -1,5 +1,9 @@
 """Initial state and covariance: from a static IMU interval, in flight from GPS (+ magnetometer),
-or from ground truth."""
+or from ground truth.
+
+The functions read an ``InitData`` (the first IMU samples, magnetometer and GPS samples, the
+calibrations): the Navigator builds it from what it has received, a replay from a data set.
+"""
 
 from __future__ import annotations
 
@@ -9,12 +13,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.datasets.types import Dataset
 from svains.errors import InitialisationError
 from svains.geometry.rotation import quat_normalize, rotmat_to_quat
 from svains.models.imu import stencil_consistent_rate
 from svains.models.state import BA, BG, DBA, DBG, DP, DTH, DV, DW, P, Q, StateLayout, V, W
 from svains.navigation.options import InitOptions
+from svains.sensors.types import GpsCalib, GroundTruth, ImuCalib, MagCalib
 
 F64 = NDArray[np.float64]
 log = logging.getLogger(__name__)
@@ -28,6 +32,44 @@ class InitialState:
     x: F64
     P: F64
     info: dict[str, object] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ImuArrays:
+    """IMU samples ``t_ns`` (N,), ``gyro_B`` and ``accel_B`` (N, 3), in the sensor frame S
+    despite the names (the data sets' convention; ``ImuCalib.T_B_S`` rotates them)."""
+
+    t_ns: NDArray[np.int64]
+    gyro_B: F64
+    accel_B: F64
+
+
+@dataclass(frozen=True)
+class MagArrays:
+    t_ns: NDArray[np.int64]
+    m_S: F64
+
+
+@dataclass(frozen=True)
+class GpsArrays:
+    t_ns: NDArray[np.int64]
+    p_W_G: F64
+    v_W_G: F64
+
+
+@dataclass(frozen=True)
+class InitData:
+    """What an initialisation reads (the attribute names of a data set's streams)."""
+
+    name: str
+    gravity_W: tuple[float, float, float]
+    imu: ImuArrays | None
+    imu_calib: ImuCalib | None = None
+    mag: MagArrays | None = None
+    mag_calib: MagCalib | None = None
+    gps: GpsArrays | None = None
+    gps_calib: GpsCalib | None = None
+    groundtruth: GroundTruth | None = None
 
 
 def _triad(a_B: F64, b_B: F64, a_W: F64, b_W: F64) -> F64:
@@ -67,7 +109,7 @@ def _covariance(layout: StateLayout, stds: list[tuple[slice, object]]) -> F64:
 
 
 def initialise(
-    dataset: Dataset, layout: StateLayout, options: InitOptions, t_start_ns: int | None = None
+    dataset: InitData, layout: StateLayout, options: InitOptions, t_start_ns: int | None = None
 ) -> InitialState:
     """Initial state per ``options.mode``; ``InitialisationError`` when the data cannot give one.
 
@@ -85,11 +127,11 @@ def initialise(
     raise InitialisationError(f"unknown init mode {options.mode!r} (static|gps|groundtruth)")
 
 
-def _imu_R_B_S(dataset: Dataset) -> F64:
+def _imu_R_B_S(dataset: InitData) -> F64:
     return np.eye(3) if dataset.imu_calib is None else dataset.imu_calib.T_B_S[:3, :3]
 
 
-def _from_static(dataset: Dataset, layout: StateLayout, o: InitOptions) -> InitialState:
+def _from_static(dataset: InitData, layout: StateLayout, o: InitOptions) -> InitialState:
     imu = dataset.imu
     assert imu is not None
     # Start at the third sample so the stencil of eq. 3 has its history.
@@ -187,7 +229,7 @@ def _is_z_vertical(up_W: F64) -> bool:
 
 
 def _from_groundtruth(
-    dataset: Dataset, layout: StateLayout, o: InitOptions, t_start_ns: int | None = None
+    dataset: InitData, layout: StateLayout, o: InitOptions, t_start_ns: int | None = None
 ) -> InitialState:
     gt = dataset.groundtruth
     imu = dataset.imu
@@ -236,7 +278,7 @@ def _from_groundtruth(
     return InitialState(t0, x, P0, {"mode": "groundtruth"})
 
 
-def _from_gps(dataset: Dataset, layout: StateLayout, o: InitOptions) -> InitialState:
+def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> InitialState:
     """In-flight start (no static interval needed): position and velocity from the first GPS
     fixes; roll and pitch from the mean specific force over the first GPS interval against the
     acceleration the GPS velocities show (``f_B = R^T (a_W - g_W)``); heading from the

@@ -1,8 +1,9 @@
 """The inertial navigation filter: IMU propagation to any time, non-vision measurement updates.
 
-``InsFilter`` owns a ``UKF`` on the navigation manifold. ``propagate_to(t_ns)`` integrates the
-IMU exactly to ``t_ns`` (the IMU input at a time between two samples is linearly interpolated), in
-chunks of at most ``FilterOptions.max_predict_steps`` IMU steps per sigma-point draw.
+``InsFilter`` owns a ``UKF`` on the navigation manifold and reads the IMU from an ``ImuHistory``
+that grows as samples arrive. ``propagate_to(t_ns)`` integrates the IMU exactly to ``t_ns`` (the
+IMU input at a time between two samples is linearly interpolated), in chunks of at most
+``FilterOptions.max_predict_steps`` IMU steps per sigma-point draw.
 """
 
 from __future__ import annotations
@@ -13,7 +14,6 @@ from functools import partial
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.datasets.types import Dataset
 from svains.errors import ConfigError, FilterError
 from svains.filter.sigma_points import MerweScaledSigmaPoints
 from svains.filter.ukf import UKF, UpdateStats
@@ -22,7 +22,6 @@ from svains.models.imu import (
     ImuChunk,
     ImuModel,
     ImuNoise,
-    angular_acceleration,
     omega_white_variance,
     process_noise,
 )
@@ -32,8 +31,10 @@ from svains.models.sonar import sonar_range
 from svains.models.state import DW, StateLayout
 from svains.models.state import W as W_SLICE
 from svains.navigation.base import MeasurementBlock
+from svains.navigation.imu_history import ImuHistory
 from svains.navigation.init import InitialState
 from svains.navigation.options import FilterOptions, NoiseOptions
+from svains.sensors.types import GpsCalib, ImuCalib, MagCalib, Rig, SonarCalib
 
 F64 = NDArray[np.float64]
 
@@ -41,9 +42,8 @@ F64 = NDArray[np.float64]
 _DEFAULT_NOISE = ImuNoise(1.6968e-4, 1.9393e-5, 2.0e-3, 3.0e-3)
 
 
-def imu_noise(dataset: Dataset, layout: StateLayout, options: NoiseOptions) -> ImuNoise:
-    """Noise densities: the data set's calibration, overridden and scaled by ``options``."""
-    c = dataset.imu_calib
+def imu_noise(c: ImuCalib | None, layout: StateLayout, options: NoiseOptions) -> ImuNoise:
+    """Noise densities: the IMU calibration, overridden and scaled by ``options``."""
     base = (
         _DEFAULT_NOISE
         if c is None
@@ -71,37 +71,30 @@ class InsFilter:
 
     def __init__(
         self,
-        dataset: Dataset,
+        history: ImuHistory,
+        rig: Rig,
         layout: StateLayout,
         init: InitialState,
         filter_options: FilterOptions,
         noise_options: NoiseOptions,
     ) -> None:
-        imu = dataset.imu
-        if imu is None:
-            raise ConfigError("InsFilter needs an IMU stream")
+        """``history`` must hold the sample at ``init.t_ns``; it may grow afterwards."""
         if filter_options.max_predict_steps < 1:
             raise ConfigError("max_predict_steps must be >= 1")
-        T_B_S = np.eye(4) if dataset.imu_calib is None else dataset.imu_calib.T_B_S
-        R_B_S = T_B_S[:3, :3]
+        T_B_S = np.eye(4) if rig.imu is None else rig.imu.T_B_S
         self.layout = layout
-        self.dataset = dataset
+        self.history = history
         self.options = filter_options
-        self.t_imu = np.asarray(imu.t_ns, dtype=np.int64)
-        self._t_s = (self.t_imu - self.t_imu[0]) * 1e-9
-        self.gyro_B = imu.gyro_B @ R_B_S.T
-        self.accel_B = imu.accel_B @ R_B_S.T
-        self.alpha_B = angular_acceleration(self._t_s, self.gyro_B)
         if filter_options.propagation not in ("preintegrated", "exact"):
             raise ConfigError(f"unknown propagation {filter_options.propagation!r}")
         self.model = ImuModel(
             layout,
-            np.asarray(dataset.gravity_W, dtype=float),
+            np.asarray(rig.gravity_W, dtype=float),
             T_B_S[:3, 3],
             filter_options.propagation == "preintegrated",
         )
-        self.noise = imu_noise(dataset, layout, noise_options)
-        self._h_imu = float(np.median(np.diff(self._t_s))) if len(self._t_s) > 1 else 0.005
+        self.noise = imu_noise(rig.imu, layout, noise_options)
+        self._h_imu = float(rig.imu_period_s)
         points = MerweScaledSigmaPoints(
             layout.ndx, filter_options.alpha, filter_options.beta, filter_options.kappa
         )
@@ -127,10 +120,27 @@ class InsFilter:
         self._u = (self.gyro_B[k], self.accel_B[k], self.alpha_B[k])
         self._q_cache: dict[int, F64] = {}
 
+    # The IMU received so far (views: they grow with the history).
+    @property
+    def t_imu(self) -> NDArray[np.int64]:
+        return self.history.t_ns
+
+    @property
+    def gyro_B(self) -> F64:
+        return self.history.gyro_B
+
+    @property
+    def accel_B(self) -> F64:
+        return self.history.accel_B
+
+    @property
+    def alpha_B(self) -> F64:
+        return self.history.alpha_B
+
     @property
     def t_end_ns(self) -> int:
         """Last IMU sample time: the filter cannot propagate beyond it."""
-        return int(self.t_imu[-1])
+        return int(self.history.t_ns[-1])
 
     def _interp(self, t_ns: int) -> tuple[F64, F64, F64]:
         k = int(np.searchsorted(self.t_imu, t_ns))
@@ -239,31 +249,28 @@ class InsFilter:
         return np.sqrt(var)
 
     # ---- measurement blocks -------------------------------------------------------------
-    def gps_block(self, i: int, use_velocity: bool = True) -> MeasurementBlock:
-        gps, cal = self.dataset.gps, self.dataset.gps_calib
-        assert gps is not None and cal is not None
-        if use_velocity:
-            z = np.concatenate([gps.p_W_G[i], gps.v_W_G[i]])
+    def gps_block(
+        self, cal: GpsCalib, p_W_G: F64, v_W_G: F64 | None, use_velocity: bool = True
+    ) -> MeasurementBlock:
+        """Antenna position (and velocity, when given and ``use_velocity``), eqs. 4-5."""
+        if use_velocity and v_W_G is not None:
+            z = np.concatenate([p_W_G, v_W_G])
             R = np.r_[np.full(3, cal.position_noise_std**2), np.full(3, cal.velocity_noise_std**2)]
             return MeasurementBlock("gps", partial(gps_position_velocity, p_B_G=cal.p_B_G), z, R)
         R = np.full(3, cal.position_noise_std**2)
-        return MeasurementBlock("gps", partial(gps_position, p_B_G=cal.p_B_G), gps.p_W_G[i], R)
+        return MeasurementBlock("gps", partial(gps_position, p_B_G=cal.p_B_G), p_W_G, R)
 
-    def mag_block(self, i: int) -> MeasurementBlock:
-        mag, cal = self.dataset.mag, self.dataset.mag_calib
-        assert mag is not None and cal is not None
+    def mag_block(self, cal: MagCalib, m_S: F64) -> MeasurementBlock:
+        """Magnetic field in the sensor frame (Gauss), eqs. 8-9."""
         h = partial(magnetic_field, m_W=cal.m_W, R_B_S=cal.T_B_S[:3, :3])
-        return MeasurementBlock("mag", h, mag.m_S[i], np.full(3, cal.noise_std**2))
+        return MeasurementBlock("mag", h, m_S, np.full(3, cal.noise_std**2))
 
-    def sonar_block(self, i: int) -> MeasurementBlock:
-        son, cal = self.dataset.sonar, self.dataset.sonar_calib
-        assert son is not None and cal is not None
+    def sonar_block(self, cal: SonarCalib, range_m: float) -> MeasurementBlock:
+        """Range to flat ground along the sonar's +z (m), eqs. 6-7."""
         h = partial(
             sonar_range, T_B_S=cal.T_B_S, g_W=self.model.g_W, ground_height=cal.ground_height
         )
-        return MeasurementBlock(
-            "sonar", h, np.array([son.range_m[i]]), np.array([cal.noise_std**2])
-        )
+        return MeasurementBlock("sonar", h, np.array([range_m]), np.array([cal.noise_std**2]))
 
     def apply(
         self, blocks: Sequence[MeasurementBlock], gate_probability: float | None = None

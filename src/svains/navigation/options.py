@@ -1,12 +1,21 @@
-"""Options of the INS and its runner: one dataclass per component."""
+"""The run configuration: one frozen dataclass tree (``RunConfig``), one dataclass per component.
+
+Every option has one default, here. ``svains.navigation.config_io`` gives the YAML round trip and
+``--set section.key=value`` overrides (type-checked, errors name the dotted key).
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Literal
+
+from svains.errors import ConfigError
+from svains.models.vision_common import ROTATION_MODELS
 
 ModelName = Literal["paper", "biased"]
 InitMode = Literal["static", "gps", "groundtruth"]
+MethodName = Literal["ins", "vo", "lc", "tc", "3d"]
+SourceName = Literal["auto", "features", "images"]
 
 
 @dataclass(frozen=True)
@@ -60,6 +69,9 @@ class InitOptions:
 
     mode: InitMode = "static"
     static_s: float = 2.0
+    # Static start with a GPS in the rig: wait this long after the static interval for the
+    # first fix (it sets the start position); without one by then, start at the origin.
+    gps_wait_s: float = 10.0
     block_s: float = 0.1
     max_accel_dev: float = 0.3  # m/s², block-mean accelerometer deviation from the mean
     max_gyro_dev: float = 0.05  # rad/s, block-mean gyro deviation from the mean
@@ -80,10 +92,109 @@ class InitOptions:
     gt_accel_bias_std: float = 0.02  # m/s²
 
 
-@dataclass(frozen=True)
-class RunOptions:
-    """Everything ``run_method`` needs besides the data set."""
+# Variance factor on the front end's egomotion covariance for ``lc``: a measured allowance for
+# what the lc model leaves out, no longer a repair of the covariance. ``Egomotion.cov`` now
+# propagates all four pixels (``svains.frontend.egomotion_cov``): its NEES is 6.2-6.7 on the
+# rendered village images and 4.3-7.1 in Monte Carlo; on features0 (0.5 px) it is 18-29 (12 s,
+# seeds 0, 3, 5), because the RANSAC refinement stops before its inlier selection settles. Yet
+# lc is most accurate with far more than that (ATE [m] by factor, vo/lc only, 2026-11):
+#   factor                            1      4      8     16     30     64    128    512
+#   village 60 s x 10 seeds (mean)  1.24   0.92   0.77   0.66  ~0.62   0.60   0.57   0.49
+#   EuRoC V1_01 + synthetic 5 Hz    1.09     -    0.21   0.17   0.09   0.10   0.12   0.17
+# (village factor 30 interpolated: 32 gave 0.62). Likely cause: the lc model treats each
+# egomotion as independent of the state error at k-1 (no clone). 30 is the best on EuRoC and
+# close on the village (whose optimum, ~512, is worse on EuRoC).
+LC_COV_SCALE = 30.0
 
+
+@dataclass(frozen=True)
+class VisionOptions:
+    """Vision-update settings (``RunConfig.vision``).
+
+    ``source``: where tracks come from in a replay (``features``: a recorded ``features0``
+    stream, ``images``: the stereo front end, ``auto``: features when the data set has them).
+    ``pixel_noise_std`` px (None: the features0 value, 1 px for images; a replay resolves it)
+    times ``pixel_noise_scale`` (triangulation at k-1 and the small-motion model add error the
+    paper's pixel noise does not model); ``feature_gate_probability`` per-feature chi-square(4)
+    gate (None: off); ``max_features`` per frame (evenly subsampled; None: all); ``rotation``
+    "imu" (relative motion from the IMU samples between the frames, beyond the paper:
+    ``models.vision_imu``), "linear" (paper eq. 18) or "exp"; ``frame_stride`` uses every n-th
+    stereo frame; ``lc_cov_scale`` multiplies the egomotion covariance (default 30, measured for
+    lc's accuracy, see ``LC_COV_SCALE``); ``lc_min_std`` (rad, m) floors its standard
+    deviations; ``imu_noise`` adds the IMU increment's noise (``rotation="imu"``) to the pixel
+    covariance as a feature-correlated term; ``frame_gyro_walk`` (``imu`` only, applied by
+    ``tune_for_frames``) instead lets the gyro-bias state absorb it, see there;
+    ``motion_prior`` hands the image front end the camera motion the filter predicts between
+    its frames (``vision_motion.MotionPrior``), with ``motion_prior_inflation`` (variance
+    factor) and ``motion_prior_min_std`` (rad, m) floors (off by default: on the simulated
+    village sets, whose gyro is noisy, ``3d`` with the prior was better on the 20 Hz bench set,
+    0.041 m against 0.045 m RMSE, see ``bench/bench_methods.py``, and worse on the 2 Hz demo
+    flight, 0.358 m against 0.259 m).
+    """
+
+    source: SourceName = "auto"
+    pixel_noise_std: float | None = None
+    pixel_noise_scale: float = 2.0
+    feature_gate_probability: float | None = 0.999
+    max_features: int | None = 120
+    min_features: int = 3
+    rotation: str = "imu"
+    frame_stride: int = 1
+    max_row_diff_px: float | None = 2.0
+    lc_cov_scale: float = LC_COV_SCALE
+    lc_min_std: tuple[float, float] = (1e-4, 1e-3)
+    imu_noise: bool = True
+    frame_gyro_walk: bool = True
+    motion_prior: bool = False
+    motion_prior_inflation: float = 4.0
+    motion_prior_min_std: tuple[float, float] = (2e-3, 5e-3)
+
+    def __post_init__(self) -> None:
+        if self.rotation not in ROTATION_MODELS:
+            raise ConfigError(
+                f"vision.rotation must be one of {ROTATION_MODELS}, got {self.rotation!r}"
+            )
+        if self.source not in ("auto", "features", "images"):
+            raise ConfigError(
+                f"vision.source must be auto, features or images, got {self.source!r}"
+            )
+        if self.frame_stride < 1:
+            raise ConfigError(f"vision.frame_stride must be >= 1, got {self.frame_stride}")
+
+
+@dataclass(frozen=True)
+class BufferOptions:
+    """The Navigator's time-ordered input buffer. A measurement stamped t is processed once an
+    IMU sample stamped later than ``t + window_s`` has arrived (so measurements up to
+    ``window_s`` late are put back in order); one stamped at or before the last processed time
+    is dropped, counted and warned about. ``max_pending`` bounds the waiting measurements."""
+
+    window_s: float = 0.1
+    max_pending: int = 100_000
+
+
+@dataclass(frozen=True)
+class ReplayOptions:
+    """How ``svains run`` replays a data set (ignored by the Navigator itself): skip the first
+    ``start_s`` seconds of the recording; simulate ``features0`` along the ground truth at
+    ``synthetic_features_hz`` (None: off)."""
+
+    start_s: float = 0.0
+    synthetic_features_hz: float | None = None
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything a run needs besides the sensors' calibrations (``svains.sensors.types.Rig``)
+    and their measurements.
+
+    ``duration_s``: stop this long after the initial state (None: at the end of the data).
+    ``gps_outages``: ``(start_s, duration_s)`` windows, seconds from the first IMU sample the
+    Navigator receives, in which GPS fixes are not fused; ``gps_until_s``: no GPS fix after
+    this time (same origin); both reproduce the paper's outage experiment on any data set.
+    """
+
+    method: MethodName = "ins"
     model: ModelName = "biased"
     filter: FilterOptions = field(default_factory=FilterOptions)
     noise: NoiseOptions = field(default_factory=NoiseOptions)
@@ -96,6 +207,29 @@ class RunOptions:
     # magnetometer adds little over 10 Hz but costs one UKF update per IMU step.
     max_mag_rate_hz: float | None = 10.0
     max_sonar_rate_hz: float | None = 10.0
+    gps_outages: tuple[tuple[float, float], ...] = ()
+    gps_until_s: float | None = None
     output_period_s: float = 0.1  # states.csv / trajectory.tum rate (10 Hz)
     duration_s: float | None = None  # stop after this much data (None: all)
-    method_options: dict[str, Any] = field(default_factory=dict)  # for vision methods
+    vision: VisionOptions = field(default_factory=VisionOptions)
+    buffer: BufferOptions = field(default_factory=BufferOptions)
+    replay: ReplayOptions = field(default_factory=ReplayOptions)
+
+    def __post_init__(self) -> None:
+        if self.method not in ("ins", "vo", "lc", "tc", "3d"):
+            raise ConfigError(f"method must be ins, vo, lc, tc or 3d, got {self.method!r}")
+        if self.model not in ("paper", "biased"):
+            raise ConfigError(f"model must be paper or biased, got {self.model!r}")
+        if self.init.mode not in ("static", "gps", "groundtruth"):
+            raise ConfigError(
+                f"init.mode must be static, gps or groundtruth, got {self.init.mode!r}"
+            )
+        if not self.output_period_s > 0:
+            raise ConfigError(f"output_period_s must be positive, got {self.output_period_s}")
+        for start, length in self.gps_outages:
+            if length < 0:
+                raise ConfigError(f"gps_outages: negative duration {length} at {start} s")
+
+
+# The name before the typed configuration (``svains.evaluation.run.run_method`` callers).
+RunOptions = RunConfig

@@ -1,19 +1,20 @@
-"""Stereo tracks between consecutive frames from a recorded ``features0`` stream.
+"""Stereo tracks between consecutive frames of pre-tracked features (``features0``).
 
-``FeatureStream`` holds one row per (frame, track): track id and rectified left/right pixels. This
-module pairs consecutive frames into ``svains.frontend.types.StereoTracks`` (the same type the
-image front end produces), so the vision updaters do not care where tracks came from.
+A frame of features is one row per track: track id and rectified left/right pixels.
+``TrackBuilder`` pairs each frame with the previous one into ``svains.frontend.types.StereoTracks``
+(the same type the image front end produces), one frame at a time, so the vision updaters do not
+care where tracks came from. ``tracks_from_features`` does it for a whole recorded stream.
 """
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.datasets.types import FeatureStream
 from svains.errors import DatasetError
 from svains.frontend.types import Egomotion, StereoTracks
 from svains.geometry.camera import RectifiedStereo
@@ -38,7 +39,7 @@ class TrackOptions:
     egomotion: bool = False
 
 
-def _frame_slices(fs: FeatureStream) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+def _frame_slices(fs: Any) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """Distinct frame times (F,) and start offsets (F+1,) of their rows (rows sorted by time)."""
     t = np.asarray(fs.t_ns, dtype=np.int64)
     if t.size and np.any(np.diff(t) < 0):
@@ -60,28 +61,39 @@ def _estimate(
     return res.egomotion, res.inlier
 
 
-def tracks_from_features(
-    fs: FeatureStream, rig: RectifiedStereo, options: TrackOptions | None = None
-) -> list[StereoTracks]:
-    """One ``StereoTracks`` per consecutive frame pair (F-1 of them, possibly with M = 0).
+class TrackBuilder:
+    """Pairs each new frame of features with the previous one (see ``add``).
 
-    Tracks are matched by id between frame k-1 and k; ``p_Ckm1_F`` is triangulated at k-1 (eq. 10).
-    ``inlier`` is all-true except features failing the disparity/epipolar gates (or, with
-    ``options.egomotion``, the RANSAC outliers); ``egomotion`` is ``None`` unless requested.
+    Tracks are matched by id between frame k-1 and k; ``p_Ckm1_F`` is triangulated at k-1
+    (eq. 10). ``inlier`` is all-true except features failing the disparity/epipolar gates (or,
+    with ``options.egomotion``, the RANSAC outliers, seeded with the frame counter and chained
+    with the previous egomotion as prior); ``egomotion`` is ``None`` unless requested.
     """
-    opts = options or TrackOptions()
-    times, bounds = _frame_slices(fs)
-    ids = np.asarray(fs.track_id, dtype=np.int64)
-    uvl_all = np.asarray(fs.uv_left, dtype=float)
-    uvr_all = np.asarray(fs.uv_right, dtype=float)
-    out: list[StereoTracks] = []
-    prior: Egomotion | None = None
-    for k in range(1, len(times)):
-        a = slice(bounds[k - 1], bounds[k])
-        b = slice(bounds[k], bounds[k + 1])
-        _, ia, ib = np.intersect1d(ids[a], ids[b], assume_unique=False, return_indices=True)
-        uvl0, uvr0 = uvl_all[a][ia], uvr_all[a][ia]
-        uvl1, uvr1 = uvl_all[b][ib], uvr_all[b][ib]
+
+    def __init__(self, rig: RectifiedStereo, options: TrackOptions | None = None) -> None:
+        self.rig = rig
+        self.options = options or TrackOptions()
+        self._prev: tuple[int, NDArray[np.int64], F64, F64] | None = None
+        self._k = 0  # frames seen so far
+        self._prior: Egomotion | None = None
+
+    def add(
+        self, t_ns: int, track_id: NDArray[np.int64], uv_left: F64, uv_right: F64
+    ) -> StereoTracks | None:
+        """Tracks from the previous frame to this one (``None`` for the first frame).
+        ``track_id`` (M,), ``uv_left``/``uv_right`` (M, 2) rectified px."""
+        ids = np.asarray(track_id, dtype=np.int64)
+        uvl_b, uvr_b = np.asarray(uv_left, dtype=float), np.asarray(uv_right, dtype=float)
+        prev, self._prev = self._prev, (int(t_ns), ids, uvl_b, uvr_b)
+        k = self._k
+        self._k += 1
+        if prev is None:
+            return None
+        t_a, ids_a, uvl_a, uvr_a = prev
+        opts, rig = self.options, self.rig
+        _, ia, ib = np.intersect1d(ids_a, ids, assume_unique=False, return_indices=True)
+        uvl0, uvr0 = uvl_a[ia], uvr_a[ia]
+        uvl1, uvr1 = uvl_b[ib], uvr_b[ib]
         p_prev = rig.triangulate(uvl0, uvr0)
         ok = np.isfinite(p_prev).all(axis=1) & (uvl0[:, 0] - uvr0[:, 0] >= opts.min_disparity_px)
         ok &= np.isfinite(uvl1).all(axis=1) & np.isfinite(uvr1).all(axis=1)
@@ -91,15 +103,29 @@ def tracks_from_features(
         ego: Egomotion | None = None
         if opts.egomotion and ok.sum() >= 3:
             p_cur = rig.triangulate(uvl1, uvr1)
-            ego, inl = _estimate(p_prev, uvl1, uvr1, rig, p_cur, seed=k, prior=prior)
+            ego, inl = _estimate(p_prev, uvl1, uvr1, rig, p_cur, seed=k, prior=self._prior)
             ok &= inl
-            prior = ego
-        out.append(
-            StereoTracks(
-                t_prev_ns=int(times[k - 1]), t_ns=int(times[k]), track_id=ids[a][ia],
-                uv_left_prev=uvl0, uv_right_prev=uvr0, uv_left=uvl1, uv_right=uvr1,
-                p_Ckm1_F=p_prev, inlier=ok, egomotion=ego,
-            )
-        )
+            self._prior = ego
+        return StereoTracks(
+            t_prev_ns=t_a, t_ns=int(t_ns), track_id=ids_a[ia],
+            uv_left_prev=uvl0, uv_right_prev=uvr0, uv_left=uvl1, uv_right=uvr1,
+            p_Ckm1_F=p_prev, inlier=ok, egomotion=ego,
+        )  # fmt: skip
+
+
+def tracks_from_features(
+    fs: Any, rig: RectifiedStereo, options: TrackOptions | None = None
+) -> list[StereoTracks]:
+    """One ``StereoTracks`` per consecutive frame pair (F-1 of them, possibly with M = 0) of a
+    recorded stream ``fs`` (a ``FeatureStream``: rows ``t_ns``, ``track_id``, ``uv_left``,
+    ``uv_right``, sorted by time), see ``TrackBuilder``."""
+    times, bounds = _frame_slices(fs)
+    builder = TrackBuilder(rig, options)
+    out: list[StereoTracks] = []
+    for k in range(len(times)):
+        rows = slice(bounds[k], bounds[k + 1])
+        tr = builder.add(int(times[k]), fs.track_id[rows], fs.uv_left[rows], fs.uv_right[rows])
+        if tr is not None:
+            out.append(tr)
     log.debug("built %d stereo track sets from %d frames", len(out), len(times))
     return out

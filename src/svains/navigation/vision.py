@@ -12,7 +12,7 @@ At each stereo frame k (the runner has propagated the filter to t_k):
 - ``lc``: the front end's egomotion (rotation vector, translation) with its covariance is the
   measurement of the state-predicted camera motion (eqs. 30-33, ``models.vision_lc``).
 
-Options come from ``RunOptions.method_options`` (keys of :class:`VisionOptions`). The pixel
+Options come from ``RunConfig.vision`` (:class:`svains.navigation.options.VisionOptions`). The pixel
 updater lives in ``vision_pixels``, its noise model in ``vision_noise``, the IMU increments and
 the front end's motion prior in ``vision_motion``; this module re-exports ``PixelUpdater``.
 """
@@ -20,20 +20,19 @@ the front end's motion prior in ``vision_motion``; this module re-exports ``Pixe
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, fields, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.datasets.types import Dataset
-from svains.errors import ConfigError, DatasetError
+from svains.errors import DatasetError
 from svains.filter.ukf import UpdateStats
 from svains.frontend.types import StereoTracks
-from svains.models.vision_common import ROTATION_MODELS
 from svains.models.vision_lc import egomotion_measurement, predict_egomotion_lc
 from svains.navigation.base import FrameContext, MeasurementBlock
-from svains.navigation.tracks import TrackOptions
+from svains.navigation.imu_history import ImuHistory
+from svains.navigation.options import RunConfig, VisionOptions
 from svains.navigation.vision_pixels import (
     PixelUpdater,
     VisionCounters,
@@ -41,103 +40,31 @@ from svains.navigation.vision_pixels import (
     imu_and_prior,
     tracks_with_prior,
 )
-from svains.navigation.vision_sources import SourceName, make_source
+from svains.navigation.vision_sources import FeatureFrames, ImageFrames
+from svains.sensors.types import ImuCalib, Rig
 
-__all__ = ["LcUpdater", "PixelUpdater", "VisionOptions", "make_vision_updater", "tune_run_options"]
+__all__ = ["LcUpdater", "PixelUpdater", "VisionOptions", "make_vision_updater", "tune_for_frames"]
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 log = logging.getLogger(__name__)
 
-# Variance factor on the front end's egomotion covariance for ``lc``: a measured allowance for
-# what the lc model leaves out, no longer a repair of the covariance. ``Egomotion.cov`` now
-# propagates all four pixels (``svains.frontend.egomotion_cov``): its NEES is 6.2-6.7 on the
-# rendered village images and 4.3-7.1 in Monte Carlo; on features0 (0.5 px) it is 18-29 (12 s,
-# seeds 0, 3, 5), because the RANSAC refinement stops before its inlier selection settles. Yet
-# lc is most accurate with far more than that (ATE [m] by factor, vo/lc only, 2026-11):
-#   factor                            1      4      8     16     30     64    128    512
-#   village 60 s x 10 seeds (mean)  1.24   0.92   0.77   0.66  ~0.62   0.60   0.57   0.49
-#   EuRoC V1_01 + synthetic 5 Hz    1.09     -    0.21   0.17   0.09   0.10   0.12   0.17
-# (village factor 30 interpolated: 32 gave 0.62). Likely cause: the lc model treats each
-# egomotion as independent of the state error at k-1 (no clone). 30 is the best on EuRoC and
-# close on the village (whose optimum, ~512, is worse on EuRoC).
-LC_COV_SCALE = 30.0
-
-
-@dataclass(frozen=True)
-class VisionOptions:
-    """Vision-update settings (all from ``RunOptions.method_options``).
-
-    ``pixel_noise_std`` px (None: the features0 value, 1 px for images) times
-    ``pixel_noise_scale`` (triangulation at k-1 and the small-motion model add error the paper's
-    pixel noise does not model); ``feature_gate_probability`` per-feature chi-square(4) gate (None:
-    off); ``max_features`` per frame (evenly subsampled; None: all); ``rotation`` "linear" (paper
-    eq. 18), "exp" or "imu" (relative motion from the IMU samples between the frames, beyond the
-    paper: ``models.vision_imu``); ``frame_stride`` uses every n-th stereo frame;
-    ``lc_cov_scale`` multiplies the egomotion covariance (default 30, measured for lc's
-    accuracy, see ``LC_COV_SCALE``);
-    ``lc_min_std`` (rad, m) floors its standard deviations; ``imu_noise`` adds the IMU
-    increment's noise (``rotation="imu"``) to the pixel covariance as a feature-correlated
-    term; ``frame_gyro_walk`` (``imu`` only, applied by ``tune_run_options``) instead lets
-    the gyro-bias state absorb it, see there; ``motion_prior`` hands the image front end the
-    camera motion the filter predicts between its frames (``vision_motion.MotionPrior``), with
-    ``motion_prior_inflation`` (variance factor) and ``motion_prior_min_std`` (rad, m) floors
-    (off by default: on the simulated village sets, whose gyro is noisy, ``3d`` with the prior
-    was better on the 20 Hz bench set, 0.041 m against 0.045 m RMSE, see
-    ``bench/bench_methods.py``, and worse on the 2 Hz demo flight, 0.358 m against 0.259 m).
-    """
-
-    source: SourceName = "auto"
-    pixel_noise_std: float | None = None
-    pixel_noise_scale: float = 2.0
-    feature_gate_probability: float | None = 0.999
-    max_features: int | None = 120
-    min_features: int = 3
-    rotation: str = "linear"
-    frame_stride: int = 1
-    max_row_diff_px: float | None = 2.0
-    lc_cov_scale: float = LC_COV_SCALE
-    lc_min_std: tuple[float, float] = (1e-4, 1e-3)
-    imu_noise: bool = True
-    frame_gyro_walk: bool = True
-    motion_prior: bool = False
-    motion_prior_inflation: float = 4.0
-    motion_prior_min_std: tuple[float, float] = (2e-3, 5e-3)
-
-    @classmethod
-    def from_mapping(cls, values: dict[str, Any] | None) -> VisionOptions:
-        """Build from a plain dict; unknown keys raise ``ConfigError`` naming them."""
-        values = dict(values or {})
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(values) - names)
-        if unknown:
-            raise ConfigError(f"unknown vision options {unknown}; known: {sorted(names)}")
-        for key in ("lc_min_std", "motion_prior_min_std"):
-            if key in values:
-                values[key] = tuple(values[key])
-        opts = cls(**values)
-        if opts.rotation not in ROTATION_MODELS:
-            raise ConfigError(f"rotation must be one of {ROTATION_MODELS}, got {opts.rotation!r}")
-        return opts
-
-
 class LcUpdater:
     """``lc`` updater: the egomotion ``(Log R_Ck_Ckm1, p_Ck_Ckm1)`` as a 6-number measurement."""
 
     method = "lc"
 
-    def __init__(self, ds: Dataset, options: VisionOptions) -> None:
+    def __init__(
+        self, options: VisionOptions, source: FeatureFrames | ImageFrames,
+        history: ImuHistory | None, rig: Rig,
+    ) -> None:
         self.options = options
-        track_opts = TrackOptions(max_row_diff_px=options.max_row_diff_px, egomotion=True)
-        self.source = make_source(ds, options.source, track_opts, options.frame_stride)
+        self.source = source
         self.rig = self.source.rig
         self.counters = VisionCounters()
-        self._imu, self._prior = imu_and_prior(ds, options, self.source)
+        self._imu, self._prior = imu_and_prior(history, rig, options, self.source)
         self._nis_per_dof: list[float] = []  # consistency check: should average ~1
-
-    def frame_times(self) -> I64:
-        return self.source.frame_times()
 
     def measurement(self, tr: StereoTracks) -> tuple[F64, F64]:
         """``z`` (6,) (rotation vector rad, translation m) and its covariance (6, 6): the front
@@ -190,44 +117,38 @@ class LcUpdater:
         return out
 
 
-def tune_run_options(ds: Dataset, method: str, options: Any) -> Any:
-    """``RunOptions`` for ``method`` with the ``rotation="imu"`` noise treatment (beyond the paper).
+def tune_for_frames(
+    config: RunConfig, imu_calib: ImuCalib | None, frame_period_s: float | None
+) -> RunConfig:
+    """``config`` with the ``rotation="imu"`` noise treatment (beyond the paper) for frames
+    ``frame_period_s`` apart (after ``frame_stride``; None: unknown, no change).
 
     The gyro's white noise integrated between two frames (``σ_g² Δt``) is common to all features.
     Treated as measurement noise (``imu_noise``) it hides the relative rotation the features see;
     modelled instead as a gyro-bias random walk of density ``σ_g / Δt_frame`` it becomes a state
     the features observe, and the attitude follows the vision (measured: GPS-denied village
     5 Hz final error 2.0% -> 0.9% of the path, see the report). Other methods/options: unchanged.
+    Idempotent, so an effective configuration written by a run can be fed back.
     """
-    mo = dict(getattr(options, "method_options", None) or {})
-    vopts = VisionOptions.from_mapping(mo)
-    cal = ds.imu_calib
-    if method not in ("3d", "tc", "lc") or vopts.rotation != "imu" or not vopts.frame_gyro_walk:
-        return options
-    if cal is None:
-        return options
-    if ds.features is not None and vopts.source in ("auto", "features"):
-        times = ds.features.frame_times()
-    elif ds.left is not None:
-        times = np.asarray(ds.left.t_ns, np.int64)
-    else:
-        return options
-    times = times[:: max(1, vopts.frame_stride)]
-    if len(times) < 2:
-        return options
-    period_s = float(np.median(np.diff(times))) * 1e-9
-    base = options.noise.gyro_random_walk
-    walk = max(cal.gyro_random_walk if base is None else base, cal.gyro_noise_density / period_s)
-    log.info("%s: gyro-bias random walk %.3g rad/s/sqrt(s) for %.3f s frames", method, walk,
-             period_s)
-    return replace(options, noise=replace(options.noise, gyro_random_walk=walk),
-                   method_options={**mo, "imu_noise": False})
+    v = config.vision
+    if config.method not in ("3d", "tc", "lc") or v.rotation != "imu" or not v.frame_gyro_walk:
+        return config
+    if imu_calib is None or frame_period_s is None:
+        return config
+    base = config.noise.gyro_random_walk
+    walk = max(imu_calib.gyro_random_walk if base is None else base,
+               imu_calib.gyro_noise_density / frame_period_s)
+    log.info("%s: gyro-bias random walk %.3g rad/s/sqrt(s) for %.3f s frames", config.method,
+             walk, frame_period_s)
+    return replace(config, noise=replace(config.noise, gyro_random_walk=walk),
+                   vision=replace(v, imu_noise=False))
 
 
-def make_vision_updater(method: str, ds: Dataset, options: Any) -> PixelUpdater | LcUpdater:
-    """Updater for ``method`` in {tc, 3d, lc}; ``options`` is a ``RunOptions`` (or None)."""
-    mo = getattr(options, "method_options", None) if options is not None else None
-    vopts = VisionOptions.from_mapping(mo)
+def make_vision_updater(
+    method: str, options: VisionOptions, source: FeatureFrames | ImageFrames,
+    history: ImuHistory | None, rig: Rig,
+) -> PixelUpdater | LcUpdater:
+    """Updater for ``method`` in {tc, 3d, lc}."""
     if method == "lc":
-        return LcUpdater(ds, vopts)
-    return PixelUpdater(method, ds, vopts)
+        return LcUpdater(options, source, history, rig)
+    return PixelUpdater(method, options, source, history, rig)

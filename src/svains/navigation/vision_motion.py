@@ -4,7 +4,7 @@
   models, ``models.vision_imu``), with the filter's mean biases removed.
 - ``MotionPrior``: the camera motion ``T_Ck_Ckm1`` the filter predicts between the front end's
   reference frame and the new frame, with a covariance, handed to the image front end
-  (``ImageTrackSource.tracks_at``): it starts KLT where features should land, competes in
+  (``ImageFrames.tracks_at``): it starts KLT where features should land, competes in
   RANSAC, and rejects estimates that contradict it (e.g. a moving object filling the view).
 - ``CachedModel``: ``h`` of the kept features that reuses the gate pass's predictions.
 """
@@ -17,8 +17,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.datasets.types import Dataset
-from svains.errors import ConfigError
 from svains.frontend.types import Egomotion
 from svains.geometry.camera import RectifiedStereo
 from svains.geometry.rotation import so3_log
@@ -26,6 +24,8 @@ from svains.models.state import BA, BG
 from svains.models.vision_common import ImuIncrement, camera_motion
 from svains.models.vision_imu import imu_increment
 from svains.navigation.base import FrameContext
+from svains.navigation.imu_history import ImuHistory
+from svains.sensors.types import ImuCalib
 
 F64 = NDArray[np.float64]
 
@@ -33,21 +33,29 @@ F64 = NDArray[np.float64]
 class ImuIncrements:
     """IMU samples (body frame) for the increments between two frame times."""
 
-    def __init__(self, ds: Dataset, imu_noise: bool = True) -> None:
-        if ds.imu is None:
-            raise ConfigError("rotation='imu' and the motion prior need the data set's IMU")
-        R_B_S = np.eye(3) if ds.imu_calib is None else ds.imu_calib.T_B_S[:3, :3]
-        self.t_ns = np.asarray(ds.imu.t_ns, np.int64)
-        self.gyro_B = np.asarray(ds.imu.gyro_B, float) @ R_B_S.T
-        self.accel_B = np.asarray(ds.imu.accel_B, float) @ R_B_S.T
-        self.g_W = np.asarray(ds.gravity_W, float)
-        cal = ds.imu_calib
+    def __init__(
+        self, history: ImuHistory, g_W: F64, cal: ImuCalib | None, imu_noise: bool = True
+    ) -> None:
+        self.history = history
+        self.g_W = np.asarray(g_W, float)
         # White-noise densities (gyro rad/s/√Hz, accel m/s²/√Hz); None without a calibration.
         self.densities: tuple[float, float] | None = (
             None if cal is None else (cal.gyro_noise_density, cal.accel_noise_density)
         )
         # ... as pixel noise of the ``imu`` models only when asked (``VisionOptions.imu_noise``).
         self.noise = self.densities if imu_noise else None
+
+    @property
+    def t_ns(self) -> NDArray[np.int64]:
+        return self.history.t_ns
+
+    @property
+    def gyro_B(self) -> F64:
+        return self.history.gyro_B
+
+    @property
+    def accel_B(self) -> F64:
+        return self.history.accel_B
 
     def between(self, ctx: FrameContext, t0_ns: int, t1_ns: int) -> ImuIncrement:
         """Increment over [t0, t1] with the filter's mean biases removed."""

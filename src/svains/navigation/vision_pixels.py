@@ -13,7 +13,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.datasets.types import Dataset
 from svains.errors import ConfigError
 from svains.filter.ukf import UpdateStats
 from svains.frontend.types import StereoTracks
@@ -21,7 +20,7 @@ from svains.models.vision_3d import pixels_from_motion
 from svains.models.vision_common import ImuIncrement, camera_motion, stack_pixels
 from svains.models.vision_tc import predict_pixels_tc
 from svains.navigation.base import FrameContext, MeasurementBlock
-from svains.navigation.tracks import TrackOptions
+from svains.navigation.imu_history import ImuHistory
 from svains.navigation.vision_motion import (
     CachedModel,
     ImuIncrements,
@@ -34,10 +33,11 @@ from svains.navigation.vision_noise import (
     lowrank_factors,
     whiten_chol,
 )
-from svains.navigation.vision_sources import FeatureTrackSource, ImageTrackSource, make_source
+from svains.navigation.vision_sources import FeatureFrames, ImageFrames
+from svains.sensors.types import Rig
 
 if TYPE_CHECKING:
-    from svains.navigation.vision import VisionOptions
+    from svains.navigation.options import VisionOptions
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -70,31 +70,24 @@ class PixelUpdater:
     """``tc`` or ``3d`` updater: 4 pixels per inlier feature, see the module docstring."""
 
     def __init__(
-        self, method: str, ds: Dataset, options: VisionOptions,
-        source: FeatureTrackSource | ImageTrackSource | None = None,
+        self, method: str, options: VisionOptions, source: FeatureFrames | ImageFrames,
+        history: ImuHistory | None, rig: Rig,
     ) -> None:
-        """``source`` replaces the one ``options.source`` selects (e.g. recorded tracks)."""
+        """``source`` gives the tracks; ``history`` the IMU (``rotation="imu"``, motion prior)."""
         if method not in ("tc", "3d"):
             raise ConfigError(f"pixel updater serves tc or 3d, got {method!r}")
         self.method = method
         self.options = options
-        track_opts = TrackOptions(max_row_diff_px=options.max_row_diff_px)
-        self.source: FeatureTrackSource | ImageTrackSource = (
-            make_source(ds, options.source, track_opts, options.frame_stride)
-            if source is None else source
-        )
+        self.source = source
         self.rig = self.source.rig
         std = options.pixel_noise_std
         std = self.source.pixel_noise_std if std is None else std
         self.sigma_px = max(float(std), 0.05) * options.pixel_noise_scale
         self.counters = VisionCounters()
-        self._imu, self._prior = imu_and_prior(ds, options, self.source)
+        self._imu, self._prior = imu_and_prior(history, rig, options, self.source)
         self._imu_noise = (
             None if options.rotation != "imu" or self._imu is None else self._imu.noise
         )
-
-    def frame_times(self) -> I64:
-        return self.source.frame_times()
 
     def _model(
         self, uvl0: F64, uvr0: F64, dt_s: float, inc: ImuIncrement | None,
@@ -215,16 +208,15 @@ def _whitened_block(
 
 
 def imu_and_prior(
-    ds: Dataset, options: VisionOptions, source: FeatureTrackSource | ImageTrackSource
+    history: ImuHistory | None, rig: Rig, options: VisionOptions,
+    source: FeatureFrames | ImageFrames,
 ) -> tuple[ImuIncrements | None, MotionPrior | None]:
     """IMU samples when the ``imu`` rotation or the motion prior needs them; a prior only for the
-    image front end (recorded tracks need none) on a data set with an IMU."""
-    use_prior = (
-        options.motion_prior and isinstance(source, ImageTrackSource) and ds.imu is not None
-    )
-    if options.rotation != "imu" and not use_prior:
+    image front end (recorded tracks need none) with an IMU."""
+    use_prior = options.motion_prior and isinstance(source, ImageFrames) and history is not None
+    if (options.rotation != "imu" and not use_prior) or history is None:
         return None, None
-    imu = ImuIncrements(ds, options.imu_noise)
+    imu = ImuIncrements(history, np.asarray(rig.gravity_W, float), rig.imu, options.imu_noise)
     if not use_prior:
         return imu, None
     prior_opts = MotionPriorOptions(options.motion_prior_inflation, options.motion_prior_min_std)
@@ -232,11 +224,11 @@ def imu_and_prior(
 
 
 def tracks_with_prior(
-    source: FeatureTrackSource | ImageTrackSource, prior: MotionPrior | None, ctx: FrameContext
+    source: FeatureFrames | ImageFrames, prior: MotionPrior | None, ctx: FrameContext
 ) -> tuple[StereoTracks | None, ImuIncrement | None]:
     """Tracks at ``ctx.t_ns`` (the image front end gets the motion prior when there is one) and
     the prior's IMU increment when the tracks span the same interval (reusable)."""
-    if prior is None or not isinstance(source, ImageTrackSource):
+    if prior is None or not isinstance(source, ImageFrames):
         return source.tracks_at(ctx.t_ns), None
     t_ref = source.reference_time_ns()
     ego, inc = prior.for_frame(ctx, t_ref)

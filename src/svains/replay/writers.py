@@ -11,7 +11,7 @@ import numpy as np
 from svains.models.state import BIASED, PAPER, StateLayout
 
 if TYPE_CHECKING:
-    from svains.navigation.runner import RunResult
+    from svains.navigation.outputs import RunResult
 
 _STATE_NAMES = [
     "p_W_B_x", "p_W_B_y", "p_W_B_z", "v_W_B_x", "v_W_B_y", "v_W_B_z",

@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.datasets.types import GroundTruth
 from svains.geometry.rotation import quat_box_minus, quat_box_plus
+from svains.sensors.types import GroundTruth
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]

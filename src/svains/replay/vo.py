@@ -10,25 +10,24 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
-from pathlib import Path
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from svains.datasets.loader import stereo_pairs
 from svains.datasets.types import Dataset
-from svains.frontend.types import Egomotion
+from svains.errors import DatasetError
+from svains.frontend.types import Egomotion, StereoTracks
 from svains.frontend.vo_chain import chain_egomotion
 from svains.geometry.rotation import quat_to_rotmat, rotmat_to_quat
 from svains.models.state import PAPER
-from svains.navigation.options import RunOptions
-from svains.navigation.report import interpolate_groundtruth
-from svains.navigation.runner import RunResult
-from svains.navigation.tracks import TrackOptions
-from svains.navigation.vision import VisionOptions
-from svains.navigation.vision_sources import make_source
-from svains.navigation.writers import write_outputs
+from svains.navigation.options import RunConfig
+from svains.navigation.outputs import RunResult
+from svains.navigation.tracks import TrackOptions, _frame_slices
+from svains.navigation.vision_sources import FeatureFrames, ImageFrames, rig_from_calibrations
+from svains.replay.groundtruth import interpolate_groundtruth
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -63,36 +62,62 @@ def body_states_from_camera_poses(t_ns: I64, T_W_C: F64, R_B_C: F64, p_B_C: F64)
     return x
 
 
+def _frame_tracks(ds: Dataset, config: RunConfig) -> Iterator[tuple[int, StereoTracks | None]]:
+    """(t_ns, tracks) of every frame that may carry tracks, after ``frame_stride`` and
+    ``duration_s`` (counted from the first such frame)."""
+    v = config.vision
+    stride = max(1, v.frame_stride)
+    opts = TrackOptions(max_row_diff_px=v.max_row_diff_px, egomotion=True)
+    end: int | None = None
+    if v.source == "features" and ds.features is not None:
+        feats = FeatureFrames(rig_from_calibrations(ds.cam0, ds.cam1), opts)
+        times, bounds = _frame_slices(ds.features)
+        fs = ds.features
+        for k in range(0, len(times), stride):
+            t = int(times[k])
+            rows = slice(bounds[k], bounds[k + 1])
+            if not feats.push(t, fs.track_id[rows], fs.uv_left[rows], fs.uv_right[rows]):
+                continue
+            if end is None and config.duration_s is not None:
+                end = t + int(config.duration_s * 1e9)
+            if end is not None and t > end:
+                return
+            yield t, feats.tracks_at(t)
+        return
+    if ds.left is None or ds.right is None:
+        raise DatasetError(f"{ds.root}: vo needs features0 or cam0/cam1 images")
+    images = ImageFrames(ds.cam0, ds.cam1)
+    t_all, il, ir = stereo_pairs(ds)
+    for k in range(0, len(t_all), stride):
+        t = int(t_all[k])
+        if end is None and config.duration_s is not None:
+            end = t + int(config.duration_s * 1e9)
+        if end is not None and t > end:
+            return
+        images.push(t, ds.left.load(int(il[k])), ds.right.load(int(ir[k])))
+        yield t, images.tracks_at(t)
+
+
 def run(
     dataset: Dataset,
-    options: RunOptions | None = None,
+    config: RunConfig,
     progress: Callable[[float], None] | None = None,
-    out_dir: Path | None = None,
 ) -> RunResult:
     """Chain the egomotion of every stereo frame; report like ``run_method`` (no covariance)."""
-    options = options or RunOptions()
-    vopts = VisionOptions.from_mapping(options.method_options)
     wall0 = time.perf_counter()
-    source = make_source(
-        dataset, vopts.source, TrackOptions(max_row_diff_px=vopts.max_row_diff_px, egomotion=True),
-        vopts.frame_stride,
-    )
-    rig = source.rig
-    times = source.frame_times()
-    if options.duration_s is not None and times.size:
-        times = times[times <= times[0] + int(options.duration_s * 1e9)]
+    rig = rig_from_calibrations(dataset.cam0, dataset.cam1)
     egos: list[Egomotion | None] = []
     t_list: list[int] = []
-    for i, t in enumerate(times):
-        tr = source.tracks_at(int(t))
+    kind = config.vision.source
+    for i, (_, tr) in enumerate(_frame_tracks(dataset, config)):
         if tr is None:
             continue
         if not t_list:
             t_list.append(int(tr.t_prev_ns))
         egos.append(tr.egomotion)
-        t_list.append(int(t))
+        t_list.append(int(tr.t_ns))
         if progress is not None and i % 20 == 0:
-            progress(i / max(1, len(times)))
+            progress(0.5)
     t_ns = np.array(t_list, dtype=np.int64)
     breaks = [int(t) for t, e in zip(t_ns[1:], egos, strict=True) if e is None]
     R_B_C, p_B_C = np.asarray(rig.R_B_C, float), np.asarray(rig.p_B_C, float)
@@ -119,9 +144,7 @@ def run(
         "wall_s": wall,
         "data_duration_s": duration,
         "realtime_factor": duration / wall if wall > 0 else None,
-        "vo": {"frames": n, "breaks": len(breaks), "break_t_ns": breaks, "source": source.kind},
+        "vo": {"frames": n, "breaks": len(breaks), "break_t_ns": breaks, "source": kind},
     }
     result.report = report
-    if out_dir is not None:
-        write_outputs(Path(out_dir), result, PAPER)
     return result

@@ -18,7 +18,7 @@ from svains.datasets.types import Dataset, FeatureStream, GroundTruth
 from svains.errors import DatasetError
 from svains.geometry.camera import RectifiedStereo
 from svains.geometry.rotation import quat_to_rotmat
-from svains.navigation.report import interpolate_groundtruth
+from svains.replay.groundtruth import interpolate_groundtruth
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -89,9 +89,9 @@ def with_synthetic_features(
     """Copy of ``ds`` whose ``features`` are simulated along its ground truth at ``rate_hz``."""
     if ds.groundtruth is None or len(ds.groundtruth.t_ns) < 2:
         raise DatasetError(f"{ds.root}: simulated features need ground truth")
-    from svains.navigation.vision_sources import rig_from_dataset
+    from svains.navigation.vision_sources import rig_from_calibrations
 
-    rig = rig_from_dataset(ds)
+    rig = rig_from_calibrations(ds.cam0, ds.cam1)
     rng = np.random.default_rng(seed)
     gt = ds.groundtruth
     landmarks = room_landmarks(gt.p_W_B, n_landmarks, rng)

@@ -1,0 +1,296 @@
+"""``Navigator``: the online estimator, fed one measurement at a time (``svains.Navigator``).
+
+Built from a ``RunConfig`` and the sensors' calibrations (``Rig``), never from a data set. Every
+``feed_*`` call is synchronous: it finishes the work it releases. The IMU is the clock: a
+measurement stamped t is processed once an IMU sample later than ``t + buffer.window_s`` has
+arrived (``EventQueue``), so sensors up to the window late are put back in order; later ones are
+dropped, counted (``report["dropped"]``) and warned about. Estimates are causal.
+
+Processing order (the batch runner's, kept exactly): released measurements pass the input
+stages in time order (magnetometer/sonar rate caps, ``frame_stride``, pairing of pre-tracked
+features), then wait for the initial state (``Starter``); from then on each group of
+measurements stamped at the same time t is fused after propagating the IMU exactly to t, ties
+in the order GPS, magnetometer, sonar, vision frame, output tick. Output ticks lie on a grid of
+``output_period_s`` anchored at 0 ns, each at the first IMU sample at or after its grid point.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from svains.errors import ConfigError
+from svains.models.state import BIASED, PAPER
+from svains.navigation.event_queue import FRAME, GPS, MAG, SONAR, EventQueue
+from svains.navigation.imu_history import ImuHistory
+from svains.navigation.init import InitialState
+from svains.navigation.ins import InsFilter
+from svains.navigation.navigator_core import Core
+from svains.navigation.options import RunConfig
+from svains.navigation.outputs import NavState, RunResult
+from svains.navigation.starter import Starter
+from svains.navigation.tracks import TrackOptions
+from svains.navigation.vision_sources import FeatureFrames, ImageFrames, rig_from_calibrations
+from svains.sensors.types import Rig
+
+F64 = NDArray[np.float64]
+log = logging.getLogger(__name__)
+
+OutputCallback = Callable[[NavState], None]
+
+
+class Navigator:
+    """Causal estimator for ``config.method`` in {ins, lc, tc, 3d} (``vo`` has no filter).
+
+    ``on_output(state)`` is called at every output tick (and for the final state); the same
+    states can be drained with ``outputs()``. ``initial_state`` starts the filter from a given
+    state (``init.mode == "groundtruth"``) instead of the IMU/GPS start.
+    """
+
+    def __init__(
+        self, config: RunConfig, rig: Rig, *, on_output: OutputCallback | None = None,
+        initial_state: InitialState | None = None,
+    ) -> None:
+        if config.method == "vo":
+            raise ConfigError("method vo has no filter: use svains.replay (VO chain) instead")
+        if rig.imu_period_s <= 0:
+            raise ConfigError(f"rig.imu_period_s must be positive, got {rig.imu_period_s}")
+        self.config = config
+        self.rig = rig
+        self.layout = BIASED if config.model == "biased" else PAPER
+        self._wall0 = time.perf_counter()
+        R_B_S = None if rig.imu is None else rig.imu.T_B_S[:3, :3]
+        self.history = ImuHistory(R_B_S)
+        self.queue = EventQueue(config.buffer.max_pending)
+        self._window_ns = round(config.buffer.window_s * 1e9)
+        if self._window_ns < 0:
+            raise ConfigError(f"buffer.window_s must be >= 0, got {config.buffer.window_s}")
+        self.starter = Starter(config.init, rig, self.layout, initial_state)
+        self._on_output = on_output
+        self._outputs: deque[NavState] = deque()
+        self._backlog: list[tuple[int, int, Any]] = []  # released before the initial state
+        self._source: FeatureFrames | ImageFrames | None = None
+        self._frames_seen = 0
+        self._last_bin: dict[int, int] = {}
+        self.core: Core | None = None
+        self.status = "initialising"
+        self._end_ns: int | None = None
+        self._result: RunResult | None = None
+
+    # ---- inputs -------------------------------------------------------------------------
+    def feed_imu(self, t_ns: int, gyro_S: ArrayLike, accel_S: ArrayLike) -> None:
+        """One IMU sample: ``gyro_S`` rad/s and ``accel_S`` specific force m/s² in the IMU frame
+        S (``rig.imu.T_B_S`` rotates them to the body). Stamps must increase (duplicates and
+        backward stamps are dropped, counted and warned about)."""
+        self._on_imu(int(t_ns), gyro_S, accel_S)
+
+    def _on_imu(self, t_ns: int, gyro_S: ArrayLike, accel_S: ArrayLike) -> None:
+        # The one place IMU samples enter the estimator.
+        if self.status in ("finished", "closed"):
+            return
+        last = self.history.last_ns
+        if last is not None and t_ns <= last:
+            self.queue.drop("imu", t_ns, "stamp not after the previous IMU sample")
+            return
+        self.history.append(t_ns, gyro_S, accel_S)
+        self._advance(t_ns - self._window_ns)
+
+    def feed_stereo(self, t_ns: int, left: NDArray[np.uint8], right: NDArray[np.uint8]) -> None:
+        """A stereo pair (8-bit grey, raw cam0/cam1 images): the front end runs on it when the
+        estimator reaches ``t_ns`` (camera clock = IMU clock). Ignored by ``ins``."""
+        if self.config.method != "ins":
+            self._push(int(t_ns), FRAME, ("images", left, right))
+
+    def feed_tracks(
+        self, t_ns: int, track_id: ArrayLike, uv_left: ArrayLike, uv_right: ArrayLike
+    ) -> None:
+        """Pre-tracked features of one stereo frame: ``track_id`` (M,) int, ``uv_left``,
+        ``uv_right`` (M, 2) px in the rectified pair ``cam0``/``cam1`` define. Ignored by
+        ``ins``."""
+        if self.config.method != "ins":
+            payload = ("features", np.asarray(track_id, np.int64),
+                       np.asarray(uv_left, float), np.asarray(uv_right, float))  # fmt: skip
+            self._push(int(t_ns), FRAME, payload)
+
+    def feed_gps(self, t_ns: int, p_W_G: ArrayLike, v_W_G: ArrayLike | None = None) -> None:
+        """A GPS fix: antenna position ``p_W_G`` (3,) m and velocity ``v_W_G`` (3,) m/s (None:
+        position only) in the world frame."""
+        v = None if v_W_G is None else np.asarray(v_W_G, float)
+        self._push(int(t_ns), GPS, (np.asarray(p_W_G, float), v))
+
+    def feed_mag(self, t_ns: int, m_S: ArrayLike) -> None:
+        """A magnetometer sample ``m_S`` (3,) Gauss in its sensor frame."""
+        self._push(int(t_ns), MAG, np.asarray(m_S, float))
+
+    def feed_sonar(self, t_ns: int, range_m: float) -> None:
+        """A sonar range (m) along the sensor's +z axis to flat ground."""
+        self._push(int(t_ns), SONAR, float(range_m))
+
+    def _push(self, t_ns: int, kind: int, payload: Any) -> None:
+        if self.status in ("finished", "closed"):
+            return
+        if self._end_ns is not None and t_ns > self._end_ns:
+            return
+        self.queue.push(t_ns, kind, payload)
+
+    # ---- outputs ------------------------------------------------------------------------
+    def state(self) -> NavState | None:
+        """The current estimate (at the latest processed time), None before the start."""
+        return None if self.core is None else self.core.snapshot()
+
+    def outputs(self) -> Iterator[NavState]:
+        """Drain the states produced at the output ticks since the last call."""
+        while self._outputs:
+            yield self._outputs.popleft()
+
+    @property
+    def t0_ns(self) -> int | None:
+        """Time of the initial state (None before it)."""
+        return None if self.core is None else self.core.t0_ns
+
+    def close(self, until_ns: int | None = None) -> RunResult:
+        """Process everything up to ``until_ns`` (default: the last IMU sample; at most the
+        configured ``duration_s`` after the start) and return the run's ``RunResult``."""
+        if self._result is not None:
+            return self._result
+        last = self.history.last_ns
+        if self.status != "finished" and last is not None:
+            end = last if until_ns is None else min(int(until_ns), last)
+            if self._end_ns is not None:
+                end = min(end, self._end_ns)
+            self._end_ns = end
+            if self.core is not None:
+                self.core.end_ns = end
+            self._advance(end + 1)
+            if self.core is None:
+                raise ConfigError("the stream ended before the initial state was decided")
+            self._finish(end)
+        if self.core is None:
+            raise ConfigError("no IMU sample was fed: nothing to estimate")
+        self.status = "closed"
+        self._result = self.core.result(time.perf_counter() - self._wall0, self.queue.dropped)
+        return self._result
+
+    # ---- processing ---------------------------------------------------------------------
+    def _advance(self, horizon_ns: int) -> None:
+        """Release and process every measurement stamped before ``horizon_ns``."""
+        if self.queue.horizon_ns is not None and horizon_ns <= self.queue.horizon_ns:
+            return
+        if self._end_ns is not None:
+            horizon_ns = min(horizon_ns, self._end_ns + 1)
+        for t, kind, payload in self.queue.release(horizon_ns):
+            self._stage(t, kind, payload)
+        if self.core is None:
+            init = self.starter.try_start(self.history, self.queue.horizon_ns)
+            if init is None:
+                return
+            self._start(init)
+        assert self.core is not None
+        events, self._backlog = self._kept(self._backlog), []
+        self.core.process(events, horizon_ns)
+        if self._end_ns is not None and horizon_ns > self._end_ns:
+            self._finish(self._end_ns)
+
+    def _start(self, init: InitialState) -> None:
+        ins = InsFilter(self.history, self.rig, self.layout, init, self.config.filter,
+                        self.config.noise)  # fmt: skip
+        self.core = Core(self.config, self.rig, ins, init.info, self._source, self._emit)
+        if self.config.duration_s is not None:
+            end = int(init.t_ns) + int(self.config.duration_s * 1e9)
+            self._end_ns = end if self._end_ns is None else min(end, self._end_ns)
+        self.core.end_ns = self._end_ns
+        self.status = "running"
+
+    def _kept(self, events: list[tuple[int, int, Any]]) -> list[tuple[int, int, Any]]:
+        """Measurements at or before the initial time are not fused (the input stages saw
+        them), nor those after the end."""
+        assert self.core is not None
+        t0, end = self.core.t0_ns, self._end_ns
+        kept = []
+        for ev in events:
+            if ev[0] > t0 and (end is None or ev[0] <= end):
+                kept.append(ev)
+            elif ev[1] == FRAME and self._source is not None:
+                self._source.discard(ev[0])
+        return kept
+
+    def _finish(self, end_ns: int) -> None:
+        assert self.core is not None
+        if self.status != "finished":
+            self.core.finish(end_ns)
+            self.status = "finished"
+
+    def _emit(self, state: NavState) -> None:
+        self._outputs.append(state)
+        if self._on_output is not None:
+            self._on_output(state)
+
+    def _stage(self, t: int, kind: int, payload: Any) -> None:
+        """Input stages on every released measurement, before the initial state's gate."""
+        cfg = self.config
+        if kind == GPS:
+            self.starter.add_gps(t, *payload)
+            if not (cfg.use_gps and self.rig.gps is not None):
+                return
+        elif kind == MAG:
+            self.starter.add_mag(t, payload)
+            if not (cfg.use_mag and self.rig.mag is not None):
+                return
+            if not self._rate_ok(MAG, t, cfg.max_mag_rate_hz):
+                return
+        elif kind == SONAR:
+            if not (cfg.use_sonar and self.rig.sonar is not None):
+                return
+            if not self._rate_ok(SONAR, t, cfg.max_sonar_rate_hz):
+                return
+        elif kind == FRAME and not self._frame_stage(t, payload):
+            return
+        self._backlog.append((t, kind, payload if kind != FRAME else None))
+
+    def _rate_ok(self, kind: int, t: int, max_rate_hz: float | None) -> bool:
+        # Keep the first sample of each 1/max_rate bin (bins anchored at 0 ns, so streams
+        # sampled on the same clock keep the same instants).
+        if max_rate_hz is None:
+            return True
+        b = t // int(1e9 / max_rate_hz)
+        prev = self._last_bin.get(kind)
+        self._last_bin[kind] = b
+        return prev is None or b != prev
+
+    def _frame_stage(self, t: int, payload: tuple) -> bool:
+        """``frame_stride`` over every frame; the tracks source; True if t is a vision event."""
+        v = self.config.vision
+        kind = payload[0]
+        if self._source is None:
+            if v.source not in ("auto", kind):
+                self.queue.drop(kind, t, f"vision.source is {v.source}")
+                return False
+            self._source = self._make_source(kind)
+            if self.core is not None:
+                self.core.set_source(self._source)
+        if self._source.kind != kind:
+            self.queue.drop(kind, t, f"this run takes its tracks from {self._source.kind}")
+            return False
+        k = self._frames_seen
+        self._frames_seen += 1
+        if k % v.frame_stride:
+            return False
+        return self._source.push(t, *payload[1:])
+
+    def _make_source(self, kind: str) -> FeatureFrames | ImageFrames:
+        v = self.config.vision
+        if kind == "images":
+            return ImageFrames(self.rig.cam0, self.rig.cam1)
+        rig = rig_from_calibrations(self.rig.cam0, self.rig.cam1)
+        track_opts = TrackOptions(max_row_diff_px=v.max_row_diff_px,
+                                  egomotion=self.config.method == "lc")  # fmt: skip
+        return FeatureFrames(rig, track_opts)
+
+
+__all__ = ["NavState", "Navigator", "RunResult"]

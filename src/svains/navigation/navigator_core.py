@@ -1,0 +1,228 @@
+"""``Core``: the running filter of a ``Navigator`` (after its initial state).
+
+It receives the released measurements in time order, merges the output ticks, and processes
+each same-time group: propagate the IMU exactly to t, fuse GPS/magnetometer/sonar in one
+``update_blocks`` call (or stack them with the vision update, ``stack_with_vision``), run the
+vision updater, log the state at ticks. ``_record`` is the one place where the outcome of every
+measurement update is known.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from svains.filter.ukf import UpdateStats
+from svains.navigation.base import FrameContext, MeasurementBlock
+from svains.navigation.event_queue import FRAME, GPS, MAG, SONAR, TICK
+from svains.navigation.ins import InsFilter
+from svains.navigation.options import RunConfig
+from svains.navigation.outputs import NavState, RunResult, WorldFrame
+from svains.navigation.vision import LcUpdater, PixelUpdater, make_vision_updater
+from svains.navigation.vision_sources import FeatureFrames, ImageFrames
+from svains.sensors.types import Rig
+
+
+class Core:
+    """Filter, vision updater, counters and the log of estimates (see the module docstring)."""
+
+    def __init__(
+        self, config: RunConfig, rig: Rig, ins: InsFilter, init_info: dict[str, object],
+        source: FeatureFrames | ImageFrames | None, emit: Callable[[NavState], None],
+    ) -> None:
+        self.config = config
+        self.rig = rig
+        self.ins = ins
+        self.layout = ins.layout
+        self.init_info = init_info
+        self.t0_ns = int(ins.t_ns)
+        self.end_ns: int | None = None
+        self._emit = emit
+        self._source = source
+        self._updater: PixelUpdater | LcUpdater | None = None
+        self._t_prev_frame: int | None = None
+        self._period_ns = int(config.output_period_s * 1e9)
+        self._next_grid = (self.t0_ns // self._period_ns + 1) * self._period_ns
+        t_first = int(ins.t_imu[0])
+        self._gps_off = [(t_first + int(a * 1e9), t_first + int((a + d) * 1e9))
+                         for a, d in config.gps_outages]  # fmt: skip
+        if config.gps_until_s is not None:
+            self._gps_off.append((t_first + int(config.gps_until_s * 1e9) + 1, 2**62))
+        self.counts: dict[str, dict[str, int]] = {}
+        self.updates: list[UpdateStats] = []
+        self.gps_outage_skipped = 0
+        self._log_t: list[int] = []
+        self._log_x: list[np.ndarray] = []
+        self._log_std: list[np.ndarray] = []
+        self._log_P9: list[np.ndarray] = []
+        self._log()
+
+    # ---- the event loop -----------------------------------------------------------------
+    def _next_tick(self, horizon_ns: int) -> int | None:
+        """Time of the next output tick if it is before ``horizon_ns`` (and the end)."""
+        g = self._next_grid
+        if g >= horizon_ns:
+            return None
+        t_imu = self.ins.t_imu
+        k = int(np.searchsorted(t_imu, g))
+        if k >= t_imu.size:
+            return None
+        t = int(t_imu[k])
+        if t >= horizon_ns or (self.end_ns is not None and t >= self.end_ns):
+            return None
+        return t
+
+    def _take_tick(self, t: int) -> None:
+        # Grid points that snap to the same IMU sample give one tick.
+        while self._next_grid <= t:
+            self._next_grid += self._period_ns
+
+    def process(self, events: list[tuple[int, int, Any]], horizon_ns: int) -> None:
+        """Process ``events`` ((t_ns, kind, payload), in time order) and the ticks before
+        ``horizon_ns``."""
+        i, n = 0, len(events)
+        while True:
+            t_tick = self._next_tick(horizon_ns)
+            t_ev = events[i][0] if i < n else None
+            if t_ev is None and t_tick is None:
+                return
+            if t_ev is None or (t_tick is not None and t_tick < t_ev):
+                assert t_tick is not None
+                self._take_tick(t_tick)
+                self._group(t_tick, [(TICK, None)])
+                continue
+            j = i
+            while j < n and events[j][0] == t_ev:
+                j += 1
+            group = [(k, p) for _, k, p in events[i:j]]
+            if t_tick == t_ev:
+                self._take_tick(t_tick)
+                group.append((TICK, None))
+            self._group(t_ev, group)
+            i = j
+
+    def finish(self, end_ns: int) -> None:
+        """The final state at ``end_ns`` (logged like a tick)."""
+        self.ins.propagate_to(end_ns)
+        self._log()
+
+    def _group(self, t: int, items: list[tuple[int, Any]]) -> None:
+        ins, cfg = self.ins, self.config
+        ins.propagate_to(t)
+        blocks: list[MeasurementBlock] = []
+        has_frame = has_tick = False
+        for kind, payload in items:
+            if kind == GPS:
+                if any(a <= t < b for a, b in self._gps_off):
+                    self.gps_outage_skipped += 1
+                    continue
+                assert self.rig.gps is not None
+                blocks.append(ins.gps_block(self.rig.gps, payload[0], payload[1],
+                                            cfg.use_gps_velocity))  # fmt: skip
+            elif kind == MAG:
+                assert self.rig.mag is not None
+                blocks.append(ins.mag_block(self.rig.mag, payload))
+            elif kind == SONAR:
+                assert self.rig.sonar is not None
+                blocks.append(ins.sonar_block(self.rig.sonar, payload))
+            elif kind == FRAME:
+                has_frame = True
+            else:
+                has_tick = True
+        gate = cfg.filter.gate_probability
+        if blocks and not (has_frame and cfg.filter.stack_with_vision):
+            # Simultaneous measurements: one sigma-point draw, each gated on its own.
+            for stats in ins.ukf.update_blocks(
+                [(b.h, b.z, b.R, b.residual, b.name) for b in blocks], gate
+            ):
+                self._record(stats, stats.name)
+            blocks = []
+        if has_frame:
+            self._frame(t, blocks)
+        if has_tick:
+            self._log()
+
+    def _frame(self, t: int, blocks: list[MeasurementBlock]) -> None:
+        ins, cfg = self.ins, self.config
+        updater = self._vision_updater()
+        if updater is None:
+            return
+        ctx = FrameContext(ins.ukf, self.layout, t, self._t_prev_frame,
+                           cfg.filter.gate_probability, blocks,
+                           lambda bs: ins.apply(bs, cfg.filter.gate_probability))  # fmt: skip
+        ins.add_omega_white()  # paper model: the vision models see ω's gyro white noise
+        stats = updater.update(ctx)
+        ins.remove_omega_white()
+        if stats is not None:
+            self._record(stats, cfg.method)
+        self._t_prev_frame = t
+
+    def _vision_updater(self) -> PixelUpdater | LcUpdater | None:
+        if self._updater is None and self._source is not None:
+            self._updater = make_vision_updater(self.config.method, self.config.vision,
+                                                self._source, self.ins.history, self.rig)
+        return self._updater
+
+    def set_source(self, source: FeatureFrames | ImageFrames) -> None:
+        self._source = source
+
+    def _record(self, stats: UpdateStats, key: str) -> None:
+        # The one place where every measurement update's outcome is known.
+        c = self.counts.setdefault(key, {"fused": 0, "rejected": 0})
+        c["fused" if stats.accepted else "rejected"] += 1
+        self.updates.append(stats)
+
+    # ---- outputs ------------------------------------------------------------------------
+    def snapshot(self) -> NavState:
+        return NavState.from_state(self.ins.t_ns, self.ins.ukf.x, self.ins.ukf.P, self.layout)
+
+    def _log(self) -> None:
+        ins = self.ins
+        self._log_t.append(ins.t_ns)
+        self._log_x.append(ins.ukf.x.copy())
+        self._log_std.append(ins.tangent_std())
+        self._log_P9.append(ins.ukf.P[:9, :9].copy())
+        self._emit(self.snapshot())
+
+    def _world_frame(self) -> WorldFrame:
+        if self.init_info.get("mode") == "groundtruth":
+            return "groundtruth"
+        # A static start sets roll and pitch from gravity only; GPS fixes tie position (and,
+        # through the trajectory, yaw) to the world frame.
+        return "gps" if self.counts.get("gps", {}).get("fused", 0) > 0 else "local"
+
+    def result(self, wall_s: float, dropped: dict[str, int]) -> RunResult:
+        """The run's logged estimates and its report (no accuracy keys)."""
+        cfg = self.config
+        t = np.array(self._log_t, dtype=np.int64)
+        res = RunResult(
+            t, np.array(self._log_x), np.array(self._log_std), np.array(self._log_P9), {},
+            self.updates, world_frame=self._world_frame(),
+            gps_used=bool(cfg.use_gps and self.rig.gps is not None),
+        )  # fmt: skip
+        duration = (t[-1] - t[0]) * 1e-9
+        t_imu = self.ins.t_imu
+        report: dict[str, Any] = {
+            "method": cfg.method,
+            "model": cfg.model,
+            "init": self.init_info,
+            "wall_s": wall_s,
+            "data_duration_s": duration,
+            "realtime_factor": duration / wall_s if wall_s > 0 else None,
+            "imu_steps": int(np.searchsorted(t_imu, t[-1], "right"))
+            - int(np.searchsorted(t_imu, t[0])),
+            "measurements": self.counts,
+            "states_rate_hz": 1.0 / cfg.output_period_s,
+        }
+        if dropped:
+            report["dropped"] = dict(dropped)
+        if self.gps_outage_skipped:
+            report["gps_outage_fixes_skipped"] = self.gps_outage_skipped
+        updater = self._vision_updater()
+        if updater is not None:
+            # Vision counters: frames fused/rejected, features gated (see the updater's summary).
+            report["vision"] = updater.summary()
+        res.report = report
+        return res

@@ -1,0 +1,94 @@
+"""``Starter``: decides the filter's initial state from the streams as they arrive.
+
+Modes (``InitOptions.mode``): ``static`` (the first ``static_s`` seconds of IMU, magnetometer
+heading, the first GPS fix as position when the rig has a GPS: waits up to ``gps_wait_s`` for
+it), ``gps`` (in flight, from the first two fixes) and a given state (``groundtruth``: the
+caller computed it). Each waits until the data it averages has been released in time order,
+then calls ``init.initialise`` on exactly that data, so the start equals the whole-recording
+computation. Until then the Navigator keeps the released measurements in a backlog.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from svains.errors import ConfigError
+from svains.models.state import StateLayout
+from svains.navigation.imu_history import ImuHistory
+from svains.navigation.init import (
+    GpsArrays,
+    ImuArrays,
+    InitData,
+    InitialState,
+    MagArrays,
+    initialise,
+)
+from svains.navigation.options import InitOptions
+from svains.sensors.types import Rig
+
+
+class Starter:
+    """Collects what the initialisation needs; ``try_start`` returns the state once decided."""
+
+    def __init__(
+        self, options: InitOptions, rig: Rig, layout: StateLayout, given: InitialState | None
+    ) -> None:
+        if given is None and options.mode == "groundtruth":
+            raise ConfigError("init.mode groundtruth needs the initial state (initial_state=)")
+        if given is None and options.mode == "gps" and rig.gps is None:
+            raise ConfigError("init.mode gps needs a GPS calibration in the rig")
+        self.options = options
+        self.rig = rig
+        self.layout = layout
+        self.given = given
+        self._mag: list[tuple[int, np.ndarray]] = []
+        self._gps: list[tuple[int, np.ndarray, np.ndarray]] = []
+
+    def add_mag(self, t_ns: int, m_S: np.ndarray) -> None:
+        self._mag.append((t_ns, m_S))
+
+    def add_gps(self, t_ns: int, p_W_G: np.ndarray, v_W_G: np.ndarray | None) -> None:
+        if len(self._gps) < 2:
+            self._gps.append((t_ns, p_W_G, np.zeros(3) if v_W_G is None else v_W_G))
+
+    def _data(self, history: ImuHistory) -> InitData:
+        # The history is already in the body frame: no IMU mount to apply again.
+        mag = gps = None
+        if self._mag:
+            t, m = zip(*self._mag, strict=True)
+            mag = MagArrays(np.array(t, np.int64), np.array(m, float))
+        if self._gps:
+            t, p, v = zip(*self._gps, strict=True)
+            gps = GpsArrays(np.array(t, np.int64), np.array(p, float), np.array(v, float))
+        return InitData(
+            "navigator", self.rig.gravity_W,
+            ImuArrays(history.t_ns.copy(), history.gyro_B.copy(), history.accel_B.copy()),
+            None, mag, self.rig.mag, gps, self.rig.gps,
+        )  # fmt: skip
+
+    def try_start(self, history: ImuHistory, horizon_ns: int | None) -> InitialState | None:
+        """The initial state once the data it needs has arrived (``horizon_ns``: every
+        measurement stamped before it has been released), else None; raises
+        ``InitialisationError`` when the data cannot give one."""
+        last = history.last_ns
+        if last is None or horizon_ns is None:
+            return None
+        if self.given is not None:
+            return self.given if last >= self.given.t_ns else None
+        o = self.options
+        if o.mode == "gps":
+            if len(self._gps) < 2 or horizon_ns <= self._gps[1][0]:
+                return None
+            return initialise(self._data(history), self.layout, o)
+        if history.n < 3:
+            return None
+        t_first, t0 = int(history.t_ns[0]), int(history.t_ns[2])
+        static_ns = int(o.static_s * 1e9)
+        if last <= t_first + static_ns:
+            return None
+        if self.rig.mag is not None and horizon_ns <= t0 + static_ns:
+            return None
+        wait_ns = static_ns + int(o.gps_wait_s * 1e9)
+        if self.rig.gps is not None and not self._gps and horizon_ns <= t_first + wait_ns:
+            return None
+        return initialise(self._data(history), self.layout, o)

@@ -1,0 +1,198 @@
+"""``replay(dataset, config)``: feed a data set to a ``Navigator``, measurement by measurement.
+
+The streams are merged lazily in time order (ties: GPS, magnetometer, sonar, frame, IMU: a
+measurement is fed before the IMU sample stamped with it, so even a zero reordering window
+keeps it). Every stream the data set has is fed (GPS also under ``use_gps: false``: the static
+start takes its position from the first fix); the configuration decides what is fused. Stereo
+pairs are decoded one ahead on a thread (PNG decoding releases the GIL).
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from svains.datasets.loader import stereo_pairs
+from svains.datasets.types import DEFAULT_GRAVITY_W, Dataset
+from svains.errors import DatasetError
+from svains.models.state import BIASED, PAPER
+from svains.navigation.init import (
+    GpsArrays,
+    ImuArrays,
+    InitData,
+    InitialState,
+    MagArrays,
+    initialise,
+)
+from svains.navigation.navigator import Navigator
+from svains.navigation.options import RunConfig
+from svains.navigation.outputs import NavState, RunResult
+from svains.navigation.tracks import _frame_slices
+from svains.navigation.vision import tune_for_frames
+from svains.sensors.types import Rig
+
+ProgressFn = Callable[[float], None]
+_GPS, _MAG, _SONAR, _FRAME, _IMU = range(5)
+
+
+def rig_from_dataset(ds: Dataset) -> Rig:
+    """The calibrations of ``ds`` and its nominal IMU step (median, seconds)."""
+    period = 0.005
+    if ds.imu is not None and len(ds.imu.t_ns) > 1:
+        t = np.asarray(ds.imu.t_ns, np.int64)
+        period = float(np.median(np.diff((t - t[0]) * 1e-9)))
+    g = tuple(float(v) for v in (ds.gravity_W if ds.gravity_W is not None else DEFAULT_GRAVITY_W))
+    return Rig(g, period, ds.imu_calib, ds.cam0, ds.cam1, ds.gps_calib, ds.mag_calib,  # type: ignore[arg-type]
+               ds.sonar_calib)  # fmt: skip
+
+
+def resolve_config(ds: Dataset, config: RunConfig) -> RunConfig:
+    """``config`` with what the recording implies: the tracks' source (``auto``), the features'
+    pixel noise, and the ``rotation="imu"`` frame noise (``tune_for_frames``). Idempotent."""
+    if config.method == "ins":
+        return config
+    v = config.vision
+    source = v.source
+    if source == "auto":
+        source = "features" if ds.features is not None else "images"
+    std = v.pixel_noise_std
+    if std is None:
+        std = float(ds.features.pixel_noise_std) if source == "features" and ds.features else 1.0
+    config = replace(config, vision=replace(v, source=source, pixel_noise_std=std))
+    if source == "features" and ds.features is not None:
+        times = ds.features.frame_times()
+    elif ds.left is not None:
+        times = np.asarray(ds.left.t_ns, np.int64)
+    else:
+        return config
+    times = times[:: max(1, v.frame_stride)]
+    period = float(np.median(np.diff(times))) * 1e-9 if len(times) >= 2 else None
+    return tune_for_frames(config, ds.imu_calib, period)
+
+
+def groundtruth_start(ds: Dataset, config: RunConfig, t_start_ns: int | None) -> InitialState:
+    """The initial state from the ground truth (``init.mode: groundtruth``)."""
+    imu = ds.imu
+    data = InitData(
+        ds.name, tuple(ds.gravity_W),  # type: ignore[arg-type]
+        None if imu is None else ImuArrays(imu.t_ns, imu.gyro_B, imu.accel_B), ds.imu_calib,
+        None if ds.mag is None else MagArrays(ds.mag.t_ns, ds.mag.m_S), ds.mag_calib,
+        None if ds.gps is None else GpsArrays(ds.gps.t_ns, ds.gps.p_W_G, ds.gps.v_W_G),
+        ds.gps_calib, ds.groundtruth,
+    )  # fmt: skip
+    layout = BIASED if config.model == "biased" else PAPER
+    return initialise(data, layout, config.init, t_start_ns)
+
+
+def _image_pairs(ds: Dataset, t0: int) -> Iterator[tuple[int, int, Any]]:
+    """Stereo pairs from ``t0`` on, each decoded while the previous one is processed."""
+    assert ds.left is not None and ds.right is not None
+    left, right = ds.left, ds.right
+    t, il, ir = stereo_pairs(ds)
+    sel = np.flatnonzero(t >= t0)
+    if sel.size == 0:
+        return
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="svains-png") as pool:
+
+        def load(k: int) -> Any:
+            return pool.submit(lambda: (left.load(int(il[k])), right.load(int(ir[k]))))
+
+        pending = load(int(sel[0]))
+        for n, k in enumerate(sel):
+            pair = pending.result()
+            if n + 1 < sel.size:
+                pending = load(int(sel[n + 1]))
+            yield int(t[k]), _FRAME, ("images", *pair)
+
+
+def _feature_frames(ds: Dataset, t0: int) -> Iterator[tuple[int, int, Any]]:
+    fs = ds.features
+    assert fs is not None
+    times, bounds = _frame_slices(fs)
+    for k in np.flatnonzero(times >= t0):
+        rows = slice(bounds[k], bounds[k + 1])
+        yield int(times[k]), _FRAME, ("features", fs.track_id[rows], fs.uv_left[rows],
+                                      fs.uv_right[rows])  # fmt: skip
+
+
+def _rows(t_ns: Any, kind: int, t0: int, *arrays: Any) -> Iterator[tuple[int, int, Any]]:
+    t = np.asarray(t_ns, np.int64)
+    for i in np.flatnonzero(t >= t0):
+        yield int(t[i]), kind, tuple(a[i] for a in arrays)
+
+
+def measurements(ds: Dataset, config: RunConfig, t0: int) -> Iterator[tuple[int, int, Any]]:
+    """``(t_ns, kind, payload)`` of every measurement stamped at or after ``t0``, in order."""
+    streams = []
+    if ds.gps is not None:
+        streams.append(_rows(ds.gps.t_ns, _GPS, t0, ds.gps.p_W_G, ds.gps.v_W_G))
+    if ds.mag is not None:
+        streams.append(_rows(ds.mag.t_ns, _MAG, t0, ds.mag.m_S))
+    if ds.sonar is not None:
+        streams.append(_rows(ds.sonar.t_ns, _SONAR, t0, ds.sonar.range_m))
+    if config.method != "ins":
+        if config.vision.source == "features" and ds.features is not None:
+            streams.append(_feature_frames(ds, t0))
+        elif config.vision.source == "images" and ds.left is not None and ds.right is not None:
+            streams.append(_image_pairs(ds, t0))
+    assert ds.imu is not None
+    streams.append(_rows(ds.imu.t_ns, _IMU, t0, ds.imu.gyro_B, ds.imu.accel_B))
+    return heapq.merge(*streams, key=lambda e: (e[0], e[1]))
+
+
+def feed(nav: Navigator, kind: int, t: int, payload: Any) -> None:
+    """One measurement through the Navigator's public methods."""
+    if kind == _IMU:
+        nav.feed_imu(t, payload[0], payload[1])
+    elif kind == _GPS:
+        nav.feed_gps(t, payload[0], payload[1])
+    elif kind == _MAG:
+        nav.feed_mag(t, payload[0])
+    elif kind == _SONAR:
+        nav.feed_sonar(t, float(payload[0]))
+    elif payload[0] == "images":
+        nav.feed_stereo(t, payload[1], payload[2])
+    else:
+        nav.feed_tracks(t, payload[1], payload[2], payload[3])
+
+
+def replay(
+    ds: Dataset, config: RunConfig, progress: ProgressFn | None = None,
+    on_output: Callable[[NavState], None] | None = None,
+) -> RunResult:
+    """Run ``config`` over ``ds`` (``config`` as given: call ``resolve_config`` first to get the
+    ``svains run`` behaviour). Returns the Navigator's ``RunResult`` with ``report["dataset"]``.
+    """
+    if ds.imu is None or len(ds.imu.t_ns) == 0:
+        raise DatasetError(f"{ds.name}: no IMU stream")
+    if config.method == "vo":
+        from svains.replay.vo import run as run_vo
+
+        return run_vo(ds, config, progress)
+    t_imu = np.asarray(ds.imu.t_ns, np.int64)
+    t0 = int(t_imu[0]) + int(config.replay.start_s * 1e9)
+    init = None
+    if config.init.mode == "groundtruth":
+        init = groundtruth_start(ds, config, t0 if config.replay.start_s > 0 else None)
+    nav = Navigator(config, rig_from_dataset(ds), on_output=on_output, initial_state=init)
+    span = max(1, int(t_imu[-1]) - t0)
+    next_report = 0
+    for n, (t, kind, payload) in enumerate(measurements(ds, config, t0)):
+        feed(nav, kind, t, payload)
+        if nav.status == "finished":
+            break
+        if progress is not None and n >= next_report:
+            progress(min(1.0, (t - t0) / span))
+            next_report = n + 2000
+    result = nav.close()
+    if progress is not None:
+        progress(1.0)
+    rep = result.report
+    result.report = {"method": rep.pop("method"), "model": rep.pop("model"), "dataset": ds.name,
+                     **rep}  # fmt: skip
+    return result

@@ -1,0 +1,1 @@
+"""Sensor calibrations, the rig and measurement types (no I/O, no data sets)."""
