@@ -27,7 +27,7 @@ from svains.models.state import BIASED
 from svains.navigation.init import initialise
 from svains.navigation.ins import InsFilter
 from svains.navigation.options import FilterOptions, InitOptions, NoiseOptions, RunOptions
-from svains.navigation.report import nees_series
+from svains.replay.groundtruth import nees_series
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "euroc_v101_micro"
 TARGET = 20_000
@@ -146,7 +146,7 @@ def village(n_seeds: int) -> None:
 def euroc() -> None:
     """Free-inertial drift over 5 s windows restarted from ground truth; static-start bias."""
     from svains.models.state import BIASED as LAYOUT
-    from svains.navigation.drift import drift_windows
+    from svains.replay.drift import drift_windows
 
     ds = load_dataset(DATA)
     for model in ("biased", "paper"):

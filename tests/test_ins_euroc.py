@@ -12,9 +12,9 @@ from typer.testing import CliRunner
 from svains.cli.main import app
 from svains.datasets import load_dataset
 from svains.models.state import BIASED
-from svains.navigation.drift import drift_windows
 from svains.navigation.init import initialise
 from svains.navigation.options import InitOptions
+from svains.replay.drift import drift_windows
 
 pytestmark = pytest.mark.realdata
 
@@ -71,4 +71,4 @@ def test_cli_run_writes_the_three_outputs(euroc_micro: Path, tmp_path: Path) -> 
     assert (out / "trajectory.tum").read_text().count("\n") > 40
     bad = CliRunner().invoke(app, ["run", str(euroc_micro), "--out", str(out), "--init", "x"])
     flat = " ".join(bad.output.replace("│", " ").split())  # the message box may wrap it
-    assert bad.exit_code != 0 and "--init must be static, gps or groundtruth" in flat
+    assert bad.exit_code != 0 and "init.mode must be one of" in flat

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from _ins_truth import make_dataset, truth
+from svains.evaluation.run import run_method
 from svains.models.imu import (
     STENCIL_RATE_VARIANCE,
     ImuChunk,
@@ -15,7 +16,6 @@ from svains.models.imu import (
 )
 from svains.models.state import BIASED, DW, PAPER
 from svains.navigation.options import InitOptions, NoiseOptions, RunOptions
-from svains.navigation.runner import run_method
 
 
 def test_stencil_omega_white_variance_matches_monte_carlo() -> None:

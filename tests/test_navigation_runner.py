@@ -1,24 +1,23 @@
-"""Runner: exact propagation to event times and the vision-updater extension point."""
+"""Estimator: exact propagation to event times and the vision-updater extension point."""
 
 from __future__ import annotations
-
-import sys
-import types
 
 import numpy as np
 import pytest
 
 from _ins_truth import make_dataset, static_dataset, truth
+from _nav_feed import run_with_updater
 from svains.errors import ConfigError, FilterError
 from svains.evaluation.run import run_method  # navigation run + accuracy keys
 from svains.geometry.rotation import quat_box_minus
 from svains.models.gps import gps_position
 from svains.models.state import BIASED
-from svains.navigation import base, runner
 from svains.navigation.base import FrameContext, MeasurementBlock, VisionUpdater
 from svains.navigation.init import initialise
 from svains.navigation.ins import InsFilter
 from svains.navigation.options import FilterOptions, InitOptions, NoiseOptions, RunOptions
+from svains.replay import replay
+from svains.replay.replay import groundtruth_start, history_from_dataset, rig_from_dataset
 
 GT_INIT = InitOptions(mode="groundtruth")
 
@@ -29,7 +28,8 @@ def test_propagation_reaches_times_between_imu_samples_exactly() -> None:
     # Tiny uncertainty: the UKF mean then is the noise-free propagation (a wide attitude
     # uncertainty would rightly shrink the mean specific force by E[cos δθ]).
     init.P *= 1e-8
-    ins = InsFilter(ds, BIASED, init, FilterOptions(), NoiseOptions())
+    ins = InsFilter(history_from_dataset(ds), rig_from_dataset(ds), BIASED, init, FilterOptions(),
+                    NoiseOptions())
     t_mid = int(1.2345678e9)  # between two 100 Hz samples
     ins.propagate_to(t_mid)
     tr = truth(np.array([t_mid * 1e-9]))
@@ -38,7 +38,8 @@ def test_propagation_reaches_times_between_imu_samples_exactly() -> None:
     assert np.linalg.norm(quat_box_minus(tr["q"][0], ins.ukf.x[6:10])) < 1e-4
     # Stopping at t_mid on the way changes the end state only by the interpolation error.
     ins.propagate_to(int(3e9))
-    other = InsFilter(ds, BIASED, init, FilterOptions(), NoiseOptions())
+    other = InsFilter(history_from_dataset(ds), rig_from_dataset(ds), BIASED, init,
+                      FilterOptions(), NoiseOptions())
     other.propagate_to(int(3e9))
     np.testing.assert_allclose(ins.ukf.x[0:6], other.ukf.x[0:6], atol=1e-4)
     with pytest.raises(FilterError, match="cannot propagate backwards"):
@@ -50,7 +51,7 @@ def test_propagation_reaches_times_between_imu_samples_exactly() -> None:
 class _FixUpdater:
     """A stand-in vision method: at each frame it fuses the true position (a 'fix')."""
 
-    method = "dummy"
+    method = "3d"
 
     def __init__(self, ds, stack: bool) -> None:
         self.ds = ds
@@ -74,36 +75,29 @@ class _FixUpdater:
 @pytest.mark.parametrize("stack", [False, True])
 def test_vision_updater_protocol(monkeypatch: pytest.MonkeyPatch, stack: bool) -> None:
     ds = make_dataset(10.0, seed=4)
-    holder: dict[str, _FixUpdater] = {}
-
-    def make_updater(dataset, options):
-        holder["u"] = _FixUpdater(dataset, stack)
-        return holder["u"]
-
-    mod = types.ModuleType("svains_fake_vision")
-    mod.make_updater = make_updater  # type: ignore[attr-defined]
-    monkeypatch.setitem(sys.modules, "svains_fake_vision", mod)
-    monkeypatch.setitem(base.VISION_METHOD_MODULES, "dummy", "svains_fake_vision")
-    opts = RunOptions(init=GT_INIT, filter=FilterOptions(stack_with_vision=stack))
-    rep = run_method(ds, "dummy", opts).report
-    u = holder["u"]
+    u = _FixUpdater(ds, stack)
+    opts = RunOptions(method="3d", init=GT_INIT, filter=FilterOptions(stack_with_vision=stack))
+    res = run_with_updater(monkeypatch, ds, opts, u, u.times,
+                           groundtruth_start(ds, opts, None))  # fmt: skip
+    rep = res.report
     assert isinstance(u, VisionUpdater)
     frames = u.times[u.times <= ds.imu.t_ns[-1]]
     assert [c[0] for c in u.calls] == frames.tolist()
     assert [c[1] for c in u.calls] == [None, *frames[:-1].tolist()]
-    assert rep["measurements"]["dummy"]["fused"] == len(frames)
+    assert rep["measurements"]["3d"]["fused"] == len(frames)
     n_stacked = sum(c[2] for c in u.calls)
     assert n_stacked == (3 if stack else 0)
     assert rep["measurements"]["gps"]["fused"] == 9 - n_stacked
-    assert rep["method"] == "dummy"
-    assert rep["position_rmse_m"] < 0.1  # 1 cm fixes at 2.5 Hz
+    from svains.evaluation.run import run_accuracy
+
+    assert run_accuracy(res, ds)["position_rmse_m"] < 0.1  # 1 cm fixes at 2.5 Hz
 
 
 def test_unknown_method_and_model_are_refused() -> None:
     ds = make_dataset(2.0)
-    with pytest.raises(ConfigError, match="unknown method 'nope'"):
+    with pytest.raises(ConfigError, match="method must be ins, vo, lc, tc or 3d, got 'nope'"):
         run_method(ds, "nope", RunOptions(init=GT_INIT))
-    with pytest.raises(ConfigError, match="unknown model 'x'"):
+    with pytest.raises(ConfigError, match="model must be paper or biased, got 'x'"):
         run_method(ds, "ins", RunOptions(model="x", init=GT_INIT))  # type: ignore[arg-type]
 
 
@@ -127,14 +121,13 @@ def test_run_without_ground_truth_reports_none_and_writes_outputs(tmp_path) -> N
 def test_navigation_report_has_no_accuracy_keys_and_says_what_fixes_the_frame(tmp_path) -> None:
     # Layering: the navigation runner knows no ground-truth metrics; evaluation adds them.
     ds = make_dataset(3.0)
-    res = runner.run_method(ds, "ins", RunOptions(init=GT_INIT), out_dir=tmp_path)
+    res = replay(ds, RunOptions(init=GT_INIT))
     assert "ate_rmse_m" not in res.report and "position_rmse_m" not in res.report
     assert res.report["wall_s"] > 0 and res.report["measurements"]["gps"]["fused"] >= 2
     assert res.world_frame == "groundtruth" and res.gps_used and res.has_covariance
-    assert (tmp_path / "trajectory.tum").is_file() and (tmp_path / "report.json").is_file()
-    static = runner.run_method(static_dataset()[0], "ins", RunOptions())
+    static = replay(static_dataset()[0], RunOptions())
     assert static.world_frame == "local" and not static.gps_used  # no GPS in it
-    no_gt = runner.run_method(ds, "ins", RunOptions(init=GT_INIT, use_gps=False))
+    no_gt = replay(ds, RunOptions(init=GT_INIT, use_gps=False))
     assert no_gt.world_frame == "groundtruth" and not no_gt.gps_used
 
 
@@ -180,20 +173,16 @@ def test_paper_model_vision_update_sees_omega_white_noise(monkeypatch: pytest.Mo
     seen: list[float] = []
 
     class _Probe:
-        method = "probe"
-
-        def frame_times(self) -> np.ndarray:
-            return (np.arange(1.0, 5.0, 0.5) * 1e9).astype(np.int64) + 7
+        method = "3d"
 
         def update(self, ctx: FrameContext):
             seen.append(float(np.diag(ctx.ukf.P)[DW].min()))
             return None
 
-    mod = types.ModuleType("svains_probe_vision")
-    mod.make_updater = lambda dataset, options: _Probe()  # type: ignore[attr-defined]
-    monkeypatch.setitem(sys.modules, "svains_probe_vision", mod)
-    monkeypatch.setitem(base.VISION_METHOD_MODULES, "probe", "svains_probe_vision")
-    res = run_method(ds, "probe", RunOptions(model="paper", init=GT_INIT))
+    opts = RunOptions(method="3d", model="paper", init=GT_INIT)
+    times = (np.arange(1.0, 5.0, 0.5) * 1e9).astype(np.int64) + 7
+    res = run_with_updater(monkeypatch, ds, opts, _Probe(), times,
+                           groundtruth_start(ds, opts, None))  # fmt: skip
     white = 0.875 * (2e-4 * 20.0) ** 2 / 0.01
     assert len(seen) == 8 and min(seen) >= white
     # The logged ω deviations include it too (the logged std is of ω̂ − ω).
@@ -204,7 +193,8 @@ def test_paper_model_vision_update_treats_omega_white_noise_as_measurement_noise
     from svains.models.state import DW, PAPER
 
     ds = make_dataset(3.0, seed=4, noise_scale=20.0)
-    ins = InsFilter(ds, PAPER, initialise(ds, PAPER, GT_INIT), FilterOptions(), NoiseOptions())
+    ins = InsFilter(history_from_dataset(ds), rig_from_dataset(ds), PAPER,
+                    initialise(ds, PAPER, GT_INIT), FilterOptions(), NoiseOptions())
     ins.propagate_to(int(1e9))
     P_w = np.diag(ins.ukf.P)[DW].copy()
     white = ins.omega_white

@@ -18,10 +18,11 @@ from svains.models.state import PAPER, V
 from svains.models.vision_imu import imu_increment
 from svains.models.vision_lc import egomotion_from_state_pair
 from svains.navigation.base import FrameContext
-from svains.navigation.vision import VisionOptions
+from svains.navigation.options import VisionOptions
 from svains.navigation.vision_motion import MotionPriorOptions, imu_motion_prior
 from svains.navigation.vision_pixels import PixelUpdater
-from svains.navigation.vision_sources import ImageTrackSource
+from svains.navigation.vision_sources import ImageFrames
+from svains.replay.replay import history_from_dataset, rig_from_dataset
 
 RIG = make_rig()
 DT_S = 0.1
@@ -81,7 +82,7 @@ def test_imu_increment_window_between_samples_is_exact_for_a_linear_rate() -> No
 
 
 # ---- the updater hands the prior to an image source ------------------------------------------
-class _StubImages(ImageTrackSource):
+class _StubImages(ImageFrames):
     """An image source with fixed tracks (no images, no front end): records the priors."""
 
     def __init__(self, tracks: StereoTracks, t_ref: int | None) -> None:  # no super(): no images
@@ -91,9 +92,6 @@ class _StubImages(ImageTrackSource):
         self._tracks = tracks
         self._t_ref = t_ref
         self.priors: list[Egomotion | None] = []
-
-    def frame_times(self) -> np.ndarray:
-        return np.array([self._tracks.t_ns], np.int64)
 
     def reference_time_ns(self) -> int | None:
         return self._t_ref
@@ -140,7 +138,7 @@ def test_pixel_updater_passes_the_prior_over_the_reference_interval(
     ds, tracks, tf = _dataset_and_tracks()
     opts = VisionOptions(source="features", rotation="imu", motion_prior=enabled)
     src = _StubImages(tracks, t_ref)
-    upd = PixelUpdater("3d", ds, opts, source=src)
+    upd = PixelUpdater("3d", opts, src, history_from_dataset(ds), rig_from_dataset(ds))
     x0 = tf.x_k.copy()
     dv = np.array([0.2, -0.1, 0.1])
     x0[V] += dv

@@ -2,44 +2,26 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-import yaml
 from rich.console import Console
 from rich.progress import Progress
 
 from svains.errors import SvainsError
 
 
-def parse_settings(items: list[str] | None) -> dict[str, Any]:
-    """``key=value`` strings -> dict (values parsed as YAML scalars/lists)."""
-    out: dict[str, Any] = {}
-    for item in items or []:
-        if "=" not in item:
-            raise typer.BadParameter(f"expected key=value, got {item!r}")
-        k, v = item.split("=", 1)
-        out[k.strip()] = yaml.safe_load(v)
-    return out
-
-
 def build_options(
     model: str, init: str, gps: bool, mag: bool, duration: float | None, source: str,
-    settings: dict[str, Any],
+    settings: list[str] | None, config_file: Path | None = None,
 ) -> Any:
-    """``RunOptions`` from the command-line switches."""
-    from svains.navigation.options import InitOptions, RunOptions
-    from svains.navigation.vision import VisionOptions
+    """``RunConfig`` from the command-line switches (``settings``: ``--set`` items)."""
+    from svains.cli.run_config import build_config
 
-    VisionOptions.from_mapping({"source": source, **settings})  # fail fast on a bad --set
-    base = RunOptions()
-    return replace(
-        base, model=model, init=replace(base.init if base.init else InitOptions(), mode=init),
-        use_gps=gps, use_mag=mag, duration_s=duration,
-        method_options={"source": source, **settings},
-    )
+    switches = {"model": model, "init.mode": init, "use_gps": gps, "use_mag": mag,
+                "duration_s": duration, "vision.source": source}  # fmt: skip
+    return build_config(config_file, settings, switches)
 
 
 def run_compare(
@@ -85,7 +67,7 @@ def compare(
     model: Annotated[str, typer.Option("--model", help="State model: paper or biased.")] = "biased",
     rotation: Annotated[
         str,
-        typer.Option("--rotation", help="Vision motion model: linear (paper eq. 18), exp or imu."),
+        typer.Option("--rotation", help="Vision motion model: imu, linear (paper eq. 18) or exp."),
     ] = "imu",
     init: Annotated[
         str, typer.Option("--init", help="static, gps (in flight) or groundtruth.")
@@ -98,7 +80,8 @@ def compare(
     figures: Annotated[bool, typer.Option("--figures/--no-figures", help="Write PNGs.")] = True,
     setting: Annotated[
         list[str] | None,
-        typer.Option("--set", help="Vision option key=value (e.g. frame_stride=4); repeatable."),
+        typer.Option("--set", help="Any option section.key=value (e.g. vision.frame_stride=4); "
+                     "repeatable."),
     ] = None,
     synthetic_features: Annotated[
         float | None,
@@ -110,7 +93,7 @@ def compare(
     err = Console(stderr=True)
     try:
         source = {None: "auto", True: "features", False: "images"}[features]
-        settings = {"rotation": rotation, **parse_settings(setting)}
+        settings = [f"vision.rotation={rotation}", *(setting or [])]
         opts = build_options(model, init, gps, mag, duration, source, settings)
         run_compare(dataset, out, [m.strip() for m in methods.split(",") if m.strip()], opts,
                     figures, Console(), synthetic_features)

@@ -52,7 +52,7 @@ def demo(
         # With images the tracks come from the real front end, not from the true features0.
         source = "images" if images else "features"
         opts = build_options("biased", "groundtruth", True, True, None, source,
-                             {"rotation": rotation})
+                             [f"vision.rotation={rotation}"])
         run_compare(root, out / "compare", [m.strip() for m in methods.split(",") if m.strip()],
                     opts, True, console)
     except SvainsError as exc:

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from svains.cli.compare import parse_settings
 from svains.errors import SvainsError
 
 _SHOWN = ("ate_rmse_m", "position_rmse_m", "velocity_rmse_mps", "attitude_rmse_deg", "nees_mean",
@@ -21,18 +20,33 @@ _SHOWN = ("ate_rmse_m", "position_rmse_m", "velocity_rmse_mps", "attitude_rmse_d
 def run(
     dataset: Annotated[Path, typer.Argument(help="Data-set folder (ASL/EuRoC layout).")],
     out: Annotated[Path, typer.Option("--out", help="Output folder.")] = Path("run_out"),
-    method: Annotated[str, typer.Option("--method", help="ins, tc, 3d, lc or vo.")] = "ins",
+    config_file: Annotated[
+        Path | None,
+        typer.Option("--config", help="Run configuration YAML (e.g. a previous OUT/config.yaml)."),
+    ] = None,
+    method: Annotated[str | None, typer.Option("--method", help="ins, tc, 3d, lc or vo.")] = None,
     model: Annotated[
-        str, typer.Option("--model", help="paper (eq. 14 state) or biased (+ IMU biases).")
-    ] = "biased",
+        str | None, typer.Option("--model", help="paper (eq. 14 state) or biased (+ IMU biases).")
+    ] = None,
     init: Annotated[
-        str, typer.Option("--init", help="static, gps (in flight) or groundtruth.")
-    ] = "static",
-    gps: Annotated[bool, typer.Option("--gps/--no-gps", help="Fuse GPS when present.")] = True,
-    mag: Annotated[bool, typer.Option("--mag/--no-mag", help="Fuse magnetometer.")] = True,
-    sonar: Annotated[bool, typer.Option("--sonar/--no-sonar", help="Fuse sonar.")] = True,
+        str | None, typer.Option("--init", help="static, gps (in flight) or groundtruth.")
+    ] = None,
+    gps: Annotated[bool | None, typer.Option("--gps/--no-gps", help="Fuse GPS.")] = None,
+    mag: Annotated[bool | None, typer.Option("--mag/--no-mag", help="Fuse magnetometer.")] = None,
+    sonar: Annotated[bool | None, typer.Option("--sonar/--no-sonar", help="Fuse sonar.")] = None,
+    start: Annotated[
+        float | None, typer.Option("--start", help="Skip the first S seconds of the data.")
+    ] = None,
     duration: Annotated[
-        float | None, typer.Option("--duration", help="Process only this many seconds.")
+        float | None, typer.Option("--duration", help="Stop S seconds after the start.")
+    ] = None,
+    gps_outage: Annotated[
+        list[str] | None,
+        typer.Option("--gps-outage", help="START:DURATION [s from the first IMU sample fed] "
+                     "without GPS; repeatable."),
+    ] = None,
+    gps_until: Annotated[
+        float | None, typer.Option("--gps-until", help="No GPS after S seconds.")
     ] = None,
     features: Annotated[
         bool | None,
@@ -42,12 +56,14 @@ def run(
         ),
     ] = None,
     rotation: Annotated[
-        str,
-        typer.Option("--rotation", help="Vision motion model: linear (paper eq. 18), exp or imu."),
-    ] = "imu",
+        str | None,
+        typer.Option("--rotation", help="Vision motion model: imu (default), linear (paper eq. "
+                     "18) or exp."),
+    ] = None,
     setting: Annotated[
         list[str] | None,
-        typer.Option("--set", help="Vision option key=value (e.g. frame_stride=4); repeatable."),
+        typer.Option("--set", help="Any option section.key=value (e.g. vision.frame_stride=4, "
+                     "filter.max_predict_steps=10); repeatable."),
     ] = None,
     synthetic_features: Annotated[
         float | None,
@@ -57,37 +73,43 @@ def run(
         ),
     ] = None,
 ) -> None:
-    """Run METHOD over DATASET; write trajectory.tum, states.csv and report.json into OUT."""
+    """Run METHOD over DATASET; write trajectory.tum, trajectory_euroc.csv, pose_covariance.csv,
+    states.csv, report.json and the effective config.yaml into OUT."""
+    from svains.cli.run_config import build_config, effective_config_text, parse_outage
     from svains.datasets import load_dataset
     from svains.evaluation.run import run_method
-    from svains.navigation.vision import tune_run_options
+    from svains.replay import resolve_config
 
     console = Console()
-    if model not in ("paper", "biased"):
-        raise typer.BadParameter(f"--model must be paper or biased, got {model!r}")
-    if init not in ("static", "gps", "groundtruth"):
-        raise typer.BadParameter(f"--init must be static, gps or groundtruth, got {init!r}")
     try:
-        source = {None: "auto", True: "features", False: "images"}[features]
-        settings = {"rotation": rotation, **parse_settings(setting)}
-        options = build_run_options(model, init, gps, mag, sonar, duration, source, settings)
+        switches = {
+            "method": method, "model": model, "init.mode": init, "use_gps": gps,
+            "use_mag": mag, "use_sonar": sonar, "duration_s": duration, "replay.start_s": start,
+            "gps_until_s": gps_until, "vision.rotation": rotation,
+            "vision.source": {None: None, True: "features", False: "images"}[features],
+            "gps_outages": None if not gps_outage else [list(parse_outage(g))
+                                                        for g in gps_outage],
+            "replay.synthetic_features_hz": synthetic_features,
+        }  # fmt: skip
+        config = build_config(config_file, setting, switches)
         ds = load_dataset(dataset)
-        if synthetic_features is not None:
+        hz = config.replay.synthetic_features_hz
+        if hz is not None:
             from svains.replay.synthetic import with_synthetic_features
 
-            ds = with_synthetic_features(ds, rate_hz=synthetic_features)
-            console.print(
-                f"simulated features0 at {synthetic_features:g} Hz along the ground truth"
-            )
-        # Same per-method noise treatment as ``svains compare`` (vision methods only).
-        options = tune_run_options(ds, method, options)
+            ds = with_synthetic_features(ds, rate_hz=hz)
+            console.print(f"simulated features0 at {hz:g} Hz along the ground truth")
+        config = resolve_config(ds, config)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "config.yaml").write_text(effective_config_text(config, dataset), encoding="utf-8")
+        label = f"{config.method} ({config.model})"
         with Progress(
-            TextColumn(f"{method} ({model})"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+            TextColumn(label), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
             TimeElapsedColumn(), console=console, transient=True,
         ) as bar:  # fmt: skip
             task = bar.add_task("run", total=1.0)
             result = run_method(
-                ds, method, options, out_dir=out, progress=lambda f: bar.update(task, completed=f)
+                ds, None, config, out_dir=out, progress=lambda f: bar.update(task, completed=f)
             )
     except SvainsError as exc:
         console.print(f"[red]error:[/red] {exc}")
@@ -113,35 +135,8 @@ def run(
             "outage max error [m]", ", ".join(f"{e:.2f}" for e in rep["outage_max_error_m"])
         )
     console.print(table)
-    console.print(f"wrote {out}/trajectory.tum, states.csv, report.json")
-
-
-def build_run_options(
-    model: str,
-    init: str,
-    gps: bool,
-    mag: bool,
-    sonar: bool,
-    duration: float | None,
-    source: str,
-    settings: dict[str, Any],
-) -> Any:
-    """``RunOptions`` from ``svains run``'s switches; ``settings`` = vision ``--set`` options
-    (validated here, so a bad key fails before any data is loaded)."""
-    from svains.navigation.options import InitOptions, RunOptions
-    from svains.navigation.vision import VisionOptions
-
-    method_options = {"source": source, **settings}
-    VisionOptions.from_mapping(method_options)
-    return RunOptions(
-        model=model,  # type: ignore[arg-type]
-        init=InitOptions(mode=init),  # type: ignore[arg-type]
-        use_gps=gps,
-        use_mag=mag,
-        use_sonar=sonar,
-        duration_s=duration,
-        method_options=method_options,
-    )
+    console.print(f"wrote {out}/trajectory.tum, trajectory_euroc.csv, pose_covariance.csv, "
+                  "states.csv, report.json, config.yaml")
 
 
 def register(app: typer.Typer) -> None:

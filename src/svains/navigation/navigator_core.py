@@ -221,7 +221,7 @@ class Core:
         if self.gps_outage_skipped:
             report["gps_outage_fixes_skipped"] = self.gps_outage_skipped
         updater = self._vision_updater()
-        if updater is not None:
+        if updater is not None and hasattr(updater, "summary"):
             # Vision counters: frames fused/rejected, features gated (see the updater's summary).
             report["vision"] = updater.summary()
         res.report = report

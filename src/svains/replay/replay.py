@@ -21,6 +21,7 @@ from svains.datasets.loader import stereo_pairs
 from svains.datasets.types import DEFAULT_GRAVITY_W, Dataset
 from svains.errors import DatasetError
 from svains.models.state import BIASED, PAPER
+from svains.navigation.imu_history import ImuHistory
 from svains.navigation.init import (
     GpsArrays,
     ImuArrays,
@@ -49,6 +50,16 @@ def rig_from_dataset(ds: Dataset) -> Rig:
     g = tuple(float(v) for v in (ds.gravity_W if ds.gravity_W is not None else DEFAULT_GRAVITY_W))
     return Rig(g, period, ds.imu_calib, ds.cam0, ds.cam1, ds.gps_calib, ds.mag_calib,  # type: ignore[arg-type]
                ds.sonar_calib)  # fmt: skip
+
+
+def history_from_dataset(ds: Dataset) -> ImuHistory:
+    """The data set's whole IMU stream as an ``ImuHistory`` (body frame, with α)."""
+    if ds.imu is None:
+        raise DatasetError(f"{ds.name}: no IMU stream")
+    history = ImuHistory(None if ds.imu_calib is None else ds.imu_calib.T_B_S[:3, :3])
+    for t, g, a in zip(ds.imu.t_ns, ds.imu.gyro_B, ds.imu.accel_B, strict=True):
+        history.append(int(t), g, a)
+    return history
 
 
 def resolve_config(ds: Dataset, config: RunConfig) -> RunConfig:
@@ -181,14 +192,14 @@ def replay(
         init = groundtruth_start(ds, config, t0 if config.replay.start_s > 0 else None)
     nav = Navigator(config, rig_from_dataset(ds), on_output=on_output, initial_state=init)
     span = max(1, int(t_imu[-1]) - t0)
-    next_report = 0
-    for n, (t, kind, payload) in enumerate(measurements(ds, config, t0)):
+    next_report = t0
+    for t, kind, payload in measurements(ds, config, t0):
         feed(nav, kind, t, payload)
         if nav.status == "finished":
             break
-        if progress is not None and n >= next_report:
+        if progress is not None and t >= next_report:
             progress(min(1.0, (t - t0) / span))
-            next_report = n + 2000
+            next_report = t + span // 200
     result = nav.close()
     if progress is not None:
         progress(1.0)

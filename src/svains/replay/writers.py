@@ -1,4 +1,5 @@
-"""Output files of a run: ``trajectory.tum``, ``states.csv``, ``report.json``."""
+"""Output files of a run: ``trajectory.tum``, ``trajectory_euroc.csv``, ``pose_covariance.csv``,
+``states.csv``, ``report.json`` (layouts in ``docs/formats.md``)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,19 @@ from svains.models.state import BIASED, PAPER, StateLayout
 
 if TYPE_CHECKING:
     from svains.navigation.outputs import RunResult
+
+# EuRoC's state_groundtruth_estimate0/data.csv header (evo's euroc reader takes this layout).
+EUROC_HEADER = (
+    "#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], "
+    "q_RS_z [], v_RS_R_x [m s^-1], v_RS_R_y [m s^-1], v_RS_R_z [m s^-1], b_w_RS_S_x [rad s^-1], "
+    "b_w_RS_S_y [rad s^-1], b_w_RS_S_z [rad s^-1], b_a_RS_S_x [m s^-2], b_a_RS_S_y [m s^-2], "
+    "b_a_RS_S_z [m s^-2]"
+)
+_IU = np.triu_indices(3)
+COVARIANCE_HEADER = "t_ns," + ",".join(
+    [f"P_theta_{i}{j}" for i, j in zip(*_IU, strict=True)]
+    + [f"P_p_{i}{j}" for i, j in zip(*_IU, strict=True)]
+)
 
 _STATE_NAMES = [
     "p_W_B_x", "p_W_B_y", "p_W_B_z", "v_W_B_x", "v_W_B_y", "v_W_B_z",
@@ -43,6 +57,9 @@ def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None =
             # Seconds written from the integer nanoseconds: no float64 rounding of the time.
             vals = " ".join(f"{v:.9f}" for v in (*xs[0:3], *xs[7:10], xs[6]))
             fh.write(f"{int(t) // 1_000_000_000}.{int(t) % 1_000_000_000:09d} {vals}\n")
+    write_euroc_csv(out_dir / "trajectory_euroc.csv", result)
+    if result.has_covariance:
+        write_pose_covariance(out_dir / "pose_covariance.csv", result)
     header = ",".join(["t_ns", *_STATE_NAMES[: layout.nx], *_STD_NAMES[: layout.ndx]])
     with open(out_dir / "states.csv", "w", encoding="utf-8") as fh:
         fh.write(header + "\n")
@@ -51,3 +68,26 @@ def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None =
     (out_dir / "report.json").write_text(
         json.dumps(result.report, indent=2, default=_json_default) + "\n", encoding="utf-8"
     )
+
+
+def write_euroc_csv(path: Path, result: RunResult) -> None:
+    """EuRoC ground-truth columns: t ns, p_W_B, q_W_B (w first), v_W_B, gyro and accelerometer
+    biases (zeros when the model has none)."""
+    x = result.x
+    biases = x[:, 13:19] if x.shape[1] >= 19 else np.zeros((len(x), 6))
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(EUROC_HEADER + "\n")
+        for t, xs, b in zip(result.t_ns, x, biases, strict=True):
+            vals = (*xs[0:3], *xs[6:10], *xs[3:6], *b)
+            fh.write(f"{int(t)}," + ",".join(f"{v:.9g}" for v in vals) + "\n")
+
+
+def write_pose_covariance(path: Path, result: RunResult) -> None:
+    """Per pose: t ns, the upper triangle (row-major: 00 01 02 11 12 22) of the attitude error's
+    covariance (δθ, body frame, rad²), then of the position's (W frame, m²)."""
+    P9 = result.P9
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(COVARIANCE_HEADER + "\n")
+        for t, P in zip(result.t_ns, P9, strict=True):
+            vals = (*P[6:9, 6:9][_IU], *P[0:3, 0:3][_IU])
+            fh.write(f"{int(t)}," + ",".join(f"{v:.9g}" for v in vals) + "\n")

@@ -9,10 +9,10 @@ import numpy as np
 from svains.datasets.types import Dataset
 from svains.errors import InitialisationError
 from svains.models.state import BIASED, PAPER
-from svains.navigation.init import initialise
 from svains.navigation.ins import InsFilter
-from svains.navigation.options import FilterOptions, InitOptions, NoiseOptions
+from svains.navigation.options import FilterOptions, InitOptions, NoiseOptions, RunConfig
 from svains.replay.groundtruth import interpolate_groundtruth, navigation_errors
+from svains.replay.replay import groundtruth_start, history_from_dataset, rig_from_dataset
 
 
 @dataclass(frozen=True)
@@ -38,13 +38,17 @@ def drift_windows(
     if gt is None or dataset.imu is None:
         raise InitialisationError("drift windows need an IMU stream and ground truth")
     layout = BIASED if model == "biased" else PAPER
+    rig = rig_from_dataset(dataset)
+    history = history_from_dataset(dataset)
+    config = RunConfig(model=model, init=InitOptions(mode="groundtruth"))  # type: ignore[arg-type]
     out: list[DriftWindow] = []
     w_ns = int(window_s * 1e9)
     t_last = min(int(gt.t_ns[-1]), int(dataset.imu.t_ns[-1]))
     for t0 in range(int(gt.t_ns[0]), t_last - w_ns + 1, w_ns):
-        init = initialise(dataset, layout, InitOptions(mode="groundtruth"), t_start_ns=t0)
+        init = groundtruth_start(dataset, config, t0)
         ins = InsFilter(
-            dataset,
+            history,
+            rig,
             layout,
             init,
             filter_options or FilterOptions(),

@@ -1,0 +1,72 @@
+"""The run configuration from the command line: ``--config FILE``, switches, ``--set k=v``.
+
+Precedence: defaults < ``--config`` file < explicit switches (``--method``, ``--no-gps``, ...)
+< ``--set section.key=value`` (any key of ``RunConfig``; a bare vision key such as
+``frame_stride=4`` means ``vision.frame_stride``). ``effective_config_text`` is what
+``OUT/config.yaml`` holds: the configuration resolved against the data set, under a comment
+header naming the svains version, the git revision and the data set.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+from svains.errors import ConfigError
+
+
+def parse_outage(text: str) -> tuple[float, float]:
+    """``START:DURATION`` (seconds) -> (start, duration)."""
+    try:
+        a, b = text.split(":")
+        return float(a), float(b)
+    except ValueError as exc:
+        raise ConfigError(f"--gps-outage expects START:DURATION in seconds, got {text!r}") from exc
+
+
+def build_config(
+    config_file: Path | None, settings: list[str] | None, switches: dict[str, Any]
+) -> Any:
+    """``RunConfig`` from a file, the switches given (``None`` = not given; dotted keys) and
+    ``--set`` items."""
+    from svains.navigation.config_io import from_yaml, parse_setting, with_settings
+    from svains.navigation.options import RunConfig, VisionOptions
+
+    config = RunConfig() if config_file is None else from_yaml(config_file)
+    given = {k: v for k, v in switches.items() if v is not None}
+    top = {f.name for f in dataclasses.fields(RunConfig)}
+    vision = {f.name for f in dataclasses.fields(VisionOptions)}
+    for item in settings or []:
+        key, value = parse_setting(item)
+        if "." not in key and key not in top and key in vision:
+            key = f"vision.{key}"
+        given[key] = value
+    return with_settings(config, given)
+
+
+def _git_revision() -> str:
+    here = Path(__file__).resolve().parent
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True,
+                             text=True, timeout=5, check=True)  # fmt: skip
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                               cwd=here, capture_output=True, text=True, timeout=5)  # fmt: skip
+        return out.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def effective_config_text(config: Any, dataset: Path) -> str:
+    """YAML of the effective configuration under a comment header (version, revision, data)."""
+    from svains.navigation.config_io import to_yaml
+
+    try:
+        version = metadata.version("svains")
+    except metadata.PackageNotFoundError:
+        version = "unknown"
+    header = (f"svains run configuration (effective: resolved against the data set)\n"
+              f"svains {version}, git {_git_revision()}\ndata set: {dataset}")  # fmt: skip
+    return to_yaml(config, header=header)

@@ -1,0 +1,50 @@
+"""Test helper: feed a data set to a ``Navigator`` with extra stand-in vision frames."""
+
+from __future__ import annotations
+
+import heapq
+from typing import Any
+
+import numpy as np
+
+from svains.navigation import navigator_core
+from svains.navigation.navigator import Navigator
+from svains.replay.replay import feed, measurements, rig_from_dataset
+
+
+class StubFrames:
+    """A tracks source that has a frame whenever one is fed (no tracks)."""
+
+    kind = "features"
+    rig = None
+    pixel_noise_std = 1.0
+
+    def push(self, *args: Any) -> bool:
+        return True
+
+    def discard(self, t_ns: int) -> None:
+        pass
+
+    def tracks_at(self, t_ns: int, motion_prior: Any = None) -> None:
+        return None
+
+
+class _StubNavigator(Navigator):
+    def _make_source(self, kind: str) -> Any:
+        return StubFrames()
+
+
+def run_with_updater(monkeypatch: Any, ds: Any, config: Any, updater: Any,
+                     frame_times: np.ndarray, initial_state: Any = None) -> Any:
+    """Replay ``ds`` with ``updater`` called at ``frame_times`` (config.method must be a
+    vision method); returns the ``RunResult``."""
+    monkeypatch.setattr(navigator_core, "make_vision_updater", lambda *a, **k: updater)
+    nav = _StubNavigator(config, rig_from_dataset(ds), initial_state=initial_state)
+    empty = np.zeros((0, 2))
+    frames = ((int(t), 3, ("features", np.zeros(0, np.int64), empty, empty))
+              for t in frame_times)
+    t0 = int(ds.imu.t_ns[0])
+    for t, kind, payload in heapq.merge(measurements(ds, config, t0), frames,
+                                        key=lambda e: (e[0], e[1])):
+        feed(nav, kind, t, payload)
+    return nav.close()
