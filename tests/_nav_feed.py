@@ -48,3 +48,32 @@ def run_with_updater(monkeypatch: Any, ds: Any, config: Any, updater: Any,
                                         key=lambda e: (e[0], e[1])):
         feed(nav, kind, t, payload)
     return nav.close()
+
+
+def updater_for(method: str, ds: Any, vision: Any) -> Any:
+    """A vision updater for ``method`` fed with every recorded frame of ``ds.features`` (pixel
+    noise from the stream unless ``vision`` sets it); ``.frame_times`` lists the frames that
+    carry tracks."""
+    from dataclasses import replace
+
+    from svains.navigation.tracks import TrackOptions, _frame_slices
+    from svains.navigation.vision import make_vision_updater
+    from svains.navigation.vision_sources import FeatureFrames, rig_from_calibrations
+    from svains.replay.replay import history_from_dataset
+
+    if vision.pixel_noise_std is None:
+        vision = replace(vision, pixel_noise_std=float(ds.features.pixel_noise_std))
+    src = FeatureFrames(rig_from_calibrations(ds.cam0, ds.cam1),
+                        TrackOptions(max_row_diff_px=vision.max_row_diff_px,
+                                     egomotion=method == "lc"))  # fmt: skip
+    times, bounds = _frame_slices(ds.features)
+    with_tracks = []
+    for k in range(0, len(times), vision.frame_stride):
+        rows = slice(bounds[k], bounds[k + 1])
+        fs = ds.features
+        if src.push(int(times[k]), fs.track_id[rows], fs.uv_left[rows], fs.uv_right[rows]):
+            with_tracks.append(int(times[k]))
+    history = None if ds.imu is None else history_from_dataset(ds)
+    upd = make_vision_updater(method, vision, src, history, rig_from_dataset(ds))
+    upd.frame_times = np.array(with_tracks, np.int64)
+    return upd

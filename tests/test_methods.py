@@ -11,7 +11,7 @@ import pytest
 
 from svains.datasets.loader import load_dataset
 from svains.evaluation.compare import run_methods, write_comparison
-from svains.navigation.options import InitOptions, RunOptions
+from svains.navigation.options import InitOptions, RunOptions, VisionOptions
 from svains.sim import SimConfig, simulate
 
 
@@ -33,7 +33,7 @@ def test_all_methods_beat_pure_inertial_when_gps_denied(
 ) -> None:
     ds = load_dataset(village_denied)
     opts = RunOptions(model="biased", init=InitOptions(mode="groundtruth"),
-                      method_options={"rotation": "imu"})
+                      vision=VisionOptions(rotation="imu"))
     res = run_methods(ds, ("ins", "vo", "lc", "tc", "3d"), opts, tmp_path)
     final = {m: r.report["final_position_error_m"] for m, r in res.items()}
     # Measured (seed 3, 15 s): see the report; ins drifts tens of metres, vision stays < 1 m.
@@ -71,4 +71,4 @@ def test_compare_cli_writes_table_and_json(village_denied: Path, tmp_path: Path)
     assert data["3d"]["ate_m"] < 1.0
     bad = CliRunner().invoke(app, ["compare", str(village_denied), "--out", str(out),
                                    "--methods", "3d", "--set", "pixel_sigma=1"])
-    assert bad.exit_code == 1 and "unknown vision options" in bad.output
+    assert bad.exit_code == 1 and "unknown configuration key 'pixel_sigma'" in bad.output

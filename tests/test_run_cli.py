@@ -94,11 +94,11 @@ def test_run_refuses_bad_settings(village_short: Path, tmp_path: Path) -> None:
         ["run", str(village_short), "--method", "3d", "--set", "nope=1", "--out", str(tmp_path)],
     )
     assert res.exit_code == 1
-    assert "unknown vision options ['nope']" in res.output
+    assert "unknown configuration key 'nope'" in res.output
     res = CliRunner().invoke(
         app, ["run", str(village_short), "--set", "frame_stride", "--out", str(tmp_path)]
     )
-    assert res.exit_code != 0 and "expected key=value" in res.output
+    assert res.exit_code != 0 and "expected section.key=value" in res.output
 
 
 def test_run_with_synthetic_features(village_short: Path, tmp_path: Path) -> None:

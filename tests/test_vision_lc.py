@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from _nav_feed import updater_for
 from svains.datasets.loader import load_dataset
 from svains.datasets.types import Dataset
 from svains.errors import DatasetError
@@ -16,7 +17,8 @@ from svains.frontend.types import Egomotion, StereoTracks
 from svains.geometry.rotation import quat_to_rotmat, so3_exp, so3_log
 from svains.models.vision_imu import imu_increment
 from svains.models.vision_lc import egomotion_from_state_pair, predict_egomotion_lc
-from svains.navigation.vision import LcUpdater, VisionOptions
+from svains.navigation.options import VisionOptions
+from svains.navigation.vision import LcUpdater
 from svains.replay.groundtruth import interpolate_groundtruth
 from svains.sim import SimConfig, simulate
 
@@ -36,7 +38,7 @@ def _frames(ds: Dataset, updater: LcUpdater) -> list[tuple[StereoTracks, np.ndar
     gt = ds.groundtruth
     assert gt is not None
     out = []
-    for t in updater.frame_times():
+    for t in updater.frame_times:
         tr = updater.source.tracks_at(int(t))
         if tr is None or tr.egomotion is None:
             continue
@@ -56,7 +58,7 @@ def test_lc_model_with_true_state_matches_true_egomotion(village: Dataset) -> No
     predicts the true camera motion up to the IMU noise integrated over one frame: no bias in
     any of the 6 numbers (a sign, frame or order error would leave errors of the motion's size,
     ~0.4 m and ~10 mrad)."""
-    up = LcUpdater(village, VisionOptions(source="features", rotation="imu"))
+    up = updater_for("lc", village, VisionOptions(source="features", rotation="imu"))
     imu, cal = village.imu, village.imu_calib
     assert imu is not None and cal is not None
     errs = []
@@ -83,8 +85,8 @@ def test_lc_measurement_covariance_is_consistent(village: Dataset) -> None:
     being the RANSAC refinement stopping before its selection settles (4.7 when iterated); the
     bound 45 fails if the covariance regresses. ``LC_COV_SCALE`` = 30 is chosen for lc's
     accuracy, not consistency, so the fused covariance is conservative (NEES ~1)."""
-    raw = LcUpdater(village, VisionOptions(source="features", lc_cov_scale=1.0))
-    fused = LcUpdater(village, VisionOptions(source="features"))
+    raw = updater_for("lc", village, VisionOptions(source="features", lc_cov_scale=1.0))
+    fused = updater_for("lc", village, VisionOptions(source="features"))
     nees_raw, nees_fused = [], []
     for tr, z_true, _ in _frames(village, raw):
         assert tr.egomotion is not None
@@ -100,13 +102,13 @@ def test_lc_measurement_covariance_is_consistent(village: Dataset) -> None:
 
 
 def test_lc_measurement_scales_and_floors_the_covariance(village: Dataset) -> None:
-    up = LcUpdater(village, VisionOptions(source="features", lc_cov_scale=4.0,
+    up = updater_for("lc", village, VisionOptions(source="features", lc_cov_scale=4.0,
                                           lc_min_std=(0.5, 2.0)))
     tr = next(t for t, _, _ in _frames(village, up))
     assert tr.egomotion is not None
     _, cov = up.measurement(tr)
     np.testing.assert_allclose(np.diag(cov), [0.25] * 3 + [4.0] * 3)  # all floored
-    up2 = LcUpdater(village, VisionOptions(source="features", lc_cov_scale=4.0,
+    up2 = updater_for("lc", village, VisionOptions(source="features", lc_cov_scale=4.0,
                                            lc_min_std=(0.0, 0.0)))
     _, cov2 = up2.measurement(tr)
     raw = tr.egomotion.cov
@@ -114,7 +116,7 @@ def test_lc_measurement_scales_and_floors_the_covariance(village: Dataset) -> No
 
 
 def test_lc_measurement_without_egomotion_raises(village: Dataset) -> None:
-    up = LcUpdater(village, VisionOptions(source="features"))
+    up = updater_for("lc", village, VisionOptions(source="features"))
     tr = next(t for t, _, _ in _frames(village, up))
     with pytest.raises(DatasetError, match="carry no egomotion"):
         up.measurement(replace(tr, egomotion=None))

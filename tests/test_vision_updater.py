@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from _nav_feed import updater_for
 from _vision_truth import TwoFrames, make_rig, two_frames
 from svains.datasets.types import CameraCalib, Dataset, FeatureStream
 from svains.errors import ConfigError
@@ -15,8 +16,7 @@ from svains.filter.ukf import UKF
 from svains.models.manifold import NavManifold
 from svains.models.state import PAPER, V
 from svains.navigation.base import FrameContext
-from svains.navigation.options import RunOptions
-from svains.navigation.vision import VisionOptions, make_vision_updater
+from svains.navigation.options import RunOptions, VisionOptions
 
 RIG = make_rig()
 T0 = 5_000_000_000
@@ -63,8 +63,8 @@ def _ctx(ukf: UKF) -> FrameContext:
 @pytest.mark.parametrize("method", ["3d", "tc", "lc"])
 def test_update_pulls_velocity_towards_truth(method: str) -> None:
     tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
-    upd = make_vision_updater(method, _dataset(tf), RunOptions(model="paper"))
-    assert list(upd.frame_times()) == [T0 + int(DT_S * 1e9)]
+    upd = updater_for(method, _dataset(tf), VisionOptions(rotation="linear"))
+    assert list(upd.frame_times) == [T0 + int(DT_S * 1e9)]
     ukf = _ukf(tf.x_k, np.array([0.4, -0.3, 0.2]))
     stats = upd.update(_ctx(ukf))
     assert stats is not None and stats.accepted
@@ -76,7 +76,7 @@ def test_update_pulls_velocity_towards_truth(method: str) -> None:
 
 def test_feature_gate_drops_and_counts_corrupted_features() -> None:
     tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
-    upd = make_vision_updater("3d", _dataset(tf, corrupt=5), RunOptions(model="paper"))
+    upd = updater_for("3d", _dataset(tf, corrupt=5), VisionOptions(rotation="linear"))
     ukf = _ukf(tf.x_k, np.array([0.05, -0.05, 0.02]))
     stats = upd.update(_ctx(ukf))
     assert stats is not None and stats.accepted
@@ -87,7 +87,7 @@ def test_feature_gate_drops_and_counts_corrupted_features() -> None:
 
 def test_no_tracks_gives_no_update() -> None:
     tf = two_frames(RIG, DT_S, np.zeros(3), np.zeros(3), n_features=2)
-    upd = make_vision_updater("3d", _dataset(tf), RunOptions(model="paper"))
+    upd = updater_for("3d", _dataset(tf), VisionOptions(rotation="linear"))
     ukf = _ukf(tf.x_k, np.zeros(3))
     x_before = ukf.x.copy()
     assert upd.update(_ctx(ukf)) is None
@@ -96,10 +96,13 @@ def test_no_tracks_gives_no_update() -> None:
 
 
 def test_unknown_option_is_rejected() -> None:
-    with pytest.raises(ConfigError, match=r"unknown vision options \['pixel_sigma'\]"):
-        VisionOptions.from_mapping({"pixel_sigma": 1.0})
-    with pytest.raises(ConfigError, match="rotation must be one of"):
-        VisionOptions.from_mapping({"rotation": "cubic"})
+    from svains.navigation.config_io import with_settings
+    from svains.navigation.options import RunConfig
+
+    with pytest.raises(ConfigError, match=r"unknown configuration key 'vision.pixel_sigma'"):
+        with_settings(RunConfig(), {"vision.pixel_sigma": 1.0})
+    with pytest.raises(ConfigError, match=r"vision\.rotation must be one of"):
+        VisionOptions(rotation="cubic")
 
 
 def test_whitening_turns_noise_into_identity() -> None:
@@ -182,17 +185,18 @@ def test_analytic_noise_matches_finite_differences(rotation: str) -> None:
         np.testing.assert_allclose(G_an, G_fd, rtol=1e-4, atol=1e-6)
 
 
-def test_tune_run_options_sets_frame_gyro_walk() -> None:
-    from svains.datasets.types import ImuCalib
-    from svains.navigation.vision import tune_run_options
+def test_tune_for_frames_sets_frame_gyro_walk() -> None:
+    from dataclasses import replace
 
-    tf = two_frames(RIG, DT_S, np.zeros(3), np.zeros(3), n_features=10)
-    ds = _dataset(tf)
-    ds.imu_calib = ImuCalib(np.eye(4), 100.0, 0.012, 1e-5, 0.07, 1e-4)
-    opts = RunOptions(model="biased", method_options={"rotation": "imu"})
-    tuned = tune_run_options(ds, "3d", opts)
-    assert tuned.noise.gyro_random_walk == pytest.approx(0.012 / DT_S)
-    assert tuned.method_options["imu_noise"] is False
-    assert tune_run_options(ds, "vo", opts) is opts
-    paper = RunOptions(model="biased", method_options={"rotation": "linear"})
-    assert tune_run_options(ds, "3d", paper) is paper
+    from svains.navigation.vision import tune_for_frames
+    from svains.sensors.types import ImuCalib
+
+    cal = ImuCalib(np.eye(4), 200.0, 1.7e-4, 2e-5, 2e-3, 3e-3)
+    opts = RunOptions(method="3d", model="biased")
+    tuned = tune_for_frames(opts, cal, 0.05)
+    assert tuned.noise.gyro_random_walk == pytest.approx(1.7e-4 / 0.05)
+    assert tuned.vision.imu_noise is False
+    assert tune_for_frames(tuned, cal, 0.05) == tuned  # idempotent (a written config re-read)
+    assert tune_for_frames(replace(opts, method="vo"), cal, 0.05).noise == opts.noise
+    paper = replace(opts, vision=VisionOptions(rotation="linear"))
+    assert tune_for_frames(paper, cal, 0.05) is paper
