@@ -14,7 +14,7 @@ from svains.models.state import P
 
 @pytest.fixture(scope="session")
 def golden_tmp(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return tmp_path_factory.mktemp("golden")
+    return tmp_path_factory.getbasetemp()  # shared: the village is simulated once per session
 
 
 def assert_matches_golden(case: Case, arrays: dict[str, np.ndarray]) -> None:

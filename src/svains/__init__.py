@@ -5,3 +5,21 @@ Conventions (quaternions Hamilton scalar-first, frames in names, int64 ns timest
 """
 
 __version__ = "0.1.0"
+
+__all__ = ["Navigator", "NavState", "RunConfig", "RunResult", "__version__"]
+
+_LAZY = {
+    "Navigator": "svains.navigation.navigator",
+    "NavState": "svains.navigation.outputs",
+    "RunResult": "svains.navigation.outputs",
+    "RunConfig": "svains.navigation.options",
+}
+
+
+def __getattr__(name: str) -> object:
+    # Lazy, so ``import svains`` stays cheap (no numpy/scipy until the estimator is used).
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'svains' has no attribute {name!r}")
