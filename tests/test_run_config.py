@@ -1,0 +1,121 @@
+"""The typed run configuration through ``svains run``: YAML round trip, ``--set``, the effective
+``OUT/config.yaml`` reproducing a run byte for byte, ``--start``, GPS outages, output files."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from svains.cli.main import app
+from svains.errors import ConfigError
+from svains.navigation.config_io import from_dict, from_yaml, to_dict, to_yaml, with_settings
+from svains.navigation.options import RunConfig, VisionOptions
+from svains.sim import SimConfig, simulate
+
+
+@pytest.fixture(scope="module")
+def village_gps(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """8 s village flight, stereo 5 Hz features only, GPS 1 Hz (no outage in the first 8 s)."""
+    cfg = SimConfig()
+    cfg = replace(cfg, duration_s=8.0, seed=4,
+                  camera=replace(cfg.camera, rate_hz=5.0, render_images=False))
+    return simulate(cfg, tmp_path_factory.mktemp("village") / "ds")
+
+
+def _cli(args: list[str]) -> str:
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0, res.output
+    return res.output
+
+
+def test_yaml_round_trip_is_exact(tmp_path: Path) -> None:
+    c = RunConfig(method="3d", duration_s=1.0 / 3.0, gps_outages=((1.5, 2.0),),
+                  vision=VisionOptions(pixel_noise_std=0.1 + 0.2, lc_min_std=(1e-7, 3.3e-3)))
+    path = tmp_path / "c.yaml"
+    to_yaml(c, path, header="a comment")
+    assert from_yaml(path) == c
+    assert from_dict(yaml.safe_load(to_yaml(RunConfig()))) == RunConfig()
+    assert to_dict(c)["gps_outages"] == [[1.5, 2.0]]
+
+
+def test_bad_settings_name_their_key() -> None:
+    c = RunConfig()
+    with pytest.raises(ConfigError, match=r"filter\.max_predict_steps must be an integer"):
+        with_settings(c, {"filter.max_predict_steps": "ten"})
+    with pytest.raises(ConfigError, match=r"unknown configuration key 'noise\.gyro'"):
+        with_settings(c, {"noise.gyro": 1.0})
+    with pytest.raises(ConfigError, match=r"unknown configuration section 'nope'"):
+        with_settings(c, {"nope.key": 1})
+    with pytest.raises(ConfigError, match=r"init\.mode must be one of"):
+        with_settings(c, {"init.mode": "flying"})
+    assert with_settings(c, {"vision.lc_min_std": [0.1, 2]}).vision.lc_min_std == (0.1, 2.0)
+
+
+def test_rotation_has_one_default() -> None:
+    assert VisionOptions().rotation == "imu" == RunConfig().vision.rotation
+
+
+def test_effective_config_reproduces_the_run_byte_for_byte(village_gps: Path,
+                                                           tmp_path: Path) -> None:
+    a, b = tmp_path / "a", tmp_path / "b"
+    _cli(["run", str(village_gps), "--method", "3d", "--init", "groundtruth", "--out", str(a),
+          "--set", "vision.max_features=40", "--set", "filter.max_predict_steps=10",
+          "--gps-outage", "2:3", "--start", "0.5"])
+    text = (a / "config.yaml").read_text()
+    assert text.startswith("# svains run configuration") and "git " in text
+    cfg = from_yaml(a / "config.yaml")
+    assert cfg.vision.source == "features" and cfg.vision.pixel_noise_std == 0.5
+    assert cfg.filter.max_predict_steps == 10 and cfg.replay.start_s == 0.5
+    _cli(["run", str(village_gps), "--config", str(a / "config.yaml"), "--out", str(b)])
+    assert (a / "trajectory.tum").read_bytes() == (b / "trajectory.tum").read_bytes()
+    assert (a / "config.yaml").read_text() == (b / "config.yaml").read_text()
+    tum = np.loadtxt(a / "trajectory.tum")
+    t_imu0 = np.loadtxt(village_gps / "mav0" / "imu0" / "data.csv", delimiter=",")[0, 0] * 1e-9
+    assert tum[0, 0] >= t_imu0 + 0.5  # --start skipped the first half second
+
+
+def test_output_files_are_readable(village_gps: Path, tmp_path: Path) -> None:
+    from evo.tools import file_interface
+
+    out = tmp_path / "ins"
+    _cli(["run", str(village_gps), "--init", "groundtruth", "--out", str(out)])
+    tum = np.loadtxt(out / "trajectory.tum")
+    traj = file_interface.read_euroc_csv_trajectory(str(out / "trajectory_euroc.csv"))
+    np.testing.assert_allclose(traj.positions_xyz, tum[:, 1:4], atol=1e-6)
+    np.testing.assert_allclose(traj.timestamps, tum[:, 0], atol=1e-9)
+    np.testing.assert_allclose(np.abs(traj.orientations_quat_wxyz),
+                               np.abs(tum[:, [7, 4, 5, 6]]), atol=1e-6)
+    cov = np.loadtxt(out / "pose_covariance.csv", delimiter=",", skiprows=1)
+    assert cov.shape == (len(tum), 13)
+    states = (out / "states.csv").read_text().splitlines()
+    assert states[0].startswith("t_ns,p_W_B_x") and len(states) == len(tum) + 1
+    std_p = np.loadtxt(out / "states.csv", delimiter=",", skiprows=1)[:, 20:23]
+    # pose_covariance: θ upper triangle (6), then position's; its diagonal is std_p².
+    np.testing.assert_allclose(cov[:, [7, 10, 12]], std_p**2, rtol=1e-6)
+
+
+def test_gps_outage_windows_and_gps_until(village_gps: Path, tmp_path: Path) -> None:
+    import json
+
+    def fused(args: list[str]) -> dict:
+        out = tmp_path / str(abs(hash(tuple(args))))
+        _cli(["run", str(village_gps), "--init", "groundtruth", "--out", str(out), *args])
+        return json.loads((out / "report.json").read_text())
+
+    full = fused([])
+    cut = fused(["--gps-outage", "2:3", "--gps-outage", "6.5:0.4"])
+    until = fused(["--gps-until", "4"])
+    n = full["measurements"]["gps"]["fused"]
+    assert n >= 7
+    # Fixes at 1 Hz: 2, 3, 4 s in [2, 5) and none in [6.5, 6.9).
+    assert cut["gps_outage_fixes_skipped"] == 3
+    assert cut["measurements"]["gps"]["fused"] == n - 3
+    assert until["measurements"]["gps"]["fused"] == n - until["gps_outage_fixes_skipped"]
+    assert until["gps_outage_fixes_skipped"] >= 3
+    with pytest.raises(AssertionError):
+        _cli(["run", str(village_gps), "--gps-outage", "2-3", "--out", str(tmp_path / "x")])
