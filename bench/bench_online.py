@@ -1,0 +1,140 @@
+"""Benchmark of the online estimator (``svains.Navigator``).
+
+1. Latency of ``feed_stereo`` on 752x480 pairs: ``3d`` from images on a simulated 20 Hz village
+   flight, reordering window 0, so a pair is processed by the next IMU sample: the latency of a
+   frame is ``feed_stereo`` plus that ``feed_imu`` call (front end + vision update). Median and
+   99th percentile over the frames (the first, which only detects, excluded). Targets: median
+   <= 15 ms, p99 <= 40 ms.
+2. Real-time factor of the replay (``svains run``'s path) on the same flight, next to the old
+   batch runner's on the same data and machine: the old runner is the source tree at
+   ``--old-rev`` (default the commit before the Navigator, 2a6a877), run in a subprocess.
+
+Plain script: prints its figures with the load average; timings depend on the machine's load.
+Usage: ``.venv/bin/python bench/bench_online.py [--duration S] [--old-rev REV]``.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+OLD_SCRIPT = """
+import sys, time, json
+from svains.datasets.loader import load_dataset
+from svains.evaluation.run import run_method
+from svains.navigation.options import InitOptions, RunOptions
+from svains.navigation.vision import tune_run_options
+ds = load_dataset(sys.argv[1])
+opts = RunOptions(model="biased", init=InitOptions(mode="groundtruth"),
+                  method_options={"source": "images", "rotation": "imu"})
+opts = tune_run_options(ds, "3d", opts)
+c0, w0 = time.process_time(), time.perf_counter()
+rep = run_method(ds, "3d", opts).report
+print(json.dumps({"wall": time.perf_counter() - w0, "cpu": time.process_time() - c0,
+                  "rtf": rep["realtime_factor"], "rmse": rep["position_rmse_m"]}))
+"""
+
+
+def _args() -> tuple[float, str]:
+    a = sys.argv
+    duration = float(a[a.index("--duration") + 1]) if "--duration" in a else 10.0
+    rev = a[a.index("--old-rev") + 1] if "--old-rev" in a else "2a6a877"
+    return duration, rev
+
+
+def bench_latency(root: Path) -> None:
+    from svains.datasets.loader import load_dataset
+    from svains.navigation.navigator import Navigator
+    from svains.navigation.options import BufferOptions, InitOptions, RunConfig, VisionOptions
+    from svains.replay.replay import (
+        _FRAME,
+        feed,
+        groundtruth_start,
+        measurements,
+        resolve_config,
+        rig_from_dataset,
+    )  # fmt: skip
+
+    ds = load_dataset(root)
+    cfg = RunConfig(method="3d", init=InitOptions(mode="groundtruth"),
+                    vision=VisionOptions(source="images"), buffer=BufferOptions(window_s=0.0))
+    cfg = resolve_config(ds, cfg)
+    nav = Navigator(cfg, rig_from_dataset(ds), initial_state=groundtruth_start(ds, cfg, None))
+    lat: list[float] = []
+    pending: tuple[int, float] | None = None  # frame waiting to be processed, time so far
+    for t, kind, payload in measurements(ds, cfg, int(ds.imu.t_ns[0])):  # type: ignore[union-attr]
+        t0 = time.perf_counter()
+        feed(nav, kind, t, payload)
+        dt = time.perf_counter() - t0
+        if kind == _FRAME:
+            pending = (t, dt)
+        elif pending is not None:
+            pending = (pending[0], pending[1] + dt)
+            # Processed once the estimator has passed the frame (the IMU sample after it).
+            if nav.core is not None and nav.core.ins.t_ns >= pending[0]:
+                lat.append(pending[1] * 1e3)
+                pending = None
+    nav.close()
+    ms = np.array(lat[1:])
+    print(f"feed_stereo latency, 3d from 752x480 images, {ms.size} frames (window 0, load "
+          f"average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores): median "
+          f"{np.median(ms):.1f} ms (target <= 15), p99 {np.percentile(ms, 99):.1f} ms "
+          f"(target <= 40)")
+
+
+def bench_replay(root: Path, old_rev: str) -> None:
+    from svains.datasets.loader import load_dataset
+    from svains.evaluation.run import run_method
+    from svains.navigation.options import InitOptions, RunConfig, VisionOptions
+
+    ds = load_dataset(root)
+    cfg = RunConfig(method="3d", init=InitOptions(mode="groundtruth"),
+                    vision=VisionOptions(source="images"))
+    load = os.getloadavg()[0]
+    c0 = time.process_time()
+    rep = run_method(ds, None, cfg).report
+    cpu = time.process_time() - c0
+    print(f"replay (Navigator): {rep['data_duration_s']:.1f} s of data in {rep['wall_s']:.2f} s "
+          f"wall, {cpu:.2f} s CPU -> real-time factor {rep['realtime_factor']:.2f}x (load "
+          f"average {load:.1f}); position RMSE {rep['position_rmse_m']:.4f} m")
+    with tempfile.TemporaryDirectory() as tmp:
+        archive = subprocess.run(["git", "archive", old_rev], cwd=ROOT, capture_output=True,
+                                 check=True).stdout  # fmt: skip
+        subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
+        env = {**os.environ, "PYTHONPATH": str(Path(tmp) / "src")}
+        load = os.getloadavg()[0]
+        out = subprocess.run([sys.executable, "-c", OLD_SCRIPT, str(root)], env=env,
+                             capture_output=True, text=True, check=True).stdout  # fmt: skip
+    import json
+
+    old = json.loads(out.strip().splitlines()[-1])
+    print(f"old batch runner ({old_rev}): {old['wall']:.2f} s wall, {old['cpu']:.2f} s CPU -> "
+          f"real-time factor {old['rtf']:.2f}x (load average {load:.1f}); position RMSE "
+          f"{old['rmse']:.4f} m")
+
+
+def main() -> None:
+    from svains.sim import SimConfig, simulate
+
+    duration, old_rev = _args()
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = SimConfig()
+        cfg = replace(cfg, duration_s=duration, camera=replace(cfg.camera, rate_hz=20.0))
+        t0 = time.perf_counter()
+        root = simulate(cfg, Path(tmp) / "sim")
+        print(f"simulated {duration:.0f} s at 20 Hz with 752x480 images in "
+              f"{time.perf_counter() - t0:.1f} s")
+        bench_latency(root)
+        bench_replay(root, old_rev)
+
+
+if __name__ == "__main__":
+    main()
