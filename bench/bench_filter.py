@@ -28,6 +28,7 @@ from svains.navigation.init import initialise
 from svains.navigation.ins import InsFilter
 from svains.navigation.options import FilterOptions, InitOptions, NoiseOptions, RunOptions
 from svains.replay.groundtruth import nees_series
+from svains.replay.replay import history_from_dataset, rig_from_dataset
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "euroc_v101_micro"
 TARGET = 20_000
@@ -36,7 +37,8 @@ TARGET = 20_000
 def bench_predict(ds, steps: int, repeats: int = 200) -> tuple[float, float]:
     """Wall and CPU seconds per UKF predict over ``steps`` IMU steps (biased model, 37 points)."""
     init = initialise(ds, BIASED, InitOptions(mode="groundtruth"))
-    ins = InsFilter(ds, BIASED, init, FilterOptions(max_predict_steps=steps), NoiseOptions())
+    ins = InsFilter(history_from_dataset(ds), rig_from_dataset(ds), BIASED, init,
+                    FilterOptions(max_predict_steps=steps), NoiseOptions())
     k = int(np.searchsorted(ins.t_imu, init.t_ns))
     sl = slice(k, k + steps + 1)
     chunk = ImuChunk(

@@ -54,15 +54,14 @@ def bench_models() -> None:
 
 
 def _stage_profile(src: object, n_frames: int, wall_s: float) -> dict[str, float]:
-    """Mean ms per frame: image wait, front-end stages, and the rest (IMU propagation, vision
-    update, other sensors) from the wall time of the run."""
-    load = np.asarray(src.load_ms)  # type: ignore[attr-defined]
+    """Mean ms per frame: front-end stages, and the rest (image decoding in the replay, IMU
+    propagation, vision update, other sensors) from the wall time of the run."""
     fe = np.asarray(src.frontend_ms)  # type: ignore[attr-defined]
-    out = {"png_wait": float(load.mean()), "frontend": float(fe.mean())}
+    out = {"frontend": float(fe.mean())}
     stages = src.stage_ms  # type: ignore[attr-defined]
     for key in ("track", "detect", "stereo", "ransac"):
         out[f"  {key}"] = float(np.mean([d.get(key, 0.0) for d in stages]))
-    out["filter+rest"] = wall_s * 1e3 / n_frames - out["png_wait"] - out["frontend"]
+    out["filter+rest"] = wall_s * 1e3 / n_frames - out["frontend"]
     out["total"] = wall_s * 1e3 / n_frames
     return out
 
@@ -76,26 +75,31 @@ class _Replay:
     def __init__(self, rig: object, tracks: dict[int, object]) -> None:
         self.rig = rig
         self._tracks = tracks
-        self._times = np.array(sorted(tracks), np.int64)
 
-    def frame_times(self) -> np.ndarray:
-        return self._times
+    def push(self, *args: object) -> bool:
+        return True
+
+    def discard(self, t_ns: int) -> None:
+        pass
+
+    def reference_time_ns(self) -> None:
+        return None
 
     def tracks_at(self, t_ns: int, motion_prior: object = None) -> object:
         return self._tracks.get(int(t_ns))
 
 
 def bench_filter_replay(ds: object, opts: object, tracks: dict[int, object], repeat: int) -> None:
-    """The filter side alone (IMU propagation, other sensors, vision update, runner loop): the
+    """The filter side alone (IMU propagation, other sensors, vision update, event loop): the
     front end's tracks of one run replayed, best of ``repeat``; CPU time of this process (less
-    sensitive to other processes than wall time)."""
-    import svains.navigation.vision_pixels as vp
+    sensitive to other processes than wall time). Image decoding still runs in the replay."""
     from svains.evaluation.run import run_method
-    from svains.navigation.vision_sources import rig_from_dataset
+    from svains.navigation import navigator
+    from svains.navigation.vision_sources import rig_from_calibrations
 
-    make = vp.make_source
-    src = _Replay(rig_from_dataset(ds), tracks)  # type: ignore[arg-type]
-    vp.make_source = lambda *a, **k: src  # type: ignore[assignment]
+    make = navigator.Navigator._make_source
+    src = _Replay(rig_from_calibrations(ds.cam0, ds.cam1), tracks)  # type: ignore[attr-defined]
+    navigator.Navigator._make_source = lambda self, kind: src  # type: ignore[method-assign]
     try:
         best_cpu, best_wall = np.inf, np.inf
         for _ in range(max(repeat, 1)):
@@ -104,7 +108,7 @@ def bench_filter_replay(ds: object, opts: object, tracks: dict[int, object], rep
             best_cpu = min(best_cpu, time.process_time() - c0)
             best_wall = min(best_wall, time.perf_counter() - w0)
     finally:
-        vp.make_source = make  # type: ignore[assignment]
+        navigator.Navigator._make_source = make  # type: ignore[method-assign]
     n = len(tracks)
     print(f"filter side only (recorded tracks replayed, {n} frames), best of {max(repeat, 1)}: "
           f"{best_cpu * 1e3 / n:.2f} ms CPU, {best_wall * 1e3 / n:.2f} ms wall per frame; "
@@ -116,10 +120,10 @@ def bench_images_3d(duration_s: float = 20.0, repeat: int = 2, profile: bool = F
 
     The run is repeated ``repeat`` times on the same data set; the fastest (least disturbed by
     other processes) is reported with its per-stage profile, with the load average. PNG decoding
-    runs in the image source's prefetch thread, so ``png_wait`` is only what the main thread
-    still waits for. ``--profile`` adds a cProfile listing (which inflates the timings). Then
-    one run with the other setting of the IMU motion prior (``VisionOptions.motion_prior``:
-    accuracy and front-end status counts) and the filter side alone (``bench_filter_replay``).
+    runs in the replay's prefetch thread (part of ``filter+rest``). ``--profile`` adds a
+    cProfile listing (which inflates the timings). Then one run with the other setting of the
+    IMU motion prior (``VisionOptions.motion_prior``: accuracy and front-end status counts) and
+    the filter side alone (``bench_filter_replay``).
     """
     import os
     from dataclasses import replace
@@ -127,28 +131,28 @@ def bench_images_3d(duration_s: float = 20.0, repeat: int = 2, profile: bool = F
     import svains.navigation.vision_sources as vs
     from svains.datasets.loader import load_dataset
     from svains.evaluation.run import run_method
-    from svains.navigation.options import InitOptions, RunOptions
-    from svains.navigation.vision import tune_run_options
+    from svains.navigation.options import InitOptions, RunOptions, VisionOptions
+    from svains.replay import resolve_config
     from svains.sim import SimConfig, simulate
 
     # The runner builds its image source internally: keep a handle on it for the stage timings,
     # and record the tracks it hands to the filter (for the filter-only replay).
-    sources: list[vs.ImageTrackSource] = []
+    sources: list[vs.ImageFrames] = []
     recorded: dict[int, object] = {}
-    init = vs.ImageTrackSource.__init__
-    tracks_at = vs.ImageTrackSource.tracks_at
+    init = vs.ImageFrames.__init__
+    tracks_at = vs.ImageFrames.tracks_at
 
-    def _init(self: vs.ImageTrackSource, *a: object, **k: object) -> None:
+    def _init(self: vs.ImageFrames, *a: object, **k: object) -> None:
         init(self, *a, **k)  # type: ignore[arg-type]
         sources.append(self)
 
-    def _tracks_at(self: vs.ImageTrackSource, t_ns: int, motion_prior: object = None) -> object:
+    def _tracks_at(self: vs.ImageFrames, t_ns: int, motion_prior: object = None) -> object:
         tr = tracks_at(self, t_ns, motion_prior)  # type: ignore[arg-type]
         recorded[int(t_ns)] = tr
         return tr
 
-    vs.ImageTrackSource.__init__ = _init  # type: ignore[method-assign]
-    vs.ImageTrackSource.tracks_at = _tracks_at  # type: ignore[assignment,method-assign]
+    vs.ImageFrames.__init__ = _init  # type: ignore[method-assign]
+    vs.ImageFrames.tracks_at = _tracks_at  # type: ignore[assignment,method-assign]
     with tempfile.TemporaryDirectory() as tmp:
         cfg = SimConfig()
         cfg = replace(cfg, duration_s=duration_s, camera=replace(cfg.camera, rate_hz=20.0))
@@ -157,9 +161,9 @@ def bench_images_3d(duration_s: float = 20.0, repeat: int = 2, profile: bool = F
         took = time.perf_counter() - t0
         print(f"simulated {duration_s:.0f} s at 20 Hz with images in {took:.1f} s")
         ds = load_dataset(root)
-        mo = {"source": "images", "rotation": "imu"}
-        opts = RunOptions(model="biased", init=InitOptions(mode="groundtruth"), method_options=mo)
-        opts = tune_run_options(ds, "3d", opts)
+        opts = RunOptions(method="3d", model="biased", init=InitOptions(mode="groundtruth"),
+                          vision=VisionOptions(source="images", rotation="imu"))
+        opts = resolve_config(ds, opts)
         runs = []
         for _ in range(max(repeat, 1)):
             prof = cProfile.Profile() if profile else None
@@ -193,14 +197,14 @@ def bench_images_3d(duration_s: float = 20.0, repeat: int = 2, profile: bool = F
             )
         tracks = dict(recorded)
         # The other setting of the IMU motion prior (VisionOptions.motion_prior), for comparison.
-        prior_on = bool(opts.method_options.get("motion_prior", False))
-        other = replace(opts, method_options={**opts.method_options, "motion_prior": not prior_on})
+        prior_on = opts.vision.motion_prior
+        other = replace(opts, vision=replace(opts.vision, motion_prior=not prior_on))
         rep_o = run_method(ds, "3d", other).report
         print(f"{'without' if prior_on else 'with'} the IMU motion prior: position RMSE "
               f"{rep_o['position_rmse_m']:.4f} m (default: {rep['position_rmse_m']:.4f} m); "
               f"front end {rep_o['vision'].get('frontend_status')}")
-        vs.ImageTrackSource.__init__ = init  # type: ignore[method-assign]
-        vs.ImageTrackSource.tracks_at = tracks_at  # type: ignore[method-assign]
+        vs.ImageFrames.__init__ = init  # type: ignore[method-assign]
+        vs.ImageFrames.tracks_at = tracks_at  # type: ignore[method-assign]
         bench_filter_replay(ds, opts, tracks, repeat)
 
 

@@ -36,10 +36,14 @@ ds = load_dataset(sys.argv[1])
 opts = RunOptions(model="biased", init=InitOptions(mode="groundtruth"),
                   method_options={"source": "images", "rotation": "imu"})
 opts = tune_run_options(ds, "3d", opts)
-c0, w0 = time.process_time(), time.perf_counter()
-rep = run_method(ds, "3d", opts).report
-print(json.dumps({"wall": time.perf_counter() - w0, "cpu": time.process_time() - c0,
-                  "rtf": rep["realtime_factor"], "rmse": rep["position_rmse_m"]}))
+best = None
+for _ in range(2):  # the first run pays the imports and caches: report the better one
+    c0, w0 = time.process_time(), time.perf_counter()
+    rep = run_method(ds, "3d", opts).report
+    run = {"wall": time.perf_counter() - w0, "cpu": time.process_time() - c0,
+           "rtf": rep["realtime_factor"], "rmse": rep["position_rmse_m"]}
+    best = run if best is None or run["wall"] < best["wall"] else best
+print(json.dumps(best))
 """
 
 
@@ -99,10 +103,14 @@ def bench_replay(root: Path, old_rev: str) -> None:
     cfg = RunConfig(method="3d", init=InitOptions(mode="groundtruth"),
                     vision=VisionOptions(source="images"))
     load = os.getloadavg()[0]
-    c0 = time.process_time()
-    rep = run_method(ds, None, cfg).report
-    cpu = time.process_time() - c0
-    print(f"replay (Navigator): {rep['data_duration_s']:.1f} s of data in {rep['wall_s']:.2f} s "
+    runs = []
+    for _ in range(2):  # like the old runner's figure: the better of two runs
+        c0 = time.process_time()
+        rep = run_method(ds, None, cfg).report
+        runs.append((rep["wall_s"], time.process_time() - c0, rep))
+    _, cpu, rep = min(runs, key=lambda r: r[0])
+    print(f"replay (Navigator), best of 2: {rep['data_duration_s']:.1f} s of data in "
+          f"{rep['wall_s']:.2f} s "
           f"wall, {cpu:.2f} s CPU -> real-time factor {rep['realtime_factor']:.2f}x (load "
           f"average {load:.1f}); position RMSE {rep['position_rmse_m']:.4f} m")
     with tempfile.TemporaryDirectory() as tmp:
@@ -116,9 +124,9 @@ def bench_replay(root: Path, old_rev: str) -> None:
     import json
 
     old = json.loads(out.strip().splitlines()[-1])
-    print(f"old batch runner ({old_rev}): {old['wall']:.2f} s wall, {old['cpu']:.2f} s CPU -> "
-          f"real-time factor {old['rtf']:.2f}x (load average {load:.1f}); position RMSE "
-          f"{old['rmse']:.4f} m")
+    print(f"old batch runner ({old_rev}), best of 2: {old['wall']:.2f} s wall, "
+          f"{old['cpu']:.2f} s CPU -> real-time factor {old['rtf']:.2f}x (load average "
+          f"{load:.1f}); position RMSE {old['rmse']:.4f} m")
 
 
 def main() -> None:

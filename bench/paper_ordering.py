@@ -23,7 +23,7 @@ import numpy as np
 from svains.datasets.loader import load_dataset
 from svains.datasets.types import Dataset
 from svains.evaluation.compare import align_to_groundtruth, run_methods
-from svains.navigation.options import InitOptions, RunOptions
+from svains.navigation.options import InitOptions, RunOptions, VisionOptions
 from svains.sim import SimConfig, simulate
 
 METHODS = ("vo", "lc", "tc", "3d")
@@ -40,12 +40,12 @@ def denied_village(seed: int, duration_s: float, rate_hz: float, root: Path) -> 
     return load_dataset(simulate(cfg, root))
 
 
-def denied_options(**method_options: object) -> RunOptions:
+def denied_options(**vision: object) -> RunOptions:
     """Run options of the GPS-denied, magnetometer-free runs (ground-truth start, features0,
-    ``imu`` motion model), with extra vision ``method_options``."""
+    ``imu`` motion model), with extra ``vision`` options."""
     return RunOptions(
         model="biased", init=InitOptions(mode="groundtruth"), use_gps=False, use_mag=False,
-        method_options={"source": "features", "rotation": "imu", **method_options},
+        vision=VisionOptions(**{"source": "features", "rotation": "imu", **vision}),  # type: ignore[arg-type]
     )
 
 

@@ -6,7 +6,7 @@ Conventions (quaternions Hamilton scalar-first, frames in names, int64 ns timest
 
 __version__ = "0.1.0"
 
-__all__ = ["Navigator", "NavState", "RunConfig", "RunResult", "__version__"]
+__all__ = ["NavState", "Navigator", "RunConfig", "RunResult", "__version__"]
 
 _LAZY = {
     "Navigator": "svains.navigation.navigator",
