@@ -119,7 +119,7 @@ def test_run_without_ground_truth_reports_none_and_writes_outputs(tmp_path) -> N
 
 
 def test_navigation_report_has_no_accuracy_keys_and_says_what_fixes_the_frame(tmp_path) -> None:
-    # Layering: the navigation runner knows no ground-truth metrics; evaluation adds them.
+    # Layering: the estimator knows no ground-truth metrics; evaluation adds them.
     ds = make_dataset(3.0)
     res = replay(ds, RunOptions(init=GT_INIT))
     assert "ate_rmse_m" not in res.report and "position_rmse_m" not in res.report

@@ -1,16 +1,16 @@
-"""Extension point for vision methods (``tc``, ``3d``, ``lc``, ``vo``) plugged into the INS runner.
+"""Extension point for vision updaters (``tc``, ``3d``, ``lc``) inside the ``Navigator``.
 
-How it works (``navigation.runner.run_method``):
+How it works (``navigation.navigator_core.Core``):
 
-1. ``run_method(dataset, method, options)`` with ``method != "ins"`` imports the module listed in
-   ``VISION_METHOD_MODULES[method]`` and calls its ``make_updater(dataset, options)``, which
-   returns an object following :class:`VisionUpdater`.
-2. The runner merges ``updater.frame_times()`` (int64 ns, increasing) with the GPS,
-   magnetometer, sonar and output-tick times. For each frame time it propagates the filter with
-   the IMU **exactly to the frame time** (the IMU sample at the frame time is linearly
-   interpolated between its neighbours), first fuses the non-vision measurements stamped at that
-   time (one ``UKF.update_blocks`` call, each gated on its own) unless
-   ``FilterOptions.stack_with_vision`` is True, and then calls ``updater.update(ctx)``.
+1. The Navigator builds the updater of ``config.method`` once the first stereo frame arrives
+   (``vision.make_vision_updater(method, options, source, history, rig)``); it follows
+   :class:`VisionUpdater`. Its tracks come from the frame's source (pre-tracked features or the
+   image front end, ``vision_sources``).
+2. For each vision frame (in time order with the GPS, magnetometer, sonar and output ticks) the
+   Navigator propagates the filter with the IMU **exactly to the frame time** (the IMU sample at
+   the frame time is linearly interpolated between its neighbours), first fuses the non-vision
+   measurements stamped at that time (one ``UKF.update_blocks`` call, each gated on its own)
+   unless ``FilterOptions.stack_with_vision`` is True, and then calls ``updater.update(ctx)``.
 3. ``ctx`` (:class:`FrameContext`) gives the updater the filter (state ``ukf.x`` (nx,), tangent
    covariance ``ukf.P`` (ndx, ndx), both at ``t_ns``), the state layout (``svains.models.state``
    slices ``P, V, Q, W, BG, BA``), the previous frame time ``t_prev_ns`` (``None`` at the first
@@ -21,15 +21,14 @@ How it works (``navigation.runner.run_method``):
    vectorised over the sigma points (e.g. 4 pixel numbers per feature, hundreds of features).
    ``apply`` returns :class:`svains.filter.ukf.UpdateStats` (accepted/rejected by the chi-square
    gate, NIS, dimension); the updater returns it (or ``None`` when the frame gave nothing to fuse,
-   e.g. no tracks) so the runner counts fused and rejected frames under the method's name.
+   e.g. no tracks) so the Navigator counts fused and rejected frames under the method's name.
 
 Filter API an updater may use: ``ukf.x``, ``ukf.P``, ``ukf.sigma_points() -> (X (S, nx),
 offsets (S, ndx))``, ``ukf.points`` (weights ``Wm``, ``Wc``), ``ukf.update(h, z, R,
 gate_probability, residual, name)``; layout slices in ``svains.models.state``; the manifold
 (box-plus/minus) in ``svains.models.manifold.NavManifold``.
 
-A method that needs no filter at all (pure VO) may instead define ``run(dataset, options,
-progress) -> RunResult`` in its module; the runner calls it when ``make_updater`` is absent.
+Pure VO needs no filter: it runs in the replay (``svains.replay.vo``).
 """
 
 from __future__ import annotations
@@ -46,15 +45,6 @@ from svains.models.state import StateLayout
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
-
-# method name -> module defining ``make_updater(dataset, options) -> VisionUpdater`` (or ``run``).
-VISION_METHOD_MODULES: dict[str, str] = {
-    "tc": "svains.navigation.tc",
-    "3d": "svains.navigation.threed",
-    "lc": "svains.navigation.lc",
-    "vo": "svains.replay.vo",
-}
-
 
 @dataclass(frozen=True)
 class MeasurementBlock:
@@ -87,13 +77,9 @@ class FrameContext:
 
 @runtime_checkable
 class VisionUpdater(Protocol):
-    """A vision method plugged into the INS runner (see the module docstring)."""
+    """A vision method plugged into the Navigator (see the module docstring)."""
 
     method: str
-
-    def frame_times(self) -> I64:
-        """Times (F,) int64 ns, increasing, at which ``update`` must be called."""
-        ...
 
     def update(self, ctx: FrameContext) -> UpdateStats | None:
         """Fuse the frame at ``ctx.t_ns``; return the update's stats, ``None`` if nothing fused."""
