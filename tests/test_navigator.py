@@ -27,11 +27,15 @@ from svains.navigation.init import ImuArrays, InitData, initialise
 from svains.navigation.options import InitOptions, RunConfig, VisionOptions
 from svains.navigation.vision import tune_for_frames
 from svains.navigation.vision_sources import rig_from_calibrations
+from svains.replay.replay import _FRAME as FRAME
+from svains.replay.replay import _GPS as GPS
+from svains.replay.replay import _IMU as IMU
+from svains.replay.replay import _MAG as MAG
+from svains.replay.replay import _SONAR as SONAR
+from svains.replay.replay import feed
 from svains.replay.synthetic import room_landmarks, synthesize_features
 from svains.sensors.types import Rig
 from test_golden import assert_matches_golden
-
-GPS, MAG, SONAR, FRAME, IMU = range(5)
 
 
 def _files(root: Path, synthetic: bool) -> dict[str, Any]:
@@ -114,16 +118,7 @@ def feed_by_hand(case: Case, tmp: Path) -> Any:
     seen: list[int] = []
     nav_outputs = nav.outputs()
     for t, kind, p in _events(f, case.method != "ins"):
-        if kind == IMU:
-            nav.feed_imu(t, p[0], p[1])
-        elif kind == GPS:
-            nav.feed_gps(t, p[0], p[1])
-        elif kind == MAG:
-            nav.feed_mag(t, p[0])
-        elif kind == SONAR:
-            nav.feed_sonar(t, float(p[0]))
-        else:
-            nav.feed_tracks(t, *p)
+        feed(nav, kind, t, p if kind != FRAME else ("features", *p))  # the public feed_* calls
         if nav.status == "finished":
             break
     res = nav.close()

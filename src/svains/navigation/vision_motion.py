@@ -45,24 +45,13 @@ class ImuIncrements:
         # ... as pixel noise of the ``imu`` models only when asked (``VisionOptions.imu_noise``).
         self.noise = self.densities if imu_noise else None
 
-    @property
-    def t_ns(self) -> NDArray[np.int64]:
-        return self.history.t_ns
-
-    @property
-    def gyro_B(self) -> F64:
-        return self.history.gyro_B
-
-    @property
-    def accel_B(self) -> F64:
-        return self.history.accel_B
-
     def between(self, ctx: FrameContext, t0_ns: int, t1_ns: int) -> ImuIncrement:
         """Increment over [t0, t1] with the filter's mean biases removed."""
         x = ctx.ukf.x
         biased = ctx.layout.biased
+        h = self.history
         return imu_increment(
-            self.t_ns, self.gyro_B, self.accel_B, t0_ns, t1_ns, self.g_W,
+            h.t_ns, h.gyro_B, h.accel_B, t0_ns, t1_ns, self.g_W,
             x[BG] if biased else None, x[BA] if biased else None,
         )
 
@@ -126,7 +115,7 @@ class MotionPrior:
     ) -> tuple[Egomotion | None, ImuIncrement | None]:
         """The prior for the tracks ``t_ref_ns`` -> ``ctx.t_ns`` (the filter is at ``ctx.t_ns``)
         and the IMU increment it used (None, None without a usable reference)."""
-        if t_ref_ns is None or t_ref_ns >= ctx.t_ns or t_ref_ns < self.increments.t_ns[0]:
+        if t_ref_ns is None or t_ref_ns >= ctx.t_ns or t_ref_ns < self.increments.history.t_ns[0]:
             return None, None
         inc = self.increments.between(ctx, t_ref_ns, ctx.t_ns)
         X, _ = ctx.ukf.sigma_points()
