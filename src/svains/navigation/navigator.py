@@ -103,9 +103,12 @@ class Navigator:
 
     def feed_stereo(self, t_ns: int, left: NDArray[np.uint8], right: NDArray[np.uint8]) -> None:
         """A stereo pair (8-bit grey, raw cam0/cam1 images): the front end runs on it when the
-        estimator reaches ``t_ns`` (camera clock = IMU clock). Ignored by ``ins``."""
+        estimator reaches ``t_ns`` (camera clock = IMU clock; the arrays are copied). Ignored
+        by ``ins``."""
         if self.config.method != "ins":
-            self._push(int(t_ns), FRAME, ("images", left, right))
+            # Copied now: drivers reuse their image buffers while the pair waits in the queue.
+            pair = (np.array(left, np.uint8, copy=True), np.array(right, np.uint8, copy=True))
+            self._push(int(t_ns), FRAME, ("images", *pair))
 
     def feed_tracks(
         self, t_ns: int, track_id: ArrayLike, uv_left: ArrayLike, uv_right: ArrayLike

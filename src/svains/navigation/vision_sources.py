@@ -84,8 +84,8 @@ class ImageFrames:
         self.status_counts: dict[str, int] = {}
 
     def push(self, t_ns: int, left: U8, right: U8) -> bool:
-        """Keep the pair (copied: callers may reuse their buffers) until its turn."""
-        self._images[int(t_ns)] = (np.array(left, np.uint8), np.array(right, np.uint8))
+        """Keep the pair until its turn (the Navigator hands over its own copies)."""
+        self._images[int(t_ns)] = (np.asarray(left, np.uint8), np.asarray(right, np.uint8))
         return True
 
     def discard(self, t_ns: int) -> None:
