@@ -1,0 +1,77 @@
+"""The Navigator's contract on small synthetic streams: static start, duplicate IMU stamps,
+bad configurations, copies of fed images, outputs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from svains import Navigator, NavState, RunConfig
+from svains.errors import ConfigError, InitialisationError
+from svains.navigation.event_queue import FRAME
+from svains.navigation.options import InitOptions
+from svains.sensors.types import Rig
+
+G = 9.81
+
+
+def _feed_static(nav: Navigator, seconds: float, rng: np.random.Generator,
+                 accel: np.ndarray | None = None) -> None:
+    for k in range(int(seconds * 200)):
+        a = np.array([0.0, 0.0, G]) if accel is None else accel
+        nav.feed_imu(1_000_000_000 + k * 5_000_000, 1e-3 * rng.standard_normal(3),
+                     a + 1e-2 * rng.standard_normal(3))
+
+
+def test_static_start_outputs_and_state() -> None:
+    seen: list[NavState] = []
+    nav = Navigator(RunConfig(), Rig(), on_output=seen.append)
+    assert nav.state() is None and nav.status == "initialising"
+    _feed_static(nav, 3.0, np.random.default_rng(0))
+    assert nav.status == "running" and nav.t0_ns == 1_010_000_000  # the third IMU sample
+    s = nav.state()
+    assert s is not None and s.bg_B is not None and s.P.shape == (18, 18)
+    np.testing.assert_allclose(s.T_W_B[:3, :3] @ [0, 0, 1], [0, 0, 1], atol=1e-2)
+    res = nav.close()
+    assert [o.t_ns for o in seen] == res.t_ns.tolist() == [o.t_ns for o in nav.outputs()]
+    assert np.linalg.norm(res.x[-1, 3:6]) < 0.05  # at rest
+    assert nav.status == "closed" and nav.close() is res
+
+
+def test_duplicate_and_backward_imu_stamps_are_dropped_and_counted() -> None:
+    nav = Navigator(RunConfig(), Rig())
+    _feed_static(nav, 2.5, np.random.default_rng(1))
+    n = nav.history.n
+    nav.feed_imu(1_000_000_000, np.zeros(3), np.array([0, 0, G]))
+    nav.feed_imu(nav.history.last_ns, np.zeros(3), np.array([0, 0, G]))
+    assert nav.history.n == n
+    assert nav.close().report["dropped"] == {"imu": 2}
+
+
+def test_a_moving_start_is_refused_with_the_reason() -> None:
+    nav = Navigator(RunConfig(), Rig())
+    rng = np.random.default_rng(2)
+    with pytest.raises(InitialisationError, match="IMU is not static"):
+        for k in range(600):
+            a = np.array([0.0, 0.0, G]) + np.array([2.0 * np.sin(k / 20), 0.0, 0.0])
+            nav.feed_imu(k * 5_000_000, 1e-3 * rng.standard_normal(3), a)
+
+
+def test_bad_configurations_name_the_problem() -> None:
+    with pytest.raises(ConfigError, match="method vo has no filter"):
+        Navigator(RunConfig(method="vo"), Rig())
+    with pytest.raises(ConfigError, match="needs the initial state"):
+        Navigator(RunConfig(init=InitOptions(mode="groundtruth")), Rig())
+    with pytest.raises(ConfigError, match="needs a GPS calibration"):
+        Navigator(RunConfig(init=InitOptions(mode="gps")), Rig())
+    with pytest.raises(ConfigError, match="no IMU sample was fed"):
+        Navigator(RunConfig(), Rig()).close()
+
+
+def test_fed_images_are_copied() -> None:
+    nav = Navigator(RunConfig(method="3d"), Rig())
+    left = np.full((4, 6), 7, np.uint8)
+    nav.feed_stereo(5, left, left)
+    left[:] = 0  # the driver reuses its buffer
+    (_, kind, _, payload), = nav.queue._heap
+    assert kind == FRAME and payload[1].max() == 7 and payload[2].max() == 7
