@@ -1,10 +1,11 @@
 """``ImuHistory``: the IMU samples received so far, in the body frame, with eq. 3's α.
 
-Append-only and time-ordered (the caller drops duplicate or backward stamps). α at sample k uses
-samples k-2..k only (the backward stencil, ``models.imu.angular_acceleration``, evaluated
-per sample with the same floating-point operations, so it equals the whole-array result bit
-for bit); samples 0 and 1 share the first difference. Storage grows by doubling; the arrays are
-views of it.
+Append-only and time-ordered (the caller drops duplicate or backward stamps). ``append`` only
+stores the raw sample; the body-frame rotation and α are computed for the new rows in one
+vectorised pass when the arrays are read. α at sample k uses samples k-2..k only (the backward
+stencil of ``models.imu.angular_acceleration``, with the same element-wise floating-point
+operations, so it equals the whole-recording result bit for bit); samples 0 and 1 share the
+first difference. Storage grows by doubling; the arrays are views of it.
 """
 
 from __future__ import annotations
@@ -21,10 +22,14 @@ class ImuHistory:
     from the sensor frame S by ``R_B_S``) and ``alpha_B`` (N, 3) rad/s²."""
 
     def __init__(self, R_B_S: ArrayLike | None = None, capacity: int = 4096) -> None:
-        self.R_S_B_T = np.eye(3) if R_B_S is None else np.asarray(R_B_S, float).T
+        R = np.eye(3) if R_B_S is None else np.asarray(R_B_S, float)
+        # An identity mount is skipped (exact either way).
+        self._R_T: F64 | None = None if np.array_equal(R, np.eye(3)) else R.T.copy()
         self.n = 0
+        self._done = 0  # rows rotated and with α
         self._t = np.empty(capacity, np.int64)
-        self._ts = np.empty(capacity)  # seconds from the first sample (the stencil's times)
+        self._ts = np.empty(capacity)  # the stencil's times, s from the first sample
+        self._raw = np.empty((capacity, 6))  # gyro_S | accel_S as received
         self._data = np.empty((capacity, 9))  # gyro_B | accel_B | alpha_B
 
     @property
@@ -33,14 +38,17 @@ class ImuHistory:
 
     @property
     def gyro_B(self) -> F64:
+        self._sync()
         return self._data[: self.n, 0:3]
 
     @property
     def accel_B(self) -> F64:
+        self._sync()
         return self._data[: self.n, 3:6]
 
     @property
     def alpha_B(self) -> F64:
+        self._sync()
         return self._data[: self.n, 6:9]
 
     @property
@@ -53,26 +61,42 @@ class ImuHistory:
         if k == self._t.size:
             self._t = np.resize(self._t, 2 * k)
             self._ts = np.resize(self._ts, 2 * k)
+            raw = np.empty((2 * k, 6))
+            raw[:k] = self._raw
+            self._raw = raw
             data = np.empty((2 * k, 9))
             data[:k] = self._data
             self._data = data
         self._t[k] = t_ns
-        self._ts[k] = (t_ns - int(self._t[0])) * 1e-9
-        rows = np.asarray([gyro_S, accel_S], dtype=float) @ self.R_S_B_T
-        self._data[k, 0:3] = rows[0]
-        self._data[k, 3:6] = rows[1]
+        self._raw[k, 0:3] = gyro_S
+        self._raw[k, 3:6] = accel_S
         self.n = k + 1
-        g, t = self._data[:, 0:3], self._ts
-        if k == 1:
-            first = (g[1] - g[0]) / (t[1] - t[0])
-            self._data[0:2, 6:9] = first
-        elif k >= 2:
-            h1 = t[k - 1] - t[k - 2]
-            h2 = t[k] - t[k - 1]
-            self._data[k, 6:9] = (
-                g[k - 2] * h2 / (h1 * (h1 + h2))
-                - g[k - 1] * (h1 + h2) / (h1 * h2)
-                + g[k] * (h1 + 2.0 * h2) / (h2 * (h1 + h2))
-            )
+
+    def _sync(self) -> None:
+        """Rotate the new rows and compute their α (one pass over the rows since the last)."""
+        a, n = self._done, self.n
+        if a == n:
+            return
+        raw = self._raw[a:n]
+        if self._R_T is None:
+            self._data[a:n, 0:6] = raw
         else:
+            self._data[a:n, 0:3] = raw[:, 0:3] @ self._R_T
+            self._data[a:n, 3:6] = raw[:, 3:6] @ self._R_T
+        g = self._data[:, 0:3]
+        t = self._ts
+        t[a:n] = (self._t[a:n] - self._t[0]) * 1e-9
+        if n >= 2 and a < 2:
+            self._data[0:2, 6:9] = (g[1] - g[0]) / (t[1] - t[0])
+        elif n < 2:
             self._data[0, 6:9] = 0.0
+        k0 = max(a, 2)
+        if n > k0:
+            h1 = (t[k0 - 1 : n - 1] - t[k0 - 2 : n - 2])[:, None]
+            h2 = (t[k0:n] - t[k0 - 1 : n - 1])[:, None]
+            self._data[k0:n, 6:9] = (
+                g[k0 - 2 : n - 2] * h2 / (h1 * (h1 + h2))
+                - g[k0 - 1 : n - 1] * (h1 + h2) / (h1 * h2)
+                + g[k0:n] * (h1 + 2.0 * h2) / (h2 * (h1 + h2))
+            )
+        self._done = n

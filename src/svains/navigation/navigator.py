@@ -187,16 +187,22 @@ class Navigator:
             return
         if self._end_ns is not None:
             horizon_ns = min(horizon_ns, self._end_ns + 1)
-        for t, kind, payload in self.queue.release(horizon_ns):
-            self._stage(t, kind, payload)
+        if len(self.queue):
+            for t, kind, payload in self.queue.release(horizon_ns):
+                self._stage(t, kind, payload)
+        elif self.queue.horizon_ns is None or horizon_ns > self.queue.horizon_ns:
+            self.queue.horizon_ns = horizon_ns
         if self.core is None:
             init = self.starter.try_start(self.history, self.queue.horizon_ns)
             if init is None:
                 return
             self._start(init)
         assert self.core is not None
-        events, self._backlog = self._kept(self._backlog), []
-        self.core.process(events, horizon_ns)
+        if self._backlog:
+            events, self._backlog = self._kept(self._backlog), []
+            self.core.process(events, horizon_ns)
+        elif self.core.tick_due(horizon_ns):
+            self.core.process([], horizon_ns)
         if self._end_ns is not None and horizon_ns > self._end_ns:
             self._finish(self._end_ns)
 

@@ -45,6 +45,7 @@ class Core:
         self._t_prev_frame: int | None = None
         self._period_ns = int(config.output_period_s * 1e9)
         self._next_grid = (self.t0_ns // self._period_ns + 1) * self._period_ns
+        self._tick_cache = (-1, 0)  # (grid point, its tick time)
         t_first = int(ins.t_imu[0])
         self._gps_off = [(t_first + int(a * 1e9), t_first + int((a + d) * 1e9))
                          for a, d in config.gps_outages]  # fmt: skip
@@ -65,14 +66,20 @@ class Core:
         g = self._next_grid
         if g >= horizon_ns:
             return None
-        t_imu = self.ins.t_imu
-        k = int(np.searchsorted(t_imu, g))
-        if k >= t_imu.size:
-            return None
-        t = int(t_imu[k])
+        if self._tick_cache[0] != g:
+            t_imu = self.ins.t_imu
+            k = int(np.searchsorted(t_imu, g))
+            if k >= t_imu.size:
+                return None
+            self._tick_cache = (g, int(t_imu[k]))
+        t = self._tick_cache[1]
         if t >= horizon_ns or (self.end_ns is not None and t >= self.end_ns):
             return None
         return t
+
+    def tick_due(self, horizon_ns: int) -> bool:
+        """Whether an output tick may lie before ``horizon_ns`` (cheap test)."""
+        return self._next_grid < horizon_ns
 
     def _take_tick(self, t: int) -> None:
         # Grid points that snap to the same IMU sample give one tick.

@@ -133,8 +133,9 @@ def _feature_frames(ds: Dataset, t0: int) -> Iterator[tuple[int, int, Any]]:
 
 def _rows(t_ns: Any, kind: int, t0: int, *arrays: Any) -> Iterator[tuple[int, int, Any]]:
     t = np.asarray(t_ns, np.int64)
-    for i in np.flatnonzero(t >= t0):
-        yield int(t[i]), kind, tuple(a[i] for a in arrays)
+    sel = t >= t0
+    for t_i, *rows in zip(t[sel].tolist(), *(np.asarray(a)[sel] for a in arrays), strict=True):
+        yield t_i, kind, rows
 
 
 def measurements(ds: Dataset, config: RunConfig, t0: int) -> Iterator[tuple[int, int, Any]]:
