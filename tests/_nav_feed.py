@@ -56,7 +56,7 @@ def updater_for(method: str, ds: Any, vision: Any) -> Any:
     carry tracks."""
     from dataclasses import replace
 
-    from svains.navigation.tracks import TrackOptions, _frame_slices
+    from svains.navigation.tracks import TrackOptions, frame_slices
     from svains.navigation.vision import make_vision_updater
     from svains.navigation.vision_sources import FeatureFrames, rig_from_calibrations
     from svains.replay.replay import history_from_dataset
@@ -66,7 +66,7 @@ def updater_for(method: str, ds: Any, vision: Any) -> Any:
     src = FeatureFrames(rig_from_calibrations(ds.cam0, ds.cam1),
                         TrackOptions(max_row_diff_px=vision.max_row_diff_px,
                                      egomotion=method == "lc"))  # fmt: skip
-    times, bounds = _frame_slices(ds.features)
+    times, bounds = frame_slices(ds.features)
     with_tracks = []
     for k in range(0, len(times), vision.frame_stride):
         rows = slice(bounds[k], bounds[k + 1])

@@ -39,7 +39,7 @@ class TrackOptions:
     egomotion: bool = False
 
 
-def _frame_slices(fs: Any) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+def frame_slices(fs: Any) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """Distinct frame times (F,) and start offsets (F+1,) of their rows (rows sorted by time)."""
     t = np.asarray(fs.t_ns, dtype=np.int64)
     if t.size and np.any(np.diff(t) < 0):
@@ -119,7 +119,7 @@ def tracks_from_features(
     """One ``StereoTracks`` per consecutive frame pair (F-1 of them, possibly with M = 0) of a
     recorded stream ``fs`` (a ``FeatureStream``: rows ``t_ns``, ``track_id``, ``uv_left``,
     ``uv_right``, sorted by time), see ``TrackBuilder``."""
-    times, bounds = _frame_slices(fs)
+    times, bounds = frame_slices(fs)
     builder = TrackBuilder(rig, options)
     out: list[StereoTracks] = []
     for k in range(len(times)):

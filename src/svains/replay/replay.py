@@ -33,7 +33,7 @@ from svains.navigation.init import (
 from svains.navigation.navigator import Navigator
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import NavState, RunResult
-from svains.navigation.tracks import _frame_slices
+from svains.navigation.tracks import frame_slices
 from svains.navigation.vision import tune_for_frames
 from svains.sensors.types import Rig
 
@@ -124,7 +124,7 @@ def _image_pairs(ds: Dataset, t0: int) -> Iterator[tuple[int, int, Any]]:
 def _feature_frames(ds: Dataset, t0: int) -> Iterator[tuple[int, int, Any]]:
     fs = ds.features
     assert fs is not None
-    times, bounds = _frame_slices(fs)
+    times, bounds = frame_slices(fs)
     for k in np.flatnonzero(times >= t0):
         rows = slice(bounds[k], bounds[k + 1])
         yield int(times[k]), _FRAME, ("features", fs.track_id[rows], fs.uv_left[rows],

@@ -25,7 +25,7 @@ from svains.geometry.rotation import quat_to_rotmat, rotmat_to_quat
 from svains.models.state import PAPER
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import RunResult
-from svains.navigation.tracks import TrackOptions, _frame_slices
+from svains.navigation.tracks import TrackOptions, frame_slices
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames, rig_from_calibrations
 from svains.replay.groundtruth import interpolate_groundtruth
 
@@ -71,7 +71,7 @@ def _frame_tracks(ds: Dataset, config: RunConfig) -> Iterator[tuple[int, StereoT
     end: int | None = None
     if v.source == "features" and ds.features is not None:
         feats = FeatureFrames(rig_from_calibrations(ds.cam0, ds.cam1), opts)
-        times, bounds = _frame_slices(ds.features)
+        times, bounds = frame_slices(ds.features)
         fs = ds.features
         for k in range(0, len(times), stride):
             t = int(times[k])
