@@ -8,6 +8,7 @@ magnetometer, sonar), generated from a seed.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -75,13 +76,16 @@ def summarise(t_ns: Any, x: Any, P9: Any, report: dict[str, Any]) -> dict[str, n
 
 
 def load_case_dataset(case: Case, tmp: Path) -> Any:
-    """The case's data set (a ``Dataset``)."""
+    """The case's data set (a ``Dataset``; loaded once per session and kind)."""
+    return _load(case.data, village_root(tmp) if case.data == "village" else EUROC_MICRO)
+
+
+@functools.lru_cache(maxsize=4)
+def _load(kind: str, root: Path) -> Any:
     from svains.datasets import load_dataset
 
-    if case.data == "village":
-        return load_dataset(village_root(tmp))
-    ds = load_dataset(EUROC_MICRO)
-    if case.data == "euroc_synth":
+    ds = load_dataset(root)
+    if kind == "euroc_synth":
         from svains.replay.synthetic import with_synthetic_features
 
         ds = with_synthetic_features(ds, rate_hz=5.0)

@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -38,6 +39,7 @@ from svains.sensors.types import Rig
 from test_golden import assert_matches_golden
 
 
+@functools.lru_cache(maxsize=2)
 def _files(root: Path, synthetic: bool) -> dict[str, Any]:
     """Streams and calibrations read file by file from an ASL folder."""
     mav0 = root / "mav0"
