@@ -62,7 +62,7 @@ def test_images_60_ms_late_give_the_in_order_result(tmp_path: Path) -> None:
 def test_jittered_gps_mag_sonar_within_the_window_change_nothing(tmp_path: Path) -> None:
     case = _case("village_3d")
     ds = load_case_dataset(case, tmp_path)
-    cfg = replace(case_options(case, ds), duration_s=8.0)
+    cfg = replace(case_options(case, ds), duration_s=4.0)
     rng = np.random.default_rng(5)
     jitter = rng.integers(0, 90_000_000, 100_000)
     in_order = _run(ds, cfg, {})
