@@ -122,8 +122,8 @@ def read_camera_calib(folder: Path, t_ns: np.ndarray | None = None) -> CameraCal
     )
 
 
-def read_camera(folder: Path) -> tuple[ImageStream, CameraCalib, int]:
-    """Camera folder: (images present on disk, calibration, number of listed-but-absent files)."""
+def read_image_list(folder: Path) -> tuple[ImageStream, np.ndarray, int]:
+    """Camera ``data.csv``: (images present on disk, every listed time, number absent)."""
     path = folder / "data.csv"
     rows, lines = read_csv_rows(path, 2)
     t = parse_timestamps(path, rows, lines)
@@ -131,8 +131,13 @@ def read_camera(folder: Path) -> tuple[ImageStream, CameraCalib, int]:
     on_disk = set(os.listdir(data)) if data.is_dir() else set()
     keep = np.array([r[1] in on_disk for r in rows], dtype=bool)
     paths = tuple(data / r[1] for r, k in zip(rows, keep, strict=True) if k)
-    stream = ImageStream(t_ns=t[keep], paths=paths, loader=read_grey)
-    return stream, read_camera_calib(folder, t), int((~keep).sum())
+    return ImageStream(t_ns=t[keep], paths=paths, loader=read_grey), t, int((~keep).sum())
+
+
+def read_camera(folder: Path) -> tuple[ImageStream, CameraCalib, int]:
+    """Camera folder: (images present on disk, calibration, number of listed-but-absent files)."""
+    stream, t, n_missing = read_image_list(folder)
+    return stream, read_camera_calib(folder, t), n_missing
 
 
 def read_groundtruth(folder: Path) -> GroundTruth:

@@ -171,6 +171,21 @@ def read_kalibr_imu(path: Path | str) -> tuple[ImuCalib, str | None]:
     return ImuCalib(T_B_S=T_B_S, rate_hz=rate, **vals), topic
 
 
+def kalibr_topics(camchain_path: Path | str | None, imu_path: Path | str | None) -> dict[str, str]:
+    """Bag topics the Kalibr files name (``rostopic``): roles ``left``, ``right``, ``imu``."""
+    out: dict[str, str] = {}
+    if camchain_path is not None:
+        chain = read_camchain(camchain_path)
+        for role, topic in zip(("left", "right"), chain.rostopics, strict=False):
+            if topic:
+                out[role] = topic
+    if imu_path is not None:
+        topic = read_kalibr_imu(imu_path)[1]
+        if topic:
+            out["imu"] = topic
+    return out
+
+
 def _shift_images(stream: ImageStream | None, shift_ns: int) -> ImageStream | None:
     if stream is None or shift_ns == 0:
         return stream

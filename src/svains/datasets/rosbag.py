@@ -27,7 +27,8 @@ import numpy as np
 
 from svains.datasets._image_io import decode_compressed, decode_raw
 from svains.datasets.geodetic import geodetic_to_enu
-from svains.datasets.types import Dataset, GpsCalib, GpsStream, GroundTruth, ImageStream, ImuStream
+from svains.datasets.trajectory import groundtruth_from_poses
+from svains.datasets.types import Dataset, GpsCalib, GpsStream, ImageStream, ImuStream
 from svains.errors import ConfigError, DatasetError
 
 log = logging.getLogger(__name__)
@@ -127,9 +128,12 @@ def _pick_stereo(cands: list[str], given: dict[str, str | None]) -> dict[str, st
 
 
 def select_topics(
-    topics: list[TopicInfo], given: dict[str, str | None] | None = None
+    topics: list[TopicInfo],
+    given: dict[str, str | None] | None = None,
+    hints: dict[str, str] | None = None,
 ) -> dict[str, str]:
-    """Topic per role (imu, left, right, gps, gt): ``given`` ones, checked, then auto-detected
+    """Topic per role (imu, left, right, gps, gt): ``given`` ones, checked; then ``hints`` (the
+    calibration's ``rostopic``) when the bag has them with the right type; then auto-detected
     by message type (and for cameras by name: cam0/left, cam1/right) when unambiguous.
 
     A role with no candidate is left out; an ambiguous one raises ``ConfigError`` naming the
@@ -149,6 +153,10 @@ def select_topics(
                 f"{', '.join(ROLE_TYPES[role])}"
             )
         out[role] = name
+    for role, name in (hints or {}).items():
+        ok = name in by_name and by_name[name].msgtype in ROLE_TYPES[role]
+        if role not in out and ok and name not in out.values():
+            out[role] = name
     for role in ("imu", "gps", "gt"):
         if role in out:
             continue
@@ -284,19 +292,22 @@ def _fill(ds: Dataset, col: _Collector, topics: dict[str, str], bag: Path) -> No
         else:
             p = np.asarray([r[0] for r in rows], float)
             q = np.asarray([r[1] for r in rows], float)
-            q /= np.linalg.norm(q, axis=1, keepdims=True)
-            z = np.zeros_like(p)
-            ds.groundtruth = GroundTruth(t, p, q, _velocity(t, p), z, z.copy())
+            ds.groundtruth = groundtruth_from_poses(t, p, q)
 
 
-def read_bag(path: Path | str, topics: dict[str, str | None] | None = None) -> Dataset:
+def read_bag(
+    path: Path | str,
+    topics: dict[str, str | None] | None = None,
+    hints: dict[str, str] | None = None,
+) -> Dataset:
     """A bag as an in-memory ``Dataset`` (no calibration; see ``apply_kalibr``).
 
-    ``topics`` maps roles (imu, left, right, gps, gt) to topic names; missing roles are
-    auto-detected (``select_topics``). The chosen topics are kept in ``extras["bag_topics"]``.
+    ``topics`` maps roles (imu, left, right, gps, gt) to topic names; ``hints`` are topics to
+    prefer when present; other roles are auto-detected (``select_topics``). The chosen topics
+    are kept in ``extras["bag_topics"]``.
     """
     path = Path(path)
-    chosen = select_topics(bag_topics(path), topics)
+    chosen = select_topics(bag_topics(path), topics, hints)
     if not chosen:
         raise DatasetError(f"{path}: no IMU, image, NavSatFix or pose topics")
     col = _Collector()
