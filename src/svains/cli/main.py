@@ -16,6 +16,7 @@ COMMAND_MODULES: list[str] = [
     "info",
     "run",
     "evaluate",
+    "convert",
     "compare",
     "frontend",
     "simulate",

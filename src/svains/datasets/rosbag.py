@@ -85,18 +85,22 @@ def _open_error(path: Path, exc: Exception) -> DatasetError:
     return DatasetError(f"{path}: cannot read bag: {exc}")
 
 
-def bag_topics(path: Path | str) -> list[TopicInfo]:
-    """Every topic of a bag, sorted by name (rates from record times)."""
+def bag_topics(path: Path | str, rates: bool = True) -> list[TopicInfo]:
+    """Every topic of a bag, sorted by name. ``rates`` reads every record time (median rate
+    and span); without it only the index is read (``rate_hz`` None, ``span_s`` 0)."""
     path = Path(path)
     times: dict[str, list[int]] = {}
     types: dict[str, str] = {}
+    counts: dict[str, int] = {}
     try:
         with _reader(path) as r:
             for c in r.connections:
                 types[c.topic] = c.msgtype
+                counts[c.topic] = counts.get(c.topic, 0) + int(c.msgcount)
                 times.setdefault(c.topic, [])
-            for c, t_ns, _ in r.messages():
-                times[c.topic].append(t_ns)
+            if rates:
+                for c, t_ns, _ in r.messages():
+                    times[c.topic].append(t_ns)
     except DatasetError:
         raise
     except Exception as exc:  # rosbags raises several unrelated types for broken files
@@ -106,7 +110,7 @@ def bag_topics(path: Path | str) -> list[TopicInfo]:
         t = np.sort(np.asarray(times[name], np.int64))
         rate = float(1e9 / np.median(np.diff(t))) if t.size > 1 and np.any(np.diff(t)) else None
         span = float((t[-1] - t[0]) * 1e-9) if t.size else 0.0
-        out.append(TopicInfo(name, types[name], int(t.size), rate, span))
+        out.append(TopicInfo(name, types[name], counts[name], rate, span))
     return out
 
 
@@ -307,7 +311,7 @@ def read_bag(
     are kept in ``extras["bag_topics"]``.
     """
     path = Path(path)
-    chosen = select_topics(bag_topics(path), topics, hints)
+    chosen = select_topics(bag_topics(path, rates=False), topics, hints)
     if not chosen:
         raise DatasetError(f"{path}: no IMU, image, NavSatFix or pose topics")
     col = _Collector()
