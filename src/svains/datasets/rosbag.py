@@ -135,6 +135,7 @@ def select_topics(
     topics: list[TopicInfo],
     given: dict[str, str | None] | None = None,
     hints: dict[str, str] | None = None,
+    roles: tuple[str, ...] = ROLES,
 ) -> dict[str, str]:
     """Topic per role (imu, left, right, gps, gt): ``given`` ones, checked; then ``hints`` (the
     calibration's ``rostopic``) when the bag has them with the right type; then auto-detected
@@ -162,7 +163,7 @@ def select_topics(
         if role not in out and ok and name not in out.values():
             out[role] = name
     for role in ("imu", "gps", "gt"):
-        if role in out:
+        if role in out or role not in roles:
             continue
         cands = [t.name for t in topics if t.msgtype in ROLE_TYPES[role]]
         if len(cands) == 1:
@@ -171,9 +172,9 @@ def select_topics(
             raise ConfigError(f"several {role} topics ({', '.join(cands)}): pass --{role} TOPIC")
     images = [t.name for t in topics if t.msgtype in ROLE_TYPES["left"]]
     images = [n for n in images if n not in (out.get("left"), out.get("right"))]
-    if "left" not in out or "right" not in out:
+    if "left" in roles and ("left" not in out or "right" not in out):
         out.update(_pick_stereo(images, out))  # type: ignore[arg-type]
-    return out
+    return {k: v for k, v in out.items() if k in roles}
 
 
 def _stamp_ns(msg: Any, record_ns: int) -> int:
@@ -303,15 +304,16 @@ def read_bag(
     path: Path | str,
     topics: dict[str, str | None] | None = None,
     hints: dict[str, str] | None = None,
+    roles: tuple[str, ...] = ROLES,
 ) -> Dataset:
     """A bag as an in-memory ``Dataset`` (no calibration; see ``apply_kalibr``).
 
     ``topics`` maps roles (imu, left, right, gps, gt) to topic names; ``hints`` are topics to
-    prefer when present; other roles are auto-detected (``select_topics``). The chosen topics
-    are kept in ``extras["bag_topics"]``.
+    prefer when present; other roles are auto-detected (``select_topics``); only ``roles`` are
+    read. The chosen topics are kept in ``extras["bag_topics"]``.
     """
     path = Path(path)
-    chosen = select_topics(bag_topics(path, rates=False), topics, hints)
+    chosen = select_topics(bag_topics(path, rates=False), topics, hints, roles)
     if not chosen:
         raise DatasetError(f"{path}: no IMU, image, NavSatFix or pose topics")
     col = _Collector()
