@@ -40,6 +40,11 @@ CONFINED: dict[str, dict[str, str]] = {
     "rich": {"cli": "terminal tables and progress bars"},
     "evo": {"evaluation": "ATE/RPE equal to evo_ape/evo_rpe"},
     "matplotlib": {"evaluation": "the paper's figures"},
+    "rosbags": {
+        "datasets/rosbag.py": "reading ROS1/ROS2 bags",
+        "datasets/rosbag_writer.py": "writing ROS1/ROS2 bags",
+    },
+    "rerun": {"evaluation/viewer.py": "the optional viewer (svains[viz])"},
 }
 
 

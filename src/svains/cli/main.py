@@ -17,6 +17,8 @@ COMMAND_MODULES: list[str] = [
     "run",
     "evaluate",
     "convert",
+    "plot",
+    "view",
     "compare",
     "frontend",
     "simulate",
