@@ -9,8 +9,12 @@ fix, the origin in ``gps0/enu_origin.yaml``) and ground truth become ``data.csv`
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
 
 from svains.datasets._textio import write_sensor_yaml
 from svains.datasets.asl_writer import AslWriter
@@ -41,7 +45,7 @@ def _check_calibrated(ds: Dataset, calib: Path | None, imu_calib: Path | None) -
         raise ConfigError(f"{calib}: the camchain needs cam1 for the right images")
 
 
-def _images(stream: ImageStream):  # type: ignore[no-untyped-def]
+def _images(stream: ImageStream) -> Iterator[NDArray[np.uint8]]:
     return (stream.load(i) for i in range(len(stream)))
 
 
@@ -68,7 +72,8 @@ def convert_bag(
     _check_calibrated(ds, Path(calib) if calib else None, Path(imu_calib) if imu_calib else None)
     w = AslWriter(out)
     w.write_body(ds.gravity_W, comment=f"converted from {Path(bag).name}")
-    rep = ConversionReport(out=out, topics=dict(ds.extras.get("bag_topics", {})))  # type: ignore[arg-type]
+    topics_used: dict[str, str] = ds.extras.get("bag_topics", {})  # type: ignore[assignment]
+    rep = ConversionReport(out=out, topics=dict(topics_used))
     if ds.imu is not None and ds.imu_calib is not None:
         w.write_imu(ds.imu, ds.imu_calib)
         rep.counts["imu0"] = int(ds.imu.t_ns.size)

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from svains.datasets.asl_reader import (
     _table,
     find_mav0,
@@ -20,29 +22,31 @@ from svains.datasets.asl_reader import (
 )
 from svains.datasets.kalibr import apply_kalibr
 from svains.datasets.trajectory import groundtruth_from_poses
-from svains.datasets.types import Dataset, ImuStream
+from svains.datasets.types import DEFAULT_GRAVITY_W, Dataset, ImuStream
 from svains.errors import DatasetError
 
 CAMCHAIN = Path("dso") / "camchain.yaml"
 IMU_CONFIG = Path("dso") / "imu_config.yaml"
 
 
+def _mav0_and_root(path: Path) -> tuple[Path, Path] | None:
+    mav0 = find_mav0(path)
+    return None if mav0 is None else (mav0, mav0.parent if mav0.name == "mav0" else mav0)
+
+
 def is_tumvi(path: Path) -> bool:
     """A TUM-VI sequence folder (root or ``mav0``): ``mocap0`` or ``dso/camchain.yaml``."""
-    mav0 = find_mav0(path)
-    if mav0 is None:
-        return False
-    root = mav0.parent if mav0.name == "mav0" else mav0
-    return (mav0 / "mocap0").is_dir() or (root / CAMCHAIN).is_file()
+    found = _mav0_and_root(path)
+    return found is not None and ((found[0] / "mocap0").is_dir() or (found[1] / CAMCHAIN).is_file())
 
 
 def read_tumvi(path: Path) -> Dataset:
     """Read a TUM-VI sequence; calibration from ``dso/`` unless the folders carry sensor.yaml."""
-    mav0 = find_mav0(path)
-    if mav0 is None:
+    found = _mav0_and_root(path)
+    if found is None:
         raise DatasetError(f"{path}: not a TUM-VI sequence (no mav0/)")
-    root = mav0.parent if mav0.name == "mav0" else mav0
-    ds = Dataset(root=root, name=root.name)
+    mav0, root = found
+    ds = Dataset(root=root, name=root.name, gravity_W=np.array(DEFAULT_GRAVITY_W))
     imu = mav0 / "imu0"
     if (imu / "sensor.yaml").is_file():
         ds.imu, ds.imu_calib = read_imu(imu)
