@@ -177,3 +177,26 @@ def test_navsatfix_becomes_local_enu(tmp_path: Path) -> None:
     assert ds.gps.p_W_G[2, 2] == pytest.approx(2.0, abs=2e-3)
     assert ds.gps_calib.position_noise_std == pytest.approx(np.sqrt(17 / 3 * 2), rel=1e-12)
     np.testing.assert_allclose(geodetic_to_enu(0.0, 0.0, 10.0, (0.0, 0.0, 10.0)), 0.0, atol=1e-9)
+
+
+def test_image_messages_decode_to_grey() -> None:
+    import cv2
+
+    from svains.datasets._image_io import decode_compressed, decode_raw
+
+    rng = np.random.default_rng(3)
+    grey = rng.integers(0, 256, size=(4, 6), dtype=np.uint8)
+    padded = np.zeros((4, 8), np.uint8)
+    padded[:, :6] = grey  # a row step wider than the image
+    np.testing.assert_array_equal(decode_raw("mono8", 4, 6, 8, padded.tobytes()), grey)
+    wide = (grey.astype("<u2") << 8) | 0xAB
+    np.testing.assert_array_equal(decode_raw("mono16", 4, 6, 12, wide.tobytes()), grey)
+    bgr = rng.integers(0, 256, size=(4, 6, 3), dtype=np.uint8)
+    np.testing.assert_array_equal(
+        decode_raw("bgr8", 4, 6, 18, bgr.tobytes()), cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    )
+    ok, png = cv2.imencode(".png", grey)
+    assert ok
+    np.testing.assert_array_equal(decode_compressed(png.tobytes()), grey)
+    with pytest.raises(DatasetError, match="image encoding 'bayer_rggb8' is not supported"):
+        decode_raw("bayer_rggb8", 4, 6, 6, grey.tobytes())

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -11,6 +12,8 @@ from svains.datasets.asl_reader import find_mav0, read_asl
 from svains.datasets.kitti import is_kitti, read_kitti
 from svains.datasets.types import Dataset
 from svains.errors import DatasetError
+
+log = logging.getLogger(__name__)
 
 # Tie order at equal timestamps: IMU first (a filter propagates up to t before updating at t).
 STREAM_ORDER: tuple[str, ...] = (
@@ -39,6 +42,8 @@ def load_dataset(
         raise DatasetError(f"data set folder not found: {p}")
     if is_bag(p):
         ds = read_bag(p, topics, hints=kalibr_topics(calib, imu_calib))
+        if calib is None and ds.left is not None:
+            log.warning("%s: a bag has no camera calibration; pass a Kalibr camchain (--calib)", p)
     elif not p.is_dir():
         raise DatasetError(f"not a folder or a bag (.bag, .db3, .mcap): {p}")
     elif is_tumvi(p):
