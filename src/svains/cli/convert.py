@@ -51,7 +51,7 @@ def convert(
         t.add_row(name, str(n))
     console.print(t)
     console.print(escape("topics: " + ", ".join(f"{k}={v}" for k, v in rep.topics.items())))
-    console.print(f"converted in {rep.wall_s:.2f} s")
+    console.print(f"converted in {rep.wall_s:.2f} s ({rep.cpu_s:.2f} s CPU)")
 
 
 def register(app: typer.Typer) -> None:
