@@ -105,6 +105,7 @@ def test_convert_writes_an_asl_folder_equal_to_the_bag(
     for ours, theirs in ((asl.cam0, euroc.cam0), (asl.cam1, euroc.cam1)):
         np.testing.assert_allclose(ours.T_B_C, theirs.T_B_C, atol=1e-12)
         np.testing.assert_array_equal(ours.distortion, theirs.distortion)
+        assert ours.distortion_model == theirs.distortion_model == "radial-tangential"
     assert asl.imu_calib.gyro_noise_density == euroc.imu_calib.gyro_noise_density
     np.testing.assert_allclose(asl.groundtruth.bg_B, 0.0)  # pose-only ground truth: no biases
 

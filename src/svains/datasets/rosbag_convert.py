@@ -8,6 +8,7 @@ fix, the origin in ``gps0/enu_origin.yaml``) and ground truth become ``data.csv`
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -80,6 +81,8 @@ def convert_bag(
         rep.counts["imu0"] = int(ds.imu.t_ns.size)
     for stream, cal in ((ds.left, ds.cam0), (ds.right, ds.cam1)):
         if stream is not None and cal is not None:
+            if cal.distortion_model == "radtan":  # sensor.yaml keeps EuRoC's spelling
+                cal = dataclasses.replace(cal, distortion_model="radial-tangential")
             w.write_camera(cal, stream.t_ns, _images(stream))
             rep.counts[cal.name] = len(stream)
     if ds.gps is not None and ds.gps_calib is not None:
