@@ -3,6 +3,7 @@ run like the folder, convert to an ASL folder, and bad input is refused with its
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -119,9 +120,14 @@ def test_convert_needs_the_calibration(kalibr, ros1_bag: Path, tmp_path: Path) -
     assert res.exit_code == 1 and "error:" in res.output
 
 
-def test_info_lists_topics_types_counts_and_rates(ros1_bag: Path) -> None:
-    res = CliRunner().invoke(app, ["info", str(ros1_bag)], terminal_width=200)
+def test_info_lists_topics_types_counts_and_rates(ros1_bag: Path, tmp_path: Path) -> None:
+    out = tmp_path / "info.json"
+    res = CliRunner().invoke(app, ["info", str(ros1_bag), "--json", str(out)], terminal_width=200)
     assert res.exit_code == 0, res.output
+    info = json.loads(out.read_text())
+    assert info["roles"]["imu"] == "/imu0"
+    imu = next(t for t in info["topics"] if t["name"] == "/imu0")
+    assert imu["count"] == 321 and imu["rate_hz"] == pytest.approx(200.0, rel=1e-3)
     line = next(ln for ln in res.output.splitlines() if "/imu0" in ln and "Imu" in ln)
     assert "sensor_msgs/msg/Imu" in line and "321" in line and "200.00" in line
     assert "auto-detected roles: imu=/imu0" in res.output
