@@ -18,16 +18,17 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from svains.datasets.types import CameraCalib
-from svains.frontend.egomotion import estimate_egomotion
+from svains.frontend.egomotion import RansacOptions, estimate_egomotion
 from svains.frontend.features import detect_corners
 from svains.frontend.images import as_grey, texture_std
 from svains.frontend.options import HOLD_STATUSES, FrameStats, FrontendOptions
+from svains.frontend.reacquire import Reacquirer, guided_prior
 from svains.frontend.rectify import StereoRectifier
 from svains.frontend.stereo import dense_disparity, match_dense, match_sparse
 from svains.frontend.tracking import Pyramid, track_klt
@@ -77,6 +78,7 @@ class StereoFrontend:
         raw = not rectifier.identity and self.options.stereo.method == "sparse"
         self._geo: StereoRectifier | None = rectifier if raw else None
         self._last_images: tuple[U8, U8] | None = None
+        self._reacquirer = Reacquirer(self.rig, self.options.reacquire)
 
     @property
     def reference_t_ns(self) -> int | None:
@@ -245,6 +247,11 @@ class StereoFrontend:
             if self.stats.status == "no_consensus" and predicted and o.retry_levels > 0:
                 result, keep_id, keep_l, keep_r = self._retry(t_ns, ref, pl, pr, motion_prior,
                                                               disparity, tm)  # fmt: skip
+            if o.reacquire.enabled:
+                result, keep_id, keep_l, keep_r = self._try_reacquire(
+                    t_ns, ref, pl, pr, motion_prior, disparity, tm,
+                    (result, keep_id, keep_l, keep_r),
+                )
             if self.stats.status in HOLD_STATUSES and self._held < o.max_hold_frames:
                 # Probably a transient (object filling the view): keep tracking from the last
                 # trusted frame rather than adopting this one as the reference.
@@ -338,19 +345,81 @@ class StereoFrontend:
         log.info("frame %d: no consensus from predicted tracks, retried unpredicted", t_ns)
         return self._egomotion(t_ns, ref, uv_l, uv_r, ok_t & ok_s, motion_prior, tm)
 
+    def _reacquire(
+        self, t_ns: int, ref: _Reference, pl: Pyramid, pr: Pyramid,
+        motion_prior: Egomotion | None, disparity: F64 | None, tm: dict[str, float],
+    ) -> tuple[StereoTracks, NDArray[np.int64], F64, F64] | None:
+        """Descriptor matches to the reference (``frontend.reacquire``) as new tracks, left-right
+        match, RANSAC; a motion found guides a second, windowed pass. None if no motion."""
+        t7 = time.perf_counter()
+        o = self.options.reacquire
+        cur = self._reacquirer.current(pl.image, self._to_rect)
+        ransac = replace(self.options.ransac, inlier_px=o.ransac_inlier_px,
+                         min_inliers=o.min_inliers)
+        best = None
+        prior = motion_prior
+        for _ in range(2):
+            m = self._reacquirer.match(
+                ref.t_ns, ref.left.image, cur, self._to_rect,
+                lambda uv: self._stereo(ref.left, ref.right, uv, None, None), prior,
+            )
+            if m is None:
+                break
+            n = m.uv_cur.shape[0]
+            ids = np.arange(self._next_id, self._next_id + n, dtype=np.int64)
+            self._next_id += n
+            tmp = _Reference(ref.t_ns, ref.left, ref.right, ids, m.uv_ref_left, m.uv_ref_right,
+                             m.p_Ckm1_F)  # fmt: skip
+            uv_r, ok = self._stereo(pl, pr, m.uv_cur, None, disparity)
+            got = self._egomotion(t_ns, tmp, m.uv_cur, uv_r, ok, motion_prior, tm, ransac)
+            if got[0].egomotion is None:
+                break
+            if best is None or self.stats.inliers > best[1]:
+                best = (got, self.stats.inliers, self.stats.outliers, self.stats.tracked)
+            prior = guided_prior(got[0].egomotion, o)
+        tm["reacquire"] = (time.perf_counter() - t7) * 1e3
+        if best is None:
+            return None
+        (tracks, *_), self.stats.inliers, self.stats.outliers, self.stats.tracked = best
+        self.stats.status, self._last_motion = "ok", tracks.egomotion
+        log.info("frame %d: re-acquired by descriptors, %d inliers", t_ns, best[1])
+        return best[0]
+
+    def _try_reacquire(
+        self, t_ns: int, ref: _Reference, pl: Pyramid, pr: Pyramid,
+        motion_prior: Egomotion | None, disparity: F64 | None, tm: dict[str, float],
+        klt: tuple[StereoTracks, NDArray[np.int64], F64, F64],
+    ) -> tuple[StereoTracks, NDArray[np.int64], F64, F64]:
+        """``klt`` (the KLT result), or re-acquisition's where KLT gave no consensus or fewer
+        inliers than ``klt_min_inliers`` and re-acquisition found more."""
+        st = self.stats
+        saved = (st.status, st.tracked, st.inliers, st.outliers, self._last_motion)
+        if saved[0] != "no_consensus" and (
+            saved[0] != "ok" or saved[2] >= self.options.reacquire.klt_min_inliers
+        ):
+            return klt
+        got = self._reacquire(t_ns, ref, pl, pr, motion_prior, disparity, tm)
+        if got is not None and (saved[0] != "ok" or st.inliers > saved[2]):
+            return got
+        st.status, st.tracked, st.inliers, st.outliers, self._last_motion = saved
+        return klt
+
     def _egomotion(
         self, t_ns: int, ref: _Reference, uv_l: F64, uv_r: F64, sel: NDArray[np.bool_],
         motion_prior: Egomotion | None, tm: dict[str, float],
+        ransac: RansacOptions | None = None,
     ) -> tuple[StereoTracks, NDArray[np.int64], F64, F64]:
-        """Egomotion from the reference features matched now (``sel``, (N,)), then the checks."""
+        """Egomotion from the reference features matched now (``sel``, (N,)), then the checks;
+        ``ransac`` replaces the options' RANSAC settings."""
         o = self.options
+        ransac = ransac or o.ransac
         self.stats.tracked = int(sel.sum())
         p_prev = ref.p_C_F[sel]
         uvl, uvr = uv_l[sel], uv_r[sel]
         t6 = time.perf_counter()
         prior = motion_prior or self._last_motion
         res = estimate_egomotion(
-            p_prev, uvl, uvr, self.rig, o.ransac, p_cur=self.rig.triangulate(uvl, uvr),
+            p_prev, uvl, uvr, self.rig, ransac, p_cur=self.rig.triangulate(uvl, uvr),
             prior=prior, rng=self._rng,
         )
         tm["ransac"] = tm.get("ransac", 0.0) + (time.perf_counter() - t6) * 1e3
@@ -361,7 +430,7 @@ class StereoFrontend:
         ego = res.egomotion
         status = "ok"
         n_inl = int(inlier.sum())
-        if ego is None or n_inl < max(o.ransac.min_inliers, o.min_inlier_fraction * inlier.size):
+        if ego is None or n_inl < max(ransac.min_inliers, o.min_inlier_fraction * inlier.size):
             ego, status = None, "no_consensus"
         elif not self._plausible(ego):
             ego, status = None, "implausible"
