@@ -3,16 +3,19 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from svains.datasets import load_dataset, stereo_pairs
 from svains.frontend.rectify import StereoRectifier
+from svains.frontend.run import run_frontend
 from svains.geometry.camera import RectifiedStereo
 from svains.sim.config import SimConfig
 from svains.sim.fisheye import FisheyeRenderer
 from svains.sim.render import Renderer
-from svains.sim.simulate import build_scene, camera_calibs
+from svains.sim.simulate import build_scene, camera_calibs, simulate
 
 COEFFS = [-0.00626, 0.04132, -0.03836, 0.00649]
 
@@ -66,3 +69,25 @@ def test_rendered_fisheye_rectifies_to_the_pinhole_render() -> None:
     raw_err = np.abs(fish[core].astype(float) - pin[core].astype(float))
     assert np.median(err) < 3.0  # grey levels: resampling only
     assert np.mean(err) < 0.5 * np.mean(raw_err)  # the fisheye image itself differs much more
+
+
+@pytest.mark.slow
+def test_frontend_on_a_simulated_fisheye_set(tmp_path: Path) -> None:
+    """End to end: simulated fisheye pair written as ASL (equidistant sensor.yaml), read,
+    rectified and tracked; every frame gives a motion close to the truth."""
+    cfg = SimConfig()
+    cfg = replace(
+        cfg, seed=2, duration_s=2.0,
+        camera=replace(cfg.camera, rate_hz=5.0, lens="equidistant", fisheye_distortion=COEFFS),
+        gps=replace(cfg.gps, enabled=False), mag=replace(cfg.mag, enabled=False),
+    )  # fmt: skip
+    ds = load_dataset(simulate(cfg, tmp_path / "fish"))
+    assert ds.cam0 is not None and ds.cam0.distortion_model == "equidistant"
+    np.testing.assert_array_equal(ds.cam0.distortion, COEFFS)
+    run = run_frontend(ds, stereo_pairs(ds))
+    recs = run.records[1:]
+    assert len(recs) == 10 and all(r.stats.status == "ok" for r in recs)
+    rel = [r.translation_error_m / r.gt_translation_m for r in recs]
+    # Measured: median 0.4 % of the step and 0.008° on a 20 s flight (svains frontend).
+    assert np.median(rel) < 0.02
+    assert np.median([r.rotation_error_deg for r in recs]) < 0.05

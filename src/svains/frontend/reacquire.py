@@ -42,9 +42,10 @@ class ReacquireOptions:
     the re-acquired matches (KITTI raw at 1 Hz, 5-8 m steps: the reference depth errors move a
     far point's reprojection by several px, and 1.5 px kept 27 % of mostly good matches, 4 px
     77 %, with the motion error unchanged) and ``min_inliers`` its consensus (with 8, a 2.8 s
-    gap through a swerve gave a motion 6° off from 8 matches of distant background); the first motion found guides a second pass
-    (windows, ``guided_prior``); ``klt_min_inliers``: a KLT motion with fewer inliers is checked
-    against re-acquisition too (over long gaps a few KLT tracks can agree on a wrong motion)."""
+    gap through a swerve gave a motion 6° off from 8 matches of distant background); the first
+    motion found guides a second pass (windows, ``guided_prior``); ``klt_min_inliers``: a KLT
+    motion with fewer inliers is checked against re-acquisition too (over long gaps a few KLT
+    tracks can agree on a wrong motion)."""
 
     enabled: bool = True
     n_features: int = 2000
