@@ -27,14 +27,14 @@ from svains.datasets.types import CameraCalib
 from svains.frontend.egomotion import RansacOptions, estimate_egomotion
 from svains.frontend.features import detect_corners
 from svains.frontend.images import as_grey, texture_std
+from svains.frontend.motion_checks import agrees_with_prior, plausible
 from svains.frontend.options import HOLD_STATUSES, FrameStats, FrontendOptions
-from svains.frontend.reacquire import Reacquirer, guided_prior
+from svains.frontend.reacquire import Reacquired, Reacquirer
 from svains.frontend.rectify import StereoRectifier
 from svains.frontend.stereo import dense_disparity, match_dense, match_sparse
 from svains.frontend.tracking import Pyramid, track_klt
 from svains.frontend.types import Egomotion, StereoTracks
 from svains.geometry.camera import RectifiedStereo
-from svains.geometry.rotation import so3_log
 
 F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]
@@ -136,30 +136,6 @@ class StereoFrontend:
             inlier=np.zeros(0, bool), egomotion=None,
         )
 
-    def _prior_ok(self, ego: Egomotion, prior: Egomotion) -> bool:
-        """Mahalanobis test of the estimate against an external motion prior."""
-        d = np.concatenate([
-            so3_log(prior.R_Ck_Ckm1.T @ ego.R_Ck_Ckm1), ego.p_Ck_Ckm1 - prior.p_Ck_Ckm1
-        ])
-        S = ego.cov + prior.cov
-        try:
-            m2 = float(d @ np.linalg.solve(S, d))
-        except np.linalg.LinAlgError:
-            return False
-        return bool(np.isfinite(m2) and m2 <= self.options.prior_gate_chi2)
-
-    def _plausible(self, ego: Egomotion) -> bool:
-        o = self.options
-        if not (np.all(np.isfinite(ego.R_Ck_Ckm1)) and np.all(np.isfinite(ego.p_Ck_Ckm1))):
-            return False
-        if o.max_translation_m is not None and np.linalg.norm(ego.p_Ck_Ckm1) > o.max_translation_m:
-            return False
-        if o.max_rotation_deg is None:
-            return True
-        # Rotation angle from the trace (no full matrix logarithm needed for a threshold).
-        c = np.clip((np.trace(ego.R_Ck_Ckm1) - 1.0) / 2.0, -1.0, 1.0)
-        return bool(np.degrees(np.arccos(c)) <= o.max_rotation_deg)
-
     # ------------------------------------------------------------------ main entry
     def process(
         self, t_ns: int, img_left_raw: object, img_right_raw: object,
@@ -248,7 +224,7 @@ class StereoFrontend:
                 result, keep_id, keep_l, keep_r = self._retry(t_ns, ref, pl, pr, motion_prior,
                                                               disparity, tm)  # fmt: skip
             if o.reacquire.enabled:
-                result, keep_id, keep_l, keep_r = self._try_reacquire(
+                result, keep_id, keep_l, keep_r = self._reacquire(
                     t_ns, ref, pl, pr, motion_prior, disparity, tm,
                     (result, keep_id, keep_l, keep_r),
                 )
@@ -348,58 +324,37 @@ class StereoFrontend:
     def _reacquire(
         self, t_ns: int, ref: _Reference, pl: Pyramid, pr: Pyramid,
         motion_prior: Egomotion | None, disparity: F64 | None, tm: dict[str, float],
-    ) -> tuple[StereoTracks, NDArray[np.int64], F64, F64] | None:
-        """Descriptor matches to the reference (``frontend.reacquire``) as new tracks, left-right
-        match, RANSAC; a motion found guides a second, windowed pass. None if no motion."""
-        t7 = time.perf_counter()
-        o = self.options.reacquire
-        cur = self._reacquirer.current(pl.image, self._to_rect)
-        ransac = replace(self.options.ransac, inlier_px=o.ransac_inlier_px,
-                         min_inliers=o.min_inliers)
-        best = None
-        prior = motion_prior
-        for _ in range(2):
-            m = self._reacquirer.match(
-                ref.t_ns, ref.left.image, cur, self._to_rect,
-                lambda uv: self._stereo(ref.left, ref.right, uv, None, None), prior,
-            )
-            if m is None:
-                break
-            n = m.uv_cur.shape[0]
-            ids = np.arange(self._next_id, self._next_id + n, dtype=np.int64)
-            self._next_id += n
-            tmp = _Reference(ref.t_ns, ref.left, ref.right, ids, m.uv_ref_left, m.uv_ref_right,
-                             m.p_Ckm1_F)  # fmt: skip
-            uv_r, ok = self._stereo(pl, pr, m.uv_cur, None, disparity)
-            got = self._egomotion(t_ns, tmp, m.uv_cur, uv_r, ok, motion_prior, tm, ransac)
-            if got[0].egomotion is None:
-                break
-            if best is None or self.stats.inliers > best[1]:
-                best = (got, self.stats.inliers, self.stats.outliers, self.stats.tracked)
-            prior = guided_prior(got[0].egomotion, o)
-        tm["reacquire"] = (time.perf_counter() - t7) * 1e3
-        if best is None:
-            return None
-        (tracks, *_), self.stats.inliers, self.stats.outliers, self.stats.tracked = best
-        self.stats.status, self._last_motion = "ok", tracks.egomotion
-        log.info("frame %d: re-acquired by descriptors, %d inliers", t_ns, best[1])
-        return best[0]
-
-    def _try_reacquire(
-        self, t_ns: int, ref: _Reference, pl: Pyramid, pr: Pyramid,
-        motion_prior: Egomotion | None, disparity: F64 | None, tm: dict[str, float],
         klt: tuple[StereoTracks, NDArray[np.int64], F64, F64],
     ) -> tuple[StereoTracks, NDArray[np.int64], F64, F64]:
-        """``klt`` (the KLT result), or re-acquisition's where KLT gave no consensus or fewer
-        inliers than ``klt_min_inliers`` and re-acquisition found more."""
-        st = self.stats
+        """``klt`` (the KLT result), unless KLT gave no consensus or fewer inliers than
+        ``klt_min_inliers`` and descriptor matches to the reference, as new tracks, left-right
+        matched, give a motion with more (``Reacquirer.two_pass``, the same RANSAC)."""
+        o, st = self.options.reacquire, self.stats
         saved = (st.status, st.tracked, st.inliers, st.outliers, self._last_motion)
-        if saved[0] != "no_consensus" and (
-            saved[0] != "ok" or saved[2] >= self.options.reacquire.klt_min_inliers
-        ):
+        if st.status != "no_consensus" and (st.status != "ok" or st.inliers >= o.klt_min_inliers):
             return klt
-        got = self._reacquire(t_ns, ref, pl, pr, motion_prior, disparity, tm)
-        if got is not None and (saved[0] != "ok" or st.inliers > saved[2]):
+        ransac = replace(self.options.ransac, inlier_px=o.ransac_inlier_px,
+                         min_inliers=o.min_inliers)  # fmt: skip
+
+        def attempt(m: Reacquired) -> tuple[tuple, Egomotion | None, int]:  # type: ignore[type-arg]
+            ids = np.arange(self._next_id, self._next_id + m.uv_cur.shape[0], dtype=np.int64)
+            self._next_id += ids.size
+            new = replace(ref, track_id=ids, uv_left=m.uv_ref_left, uv_right=m.uv_ref_right,
+                          p_C_F=m.p_Ckm1_F)  # fmt: skip
+            uv_r, ok = self._stereo(pl, pr, m.uv_cur, None, disparity)
+            got = self._egomotion(t_ns, new, m.uv_cur, uv_r, ok, motion_prior, tm, ransac)
+            return (got, st.inliers, st.outliers, st.tracked), got[0].egomotion, st.inliers
+
+        t7 = time.perf_counter()
+        best = self._reacquirer.two_pass(
+            ref.t_ns, ref.left.image, pl.image, self._to_rect,
+            lambda uv: self._stereo(ref.left, ref.right, uv, None, None), motion_prior, attempt,
+        )
+        tm["reacquire"] = (time.perf_counter() - t7) * 1e3
+        if best is not None and (saved[0] != "ok" or best[1] > saved[2]):
+            got, st.inliers, st.outliers, st.tracked = best
+            st.status, self._last_motion = "ok", got[0].egomotion
+            log.info("frame %d: re-acquired by descriptors, %d inliers", t_ns, st.inliers)
             return got
         st.status, st.tracked, st.inliers, st.outliers, self._last_motion = saved
         return klt
@@ -432,9 +387,10 @@ class StereoFrontend:
         n_inl = int(inlier.sum())
         if ego is None or n_inl < max(ransac.min_inliers, o.min_inlier_fraction * inlier.size):
             ego, status = None, "no_consensus"
-        elif not self._plausible(ego):
+        elif not plausible(ego, o):
             ego, status = None, "implausible"
-        elif motion_prior is not None and not self._prior_ok(ego, motion_prior):
+        elif motion_prior is not None and not agrees_with_prior(ego, motion_prior,
+                                                                o.prior_gate_chi2):
             ego, status = None, "contradicts_prior"
         if ego is None:
             inlier = np.zeros_like(inlier)

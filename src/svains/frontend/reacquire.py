@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TypeVar
 
 import cv2
 import numpy as np
@@ -29,6 +30,7 @@ from svains.geometry.camera import RectifiedStereo
 F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]
 Bool = NDArray[np.bool_]
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -228,6 +230,28 @@ class Reacquirer:
         if i_r.size < o.min_matches:
             return None
         return Reacquired(uv_l[i_r], uv_r[i_r], p[i_r], uv_cur[i_c])
+
+    def two_pass(
+        self, ref_t_ns: int, ref_img: U8, cur_img: U8, to_rect: Callable[[F64], F64],
+        ref_stereo: Callable[[F64], tuple[F64, Bool]], prior: Egomotion | None,
+        attempt: Callable[[Reacquired], tuple[T, Egomotion | None, int]],
+    ) -> T | None:
+        """Match (``prior``'s windows, else the whole image) and ``attempt`` a motion from the
+        matches (-> result, motion or None, inliers); a motion found guides a second, windowed
+        pass (``guided_prior``). The result with more inliers, None without a motion."""
+        current = self.current(cur_img, to_rect)
+        best: tuple[T, int] | None = None
+        for _ in range(2):
+            m = self.match(ref_t_ns, ref_img, current, to_rect, ref_stereo, prior)
+            if m is None:
+                break
+            result, ego, n_inliers = attempt(m)
+            if ego is None:
+                break
+            if best is None or n_inliers > best[1]:
+                best = (result, n_inliers)
+            prior = guided_prior(ego, self.options)
+        return None if best is None else best[0]
 
 
 def guided_prior(ego: Egomotion, opts: ReacquireOptions) -> Egomotion:
