@@ -227,10 +227,17 @@ def apply_kalibr(
     if len(chain.cameras) > 2:
         log.warning("%s: %d cameras, using cam0 and cam1", camchain_path, len(chain.cameras))
     T_B_I = out.imu_calib.T_B_S if out.imu_calib is not None else np.eye(4)
-    shift_ns = round(chain.timeshift_cam_imu_s * 1e9)
+    # The data set's own sensor.yaml offset (if any) was applied at read time: replace it.
+    applied_s = ds.cam0.timeshift_cam_imu_s if ds.cam0 is not None else 0.0
+    shift_ns = round((chain.timeshift_cam_imu_s - applied_s) * 1e9)
     out.left = _shift_images(ds.left, shift_ns)
     out.right = _shift_images(ds.right, shift_ns)
-    cams = [dataclasses.replace(c, T_B_C=T_B_I @ c.T_B_C) for c in chain.cameras[:2]]
+    cams = [
+        dataclasses.replace(
+            c, T_B_C=T_B_I @ c.T_B_C, timeshift_cam_imu_s=chain.timeshift_cam_imu_s
+        )
+        for c in chain.cameras[:2]
+    ]
     out.cam0 = _with_rate(cams[0], out.left, ds.cam0)
     out.cam1 = _with_rate(cams[1], out.right, ds.cam1)
     out.extras["kalibr_camchain"] = str(camchain_path)
