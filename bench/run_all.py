@@ -15,6 +15,7 @@ HERE = Path(__file__).resolve().parent
 # Listed explicitly so the README and ``make bench`` agree on what is measured.
 SCRIPTS: list[str] = [
     "bench_datasets.py",
+    "bench_convert.py",
     "bench_filter.py",
     "bench_methods.py",
     "bench_frontend.py",

@@ -10,6 +10,7 @@ import pytest
 
 from svains.datasets import load_dataset
 from svains.frontend.pipeline import FrontendOptions, StereoFrontend
+from svains.frontend.reacquire import ReacquireOptions
 from svains.frontend.types import Egomotion, StereoTracks
 from svains.frontend.vo_chain import relative_motion
 from svains.geometry.camera import RectifiedStereo
@@ -194,9 +195,10 @@ def test_still_camera_searches_new_corners_only_when_tracks_are_lost() -> None:
 @pytest.mark.parametrize("retry_levels", [0, 4])
 def test_sudden_reversal_is_recovered_by_the_unpredicted_retry(retry_levels: int) -> None:
     """The plane moves 40 px per frame, then reverses: the constant-velocity prediction is 80 px
-    off. Without the retry the predicted tracks give no consensus; with it the motion is found."""
+    off. Without the retry the predicted tracks give no consensus; with it the motion is found.
+    (Re-acquisition by descriptors, which would find it too, is off here.)"""
     tex = _texture(3, (240, 700))
-    fe = _frontend(retry_levels=retry_levels)
+    fe = _frontend(retry_levels=retry_levels, reacquire=ReacquireOptions(enabled=False))
     tracks = [fe.process(k, *_pair(tex, s)) for k, s in enumerate([100, 140, 180, 140])]
     for tr in tracks[1:3]:
         assert tr is not None and tr.egomotion is not None
@@ -210,9 +212,21 @@ def test_sudden_reversal_is_recovered_by_the_unpredicted_retry(retry_levels: int
         assert last.egomotion.p_Ck_Ckm1 == pytest.approx([0.4, 0.0, 0.0], abs=0.01)
 
 
+def test_sudden_reversal_without_retry_is_recovered_by_descriptors() -> None:
+    """The same reversal with the KLT retry off: re-acquisition by descriptors finds it."""
+    tex = _texture(3, (240, 700))
+    fe = _frontend(retry_levels=0)
+    tracks = [fe.process(k, *_pair(tex, s)) for k, s in enumerate([100, 140, 180, 140])]
+    last = tracks[3]
+    assert fe.stats.status == "ok" and "reacquire" in fe.stats.timings_ms
+    assert last is not None and last.egomotion is not None
+    assert last.egomotion.p_Ck_Ckm1 == pytest.approx([0.4, 0.0, 0.0], abs=0.01)
+
+
 def test_small_consensus_among_many_tracks_is_no_measurement() -> None:
     """A motion is measured only if at least ``min_inlier_fraction`` of the matched features
-    are RANSAC inliers: the same frame passes just below its inlier fraction, fails just above."""
+    are RANSAC inliers: the same frame passes just below its inlier fraction, fails just above.
+    (Re-acquisition, off here, would start over from new matches on the good rows.)"""
     tex = _texture(0)
     left, right = _pair(tex)
     right_bad = right.copy()
@@ -220,7 +234,7 @@ def test_small_consensus_among_many_tracks_is_no_measurement() -> None:
     right_bad[rows] = np.roll(right_bad[rows], 3, axis=1)
 
     def run(fraction: float) -> tuple[str, float]:
-        fe = _frontend(min_inlier_fraction=fraction)
+        fe = _frontend(min_inlier_fraction=fraction, reacquire=ReacquireOptions(enabled=False))
         fe.process(0, left, right)
         fe.process(1, left, right_bad)
         n = fe.stats.tracked

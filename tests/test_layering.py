@@ -36,12 +36,18 @@ CONFINED: dict[str, dict[str, str]] = {
         "frontend": "the front end proper is the OpenCV layer",
         "sim/render.py": "the renderer's per-face perspective warps",
         "sim/raster.py": "the renderer's image pyramid (split out of render.py)",
+        "sim/fisheye.py": "the fisheye image's remap from a wide pinhole render",
         "datasets/_image_io.py": "PNG decoding and encoding, imported lazily",
     },
     "typer": {"cli": "the command line"},
     "rich": {"cli": "terminal tables and progress bars"},
     "evo": {"evaluation": "ATE/RPE equal to evo_ape/evo_rpe"},
     "matplotlib": {"evaluation": "the paper's figures"},
+    "rosbags": {
+        "datasets/rosbag.py": "reading ROS1/ROS2 bags",
+        "datasets/rosbag_writer.py": "writing ROS1/ROS2 bags",
+    },
+    "rerun": {"evaluation/viewer.py": "the optional viewer (svains[viz])"},
 }
 
 

@@ -19,9 +19,12 @@ def _num(v: float, fmt: str = ".4f") -> str:
 
 
 def evaluate(
-    est: Annotated[Path, typer.Argument(help="Estimated trajectory (TUM file).")],
+    est: Annotated[
+        Path, typer.Argument(help="Estimate: TUM, EuRoC data.csv, KITTI poses or a ROS bag.")
+    ],
     gt: Annotated[
-        Path, typer.Argument(help="Reference: TUM file or data-set folder with ground truth.")
+        Path,
+        typer.Argument(help="Reference: same formats, or a data-set folder with ground truth."),
     ],
     align: Annotated[
         str, typer.Option("--align", help="Alignment: se3, posyaw, none or sim3.")
@@ -36,8 +39,25 @@ def evaluate(
     json_out: Annotated[
         Path | None, typer.Option("--json", help="Write the results as JSON.")
     ] = None,
+    fmt: Annotated[
+        str | None,
+        typer.Option(
+            "--format",
+            help="Format of both files (tum, euroc, kitti, bag, dataset); default: detected.",
+        ),
+    ] = None,
+    ref_format: Annotated[
+        str | None, typer.Option("--ref-format", help="Format of the reference, if different.")
+    ] = None,
+    est_topic: Annotated[
+        str | None, typer.Option("--est-topic", help="Pose topic when EST is a bag.")
+    ] = None,
+    ref_topic: Annotated[
+        str | None, typer.Option("--ref-topic", help="Pose topic when GT is a bag.")
+    ] = None,
 ) -> None:
     """ATE and RPE of an estimate against ground truth (numbers as evo_ape / evo_rpe)."""
+    from svains.datasets.trajectory_formats import FORMATS
     from svains.evaluation.metrics import ALIGNMENTS
     from svains.evaluation.report import evaluate_files
 
@@ -48,9 +68,18 @@ def evaluate(
             soft_wrap=True,
         )
         raise typer.Exit(2)
+    for name, value in (("--format", fmt), ("--ref-format", ref_format)):
+        if value is not None and value not in FORMATS:
+            choices = ", ".join(FORMATS)
+            err.print(f"[red]error:[/red] {name} must be one of {choices}, got {value!r}")
+            raise typer.Exit(2)
     try:
         deltas = delta if delta else [1.0, 5.0]
-        rep = evaluate_files(est, gt, align=align, delta_m=deltas, max_diff_s=max_diff)  # type: ignore[arg-type]
+        rep = evaluate_files(
+            est, gt, align=align, delta_m=deltas, max_diff_s=max_diff,  # type: ignore[arg-type]
+            est_format=fmt, ref_format=ref_format or fmt,  # type: ignore[arg-type]
+            est_topic=est_topic, ref_topic=ref_topic,
+        )  # fmt: skip
     except SvainsError as exc:
         err.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
         raise typer.Exit(1) from exc

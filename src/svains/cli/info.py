@@ -70,9 +70,35 @@ def _print(summary: dict[str, Any], console: Console) -> None:
             console.print(escape(f"{key}: " + ", ".join(f"{k}={v}" for k, v in cal[key].items())))
 
 
+def _print_bag(path: Path, console: Console) -> dict[str, Any]:
+    """Print the topics of a bag and the roles ``svains convert``/``run`` would give them;
+    return them as JSON-ready data."""
+    from dataclasses import asdict
+
+    from svains.datasets.rosbag import bag_topics, select_topics
+
+    topics = bag_topics(path)
+    out: dict[str, Any] = {"bag": str(path), "topics": [asdict(x) for x in topics]}
+    t = Table(title=escape(f"{path.name}: topics"))
+    for col in ("topic", "type", "count", "rate [Hz]", "span [s]"):
+        t.add_column(escape(col), justify="left" if col in ("topic", "type") else "right")
+    for x in topics:
+        t.add_row(escape(x.name), x.msgtype, str(x.count), _f(x.rate_hz, ".2f"), f"{x.span_s:.3f}")
+    console.print(t)
+    try:
+        roles = select_topics(topics)
+    except SvainsError as exc:  # ambiguous: say so, the listing above is still the answer
+        console.print(escape(f"auto-detection: {exc}"))
+        return {**out, "roles": None, "auto_detection": str(exc)}
+    found = ", ".join(f"{k}={v}" for k, v in roles.items()) or "none"
+    console.print(escape(f"auto-detected roles: {found}"))
+    return {**out, "roles": roles}
+
+
 def info(
     dataset: Annotated[
-        Path, typer.Argument(help="ASL/EuRoC folder (root or mav0/) or KITTI folder.")
+        Path,
+        typer.Argument(help="ASL/EuRoC, TUM-VI or KITTI folder, or a ROS1/ROS2 bag."),
     ],
     json_out: Annotated[
         Path | None, typer.Option("--json", help="Also write the summary as JSON.")
@@ -80,15 +106,18 @@ def info(
 ) -> None:
     """Describe a data set: streams, counts, rates, time span, gaps, missing files, calibration."""
     from svains.datasets import load_dataset
+    from svains.datasets.rosbag import is_bag
     from svains.datasets.summary import dataset_summary
 
     console = Console()
     try:
-        summary = dataset_summary(load_dataset(dataset))
+        bag = is_bag(dataset)
+        summary = _print_bag(dataset, console) if bag else dataset_summary(load_dataset(dataset))
     except SvainsError as exc:
         Console(stderr=True).print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
         raise typer.Exit(1) from exc
-    _print(summary, console)
+    if not bag:
+        _print(summary, console)
     if json_out is not None:
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(summary, indent=2) + "\n")

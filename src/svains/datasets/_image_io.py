@@ -29,3 +29,35 @@ def write_grey(path: Path, image: NDArray[np.uint8]) -> None:
         raise ValueError(f"expected a uint8 (H, W) image, got {img.dtype} {img.shape}")
     if not cv2.imwrite(str(path), img):
         raise DatasetError(f"could not write image: {path}")
+
+
+def decode_raw(encoding: str, height: int, width: int, step: int, data: bytes) -> NDArray[np.uint8]:
+    """A ROS ``sensor_msgs/Image`` buffer as 8-bit grey (H, W): mono8/16 and 8-bit colour.
+
+    16-bit images keep their 8 most significant bits; colour is converted with OpenCV's weights.
+    """
+    buf = np.frombuffer(data, dtype=np.uint8)
+    enc = encoding.lower()
+    if enc in ("mono8", "8uc1"):
+        return buf.reshape(height, step)[:, :width].copy()
+    if enc in ("mono16", "16uc1"):
+        return (buf.view("<u2").reshape(height, step // 2)[:, :width] >> 8).astype(np.uint8)
+    codes = {"bgr8": (3, "COLOR_BGR2GRAY"), "rgb8": (3, "COLOR_RGB2GRAY"),
+             "bgra8": (4, "COLOR_BGRA2GRAY"), "rgba8": (4, "COLOR_RGBA2GRAY")}  # fmt: skip
+    if enc not in codes:
+        raise DatasetError(f"image encoding {encoding!r} is not supported (mono8/16, bgr8, rgb8)")
+    import cv2
+
+    ch, code = codes[enc]
+    img = buf.reshape(height, step)[:, : width * ch].reshape(height, width, ch)
+    return cv2.cvtColor(np.ascontiguousarray(img), getattr(cv2, code))
+
+
+def decode_compressed(data: bytes) -> NDArray[np.uint8]:
+    """A ROS ``sensor_msgs/CompressedImage`` (PNG/JPEG bytes) as 8-bit grey (H, W)."""
+    import cv2
+
+    img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        raise DatasetError("undecodable compressed image message")
+    return img

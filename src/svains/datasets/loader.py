@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -12,26 +13,53 @@ from svains.datasets.kitti import is_kitti, read_kitti
 from svains.datasets.types import Dataset
 from svains.errors import DatasetError
 
+log = logging.getLogger(__name__)
+
 # Tie order at equal timestamps: IMU first (a filter propagates up to t before updating at t).
 STREAM_ORDER: tuple[str, ...] = (
     "imu", "groundtruth", "gps", "mag", "sonar", "left", "right", "features",
 )  # fmt: skip
 
 
-def load_dataset(path: Path | str) -> Dataset:
-    """Read an ASL/EuRoC folder (root or ``mav0/``) or a KITTI odometry folder (auto-detected)."""
+def load_dataset(
+    path: Path | str,
+    calib: Path | str | None = None,
+    imu_calib: Path | str | None = None,
+    topics: dict[str, str | None] | None = None,
+) -> Dataset:
+    """Read a data set, its kind auto-detected: an ASL/EuRoC folder (root or ``mav0/``), a
+    TUM-VI sequence, a KITTI odometry folder, or a ROS1/ROS2 bag (``topics``: role -> topic).
+
+    ``calib`` (Kalibr camchain-imucam.yaml) and ``imu_calib`` (Kalibr imu.yaml) replace the
+    data set's own calibration (``datasets/kalibr.py``).
+    """
+    from svains.datasets.kalibr import apply_kalibr, kalibr_topics
+    from svains.datasets.rosbag import is_bag, read_bag
+    from svains.datasets.tumvi import is_tumvi, read_tumvi
+
     p = Path(path)
     if not p.exists():
         raise DatasetError(f"data set folder not found: {p}")
-    if not p.is_dir():
-        raise DatasetError(f"not a folder: {p}")
-    if find_mav0(p) is not None:
-        return read_asl(p)
-    if is_kitti(p):
-        return read_kitti(p)
-    raise DatasetError(
-        f"{p}: unrecognised data set (expected an ASL mav0/ folder or KITTI calib.txt + image_0/)"
-    )
+    if is_bag(p):
+        ds = read_bag(p, topics, hints=kalibr_topics(calib, imu_calib))
+        if calib is None and ds.left is not None:
+            log.warning("%s: a bag has no camera calibration; pass a Kalibr camchain (--calib)", p)
+    elif not p.is_dir():
+        raise DatasetError(f"not a folder or a bag (.bag, .db3, .mcap): {p}")
+    elif is_tumvi(p):
+        ds = read_tumvi(p)
+    elif find_mav0(p) is not None:
+        ds = read_asl(p)
+    elif is_kitti(p):
+        ds = read_kitti(p)
+    else:
+        raise DatasetError(
+            f"{p}: unrecognised data set (expected an ASL mav0/ folder, KITTI calib.txt + "
+            "image_0/, or a ROS bag)"
+        )
+    if calib is None and imu_calib is None:
+        return ds
+    return apply_kalibr(ds, calib, imu_calib)
 
 
 def stream_times(ds: Dataset) -> dict[str, np.ndarray]:

@@ -106,3 +106,17 @@ def read_tum(
 def write_groundtruth_tum(path: Path | str, gt: GroundTruth) -> Path:
     """Write a data set's ground truth (body frame) as a TUM file."""
     return write_tum(path, gt.t_ns, gt.p_W_B, gt.q_W_B_wxyz, comment="ground truth, body frame")
+
+
+def groundtruth_from_poses(
+    t_ns: NDArray[np.int64], p_W_B: NDArray[np.float64], q_W_B_wxyz: NDArray[np.float64]
+) -> GroundTruth:
+    """Pose-only ground truth (mocap, bag poses): velocity ``v_W_B`` by central differences of
+    the positions, biases zero (unknown). ``q_W_B_wxyz`` is normalised."""
+    t = np.asarray(t_ns, np.int64)
+    p = np.asarray(p_W_B, float).reshape(-1, 3)
+    q = np.asarray(q_W_B_wxyz, float).reshape(-1, 4)
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    v = np.gradient(p, (t - t[0]) * 1e-9, axis=0) if t.size > 1 else np.zeros_like(p)
+    z = np.zeros_like(p)
+    return GroundTruth(t_ns=t, p_W_B=p, q_W_B_wxyz=q, v_W_B=v, bg_B=z, ba_B=z.copy())

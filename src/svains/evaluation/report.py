@@ -1,4 +1,4 @@
-"""Evaluate trajectory files: TUM estimates against TUM or data-set ground truth."""
+"""Evaluate trajectories (TUM, EuRoC csv, KITTI, bag topic, data-set folder) with evo."""
 
 from __future__ import annotations
 
@@ -10,10 +10,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.datasets.loader import load_dataset
-from svains.datasets.trajectory import read_tum
+from svains.datasets.trajectory_formats import TrajectoryFormat, read_trajectory
 from svains.datasets.types import GroundTruth
-from svains.errors import DatasetError
 from svains.evaluation.metrics import Alignment, AteResult, RpeResult, ate, rpe
 
 Trajectory = tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]
@@ -37,15 +35,12 @@ def ate_vs_groundtruth(
                max_diff_s=max_diff_s)  # fmt: skip
 
 
-def load_trajectory(path: Path | str) -> Trajectory:
-    """A TUM file, or a data-set folder's ground truth (ASL or KITTI), as (t_ns, p, q_wxyz)."""
-    p = Path(path)
-    if p.is_dir():
-        ds = load_dataset(p)
-        if ds.groundtruth is None:
-            raise DatasetError(f"{p}: data set has no ground truth")
-        return groundtruth_trajectory(ds.groundtruth)
-    return read_tum(p)
+def load_trajectory(
+    path: Path | str, fmt: TrajectoryFormat | None = None, topic: str | None = None
+) -> Trajectory:
+    """A trajectory file (TUM, EuRoC csv, KITTI poses), a bag's pose topic or a data-set
+    folder's ground truth, as (t_ns, p, q_wxyz); ``fmt`` None auto-detects."""
+    return read_trajectory(path, fmt, topic)
 
 
 @dataclass
@@ -84,11 +79,15 @@ def evaluate_files(
     align: Alignment = "se3",
     delta_m: list[float] | tuple[float, ...] = (1.0, 5.0),
     max_diff_s: float = 0.01,
+    est_format: TrajectoryFormat | None = None,
+    ref_format: TrajectoryFormat | None = None,
+    est_topic: str | None = None,
+    ref_topic: str | None = None,
 ) -> EvaluationReport:
-    """ATE (with ``align``) and RPE (per ``delta_m``) of a TUM estimate against a reference that
-    is a TUM file or a data-set folder with ground truth."""
-    t_e, p_e, q_e = load_trajectory(est_path)
-    t_r, p_r, q_r = load_trajectory(ref_path)
+    """ATE (with ``align``) and RPE (per ``delta_m``) of an estimate against a reference, each
+    in any format of :func:`load_trajectory` (auto-detected unless given)."""
+    t_e, p_e, q_e = load_trajectory(est_path, est_format, est_topic)
+    t_r, p_r, q_r = load_trajectory(ref_path, ref_format, ref_topic)
     a = ate(t_e, p_e, q_e, t_r, p_r, q_r, align=align, max_diff_s=max_diff_s)
     r = rpe(t_e, p_e, q_e, t_r, p_r, q_r, delta_m=delta_m, max_diff_s=max_diff_s)
     return EvaluationReport(str(est_path), str(ref_path), a, r)

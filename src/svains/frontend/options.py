@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 from svains.frontend.egomotion import RansacOptions
 from svains.frontend.features import DetectorOptions
+from svains.frontend.reacquire import ReacquireOptions
 from svains.frontend.stereo import StereoMatchOptions
 from svains.frontend.tracking import KltOptions
 
@@ -30,12 +31,15 @@ class FrontendOptions:
     measurement (a small consensus among many tracks is more often a wrong motion, e.g. a
     repeated texture, than a scene mostly moving); ``retry_levels`` pyramid levels of a second,
     unpredicted temporal KLT pass when the predicted tracks gave no consensus (at the onset of a
-    sharp turn the constant-velocity prediction is far off: 2 Hz village flight, t = 35 s)."""
+    sharp turn the constant-velocity prediction is far off: 2 Hz village flight, t = 35 s);
+    ``reacquire``: descriptor matching when KLT still gave no consensus (long gaps, low frame
+    rates; ``frontend.reacquire``)."""
 
     detector: DetectorOptions = field(default_factory=DetectorOptions)
     klt: KltOptions = field(default_factory=KltOptions)
     stereo: StereoMatchOptions = field(default_factory=StereoMatchOptions)
     ransac: RansacOptions = field(default_factory=RansacOptions)
+    reacquire: ReacquireOptions = field(default_factory=ReacquireOptions)
     min_texture_std: float = 3.0
     epipolar_final_px: float = 1.0
     prior_gate_chi2: float = 50.0

@@ -18,21 +18,22 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.frontend.egomotion import estimate_egomotion
+from svains.frontend.egomotion import RansacOptions, estimate_egomotion
 from svains.frontend.features import detect_corners
 from svains.frontend.images import as_grey, texture_std
+from svains.frontend.motion_checks import agrees_with_prior, plausible
 from svains.frontend.options import HOLD_STATUSES, FrameStats, FrontendOptions
+from svains.frontend.reacquire import Reacquired, Reacquirer
 from svains.frontend.rectify import StereoRectifier
 from svains.frontend.stereo import dense_disparity, match_dense, match_sparse
 from svains.frontend.tracking import Pyramid, track_klt
 from svains.frontend.types import Egomotion, StereoTracks
 from svains.geometry.camera import RectifiedStereo
-from svains.geometry.rotation import so3_log
 from svains.sensors.types import CameraCalib
 
 F64 = NDArray[np.float64]
@@ -77,6 +78,7 @@ class StereoFrontend:
         raw = not rectifier.identity and self.options.stereo.method == "sparse"
         self._geo: StereoRectifier | None = rectifier if raw else None
         self._last_images: tuple[U8, U8] | None = None
+        self._reacquirer = Reacquirer(self.rig, self.options.reacquire)
 
     @property
     def reference_t_ns(self) -> int | None:
@@ -133,30 +135,6 @@ class StereoFrontend:
             uv_left_prev=z2, uv_right_prev=z2, uv_left=z2, uv_right=z2, p_Ckm1_F=np.zeros((0, 3)),
             inlier=np.zeros(0, bool), egomotion=None,
         )
-
-    def _prior_ok(self, ego: Egomotion, prior: Egomotion) -> bool:
-        """Mahalanobis test of the estimate against an external motion prior."""
-        d = np.concatenate([
-            so3_log(prior.R_Ck_Ckm1.T @ ego.R_Ck_Ckm1), ego.p_Ck_Ckm1 - prior.p_Ck_Ckm1
-        ])
-        S = ego.cov + prior.cov
-        try:
-            m2 = float(d @ np.linalg.solve(S, d))
-        except np.linalg.LinAlgError:
-            return False
-        return bool(np.isfinite(m2) and m2 <= self.options.prior_gate_chi2)
-
-    def _plausible(self, ego: Egomotion) -> bool:
-        o = self.options
-        if not (np.all(np.isfinite(ego.R_Ck_Ckm1)) and np.all(np.isfinite(ego.p_Ck_Ckm1))):
-            return False
-        if o.max_translation_m is not None and np.linalg.norm(ego.p_Ck_Ckm1) > o.max_translation_m:
-            return False
-        if o.max_rotation_deg is None:
-            return True
-        # Rotation angle from the trace (no full matrix logarithm needed for a threshold).
-        c = np.clip((np.trace(ego.R_Ck_Ckm1) - 1.0) / 2.0, -1.0, 1.0)
-        return bool(np.degrees(np.arccos(c)) <= o.max_rotation_deg)
 
     # ------------------------------------------------------------------ main entry
     def process(
@@ -245,6 +223,11 @@ class StereoFrontend:
             if self.stats.status == "no_consensus" and predicted and o.retry_levels > 0:
                 result, keep_id, keep_l, keep_r = self._retry(t_ns, ref, pl, pr, motion_prior,
                                                               disparity, tm)  # fmt: skip
+            if o.reacquire.enabled:
+                result, keep_id, keep_l, keep_r = self._reacquire(
+                    t_ns, ref, pl, pr, motion_prior, disparity, tm,
+                    (result, keep_id, keep_l, keep_r),
+                )
             if self.stats.status in HOLD_STATUSES and self._held < o.max_hold_frames:
                 # Probably a transient (object filling the view): keep tracking from the last
                 # trusted frame rather than adopting this one as the reference.
@@ -338,19 +321,60 @@ class StereoFrontend:
         log.info("frame %d: no consensus from predicted tracks, retried unpredicted", t_ns)
         return self._egomotion(t_ns, ref, uv_l, uv_r, ok_t & ok_s, motion_prior, tm)
 
+    def _reacquire(
+        self, t_ns: int, ref: _Reference, pl: Pyramid, pr: Pyramid,
+        motion_prior: Egomotion | None, disparity: F64 | None, tm: dict[str, float],
+        klt: tuple[StereoTracks, NDArray[np.int64], F64, F64],
+    ) -> tuple[StereoTracks, NDArray[np.int64], F64, F64]:
+        """``klt`` (the KLT result), unless KLT gave no consensus or fewer inliers than
+        ``klt_min_inliers`` and descriptor matches to the reference, as new tracks, left-right
+        matched, give a motion with more (``Reacquirer.two_pass``, the same RANSAC)."""
+        o, st = self.options.reacquire, self.stats
+        saved = (st.status, st.tracked, st.inliers, st.outliers, self._last_motion)
+        if st.status != "no_consensus" and (st.status != "ok" or st.inliers >= o.klt_min_inliers):
+            return klt
+        ransac = replace(self.options.ransac, inlier_px=o.ransac_inlier_px,
+                         min_inliers=o.min_inliers)  # fmt: skip
+
+        def attempt(m: Reacquired) -> tuple[tuple, Egomotion | None, int]:  # type: ignore[type-arg]
+            ids = np.arange(self._next_id, self._next_id + m.uv_cur.shape[0], dtype=np.int64)
+            self._next_id += ids.size
+            new = replace(ref, track_id=ids, uv_left=m.uv_ref_left, uv_right=m.uv_ref_right,
+                          p_C_F=m.p_Ckm1_F)  # fmt: skip
+            uv_r, ok = self._stereo(pl, pr, m.uv_cur, None, disparity)
+            got = self._egomotion(t_ns, new, m.uv_cur, uv_r, ok, motion_prior, tm, ransac)
+            return (got, st.inliers, st.outliers, st.tracked), got[0].egomotion, st.inliers
+
+        t7 = time.perf_counter()
+        best = self._reacquirer.two_pass(
+            ref.t_ns, ref.left.image, pl.image, self._to_rect,
+            lambda uv: self._stereo(ref.left, ref.right, uv, None, None), motion_prior, attempt,
+        )
+        tm["reacquire"] = (time.perf_counter() - t7) * 1e3
+        if best is not None and (saved[0] != "ok" or best[1] > saved[2]):
+            got, st.inliers, st.outliers, st.tracked = best
+            st.status, self._last_motion = "ok", got[0].egomotion
+            log.info("frame %d: re-acquired by descriptors, %d inliers", t_ns, st.inliers)
+            return got
+        st.status, st.tracked, st.inliers, st.outliers, self._last_motion = saved
+        return klt
+
     def _egomotion(
         self, t_ns: int, ref: _Reference, uv_l: F64, uv_r: F64, sel: NDArray[np.bool_],
         motion_prior: Egomotion | None, tm: dict[str, float],
+        ransac: RansacOptions | None = None,
     ) -> tuple[StereoTracks, NDArray[np.int64], F64, F64]:
-        """Egomotion from the reference features matched now (``sel``, (N,)), then the checks."""
+        """Egomotion from the reference features matched now (``sel``, (N,)), then the checks;
+        ``ransac`` replaces the options' RANSAC settings."""
         o = self.options
+        ransac = ransac or o.ransac
         self.stats.tracked = int(sel.sum())
         p_prev = ref.p_C_F[sel]
         uvl, uvr = uv_l[sel], uv_r[sel]
         t6 = time.perf_counter()
         prior = motion_prior or self._last_motion
         res = estimate_egomotion(
-            p_prev, uvl, uvr, self.rig, o.ransac, p_cur=self.rig.triangulate(uvl, uvr),
+            p_prev, uvl, uvr, self.rig, ransac, p_cur=self.rig.triangulate(uvl, uvr),
             prior=prior, rng=self._rng,
         )
         tm["ransac"] = tm.get("ransac", 0.0) + (time.perf_counter() - t6) * 1e3
@@ -361,11 +385,12 @@ class StereoFrontend:
         ego = res.egomotion
         status = "ok"
         n_inl = int(inlier.sum())
-        if ego is None or n_inl < max(o.ransac.min_inliers, o.min_inlier_fraction * inlier.size):
+        if ego is None or n_inl < max(ransac.min_inliers, o.min_inlier_fraction * inlier.size):
             ego, status = None, "no_consensus"
-        elif not self._plausible(ego):
+        elif not plausible(ego, o):
             ego, status = None, "implausible"
-        elif motion_prior is not None and not self._prior_ok(ego, motion_prior):
+        elif motion_prior is not None and not agrees_with_prior(ego, motion_prior,
+                                                                o.prior_gate_chi2):
             ego, status = None, "contradicts_prior"
         if ego is None:
             inlier = np.zeros_like(inlier)

@@ -1,0 +1,44 @@
+"""``svains plot RUN_DIR --dataset D``: per-axis errors with ±3σ, NEES and fused/rejected plots."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+
+from svains.errors import SvainsError
+
+
+def plot(
+    run_dir: Annotated[Path, typer.Argument(help="Output folder of svains run.")],
+    dataset: Annotated[
+        Path | None,
+        typer.Option("--dataset", help="The run's data set (ground truth for errors and NEES)."),
+    ] = None,
+    out: Annotated[
+        Path | None, typer.Option("--out", help="Where to write the PNGs (default RUN_DIR).")
+    ] = None,
+) -> None:
+    """Write errors.png, nees.png and measurements.png for a run."""
+    from svains.datasets import load_dataset
+    from svains.evaluation.plots import plot_run
+
+    try:
+        ds = load_dataset(dataset) if dataset is not None else None
+        files = plot_run(run_dir, ds, out if out is not None else run_dir)
+    except SvainsError as exc:
+        Console(stderr=True).print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
+        raise typer.Exit(1) from exc
+    console = Console()
+    for f in files:
+        console.print(escape(f"wrote {f.path}: {'; '.join(f.panels[:3])}"
+                             + (" ..." if len(f.panels) > 3 else "")))  # fmt: skip
+    if dataset is None:
+        console.print("no --dataset: errors.png and nees.png need its ground truth")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("plot")(plot)

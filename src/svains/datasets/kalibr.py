@@ -1,0 +1,304 @@
+"""Kalibr calibration files: ``camchain-imucam.yaml`` (cameras) and ``imu.yaml`` (IMU noise).
+
+The mapping to svains (also in ``docs/formats.md``):
+
+- body frame B = the IMU frame of ``imu.yaml`` (Kalibr's ``imu0``); when only a camchain is given,
+  the data set's own IMU ``T_B_S`` places the IMU on the body (identity if it has none);
+- ``T_cam_imu`` (Kalibr) maps IMU points into the camera, so ``T_B_C = T_B_I inv(T_cam_imu)``;
+  OpenVINS' ``T_imu_cam`` is ``T_I_C`` directly; a camera with neither gets
+  ``T_cn_cnm1`` chained onto the previous camera (``T_I_Cn = T_I_Cnm1 inv(T_cn_cnm1)``);
+- ``timeshift_cam_imu`` [s]: ``t_imu = t_cam + timeshift``, so image times are shifted by it;
+- ``intrinsics`` ``[fu, fv, pu, pv]``, ``resolution`` ``[w, h]``; ``distortion_model``
+  ``radtan`` (4 coefficients, or 5 with k3) -> ``"radtan"``, ``equidistant`` (4, Kannala-Brandt)
+  -> ``"equidistant"``, ``none`` -> ``"radtan"`` with zeros; only ``camera_model: pinhole``;
+- ``imu.yaml``: ``gyroscope_noise_density`` ... ``accelerometer_random_walk`` and
+  ``update_rate``, at the top level or under ``imu0:``; ``T_i_b`` (body to this IMU) if present.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from svains.datasets._textio import format_float, read_sensor_yaml, yaml_float
+from svains.datasets.types import CameraCalib, Dataset, ImageStream, ImuCalib
+from svains.errors import CalibrationError
+
+log = logging.getLogger(__name__)
+
+F64 = NDArray[np.float64]
+
+# Kalibr distortion model -> (svains name, allowed coefficient counts).
+DISTORTION_MODELS: dict[str, tuple[str, tuple[int, ...]]] = {
+    "radtan": ("radtan", (4, 5)),
+    "equidistant": ("equidistant", (4,)),
+    "none": ("radtan", (0, 4)),
+}
+IMU_NOISE_KEYS = (
+    ("gyro_noise_density", "gyroscope_noise_density"),
+    ("gyro_random_walk", "gyroscope_random_walk"),
+    ("accel_noise_density", "accelerometer_noise_density"),
+    ("accel_random_walk", "accelerometer_random_walk"),
+)
+
+
+@dataclass(frozen=True)
+class KalibrChain:
+    """Cameras of a camchain in file order, ``T_B_C`` = camera to IMU (``T_I_C``).
+
+    ``timeshift_cam_imu_s``: cam0's ``t_imu - t_cam`` [s]; ``rostopics``: per camera or None.
+    """
+
+    cameras: tuple[CameraCalib, ...]
+    timeshift_cam_imu_s: float
+    rostopics: tuple[str | None, ...]
+
+
+def _matrix4(node: Any, key: str, path: Path) -> F64:
+    """A 4x4 from Kalibr's list of 4 rows (or 16 numbers, or an EuRoC ``data:`` block)."""
+    values = node.get("data") if isinstance(node, dict) else node
+    try:
+        T = np.asarray(values, dtype=float).reshape(4, 4)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{path}: '{key}' must be a 4x4 matrix (4 rows of 4)") from None
+    if not np.all(np.isfinite(T)) or not np.allclose(T[3], [0, 0, 0, 1]):
+        raise CalibrationError(f"{path}: '{key}' is not a homogeneous transform: last row {T[3]}")
+    R = T[:3, :3]
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) <= 0:
+        raise CalibrationError(f"{path}: '{key}' rotation is not orthonormal (R R^T != I)")
+    return T
+
+
+def _numbers(cam: dict[str, Any], key: str, path: Path, where: str) -> F64:
+    if key not in cam:
+        raise CalibrationError(f"{path}: {where} has no '{key}'")
+    try:
+        return np.asarray([float(v) for v in cam[key]], dtype=float)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{path}: {where} '{key}' must be a list of numbers") from None
+
+
+def _camera(cam: dict[str, Any], name: str, path: Path, T_I_C: F64) -> CameraCalib:
+    model = str(cam.get("camera_model", "pinhole"))
+    if model != "pinhole":
+        raise CalibrationError(
+            f"{path}: {name} camera_model '{model}' is not supported (pinhole only)"
+        )
+    kalibr_dist = str(cam.get("distortion_model", "none"))
+    if kalibr_dist not in DISTORTION_MODELS:
+        raise CalibrationError(
+            f"{path}: {name} distortion_model '{kalibr_dist}' is not supported "
+            f"(expected one of {', '.join(DISTORTION_MODELS)})"
+        )
+    dist_model, counts = DISTORTION_MODELS[kalibr_dist]
+    has_coeffs = "distortion_coeffs" in cam
+    coeffs = _numbers(cam, "distortion_coeffs", path, name) if has_coeffs else np.zeros(0)
+    if coeffs.size not in counts:
+        raise CalibrationError(
+            f"{path}: {name} {kalibr_dist} needs {' or '.join(map(str, counts))} "
+            f"distortion_coeffs, has {coeffs.size}"
+        )
+    intr = _numbers(cam, "intrinsics", path, name)
+    res = _numbers(cam, "resolution", path, name)
+    if intr.size != 4 or res.size != 2:
+        raise CalibrationError(
+            f"{path}: {name} needs intrinsics [fu, fv, pu, pv] and resolution [w, h]"
+        )
+    return CameraCalib(
+        name=name, T_B_C=T_I_C, rate_hz=0.0, resolution=(int(res[0]), int(res[1])),
+        intrinsics=intr, distortion_model=dist_model,
+        distortion=coeffs if coeffs.size else np.zeros(4),
+    )  # fmt: skip
+
+
+def read_camchain(path: Path | str) -> KalibrChain:
+    """Parse a Kalibr ``camchain-imucam.yaml`` (or a plain ``camchain.yaml``, or OpenVINS'
+    ``kalibr_imucam_chain.yaml`` with ``T_imu_cam``); cameras ``cam0``, ``cam1``, ... in order.
+
+    A plain camchain without any IMU transform puts the IMU at cam0 (``T_I_C0`` = identity).
+    """
+    path = Path(path)
+    y = read_sensor_yaml(path)
+    names = sorted(
+        (k for k in y if k.startswith("cam") and k[3:].isdigit()), key=lambda k: int(k[3:])
+    )
+    if not names:
+        raise CalibrationError(f"{path}: no camera entries (expected 'cam0:', 'cam1:', ...)")
+    cams: list[CameraCalib] = []
+    topics: list[str | None] = []
+    shift = 0.0
+    for i, name in enumerate(names):
+        c = y[name]
+        if not isinstance(c, dict):
+            raise CalibrationError(f"{path}: '{name}' must be a mapping")
+        if "T_cam_imu" in c:
+            T_I_C = np.linalg.inv(_matrix4(c["T_cam_imu"], f"{name}.T_cam_imu", path))
+        elif "T_imu_cam" in c:
+            T_I_C = _matrix4(c["T_imu_cam"], f"{name}.T_imu_cam", path)
+        elif i > 0 and "T_cn_cnm1" in c:
+            T_cn_cnm1 = _matrix4(c["T_cn_cnm1"], f"{name}.T_cn_cnm1", path)
+            T_I_C = cams[-1].T_B_C @ np.linalg.inv(T_cn_cnm1)
+        elif i == 0:
+            T_I_C = np.eye(4)
+        else:
+            raise CalibrationError(f"{path}: {name} has none of T_cam_imu, T_imu_cam, T_cn_cnm1")
+        cams.append(_camera(c, name, path, T_I_C))
+        topics.append(str(c["rostopic"]) if "rostopic" in c else None)
+        if i == 0:
+            shift = yaml_float(c, "timeshift_cam_imu", path, default=0.0)
+    return KalibrChain(tuple(cams), shift, tuple(topics))
+
+
+def read_kalibr_imu(path: Path | str) -> tuple[ImuCalib, str | None]:
+    """Kalibr/OpenVINS ``imu.yaml``: (``ImuCalib`` with ``T_B_S`` = inv(``T_i_b``), rostopic)."""
+    path = Path(path)
+    y = read_sensor_yaml(path)
+    if "imu0" in y and isinstance(y["imu0"], dict):
+        y = y["imu0"]
+    vals = {ours: yaml_float(y, theirs, path) for ours, theirs in IMU_NOISE_KEYS}
+    for ours, v in vals.items():
+        if v <= 0.0:
+            raise CalibrationError(f"{path}: {dict(IMU_NOISE_KEYS)[ours]} must be positive")
+    T_B_S = np.linalg.inv(_matrix4(y["T_i_b"], "T_i_b", path)) if "T_i_b" in y else np.eye(4)
+    rate = yaml_float(y, "update_rate", path, default=0.0)
+    topic = str(y["rostopic"]) if "rostopic" in y else None
+    return ImuCalib(T_B_S=T_B_S, rate_hz=rate, **vals), topic
+
+
+def kalibr_topics(camchain_path: Path | str | None, imu_path: Path | str | None) -> dict[str, str]:
+    """Bag topics the Kalibr files name (``rostopic``): roles ``left``, ``right``, ``imu``."""
+    out: dict[str, str] = {}
+    if camchain_path is not None:
+        chain = read_camchain(camchain_path)
+        for role, topic in zip(("left", "right"), chain.rostopics, strict=False):
+            if topic:
+                out[role] = topic
+    if imu_path is not None:
+        topic = read_kalibr_imu(imu_path)[1]
+        if topic:
+            out["imu"] = topic
+    return out
+
+
+def _shift_images(stream: ImageStream | None, shift_ns: int) -> ImageStream | None:
+    if stream is None or shift_ns == 0:
+        return stream
+    return dataclasses.replace(stream, t_ns=np.asarray(stream.t_ns, np.int64) + shift_ns)
+
+
+def _with_rate(
+    cal: CameraCalib, stream: ImageStream | None, old: CameraCalib | None
+) -> CameraCalib:
+    """Kalibr has no camera rate: keep the data set's, else the median rate of the images."""
+    if old is not None and old.rate_hz > 0:
+        return dataclasses.replace(cal, rate_hz=old.rate_hz)
+    if stream is not None and len(stream) > 1:
+        return dataclasses.replace(cal, rate_hz=float(1e9 / np.median(np.diff(stream.t_ns))))
+    return cal
+
+
+def apply_kalibr(
+    ds: Dataset, camchain_path: Path | str | None = None, imu_path: Path | str | None = None
+) -> Dataset:
+    """A copy of ``ds`` whose calibration comes from Kalibr files (either may be None).
+
+    ``imu.yaml`` replaces the IMU calibration (the IMU becomes the body frame unless it has a
+    ``T_i_b``); the camchain replaces cam0/cam1, placed on the body through the IMU's ``T_B_S``,
+    and shifts image times by ``timeshift_cam_imu`` (recorded in ``extras``).
+    """
+    out = dataclasses.replace(ds, extras=dict(ds.extras))
+    if imu_path is not None:
+        imu_cal, _ = read_kalibr_imu(imu_path)
+        if imu_cal.rate_hz <= 0 and ds.imu_calib is not None:
+            imu_cal = dataclasses.replace(imu_cal, rate_hz=ds.imu_calib.rate_hz)
+        out.imu_calib = imu_cal
+        out.extras["kalibr_imu"] = str(imu_path)
+    if camchain_path is None:
+        return out
+    chain = read_camchain(camchain_path)
+    if len(chain.cameras) < 2:
+        raise CalibrationError(f"{camchain_path}: stereo needs two cameras, found 1")
+    if len(chain.cameras) > 2:
+        log.warning("%s: %d cameras, using cam0 and cam1", camchain_path, len(chain.cameras))
+    T_B_I = out.imu_calib.T_B_S if out.imu_calib is not None else np.eye(4)
+    # The data set's own sensor.yaml offset (if any) was applied at read time: replace it.
+    applied_s = ds.cam0.timeshift_cam_imu_s if ds.cam0 is not None else 0.0
+    shift_ns = round((chain.timeshift_cam_imu_s - applied_s) * 1e9)
+    out.left = _shift_images(ds.left, shift_ns)
+    out.right = _shift_images(ds.right, shift_ns)
+    cams = [
+        dataclasses.replace(
+            c, T_B_C=T_B_I @ c.T_B_C, timeshift_cam_imu_s=chain.timeshift_cam_imu_s
+        )
+        for c in chain.cameras[:2]
+    ]
+    out.cam0 = _with_rate(cams[0], out.left, ds.cam0)
+    out.cam1 = _with_rate(cams[1], out.right, ds.cam1)
+    out.extras["kalibr_camchain"] = str(camchain_path)
+    out.extras["timeshift_cam_imu_ns"] = shift_ns
+    return out
+
+
+def _yaml_list(v: F64 | list[float]) -> str:
+    return "[" + ", ".join(format_float(float(x)) for x in np.asarray(v).reshape(-1)) + "]"
+
+
+def _yaml_matrix(T: F64, indent: str) -> list[str]:
+    return [f"{indent}- {_yaml_list(row)}" for row in np.asarray(T, float).reshape(4, 4)]
+
+
+def write_camchain(
+    path: Path | str,
+    cameras: list[CameraCalib] | tuple[CameraCalib, ...],
+    T_B_I: F64 | None = None,
+    timeshift_cam_imu_s: float = 0.0,
+    rostopics: list[str] | None = None,
+    openvins: bool = False,
+) -> Path:
+    """Write cameras (``T_B_C`` on body B) as a Kalibr camchain-imucam (``T_cam_imu``, with
+    ``T_cn_cnm1``), or with ``openvins`` as OpenVINS' ``T_imu_cam``; the IMU sits at ``T_B_I``."""
+    path = Path(path)
+    T_I_B = np.linalg.inv(np.eye(4) if T_B_I is None else np.asarray(T_B_I, float))
+    lines: list[str] = []
+    prev: F64 | None = None
+    for i, cam in enumerate(cameras):
+        T_I_C = T_I_B @ np.asarray(cam.T_B_C, float)
+        kalibr_dist = (
+            "radtan"
+            if cam.distortion_model in ("radtan", "radial-tangential")
+            else (cam.distortion_model)
+        )
+        lines.append(f"cam{i}:")
+        if openvins:
+            lines += ["  T_imu_cam:", *_yaml_matrix(T_I_C, "  ")]
+        else:
+            lines += ["  T_cam_imu:", *_yaml_matrix(np.linalg.inv(T_I_C), "  ")]
+            if prev is not None:
+                lines += ["  T_cn_cnm1:", *_yaml_matrix(np.linalg.inv(T_I_C) @ prev, "  ")]
+        prev = T_I_C
+        lines += [
+            "  camera_model: pinhole",
+            f"  distortion_coeffs: {_yaml_list(cam.distortion)}",
+            f"  distortion_model: {kalibr_dist}",
+            f"  intrinsics: {_yaml_list(cam.intrinsics)}",
+            f"  resolution: [{int(cam.resolution[0])}, {int(cam.resolution[1])}]",
+            f"  rostopic: {rostopics[i] if rostopics else f'/cam{i}/image_raw'}",
+            f"  timeshift_cam_imu: {format_float(timeshift_cam_imu_s)}",
+        ]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def write_kalibr_imu(path: Path | str, calib: ImuCalib, rostopic: str = "/imu0") -> Path:
+    """Write an ``ImuCalib`` as Kalibr's ``imu.yaml`` (flat keys, as Kalibr takes as input)."""
+    path = Path(path)
+    lines = [f"{theirs}: {format_float(getattr(calib, ours))}" for ours, theirs in IMU_NOISE_KEYS]
+    lines += [f"update_rate: {format_float(calib.rate_hz)}", f"rostopic: {rostopic}"]
+    path.write_text("\n".join(lines) + "\n")
+    return path

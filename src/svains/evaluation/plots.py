@@ -1,0 +1,134 @@
+"""``svains plot RUN_DIR``: a run's consistency figures as PNG (matplotlib object API).
+
+- ``errors.png``: position, velocity and attitude error per axis against time with the filter's
+  ±3σ bounds (after the run's ``errors_alignment``);
+- ``nees.png``: NEES over time (9 dof, diagonal covariance from ``states.csv``) with its 95 %
+  chi-square interval;
+- ``measurements.png``: per sensor, updates fused and rejected (cumulative) over time, from
+  ``updates.csv``; a run without that log gets the totals of ``report.json``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+from scipy.stats import chi2
+
+from svains.datasets.types import Dataset
+from svains.errors import DatasetError
+from svains.evaluation.run_record import RunErrors, RunRecord, read_run, run_errors
+
+_ERR_ROWS = (("position", "m", 1.0), ("velocity", "m/s", 1.0), ("attitude", "deg", 180 / np.pi))
+
+
+@dataclass(frozen=True)
+class PlotFile:
+    """One written PNG and the titles of its panels, in reading order."""
+
+    path: Path
+    panels: tuple[str, ...]
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    return path
+
+
+def plot_errors(err: RunErrors, path: Path) -> PlotFile:
+    """3x3 panels: error per axis (x, y, z) of position, velocity, attitude with ±3σ."""
+    t_s = (err.t_ns - err.t_ns[0]) * 1e-9
+    fig = Figure(figsize=(12, 8))
+    axes = fig.subplots(3, 3, sharex=True)
+    titles = []
+    for r, (name, unit, scale) in enumerate(_ERR_ROWS):
+        for c, axis in enumerate("xyz"):
+            ax: Axes = axes[r, c]
+            k = 3 * r + c
+            bound = 3.0 * err.std[:, k] * scale
+            ax.fill_between(t_s, -bound, bound, color="tab:blue", alpha=0.2, label="±3 sigma")
+            ax.plot(t_s, err.e[:, k] * scale, color="tab:red", lw=1.0, label="error")
+            title = f"{name} {axis} [{unit}]"
+            ax.set_title(title)
+            titles.append(title)
+            if r == 2:
+                ax.set_xlabel("time [s]")
+    axes[0, 0].legend(loc="upper left")
+    fig.suptitle(f"errors after {err.alignment} alignment, with the filter's ±3 sigma")
+    return PlotFile(_save(fig, path), tuple(titles))
+
+
+def plot_nees(err: RunErrors, path: Path, dof: int = 9) -> PlotFile:
+    """NEES against time with the 95 % interval of a chi-square with ``dof`` degrees."""
+    t_s = (err.t_ns - err.t_ns[0]) * 1e-9
+    fig = Figure(figsize=(10, 4))
+    ax = fig.subplots()
+    lo, hi = chi2.ppf([0.025, 0.975], dof)
+    ax.axhspan(lo, hi, color="tab:green", alpha=0.15, label=f"95 % interval, {dof} dof")
+    ax.axhline(dof, color="tab:green", lw=1.0)
+    ax.plot(t_s, err.nees, color="tab:blue", lw=1.0, label="NEES (diagonal covariance)")
+    ax.set_yscale("log")
+    ax.set_xlabel("time [s]")
+    title = f"NEES over time (mean {np.nanmean(err.nees):.2f})"
+    ax.set_title(title)
+    ax.legend(loc="upper right")
+    return PlotFile(_save(fig, path), (title,))
+
+
+def plot_measurements(rec: RunRecord, path: Path) -> PlotFile:
+    """Per sensor: cumulative fused and rejected updates over time (``updates.csv``), or the
+    totals of ``report.json`` as bars when the run has no per-update log."""
+    fig = Figure(figsize=(10, 4))
+    u = rec.updates
+    if u is None or u["t_ns"].size == 0:
+        ax = fig.subplots()
+        meas = rec.report.get("measurements") or {}
+        names = list(meas)
+        x = np.arange(len(names))
+        ax.bar(x - 0.2, [meas[n]["fused"] for n in names], 0.4, label="fused")
+        ax.bar(x + 0.2, [meas[n]["rejected"] for n in names], 0.4, label="rejected")
+        ax.set_xticks(x, names)
+        ax.legend()
+        title = "fused/rejected totals (report.json; no updates.csv in this run)"
+        ax.set_title(title)
+        return PlotFile(_save(fig, path), (title,))
+    sensors = sorted(set(u["sensor"].tolist()))
+    axes = np.atleast_1d(fig.subplots(len(sensors), 1, sharex=True, squeeze=False)[:, 0])
+    t0 = int(rec.t_ns[0]) if rec.t_ns.size else int(u["t_ns"].min())
+    titles = []
+    for ax, s in zip(axes, sensors, strict=True):
+        sel = u["sensor"] == s
+        t_s = (u["t_ns"][sel] - t0) * 1e-9
+        ok = u["accepted"][sel] > 0.5
+        ax.step(t_s, np.cumsum(ok), where="post", label="fused", color="tab:blue")
+        ax.step(t_s, np.cumsum(~ok), where="post", label="rejected", color="tab:red")
+        title = f"{s}: {int(ok.sum())} fused, {int((~ok).sum())} rejected"
+        ax.set_title(title)
+        titles.append(title)
+        ax.legend(loc="upper left")
+    axes[-1].set_xlabel("time [s]")
+    fig.set_size_inches(10, 2.5 * len(sensors) + 0.5)
+    return PlotFile(_save(fig, path), tuple(titles))
+
+
+def plot_run(run_dir: Path | str, dataset: Dataset | None, out_dir: Path | str) -> list[PlotFile]:
+    """Write the three figures of a run into ``out_dir``; the error and NEES figures need
+    ``dataset`` with ground truth."""
+    rec = read_run(run_dir)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    files = []
+    if dataset is not None and dataset.groundtruth is not None:
+        g = np.asarray(dataset.gravity_W, float)
+        err = run_errors(rec, dataset.groundtruth, -g / np.linalg.norm(g))
+        files.append(plot_errors(err, out / "errors.png"))
+        if np.isfinite(err.nees).any():
+            files.append(plot_nees(err, out / "nees.png"))
+    elif dataset is not None:
+        raise DatasetError(f"{dataset.root}: no ground truth, so no error or NEES plots")
+    files.append(plot_measurements(rec, out / "measurements.png"))
+    return files

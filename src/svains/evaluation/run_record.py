@@ -1,0 +1,134 @@
+"""A finished run read back from its folder (what ``svains run --out DIR`` wrote), for plots and
+the viewer.
+
+Files (``docs/formats.md``): ``states.csv`` and ``report.json`` always; optionally, per-update
+logs the runner may add:
+
+- ``updates.csv``: ``t_ns,sensor,nis,dof,accepted`` (one row per measurement update: the
+  normalised innovation squared, its degrees of freedom, 1 if it passed the chi-square gate);
+- ``tracks.csv``: ``t_ns,track_id,u_px,v_px,inlier`` (left raw-image pixel of every feature at
+  every stereo frame, 1 if the update used it, 0 for an outlier or a gated feature).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from svains.datasets.types import GroundTruth
+from svains.errors import DatasetError
+from svains.evaluation.accuracy import align_states, ate_result_with_fallback
+from svains.evaluation.alignment import align_posyaw_poses
+from svains.geometry.rotation import quat_to_rotmat
+from svains.replay.groundtruth import interpolate_groundtruth, navigation_errors
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """``t_ns`` (N,), states ``x`` (N, nx), tangent standard deviations ``std`` (N, ndx) (NaN
+    without covariance), ``report`` (report.json), and the optional per-update logs (column name
+    -> array) or None."""
+
+    run_dir: Path
+    t_ns: I64
+    x: F64
+    std: F64
+    report: dict[str, Any]
+    updates: dict[str, NDArray[Any]] | None
+    tracks: dict[str, NDArray[Any]] | None
+
+
+def _csv_columns(path: Path, text_cols: tuple[str, ...] = ()) -> dict[str, NDArray[Any]]:
+    """A headed CSV as columns: ``t_ns`` int64, ``text_cols`` str, the rest float64."""
+    lines = path.read_text().splitlines()
+    if not lines:
+        raise DatasetError(f"{path}: empty file")
+    names = [n.strip().lstrip("#") for n in lines[0].split(",")]
+    rows = [ln.split(",") for ln in lines[1:] if ln.strip()]
+    bad = next((k for k, r in enumerate(rows, start=2) if len(r) != len(names)), None)
+    if bad is not None:
+        raise DatasetError(f"{path}:{bad}: expected {len(names)} fields")
+    cols = list(zip(*rows, strict=True)) if rows else [()] * len(names)
+    out: dict[str, NDArray[Any]] = {}
+    try:
+        for name, col in zip(names, cols, strict=True):
+            if name == "t_ns" or name == "track_id":
+                out[name] = np.array([int(v) for v in col], dtype=np.int64)
+            elif name in text_cols:
+                out[name] = np.array([v.strip() for v in col], dtype=str)
+            else:
+                out[name] = np.array(col, dtype=float)
+    except ValueError as exc:
+        raise DatasetError(f"{path}: malformed value: {exc}") from None
+    return out
+
+
+def read_run(run_dir: Path | str) -> RunRecord:
+    """Read ``states.csv``, ``report.json`` and, when present, ``updates.csv``/``tracks.csv``."""
+    d = Path(run_dir)
+    for name in ("states.csv", "report.json"):
+        if not (d / name).is_file():
+            raise DatasetError(f"{d}: not a run folder (missing {name}; see svains run --out)")
+    cols = _csv_columns(d / "states.csv")
+    names = list(cols)
+    std_names = [n for n in names if n.startswith("std_")]
+    x_names = [n for n in names if n != "t_ns" and not n.startswith("std_")]
+    x = np.stack([cols[n] for n in x_names], axis=1) if x_names else np.zeros((0, 0))
+    std = np.stack([cols[n] for n in std_names], axis=1) if std_names else np.zeros((0, 0))
+    upd = _csv_columns(d / "updates.csv", ("sensor",)) if (d / "updates.csv").is_file() else None
+    trk = _csv_columns(d / "tracks.csv") if (d / "tracks.csv").is_file() else None
+    report = json.loads((d / "report.json").read_text())
+    return RunRecord(d, cols["t_ns"], x, std, report, upd, trk)
+
+
+@dataclass(frozen=True)
+class RunErrors:
+    """Errors ``truth ⊟ estimate`` after the run's ``errors_alignment``: ``t_ns`` (M,), ``e``
+    (M, 9) position m, velocity m/s, attitude rad (body axes), ``std`` (M, 9) the matching
+    standard deviations, ``nees`` (M,) from those (diagonal covariance, 9 dof); ``x`` (M, nx)
+    the aligned states and ``p_ref`` (M, 3) m the ground-truth positions, in its world."""
+
+    t_ns: I64
+    e: F64
+    std: F64
+    nees: F64
+    alignment: str
+    x: F64
+    p_ref: F64
+
+
+def run_errors(rec: RunRecord, gt: GroundTruth, up_W: F64 | None = None) -> RunErrors:
+    """The per-state errors of a run against ground truth, aligned as ``report.json`` says.
+
+    ``states.csv`` keeps standard deviations only, so the covariance is taken diagonal: the NEES
+    here differs from ``report.json``'s ``nees_mean`` (full covariance) by the cross terms.
+    """
+    up = np.array([0.0, 0.0, 1.0]) if up_W is None else np.asarray(up_W, float)
+    inside, p, v, q = interpolate_groundtruth(gt, rec.t_ns)
+    if inside.sum() < 2:
+        raise DatasetError(f"{rec.run_dir}: the run and the ground truth do not overlap in time")
+    x, std = rec.x[inside], rec.std[inside, :9]
+    P = np.einsum("ni,ij->nij", np.nan_to_num(std, nan=0.0) ** 2, np.eye(9))
+    align = str(rec.report.get("errors_alignment") or "none")
+    if align == "posyaw":
+        T = align_posyaw_poses(x[:, 0:3], quat_to_rotmat(x[:, 6:10]), p, quat_to_rotmat(q), up)
+        x, P = align_states(x, P, T)
+    elif align == "se3":
+        fit = ate_result_with_fallback(rec.t_ns[inside], x[:, 0:3], x[:, 6:10], p, q, "se3", up)
+        if fit is not None:
+            x, P = align_states(x, P, fit.T_align)
+    e = navigation_errors(x, p, v, q)
+    s = np.sqrt(np.einsum("nii->ni", P))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        nees = np.sum((e / s) ** 2, axis=1)
+    if not np.isfinite(std).all():
+        nees = np.full(len(e), np.nan)  # no covariance (VO)
+    return RunErrors(rec.t_ns[inside], e, s, nees, align, x, p)

@@ -1,0 +1,128 @@
+"""Kalibr camchain-imucam.yaml / imu.yaml: the EuRoC calibration written as Kalibr files gives
+the same cameras, IMU noise and stereo rectification as EuRoC's own sensor.yaml files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from _kalibr_files import write_euroc_kalibr
+from svains.datasets import load_dataset
+from svains.datasets.kalibr import apply_kalibr, read_camchain, read_kalibr_imu, write_camchain
+from svains.errors import CalibrationError
+from svains.frontend.rectify import StereoRectifier
+
+
+@pytest.fixture(scope="module")
+def euroc(euroc_micro: Path):  # type: ignore[no-untyped-def]
+    return load_dataset(euroc_micro)
+
+
+def test_camchain_from_euroc_gives_the_same_rectification(euroc, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    chain, imu = write_euroc_kalibr(euroc, tmp_path)
+    ds = apply_kalibr(euroc, chain, imu)
+    for ours, theirs in ((ds.cam0, euroc.cam0), (ds.cam1, euroc.cam1)):
+        np.testing.assert_allclose(ours.T_B_C, theirs.T_B_C, atol=1e-12)
+        np.testing.assert_array_equal(ours.intrinsics, theirs.intrinsics)
+        np.testing.assert_array_equal(ours.distortion, theirs.distortion)
+        assert ours.distortion_model == "radtan" and ours.rate_hz == theirs.rate_hz
+    a = StereoRectifier.from_calibration(euroc.cam0, euroc.cam1)
+    b = StereoRectifier.from_calibration(ds.cam0, ds.cam1)
+    assert not a.identity
+    assert b.rig.f == pytest.approx(a.rig.f, abs=1e-9)
+    assert b.rig.baseline == pytest.approx(a.rig.baseline, abs=1e-12)
+    np.testing.assert_allclose(b.rig.R_B_C, a.rig.R_B_C, atol=1e-12)
+    np.testing.assert_allclose(b.P1, a.P1, atol=1e-9)
+    np.testing.assert_allclose(b.P2, a.P2, atol=1e-9)
+    np.testing.assert_allclose(b.xymap_left, a.xymap_left, atol=1e-3)
+    np.testing.assert_allclose(b.xymap_right, a.xymap_right, atol=1e-3)
+    i = euroc.imu_calib
+    assert ds.imu_calib.gyro_noise_density == i.gyro_noise_density
+    assert ds.imu_calib.accel_random_walk == i.accel_random_walk
+    assert ds.imu_calib.rate_hz == i.rate_hz
+
+
+def test_openvins_T_imu_cam_and_chained_T_cn_cnm1_match_T_cam_imu(euroc, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    kal = read_camchain(write_euroc_kalibr(euroc, tmp_path)[0])
+    ov = read_camchain(
+        write_camchain(tmp_path / "ov.yaml", [euroc.cam0, euroc.cam1], openvins=True)
+    )
+    np.testing.assert_allclose(ov.cameras[1].T_B_C, kal.cameras[1].T_B_C, atol=1e-12)
+    # cam1 with only T_cn_cnm1 is chained onto cam0.
+    text = (tmp_path / "camchain-imucam.yaml").read_text()
+    head, cam1 = text.split("cam1:\n")
+    rows = cam1.split("  T_cn_cnm1:\n")[1]
+    chained = head + "cam1:\n  T_cn_cnm1:\n" + rows
+    (tmp_path / "chained.yaml").write_text(chained)
+    ch = read_camchain(tmp_path / "chained.yaml")
+    np.testing.assert_allclose(ch.cameras[1].T_B_C, kal.cameras[1].T_B_C, atol=1e-12)
+
+
+def test_equidistant_and_five_coefficient_radtan_parse(tmp_path: Path) -> None:
+    p = tmp_path / "camchain.yaml"
+    p.write_text(
+        "cam0:\n  camera_model: pinhole\n  distortion_model: equidistant\n"
+        "  distortion_coeffs: [0.0034, 0.0007, -0.0020, 0.0002]\n"
+        "  intrinsics: [190.97, 190.97, 254.93, 256.89]\n  resolution: [512, 512]\n"
+        "  timeshift_cam_imu: 0.0125\n  rostopic: /cam0/image_raw\n"
+        "cam1:\n  T_cn_cnm1:\n  - [1, 0, 0, -0.1]\n  - [0, 1, 0, 0]\n  - [0, 0, 1, 0]\n"
+        "  - [0, 0, 0, 1]\n  camera_model: pinhole\n  distortion_model: radtan\n"
+        "  distortion_coeffs: [-0.1, 0.01, 0.001, 0.002, 0.0003]\n"
+        "  intrinsics: [190.0, 190.0, 250.0, 250.0]\n  resolution: [512, 512]\n"
+    )
+    ch = read_camchain(p)
+    c0, c1 = ch.cameras
+    assert c0.distortion_model == "equidistant" and c0.distortion.shape == (4,)
+    assert c1.distortion_model == "radtan" and c1.distortion.shape == (5,)
+    assert ch.timeshift_cam_imu_s == 0.0125 and ch.rostopics == ("/cam0/image_raw", None)
+    np.testing.assert_allclose(c1.T_B_C[:3, 3], [0.1, 0.0, 0.0])  # cam1 is right of cam0
+
+
+def test_timeshift_moves_image_times(euroc, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    chain = write_camchain(
+        tmp_path / "c.yaml", [euroc.cam0, euroc.cam1], timeshift_cam_imu_s=-0.0025
+    )
+    ds = apply_kalibr(euroc, chain, None)
+    np.testing.assert_array_equal(ds.left.t_ns, euroc.left.t_ns - 2_500_000)
+    np.testing.assert_array_equal(ds.right.t_ns, euroc.right.t_ns - 2_500_000)
+    assert ds.extras["timeshift_cam_imu_ns"] == -2_500_000
+    np.testing.assert_array_equal(euroc.left.t_ns[:1], load_dataset(euroc.root).left.t_ns[:1])
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("cam0:\n  camera_model: omni\n  intrinsics: [1, 1, 1, 1]\n  resolution: [4, 4]\n",
+         "camera_model 'omni' is not supported"),
+        ("cam0:\n  distortion_model: fov\n  intrinsics: [1, 1, 1, 1]\n  resolution: [4, 4]\n",
+         "distortion_model 'fov' is not supported"),
+        ("cam0:\n  distortion_model: equidistant\n  distortion_coeffs: [1, 2]\n"
+         "  intrinsics: [1, 1, 1, 1]\n  resolution: [4, 4]\n", "needs 4 distortion_coeffs, has 2"),
+        ("cam0:\n  T_cam_imu: [[1, 0, 0, 0], [0, 2, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]\n"
+         "  intrinsics: [1, 1, 1, 1]\n  resolution: [4, 4]\n", "rotation is not orthonormal"),
+        ("cam0:\n  resolution: [4, 4]\n", "cam0 has no 'intrinsics'"),
+        ("imu0: 3\n", "no camera entries"),
+    ],
+)  # fmt: skip
+def test_bad_camchain_is_refused_with_its_reason(tmp_path: Path, text: str, message: str) -> None:
+    p = tmp_path / "camchain.yaml"
+    p.write_text(text)
+    with pytest.raises(CalibrationError, match=message):
+        read_camchain(p)
+
+
+def test_imu_yaml_nested_under_imu0_and_bad_noise(tmp_path: Path) -> None:
+    p = tmp_path / "imu.yaml"
+    p.write_text(
+        "imu0:\n  accelerometer_noise_density: 0.002\n  accelerometer_random_walk: 0.003\n"
+        "  gyroscope_noise_density: 0.00017\n  gyroscope_random_walk: 0.00002\n"
+        "  rostopic: /imu0\n  update_rate: 200.0\n"
+    )
+    cal, topic = read_kalibr_imu(p)
+    assert (cal.accel_noise_density, cal.gyro_random_walk, cal.rate_hz) == (0.002, 0.00002, 200.0)
+    assert topic == "/imu0"
+    p.write_text("gyroscope_noise_density: 0.1\n")
+    with pytest.raises(CalibrationError, match="missing field 'gyroscope_random_walk'"):
+        read_kalibr_imu(p)

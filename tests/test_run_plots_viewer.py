@@ -1,0 +1,113 @@
+"""``svains plot`` and ``svains view`` on a short real run (EuRoC micro, ``3d`` from images):
+the PNGs hold the expected panels and the ``.rrd`` opens with rerun's reader with the expected
+entities, including the per-update logs (updates.csv, tracks.csv) when a run has them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from svains.cli.main import app
+from svains.datasets import load_dataset
+from svains.errors import DatasetError
+from svains.evaluation.plots import plot_run
+from svains.evaluation.run import run_method
+from svains.evaluation.run_record import read_run, run_errors
+from svains.navigation.options import InitOptions, RunOptions, VisionOptions
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def run_dir(euroc_micro: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    ds = load_dataset(euroc_micro)
+    opts = RunOptions(
+        init=InitOptions(mode="static", static_s=0.5), duration_s=1.0,
+        vision=VisionOptions(source="images", rotation="imu"),
+    )  # fmt: skip
+    out = tmp_path_factory.mktemp("run")
+    run_method(ds, "3d", opts, out_dir=out)
+    return out
+
+
+def _with_logs(run_dir: Path, tmp_path: Path, euroc_micro: Path) -> Path:
+    """A copy of the run with hand-made updates.csv and tracks.csv in the documented layout."""
+    d = tmp_path / "run"
+    d.mkdir()
+    for name in ("states.csv", "report.json", "trajectory.tum"):
+        (d / name).write_text((run_dir / name).read_text())
+    t = load_dataset(euroc_micro).left.t_ns[10:13].tolist()
+    (d / "updates.csv").write_text(
+        "t_ns,sensor,nis,dof,accepted\n"
+        f"{t[0]},3d,200.5,240,1\n{t[1]},3d,900.0,240,0\n{t[2]},gps,4.0,6,1\n"
+    )
+    rows = [f"{ti},{k},{100 + 5 * j + k},{200 + k},{int(k != 2)}" for j, ti in enumerate(t)
+            for k in range(3)]  # fmt: skip
+    (d / "tracks.csv").write_text("t_ns,track_id,u_px,v_px,inlier\n" + "\n".join(rows) + "\n")
+    return d
+
+
+def test_plot_writes_errors_nees_and_measurement_panels(
+    run_dir: Path, euroc_micro: Path, tmp_path: Path
+) -> None:
+    d = _with_logs(run_dir, tmp_path, euroc_micro)
+    files = plot_run(d, load_dataset(euroc_micro), d / "p")
+    panels = {f.path.name: f.panels for f in files}
+    assert set(panels) == {"errors.png", "nees.png", "measurements.png"}
+    assert panels["errors.png"][0] == "position x [m]" and len(panels["errors.png"]) == 9
+    assert panels["errors.png"][8] == "attitude z [deg]"
+    assert panels["nees.png"][0].startswith("NEES over time (mean ")
+    assert panels["measurements.png"] == ("3d: 1 fused, 1 rejected", "gps: 1 fused, 0 rejected")
+    for name in panels:
+        head = (d / "p" / name).read_bytes()[:8]
+        assert head == b"\x89PNG\r\n\x1a\n", name
+
+
+def test_plot_without_updates_log_shows_report_totals(run_dir: Path, tmp_path: Path) -> None:
+    files = plot_run(run_dir, None, tmp_path)
+    assert [f.path.name for f in files] == ["measurements.png"]
+    assert files[0].panels[0].startswith("fused/rejected totals (report.json; no updates.csv")
+    res = runner.invoke(app, ["plot", str(run_dir), "--out", str(tmp_path / "cli")])
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "cli" / "measurements.png").is_file()
+    assert "no --dataset: errors.png and nees.png need its ground truth" in res.output
+
+
+def test_run_errors_reproduce_the_reported_position_rmse(run_dir: Path, euroc_micro: Path) -> None:
+    rec = read_run(run_dir)
+    err = run_errors(rec, load_dataset(euroc_micro).groundtruth)
+    rmse = np.sqrt(np.mean(np.sum(err.e[:, 0:3] ** 2, axis=1)))
+    # states.csv rounds to 9 significant digits; report.json used the in-memory states.
+    assert rmse == pytest.approx(rec.report["position_rmse_m"], rel=1e-5)
+    assert err.alignment == rec.report["errors_alignment"] == "posyaw"
+
+
+def test_view_saves_a_recording_with_the_expected_entities(
+    run_dir: Path, euroc_micro: Path, tmp_path: Path
+) -> None:
+    pytest.importorskip("rerun")  # the viz extra; make test installs it
+    from rerun.chunk import RrdReader
+
+    d = _with_logs(run_dir, tmp_path, euroc_micro)
+    rrd = tmp_path / "run.rrd"
+    res = runner.invoke(app, ["view", str(d), "--dataset", str(euroc_micro), "--out", str(rrd),
+                              "--image-stride", "4"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    schema = RrdReader(rrd).store().schema()
+    paths = set(schema.entity_paths())
+    assert paths >= {
+        "/world/groundtruth", "/world/estimate", "/world/body", "/world/body_3sigma",
+        "/errors/position_m", "/nees", "/camera/left", "/camera/left/inliers",
+        "/camera/left/outliers", "/camera/left/tracks", "/nis/3d", "/nis/gps",
+    }  # fmt: skip
+    assert any("Ellipsoids3D" in c for c in schema.column_names())
+
+
+def test_view_and_plot_refuse_a_folder_that_is_not_a_run(tmp_path: Path) -> None:
+    with pytest.raises(DatasetError, match=r"not a run folder \(missing states\.csv"):
+        read_run(tmp_path)
+    res = runner.invoke(app, ["view", str(tmp_path)])
+    assert res.exit_code == 2 and "--out x.rrd, --spawn, or both" in res.output
