@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from svains.cli._common import check_out_file, fail, usage_error
 from svains.errors import SvainsError
 
 
@@ -36,24 +37,20 @@ def evaluate(
     json_out: Annotated[
         Path | None, typer.Option("--json", help="Write the results as JSON.")
     ] = None,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing --json.")] = False,
 ) -> None:
     """ATE and RPE of an estimate against ground truth (numbers as evo_ape / evo_rpe)."""
     from svains.evaluation.metrics import ALIGNMENTS
     from svains.evaluation.report import evaluate_files
 
-    err = Console(stderr=True)
     if align not in ALIGNMENTS:
-        err.print(
-            f"[red]error:[/red] --align must be one of {', '.join(ALIGNMENTS)}, got {align!r}",
-            soft_wrap=True,
-        )
-        raise typer.Exit(2)
+        usage_error(f"must be one of {', '.join(ALIGNMENTS)}, got {align!r}", "--align")
+    check_out_file(json_out, force, "--json")
     try:
         deltas = delta if delta else [1.0, 5.0]
         rep = evaluate_files(est, gt, align=align, delta_m=deltas, max_diff_s=max_diff)  # type: ignore[arg-type]
     except SvainsError as exc:
-        err.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
-        raise typer.Exit(1) from exc
+        fail(exc)
     console = Console()
     a = rep.ate
     t = Table(title=f"ATE \\[m], {a.alignment} alignment, {a.n} matched poses")

@@ -214,6 +214,8 @@ def parse_floats(
     path: Path, rows: list[list[str]], line_no: list[int], cols: slice
 ) -> NDArray[np.float64]:
     """Columns ``cols`` as float64 (N, K); a bad number or a NaN names its file and line."""
+    if not rows:
+        raise DatasetError(f"{path}: no data rows (header only)")
     try:
         a = np.array([r[cols] for r in rows], dtype=float)
     except ValueError:

@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from svains.datasets.types import GroundTruth
+from svains.datasets.validate import QUATERNION_NORM_TOL
 from svains.errors import DatasetError
 
 TUM_HEADER = "timestamp[s] tx ty tz qx qy qz qw"
@@ -100,6 +101,12 @@ def read_tum(
         kind = "duplicate" if d[i - 1] == 0 else "non-increasing"
         raise DatasetError(f"{path}:{lines[i]}: {kind} timestamp")
     q_wxyz = np.concatenate([a[:, 6:7], a[:, 3:6]], axis=1)
+    norm_bad = np.flatnonzero(np.abs(np.linalg.norm(q_wxyz, axis=1) - 1.0) > QUATERNION_NORM_TOL)
+    if norm_bad.size:
+        i = int(norm_bad[0])
+        raise DatasetError(
+            f"{path}:{lines[i]}: quaternion norm {np.linalg.norm(q_wxyz[i]):.4g}, expected 1"
+        )
     return t_ns, a[:, 0:3].copy(), q_wxyz
 
 

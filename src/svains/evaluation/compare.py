@@ -32,6 +32,7 @@ from svains.navigation.options import RunOptions
 from svains.navigation.report import interpolate_groundtruth
 from svains.navigation.runner import RunResult, run_method
 from svains.navigation.writers import write_outputs
+from svains.outputs import atomic_write_text
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -230,10 +231,12 @@ def write_comparison(out_dir: Path, results: dict[str, RunResult], title: str) -
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     reports = {m: r.report for m, r in results.items()}
-    (out_dir / "compare.json").write_text(
-        json.dumps(reports, indent=2, default=_jsonable) + "\n", encoding="utf-8"
+    (out_dir / "compare.json").unlink(missing_ok=True)  # an old comparison never passes as new
+    atomic_write_text(out_dir / "compare.md", comparison_markdown(reports, title))
+    # compare.json last: its presence says the comparison is complete
+    atomic_write_text(
+        out_dir / "compare.json", json.dumps(reports, indent=2, default=_jsonable) + "\n"
     )
-    (out_dir / "compare.md").write_text(comparison_markdown(reports, title), encoding="utf-8")
     return reports
 
 
