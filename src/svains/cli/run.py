@@ -74,6 +74,8 @@ def run(
     console = Console()
     if model not in ("paper", "biased"):
         raise typer.BadParameter(f"--model must be paper or biased, got {model!r}")
+    if method not in ("ins", "vo", "lc", "tc", "3d"):
+        raise typer.BadParameter(f"--method must be ins, vo, lc, tc or 3d, got {method!r}")
     if init not in ("static", "gps", "groundtruth"):
         raise typer.BadParameter(f"--init must be static, gps or groundtruth, got {init!r}")
     try:

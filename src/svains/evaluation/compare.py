@@ -21,11 +21,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from evo.core.geometry import GeometryException
 from numpy.typing import NDArray
 
 from svains.datasets.types import Dataset, GroundTruth
-from svains.errors import ConfigError
+from svains.errors import AlignmentError, ConfigError
 from svains.evaluation.metrics import AteResult, ate
 from svains.evaluation.run import run_accuracy
 from svains.navigation.options import RunOptions
@@ -95,7 +94,7 @@ def align_to_groundtruth(result: RunResult, ds: Dataset, align: str) -> AteResul
     up_W = -np.asarray(ds.gravity_W, float)
     try:
         return ate(*args, align=align, up_W=up_W)
-    except GeometryException as exc:
+    except AlignmentError as exc:
         # A straight-line run leaves Umeyama's rotation undetermined: report it unaligned.
         log.warning("%s alignment impossible (%s); ATE reported without alignment", align, exc)
         return ate(*args, align="none", up_W=up_W)
