@@ -220,10 +220,11 @@ def read_features(folder: Path) -> FeatureStream:
     t = parse_timestamps(path, rows, lines, strict=False)
     check_rows(t, path)
     ids_f = parse_floats(path, rows, lines, slice(1, 2))[:, 0]
-    if np.any(ids_f != np.round(ids_f)):
-        k = lines[int(np.flatnonzero(ids_f != np.round(ids_f))[0])]
-        raise DatasetError(f"{path}:{k}: track_id must be an integer")
-    ids = np.array([int(r[1]) for r in rows], dtype=np.int64)
+    not_int = (ids_f != np.round(ids_f)) | (np.abs(ids_f) >= 2.0**53)
+    if np.any(not_int):
+        k = lines[int(np.flatnonzero(not_int)[0])]
+        raise DatasetError(f"{path}:{k}: track_id must be an integer (below 2^53)")
+    ids = ids_f.astype(np.int64)
     uv = parse_floats(path, rows, lines, slice(2, 6))
     if t.size > 1:
         order = np.lexsort((ids, t))

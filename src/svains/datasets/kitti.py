@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from svains.datasets._image_io import read_grey
+from svains.datasets._textio import read_text
 from svains.datasets.types import CameraCalib, Dataset, GroundTruth, ImageStream
 from svains.datasets.validate import MIN_BASELINE_M, check_camera_calib, image_size
 from svains.errors import CalibrationError, DatasetError
@@ -35,7 +36,7 @@ def read_projections(path: Path) -> dict[str, np.ndarray]:
     if not path.is_file():
         raise DatasetError(f"missing file: {path}")
     out: dict[str, np.ndarray] = {}
-    for k, line in enumerate(path.read_text().splitlines(), start=1):
+    for k, line in enumerate(read_text(path).splitlines(), start=1):
         if not line.strip():
             continue
         key, _, rest = line.partition(":")
@@ -54,7 +55,7 @@ def read_projections(path: Path) -> dict[str, np.ndarray]:
 def _read_table(path: Path, n_cols: int) -> tuple[np.ndarray, list[int]]:
     rows: list[list[float]] = []
     lines: list[int] = []
-    for k, line in enumerate(path.read_text().splitlines(), start=1):
+    for k, line in enumerate(read_text(path).splitlines(), start=1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         fields = line.split()

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from svains.datasets._textio import read_text
 from svains.datasets.types import GroundTruth
 from svains.datasets.validate import QUATERNION_NORM_TOL
 from svains.errors import DatasetError
@@ -72,7 +73,7 @@ def read_tum(
     t: list[int] = []
     rows: list[list[float]] = []
     lines: list[int] = []
-    for k, raw in enumerate(path.read_text().splitlines(), start=1):
+    for k, raw in enumerate(read_text(path).splitlines(), start=1):
         line = raw.strip()
         if not line or line.startswith("#"):
             continue
@@ -85,8 +86,10 @@ def read_tum(
         try:
             t.append(seconds_text_to_ns(fields[0]))
             rows.append([float(f) for f in fields[1:]])
-        except (ValueError, InvalidOperation):
+        except (ValueError, InvalidOperation, OverflowError):
             raise DatasetError(f"{path}:{k}: malformed number in {line[:80]!r}") from None
+        if not -(2**63) <= t[-1] < 2**63:
+            raise DatasetError(f"{path}:{k}: time {fields[0]} s is outside the int64 ns range")
         lines.append(k)
     if not rows:
         raise DatasetError(f"{path}: no poses in TUM file")
