@@ -227,6 +227,8 @@ BAD_INPUT_FILES: list[tuple[str, Callable[[Path], list[str]], str]] = [
     ("run --images without images",
      lambda d: ["run", str(d / "ds"), "--out", str(d / "o"), "--method", "3d", "--images",
                 "--init", "groundtruth"], "image-based vision needs at least 2"),
+    ("frontend without images",
+     lambda d: ["frontend", str(d / "ds"), "--out", str(d / "o")], "0 stereo pair(s)"),
     ("run a missing data set",
      lambda d: ["run", str(d / "nothing"), "--out", str(d / "o")], "data set folder not found"),
 ]
