@@ -103,8 +103,8 @@ def _type_ok(value: Any, hint: Any) -> bool:
 
 
 def parse_settings(items: Sequence[str] | None, options_cls: type) -> dict[str, Any]:
-    """``--set key=value`` strings -> dict, each value checked against ``options_cls``'s field
-    type (usage error naming the key otherwise; unknown keys are left to ``options_cls``)."""
+    """``--set key=value`` strings -> dict, each key a field of ``options_cls`` and each value of
+    that field's type (a usage error naming the key otherwise)."""
     hints = typing.get_type_hints(options_cls)
     names = {f.name for f in dataclasses.fields(options_cls)}
     out: dict[str, Any] = {}
@@ -116,7 +116,9 @@ def parse_settings(items: Sequence[str] | None, options_cls: type) -> dict[str, 
             value = yaml.safe_load(text)
         except yaml.YAMLError:
             usage_error(f"{key}: cannot parse {text!r}", "--set")
-        if key in names and not _type_ok(value, hints[key]):
+        if key not in names:
+            usage_error(f"unknown vision options [{key!r}]; known: {sorted(names)}", "--set")
+        if not _type_ok(value, hints[key]):
             usage_error(f"{key}={text!r} is not a valid {_type_name(hints[key])}", "--set")
         out[key] = value
     return out
