@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from svains.datasets.asl_reader import read_imu
-from svains.navigation.imu_guard import ImuGuard, ImuGuardOptions
+from svains.navigation.imu_guard import ImuGuard, ImuGuardOptions, gap_covariance
 from svains.sim.config import PAPER_ACCEL_STD, PAPER_GYRO_STD
 
 DATA = Path(__file__).resolve().parents[1] / "../shared/data"
@@ -142,3 +142,16 @@ def test_real_imu_streams_pass_untouched(name: str) -> None:
     guard = ImuGuard.from_calib(calib)
     verdicts = _run(guard, imu.t_ns, imu.gyro_B, imu.accel_B)
     assert all(v.kind == "accept" for v in verdicts), guard.summary()
+
+
+def test_gap_covariance_matches_a_held_sample_error_integrated() -> None:
+    # Monte Carlo: a constant specific-force and rate error held over the gap, integrated.
+    rng = np.random.default_rng(7)
+    T, sa, sw, n = 5.0, 0.8, 0.05, 20000
+    da = sa * rng.standard_normal((n, 3))
+    dw = sw * rng.standard_normal((n, 3))
+    e = np.hstack([da * T**2 / 2, da * T, dw * T])
+    Q = gap_covariance(T, sa, sw)
+    # rtol: 5 % on the variances; atol: 5 sampling std of a covariance estimate from n draws
+    np.testing.assert_allclose(np.cov(e.T), Q, rtol=0.05, atol=5 * Q.max() / np.sqrt(n))
+    assert np.all(np.linalg.eigvalsh(Q) >= -1e-12)

@@ -142,6 +142,26 @@ def test_load_dataset_on_random_camera_and_body_files(camera: dict[str, Any], bo
 
 
 @FAST
+@given(cam_csv=st.binary(max_size=120), kinematics=st.binary(max_size=200),
+       landmarks=st.binary(max_size=120))  # fmt: skip
+def test_load_dataset_on_random_image_lists_and_simulator_extras(
+    cam_csv: bytes, kinematics: bytes, landmarks: bytes
+) -> None:
+    with tempfile.TemporaryDirectory() as d:
+        mav0 = Path(d) / "mav0"
+        gt = _stream(mav0, "state_groundtruth_estimate0",
+                     b"#h\n1000," + b"0," * 3 + b"1,0,0,0," + b"0," * 8 + b"0\n")  # fmt: skip
+        (gt / "kinematics.csv").write_bytes(kinematics)
+        (gt / "landmarks.csv").write_bytes(landmarks)
+        (mav0 / "cam0").mkdir()
+        (mav0 / "cam0" / "data.csv").write_bytes(cam_csv)
+        (mav0 / "cam0" / "sensor.yaml").write_text(
+            "%YAML:1.0\n" + yaml.safe_dump({"T_BS": T_BS, "resolution": [752, 480],
+                                             "intrinsics": [458.0, 457.0, 367.0, 248.0]}))
+        only_typed_errors(load_dataset, Path(d))
+
+
+@FAST
 @given(data=st.one_of(
     st.binary(max_size=200),
     st.lists(st.lists(field_text, min_size=8, max_size=8), max_size=5).map(

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from svains.datasets.types import ImuCalib
 
@@ -205,3 +205,25 @@ class ImuGuard:
             "reanchored": c.reanchored,
             "median_spacing_s": self.median_spacing_s(),
         }
+
+
+def gap_covariance(gap_s: float, accel_std: float, gyro_std: float) -> NDArray[np.float64]:
+    """Covariance (9, 9) of (δp, δv, δθ) added by bridging ``gap_s`` seconds without samples.
+
+    Across a gap the integrator holds the last specific force and rate, so their error is a
+    constant over the gap, not white noise: with a per-axis std ``accel_std`` (m/s²) and
+    ``gyro_std`` (rad/s) of that error, ``δv = δa T``, ``δp = δa T²/2``, ``δθ = δω T``, which
+    gives ``var_p = σa² T⁴/4``, ``cov_pv = σa² T³/2``, ``var_v = σa² T²``, ``var_θ = σω² T²``
+    per axis (the tilt's coupling into velocity is left to the filter's own propagation). The
+    sensors' white noise over the gap is far smaller and is already in the process noise. A
+    fair ``accel_std``/``gyro_std`` is the spread of the samples in the second before the gap.
+    """
+    T = float(gap_s)
+    sa2, sw2 = float(accel_std) ** 2, float(gyro_std) ** 2
+    Q = np.zeros((9, 9))
+    eye = np.eye(3)
+    Q[0:3, 0:3] = sa2 * T**4 / 4 * eye
+    Q[0:3, 3:6] = Q[3:6, 0:3] = sa2 * T**3 / 2 * eye
+    Q[3:6, 3:6] = sa2 * T**2 * eye
+    Q[6:9, 6:9] = sw2 * T**2 * eye
+    return Q
