@@ -178,6 +178,7 @@ USAGE_CASES: list[tuple[list[str], str]] = [
     (["demo", "--out", "{tmp}/o", "--duration", "0"], "'--duration'"),
     (["demo", "--out", "{tmp}/full"], "is not empty; use --force"),
     (["evaluate", "{tmp}/a.tum", "{tmp}/a.tum", "--align", "x"], "'--align'"),
+    (["evaluate", "{tmp}/a.tum", "{tmp}/a.tum", "--max-diff", "nan"], "'--max-diff'"),
     (["evaluate", "{tmp}/a.tum", "{tmp}/a.tum", "--json", "{tmp}/afile"], "exists; use --force"),
     (["info", "{ds}", "--json", "{tmp}/full"], "is a folder"),
 ]
@@ -219,6 +220,8 @@ BAD_INPUT_FILES: list[tuple[str, Callable[[Path], list[str]], str]] = [
      lambda d: ["simulate", "--out", str(d / "o"), "--config",
                 str(_write(d / "c.yaml", "gps:\n  position_noise_std: -1\n"))],
      "gps.position_noise_std must be > 0"),
+    ("simulate a duration that cannot fit in memory",
+     lambda d: ["simulate", "--out", str(d / "o"), "--duration", "1e9"], "duration_s must be in"),
     ("simulate config of the wrong type",
      lambda d: ["simulate", "--out", str(d / "o"), "--config",
                 str(_write(d / "c.yaml", "duration_s: abc\n"))], "duration_s has an invalid"),

@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from svains.cli._common import check_out_file, fail, usage_error
+from svains.cli._common import check_out_file, fail, positive_finite, usage_error
 from svains.errors import SvainsError
 
 
@@ -32,7 +32,9 @@ def evaluate(
         typer.Option("--delta", help="RPE segment length in metres (repeatable; default 1 and 5)."),
     ] = None,
     max_diff: Annotated[
-        float, typer.Option("--max-diff", help="Max time difference in seconds to pair poses.")
+        float,
+        typer.Option("--max-diff", help="Max time difference in seconds to pair poses.",
+                     callback=positive_finite),
     ] = 0.01,
     json_out: Annotated[
         Path | None, typer.Option("--json", help="Write the results as JSON.")

@@ -30,6 +30,11 @@ from svains.errors import ConfigError
 PAPER_GYRO_STD = math.radians(math.sqrt(50.0))  # rad/s per sample (see module docstring)
 PAPER_ACCEL_STD = math.sqrt(0.5)  # m/s² per sample
 
+# Upper bounds that keep a simulation in memory (an hour of 100 Hz IMU with its ground truth
+# and kinematics is ~100 MB of arrays; a typo such as 1e9 s must not ask for 150 GB).
+MAX_DURATION_S = 3600.0
+MAX_RATE_HZ = 1000.0
+
 # EuRoC ADIS16448 figures (continuous densities, from the EuRoC imu0/sensor.yaml).
 ADIS_GYRO_DENSITY = 1.6968e-4  # rad/s/√Hz
 ADIS_GYRO_RW = 1.9393e-5  # rad/s²/√Hz
@@ -182,13 +187,15 @@ class SimConfig:
             raise ConfigError(f"scenario must be 'village' or 'trajectory', got {self.scenario!r}")
         if self.scenario == "trajectory" and not self.trajectory.tum_path:
             raise ConfigError("scenario 'trajectory' needs trajectory.tum_path (a TUM file)")
-        if not (math.isfinite(self.duration_s) and self.duration_s > 0):
-            raise ConfigError(f"duration_s must be a finite number > 0, got {self.duration_s}")
+        if not 0 < self.duration_s <= MAX_DURATION_S:
+            raise ConfigError(
+                f"duration_s must be in (0, {MAX_DURATION_S:g}], got {self.duration_s}"
+            )
         if not 0 < self.camera.rate_hz <= 20.0:
             raise ConfigError(f"camera.rate_hz must be in (0, 20], got {self.camera.rate_hz}")
         for name in ("imu", "gps", "mag", "sonar"):
-            if not getattr(self, name).rate_hz > 0:
-                raise ConfigError(f"{name}.rate_hz must be positive")
+            if not 0 < getattr(self, name).rate_hz <= MAX_RATE_HZ:
+                raise ConfigError(f"{name}.rate_hz must be in (0, {MAX_RATE_HZ:g}]")
         g = math.sqrt(sum(float(v) ** 2 for v in self.gravity_W)) if len(self.gravity_W) == 3 else 0
         lo, hi = GRAVITY_RANGE_M_S2
         if not lo <= g <= hi:
