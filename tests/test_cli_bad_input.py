@@ -260,3 +260,17 @@ def test_error_text_keeps_square_brackets_and_stays_on_one_line(
                                                 "intrinsic_values"))
     res = runner.invoke(app, ["run", str(root), "--out", str(tmp_path / "o")])
     _check(res, 1, "without 'intrinsics' [fu, fv, cu, cv]")
+
+
+def test_installed_entry_point_reports_the_same_way(tmp_path: Path) -> None:
+    # The real process: stderr only, one line, exit 1; stdout stays clean for pipes.
+    import subprocess
+    import sys
+
+    exe = Path(sys.executable).with_name("svains")
+    if not exe.is_file():
+        pytest.skip("svains entry point not installed next to this python")
+    proc = subprocess.run([str(exe), "info", str(tmp_path / "missing")], capture_output=True,
+                          text=True, timeout=120, check=False)  # fmt: skip
+    assert proc.returncode == 1 and proc.stdout == ""
+    assert proc.stderr.splitlines() == [f"error: data set folder not found: {tmp_path}/missing"]
