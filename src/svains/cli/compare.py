@@ -7,22 +7,18 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-import yaml
 from rich.console import Console
 from rich.progress import Progress
 
+from svains.cli import _common
 from svains.errors import SvainsError
 
 
 def parse_settings(items: list[str] | None) -> dict[str, Any]:
-    """``key=value`` strings -> dict (values parsed as YAML scalars/lists)."""
-    out: dict[str, Any] = {}
-    for item in items or []:
-        if "=" not in item:
-            raise typer.BadParameter(f"expected key=value, got {item!r}")
-        k, v = item.split("=", 1)
-        out[k.strip()] = yaml.safe_load(v)
-    return out
+    """``key=value`` strings -> dict (values parsed as YAML scalars/lists, type-checked)."""
+    from svains.navigation.vision import VisionOptions
+
+    return _common.parse_settings(items, VisionOptions)
 
 
 def build_options(
@@ -93,7 +89,9 @@ def compare(
     gps: Annotated[bool, typer.Option("--gps/--no-gps", help="Fuse GPS when present.")] = True,
     mag: Annotated[bool, typer.Option("--mag/--no-mag", help="Fuse magnetometer.")] = True,
     duration: Annotated[
-        float | None, typer.Option("--duration", help="Use only the first S seconds.")
+        float | None,
+        typer.Option("--duration", help="Use only the first S seconds.",
+                     callback=_common.positive_finite),
     ] = None,
     figures: Annotated[bool, typer.Option("--figures/--no-figures", help="Write PNGs.")] = True,
     setting: Annotated[
@@ -103,11 +101,15 @@ def compare(
     synthetic_features: Annotated[
         float | None,
         typer.Option("--synthetic-features",
-                     help="Simulate features0 at this rate [Hz] along the ground truth."),
+                     help="Simulate features0 at this rate [Hz] along the ground truth.",
+                     callback=_common.positive_finite),
     ] = None,
+    force: Annotated[
+        bool, typer.Option("--force", help="Write into a non-empty --out (replacing files).")
+    ] = False,
 ) -> None:
     """Run all methods on DATASET; write DIR/compare.md, DIR/compare.json and the figures."""
-    err = Console(stderr=True)
+    _common.check_out_dir(out, force)
     try:
         source = {None: "auto", True: "features", False: "images"}[features]
         settings = {"rotation": rotation, **parse_settings(setting)}
@@ -115,8 +117,7 @@ def compare(
         run_compare(dataset, out, [m.strip() for m in methods.split(",") if m.strip()], opts,
                     figures, Console(), synthetic_features)
     except SvainsError as exc:
-        err.print(f"[red]error:[/red] {exc}")
-        raise typer.Exit(1) from exc
+        _common.fail(exc)
 
 
 def register(app: typer.Typer) -> None:

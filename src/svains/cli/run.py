@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from svains.cli._common import check_out_dir, fail, positive_finite
 from svains.cli.compare import parse_settings
 from svains.errors import SvainsError
 
@@ -32,7 +33,10 @@ def run(
     mag: Annotated[bool, typer.Option("--mag/--no-mag", help="Fuse magnetometer.")] = True,
     sonar: Annotated[bool, typer.Option("--sonar/--no-sonar", help="Fuse sonar.")] = True,
     duration: Annotated[
-        float | None, typer.Option("--duration", help="Process only this many seconds.")
+        float | None,
+        typer.Option(
+            "--duration", help="Process only this many seconds.", callback=positive_finite
+        ),
     ] = None,
     features: Annotated[
         bool | None,
@@ -54,17 +58,24 @@ def run(
         typer.Option(
             "--synthetic-features",
             help="Simulate features0 at this rate [Hz] along the ground truth.",
+            callback=positive_finite,
         ),
     ] = None,
+    force: Annotated[
+        bool, typer.Option("--force", help="Write into a non-empty --out (replacing files).")
+    ] = False,
 ) -> None:
     """Run METHOD over DATASET; write trajectory.tum, states.csv and report.json into OUT."""
     from svains.datasets import load_dataset
     from svains.evaluation.run import run_method
     from svains.navigation.vision import tune_run_options
 
+    check_out_dir(out, force)
     console = Console()
     if model not in ("paper", "biased"):
         raise typer.BadParameter(f"--model must be paper or biased, got {model!r}")
+    if method not in ("ins", "vo", "lc", "tc", "3d"):
+        raise typer.BadParameter(f"--method must be ins, vo, lc, tc or 3d, got {method!r}")
     if init not in ("static", "gps", "groundtruth"):
         raise typer.BadParameter(f"--init must be static, gps or groundtruth, got {init!r}")
     try:
@@ -90,8 +101,7 @@ def run(
                 ds, method, options, out_dir=out, progress=lambda f: bar.update(task, completed=f)
             )
     except SvainsError as exc:
-        console.print(f"[red]error:[/red] {exc}")
-        raise typer.Exit(code=1) from exc
+        fail(exc)
     rep = result.report
     table = Table(title=f"{rep['method']} on {rep.get('dataset', dataset)}")
     table.add_column("figure")

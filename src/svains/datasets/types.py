@@ -17,6 +17,9 @@ F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 DEFAULT_GRAVITY_W = (0.0, 0.0, -9.81)
+# Left/right frames this close are one stereo pair (``datasets.stereo_sync``); ``body.yaml``
+# ``stereo_pair_tolerance_ns`` overrides it per data set.
+DEFAULT_STEREO_TOL_NS = 10_000_000
 
 
 @dataclass(frozen=True)
@@ -29,6 +32,8 @@ class ImuCalib:
     gyro_random_walk: float  # rad/s²/√Hz
     accel_noise_density: float  # m/s²/√Hz
     accel_random_walk: float  # m/s³/√Hz
+    gyro_range: float | None = None  # rad/s, full scale (saturation); None: unknown
+    accel_range: float | None = None  # m/s², full scale (saturation); None: unknown
 
 
 @dataclass(frozen=True)
@@ -175,12 +180,14 @@ class FeatureStream:
 class Dataset:
     """Everything one data set holds; any stream may be ``None``.
 
-    ``gravity_W`` (3,) m/s² comes from ``body.yaml`` (default EuRoC z-up).
+    ``gravity_W`` (3,) m/s² comes from ``body.yaml`` (default EuRoC z-up), as may
+    ``stereo_tol_ns`` (largest left/right stamp difference of one stereo pair).
     """
 
     root: Path
     name: str
     gravity_W: F64 = field(default_factory=lambda: np.array(DEFAULT_GRAVITY_W))
+    stereo_tol_ns: int = DEFAULT_STEREO_TOL_NS
     imu: ImuStream | None = None
     imu_calib: ImuCalib | None = None
     cam0: CameraCalib | None = None

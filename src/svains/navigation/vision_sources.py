@@ -100,6 +100,11 @@ class ImageTrackSource:
         self.rig = self.frontend.rig
         self.pixel_noise_std = 1.0
         t, il, ir = stereo_pairs(ds)
+        if t.size < 2:
+            raise DatasetError(
+                f"{ds.root}: {t.size} stereo pair(s) with images on disk; image-based vision "
+                "needs at least 2"
+            )
         sel = slice(None, None, max(1, frame_stride))
         self._times = np.asarray(t[sel], np.int64)
         self._index = {int(tt): (int(a), int(b)) for tt, a, b in zip(t[sel], il[sel], ir[sel],

@@ -1,4 +1,8 @@
-"""Output files of a run: ``trajectory.tum``, ``states.csv``, ``report.json``."""
+"""Output files of a run: ``trajectory.tum``, ``states.csv``, ``report.json``.
+
+Each file is written atomically (temporary name, then rename), ``report.json`` last: a folder
+with a ``report.json`` holds a complete run.
+"""
 
 from __future__ import annotations
 
@@ -9,6 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from svains.models.state import BIASED, PAPER, StateLayout
+from svains.outputs import atomic_path, atomic_write_text
 
 if TYPE_CHECKING:
     from svains.navigation.runner import RunResult
@@ -37,17 +42,19 @@ def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None =
     if layout is None:
         layout = BIASED if result.x.shape[-1] == BIASED.nx else PAPER
     x = result.x
-    with open(out_dir / "trajectory.tum", "w", encoding="utf-8") as fh:
+    # A replaced run: its old report.json goes first, so old and new files never pass as one run.
+    (out_dir / "report.json").unlink(missing_ok=True)
+    with atomic_path(out_dir / "trajectory.tum") as tmp, open(tmp, "w", encoding="utf-8") as fh:
         fh.write("# t x y z qx qy qz qw\n")
         for t, xs in zip(result.t_ns, x, strict=True):
             # Seconds written from the integer nanoseconds: no float64 rounding of the time.
             vals = " ".join(f"{v:.9f}" for v in (*xs[0:3], *xs[7:10], xs[6]))
             fh.write(f"{int(t) // 1_000_000_000}.{int(t) % 1_000_000_000:09d} {vals}\n")
     header = ",".join(["t_ns", *_STATE_NAMES[: layout.nx], *_STD_NAMES[: layout.ndx]])
-    with open(out_dir / "states.csv", "w", encoding="utf-8") as fh:
+    with atomic_path(out_dir / "states.csv") as tmp, open(tmp, "w", encoding="utf-8") as fh:
         fh.write(header + "\n")
         for t, xs, ss in zip(result.t_ns, x, result.std, strict=True):
             fh.write(f"{int(t)}," + ",".join(f"{v:.9g}" for v in np.concatenate([xs, ss])) + "\n")
-    (out_dir / "report.json").write_text(
-        json.dumps(result.report, indent=2, default=_json_default) + "\n", encoding="utf-8"
+    atomic_write_text(
+        out_dir / "report.json", json.dumps(result.report, indent=2, default=_json_default) + "\n"
     )
