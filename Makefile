@@ -20,7 +20,7 @@ $(TESTSTAMP): pyproject.toml | $(BIN)/python
 	touch $@
 
 demo: $(STAMP)
-	$(BIN)/svains demo --out demo_out
+	$(BIN)/svains demo --out demo_out --force
 
 test: $(TESTSTAMP)
 	$(BIN)/ruff check src tests bench

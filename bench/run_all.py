@@ -25,6 +25,7 @@ SCRIPTS: list[str] = [
     "paper_ordering.py",
     "tc_noise_scan.py",
     "bench_render.py",
+    "faults.py",
 ]
 
 

@@ -89,7 +89,7 @@ def test_evaluate_none_alignment_sees_the_offset(moved: dict) -> None:
 def test_evaluate_bad_inputs(moved: dict, tmp_path: Path) -> None:
     d = moved["dir"]
     res = runner.invoke(app, ["evaluate", str(d / "se3.tum"), str(d / "gt.tum"), "--align", "x"])
-    assert res.exit_code == 2 and "--align must be one of se3, posyaw, none, sim3" in res.output
+    assert res.exit_code == 2 and "'--align': must be one of se3, posyaw, none, sim3" in res.output
     res = runner.invoke(app, ["evaluate", str(tmp_path / "no.tum"), str(d / "gt.tum")])
     assert res.exit_code == 1 and "missing file" in res.output
     (tmp_path / "empty").mkdir()

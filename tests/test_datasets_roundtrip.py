@@ -39,7 +39,7 @@ def write_full(root: Path, seed: int = 0) -> dict[str, object]:
     t0 = 1_403_715_273_262_142_976  # beyond float64's exact integers on purpose
     t_imu = t0 + np.arange(40, dtype=np.int64) * 5_000_000
     imu = ImuStream(t_imu, rng.normal(size=(40, 3)) * 1e-7, rng.normal(size=(40, 3)) * 1e3)
-    imu_cal = ImuCalib(_T(rng), 200.0, 1.6968e-4, 1.9393e-05, 2e-3, 3e-3)
+    imu_cal = ImuCalib(_T(rng), 200.0, 1.6968e-4, 1.9393e-05, 2e-3, 3e-3, 17.45, 176.5)
     t_cam = t_imu[::10]
     cams = []
     for name, T in (("cam0", np.eye(4)), ("cam1", _T(rng))):

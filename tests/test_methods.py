@@ -69,6 +69,6 @@ def test_compare_cli_writes_table_and_json(village_denied: Path, tmp_path: Path)
     data = json.loads((out / "compare.json").read_text())
     assert list(data) == ["3d"] and data["3d"]["ate_alignment"] == "posyaw"
     assert data["3d"]["ate_m"] < 1.0
-    bad = CliRunner().invoke(app, ["compare", str(village_denied), "--out", str(out),
+    bad = CliRunner().invoke(app, ["compare", str(village_denied), "--out", str(tmp_path / "b"),
                                    "--methods", "3d", "--set", "pixel_sigma=1"])
-    assert bad.exit_code == 1 and "unknown configuration key 'pixel_sigma'" in bad.output
+    assert bad.exit_code == 2 and "unknown configuration key 'pixel_sigma'" in bad.output  # usage

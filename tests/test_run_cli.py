@@ -93,7 +93,7 @@ def test_run_refuses_bad_settings(village_short: Path, tmp_path: Path) -> None:
         app,
         ["run", str(village_short), "--method", "3d", "--set", "nope=1", "--out", str(tmp_path)],
     )
-    assert res.exit_code == 1
+    assert res.exit_code == 2  # a usage error: the command line is wrong
     assert "unknown configuration key 'nope'" in res.output
     res = CliRunner().invoke(
         app, ["run", str(village_short), "--set", "frame_stride", "--out", str(tmp_path)]

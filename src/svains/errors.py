@@ -23,3 +23,11 @@ class InitialisationError(SvainsError):
 
 class ConfigError(SvainsError):
     """A configuration value is invalid."""
+
+
+class OutputError(SvainsError):
+    """An output location cannot be used (it holds a data set to keep, or is not a folder)."""
+
+
+class AlignmentError(SvainsError):
+    """A trajectory alignment is undetermined (e.g. se3 on collinear positions)."""

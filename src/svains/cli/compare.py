@@ -9,6 +9,7 @@ import typer
 from rich.console import Console
 from rich.progress import Progress
 
+from svains.cli import _common
 from svains.errors import SvainsError
 
 
@@ -75,7 +76,9 @@ def compare(
     gps: Annotated[bool, typer.Option("--gps/--no-gps", help="Fuse GPS when present.")] = True,
     mag: Annotated[bool, typer.Option("--mag/--no-mag", help="Fuse magnetometer.")] = True,
     duration: Annotated[
-        float | None, typer.Option("--duration", help="Use only the first S seconds.")
+        float | None,
+        typer.Option("--duration", help="Use only the first S seconds.",
+                     callback=_common.positive_finite),
     ] = None,
     figures: Annotated[bool, typer.Option("--figures/--no-figures", help="Write PNGs.")] = True,
     setting: Annotated[
@@ -86,11 +89,15 @@ def compare(
     synthetic_features: Annotated[
         float | None,
         typer.Option("--synthetic-features",
-                     help="Simulate features0 at this rate [Hz] along the ground truth."),
+                     help="Simulate features0 at this rate [Hz] along the ground truth.",
+                     callback=_common.positive_finite),
     ] = None,
+    force: Annotated[
+        bool, typer.Option("--force", help="Write into a non-empty --out (replacing files).")
+    ] = False,
 ) -> None:
     """Run all methods on DATASET; write DIR/compare.md, DIR/compare.json and the figures."""
-    err = Console(stderr=True)
+    _common.check_out_dir(out, force)
     try:
         source = {None: "auto", True: "features", False: "images"}[features]
         settings = [f"vision.rotation={rotation}", *(setting or [])]
@@ -98,8 +105,7 @@ def compare(
         run_compare(dataset, out, [m.strip() for m in methods.split(",") if m.strip()], opts,
                     figures, Console(), synthetic_features)
     except SvainsError as exc:
-        err.print(f"[red]error:[/red] {exc}")
-        raise typer.Exit(1) from exc
+        _common.fail(exc)
 
 
 def register(app: typer.Typer) -> None:

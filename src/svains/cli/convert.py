@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from svains.cli._common import fail
 from svains.errors import SvainsError
 
 _TOPIC_HELP = "topic (default: auto-detected from message types and names)"
@@ -41,8 +42,7 @@ def convert(
     try:
         rep = convert_bag(bag, out, topics, calib, imu_calib)
     except SvainsError as exc:
-        Console(stderr=True).print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
-        raise typer.Exit(1) from exc
+        fail(exc)
     console = Console()
     t = Table(title=escape(f"{bag.name} -> {out}/mav0"))
     for col in ("stream", "samples"):

@@ -10,6 +10,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
+from svains.cli._common import check_out_dir, fail, positive_finite
 from svains.cli.compare import build_options, run_compare
 from svains.errors import SvainsError
 
@@ -17,8 +18,12 @@ from svains.errors import SvainsError
 def demo(
     out: Annotated[Path, typer.Option("--out", help="Output folder (data set + comparison).")],
     seed: Annotated[int, typer.Option("--seed", help="Simulator seed.")] = 0,
-    duration: Annotated[float, typer.Option("--duration", help="Flight length [s].")] = 110.0,
-    camera_rate: Annotated[float, typer.Option("--camera-rate", help="Stereo rate [Hz].")] = 2.0,
+    duration: Annotated[
+        float, typer.Option("--duration", help="Flight length [s].", callback=positive_finite)
+    ] = 110.0,
+    camera_rate: Annotated[
+        float, typer.Option("--camera-rate", help="Stereo rate [Hz].", callback=positive_finite)
+    ] = 2.0,
     images: Annotated[
         bool,
         typer.Option(
@@ -34,19 +39,22 @@ def demo(
     methods: Annotated[
         str, typer.Option("--methods", help="Comma-separated methods.")
     ] = "ins,vo,lc,tc,3d",
+    force: Annotated[
+        bool, typer.Option("--force", help="Write into a non-empty --out (replacing files).")
+    ] = False,
 ) -> None:
     """Village flight (IMU 100 Hz, GPS 1 Hz with four 10 s outages, magnetometer, sonar, stereo)
     simulated into OUT/dataset, then ``svains compare`` into OUT/compare."""
     from svains.sim import SimConfig, simulate
 
+    check_out_dir(out, force)
     console = Console()
-    err = Console(stderr=True)
     try:
         cfg = SimConfig()
         cfg = replace(cfg, seed=seed, duration_s=duration,
                       camera=replace(cfg.camera, rate_hz=camera_rate, render_images=images))
         t0 = time.perf_counter()
-        root = simulate(cfg, out / "dataset")
+        root = simulate(cfg, out / "dataset", overwrite=force)
         console.print(f"simulated {duration:.0f} s village flight in "
                       f"{time.perf_counter() - t0:.1f} s -> {root}")
         # With images the tracks come from the real front end, not from the true features0.
@@ -56,8 +64,7 @@ def demo(
         run_compare(root, out / "compare", [m.strip() for m in methods.split(",") if m.strip()],
                     opts, True, console)
     except SvainsError as exc:
-        err.print(f"[red]error:[/red] {exc}")
-        raise typer.Exit(1) from exc
+        fail(exc)
 
 
 def register(app: typer.Typer) -> None:

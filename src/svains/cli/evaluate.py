@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from svains.cli._common import check_out_file, fail, positive_finite, usage_error
 from svains.errors import SvainsError
 
 
@@ -34,7 +35,9 @@ def evaluate(
         typer.Option("--delta", help="RPE segment length in metres (repeatable; default 1 and 5)."),
     ] = None,
     max_diff: Annotated[
-        float, typer.Option("--max-diff", help="Max time difference in seconds to pair poses.")
+        float,
+        typer.Option("--max-diff", help="Max time difference in seconds to pair poses.",
+                     callback=positive_finite),
     ] = 0.01,
     json_out: Annotated[
         Path | None, typer.Option("--json", help="Write the results as JSON.")
@@ -55,24 +58,19 @@ def evaluate(
     ref_topic: Annotated[
         str | None, typer.Option("--ref-topic", help="Pose topic when GT is a bag.")
     ] = None,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing --json.")] = False,
 ) -> None:
     """ATE and RPE of an estimate against ground truth (numbers as evo_ape / evo_rpe)."""
     from svains.datasets.trajectory_formats import FORMATS
     from svains.evaluation.metrics import ALIGNMENTS
     from svains.evaluation.report import evaluate_files
 
-    err = Console(stderr=True)
     if align not in ALIGNMENTS:
-        err.print(
-            f"[red]error:[/red] --align must be one of {', '.join(ALIGNMENTS)}, got {align!r}",
-            soft_wrap=True,
-        )
-        raise typer.Exit(2)
+        usage_error(f"must be one of {', '.join(ALIGNMENTS)}, got {align!r}", "--align")
     for name, value in (("--format", fmt), ("--ref-format", ref_format)):
         if value is not None and value not in FORMATS:
-            choices = ", ".join(FORMATS)
-            err.print(f"[red]error:[/red] {name} must be one of {choices}, got {value!r}")
-            raise typer.Exit(2)
+            usage_error(f"must be one of {', '.join(FORMATS)}, got {value!r}", name)
+    check_out_file(json_out, force, "--json")
     try:
         deltas = delta if delta else [1.0, 5.0]
         rep = evaluate_files(
@@ -81,8 +79,7 @@ def evaluate(
             est_topic=est_topic, ref_topic=ref_topic,
         )  # fmt: skip
     except SvainsError as exc:
-        err.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
-        raise typer.Exit(1) from exc
+        fail(exc)
     console = Console()
     a = rep.ate
     t = Table(title=f"ATE \\[m], {a.alignment} alignment, {a.n} matched poses")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import io
 import json
 from pathlib import Path
 from typing import Annotated
@@ -10,7 +11,8 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from svains.errors import SvainsError
+from svains.cli._common import check_out_dir, fail
+from svains.errors import DatasetError, SvainsError
 
 
 def _frontend(
@@ -24,17 +26,27 @@ def _frontend(
     figure_frame: Annotated[
         int, typer.Option("--figure-frame", help="Frame index of fig. 8 (-1: middle).")
     ] = -1,
+    force: Annotated[
+        bool, typer.Option("--force", help="Write into a non-empty --out (replacing files).")
+    ] = False,
 ) -> None:
     """Track features, match stereo, estimate egomotion per frame; write frames.csv, report.json."""
     from svains.datasets import load_dataset, stereo_pairs
     from svains.frontend.pipeline import FrontendOptions
     from svains.frontend.run import frame_rows, run_frontend, summarize
     from svains.frontend.stereo import StereoMatchOptions
+    from svains.outputs import atomic_write_text
 
+    check_out_dir(out, force)
     console = Console()
     try:
         ds = load_dataset(dataset)
         pairs = stereo_pairs(ds)
+        if pairs[0].size < 2:
+            raise DatasetError(
+                f"{dataset}: {pairs[0].size} stereo pair(s) with images on disk; the front end "
+                "needs at least 2 (cam0/cam1 images within the stereo tolerance)"
+            )
         opts = FrontendOptions(
             stereo=StereoMatchOptions(method=dense_method if dense else "sparse")
         )
@@ -55,17 +67,18 @@ def _frontend(
         run = run_frontend(ds, pairs, opts, on_frame=on_frame)
         out.mkdir(parents=True, exist_ok=True)
         rows = frame_rows(run)
-        with (out / "frames.csv").open("w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=list(rows[0].keys()) if rows else ["index"])
-            w.writeheader()
-            w.writerows(rows)
+        text = io.StringIO(newline="")
+        w = csv.DictWriter(text, fieldnames=list(rows[0].keys()) if rows else ["index"])
+        w.writeheader()
+        w.writerows(rows)
+        atomic_write_text(out / "frames.csv", text.getvalue())
         report = summarize(run)
         report["dataset"] = str(dataset)
         report["stereo_method"] = opts.stereo.method
-        (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+        # report.json last: its presence says the output is complete
+        atomic_write_text(out / "report.json", json.dumps(report, indent=2) + "\n")
     except SvainsError as exc:
-        console.print(f"[red]error:[/red] {exc}")
-        raise typer.Exit(code=2) from exc
+        fail(exc)
     console.print(json.dumps(report, indent=2))
     for p in drawn:
         console.print(f"figure: {p}")

@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from svains.cli._common import check_out_file, fail
 from svains.errors import SvainsError
 
 
@@ -103,24 +104,26 @@ def info(
     json_out: Annotated[
         Path | None, typer.Option("--json", help="Also write the summary as JSON.")
     ] = None,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing --json.")] = False,
 ) -> None:
     """Describe a data set: streams, counts, rates, time span, gaps, missing files, calibration."""
     from svains.datasets import load_dataset
     from svains.datasets.rosbag import is_bag
     from svains.datasets.summary import dataset_summary
+    from svains.outputs import atomic_write_text
 
+    check_out_file(json_out, force, "--json")
     console = Console()
     try:
         bag = is_bag(dataset)
         summary = _print_bag(dataset, console) if bag else dataset_summary(load_dataset(dataset))
     except SvainsError as exc:
-        Console(stderr=True).print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
-        raise typer.Exit(1) from exc
+        fail(exc)
     if not bag:
         _print(summary, console)
     if json_out is not None:
         json_out.parent.mkdir(parents=True, exist_ok=True)
-        json_out.write_text(json.dumps(summary, indent=2) + "\n")
+        atomic_write_text(json_out, json.dumps(summary, indent=2) + "\n")
         console.print(f"wrote {json_out}")
 
 

@@ -11,6 +11,8 @@ import logging
 
 import typer
 
+from svains.cli._common import OneLineErrorGroup
+
 # One line per sub-command module, in the order ``svains --help`` lists them.
 COMMAND_MODULES: list[str] = [
     "info",
@@ -31,6 +33,7 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    cls=OneLineErrorGroup,
 )
 
 

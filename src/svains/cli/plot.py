@@ -9,6 +9,7 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
+from svains.cli._common import fail
 from svains.errors import SvainsError
 
 
@@ -30,8 +31,7 @@ def plot(
         ds = load_dataset(dataset) if dataset is not None else None
         files = plot_run(run_dir, ds, out if out is not None else run_dir)
     except SvainsError as exc:
-        Console(stderr=True).print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
-        raise typer.Exit(1) from exc
+        fail(exc)
     console = Console()
     for f in files:
         console.print(escape(f"wrote {f.path}: {'; '.join(f.panels[:3])}"

@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from svains.cli._common import check_out_dir, fail, positive_finite
 from svains.errors import SvainsError
 
 _SHOWN = ("ate_rmse_m", "position_rmse_m", "velocity_rmse_mps", "attitude_rmse_deg", "nees_mean",
@@ -38,7 +39,9 @@ def run(
         float | None, typer.Option("--start", help="Skip the first S seconds of the data.")
     ] = None,
     duration: Annotated[
-        float | None, typer.Option("--duration", help="Stop S seconds after the start.")
+        float | None,
+        typer.Option("--duration", help="Stop S seconds after the start.",
+                     callback=positive_finite),
     ] = None,
     gps_outage: Annotated[
         list[str] | None,
@@ -70,8 +73,12 @@ def run(
         typer.Option(
             "--synthetic-features",
             help="Simulate features0 at this rate [Hz] along the ground truth.",
+            callback=positive_finite,
         ),
     ] = None,
+    force: Annotated[
+        bool, typer.Option("--force", help="Write into a non-empty --out (replacing files).")
+    ] = False,
 ) -> None:
     """Run METHOD over DATASET; write trajectory.tum, trajectory_euroc.csv, pose_covariance.csv,
     states.csv, report.json and the effective config.yaml into OUT."""
@@ -80,7 +87,14 @@ def run(
     from svains.evaluation.run import run_method
     from svains.replay import resolve_config
 
+    check_out_dir(out, force)
     console = Console()
+    for name, value, known in (("--model", model, ("paper", "biased")),
+                               ("--method", method, ("ins", "vo", "lc", "tc", "3d")),
+                               ("--init", init, ("static", "gps", "groundtruth"))):
+        if value is not None and value not in known:
+            raise typer.BadParameter(f"{name} must be {', '.join(known[:-1])} or {known[-1]}, "
+                                     f"got {value!r}")
     try:
         switches = {
             "method": method, "model": model, "init.mode": init, "use_gps": gps,
@@ -112,8 +126,7 @@ def run(
                 ds, None, config, out_dir=out, progress=lambda f: bar.update(task, completed=f)
             )
     except SvainsError as exc:
-        console.print(f"[red]error:[/red] {exc}")
-        raise typer.Exit(code=1) from exc
+        fail(exc)
     rep = result.report
     table = Table(title=f"{rep['method']} on {rep.get('dataset', dataset)}")
     table.add_column("figure")

@@ -15,6 +15,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from svains.cli._common import usage_error
 from svains.errors import ConfigError
 
 
@@ -40,9 +41,13 @@ def build_config(
     top = {f.name for f in dataclasses.fields(RunConfig)}
     vision = {f.name for f in dataclasses.fields(VisionOptions)}
     for item in settings or []:
-        key, value = parse_setting(item)
-        if "." not in key and key not in top and key in vision:
-            key = f"vision.{key}"
+        try:
+            key, value = parse_setting(item)
+            if "." not in key and key not in top and key in vision:
+                key = f"vision.{key}"
+            with_settings(RunConfig(), {key: value})  # the key and the value's type
+        except ConfigError as exc:
+            usage_error(str(exc), "--set")
         given[key] = value
     return with_settings(config, given)
 

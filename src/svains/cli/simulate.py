@@ -8,6 +8,7 @@ from typing import Annotated
 
 import typer
 
+from svains.cli._common import check_out_dir, fail, positive_finite
 from svains.errors import SvainsError
 
 
@@ -22,12 +23,14 @@ def register(app: typer.Typer) -> None:
         )] = "village",
         duration: Annotated[float | None, typer.Option(
             "--duration", help="Flight duration in seconds (default 110, or the config's).",
+            callback=positive_finite,
         )] = None,
         seed: Annotated[int | None, typer.Option(
             "--seed", help="Seed of every random draw (world layout, sensor noise).",
         )] = None,
         camera_rate: Annotated[float | None, typer.Option(
             "--camera-rate", help="Stereo frame rate in Hz, up to 20 (default 2, as the paper).",
+            callback=positive_finite,
         )] = None,
         no_images: Annotated[bool, typer.Option(
             "--no-images", help="Skip rendering: write only features0 (true landmark "
@@ -45,16 +48,22 @@ def register(app: typer.Typer) -> None:
             "--imu-preset", help="'paper' (Table 1 noise, no bias drift) or 'adis16448' "
             "(EuRoC ADIS16448 noise and bias random walk).",
         )] = None,
+        force: Annotated[bool, typer.Option(
+            "--force", help="Replace the data set already in --out (its mav0/).",
+        )] = False,
     ) -> None:
         """Simulate IMU, GPS, magnetometer, sonar and a rendered stereo pair; write ASL.
 
         Writes imu0, cam0/cam1 (PNG), gps0, mag0, sonar0, features0 (true landmark tracks with
         pixel noise) and the ground truth at the IMU rate with kinematics.csv, landmarks.csv
-        and scenario.yaml (the full configuration) beside it.
+        and scenario.yaml (the full configuration) beside it. The data set appears whole or
+        not at all (written under a temporary name, then renamed), with the completion marker
+        ``mav0/svains_complete.yaml``.
         """
         from svains.sim.config import ImuConfig, SimConfig
         from svains.sim.simulate import simulate
 
+        check_out_dir(out, force)
         try:
             cfg = SimConfig.from_yaml(config) if config is not None else SimConfig()
             if trajectory is not None:
@@ -73,9 +82,8 @@ def register(app: typer.Typer) -> None:
             if imu_preset is not None:
                 cfg.imu = ImuConfig.preset(imu_preset)
             t0 = time.perf_counter()
-            root = simulate(cfg, out)
+            root = simulate(cfg, out, overwrite=force)
         except SvainsError as exc:
-            typer.echo(f"error: {exc}", err=True)
-            raise typer.Exit(code=2) from exc
+            fail(exc)
         typer.echo(f"wrote {root} ({cfg.scenario}, {cfg.duration_s:g} s) in "
                    f"{time.perf_counter() - t0:.1f} s")

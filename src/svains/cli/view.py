@@ -10,6 +10,7 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
+from svains.cli._common import fail
 from svains.errors import SvainsError
 
 
@@ -37,8 +38,7 @@ def view(
         ds = load_dataset(dataset) if dataset is not None else None
         path = write_recording(run_dir, ds, out, spawn=spawn, image_stride=image_stride)
     except SvainsError as exc:
-        Console(stderr=True).print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
-        raise typer.Exit(1) from exc
+        fail(exc)
     if path is not None:
         Console().print(escape(f"wrote {path} (open with: rerun {path})"))
 

@@ -69,11 +69,19 @@ def write_sensor_yaml(path: Path, entries: Sequence[tuple[str, Any]], comment: s
     path.write_text("\n".join(lines) + "\n")
 
 
-def read_sensor_yaml(path: Path) -> dict[str, Any]:
-    """Load a ``%YAML:1.0`` file (the directive, which PyYAML rejects, is stripped)."""
+def read_text(path: Path) -> str:
+    """A text file's content; DatasetError naming the file if absent or not text (UTF-8)."""
     if not path.is_file():
         raise DatasetError(f"missing file: {path}")
-    text = path.read_text()
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise DatasetError(f"{path}: not a text file ({exc.reason} at byte {exc.start})") from exc
+
+
+def read_sensor_yaml(path: Path) -> dict[str, Any]:
+    """Load a ``%YAML:1.0`` file (the directive, which PyYAML rejects, is stripped)."""
+    text = read_text(path)
     if text.lstrip().startswith("%YAML"):
         text = text.split("\n", 1)[1] if "\n" in text else ""
     try:
@@ -95,7 +103,7 @@ def yaml_float(data: dict[str, Any], key: str, path: Path, default: float | None
         raise CalibrationError(f"{path}: missing field '{key}'")
     try:
         return float(data[key])
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise CalibrationError(f"{path}: field '{key}' is not a number: {data[key]!r}") from exc
 
 
@@ -105,7 +113,7 @@ def yaml_vector(data: dict[str, Any], key: str, path: Path, n: int) -> NDArray[n
         raise CalibrationError(f"{path}: missing field '{key}'")
     try:
         v = np.asarray([float(e) for e in data[key]], dtype=float)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise CalibrationError(f"{path}: field '{key}' must be {n} numbers") from exc
     if v.shape != (n,):
         raise CalibrationError(f"{path}: field '{key}' must have {n} numbers, has {v.size}")
@@ -122,7 +130,7 @@ def yaml_T_BS(data: dict[str, Any], path: Path, required: bool = True) -> NDArra
     values = node.get("data") if isinstance(node, dict) else node
     try:
         T = np.asarray([float(e) for e in values], dtype=float)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise CalibrationError(f"{path}: 'T_BS' data must be 16 numbers") from exc
     if T.size != 16:
         raise CalibrationError(f"{path}: 'T_BS' data must be 16 numbers, has {T.size}")
@@ -161,23 +169,22 @@ def read_csv_rows(path: Path, n_cols: int) -> tuple[list[list[str]], list[int]]:
     Blank lines and ``#`` comment lines are skipped; a row with another field count raises a
     DatasetError naming the file and line.
     """
-    if not path.is_file():
-        raise DatasetError(f"missing file: {path}")
     rows: list[list[str]] = []
     line_no: list[int] = []
-    with path.open() as fh:
-        for k, raw in enumerate(fh, start=1):
-            line = raw.strip()
-            if not line or line.startswith("#"):
-                continue
-            fields = [f.strip() for f in line.split(",")]
-            if len(fields) != n_cols:
-                raise DatasetError(
-                    f"{path}:{k}: malformed row, expected {n_cols} fields, got {len(fields)}: "
-                    f"{line[:80]!r}"
-                )
-            rows.append(fields)
-            line_no.append(k)
+    # Lines split as a text-mode file would (universal newlines), so numbers match editors'.
+    lines = read_text(path).replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    for k, raw in enumerate(lines, start=1):
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        fields = [f.strip() for f in line.split(",")]
+        if len(fields) != n_cols:
+            raise DatasetError(
+                f"{path}:{k}: malformed row, expected {n_cols} fields, got {len(fields)}: "
+                f"{line[:80]!r}"
+            )
+        rows.append(fields)
+        line_no.append(k)
     return rows, line_no
 
 
@@ -187,6 +194,8 @@ def parse_timestamps(
     """Column 0 as int64 ns; ``strict`` demands strictly increasing, else non-decreasing."""
     try:
         t = np.array([int(r[0]) for r in rows], dtype=np.int64)
+    except OverflowError:
+        raise DatasetError(f"{path}: a timestamp is outside the int64 nanosecond range") from None
     except ValueError:
         for r, k in zip(rows, line_no, strict=True):
             try:
@@ -214,6 +223,8 @@ def parse_floats(
     path: Path, rows: list[list[str]], line_no: list[int], cols: slice
 ) -> NDArray[np.float64]:
     """Columns ``cols`` as float64 (N, K); a bad number or a NaN names its file and line."""
+    if not rows:
+        raise DatasetError(f"{path}: no data rows (header only)")
     try:
         a = np.array([r[cols] for r in rows], dtype=float)
     except ValueError:

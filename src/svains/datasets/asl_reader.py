@@ -24,6 +24,7 @@ from svains.datasets._textio import (
     yaml_T_BS,
     yaml_vector,
 )
+from svains.datasets.completion import warn_if_incomplete
 from svains.datasets.types import (
     DEFAULT_GRAVITY_W,
     CameraCalib,
@@ -39,6 +40,20 @@ from svains.datasets.types import (
     MagStream,
     SonarCalib,
     SonarStream,
+)
+from svains.datasets.validate import (
+    check_camera_calib,
+    check_gps_calib,
+    check_gravity,
+    check_image_size,
+    check_imu_calib,
+    check_mag_calib,
+    check_number,
+    check_quaternions,
+    check_rows,
+    check_sonar_calib,
+    check_stereo_rig,
+    check_stereo_sync,
 )
 from svains.errors import CalibrationError, DatasetError
 from svains.geometry.distortion import canonical_model, check_coefficients
@@ -74,16 +89,19 @@ def _rate(calib: dict[str, Any], path: Path, t_ns: np.ndarray) -> float:
     return float(1e9 / np.median(np.diff(u))) if u.size > 1 else 0.0
 
 
-def _table(folder: Path, n_cols: int, strict: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """``data.csv`` of a numeric stream: (t_ns (N,), values (N, n_cols - 1))."""
+def _table(
+    folder: Path, n_cols: int, strict: bool = True, min_rows: int = 1
+) -> tuple[np.ndarray, np.ndarray]:
+    """``data.csv`` of a numeric stream: (t_ns (N,), values (N, n_cols - 1)), N >= min_rows."""
     path = folder / "data.csv"
     rows, lines = read_csv_rows(path, n_cols)
     t = parse_timestamps(path, rows, lines, strict=strict)
+    check_rows(t, path, min_rows)
     return t, parse_floats(path, rows, lines, slice(1, None))
 
 
 def read_imu(folder: Path) -> tuple[ImuStream, ImuCalib]:
-    t, a = _table(folder, 7)
+    t, a = _table(folder, 7, min_rows=2)
     ypath = folder / "sensor.yaml"
     y = read_sensor_yaml(ypath)
     calib = ImuCalib(
@@ -93,7 +111,12 @@ def read_imu(folder: Path) -> tuple[ImuStream, ImuCalib]:
         gyro_random_walk=yaml_float(y, "gyroscope_random_walk", ypath),
         accel_noise_density=yaml_float(y, "accelerometer_noise_density", ypath),
         accel_random_walk=yaml_float(y, "accelerometer_random_walk", ypath),
+        gyro_range=yaml_float(y, "gyroscope_range", ypath) if "gyroscope_range" in y else None,
+        accel_range=(
+            yaml_float(y, "accelerometer_range", ypath) if "accelerometer_range" in y else None
+        ),
     )
+    check_imu_calib(calib, ypath)
     return ImuStream(t_ns=t, gyro_B=a[:, 0:3], accel_B=a[:, 3:6]), calib
 
 
@@ -122,7 +145,7 @@ def read_camera_calib(folder: Path, t_ns: np.ndarray | None = None) -> CameraCal
     shift = yaml_float(y, "timeshift_cam_imu", ypath, default=0.0)
     if not np.isfinite(shift):
         raise CalibrationError(f"{ypath}: field 'timeshift_cam_imu' must be finite, is {shift}")
-    return CameraCalib(
+    calib = CameraCalib(
         name=folder.name,
         T_B_C=yaml_T_BS(y, ypath),
         rate_hz=_rate(y, ypath, t_ns if t_ns is not None else np.zeros(0, np.int64)),
@@ -132,6 +155,8 @@ def read_camera_calib(folder: Path, t_ns: np.ndarray | None = None) -> CameraCal
         distortion=dist,
         timeshift_cam_imu_s=shift,
     )
+    check_camera_calib(calib, ypath)
+    return calib
 
 
 def read_image_list(folder: Path) -> tuple[ImageStream, np.ndarray, int]:
@@ -153,6 +178,7 @@ def read_camera(folder: Path) -> tuple[ImageStream, CameraCalib, int]:
     Stamps move to the IMU clock once, here: t_imu = t_cam + ``timeshift_cam_imu``."""
     stream, t, n_missing = read_image_list(folder)
     calib = read_camera_calib(folder, t)
+    check_image_size(stream, calib, folder / "sensor.yaml")
     return shift_image_stamps(stream, calib.timeshift_cam_imu_s), calib, n_missing
 
 
@@ -164,6 +190,7 @@ def shift_image_stamps(stream: ImageStream, timeshift_cam_imu_s: float) -> Image
 
 def read_groundtruth(folder: Path) -> GroundTruth:
     t, a = _table(folder, 17)
+    check_quaternions(t, a[:, 3:7], folder / "data.csv")
     return GroundTruth(
         t_ns=t, p_W_B=a[:, 0:3], q_W_B_wxyz=a[:, 3:7], v_W_B=a[:, 7:10], bg_B=a[:, 10:13],
         ba_B=a[:, 13:16],
@@ -180,6 +207,7 @@ def read_gps(folder: Path) -> tuple[GpsStream, GpsCalib]:
         position_noise_std=yaml_float(y, "position_noise_std", ypath),
         velocity_noise_std=yaml_float(y, "velocity_noise_std", ypath),
     )
+    check_gps_calib(calib, ypath)
     return GpsStream(t_ns=t, p_W_G=a[:, 0:3], v_W_G=a[:, 3:6]), calib
 
 
@@ -193,6 +221,7 @@ def read_mag(folder: Path) -> tuple[MagStream, MagCalib]:
         m_W=yaml_vector(y, "reference_field_W", ypath, 3),
         noise_std=yaml_float(y, "noise_std", ypath),
     )
+    check_mag_calib(calib, ypath)
     return MagStream(t_ns=t, m_S=a), calib
 
 
@@ -206,6 +235,7 @@ def read_sonar(folder: Path) -> tuple[SonarStream, SonarCalib]:
         noise_std=yaml_float(y, "noise_std", ypath),
         ground_height=yaml_float(y, "ground_height", ypath, default=0.0),
     )
+    check_sonar_calib(calib, ypath)
     return SonarStream(t_ns=t, range_m=a[:, 0]), calib
 
 
@@ -214,11 +244,13 @@ def read_features(folder: Path) -> FeatureStream:
     path = folder / "data.csv"
     rows, lines = read_csv_rows(path, 6)
     t = parse_timestamps(path, rows, lines, strict=False)
+    check_rows(t, path)
     ids_f = parse_floats(path, rows, lines, slice(1, 2))[:, 0]
-    if np.any(ids_f != np.round(ids_f)):
-        k = lines[int(np.flatnonzero(ids_f != np.round(ids_f))[0])]
-        raise DatasetError(f"{path}:{k}: track_id must be an integer")
-    ids = np.array([int(r[1]) for r in rows], dtype=np.int64)
+    not_int = (ids_f != np.round(ids_f)) | (np.abs(ids_f) >= 2.0**53)
+    if np.any(not_int):
+        k = lines[int(np.flatnonzero(not_int)[0])]
+        raise DatasetError(f"{path}:{k}: track_id must be an integer (below 2^53)")
+    ids = ids_f.astype(np.int64)
     uv = parse_floats(path, rows, lines, slice(2, 6))
     if t.size > 1:
         order = np.lexsort((ids, t))
@@ -230,12 +262,10 @@ def read_features(folder: Path) -> FeatureStream:
             )
     ypath = folder / "sensor.yaml"
     y = read_sensor_yaml(ypath) if ypath.is_file() else {}
+    pixel_std = yaml_float(y, "pixel_noise_std", ypath, default=1.0)
+    check_number(pixel_std, ypath, "pixel_noise_std", positive=True)
     return FeatureStream(
-        t_ns=t,
-        track_id=ids,
-        uv_left=uv[:, 0:2],
-        uv_right=uv[:, 2:4],
-        pixel_noise_std=yaml_float(y, "pixel_noise_std", ypath, default=1.0),
+        t_ns=t, track_id=ids, uv_left=uv[:, 0:2], uv_right=uv[:, 2:4], pixel_noise_std=pixel_std
     )
 
 
@@ -269,6 +299,15 @@ def _read_extras(folder: Path) -> dict[str, object]:
     return extras
 
 
+def _check_stereo(ds: Dataset, mav0: Path) -> None:
+    """Both cameras: a real baseline, and left/right stamps paired within the tolerance."""
+    if ds.cam0 is not None and ds.cam1 is not None:
+        check_stereo_rig(ds.cam0, ds.cam1, mav0 / "cam0/sensor.yaml", mav0 / "cam1/sensor.yaml")
+    if ds.left is not None and ds.right is not None:
+        where = f"{mav0 / 'cam0/data.csv'}, {mav0 / 'cam1/data.csv'}"
+        check_stereo_sync(ds.left, ds.right, ds.stereo_tol_ns, where)
+
+
 def read_asl(path: Path) -> Dataset:
     """Read an ASL data set (root folder or its ``mav0``); absent streams stay ``None``."""
     mav0 = find_mav0(path)
@@ -281,6 +320,11 @@ def read_asl(path: Path) -> Dataset:
         y = read_sensor_yaml(body)
         if "gravity_W" in y:
             ds.gravity_W = yaml_vector(y, "gravity_W", body, 3)
+            check_gravity(ds.gravity_W, body)
+        if "stereo_pair_tolerance_ns" in y:
+            tol = yaml_float(y, "stereo_pair_tolerance_ns", body)
+            check_number(tol, body, "stereo_pair_tolerance_ns", non_negative=True)
+            ds.stereo_tol_ns = int(tol)
     else:
         ds.gravity_W = np.array(DEFAULT_GRAVITY_W)
     if (mav0 / "imu0").is_dir():
@@ -305,6 +349,8 @@ def read_asl(path: Path) -> Dataset:
         ds.sonar, ds.sonar_calib = read_sonar(mav0 / "sonar0")
     if (mav0 / "features0").is_dir():
         ds.features = read_features(mav0 / "features0")
+    _check_stereo(ds, mav0)
+    warn_if_incomplete(mav0)
     ds.missing_images = missing
     if missing:
         # One warning for the whole data set: the frames are skipped, the count is kept.

@@ -93,6 +93,8 @@ class AslWriter:
                 ("gyroscope_random_walk", calib.gyro_random_walk),
                 ("accelerometer_noise_density", calib.accel_noise_density),
                 ("accelerometer_random_walk", calib.accel_random_walk),
+                *([("gyroscope_range", calib.gyro_range)] if calib.gyro_range else []),
+                *([("accelerometer_range", calib.accel_range)] if calib.accel_range else []),
             ],
             comment="svains IMU",
         )

@@ -10,13 +10,14 @@ taken as ``(0, +9.81, 0)`` (approximate: it assumes the first frame is level).
 from __future__ import annotations
 
 import logging
-import struct
 from pathlib import Path
 
 import numpy as np
 
 from svains.datasets._image_io import read_grey
+from svains.datasets._textio import read_text
 from svains.datasets.types import CameraCalib, Dataset, GroundTruth, ImageStream
+from svains.datasets.validate import MIN_BASELINE_M, check_camera_calib, image_size
 from svains.errors import CalibrationError, DatasetError
 from svains.geometry.rotation import rotmat_to_quat
 
@@ -35,7 +36,7 @@ def read_projections(path: Path) -> dict[str, np.ndarray]:
     if not path.is_file():
         raise DatasetError(f"missing file: {path}")
     out: dict[str, np.ndarray] = {}
-    for k, line in enumerate(path.read_text().splitlines(), start=1):
+    for k, line in enumerate(read_text(path).splitlines(), start=1):
         if not line.strip():
             continue
         key, _, rest = line.partition(":")
@@ -54,7 +55,7 @@ def read_projections(path: Path) -> dict[str, np.ndarray]:
 def _read_table(path: Path, n_cols: int) -> tuple[np.ndarray, list[int]]:
     rows: list[list[float]] = []
     lines: list[int] = []
-    for k, line in enumerate(path.read_text().splitlines(), start=1):
+    for k, line in enumerate(read_text(path).splitlines(), start=1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         fields = line.split()
@@ -74,17 +75,6 @@ def _read_table(path: Path, n_cols: int) -> tuple[np.ndarray, list[int]]:
     return a, lines
 
 
-def _image_size(path: Path) -> tuple[int, int]:
-    """(width, height) from a PNG header without decoding; decodes other formats."""
-    with path.open("rb") as fh:
-        head = fh.read(24)
-    if head[:8] == b"\x89PNG\r\n\x1a\n":
-        w, h = struct.unpack(">II", head[16:24])
-        return int(w), int(h)
-    img = read_grey(path)
-    return int(img.shape[1]), int(img.shape[0])
-
-
 def read_kitti(root: Path) -> Dataset:
     """Read a KITTI odometry sequence folder; ``groundtruth`` holds LEFT-CAMERA poses (B = C0).
 
@@ -92,8 +82,13 @@ def read_kitti(root: Path) -> Dataset:
     """
     P = read_projections(root / "calib.txt")
     P0, P1 = P["P0"], P["P1"]
-    if P0[0, 0] <= 0 or P1[0, 0] <= 0:
+    if not (P0[0, 0] > 0 and P1[0, 0] > 0):
         raise CalibrationError(f"{root / 'calib.txt'}: non-positive focal length")
+    if not -P1[0, 3] / P1[0, 0] >= MIN_BASELINE_M:
+        raise CalibrationError(
+            f"{root / 'calib.txt'}: P1 gives a baseline of {-P1[0, 3] / P1[0, 0]:.4g} m "
+            f"(-P1[0,3]/P1[0,0]), expected > {MIN_BASELINE_M:g} m"
+        )
     times_path = root / "times.txt"
     if not times_path.is_file():
         raise DatasetError(f"missing file: {times_path}")
@@ -135,12 +130,15 @@ def read_kitti(root: Path) -> Dataset:
                 name=cam,
                 T_B_C=T_B_C,
                 rate_hz=rate,
-                resolution=_image_size(kept[0]),
+                resolution=image_size(kept[0]),
                 intrinsics=np.array([Pc[0, 0], Pc[1, 1], Pc[0, 2], Pc[1, 2]]),
                 distortion_model="radial-tangential",
                 distortion=np.zeros(4),
             ),
         )
+    for cam in (ds.cam0, ds.cam1):
+        if cam is not None:
+            check_camera_calib(cam, root / "calib.txt")
     ds.missing_images = missing
     if missing:
         log.warning(

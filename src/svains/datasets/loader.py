@@ -10,6 +10,7 @@ import numpy as np
 
 from svains.datasets.asl_reader import find_mav0, read_asl
 from svains.datasets.kitti import is_kitti, read_kitti
+from svains.datasets.stereo_sync import match_stereo
 from svains.datasets.types import Dataset
 from svains.errors import DatasetError
 
@@ -76,26 +77,19 @@ def stream_times(ds: Dataset) -> dict[str, np.ndarray]:
     return out
 
 
-def stereo_pairs(ds: Dataset, tol_ns: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def stereo_pairs(
+    ds: Dataset, tol_ns: int | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Frames present in both cameras: (t_ns (P,), index into ``ds.left``, index into ``ds.right``).
 
-    A left frame is paired with the nearest right frame within ``tol_ns``; ``t_ns`` is the left
-    time. Frames whose partner image is absent are dropped.
+    A left frame is paired with the nearest right frame within ``tol_ns`` (default: the data
+    set's ``stereo_tol_ns``, see ``datasets.stereo_sync``); ``t_ns`` is the left time. Frames
+    whose partner image is absent are dropped.
     """
     if ds.left is None or ds.right is None:
         raise DatasetError(f"{ds.root}: stereo pairs need both cam0 and cam1 images")
     tl = np.asarray(ds.left.t_ns, np.int64)
-    tr = np.asarray(ds.right.t_ns, np.int64)
-    if tr.size == 0 or tl.size == 0:
-        e = np.zeros(0, np.int64)
-        return e, e, e
-    j = np.clip(np.searchsorted(tr, tl), 1, max(tr.size - 1, 1))
-    j_lo = np.clip(j - 1, 0, tr.size - 1)
-    j_hi = np.clip(j, 0, tr.size - 1)
-    pick = np.where(np.abs(tr[j_lo] - tl) <= np.abs(tr[j_hi] - tl), j_lo, j_hi)
-    ok = np.abs(tr[pick] - tl) <= tol_ns
-    idx_l = np.flatnonzero(ok).astype(np.int64)
-    idx_r = pick[ok].astype(np.int64)
+    idx_l, idx_r = match_stereo(tl, ds.right.t_ns, ds.stereo_tol_ns if tol_ns is None else tol_ns)
     return tl[idx_l], idx_l, idx_r
 
 

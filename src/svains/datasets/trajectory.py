@@ -12,7 +12,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from svains.datasets._textio import read_text
 from svains.datasets.types import GroundTruth
+from svains.datasets.validate import QUATERNION_NORM_TOL
 from svains.errors import DatasetError
 
 TUM_HEADER = "timestamp[s] tx ty tz qx qy qz qw"
@@ -71,7 +73,7 @@ def read_tum(
     t: list[int] = []
     rows: list[list[float]] = []
     lines: list[int] = []
-    for k, raw in enumerate(path.read_text().splitlines(), start=1):
+    for k, raw in enumerate(read_text(path).splitlines(), start=1):
         line = raw.strip()
         if not line or line.startswith("#"):
             continue
@@ -84,8 +86,10 @@ def read_tum(
         try:
             t.append(seconds_text_to_ns(fields[0]))
             rows.append([float(f) for f in fields[1:]])
-        except (ValueError, InvalidOperation):
+        except (ValueError, InvalidOperation, OverflowError):
             raise DatasetError(f"{path}:{k}: malformed number in {line[:80]!r}") from None
+        if not -(2**63) <= t[-1] < 2**63:
+            raise DatasetError(f"{path}:{k}: time {fields[0]} s is outside the int64 ns range")
         lines.append(k)
     if not rows:
         raise DatasetError(f"{path}: no poses in TUM file")
@@ -100,6 +104,12 @@ def read_tum(
         kind = "duplicate" if d[i - 1] == 0 else "non-increasing"
         raise DatasetError(f"{path}:{lines[i]}: {kind} timestamp")
     q_wxyz = np.concatenate([a[:, 6:7], a[:, 3:6]], axis=1)
+    norm_bad = np.flatnonzero(np.abs(np.linalg.norm(q_wxyz, axis=1) - 1.0) > QUATERNION_NORM_TOL)
+    if norm_bad.size:
+        i = int(norm_bad[0])
+        raise DatasetError(
+            f"{path}:{lines[i]}: quaternion norm {np.linalg.norm(q_wxyz[i]):.4g}, expected 1"
+        )
     return t_ns, a[:, 0:3].copy(), q_wxyz
 
 

@@ -26,6 +26,9 @@ F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 DEFAULT_GRAVITY_W = (0.0, 0.0, -9.81)
+# Left/right frames this close are one stereo pair (``datasets.stereo_sync``); ``body.yaml``
+# ``stereo_pair_tolerance_ns`` overrides it per data set.
+DEFAULT_STEREO_TOL_NS = 10_000_000
 
 __all__ = [
     "CameraCalib", "Dataset", "FeatureStream", "GpsCalib", "GpsStream", "GroundTruth",
@@ -105,12 +108,14 @@ class FeatureStream:
 class Dataset:
     """Everything one data set holds; any stream may be ``None``.
 
-    ``gravity_W`` (3,) m/s² comes from ``body.yaml`` (default EuRoC z-up).
+    ``gravity_W`` (3,) m/s² comes from ``body.yaml`` (default EuRoC z-up), as may
+    ``stereo_tol_ns`` (largest left/right stamp difference of one stereo pair).
     """
 
     root: Path
     name: str
     gravity_W: F64 = field(default_factory=lambda: np.array(DEFAULT_GRAVITY_W))
+    stereo_tol_ns: int = DEFAULT_STEREO_TOL_NS
     imu: ImuStream | None = None
     imu_calib: ImuCalib | None = None
     cam0: CameraCalib | None = None

@@ -21,15 +21,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from evo.core.geometry import GeometryException
 from numpy.typing import NDArray
 
 from svains.datasets.types import Dataset, GroundTruth
-from svains.errors import ConfigError
+from svains.errors import AlignmentError, ConfigError
 from svains.evaluation.metrics import AteResult, ate
 from svains.evaluation.run import run_accuracy
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import RunResult
+from svains.outputs import atomic_write_text
 from svains.replay import replay, resolve_config
 from svains.replay.groundtruth import interpolate_groundtruth
 from svains.replay.writers import write_outputs
@@ -95,7 +95,7 @@ def align_to_groundtruth(result: RunResult, ds: Dataset, align: str) -> AteResul
     up_W = -np.asarray(ds.gravity_W, float)
     try:
         return ate(*args, align=align, up_W=up_W)
-    except GeometryException as exc:
+    except AlignmentError as exc:
         # A straight-line run leaves Umeyama's rotation undetermined: report it unaligned.
         log.warning("%s alignment impossible (%s); ATE reported without alignment", align, exc)
         return ate(*args, align="none", up_W=up_W)
@@ -226,10 +226,12 @@ def write_comparison(out_dir: Path, results: dict[str, RunResult], title: str) -
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     reports = {m: r.report for m, r in results.items()}
-    (out_dir / "compare.json").write_text(
-        json.dumps(reports, indent=2, default=_jsonable) + "\n", encoding="utf-8"
+    (out_dir / "compare.json").unlink(missing_ok=True)  # an old comparison never passes as new
+    atomic_write_text(out_dir / "compare.md", comparison_markdown(reports, title))
+    # compare.json last: its presence says the comparison is complete
+    atomic_write_text(
+        out_dir / "compare.json", json.dumps(reports, indent=2, default=_jsonable) + "\n"
     )
-    (out_dir / "compare.md").write_text(comparison_markdown(reports, title), encoding="utf-8")
     return reports
 
 

@@ -16,10 +16,11 @@ import numpy as np
 from evo.core import metrics as evo_metrics
 from evo.core import sync as evo_sync
 from evo.core.filters import FilterException
+from evo.core.geometry import GeometryException
 from evo.core.trajectory import PoseTrajectory3D
 from numpy.typing import ArrayLike, NDArray
 
-from svains.errors import ConfigError
+from svains.errors import AlignmentError, ConfigError
 from svains.evaluation.alignment import align_posyaw
 from svains.geometry.rotation import rotmat_to_quat
 
@@ -138,7 +139,13 @@ def ate(
     if align in ("se3", "sim3"):
         if est_a.num_poses < 3:
             raise ConfigError(f"{align} alignment needs at least 3 matched poses")
-        R, t, s = est_a.align(ref_m, correct_scale=align == "sim3")
+        try:
+            R, t, s = est_a.align(ref_m, correct_scale=align == "sim3")
+        except GeometryException as exc:
+            raise AlignmentError(
+                f"{align} alignment is undetermined ({exc}): the positions are (nearly) "
+                "collinear or identical; use posyaw or none"
+            ) from exc
         T[:3, :3], T[:3, 3], scale = R, t, float(s)
     elif align == "posyaw":
         T = align_posyaw(est_a.positions_xyz, ref_m.positions_xyz, up_W)

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from svains.datasets.trajectory_formats import TrajectoryFormat, read_trajectory
 from svains.datasets.types import GroundTruth
 from svains.evaluation.metrics import Alignment, AteResult, RpeResult, ate, rpe
+from svains.outputs import atomic_write_text
 
 Trajectory = tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]
 
@@ -69,7 +70,7 @@ class EvaluationReport:
     def to_json(self, path: Path | str) -> Path:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+        atomic_write_text(path, json.dumps(self.to_dict(), indent=2) + "\n")
         return path
 
 

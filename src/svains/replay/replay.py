@@ -186,6 +186,11 @@ def replay(
         from svains.replay.vo import run as run_vo
 
         return run_vo(ds, config, progress)
+    if config.method != "ins" and config.vision.source == "images":
+        n_pairs = stereo_pairs(ds)[0].size if ds.left is not None and ds.right is not None else 0
+        if n_pairs < 2:
+            raise DatasetError(f"{ds.root}: {n_pairs} stereo pair(s) with images on disk; "
+                               "image-based vision needs at least 2")
     t_imu = np.asarray(ds.imu.t_ns, np.int64)
     t0 = int(t_imu[0]) + int(config.replay.start_s * 1e9)
     init = None

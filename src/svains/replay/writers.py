@@ -1,5 +1,9 @@
 """Output files of a run: ``trajectory.tum``, ``trajectory_euroc.csv``, ``pose_covariance.csv``,
-``states.csv``, ``report.json`` (layouts in ``docs/formats.md``)."""
+``states.csv``, ``report.json`` (layouts in ``docs/formats.md``).
+
+Each file is written atomically (temporary name, then rename), ``report.json`` last: a folder
+with a ``report.json`` holds a complete run.
+"""
 
 from __future__ import annotations
 
@@ -10,6 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from svains.models.state import BIASED, PAPER, StateLayout
+from svains.outputs import atomic_path, atomic_write_text
 
 if TYPE_CHECKING:
     from svains.navigation.outputs import RunResult
@@ -51,7 +56,9 @@ def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None =
     if layout is None:
         layout = BIASED if result.x.shape[-1] == BIASED.nx else PAPER
     x = result.x
-    with open(out_dir / "trajectory.tum", "w", encoding="utf-8") as fh:
+    # A replaced run: its old report.json goes first, so old and new files never pass as one run.
+    (out_dir / "report.json").unlink(missing_ok=True)
+    with atomic_path(out_dir / "trajectory.tum") as tmp, open(tmp, "w", encoding="utf-8") as fh:
         fh.write("# t x y z qx qy qz qw\n")
         for t, xs in zip(result.t_ns, x, strict=True):
             # Seconds written from the integer nanoseconds: no float64 rounding of the time.
@@ -61,12 +68,12 @@ def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None =
     if result.has_covariance:
         write_pose_covariance(out_dir / "pose_covariance.csv", result)
     header = ",".join(["t_ns", *_STATE_NAMES[: layout.nx], *_STD_NAMES[: layout.ndx]])
-    with open(out_dir / "states.csv", "w", encoding="utf-8") as fh:
+    with atomic_path(out_dir / "states.csv") as tmp, open(tmp, "w", encoding="utf-8") as fh:
         fh.write(header + "\n")
         for t, xs, ss in zip(result.t_ns, x, result.std, strict=True):
             fh.write(f"{int(t)}," + ",".join(f"{v:.9g}" for v in np.concatenate([xs, ss])) + "\n")
-    (out_dir / "report.json").write_text(
-        json.dumps(result.report, indent=2, default=_json_default) + "\n", encoding="utf-8"
+    atomic_write_text(
+        out_dir / "report.json", json.dumps(result.report, indent=2, default=_json_default) + "\n"
     )
 
 
@@ -75,7 +82,7 @@ def write_euroc_csv(path: Path, result: RunResult) -> None:
     biases (zeros when the model has none)."""
     x = result.x
     biases = x[:, 13:19] if x.shape[1] >= 19 else np.zeros((len(x), 6))
-    with open(path, "w", encoding="utf-8") as fh:
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
         fh.write(EUROC_HEADER + "\n")
         for t, xs, b in zip(result.t_ns, x, biases, strict=True):
             vals = (*xs[0:3], *xs[6:10], *xs[3:6], *b)
@@ -86,7 +93,7 @@ def write_pose_covariance(path: Path, result: RunResult) -> None:
     """Per pose: t ns, the upper triangle (row-major: 00 01 02 11 12 22) of the attitude error's
     covariance (δθ, body frame, rad²), then of the position's (W frame, m²)."""
     P9 = result.P9
-    with open(path, "w", encoding="utf-8") as fh:
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
         fh.write(COVARIANCE_HEADER + "\n")
         for t, P in zip(result.t_ns, P9, strict=True):
             vals = (*P[6:9, 6:9][_IU], *P[0:3, 0:3][_IU])

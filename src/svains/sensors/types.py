@@ -26,6 +26,8 @@ class ImuCalib:
     gyro_random_walk: float  # rad/s²/√Hz
     accel_noise_density: float  # m/s²/√Hz
     accel_random_walk: float  # m/s³/√Hz
+    gyro_range: float | None = None  # rad/s, full scale (saturation); None: unknown
+    accel_range: float | None = None  # m/s², full scale (saturation); None: unknown
 
 
 @dataclass(frozen=True)

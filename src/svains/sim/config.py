@@ -24,10 +24,16 @@ from typing import Any
 
 import yaml
 
+from svains.datasets.validate import GRAVITY_RANGE_M_S2
 from svains.errors import ConfigError
 
 PAPER_GYRO_STD = math.radians(math.sqrt(50.0))  # rad/s per sample (see module docstring)
 PAPER_ACCEL_STD = math.sqrt(0.5)  # m/s² per sample
+
+# Upper bounds that keep a simulation in memory (an hour of 100 Hz IMU with its ground truth
+# and kinematics is ~100 MB of arrays; a typo such as 1e9 s must not ask for 150 GB).
+MAX_DURATION_S = 3600.0
+MAX_RATE_HZ = 1000.0
 
 # EuRoC ADIS16448 figures (continuous densities, from the EuRoC imu0/sensor.yaml).
 ADIS_GYRO_DENSITY = 1.6968e-4  # rad/s/√Hz
@@ -186,19 +192,37 @@ class SimConfig:
 
     def validate(self) -> None:
         """Raise :class:`ConfigError` naming the first invalid value."""
+        _check_types(self, "")
         if self.scenario not in ("village", "trajectory"):
             raise ConfigError(f"scenario must be 'village' or 'trajectory', got {self.scenario!r}")
         if self.scenario == "trajectory" and not self.trajectory.tum_path:
             raise ConfigError("scenario 'trajectory' needs trajectory.tum_path (a TUM file)")
-        if not self.duration_s > 0:
-            raise ConfigError(f"duration_s must be positive, got {self.duration_s}")
+        if not 0 < self.duration_s <= MAX_DURATION_S:
+            raise ConfigError(
+                f"duration_s must be in (0, {MAX_DURATION_S:g}], got {self.duration_s}"
+            )
         if not 0 < self.camera.rate_hz <= 20.0:
             raise ConfigError(f"camera.rate_hz must be in (0, 20], got {self.camera.rate_hz}")
         for name in ("imu", "gps", "mag", "sonar"):
-            if not getattr(self, name).rate_hz > 0:
-                raise ConfigError(f"{name}.rate_hz must be positive")
-        if self.camera.pixel_noise_std < 0 or self.camera.image_noise_std < 0:
-            raise ConfigError("camera noise stds must be non-negative")
+            if not 0 < getattr(self, name).rate_hz <= MAX_RATE_HZ:
+                raise ConfigError(f"{name}.rate_hz must be in (0, {MAX_RATE_HZ:g}]")
+        g = math.sqrt(sum(float(v) ** 2 for v in self.gravity_W)) if len(self.gravity_W) == 3 else 0
+        lo, hi = GRAVITY_RANGE_M_S2
+        if not lo <= g <= hi:
+            raise ConfigError(f"gravity_W must be 3 numbers of magnitude {lo}-{hi} m/s², got "
+                              f"{self.gravity_W}")
+        # Written into sensor.yaml files, which readers require > 0 (a filter cannot weigh a
+        # noiseless measurement); image grey noise and bias random walks may be 0.
+        for key in ("imu.gyro_noise_std", "imu.accel_noise_std", "gps.position_noise_std",
+                    "gps.velocity_noise_std", "mag.noise_std", "sonar.noise_std",
+                    "camera.pixel_noise_std"):  # fmt: skip
+            part, name = key.split(".")
+            if not getattr(getattr(self, part), name) > 0:
+                raise ConfigError(f"{key} must be > 0, got {getattr(getattr(self, part), name)}")
+        for key in ("imu.gyro_random_walk", "imu.accel_random_walk", "camera.image_noise_std"):
+            part, name = key.split(".")
+            if not getattr(getattr(self, part), name) >= 0:
+                raise ConfigError(f"{key} must be >= 0, got {getattr(getattr(self, part), name)}")
         if self.camera.lens not in ("pinhole", "equidistant"):
             raise ConfigError(
                 f"camera.lens must be 'pinhole' or 'equidistant', got {self.camera.lens!r}"
@@ -227,7 +251,53 @@ class SimConfig:
             raise ConfigError(f"cannot read simulator config {path}: {exc}") from exc
         if not isinstance(data, dict):
             raise ConfigError(f"simulator config {path} is not a mapping")
-        return cls.from_dict(data)
+        try:
+            cfg = cls.from_dict(data)
+            _check_types(cfg, "")
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: {exc}") from exc
+        return cfg
+
+
+def _type_ok(value: Any, default: Any) -> bool:
+    """``value`` has the kind of ``default`` (int or float for a float; a list for a list)."""
+    if isinstance(default, bool) or default is None:
+        return default is None or isinstance(value, bool)
+    if isinstance(default, (int, float)):
+        return (
+            isinstance(value, (int, float))
+            and not isinstance(value, bool)
+            and math.isfinite(float(value))
+            and (isinstance(default, float) or isinstance(value, int))
+        )
+    if isinstance(default, str):
+        return isinstance(value, str)
+    if isinstance(default, list):
+        return isinstance(value, list) and _all_numbers(value)
+    return True
+
+
+def _all_numbers(value: Any) -> bool:
+    """Every leaf of a (nested) list is a finite int or float."""
+    if isinstance(value, list):
+        return all(_all_numbers(v) for v in value)
+    return (
+        isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    )
+
+
+def _check_types(obj: Any, prefix: str) -> None:
+    """Every field of the (nested) dataclass ``obj`` has its default's type (ConfigError)."""
+    for f in fields(obj):
+        value = getattr(obj, f.name)
+        if dataclasses.is_dataclass(value):
+            _check_types(value, f"{prefix}{f.name}.")
+            continue
+        default = f.default if f.default is not dataclasses.MISSING else None
+        if default is None and f.default_factory is not dataclasses.MISSING:
+            default = f.default_factory()
+        if not _type_ok(value, default):
+            raise ConfigError(f"{prefix}{f.name} has an invalid value {value!r}")
 
 
 def _build(cls: type, data: dict[str, Any], prefix: str) -> Any:
@@ -241,6 +311,8 @@ def _build(cls: type, data: dict[str, Any], prefix: str) -> Any:
         sub = default() if callable(default) else None
         if dataclasses.is_dataclass(sub) and isinstance(value, dict):
             kwargs[key] = _build(type(sub), value, f"{prefix}{key}.")
+        elif dataclasses.is_dataclass(sub):
+            raise ConfigError(f"simulator config key '{prefix}{key}' must be a mapping")
         else:
             kwargs[key] = value
     return cls(**kwargs)

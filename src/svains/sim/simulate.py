@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from svains.datasets.asl_writer import AslWriter
+from svains.datasets.completion import write_marker
 from svains.datasets.types import (
     CameraCalib,
     FeatureStream,
@@ -29,7 +30,9 @@ from svains.datasets.types import (
     SonarCalib,
     SonarStream,
 )
+from svains.errors import OutputError
 from svains.geometry.camera import RectifiedStereo
+from svains.outputs import replace_dir, staging_dir
 from svains.sim.config import SimConfig
 from svains.sim.sensors import (
     SONAR_R_B_S,
@@ -207,15 +210,32 @@ def _images(scene: Scene, t_ns: NDArray[np.int64], right: bool, seed: int) -> It
         yield finish_image(img, gain, cfg.image_noise_std, rng, bank)
 
 
-def simulate(config: SimConfig, out_dir: Path | str) -> Path:
+def simulate(config: SimConfig, out_dir: Path | str, overwrite: bool = False) -> Path:
     """Simulate ``config`` and write the data set to ``out_dir`` (its ``mav0/`` inside).
 
-    Returns the data-set root ``out_dir``. Raises ``ConfigError`` for invalid configurations.
+    The data set is written whole or not at all: into a temporary folder inside ``out_dir``,
+    closed by the completion marker (``datasets.completion``), then renamed to ``mav0/``.
+    Returns the data-set root ``out_dir``. Raises ``ConfigError`` for invalid configurations
+    and ``OutputError`` when ``out_dir`` already holds a ``mav0/`` and not ``overwrite``.
     """
     scene = build_scene(config)
-    cfg = scene.config
     out = Path(out_dir)
-    writer = AslWriter(out)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out} exists and is not a folder")
+    if (out / "mav0").exists() and not overwrite:
+        raise OutputError(f"{out} already holds a data set (mav0/); overwrite it explicitly")
+    with staging_dir(out) as stage:
+        streams = _write_dataset(scene, stage)
+        write_marker(stage / "mav0", streams, writer="svains simulate")
+        replace_dir(stage / "mav0", out / "mav0")
+    log.info("simulated %s (%.1f s) into %s", scene.config.scenario, scene.config.duration_s, out)
+    return out
+
+
+def _write_dataset(scene: Scene, root: Path) -> list[str]:
+    """Simulate every sensor of ``scene`` into ``root/mav0``; return the stream folders."""
+    cfg = scene.config
+    writer = AslWriter(root)
     seeds = np.random.SeedSequence(cfg.seed).spawn(8)
     rngs = [np.random.default_rng(s) for s in seeds]
     g_W = np.asarray(cfg.gravity_W, float)
@@ -284,8 +304,7 @@ def simulate(config: SimConfig, out_dir: Path | str) -> Path:
             ]
             for job in jobs:
                 job.result()
-    log.info("simulated %s (%.1f s) into %s", cfg.scenario, cfg.duration_s, out)
-    return out
+    return sorted(p.name for p in writer.mav0.iterdir() if p.is_dir())
 
 
 def _scenario_text(scene: Scene) -> str:

@@ -1,0 +1,153 @@
+"""What every command shares: one-line errors on stderr, the exit codes, ``--out`` checks.
+
+Exit codes (the same for every command):
+
+- ``0`` success;
+- ``1`` bad data or input: a data set, calibration, configuration or trajectory file that cannot
+  be used, an output that cannot be written, a run that failed;
+- ``2`` usage: the command line itself cannot be carried out, found before any input is read
+  (unknown option, invalid option value, an ``--out`` that is a file, is not writable, or is not
+  empty without ``--force``).
+
+Errors are written as one ``error: ...`` line on stderr, as plain text: never wrapped, never
+parsed as rich markup (so ``[fu, fv, cu, cv]`` survives). An unexpected exception (a bug) is
+reported on one line too, with exit code 1; ``svains --verbose`` shows its traceback.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, NoReturn
+
+import typer
+from typer.core import TyperGroup
+
+from svains.errors import SvainsError
+
+EXIT_OK = 0
+EXIT_BAD_INPUT = 1
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130  # the shell's code for SIGINT
+
+
+def one_line(text: str) -> str:
+    """``text`` with its lines joined by single spaces (YAML and OS errors span lines)."""
+    return " ".join(part.strip() for part in str(text).splitlines() if part.strip())
+
+
+def print_error(message: str) -> None:
+    """``error: message`` as one plain line on stderr (no markup, no wrapping)."""
+    sys.stderr.write(f"error: {one_line(message)}\n")
+    sys.stderr.flush()
+
+
+def fail(exc: BaseException | str, code: int = EXIT_BAD_INPUT) -> NoReturn:
+    """Print ``exc`` as a one-line error and exit with ``code`` (default 1, bad input)."""
+    print_error(str(exc))
+    raise typer.Exit(code)
+
+
+def usage_error(message: str, option: str | None = None) -> NoReturn:
+    """Stop with a usage error (exit 2) naming ``option`` when given."""
+    raise typer.BadParameter(message, param_hint=f"'{option}'" if option else None)
+
+
+# --- option values ---------------------------------------------------------------------------
+
+
+def positive_finite(value: float | None) -> float | None:
+    """Typer callback: ``None`` or a finite number > 0 (rejects 0, negatives, nan and inf)."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise typer.BadParameter(f"must be a finite number > 0, got {value}")
+    return value
+
+
+# --- outputs ---------------------------------------------------------------------------------
+
+
+def _nearest_existing(path: Path) -> Path:
+    p = path.absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return p
+
+
+def check_out_dir(out: Path, force: bool, option: str = "--out") -> None:
+    """Refuse an output folder before any computation: usage error (exit 2) when ``out`` is a
+    file, cannot be created or written, or is not empty without ``force``."""
+    if out.exists() and not out.is_dir():
+        usage_error(f"{out} exists and is not a folder", option)
+    base = _nearest_existing(out)
+    if not base.is_dir():
+        usage_error(f"{out} cannot be created: {base} is not a folder", option)
+    if not os.access(base, os.W_OK | os.X_OK):
+        usage_error(f"{out} is not writable ({base})", option)
+    if out.is_dir() and any(out.iterdir()) and not force:
+        usage_error(f"{out} is not empty; use --force to write into it", option)
+
+
+def check_out_file(out: Path | None, force: bool, option: str) -> None:
+    """Refuse an output file before any computation: a folder, an unwritable place, or an
+    existing file without ``force`` (usage error, exit 2)."""
+    if out is None:
+        return
+    if out.is_dir():
+        usage_error(f"{out} is a folder", option)
+    base = _nearest_existing(out.parent)
+    if not base.is_dir():
+        usage_error(f"{out} cannot be created: {base} is not a folder", option)
+    if not os.access(base, os.W_OK | os.X_OK):
+        usage_error(f"{out} is not writable ({base})", option)
+    if out.exists() and not force:
+        usage_error(f"{out} exists; use --force to replace it", option)
+
+
+# --- the command group -----------------------------------------------------------------------
+
+
+class OneLineErrorGroup(TyperGroup):
+    """Typer group whose every failure ends as one ``error:`` line and a documented exit code.
+
+    Usage errors (click's own and ``typer.BadParameter``) exit 2; :class:`SvainsError` and
+    ``OSError`` exit 1; Ctrl-C exits 130; any other exception is a bug, reported on one line
+    with exit 1 (its traceback with ``--verbose``).
+    """
+
+    def main(  # type: ignore[override]
+        self,
+        args: Sequence[str] | None = None,
+        prog_name: str | None = None,
+        complete_var: str | None = None,
+        standalone_mode: bool = True,
+        **extra: Any,
+    ) -> Any:
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode, **extra)
+        try:
+            rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except typer.TyperException as exc:  # click's ClickException family
+            if type(exc).__name__ == "NoArgsIsHelpError":
+                exc.show()  # type: ignore[attr-defined]
+            else:
+                print_error(exc.format_message())
+            sys.exit(getattr(exc, "exit_code", EXIT_USAGE))
+        except (typer.Abort, KeyboardInterrupt):
+            print_error("interrupted")
+            sys.exit(EXIT_INTERRUPTED)
+        except (SvainsError, OSError) as exc:
+            print_error(str(exc))
+            sys.exit(EXIT_BAD_INPUT)
+        except Exception as exc:
+            if logging.getLogger().isEnabledFor(logging.DEBUG):
+                raise
+            print_error(
+                f"unexpected {type(exc).__name__}: {exc} (a bug in svains; "
+                "run with --verbose for the traceback)"
+            )
+            sys.exit(EXIT_BAD_INPUT)
+        sys.exit(rv if isinstance(rv, int) else EXIT_OK)

@@ -1,0 +1,211 @@
+"""Load-time checks of calibrations and streams: each error names the file and the field.
+
+A reader calls these right after parsing, so bad values stop the load with a
+:class:`CalibrationError` or :class:`DatasetError` instead of surfacing later as a diverged
+filter or a silently disabled sensor.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import struct
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from svains.datasets.stereo_sync import match_stereo, nearest_offsets_ns
+from svains.datasets.types import (
+    CameraCalib,
+    GpsCalib,
+    ImageStream,
+    ImuCalib,
+    MagCalib,
+    SonarCalib,
+)
+from svains.errors import CalibrationError, DatasetError
+
+log = logging.getLogger(__name__)
+
+# Earth's surface gravity spans 9.780 (equator) to 9.832 m/s² (poles), minus 0.003 m/s² per km
+# of altitude; the band leaves room for rounding (9.8, 9.81) and local anomalies.
+GRAVITY_RANGE_M_S2 = (9.7, 9.9)
+# Largest |R^T R - I| entry of a rotation read from text (Kalibr writes 1e-9; four-decimal
+# hand-written matrices 1e-4).
+ROTATION_TOL = 1e-3
+MIN_BASELINE_M = 1e-3  # any real stereo rig has centimetres
+# Ground-truth quaternions are unit; a norm off by more than this is a broken file.
+QUATERNION_NORM_TOL = 1e-2
+# A stereo stream whose left frames find a right partner less often than this is warned about.
+MIN_PAIRED_FRACTION = 0.5
+
+
+def check_number(value: float, path: Path, field: str, *, positive: bool = False,
+                 non_negative: bool = False) -> None:  # fmt: skip
+    """``value`` finite (and > 0 or >= 0 when asked); CalibrationError naming the field."""
+    if not math.isfinite(value):
+        raise CalibrationError(f"{path}: field '{field}' must be finite, got {value}")
+    if positive and not value > 0:
+        raise CalibrationError(f"{path}: field '{field}' must be > 0, got {value}")
+    if non_negative and value < 0:
+        raise CalibrationError(f"{path}: field '{field}' must be >= 0, got {value}")
+
+
+def check_rigid(T: NDArray[np.float64], path: Path, field: str = "T_BS") -> None:
+    """A rigid transform: finite, last row (0, 0, 0, 1), rotation orthonormal with det +1."""
+    if not np.all(np.isfinite(T)):
+        raise CalibrationError(f"{path}: field '{field}' has non-finite entries")
+    if not np.allclose(T[3], (0.0, 0.0, 0.0, 1.0)):
+        raise CalibrationError(f"{path}: field '{field}' last row must be 0, 0, 0, 1")
+    R = T[:3, :3]
+    err = float(np.max(np.abs(R.T @ R - np.eye(3))))
+    if err > ROTATION_TOL:
+        raise CalibrationError(
+            f"{path}: field '{field}' rotation is not orthonormal (|R^T R - I| = {err:.3g} > "
+            f"{ROTATION_TOL:g})"
+        )
+    if np.linalg.det(R) < 0:
+        raise CalibrationError(f"{path}: field '{field}' rotation has det -1 (a reflection)")
+
+
+def check_gravity(g_W: NDArray[np.float64], path: Path, field: str = "gravity_W") -> None:
+    """Gravity finite with a plausible magnitude (``GRAVITY_RANGE_M_S2``)."""
+    g = float(np.linalg.norm(g_W)) if np.all(np.isfinite(g_W)) else math.nan
+    lo, hi = GRAVITY_RANGE_M_S2
+    if not lo <= g <= hi:
+        raise CalibrationError(
+            f"{path}: field '{field}' has magnitude {g:.4g} m/s², expected {lo}-{hi} (Earth)"
+        )
+
+
+def check_imu_calib(c: ImuCalib, path: Path) -> None:
+    check_rigid(c.T_B_S, path)
+    check_number(c.rate_hz, path, "rate_hz", positive=True)
+    check_number(c.gyro_noise_density, path, "gyroscope_noise_density", positive=True)
+    check_number(c.accel_noise_density, path, "accelerometer_noise_density", positive=True)
+    check_number(c.gyro_random_walk, path, "gyroscope_random_walk", non_negative=True)
+    check_number(c.accel_random_walk, path, "accelerometer_random_walk", non_negative=True)
+    if c.gyro_range is not None:
+        check_number(c.gyro_range, path, "gyroscope_range", positive=True)
+    if c.accel_range is not None:
+        check_number(c.accel_range, path, "accelerometer_range", positive=True)
+
+
+def check_camera_calib(c: CameraCalib, path: Path) -> None:
+    check_rigid(c.T_B_C, path)
+    w, h = c.resolution
+    if w <= 0 or h <= 0:
+        raise CalibrationError(f"{path}: field 'resolution' must be positive, got {w}x{h}")
+    fu, fv, cu, cv = (float(v) for v in c.intrinsics)
+    check_number(fu, path, "intrinsics[0] (fu)", positive=True)
+    check_number(fv, path, "intrinsics[1] (fv)", positive=True)
+    check_number(cu, path, "intrinsics[2] (cu)")
+    check_number(cv, path, "intrinsics[3] (cv)")
+    if not np.all(np.isfinite(c.distortion)):
+        raise CalibrationError(f"{path}: field 'distortion_coefficients' has non-finite entries")
+
+
+def check_gps_calib(c: GpsCalib, path: Path) -> None:
+    if not np.all(np.isfinite(c.p_B_G)):
+        raise CalibrationError(f"{path}: field 'T_BS' (lever arm) has non-finite entries")
+    check_number(c.position_noise_std, path, "position_noise_std", positive=True)
+    check_number(c.velocity_noise_std, path, "velocity_noise_std", positive=True)
+
+
+def check_mag_calib(c: MagCalib, path: Path) -> None:
+    check_rigid(c.T_B_S, path)
+    if not (np.all(np.isfinite(c.m_W)) and np.linalg.norm(c.m_W) > 0):
+        raise CalibrationError(f"{path}: field 'reference_field_W' must be finite and non-zero")
+    check_number(c.noise_std, path, "noise_std", positive=True)
+
+
+def check_sonar_calib(c: SonarCalib, path: Path) -> None:
+    check_rigid(c.T_B_S, path)
+    check_number(c.noise_std, path, "noise_std", positive=True)
+    check_number(c.ground_height, path, "ground_height")
+
+
+def check_rows(t_ns: NDArray[np.int64], path: Path, minimum: int = 1) -> None:
+    """A present stream holds at least ``minimum`` samples (a header-only file is an error)."""
+    if t_ns.size < minimum:
+        raise DatasetError(
+            f"{path}: {t_ns.size} data row(s), needs at least {minimum} "
+            "(remove the stream folder if the stream is absent)"
+        )
+
+
+def check_quaternions(t_ns: NDArray[np.int64], q_wxyz: NDArray[np.float64], path: Path) -> None:
+    """Unit quaternions (norm within ``QUATERNION_NORM_TOL`` of 1), else naming the first row."""
+    bad = np.flatnonzero(np.abs(np.linalg.norm(q_wxyz, axis=1) - 1.0) > QUATERNION_NORM_TOL)
+    if bad.size:
+        i = int(bad[0])
+        raise DatasetError(
+            f"{path}: quaternion at timestamp {t_ns[i]} has norm "
+            f"{np.linalg.norm(q_wxyz[i]):.4g}, expected 1 ({bad.size} row(s) affected)"
+        )
+
+
+def check_stereo_rig(cam0: CameraCalib, cam1: CameraCalib, path0: Path, path1: Path) -> None:
+    """The right camera sits a baseline away from the left one (``MIN_BASELINE_M``)."""
+    R_B_C0, p_B_C0 = cam0.T_B_C[:3, :3], cam0.T_B_C[:3, 3]
+    p_C0_C1 = R_B_C0.T @ (cam1.T_B_C[:3, 3] - p_B_C0)
+    b = float(np.linalg.norm(p_C0_C1))
+    if b < MIN_BASELINE_M:
+        raise CalibrationError(
+            f"{path0}, {path1}: 'T_BS' of cam0 and cam1 give a baseline of {b:.3g} m, "
+            f"expected > {MIN_BASELINE_M:g} m"
+        )
+
+
+def png_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) from a PNG header without decoding; None for other content."""
+    with path.open("rb") as fh:
+        head = fh.read(24)
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and len(head) == 24:
+        w, h = struct.unpack(">II", head[16:24])
+        return int(w), int(h)
+    return None
+
+
+def image_size(path: Path) -> tuple[int, int]:
+    """(width, height) of an image: from the PNG header, else by decoding it."""
+    size = png_size(path)
+    if size is not None:
+        return size
+    from svains.datasets._image_io import read_grey
+
+    img = read_grey(path)
+    return int(img.shape[1]), int(img.shape[0])
+
+
+def check_image_size(stream: ImageStream, calib: CameraCalib, yaml_path: Path) -> None:
+    """The first image has the calibration's ``resolution`` (a PNG header read; other formats
+    are checked when decoded)."""
+    if len(stream) == 0:
+        return
+    size = png_size(stream.paths[0])
+    if size is not None and size != tuple(calib.resolution):
+        raise CalibrationError(
+            f"{stream.paths[0]}: image is {size[0]}x{size[1]} px but {yaml_path} field "
+            f"'resolution' says {calib.resolution[0]}x{calib.resolution[1]}"
+        )
+
+
+def check_stereo_sync(left: ImageStream, right: ImageStream, tol_ns: int, where: str) -> None:
+    """Left frames find right partners within ``tol_ns``: none is an error, few a warning."""
+    if len(left) == 0 or len(right) == 0:
+        return
+    idx_l, _ = match_stereo(left.t_ns, right.t_ns, tol_ns)
+    if idx_l.size == 0:
+        off = float(np.median(nearest_offsets_ns(left.t_ns, right.t_ns))) * 1e-6
+        raise DatasetError(
+            f"{where}: no left frame has a right frame within {tol_ns * 1e-6:g} ms (median "
+            f"offset {off:.3g} ms); set stereo_pair_tolerance_ns in body.yaml if the pairs are "
+            "that far apart"
+        )
+    if idx_l.size < MIN_PAIRED_FRACTION * len(left):
+        log.warning(
+            "%s: only %d of %d left frames have a right frame within %g ms",
+            where, idx_l.size, len(left), tol_ns * 1e-6,
+        )  # fmt: skip

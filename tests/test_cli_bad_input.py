@@ -1,0 +1,276 @@
+"""Every command over a corpus of bad input: one ``error:`` line on stderr, the documented exit
+code (1 bad data or input, 2 usage), never a traceback (issue 12).
+
+The corpus is built once from a 3 s simulated set without images; each case edits a copy.
+"""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from svains.cli.main import app
+from svains.datasets._image_io import write_grey
+from svains.sim import SimConfig, simulate
+
+runner = CliRunner()
+Edit = Callable[[Path], None]
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    cfg = SimConfig(duration_s=3.0, seed=1)
+    cfg.camera.render_images = False
+    return simulate(cfg, tmp_path_factory.mktemp("corpus") / "base")
+
+
+def _sub(path: Path, old: str, new: str) -> None:
+    text = path.read_text()
+    assert old in text, (path, old)
+    path.write_text(text.replace(old, new, 1))
+
+
+def _set_yaml(path: Path, key: str, value: str) -> None:
+    lines = path.read_text().splitlines()
+    assert any(ln.startswith(f"{key}:") for ln in lines), (path, key)
+    out = [f"{key}: {value}" if ln.startswith(f"{key}:") else ln for ln in lines]
+    path.write_text("\n".join(out) + "\n")
+
+
+def _header_only(rel: str) -> Edit:
+    def edit(root: Path) -> None:
+        p = root / "mav0" / rel
+        p.write_text(p.read_text().splitlines()[0] + "\n")
+
+    return edit
+
+
+def _zero_quaternions(root: Path) -> None:
+    p = root / "mav0/state_groundtruth_estimate0/data.csv"
+    lines = p.read_text().splitlines()
+    rows = [ln.split(",") for ln in lines[1:]]
+    for r in rows:
+        r[4:8] = ["0.0"] * 4
+    p.write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
+
+
+def _singular_T_BS(root: Path) -> None:
+    p = root / "mav0/cam0/sensor.yaml"
+    text = p.read_text()
+    start = text.index("data: [") + len("data: [")
+    end = text.index("]", start)
+    p.write_text(text[:start] + ", ".join(["0.0"] * 15 + ["1.0"]) + text[end:])
+
+
+def _images(offset_ns: int, size: tuple[int, int] | None = None) -> Edit:
+    """Three stereo pairs of blank images, right stamps ``offset_ns`` after the left ones."""
+
+    def edit(root: Path) -> None:
+        t = np.array([1_000_000_000, 1_500_000_000, 2_000_000_000], np.int64)
+        for cam, dt in (("cam0", 0), ("cam1", offset_ns)):
+            d = root / "mav0" / cam
+            w, h = size or (752, 480)
+            for ti in t + dt:
+                write_grey(d / "data" / f"{ti}.png", np.zeros((h, w), np.uint8))
+            rows = "".join(f"{ti},{ti}.png\n" for ti in t + dt)
+            (d / "data.csv").write_text("#timestamp [ns],filename\n" + rows)
+
+    return edit
+
+
+def _same_images(root: Path) -> None:
+    _images(0)(root)
+
+
+# (name, edit of the data set, expected message fragment)
+DATA_CASES: list[tuple[str, Edit, str]] = [
+    ("imu header only", _header_only("imu0/data.csv"), "imu0/data.csv: 0 data row"),
+    ("gps header only", _header_only("gps0/data.csv"), "gps0/data.csv: 0 data row"),
+    ("zero quaternions", _zero_quaternions, "quaternion at timestamp"),
+    ("zero gravity", lambda r: _set_yaml(r / "mav0/body.yaml", "gravity_W", "[0.0, 0.0, 0.0]"),
+     "body.yaml: field 'gravity_W' has magnitude 0"),
+    ("negative focal", lambda r: _sub(r / "mav0/cam0/sensor.yaml", "intrinsics: [",
+                                      "intrinsics: [-"), "'intrinsics[0] (fu)' must be > 0"),
+    ("singular T_BS", _singular_T_BS, "cam0/sensor.yaml: field 'T_BS' rotation"),
+    ("gps std 0", lambda r: _set_yaml(r / "mav0/gps0/sensor.yaml", "position_noise_std", "0.0"),
+     "'position_noise_std' must be > 0"),
+    ("negative density", lambda r: _set_yaml(r / "mav0/imu0/sensor.yaml",
+                                             "gyroscope_noise_density", "-0.01"),
+     "'gyroscope_noise_density' must be > 0"),
+    ("zero baseline", lambda r: shutil.copy(r / "mav0/cam0/sensor.yaml",
+                                            r / "mav0/cam1/sensor.yaml"), "baseline of 0 m"),
+    ("stereo 50 ms apart", _images(50_000_000), "no left frame has a right frame within 10 ms"),
+    ("wrong image size", _images(0, (320, 240)), "image is 320x240 px but"),
+    ("invalid yaml", lambda r: (r / "mav0/mag0/sensor.yaml").write_text("a: [1, 2\n"),
+     "mag0/sensor.yaml: invalid YAML"),
+    ("nan in imu", lambda r: (r / "mav0/imu0/data.csv").write_text(
+        "#h\n1,0,0,0,0,0,nan\n2,0,0,0,0,0,9.8\n"), "imu0/data.csv:2: NaN or infinite"),
+    ("not a data set", lambda r: shutil.rmtree(r / "mav0"), "unrecognised data set"),
+]
+
+
+def _check(res: object, code: int, fragment: str) -> None:
+    out, err = res.stdout, res.stderr  # type: ignore[attr-defined]
+    assert res.exit_code == code, (res.exit_code, out[-500:], err[-500:])  # type: ignore[attr-defined]
+    assert "Traceback" not in out + err
+    assert "unexpected" not in err, err  # the bug path: every class here is anticipated
+    errors = [ln for ln in err.splitlines() if ln.startswith("error: ")]
+    others = [ln for ln in err.splitlines() if ln and not ln.startswith(("error: ", "WARNING"))]
+    assert len(errors) == 1 and not others, err
+    assert fragment in errors[0], errors[0]
+    assert "error" not in out.lower(), out
+
+
+def _copy(base: Path, tmp_path: Path, edit: Edit) -> Path:
+    root = tmp_path / "ds"
+    shutil.copytree(base, root)
+    edit(root)
+    return root
+
+
+@pytest.mark.parametrize(("name", "edit", "fragment"), DATA_CASES, ids=[c[0] for c in DATA_CASES])
+def test_bad_data_is_one_error_line_with_exit_1(
+    base: Path, tmp_path: Path, name: str, edit: Edit, fragment: str
+) -> None:
+    root = _copy(base, tmp_path, edit)
+    commands = [
+        ["info", str(root)],
+        ["run", str(root), "--out", str(tmp_path / "run"), "--init", "groundtruth"],
+        ["compare", str(root), "--out", str(tmp_path / "cmp"), "--methods", "ins",
+         "--no-figures"],
+        ["frontend", str(root), "--out", str(tmp_path / "fe")],
+    ]
+    for args in commands:
+        _check(runner.invoke(app, args), 1, fragment)
+    assert not (tmp_path / "run").exists() and not (tmp_path / "fe").exists()
+
+
+def test_stereo_pairs_a_millisecond_apart_are_paired(base: Path, tmp_path: Path) -> None:
+    from svains.datasets import load_dataset, stereo_pairs
+
+    ds = load_dataset(_copy(base, tmp_path, _images(1_000_000)))
+    assert stereo_pairs(ds)[0].size == 3
+
+
+USAGE_CASES: list[tuple[list[str], str]] = [
+    (["run", "{ds}", "--out", "{tmp}/o", "--set", "frame_stride=abc"], "frame_stride='abc'"),
+    (["run", "{ds}", "--out", "{tmp}/o", "--set", "nokeyvalue"], "expected key=value"),
+    (["run", "{ds}", "--out", "{tmp}/o", "--set", "pixel_sigma=1"], "unknown vision options"),
+    (["run", "{ds}", "--out", "{tmp}/o", "--duration", "nan"], "'--duration'"),
+    (["run", "{ds}", "--out", "{tmp}/o", "--duration", "0"], "'--duration'"),
+    (["run", "{ds}", "--out", "{tmp}/o", "--duration", "abc"], "'--duration'"),
+    (["run", "{ds}", "--out", "{tmp}/o", "--synthetic-features", "0"], "'--synthetic-features'"),
+    (["run", "{ds}", "--out", "{tmp}/o", "--method", "xyz"], "--method must be"),
+    (["run", "{ds}", "--out", "{tmp}/o", "--no-such-option"], "No such option"),
+    (["run", "{ds}", "--out", "{tmp}/afile"], "exists and is not a folder"),
+    (["run", "{ds}", "--out", "{tmp}/afile/sub"], "is not a folder"),
+    (["run", "{ds}", "--out", "{tmp}/full"], "is not empty; use --force"),
+    (["compare", "{ds}", "--out", "{tmp}/full"], "is not empty; use --force"),
+    (["compare", "{ds}", "--out", "{tmp}/o", "--duration", "-1"], "'--duration'"),
+    (["frontend", "{ds}", "--out", "{tmp}/full"], "is not empty; use --force"),
+    (["simulate", "--out", "{ds}", "--duration", "3", "--no-images"], "is not empty"),
+    (["simulate", "--out", "{tmp}/o", "--duration", "nan"], "'--duration'"),
+    (["demo", "--out", "{tmp}/o", "--duration", "0"], "'--duration'"),
+    (["demo", "--out", "{tmp}/full"], "is not empty; use --force"),
+    (["evaluate", "{tmp}/a.tum", "{tmp}/a.tum", "--align", "x"], "'--align'"),
+    (["evaluate", "{tmp}/a.tum", "{tmp}/a.tum", "--max-diff", "nan"], "'--max-diff'"),
+    (["evaluate", "{tmp}/a.tum", "{tmp}/a.tum", "--json", "{tmp}/afile"], "exists; use --force"),
+    (["info", "{ds}", "--json", "{tmp}/full"], "is a folder"),
+]
+
+
+@pytest.mark.parametrize(("args", "fragment"), USAGE_CASES,
+                         ids=[" ".join(a[:1] + a[3:]) for a, _ in USAGE_CASES])
+def test_bad_command_line_is_one_error_line_with_exit_2(
+    base: Path, tmp_path: Path, args: list[str], fragment: str
+) -> None:
+    (tmp_path / "afile").write_text("x\n")
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "keep.txt").write_text("mine\n")
+    argv = [a.format(ds=base, tmp=tmp_path) for a in args]
+    _check(runner.invoke(app, argv), 2, fragment)
+    assert (tmp_path / "full" / "keep.txt").read_text() == "mine\n"
+    assert not (tmp_path / "o").exists()
+
+
+def _tum(path: Path, q: str = "0 0 0 1", collinear: bool = True) -> Path:
+    rows = [f"{0.1 * i:.1f} {float(i)} {0.0 if collinear else np.sin(i)} 0 {q}" for i in range(20)]
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+BAD_INPUT_FILES: list[tuple[str, Callable[[Path], list[str]], str]] = [
+    ("evaluate se3 on collinear poses",
+     lambda d: ["evaluate", str(_tum(d / "a.tum")), str(_tum(d / "b.tum")), "--align", "se3"],
+     "se3 alignment is undetermined"),
+    ("evaluate zero quaternion",
+     lambda d: ["evaluate", str(_tum(d / "a.tum", "0 0 0 0")), str(_tum(d / "b.tum"))],
+     "quaternion norm 0"),
+    ("evaluate missing file",
+     lambda d: ["evaluate", str(d / "none.tum"), str(_tum(d / "b.tum"))], "missing file"),
+    ("simulate zero gravity config",
+     lambda d: ["simulate", "--out", str(d / "o"), "--config",
+                str(_write(d / "c.yaml", "gravity_W: [0, 0, 0]\n"))], "gravity_W must be"),
+    ("simulate negative noise config",
+     lambda d: ["simulate", "--out", str(d / "o"), "--config",
+                str(_write(d / "c.yaml", "gps:\n  position_noise_std: -1\n"))],
+     "gps.position_noise_std must be > 0"),
+    ("simulate a duration that cannot fit in memory",
+     lambda d: ["simulate", "--out", str(d / "o"), "--duration", "1e9"], "duration_s must be in"),
+    ("simulate config of the wrong type",
+     lambda d: ["simulate", "--out", str(d / "o"), "--config",
+                str(_write(d / "c.yaml", "duration_s: abc\n"))], "duration_s has an invalid"),
+    ("simulate config not a mapping",
+     lambda d: ["simulate", "--out", str(d / "o"), "--config",
+                str(_write(d / "c.yaml", "imu: 3\n"))], "'imu' must be a mapping"),
+    ("run --images without images",
+     lambda d: ["run", str(d / "ds"), "--out", str(d / "o"), "--method", "3d", "--images",
+                "--init", "groundtruth"], "image-based vision needs at least 2"),
+    ("frontend without images",
+     lambda d: ["frontend", str(d / "ds"), "--out", str(d / "o")], "0 stereo pair(s)"),
+    ("run a missing data set",
+     lambda d: ["run", str(d / "nothing"), "--out", str(d / "o")], "data set folder not found"),
+]
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize(("name", "make", "fragment"), BAD_INPUT_FILES,
+                         ids=[c[0] for c in BAD_INPUT_FILES])
+def test_bad_input_files_are_one_error_line_with_exit_1(
+    base: Path, tmp_path: Path, name: str, make: Callable[[Path], list[str]], fragment: str
+) -> None:
+    shutil.copytree(base, tmp_path / "ds")
+    _check(runner.invoke(app, make(tmp_path)), 1, fragment)
+    assert not (tmp_path / "o").exists()
+
+
+def test_error_text_keeps_square_brackets_and_stays_on_one_line(
+    base: Path, tmp_path: Path
+) -> None:
+    root = _copy(base, tmp_path, lambda r: _sub(r / "mav0/cam1/sensor.yaml", "intrinsics",
+                                                "intrinsic_values"))
+    res = runner.invoke(app, ["run", str(root), "--out", str(tmp_path / "o")])
+    _check(res, 1, "without 'intrinsics' [fu, fv, cu, cv]")
+
+
+def test_installed_entry_point_reports_the_same_way(tmp_path: Path) -> None:
+    # The real process: stderr only, one line, exit 1; stdout stays clean for pipes.
+    import subprocess
+    import sys
+
+    exe = Path(sys.executable).with_name("svains")
+    if not exe.is_file():
+        pytest.skip("svains entry point not installed next to this python")
+    proc = subprocess.run([str(exe), "info", str(tmp_path / "missing")], capture_output=True,
+                          text=True, timeout=120, check=False)  # fmt: skip
+    assert proc.returncode == 1 and proc.stdout == ""
+    assert proc.stderr.splitlines() == [f"error: data set folder not found: {tmp_path}/missing"]

@@ -1,0 +1,77 @@
+"""``ConsistencyMonitor``: rejections across sensors ask for inflation, then a reset."""
+
+from __future__ import annotations
+
+import pytest
+
+from svains.navigation.consistency import ConsistencyMonitor, ConsistencyOptions
+
+S = 1_000_000_000  # ns per second
+
+
+def _feed(m: ConsistencyMonitor, sensor: str, outcomes: str, t0_s: float, dt_s: float) -> int:
+    """``outcomes`` 'a' accepted / 'r' rejected, one per update; returns the last time (ns)."""
+    t = int(t0_s * S)
+    for k, c in enumerate(outcomes):
+        t = int((t0_s + k * dt_s) * S)
+        m.observe(sensor, c == "a", 1.0 if c == "a" else 400.0, 3, t)
+    return t
+
+
+def test_occasional_rejections_ask_for_nothing() -> None:
+    m = ConsistencyMonitor()
+    t = _feed(m, "gps", "aararraaraa", 0.0, 1.0)
+    t = max(t, _feed(m, "mag", "araarraaaar", 0.0, 0.1))
+    assert m.rejecting(t) == ()
+    assert m.should_recover(t, position_std_m=0.5) is None
+    assert m.inflations == 0 and m.resets == 0
+
+
+def test_two_sensors_rejected_together_inflate_then_reset() -> None:
+    m = ConsistencyMonitor()
+    _feed(m, "mag", "aaarrr", 0.0, 0.1)
+    t = _feed(m, "sonar", "aarrr", 0.1, 0.1)
+    assert m.rejecting(t) == ("mag", "sonar")
+    first = m.should_recover(t, position_std_m=0.3)
+    assert first is not None and first.kind == "inflate"
+    assert first.inflate_factor == ConsistencyOptions().inflate_factor
+    assert first.sensors == ("mag", "sonar")
+    assert m.should_recover(t, 0.3) is None  # the evidence was used up
+    # still rejected soon after the inflation: the filter is lost, reset from GPS
+    _feed(m, "mag", "rrr", 1.0, 0.1)
+    t = _feed(m, "sonar", "rrr", 1.0, 0.1)
+    second = m.should_recover(t, 0.3)
+    assert second is not None and second.kind == "reset"
+    assert m.summary()["inflations"] == 1 and m.summary()["resets"] == 1
+
+
+def test_gps_alone_is_enough_and_fixes_return_within_five_seconds() -> None:
+    # 1 Hz GPS after a fault: three rejected fixes (t = 1, 2, 3 s) trigger the inflation, so
+    # the fix at 4 s can be accepted: within the issue's 5 s.
+    m = ConsistencyMonitor()
+    t = _feed(m, "gps", "arrr", 0.0, 1.0)
+    action = m.should_recover(t, position_std_m=0.4)
+    assert action is not None and action.kind == "inflate" and t == 3 * S
+
+
+def test_a_single_non_anchor_sensor_or_a_large_covariance_is_not_lost() -> None:
+    m = ConsistencyMonitor()
+    t = _feed(m, "mag", "rrrrrr", 0.0, 0.1)
+    assert m.should_recover(t, 0.3) is None  # one relative sensor may simply be disturbed
+    t = _feed(m, "gps", "rrr", 1.0, 1.0)
+    assert m.should_recover(t, position_std_m=50.0) is None  # the gate widens by itself
+
+
+def test_stale_rejections_do_not_count() -> None:
+    m = ConsistencyMonitor()
+    _feed(m, "gps", "rrr", 0.0, 1.0)
+    assert m.rejecting(20 * S) == ()
+    assert m.should_recover(20 * S, 0.3) is None
+
+
+def test_windowed_nis_per_dof() -> None:
+    m = ConsistencyMonitor(ConsistencyOptions(window=4))
+    for k, nis in enumerate([30.0, 3.0, 3.0, 6.0, 3.0]):
+        m.observe("gps", True, nis, 3, k * S)
+    assert m.nis_mean("gps") == pytest.approx((1.0 + 1.0 + 2.0 + 1.0) / 4)
+    assert m.nis_mean("mag") is None

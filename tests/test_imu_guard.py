@@ -1,0 +1,157 @@
+"""``ImuGuard``: each IMU fault class is caught, clean and real IMU streams pass untouched."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from svains.datasets.asl_reader import read_imu
+from svains.navigation.imu_guard import ImuGuard, ImuGuardOptions, gap_covariance
+from svains.sim.config import PAPER_ACCEL_STD, PAPER_GYRO_STD
+
+DATA = Path(__file__).resolve().parents[1] / "../shared/data"
+RATE_HZ = 100.0
+
+
+def _clean(seconds: float = 30.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A level IMU with the paper's (large) per-sample noise and a gentle manoeuvre."""
+    rng = np.random.default_rng(seed)
+    t_ns = np.arange(int(seconds * RATE_HZ), dtype=np.int64) * 10_000_000
+    s = t_ns * 1e-9
+    gyro = 0.3 * np.sin(0.5 * s)[:, None] * np.array([0.0, 0.0, 1.0])
+    accel = np.array([0.0, 0.0, 9.81]) + 2.0 * np.sin(0.3 * s)[:, None] * np.array([1, 0, 0])
+    gyro = gyro + PAPER_GYRO_STD * rng.standard_normal(gyro.shape)
+    accel = accel + PAPER_ACCEL_STD * rng.standard_normal(accel.shape)
+    return t_ns, gyro, accel
+
+
+def _guard(**kw: float) -> ImuGuard:
+    sq = math.sqrt(RATE_HZ)  # per-sample std -> density
+    return ImuGuard(PAPER_GYRO_STD / sq, PAPER_ACCEL_STD / sq, RATE_HZ, **kw)  # type: ignore[arg-type]
+
+
+def _run(guard: ImuGuard, t: np.ndarray, g: np.ndarray, a: np.ndarray) -> list:
+    return [guard.check(int(ti), gi, ai) for ti, gi, ai in zip(t, g, a, strict=True)]
+
+
+def test_clean_stream_is_accepted_whole() -> None:
+    t, g, a = _clean()
+    guard = _guard()
+    assert all(v.kind == "accept" for v in _run(guard, t, g, a))
+    s = guard.summary()
+    assert s["accepted"] == t.size and s["gaps"] == 0 and sum(s["dropped"].values()) == 0
+    assert s["median_spacing_s"] == pytest.approx(0.01)
+
+
+@pytest.mark.parametrize(
+    ("fault", "reason", "n_bad"),
+    [
+        ("accel 1000 m/s² once", "saturated", 1),
+        ("16 g on 3 samples", "saturated", 3),
+        ("35 rad/s gyro spike", "saturated", 1),
+        ("NaN", "nonfinite", 1),
+        ("1 s of zeros", "zeros", 100),
+    ],
+)
+def test_each_fault_sample_is_dropped_and_only_those(fault: str, reason: str, n_bad: int) -> None:
+    t, g, a = _clean()
+    k = 1000
+    bad = slice(k, k + n_bad)
+    if fault.startswith("accel"):
+        a[k] = [1000.0, 0.0, 0.0]
+    elif fault.startswith("16 g"):
+        a[bad, 2] = 16 * 9.80665
+    elif fault.startswith("35"):
+        g[k, 0] = 35.0
+    elif fault == "NaN":
+        a[k, 1] = np.nan
+    else:
+        g[bad], a[bad] = 0.0, 0.0
+    guard = _guard()
+    verdicts = _run(guard, t, g, a)
+    dropped = [i for i, v in enumerate(verdicts) if not v.accepted]
+    assert dropped == list(range(k, k + n_bad))
+    assert {verdicts[i].reason for i in dropped} == {reason}
+    after = verdicts[k + n_bad]
+    if fault == "1 s of zeros":
+        # the integrator bridged 1 s: reported as a gap, so the core can add its noise
+        assert after.kind == "gap" and after.gap_s == pytest.approx(1.01)
+    else:
+        assert after.kind == "accept"
+
+
+def test_a_spike_below_full_scale_is_caught_by_the_jump() -> None:
+    t, g, a = _clean()
+    g[500, 2] += 12.0  # within a 50 rad/s full scale, far beyond any physical jump in 10 ms
+    a[900, 0] += 120.0  # within a 200 m/s² full scale
+    guard = _guard(gyro_range=50.0, accel_range=200.0)
+    verdicts = _run(guard, t, g, a)
+    dropped = {i: v.reason for i, v in enumerate(verdicts) if not v.accepted}
+    assert dropped == {500: "spike", 900: "spike"}
+
+
+def test_a_lasting_step_is_accepted_after_a_few_drops() -> None:
+    t, g, a = _clean(5.0)
+    a[200:, 2] += 80.0  # the vehicle lands hard and stays under a new load
+    n = ImuGuardOptions().max_consecutive_drops
+    # The motion allowance grows with the time since the last accepted sample...
+    verdicts = _run(_guard(), t, g, a)
+    assert not verdicts[200].accepted and all(v.accepted for v in verdicts[200 + n :])
+    # ...and without it, re-anchoring takes the new level after n drops.
+    guard = ImuGuard(PAPER_GYRO_STD / 10, PAPER_ACCEL_STD / 10, RATE_HZ,
+                     options=ImuGuardOptions(jerk_bound=0.0))  # fmt: skip
+    verdicts = _run(guard, t, g, a)
+    assert [v.accepted for v in verdicts[200 : 200 + n + 1]] == [False] * n + [True]
+    assert all(v.accepted for v in verdicts[200 + n :])
+    assert guard.summary()["reanchored"] == 1
+
+
+def test_gap_is_measured_against_the_observed_spacing() -> None:
+    t, g, a = _clean()
+    keep = (t < 10_000_000_000) | (t >= 15_000_000_000)  # 5 s without samples
+    guard = _guard()
+    verdicts = _run(guard, t[keep], g[keep], a[keep])
+    gaps = [v for v in verdicts if v.kind == "gap"]
+    assert len(gaps) == 1 and gaps[0].gap_s == pytest.approx(5.01)
+    s = guard.summary()
+    assert s["gaps"] == 1 and s["longest_gap_s"] == pytest.approx(5.01)
+
+
+def test_irregular_spacing_like_kitti_raw_is_not_a_gap() -> None:
+    # KITTI raw's OXTS: nominally 100 Hz, median spacing 40 ms, single spacings up to 250 ms.
+    rng = np.random.default_rng(3)
+    dt_ms = rng.choice([10, 30, 40, 40, 40, 50, 80], size=900)
+    dt_ms[::97] = 250
+    t = np.cumsum(dt_ms).astype(np.int64) * 1_000_000
+    g = 0.01 * rng.standard_normal((t.size, 3))
+    a = np.array([0.0, 0.0, 9.81]) + 0.05 * rng.standard_normal((t.size, 3))
+    guard = ImuGuard(1.7e-3, 0.03, nominal_rate_hz=100.0)
+    assert all(v.kind == "accept" for v in _run(guard, t, g, a))
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("name", ["euroc_v101_micro", "kitti_raw_0926_41s"])
+def test_real_imu_streams_pass_untouched(name: str) -> None:
+    folder = DATA / name / "mav0/imu0"
+    if not folder.is_dir():
+        pytest.skip("no ../shared/data")
+    imu, calib = read_imu(folder)
+    guard = ImuGuard.from_calib(calib)
+    verdicts = _run(guard, imu.t_ns, imu.gyro_B, imu.accel_B)
+    assert all(v.kind == "accept" for v in verdicts), guard.summary()
+
+
+def test_gap_covariance_matches_a_held_sample_error_integrated() -> None:
+    # Monte Carlo: a constant specific-force and rate error held over the gap, integrated.
+    rng = np.random.default_rng(7)
+    T, sa, sw, n = 5.0, 0.8, 0.05, 20000
+    da = sa * rng.standard_normal((n, 3))
+    dw = sw * rng.standard_normal((n, 3))
+    e = np.hstack([da * T**2 / 2, da * T, dw * T])
+    Q = gap_covariance(T, sa, sw)
+    # rtol: 5 % on the variances; atol: 5 sampling std of a covariance estimate from n draws
+    np.testing.assert_allclose(np.cov(e.T), Q, rtol=0.05, atol=5 * Q.max() / np.sqrt(n))
+    assert np.all(np.linalg.eigvalsh(Q) >= -1e-12)
