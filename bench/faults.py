@@ -36,8 +36,8 @@ from svains.datasets.types import Dataset, ImuStream
 from svains.evaluation.run import run_method
 from svains.navigation.imu_guard import ImuGuard
 from svains.navigation.options import InitOptions, RunOptions
-from svains.navigation.report import nees_series
-from svains.navigation.runner import RunResult
+from svains.navigation.outputs import RunResult
+from svains.replay.groundtruth import nees_series
 from svains.sim import SimConfig, simulate
 
 G0 = 9.80665

@@ -158,9 +158,11 @@ def test_stereo_pairs_a_millisecond_apart_are_paired(base: Path, tmp_path: Path)
 
 
 USAGE_CASES: list[tuple[list[str], str]] = [
-    (["run", "{ds}", "--out", "{tmp}/o", "--set", "frame_stride=abc"], "frame_stride='abc'"),
-    (["run", "{ds}", "--out", "{tmp}/o", "--set", "nokeyvalue"], "expected key=value"),
-    (["run", "{ds}", "--out", "{tmp}/o", "--set", "pixel_sigma=1"], "unknown vision options"),
+    (["run", "{ds}", "--out", "{tmp}/o", "--set", "frame_stride=abc"],
+     "vision.frame_stride must be an integer, got 'abc'"),
+    (["run", "{ds}", "--out", "{tmp}/o", "--set", "nokeyvalue"], "expected section.key=value"),
+    (["run", "{ds}", "--out", "{tmp}/o", "--set", "pixel_sigma=1"],
+     "unknown configuration key 'pixel_sigma'"),
     (["run", "{ds}", "--out", "{tmp}/o", "--duration", "nan"], "'--duration'"),
     (["run", "{ds}", "--out", "{tmp}/o", "--duration", "0"], "'--duration'"),
     (["run", "{ds}", "--out", "{tmp}/o", "--duration", "abc"], "'--duration'"),

@@ -127,7 +127,8 @@ def test_run_refuses_a_non_empty_out_and_force_keeps_other_files(
     res = runner.invoke(app, [*args, "--force"])
     assert res.exit_code == 0, res.stderr
     assert sorted(p.name for p in out.iterdir()) == [
-        "notes.txt", "report.json", "states.csv", "trajectory.tum",
+        "config.yaml", "notes.txt", "pose_covariance.csv", "report.json", "states.csv",
+        "trajectory.tum", "trajectory_euroc.csv",
     ]  # fmt: skip
     assert (out / "notes.txt").read_text() == "mine\n"
 
@@ -135,13 +136,13 @@ def test_run_refuses_a_non_empty_out_and_force_keeps_other_files(
 def test_interrupted_run_leaves_no_report(
     dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import svains.navigation.writers as writers
+    import svains.replay.writers as writers
 
     def boom(*args: object, **kwargs: object) -> None:
         raise KeyboardInterrupt
 
     # Interrupted while computing: the output folder is not even created.
-    monkeypatch.setattr("svains.evaluation.run.runner.run_method", boom)
+    monkeypatch.setattr("svains.evaluation.run.replay", boom)
     out = tmp_path / "run"
     res = runner.invoke(app, ["run", str(dataset), "--out", str(out), "--init", "groundtruth"])
     assert res.exit_code == 130 and not out.exists()
@@ -155,4 +156,6 @@ def test_interrupted_run_leaves_no_report(
     res = runner.invoke(app, ["run", str(dataset), "--out", str(out), "--init", "groundtruth",
                               "--duration", "1", "--force"])  # fmt: skip
     assert res.exit_code == 130
-    assert sorted(p.name for p in out.iterdir()) == ["states.csv", "trajectory.tum"]
+    assert sorted(p.name for p in out.iterdir()) == [  # the previous run's config.yaml stays
+        "config.yaml", "pose_covariance.csv", "states.csv", "trajectory.tum",
+        "trajectory_euroc.csv"]

@@ -114,8 +114,6 @@ def run(
             ds = with_synthetic_features(ds, rate_hz=hz)
             console.print(f"simulated features0 at {hz:g} Hz along the ground truth")
         config = resolve_config(ds, config)
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "config.yaml").write_text(effective_config_text(config, dataset), encoding="utf-8")
         label = f"{config.method} ({config.model})"
         with Progress(
             TextColumn(label), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
@@ -123,7 +121,8 @@ def run(
         ) as bar:  # fmt: skip
             task = bar.add_task("run", total=1.0)
             result = run_method(
-                ds, None, config, out_dir=out, progress=lambda f: bar.update(task, completed=f)
+                ds, None, config, out_dir=out, progress=lambda f: bar.update(task, completed=f),
+                config_text=effective_config_text(config, dataset),
             )
     except SvainsError as exc:
         fail(exc)

@@ -64,12 +64,13 @@ def run_method(
     options: RunConfig | None = None,
     out_dir: Path | None = None,
     progress: Callable[[float], None] | None = None,
+    config_text: str | None = None,
 ) -> RunResult:
     """Replay ``dataset`` through the estimator with ``options`` (a ``RunConfig``; ``method``,
     when given, replaces ``options.method``), add the accuracy keys to the report; write
     ``trajectory.tum``, ``states.csv`` and ``report.json`` (and the other output files) into
-    ``out_dir`` if given. The configuration is first resolved against the data set
-    (``svains.replay.resolve_config``)."""
+    ``out_dir`` if given, with ``config_text`` as ``config.yaml`` when given. The configuration
+    is first resolved against the data set (``svains.replay.resolve_config``)."""
     config = options or RunConfig()
     if method is not None and method != config.method:
         config = replace(config, method=method)  # type: ignore[arg-type]
@@ -77,5 +78,5 @@ def run_method(
     result = replay(dataset, config, progress)
     result.report.update(run_accuracy(result, dataset))
     if out_dir is not None:
-        write_outputs(Path(out_dir), result)
+        write_outputs(Path(out_dir), result, config_text=config_text)
     return result

@@ -38,7 +38,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from svains.datasets.types import ImuCalib
+from svains.sensors.types import ImuCalib
 
 Vec3 = tuple[float, ...]
 G0 = 9.80665  # m/s², standard gravity (full scales are quoted in g)

@@ -48,9 +48,11 @@ def _json_default(o: object) -> object:
     return o.tolist() if hasattr(o, "tolist") else str(o)
 
 
-def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None = None) -> None:
-    """Write the three files into ``out_dir`` (created if needed); ``layout`` defaults to the one
-    whose state size matches ``result.x``."""
+def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None = None,
+                  config_text: str | None = None) -> None:
+    """Write the output files into ``out_dir`` (created if needed), ``config.yaml`` from
+    ``config_text`` when given, ``report.json`` last; ``layout`` defaults to the one whose state
+    size matches ``result.x``."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     if layout is None:
@@ -72,6 +74,8 @@ def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None =
         fh.write(header + "\n")
         for t, xs, ss in zip(result.t_ns, x, result.std, strict=True):
             fh.write(f"{int(t)}," + ",".join(f"{v:.9g}" for v in np.concatenate([xs, ss])) + "\n")
+    if config_text is not None:
+        atomic_write_text(out_dir / "config.yaml", config_text)
     atomic_write_text(
         out_dir / "report.json", json.dumps(result.report, indent=2, default=_json_default) + "\n"
     )
