@@ -84,7 +84,7 @@ def test_format_override_and_bad_files(files: dict[str, Path], tmp_path: Path) -
     )
     assert res.exit_code == 1 and "KITTI poses need 12 finite numbers per line" in res.output
     res = runner.invoke(app, ["evaluate", str(files["tum"]), str(files["ref"]), "--format", "x"])
-    assert res.exit_code == 2 and "--format must be one of tum, euroc, kitti, bag" in res.output
+    assert res.exit_code == 2 and "'--format': must be one of tum, euroc, kitti, bag" in res.output
     res = runner.invoke(
         app, ["evaluate", str(files["bag"]), str(files["ref"]), "--est-topic", "/x"]
     )
