@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -61,3 +63,42 @@ def test_bad_environment_value_is_named(monkeypatch: pytest.MonkeyPatch, raw: st
 def test_negative_limit_is_refused() -> None:
     with pytest.raises(ConfigError, match="thread limit must be >= 0, got -2"), limit_threads(-2):
         pass
+
+
+def test_cli_applies_the_limit_for_the_command(
+    monkeypatch: pytest.MonkeyPatch, euroc_micro: Path
+) -> None:
+    """``svains --threads N`` and ``SVAINS_THREADS`` reach ``limit_threads``, entered for the
+    command's duration; a negative value is refused by the option's range."""
+    from contextlib import contextmanager
+
+    from typer.testing import CliRunner
+
+    import svains.cli.main as cli_main
+
+    seen: list[tuple[str, int | None]] = []
+
+    @contextmanager
+    def fake(n: int | None = 1) -> Iterator[None]:
+        seen.append(("enter", n))
+        yield
+        seen.append(("exit", n))
+
+    monkeypatch.setattr(cli_main, "limit_threads", fake)
+    runner = CliRunner()
+    res = runner.invoke(cli_main.app, ["--threads", "3", "info", str(euroc_micro)])
+    assert res.exit_code == 0, res.output
+    assert seen == [("enter", 3), ("exit", 3)]
+    seen.clear()
+    res = runner.invoke(cli_main.app, ["info", str(euroc_micro)], env={ENV_VAR: "2"})
+    assert res.exit_code == 0, res.output
+    assert seen == [("enter", 2), ("exit", 2)]
+    seen.clear()
+    res = runner.invoke(cli_main.app, ["info", str(euroc_micro)], env={ENV_VAR: ""})
+    assert seen[0] == ("enter", 1)
+    res = runner.invoke(
+        cli_main.app, ["--threads", "-1", "info", str(euroc_micro)], env={"COLUMNS": "200"}
+    )
+    assert res.exit_code != 0
+    assert "Invalid value for '--threads'" in res.output
+    assert "greater than or equal to 0" in res.output

@@ -1,7 +1,8 @@
 """Read the ASL/EuRoC layout, extended with gps0/mag0/sonar0/features0 (``docs/formats.md``).
 
-Every stream is optional. CSVs are parsed eagerly (they are small); images are only listed and
-checked for existence here, decoded later by ``ImageStream.load``.
+Every stream is optional. CSVs are parsed eagerly (they are small) except ``features0``, parsed
+on first access of ``Dataset.features``; images are only listed and checked for existence here,
+decoded later by ``ImageStream.load``.
 """
 
 from __future__ import annotations
@@ -277,7 +278,9 @@ def read_asl(path: Path) -> Dataset:
     if (mav0 / "sonar0").is_dir():
         ds.sonar, ds.sonar_calib = read_sonar(mav0 / "sonar0")
     if (mav0 / "features0").is_dir():
-        ds.features = read_features(mav0 / "features0")
+        # Parsed on first access: a run from images never needs it (seconds for a long set).
+        folder = mav0 / "features0"
+        ds.defer("features", lambda: read_features(folder))
     ds.missing_images = missing
     if missing:
         # One warning for the whole data set: the frames are skipped, the count is kept.
