@@ -233,7 +233,7 @@ class Dataset:
     extras: dict[str, object] = field(default_factory=dict)
 
     def defer(self, name: str, read: Callable[[], object]) -> None:
-        """Let stream ``name`` (a ``LazyStream`` attribute) be read by ``read()`` on first access."""
+        """Let stream ``name`` (a ``LazyStream`` attribute) be read by ``read()`` on first use."""
         if not isinstance(type(self).__dict__.get(name), LazyStream):
             raise ValueError(f"stream '{name}' cannot be deferred")
         setattr(self, name, _Deferred(read))
