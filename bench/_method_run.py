@@ -31,7 +31,7 @@ def _stages(src: object, wall_s: float) -> dict[str, float]:
     fe = np.asarray(src.frontend_ms)  # type: ignore[attr-defined]
     n = max(fe.size, 1)
     out = {"png_wait": float(load.mean()), "frontend": float(fe.mean())}
-    for key in ("track", "detect", "stereo", "ransac"):
+    for key in ("rectify", "track", "detect", "stereo", "ransac"):
         out[f"  {key}"] = float(np.mean([d.get(key, 0.0) for d in src.stage_ms]))  # type: ignore[attr-defined]
     out["filter+rest"] = wall_s * 1e3 / n - out["png_wait"] - out["frontend"]
     out["total"] = wall_s * 1e3 / n
