@@ -111,6 +111,15 @@ def test_duplicate_feature_observation(ds_dir: Path) -> None:
         _ = ds.features
 
 
+def test_data_set_with_deferred_features_pickles(ds_dir: Path) -> None:
+    import pickle
+
+    ds = load_dataset(ds_dir)
+    back = pickle.loads(pickle.dumps(ds))  # the deferred reader travels, unread
+    assert back.has_stream("features")
+    np.testing.assert_array_equal(back.features.uv_left, ds.features.uv_left)
+
+
 def test_features_are_read_on_first_access_only(
     ds_dir: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

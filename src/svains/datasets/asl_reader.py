@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import os
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -279,8 +280,8 @@ def read_asl(path: Path) -> Dataset:
         ds.sonar, ds.sonar_calib = read_sonar(mav0 / "sonar0")
     if (mav0 / "features0").is_dir():
         # Parsed on first access: a run from images never needs it (seconds for a long set).
-        folder = mav0 / "features0"
-        ds.defer("features", lambda: read_features(folder))
+        # A partial, not a lambda: the data set stays picklable.
+        ds.defer("features", partial(read_features, mav0 / "features0"))
     ds.missing_images = missing
     if missing:
         # One warning for the whole data set: the frames are skipped, the count is kept.
