@@ -40,7 +40,7 @@ def _root(
     threads: int = typer.Option(
         DEFAULT_THREADS, "--threads", envvar=ENV_VAR, min=0,
         help="Threads per numerical library (BLAS, OpenMP, OpenCV); 0 keeps their defaults. "
-        "One is fastest for this work's small matrices and scales best on a shared machine.",
+        "The filter's matrices are small, and more threads oversubscribe a shared machine.",
     ),
 ) -> None:
     logging.basicConfig(
