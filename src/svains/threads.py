@@ -2,10 +2,11 @@
 
 Why: the filter's matrices are small (25-37 sigma points, a few hundred measurements) and the
 front end works on one 752x480 pair at a time. OpenBLAS's threads cost more in wake-ups than
-they save on such sizes, and on a loaded machine they oversubscribe the cores: with the default
-two threads a 20 s `3d` run from images went from 2.5x real time (one thread) to 1.8x, and to
-0.6-0.9x beside one other process (issue 11). One process per core scales better than threads
-inside one process.
+they save on such sizes, and on a loaded machine they oversubscribe the cores (issue 11: a 20 s
+`3d` run from images, 2.5x real time with one BLAS thread, 1.8x with the default two). Measured
+on a loaded 2-core machine, three interleaved pairs: one thread per library took 10-13 % less
+wall time than the libraries' defaults, the filter side 23-28 % less. One process per core
+scales better than threads inside one process.
 
 ``SVAINS_THREADS`` (environment) or ``svains --threads N`` changes the limit: a positive N
 allows N threads per library; 0 leaves every library at its own default. The command line
