@@ -5,7 +5,7 @@ front end works on one 752x480 pair at a time. OpenBLAS's threads cost more in w
 they save on such sizes, and on a loaded machine they oversubscribe the cores (issue 11: a 20 s
 `3d` run from images, 2.5x real time with one BLAS thread, 1.8x with the default two). Measured
 on a loaded 2-core machine, three interleaved pairs: one thread per library took 10-13 % less
-wall time than the libraries' defaults, the filter side 23-28 % less. One process per core
+wall time than the libraries' defaults, the filter side 23-24 % less. One process per core
 scales better than threads inside one process.
 
 ``SVAINS_THREADS`` (environment) or ``svains --threads N`` changes the limit: a positive N
