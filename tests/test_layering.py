@@ -18,7 +18,7 @@ LAYERS: dict[str, int] = {
     "navigation": 5, "evaluation": 6, "cli": 7,
 }  # fmt: skip
 # Top-level modules every layer may use.
-SHARED = {"errors", "outputs"}
+SHARED = {"errors", "outputs", "threads"}
 
 # (importing module or package, imported svains module) -> why it is allowed. Keep it short.
 LAYER_EXCEPTIONS: dict[tuple[str, str], str] = {

@@ -206,8 +206,10 @@ def tune_run_options(ds: Dataset, method: str, options: Any) -> Any:
         return options
     if cal is None:
         return options
-    if ds.features is not None and vopts.source in ("auto", "features"):
-        times = ds.features.frame_times()
+    # The source test first: a run from images never parses features0.
+    feats = ds.features if vopts.source in ("auto", "features") else None
+    if feats is not None:
+        times = feats.frame_times()
     elif ds.left is not None:
         times = np.asarray(ds.left.t_ns, np.int64)
     else:

@@ -181,6 +181,6 @@ def make_source(
     """``features`` (recorded tracks), ``images`` (front end) or ``auto`` (features if present)."""
     if source not in ("auto", "features", "images"):
         raise ConfigError(f"vision source must be auto, features or images, got {source!r}")
-    if source == "features" or (source == "auto" and ds.features is not None):
+    if source == "features" or (source == "auto" and ds.has_stream("features")):
         return FeatureTrackSource(ds, rig_from_dataset(ds), track_options, frame_stride)
     return ImageTrackSource(ds, frame_stride)
