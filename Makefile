@@ -22,9 +22,11 @@ $(TESTSTAMP): pyproject.toml | $(BIN)/python
 demo: $(STAMP)
 	$(BIN)/svains demo --out demo_out --force
 
+# Two pytest-xdist workers (the machine's 2 cores); each test module stays on one worker
+# (--dist loadscope), so a module's data-set fixture is built once.
 test: $(TESTSTAMP)
 	$(BIN)/ruff check src tests bench
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadscope
 
 bench: $(TESTSTAMP)
 	$(BIN)/python bench/run_all.py

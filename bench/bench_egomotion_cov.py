@@ -50,4 +50,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from svains.threads import limit_threads
+
+    with limit_threads(None):  # SVAINS_THREADS, default one thread per library
+        main()

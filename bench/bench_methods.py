@@ -1,18 +1,26 @@
-"""Benchmark of the vision methods (issue 6).
+"""Benchmark of the navigation methods as users run them (issues 6 and 11).
 
 1. Cost of one vision observation model evaluation (all sigma points x all features): 3d, tc, lc.
-2. Real-time factor and per-stage profile of ``3d`` from images on a simulated 20 Hz 752x480
-   village flight, best of ``--repeat N`` runs (default 2); ``--profile`` adds a cProfile list;
-   accuracy with the other setting of the IMU motion prior; the filter side alone on the
-   recorded tracks.
+2. Real-time factor of every method (``3d`` first, then ins, vo, lc, tc; the vision methods
+   from images) on a simulated 20 Hz 752x480 village flight of ``--duration`` s: each run is a
+   fresh process (imports, numba cache and front-end set-up included, as for a user), first
+   alone, best of ``--repeat``, then as two identical processes started together (the second
+   one launched by this script), with the per-stage profile of the image source and the load
+   average before each run. Threads per numerical library follow ``SVAINS_THREADS`` (default 1,
+   ``svains.threads``); ``--threads N`` sets it for the runs.
+3. With ``--extras``: ``3d`` with the other setting of the IMU motion prior (accuracy) and its
+   filter side alone on the recorded tracks (CPU time). ``--profile`` adds a cProfile listing
+   (main thread CPU) of one ``3d`` run.
 
-Plain script: prints its figures; timings depend on the machine's load.
+Plain script: prints its figures; timings depend on the machine's load, printed beside them.
 """
 
 from __future__ import annotations
 
-import cProfile
-import pstats
+import argparse
+import json
+import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -22,10 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from _vision_truth import make_rig, sigma_cloud, two_frames
-from svains.models.vision_3d import predict_pixels_3d
-from svains.models.vision_lc import predict_egomotion_lc
-from svains.models.vision_tc import predict_pixels_tc
+METHODS = ("3d", "ins", "vo", "lc", "tc")
 
 
 def _best_of(fn, repeat: int = 7, number: int = 20) -> float:
@@ -39,6 +44,11 @@ def _best_of(fn, repeat: int = 7, number: int = 20) -> float:
 
 
 def bench_models() -> None:
+    from _vision_truth import make_rig, sigma_cloud, two_frames
+    from svains.models.vision_3d import predict_pixels_3d
+    from svains.models.vision_lc import predict_egomotion_lc
+    from svains.models.vision_tc import predict_pixels_tc
+
     rig = make_rig()
     print("vision model evaluation, S sigma points x M features (best of 7, ms per call)")
     print(f"{'S':>4} {'M':>5} {'3d':>8} {'tc':>8} {'lc':>8}")
@@ -53,162 +63,128 @@ def bench_models() -> None:
         print(f"{s:>4} {m:>5} {t3 * 1e3:8.3f} {ttc * 1e3:8.3f} {tlc * 1e3:8.3f}")
 
 
-def _stage_profile(src: object, n_frames: int, wall_s: float) -> dict[str, float]:
-    """Mean ms per frame: front-end stages, and the rest (image decoding in the replay, IMU
-    propagation, vision update, other sensors) from the wall time of the run."""
-    fe = np.asarray(src.frontend_ms)  # type: ignore[attr-defined]
-    out = {"frontend": float(fe.mean())}
-    stages = src.stage_ms  # type: ignore[attr-defined]
-    for key in ("track", "detect", "stereo", "ransac"):
-        out[f"  {key}"] = float(np.mean([d.get(key, 0.0) for d in stages]))
-    out["filter+rest"] = wall_s * 1e3 / n_frames - out["frontend"]
-    out["total"] = wall_s * 1e3 / n_frames
+def simulate_20hz(out: Path, duration_s: float) -> Path:
+    """The bench data set: the village flight, stereo rendered at 20 Hz, 752x480."""
+    from dataclasses import replace
+
+    from svains.sim import SimConfig, simulate
+
+    cfg = SimConfig()
+    cfg = replace(cfg, duration_s=duration_s, camera=replace(cfg.camera, rate_hz=20.0))
+    return simulate(cfg, out)
+
+
+def _launch(data: Path, method: str, flags: list[str], env: dict[str, str]) -> subprocess.Popen:
+    cmd = [sys.executable, str(Path(__file__).with_name("_method_run.py")), str(data), method]
+    return subprocess.Popen([*cmd, *flags], stdout=subprocess.PIPE, env=env, text=True)
+
+
+def _result(proc: subprocess.Popen) -> dict:
+    out, _ = proc.communicate()
+    if proc.returncode != 0:
+        raise RuntimeError(f"benchmark run failed with exit code {proc.returncode}")
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def timed_runs(data: Path, method: str, n_parallel: int, repeat: int, env: dict[str, str],
+               flags: list[str] | None = None) -> list[list[dict]]:
+    """``repeat`` rounds of ``n_parallel`` identical runs started together."""
+    rounds = []
+    for _ in range(repeat):
+        with tempfile.TemporaryDirectory() as barrier:
+            f = [*(flags or []), "--barrier", barrier, "--peers", str(n_parallel)]
+            procs = [_launch(data, method, f, env) for _ in range(n_parallel)]
+            rounds.append([_result(p) for p in procs])
+    return rounds
+
+
+def _print_stages(run: dict) -> None:
+    stages = run.get("stages_ms")
+    if not stages:
+        return
+    print("    per stereo frame, ms (20 Hz: 5x real time = 10 ms, 2.5x = 20 ms):")
+    for key, val in stages.items():
+        print(f"      {key:<14} {val:7.2f}")
+
+
+def bench_method(data: Path, method: str, repeat: int, env: dict[str, str], parallel: bool,
+                 extras: bool) -> dict[str, float]:
+    """Alone (best of ``repeat``) and two at once (the slower of the pair, best round)."""
+    alone = [r[0] for r in timed_runs(data, method, 1, repeat, env)]
+    best = max(alone, key=lambda r: r["rtf"])
+    others = ", ".join(f"{r['rtf']:.2f}x at {r['load_avg']:.2f}" for r in alone if r is not best)
+    print(f"{method}: alone, best of {len(alone)}: real-time factor {best['rtf']:.2f}x "
+          f"({best['wall_s']:.2f} s wall, {best['cpu_s']:.2f} s CPU for {best['data_s']:.1f} s; "
+          f"load average {best['load_avg']:.2f} on {os.cpu_count()} cores"
+          + (f"; other runs {others}" if others else "")
+          + f"); position RMSE {best['rmse_m']:.4f} m"
+          + (f"; front end {best['frontend_status']}" if best.get("frontend_status") else ""))
+    _print_stages(best)
+    out = {"alone": best["rtf"]}
+    if parallel:
+        rounds = timed_runs(data, method, 2, repeat, env)
+        slow = [min(r, key=lambda x: x["rtf"]) for r in rounds]
+        worst_best = max(slow, key=lambda r: r["rtf"])
+        pair = next(r for r in rounds if worst_best in r)
+        others = ", ".join(f"{r['rtf']:.2f}x" for r in slow if r is not worst_best)
+        print(f"{method}: two identical runs at once, best of {len(rounds)} rounds: "
+              + " and ".join(f"{r['rtf']:.2f}x ({r['wall_s']:.2f} s wall, {r['cpu_s']:.2f} s CPU)"
+                             for r in pair)
+              + f"; load average {worst_best['load_avg']:.2f}"
+              + (f"; other rounds' slower run {others}" if others else ""))
+        _print_stages(worst_best)
+        out["parallel"] = worst_best["rtf"]
+    if extras and method == "3d":
+        ex = timed_runs(data, method, 1, 1, env, ["--extras"])[0][0]
+        op = ex["other_prior"]
+        print(f"3d {'with' if op['motion_prior'] else 'without'} the IMU motion prior: position "
+              f"RMSE {op['rmse_m']:.4f} m (default: {ex['rmse_m']:.4f} m)")
+        print(f"3d filter side only (recorded tracks replayed, {ex['frames']} frames): "
+              f"{ex['replay_cpu_ms']:.2f} ms CPU, {ex['replay_wall_ms']:.2f} ms wall per frame")
     return out
 
 
-class _Replay:
-    """Tracks recorded from a front-end run, served again (filter-only timing)."""
-
-    kind = "images"
-    pixel_noise_std = 1.0
-
-    def __init__(self, rig: object, tracks: dict[int, object]) -> None:
-        self.rig = rig
-        self._tracks = tracks
-
-    def push(self, *args: object) -> bool:
-        return True
-
-    def discard(self, t_ns: int) -> None:
-        pass
-
-    def reference_time_ns(self) -> None:
-        return None
-
-    def tracks_at(self, t_ns: int, motion_prior: object = None) -> object:
-        return self._tracks.get(int(t_ns))
-
-
-def bench_filter_replay(ds: object, opts: object, tracks: dict[int, object], repeat: int) -> None:
-    """The filter side alone (IMU propagation, other sensors, vision update, event loop): the
-    front end's tracks of one run replayed, best of ``repeat``; CPU time of this process (less
-    sensitive to other processes than wall time). Image decoding still runs in the replay."""
-    from svains.evaluation.run import run_method
-    from svains.navigation import navigator
-    from svains.navigation.vision_sources import rig_from_calibrations
-
-    make = navigator.Navigator._make_source
-    src = _Replay(rig_from_calibrations(ds.cam0, ds.cam1), tracks)  # type: ignore[attr-defined]
-    navigator.Navigator._make_source = lambda self, kind: src  # type: ignore[method-assign]
-    try:
-        best_cpu, best_wall = np.inf, np.inf
-        for _ in range(max(repeat, 1)):
-            c0, w0 = time.process_time(), time.perf_counter()
-            rep = run_method(ds, "3d", opts).report  # type: ignore[arg-type]
-            best_cpu = min(best_cpu, time.process_time() - c0)
-            best_wall = min(best_wall, time.perf_counter() - w0)
-    finally:
-        navigator.Navigator._make_source = make  # type: ignore[method-assign]
-    n = len(tracks)
-    print(f"filter side only (recorded tracks replayed, {n} frames), best of {max(repeat, 1)}: "
-          f"{best_cpu * 1e3 / n:.2f} ms CPU, {best_wall * 1e3 / n:.2f} ms wall per frame; "
-          f"position RMSE {rep.get('position_rmse_m', float('nan')):.4f} m")
-
-
-def bench_images_3d(duration_s: float = 20.0, repeat: int = 2, profile: bool = False) -> None:
-    """``3d`` from rendered images (front end + filter) on a 20 Hz 752x480 village flight.
-
-    The run is repeated ``repeat`` times on the same data set; the fastest (least disturbed by
-    other processes) is reported with its per-stage profile, with the load average. PNG decoding
-    runs in the replay's prefetch thread (part of ``filter+rest``). ``--profile`` adds a
-    cProfile listing (which inflates the timings). Then one run with the other setting of the
-    IMU motion prior (``VisionOptions.motion_prior``: accuracy and front-end status counts) and
-    the filter side alone (``bench_filter_replay``).
-    """
-    import os
-    from dataclasses import replace
-
-    import svains.navigation.vision_sources as vs
-    from svains.datasets.loader import load_dataset
-    from svains.evaluation.run import run_method
-    from svains.navigation.options import InitOptions, RunOptions, VisionOptions
-    from svains.replay import resolve_config
-    from svains.sim import SimConfig, simulate
-
-    # The runner builds its image source internally: keep a handle on it for the stage timings,
-    # and record the tracks it hands to the filter (for the filter-only replay).
-    sources: list[vs.ImageFrames] = []
-    recorded: dict[int, object] = {}
-    init = vs.ImageFrames.__init__
-    tracks_at = vs.ImageFrames.tracks_at
-
-    def _init(self: vs.ImageFrames, *a: object, **k: object) -> None:
-        init(self, *a, **k)  # type: ignore[arg-type]
-        sources.append(self)
-
-    def _tracks_at(self: vs.ImageFrames, t_ns: int, motion_prior: object = None) -> object:
-        tr = tracks_at(self, t_ns, motion_prior)  # type: ignore[arg-type]
-        recorded[int(t_ns)] = tr
-        return tr
-
-    vs.ImageFrames.__init__ = _init  # type: ignore[method-assign]
-    vs.ImageFrames.tracks_at = _tracks_at  # type: ignore[assignment,method-assign]
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeat", type=int, default=2, help="runs (rounds) per setting")
+    ap.add_argument("--data", type=Path, default=None, help="reuse a simulated data set")
+    ap.add_argument("--duration", type=float, default=20.0, help="simulated flight, s")
+    ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--threads", type=int, default=None, help="SVAINS_THREADS for the runs")
+    ap.add_argument("--no-parallel", action="store_true", help="skip the two-at-once runs")
+    ap.add_argument("--extras", action="store_true", help="motion prior and filter replay")
+    ap.add_argument("--profile", action="store_true", help="cProfile one 3d run")
+    ap.add_argument("--no-models", action="store_true", help="skip the model evaluation costs")
+    args = ap.parse_args()
+    env = dict(os.environ)
+    if args.threads is not None:
+        env["SVAINS_THREADS"] = str(args.threads)
+    print(f"threads per numerical library: SVAINS_THREADS={env.get('SVAINS_THREADS', '(1)')}")
+    if not args.no_models:
+        bench_models()
     with tempfile.TemporaryDirectory() as tmp:
-        cfg = SimConfig()
-        cfg = replace(cfg, duration_s=duration_s, camera=replace(cfg.camera, rate_hz=20.0))
-        t0 = time.perf_counter()
-        root = simulate(cfg, Path(tmp) / "sim")
-        took = time.perf_counter() - t0
-        print(f"simulated {duration_s:.0f} s at 20 Hz with images in {took:.1f} s")
-        ds = load_dataset(root)
-        opts = RunOptions(method="3d", model="biased", init=InitOptions(mode="groundtruth"),
-                          vision=VisionOptions(source="images", rotation="imu"))
-        opts = resolve_config(ds, opts)
-        runs = []
-        for _ in range(max(repeat, 1)):
-            prof = cProfile.Profile() if profile else None
-            load_avg = os.getloadavg()[0]
-            c0 = time.process_time()
-            if prof is not None:
-                prof.enable()
-            res = run_method(ds, "3d", opts)
-            if prof is not None:
-                prof.disable()
-            cpu = time.process_time() - c0
-            rep = res.report
-            n = len(sources[-1].frontend_ms)
-            runs.append((rep, cpu, load_avg, _stage_profile(sources[-1], n, rep["wall_s"]), n))
-            print(f"  run: {rep['wall_s']:.2f} s wall, {cpu:.2f} s CPU (all threads), load "
-                  f"average {load_avg:.1f} -> real-time factor {rep['realtime_factor']:.2f}x")
-        rep, cpu, load_avg, stages, n = min(runs, key=lambda r: r[0]["wall_s"])
-        print(f"3d (imu rotation) from images, best of {len(runs)}: {rep['data_duration_s']:.1f} s "
-              f"of data, {n} stereo frames, in {rep['wall_s']:.2f} s (load average "
-              f"{load_avg:.1f} on {os.cpu_count()} cores) -> real-time factor "
-              f"{rep['realtime_factor']:.2f}x (target >= 3x); position RMSE "
-              f"{rep['position_rmse_m']:.4f} m; front end {rep['vision'].get('frontend_status')}")
-        print("per-stage profile, ms per stereo frame (20 Hz: 3x real time = 16.7 ms):")
-        for key, val in stages.items():
-            print(f"  {key:<14} {val:7.2f}")
-        if profile and prof is not None:
-            stats = pstats.Stats(prof)
-            stats.sort_stats("cumulative").print_stats(
-                r"(frontend/pipeline|frontend/egomotion|frontend/tracking|frontend/stereo|"
-                r"frontend/features|navigation/vision|navigation/ins|filter/ukf|models/imu)"
-            )
-        tracks = dict(recorded)
-        # The other setting of the IMU motion prior (VisionOptions.motion_prior), for comparison.
-        prior_on = opts.vision.motion_prior
-        other = replace(opts, vision=replace(opts.vision, motion_prior=not prior_on))
-        rep_o = run_method(ds, "3d", other).report
-        print(f"{'without' if prior_on else 'with'} the IMU motion prior: position RMSE "
-              f"{rep_o['position_rmse_m']:.4f} m (default: {rep['position_rmse_m']:.4f} m); "
-              f"front end {rep_o['vision'].get('frontend_status')}")
-        vs.ImageFrames.__init__ = init  # type: ignore[method-assign]
-        vs.ImageFrames.tracks_at = tracks_at  # type: ignore[method-assign]
-        bench_filter_replay(ds, opts, tracks, repeat)
+        data = args.data
+        if data is None:
+            t0 = time.perf_counter()
+            data = simulate_20hz(Path(tmp) / "sim", args.duration)
+            print(f"simulated {args.duration:.0f} s at 20 Hz with images in "
+                  f"{time.perf_counter() - t0:.1f} s")
+        if args.profile:
+            run = timed_runs(data, "3d", 1, 1, env, ["--profile"])[0][0]
+            print(run["profile"])
+        summary = {}
+        for m in args.methods.split(","):
+            summary[m] = bench_method(data, m, args.repeat, env, not args.no_parallel,
+                                      args.extras)
+        print("summary, real-time factor (alone / two at once):")
+        for m, s in summary.items():
+            print(f"  {m:<4} {s['alone']:7.2f}x" + (f" / {s['parallel']:.2f}x" if "parallel" in s
+                                                      else ""))
+        print(f"load average at the end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 
 if __name__ == "__main__":
-    bench_models()
-    bench_images_3d(repeat=int(sys.argv[sys.argv.index("--repeat") + 1])
-                    if "--repeat" in sys.argv else 2, profile="--profile" in sys.argv)
+    from svains.threads import limit_threads
+
+    with limit_threads(None):
+        main()

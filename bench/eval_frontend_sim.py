@@ -189,4 +189,7 @@ def report_covariance(
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from svains.threads import limit_threads
+
+    with limit_threads(None):  # SVAINS_THREADS, default one thread per library
+        sys.exit(main())

@@ -50,4 +50,7 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from svains.threads import limit_threads
+
+    with limit_threads(None):  # SVAINS_THREADS, default one thread per library
+        sys.exit(main())

@@ -101,8 +101,46 @@ def test_duplicate_feature_observation(ds_dir: Path) -> None:
     lines = path.read_text().splitlines()
     lines[2] = lines[1]
     path.write_text("\n".join(lines) + "\n")
+    ds = load_dataset(ds_dir)  # features0 is parsed on first access, not by the loader
+    assert ds.has_stream("features")
     with pytest.raises(DatasetError, match=r"features0/data\.csv:3: duplicate observation of trac"):
-        load_dataset(ds_dir)
+        _ = ds.features
+    # Still there, still failing: a failed read is not cached as absent.
+    assert ds.has_stream("features")
+    with pytest.raises(DatasetError, match="duplicate observation"):
+        _ = ds.features
+
+
+def test_data_set_with_deferred_features_pickles(ds_dir: Path) -> None:
+    import pickle
+
+    ds = load_dataset(ds_dir)
+    back = pickle.loads(pickle.dumps(ds))  # the deferred reader travels, unread
+    assert back.has_stream("features")
+    np.testing.assert_array_equal(back.features.uv_left, ds.features.uv_left)
+
+
+def test_features_are_read_on_first_access_only(
+    ds_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import svains.datasets.asl_reader as reader
+
+    calls: list[Path] = []
+    real = reader.read_features
+
+    def counting(folder: Path) -> object:
+        calls.append(folder)
+        return real(folder)
+
+    monkeypatch.setattr(reader, "read_features", counting)
+    ds = load_dataset(ds_dir)
+    assert calls == [] and ds.has_stream("features") and ds.has_stream("imu")
+    first = ds.features
+    assert ds.features is first and calls == [ds_dir / "mav0/features0"]
+    with pytest.raises(ValueError, match="stream 'imu' cannot be deferred"):
+        ds.defer("imu", lambda: None)
+    shutil.rmtree(ds_dir / "mav0/features0")
+    assert not load_dataset(ds_dir).has_stream("features")
 
 
 def test_absent_images_warn_once_and_skip(ds_dir: Path, caplog: pytest.LogCaptureFixture) -> None:

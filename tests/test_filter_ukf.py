@@ -211,3 +211,12 @@ def test_sigma_points_are_reused_until_the_state_changes() -> None:
     ukf.x[0] += 1.0  # in-place edits of x are seen too
     X4, _ = ukf.sigma_points()
     np.testing.assert_allclose(X4[:, 0], X3[:, 0] + 1.0, rtol=1e-12)
+
+
+@pytest.mark.parametrize("probability", [0.9, 0.99, 0.997, 0.9999])
+def test_chi2_gate_equals_scipy_stats(probability: float) -> None:
+    """The gate is scipy.stats.chi2.ppf, bit for bit, without importing scipy.stats."""
+    from scipy.stats import chi2
+
+    for dof in (1, 2, 4, 6, 15, 400, 1600):
+        assert chi2_gate(probability, dof) == float(chi2.ppf(probability, dof))

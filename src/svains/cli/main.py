@@ -12,6 +12,7 @@ import logging
 import typer
 
 from svains.cli._common import OneLineErrorGroup
+from svains.threads import DEFAULT_THREADS, ENV_VAR, limit_threads
 
 # One line per sub-command module, in the order ``svains --help`` lists them.
 COMMAND_MODULES: list[str] = [
@@ -39,12 +40,20 @@ app = typer.Typer(
 
 @app.callback()
 def _root(
+    ctx: typer.Context,
     verbose: bool = typer.Option(False, "--verbose", "-v", help="Log at DEBUG level."),
+    threads: int = typer.Option(
+        DEFAULT_THREADS, "--threads", envvar=ENV_VAR, min=0,
+        help="Threads per numerical library (BLAS, OpenMP, OpenCV); 0 keeps their defaults. "
+        "The filter's matrices are small, and more threads oversubscribe a shared machine.",
+    ),
 ) -> None:
     logging.basicConfig(
         level=logging.DEBUG if verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
+    # Entered before any command imports numpy, OpenCV or scipy; left when the command ends.
+    ctx.with_resource(limit_threads(threads))
 
 
 for _name in COMMAND_MODULES:

@@ -1,7 +1,8 @@
 """Read the ASL/EuRoC layout, extended with gps0/mag0/sonar0/features0 (``docs/formats.md``).
 
-Every stream is optional. CSVs are parsed eagerly (they are small); images are only listed and
-checked for existence here, decoded later by ``ImageStream.load``.
+Every stream is optional. CSVs are parsed eagerly (they are small) except ``features0``, parsed
+on first access of ``Dataset.features``; images are only listed and checked for existence here,
+decoded later by ``ImageStream.load``.
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ from __future__ import annotations
 import logging
 import os
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -348,7 +350,9 @@ def read_asl(path: Path) -> Dataset:
     if (mav0 / "sonar0").is_dir():
         ds.sonar, ds.sonar_calib = read_sonar(mav0 / "sonar0")
     if (mav0 / "features0").is_dir():
-        ds.features = read_features(mav0 / "features0")
+        # Parsed on first access: a run from images never needs it (seconds for a long set).
+        # A partial, not a lambda: the data set stays picklable.
+        ds.defer("features", partial(read_features, mav0 / "features0"))
     _check_stereo(ds, mav0)
     warn_if_incomplete(mav0)
     ds.missing_images = missing

@@ -16,7 +16,6 @@ import logging
 from typing import Any
 
 import numpy as np
-from evo import EvoException
 from numpy.typing import ArrayLike, NDArray
 
 from svains.datasets.types import GroundTruth
@@ -55,6 +54,8 @@ def ate_result_with_fallback(
     ``alignment`` or, when that fit is degenerate (evo's ``GeometryException`` on a straight
     trajectory, too few poses, a non-finite result), fewer degrees of freedom (``_FALLBACK``).
     ``None`` when even ``none`` fails; never raises for a degenerate geometry."""
+    from evo import EvoException  # evo is loaded by ``ate`` anyway; kept out of module import
+
     for align in _FALLBACK.get(alignment, (alignment, "none")):
         try:
             res = ate(t_ns, p_est, q_est, t_ns, p_ref, q_ref, align=align, up_W=up_W)  # type: ignore[arg-type]

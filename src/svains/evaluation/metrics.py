@@ -10,19 +10,21 @@ from __future__ import annotations
 
 import copy
 from dataclasses import asdict, dataclass, field
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
-from evo.core import metrics as evo_metrics
-from evo.core import sync as evo_sync
-from evo.core.filters import FilterException
-from evo.core.geometry import GeometryException
-from evo.core.trajectory import PoseTrajectory3D
 from numpy.typing import ArrayLike, NDArray
 
 from svains.errors import AlignmentError, ConfigError
 from svains.evaluation.alignment import align_posyaw
 from svains.geometry.rotation import rotmat_to_quat
+
+if TYPE_CHECKING:
+    from evo.core import metrics as evo_metrics
+    from evo.core.trajectory import PoseTrajectory3D
+
+# evo (with scipy.spatial, ~0.4 s) is imported by the functions that use it, so a command or a
+# run that computes no metric never loads it.
 
 F64 = NDArray[np.float64]
 Alignment = Literal["se3", "posyaw", "none", "sim3"]
@@ -83,6 +85,8 @@ def to_evo(t_ns: ArrayLike, p: ArrayLike, q_wxyz: ArrayLike, name: str = "") -> 
         raise ConfigError(f"{name}: lengths differ: t {t.size}, p {p.shape[0]}, q {q.shape[0]}")
     if t.size == 0:
         raise ConfigError(f"{name}: empty trajectory")
+    from evo.core.trajectory import PoseTrajectory3D
+
     return PoseTrajectory3D(
         positions_xyz=p, orientations_quat_wxyz=q, timestamps=t * 1e-9, name=name
     )
@@ -92,6 +96,8 @@ def associate(
     est: PoseTrajectory3D, ref: PoseTrajectory3D, max_diff_s: float
 ) -> tuple[PoseTrajectory3D, PoseTrajectory3D, NDArray[np.int64]]:
     """Matched copies (ref, est) and the indices of the kept estimate poses."""
+    from evo.core import sync as evo_sync
+
     try:
         ref_m, est_m = evo_sync.associate_trajectories(ref, est, max_diff=max_diff_s)
     except evo_sync.SyncException as exc:
@@ -139,6 +145,8 @@ def ate(
     if align in ("se3", "sim3"):
         if est_a.num_poses < 3:
             raise ConfigError(f"{align} alignment needs at least 3 matched poses")
+        from evo.core.geometry import GeometryException
+
         try:
             R, t, s = est_a.align(ref_m, correct_scale=align == "sim3")
         except GeometryException as exc:
@@ -150,6 +158,8 @@ def ate(
     elif align == "posyaw":
         T = align_posyaw(est_a.positions_xyz, ref_m.positions_xyz, up_W)
         est_a.transform(T)
+    from evo.core import metrics as evo_metrics
+
     ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
     ape.process_data((ref_m, est_a))
     # Rotation error angle of inv(T_ref) T_est (what evo's APE rotation_angle_deg gives),
@@ -188,6 +198,9 @@ def rpe(
     est = to_evo(t_est_ns, p_est, q_est_wxyz, "estimate")
     ref = to_evo(t_ref_ns, p_ref, q_ref_wxyz, "reference")
     ref_m, est_m, _ = associate(est, ref, max_diff_s)
+    from evo.core import metrics as evo_metrics
+    from evo.core.filters import FilterException
+
     out: list[RpeResult] = []
     for d in delta_m:
         if d <= 0:

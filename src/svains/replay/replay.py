@@ -69,8 +69,8 @@ def resolve_config(ds: Dataset, config: RunConfig) -> RunConfig:
         return config
     v = config.vision
     source = v.source
-    if source == "auto":
-        source = "features" if ds.features is not None else "images"
+    if source == "auto":  # without parsing features0 (a lazy stream) when it is absent
+        source = "features" if ds.has_stream("features") else "images"
     std = v.pixel_noise_std
     if std is None:
         std = float(ds.features.pixel_noise_std) if source == "features" and ds.features else 1.0
