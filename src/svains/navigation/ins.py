@@ -233,8 +233,8 @@ class InsFilter:
         return 0.5 * (Y[0::2] - Y[1::2])
 
     def tangent_std(self) -> F64:
-        """Standard deviations (ndx,) of the estimate's error, ω's white part included."""
-        var = np.diag(self.ukf.P).copy()
+        """Standard deviations (ndx,) of the navigation error, ω's white part included."""
+        var = np.diag(self.ukf.P)[: self.layout.ndx].copy()  # pose clones excluded
         var[DW] += self.omega_white
         return np.sqrt(var)
 

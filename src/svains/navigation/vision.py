@@ -20,6 +20,7 @@ the front end's motion prior in ``vision_motion``; this module re-exports ``Pixe
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
@@ -30,10 +31,12 @@ from svains.datasets.types import Dataset
 from svains.errors import ConfigError, DatasetError
 from svains.filter.ukf import UpdateStats
 from svains.frontend.types import StereoTracks
-from svains.models.vision_common import ROTATION_MODELS
+from svains.models.vision_clone import predict_egomotion_clone
+from svains.models.vision_common import ROTATION_MODELS, ImuIncrement
 from svains.models.vision_lc import egomotion_measurement, predict_egomotion_lc
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.tracks import TrackOptions
+from svains.navigation.vision_clones import CloneWindow, next_reference_ns
 from svains.navigation.vision_pixels import (
     PixelUpdater,
     VisionCounters,
@@ -64,6 +67,10 @@ log = logging.getLogger(__name__)
 # close on the village (whose optimum, ~512, is worse on EuRoC).
 LC_COV_SCALE = 30.0
 
+# Vision motion models: the state-at-k ones of ``models.vision_common`` and ``clone`` (the pose
+# at k-1 cloned into the state, ``navigation.vision_clones``; exact relative motion).
+MOTION_MODELS = (*ROTATION_MODELS, "clone")
+
 
 @dataclass(frozen=True)
 class VisionOptions:
@@ -90,17 +97,19 @@ class VisionOptions:
 
     source: SourceName = "auto"
     pixel_noise_std: float | None = None
-    pixel_noise_scale: float = 2.0
+    pixel_noise_scale: float | None = None
     feature_gate_probability: float | None = 0.999
     max_features: int | None = 120
     min_features: int = 3
     rotation: str = "linear"
     frame_stride: int = 1
     max_row_diff_px: float | None = 2.0
-    lc_cov_scale: float = LC_COV_SCALE
+    lc_cov_scale: float | None = None
     lc_min_std: tuple[float, float] = (1e-4, 1e-3)
     imu_noise: bool = True
     frame_gyro_walk: bool = True
+    single_use_pixels: bool = True
+    min_disparity_px: float = 0.0
     motion_prior: bool = False
     motion_prior_inflation: float = 4.0
     motion_prior_min_std: tuple[float, float] = (2e-3, 5e-3)
@@ -117,9 +126,23 @@ class VisionOptions:
             if key in values:
                 values[key] = tuple(values[key])
         opts = cls(**values)
-        if opts.rotation not in ROTATION_MODELS:
-            raise ConfigError(f"rotation must be one of {ROTATION_MODELS}, got {opts.rotation!r}")
+        if opts.rotation not in MOTION_MODELS:
+            raise ConfigError(f"rotation must be one of {MOTION_MODELS}, got {opts.rotation!r}")
         return opts
+
+    def noise_scale(self) -> float:
+        """``pixel_noise_scale``, or its default: 1 with clones (the relative motion is exact),
+        2 for the models that approximate it (measured, see ``bench/tc_noise_scan.py``)."""
+        if self.pixel_noise_scale is not None:
+            return float(self.pixel_noise_scale)
+        return 1.0 if self.rotation == "clone" else 2.0
+
+    def lc_scale(self) -> float:
+        """``lc_cov_scale``, or its default: 1 with clones (the egomotion's correlation with the
+        state at k-1 is in the model), ``LC_COV_SCALE`` otherwise."""
+        if self.lc_cov_scale is not None:
+            return float(self.lc_cov_scale)
+        return 1.0 if self.rotation == "clone" else LC_COV_SCALE
 
 
 class LcUpdater:
@@ -135,6 +158,7 @@ class LcUpdater:
         self.counters = VisionCounters()
         self._imu, self._prior = imu_and_prior(ds, options, self.source)
         self._nis_per_dof: list[float] = []  # consistency check: should average ~1
+        self.clones = CloneWindow() if options.rotation == "clone" else None
 
     def frame_times(self) -> I64:
         return self.source.frame_times()
@@ -146,7 +170,7 @@ class LcUpdater:
         if tr.egomotion is None:
             raise DatasetError(f"tracks at t={tr.t_ns} ns carry no egomotion (lc needs one)")
         z, cov = egomotion_measurement(tr.egomotion)
-        cov = cov * self.options.lc_cov_scale
+        cov = cov * self.options.lc_scale()
         floor = np.repeat(np.square(self.options.lc_min_std), 3)
         return z, cov + np.diag(np.maximum(floor - np.diag(cov), 0.0))
 
@@ -160,14 +184,11 @@ class LcUpdater:
             return None
         dt_s = (tr.t_ns - tr.t_prev_ns) * 1e-9
         z, cov = self.measurement(tr)
-        rig, rot = self.rig, self.options.rotation
-        if self._imu is None or rot != "imu":
-            inc = None
-        elif inc is None:  # no prior, or it spanned another interval
-            inc = self._imu.between(ctx, tr.t_prev_ns, tr.t_ns)
-        block = MeasurementBlock(
-            name="vision_lc", h=lambda X: predict_egomotion_lc(X, dt_s, rig, rot, inc), z=z, R=cov
-        )
+        h = self._model(ctx, tr, dt_s, inc)
+        if h is None:  # no clone of the k-1 frame (e.g. the first frame)
+            c.frames_without_tracks += 1
+            return None
+        block = MeasurementBlock(name="vision_lc", h=h, z=z, R=cov)
         stats = apply_blocks(ctx, [block, *ctx.extra])
         if stats.dof > 0 and np.isfinite(stats.nis):
             self._nis_per_dof.append(stats.nis / stats.dof)
@@ -178,11 +199,31 @@ class LcUpdater:
             c.frames_rejected += 1
         return stats
 
+    def _model(
+        self, ctx: FrameContext, tr: StereoTracks, dt_s: float, inc: ImuIncrement | None
+    ) -> Callable[[F64], F64] | None:
+        """``h(X) -> (S, 6)``: the egomotion from the clone of the k-1 frame (``clone``; None
+        without one) or from the state at k."""
+        rig, rot = self.rig, self.options.rotation
+        if self.clones is not None:
+            cols = self.clones.columns(ctx.ukf, tr.t_prev_ns)
+            return None if cols is None else (lambda X: predict_egomotion_clone(X, cols, rig))
+        if self._imu is None or rot != "imu":
+            inc = None
+        elif inc is None:  # no prior, or it spanned another interval
+            inc = self._imu.between(ctx, tr.t_prev_ns, tr.t_ns)
+        return lambda X: predict_egomotion_lc(X, dt_s, rig, rot, inc)
+
+    def after_frame(self, ctx: FrameContext) -> None:
+        """Once per frame, after ``update``: keep the clone the next frame needs."""
+        if self.clones is not None:
+            self.clones.after_frame(ctx.ukf, ctx.t_ns, next_reference_ns(self.source, ctx.t_ns))
+
     def summary(self) -> dict[str, Any]:
         out: dict[str, Any] = self.counters.as_dict()
         nis = np.asarray(self._nis_per_dof)
         out.update(
-            source=self.source.kind, lc_cov_scale=self.options.lc_cov_scale,
+            source=self.source.kind, lc_cov_scale=self.options.lc_scale(),
             frontend_status=dict(getattr(self.source, "status_counts", {})),
             nis_per_dof_mean=float(nis.mean()) if nis.size else None,
             nis_per_dof_median=float(np.median(nis)) if nis.size else None,
