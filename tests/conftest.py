@@ -10,6 +10,7 @@ PROJECT_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = PROJECT_ROOT.parent / "shared" / "data"
 EUROC_MICRO = SHARED_DATA / "euroc_v101_micro"
 KITTI_A = SHARED_DATA / "kitti_stereo_a"
+KITTI_RAW = SHARED_DATA / "kitti_raw_0926_41s"
 TRAJECTORIES = SHARED_DATA / "trajectories"
 
 
@@ -25,3 +26,10 @@ def kitti_a() -> Path:
     if not KITTI_A.is_dir():
         pytest.fail(f"real data missing: {KITTI_A} (CI provides ../shared)")
     return KITTI_A
+
+
+@pytest.fixture(scope="session")
+def kitti_raw() -> Path:
+    if not KITTI_RAW.is_dir():
+        pytest.fail(f"real data missing: {KITTI_RAW} (CI provides ../shared)")
+    return KITTI_RAW

@@ -56,10 +56,13 @@ def test_distorted_pair_is_not_identity() -> None:
 
 def test_bad_calibrations_raise() -> None:
     cam0, cam1 = _ideal_pair(0.5)
-    with pytest.raises(CalibrationError, match="not radial-tangential"):
-        StereoRectifier.from_calibration(replace(cam0, distortion_model="equidistant"), cam1)
-    with pytest.raises(CalibrationError, match="4 distortion coefficients"):
-        StereoRectifier.from_calibration(cam0, replace(cam1, distortion=np.zeros(5)))
+    with pytest.raises(CalibrationError, match="cam0: distortion model 'omni' is not supported"):
+        StereoRectifier.from_calibration(replace(cam0, distortion_model="omni"), cam1)
+    with pytest.raises(CalibrationError, match="cam1: radtan distortion needs 4 or 5 coeff"):
+        StereoRectifier.from_calibration(cam0, replace(cam1, distortion=np.zeros(6)))
+    with pytest.raises(CalibrationError, match="cam0: equidistant distortion needs 4 coeff"):
+        bad0 = replace(cam0, distortion_model="equidistant", distortion=np.zeros(5))
+        StereoRectifier.from_calibration(bad0, cam1)
     # Right camera on the left: swapped pair.
     with pytest.raises(CalibrationError, match="baseline"):
         bad1 = replace(cam1, distortion=np.array([1e-3, 0, 0, 0]))

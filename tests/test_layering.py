@@ -34,6 +34,7 @@ CONFINED: dict[str, dict[str, str]] = {
         "frontend": "the front end proper is the OpenCV layer",
         "sim/render.py": "the renderer's per-face perspective warps",
         "sim/raster.py": "the renderer's image pyramid (split out of render.py)",
+        "sim/fisheye.py": "the fisheye image's remap from a wide pinhole render",
         "datasets/_image_io.py": "PNG decoding and encoding, imported lazily",
     },
     "typer": {"cli": "the command line"},

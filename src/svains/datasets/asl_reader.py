@@ -40,6 +40,7 @@ from svains.datasets.types import (
     SonarStream,
 )
 from svains.errors import CalibrationError, DatasetError
+from svains.geometry.distortion import canonical_model, check_coefficients
 
 log = logging.getLogger(__name__)
 
@@ -96,7 +97,9 @@ def read_imu(folder: Path) -> tuple[ImuStream, ImuCalib]:
 
 
 def read_camera_calib(folder: Path, t_ns: np.ndarray | None = None) -> CameraCalib:
-    """Kalibr pinhole/radial-tangential ``sensor.yaml`` of a camera folder."""
+    """Kalibr pinhole ``sensor.yaml`` of a camera folder: radial-tangential (4 or 5
+    coefficients, OpenCV order k1 k2 p1 p2 [k3]) or equidistant (k1..k4) distortion, and the
+    optional ``timeshift_cam_imu`` (s, Kalibr's: t_imu = t_cam + timeshift)."""
     ypath = folder / "sensor.yaml"
     y = read_sensor_yaml(ypath)
     if "intrinsics" not in y:
@@ -105,12 +108,19 @@ def read_camera_calib(folder: Path, t_ns: np.ndarray | None = None) -> CameraCal
     if model != "pinhole":
         raise CalibrationError(f"{ypath}: camera_model '{model}' is not supported (pinhole only)")
     dist_model = str(y.get("distortion_model", "radial-tangential"))
-    dist = (
-        yaml_vector(y, "distortion_coefficients", ypath, 4)
-        if "distortion_coefficients" in y
-        else np.zeros(4)
-    )
+    try:
+        canonical = canonical_model(dist_model)
+        dist = (
+            check_coefficients(canonical, y["distortion_coefficients"])
+            if y.get("distortion_coefficients") is not None
+            else np.zeros(4)
+        )
+    except (CalibrationError, TypeError, ValueError) as exc:
+        raise CalibrationError(f"{ypath}: {exc}") from exc
     res = yaml_vector(y, "resolution", ypath, 2)
+    shift = yaml_float(y, "timeshift_cam_imu", ypath, default=0.0)
+    if not np.isfinite(shift):
+        raise CalibrationError(f"{ypath}: field 'timeshift_cam_imu' must be finite, is {shift}")
     return CameraCalib(
         name=folder.name,
         T_B_C=yaml_T_BS(y, ypath),
@@ -119,6 +129,7 @@ def read_camera_calib(folder: Path, t_ns: np.ndarray | None = None) -> CameraCal
         intrinsics=yaml_vector(y, "intrinsics", ypath, 4),
         distortion_model=dist_model,
         distortion=dist,
+        timeshift_cam_imu_s=shift,
     )
 
 
@@ -127,12 +138,15 @@ def read_camera(folder: Path) -> tuple[ImageStream, CameraCalib, int]:
     path = folder / "data.csv"
     rows, lines = read_csv_rows(path, 2)
     t = parse_timestamps(path, rows, lines)
+    calib = read_camera_calib(folder, t)
+    # Stamps move to the IMU clock once, here: t_imu = t_cam + timeshift_cam_imu.
+    t = t + np.int64(round(calib.timeshift_cam_imu_s * 1e9))
     data = folder / "data"
     on_disk = set(os.listdir(data)) if data.is_dir() else set()
     keep = np.array([r[1] in on_disk for r in rows], dtype=bool)
     paths = tuple(data / r[1] for r, k in zip(rows, keep, strict=True) if k)
     stream = ImageStream(t_ns=t[keep], paths=paths, loader=read_grey)
-    return stream, read_camera_calib(folder, t), int((~keep).sum())
+    return stream, calib, int((~keep).sum())
 
 
 def read_groundtruth(folder: Path) -> GroundTruth:

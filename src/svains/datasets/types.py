@@ -44,8 +44,12 @@ class ImuStream:
 class CameraCalib:
     """Kalibr/EuRoC camera sensor.yaml.
 
-    ``intrinsics`` = (fu, fv, cu, cv) px; ``distortion`` = (k1, k2, p1, p2) radial-tangential;
-    ``T_B_C`` (4, 4) camera-to-body; ``resolution`` = (width, height) px.
+    ``intrinsics`` = (fu, fv, cu, cv) px; ``distortion_model`` names the lens model
+    (``radtan``/``radial-tangential``: ``distortion`` = (k1, k2, p1, p2) or (k1, k2, p1, p2, k3),
+    OpenCV order; ``equidistant``: (k1, k2, k3, k4), Kannala-Brandt; see
+    ``svains.geometry.distortion``); ``T_B_C`` (4, 4) camera-to-body; ``resolution`` = (width,
+    height) px; ``timeshift_cam_imu_s`` the camera-IMU offset (s, t_imu = t_cam + timeshift) that
+    the reader has already added to the image stamps (recorded here, never applied again).
     """
 
     name: str
@@ -55,6 +59,7 @@ class CameraCalib:
     intrinsics: F64
     distortion_model: str
     distortion: F64
+    timeshift_cam_imu_s: float = 0.0
 
     @property
     def K(self) -> F64:

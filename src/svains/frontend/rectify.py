@@ -5,6 +5,10 @@ become image rows (zero-disparity flag: both principal points equal). ``R1`` map
 components to rectified ones, ``p_Crect = R1 p_C0``, so the rectified left camera sits on the body
 with ``R_B_Crect = R_B_C0 R1^T`` and the same optical centre ``p_B_C0``.
 
+Lens models (``svains.geometry.distortion``): radial-tangential with 4 or 5 coefficients (OpenCV
+takes either) and equidistant fisheye (``cv2.fisheye`` maps and point undistortion; the
+rectified pinhole pair is chosen as in ``_rectifying_projections``).
+
 Already-rectified input (KITTI, the simulator: no distortion, equal intrinsics and orientation,
 baseline along x) is recognised and passed through untouched, so pixels stay exact.
 """
@@ -21,6 +25,13 @@ from numpy.typing import ArrayLike, NDArray
 from svains.datasets.types import CameraCalib
 from svains.errors import CalibrationError
 from svains.geometry.camera import RectifiedStereo
+from svains.geometry.distortion import (
+    EQUIDISTANT,
+    RADTAN,
+    canonical_model,
+    check_coefficients,
+    distort,
+)
 
 F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]
@@ -41,15 +52,16 @@ def _relative_pose(cam0: CameraCalib, cam1: CameraCalib) -> tuple[F64, F64]:
     return T_C1_C0[:3, :3], T_C1_C0[:3, 3]
 
 
-def _check_calib(cam: CameraCalib) -> None:
-    if cam.distortion_model not in ("radial-tangential", "radtan", "none", ""):
-        raise CalibrationError(
-            f"{cam.name}: distortion model {cam.distortion_model!r} is not radial-tangential"
-        )
-    if np.asarray(cam.distortion).shape != (4,):
-        raise CalibrationError(f"{cam.name}: expected 4 distortion coefficients (k1, k2, p1, p2)")
+def _check_calib(cam: CameraCalib) -> str:
+    """The canonical distortion model of ``cam`` after checking its calibration."""
+    try:
+        model = canonical_model(cam.distortion_model)
+        check_coefficients(model, cam.distortion)
+    except CalibrationError as exc:
+        raise CalibrationError(f"{cam.name}: {exc}") from exc
     if np.asarray(cam.T_B_C).shape != (4, 4):
         raise CalibrationError(f"{cam.name}: T_B_C must be 4x4")
+    return model
 
 
 def is_already_rectified(cam0: CameraCalib, cam1: CameraCalib) -> bool:
@@ -57,7 +69,9 @@ def is_already_rectified(cam0: CameraCalib, cam1: CameraCalib) -> bool:
     right camera offset purely along the left camera's +x axis."""
     R_C1_C0, p_C1_C0 = _relative_pose(cam0, cam1)
     return bool(
-        np.allclose(cam0.distortion, 0.0, atol=0.0)
+        canonical_model(cam0.distortion_model) == RADTAN
+        and canonical_model(cam1.distortion_model) == RADTAN
+        and np.allclose(cam0.distortion, 0.0, atol=0.0)
         and np.allclose(cam1.distortion, 0.0, atol=0.0)
         and np.allclose(cam0.K, cam1.K, atol=_IDENT_PIXEL_TOL, rtol=0.0)
         and abs(cam0.intrinsics[0] - cam0.intrinsics[1]) <= _IDENT_PIXEL_TOL
@@ -67,6 +81,47 @@ def is_already_rectified(cam0: CameraCalib, cam1: CameraCalib) -> bool:
         and p_C1_C0[0] < 0.0
         and tuple(cam0.resolution) == tuple(cam1.resolution)
     )
+
+
+def _rectifying_projections(
+    cam0: CameraCalib, cam1: CameraCalib, models: tuple[str, str], size: tuple[int, int],
+    alpha: float,
+) -> tuple[F64, F64, F64, F64]:
+    """``R1``, ``R2`` (3, 3) raw -> rectified rotations and ``P1``, ``P2`` (3, 4) projections.
+
+    Radial-tangential pairs: ``cv2.stereoRectify`` (its ``alpha`` picks the focal length).
+    Pairs with a fisheye (equidistant) camera: the rotations are the same (they depend only on
+    the relative pose), and the rectified pinhole keeps the left camera's mean focal length and
+    principal point at the same image size, so a pair that needs no rotation maps to the left
+    camera's own pinhole (the simulator's fisheye rig rectifies to its ideal rig exactly).
+    """
+    R_C1_C0, p_C1_C0 = _relative_pose(cam0, cam1)
+    fisheye = EQUIDISTANT in models
+    d0, d1 = (np.zeros(4) if fisheye else np.asarray(c.distortion, float) for c in (cam0, cam1))
+    R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(
+        cam0.K, d0, cam1.K, d1, size, R_C1_C0, p_C1_C0.reshape(3, 1),
+        flags=cv2.CALIB_ZERO_DISPARITY, alpha=alpha,
+    )  # fmt: skip
+    if fisheye:
+        fu, fv, cu, cv = (float(x) for x in cam0.intrinsics)
+        f = 0.5 * (fu + fv)
+        baseline = float(-P2[0, 3] / P2[0, 0])
+        P1 = np.array([[f, 0.0, cu, 0.0], [0.0, f, cv, 0.0], [0.0, 0.0, 1.0, 0.0]])
+        P2 = P1.copy()
+        P2[0, 3] = -f * baseline
+    return R1, R2, P1, P2
+
+
+def _float_maps(
+    cam: CameraCalib, model: str, R: F64, P: F64, size: tuple[int, int]
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """``cv2.remap`` float maps (x, y), each (H, W), raw pixel of each rectified pixel."""
+    D = np.asarray(cam.distortion, float)
+    if model == EQUIDISTANT:
+        mx, my = cv2.fisheye.initUndistortRectifyMap(cam.K, D, R, P, size, cv2.CV_32FC1)
+    else:
+        mx, my = cv2.initUndistortRectifyMap(cam.K, D, R, P, size, cv2.CV_32FC1)
+    return mx, my
 
 
 @dataclass(frozen=True)
@@ -105,12 +160,11 @@ class StereoRectifier:
     ) -> StereoRectifier:
         """Rectify ``cam0`` (left) / ``cam1`` (right). ``alpha`` = 0 keeps only valid pixels
         (OpenCV's free scaling parameter), 1 keeps every source pixel."""
-        _check_calib(cam0)
-        _check_calib(cam1)
+        m0, m1 = _check_calib(cam0), _check_calib(cam1)
         w, h = (int(v) for v in cam0.resolution)
         R_B_C0 = np.asarray(cam0.T_B_C, dtype=float)[:3, :3]
         p_B_C0 = np.asarray(cam0.T_B_C, dtype=float)[:3, 3].copy()
-        R_C1_C0, p_C1_C0 = _relative_pose(cam0, cam1)
+        _, p_C1_C0 = _relative_pose(cam0, cam1)
         if is_already_rectified(cam0, cam1):
             fu, _, cu, cv = (float(x) for x in cam0.intrinsics)
             rig = RectifiedStereo(
@@ -122,10 +176,7 @@ class StereoRectifier:
             P2[0, 3] = -fu * rig.baseline
             return cls(rig, cam0, cam1, np.eye(3), np.eye(3), P1, P2, True, None, None)
 
-        R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(
-            cam0.K, np.asarray(cam0.distortion, float), cam1.K, np.asarray(cam1.distortion, float),
-            (w, h), R_C1_C0, p_C1_C0.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=alpha,
-        )
+        R1, R2, P1, P2 = _rectifying_projections(cam0, cam1, (m0, m1), (w, h), alpha)
         f = float(P1[0, 0])
         baseline = float(-P2[0, 3] / P2[0, 0])
         if not np.isfinite(baseline) or baseline <= 0.0:
@@ -136,11 +187,8 @@ class StereoRectifier:
             f=f, cu=float(P1[0, 2]), cv=float(P1[1, 2]), baseline=baseline,
             R_B_C=R_B_C0 @ R1.T, p_B_C=p_B_C0, width=w, height=h,
         )
-        fmaps = []
-        for cam, R, P in ((cam0, R1, P1), (cam1, R2, P2)):
-            fmaps.append(cv2.initUndistortRectifyMap(
-                cam.K, np.asarray(cam.distortion, float), R, P, (w, h), cv2.CV_32FC1
-            ))  # fmt: skip
+        fmaps = [_float_maps(cam, m, R, P, (w, h)) for cam, m, R, P in
+                 ((cam0, m0, R1, P1), (cam1, m1, R2, P2))]  # fmt: skip
         maps_left, maps_right = (cv2.convertMaps(mx, my, cv2.CV_16SC2) for mx, my in fmaps)
         xy_left, xy_right = (np.ascontiguousarray(np.stack(m, axis=-1)) for m in fmaps)
         log.debug("rectified: f=%.2f px, b=%.4f m, c=(%.1f, %.1f)", f, baseline, rig.cu, rig.cv)
@@ -174,15 +222,20 @@ class StereoRectifier:
         cam = self.cam1 if right else self.cam0
         assert cam is not None  # only identity rectifiers lack calibrations
         R, P = (self.R2, self.P2) if right else (self.R1, self.P1)
-        out = cv2.undistortPoints(
-            uv.reshape(-1, 1, 2), cam.K, np.asarray(cam.distortion, float), R=R, P=P,
-            criteria=_UNDISTORT_CRITERIA,
-        )
+        D = np.asarray(cam.distortion, float)
+        if canonical_model(cam.distortion_model) == EQUIDISTANT:
+            out = cv2.fisheye.undistortPoints(
+                uv.reshape(-1, 1, 2), cam.K, D, R=R, P=P, criteria=_UNDISTORT_CRITERIA
+            )
+        else:
+            out = cv2.undistortPoints(
+                uv.reshape(-1, 1, 2), cam.K, D, R=R, P=P, criteria=_UNDISTORT_CRITERIA
+            )
         return out.reshape(-1, 2).astype(float)
 
     def unrectify_points(self, uv_rect: ArrayLike, right: bool = False) -> F64:
         """Rectified pixels (N, 2) -> raw (distorted) pixels (N, 2) of the left (or right) camera:
-        back through the rectifying rotation, then the radial-tangential model (closed form)."""
+        back through the rectifying rotation, then the lens model (closed form)."""
         uv = np.asarray(uv_rect, dtype=float).reshape(-1, 2)
         if self.identity or uv.shape[0] == 0:
             return uv.copy()
@@ -195,13 +248,14 @@ class StereoRectifier:
         ) @ R  # rows R^T ray: rectified -> raw camera axes
         with np.errstate(divide="ignore", invalid="ignore"):
             x, y = ray[:, 0] / ray[:, 2], ray[:, 1] / ray[:, 2]
-        k1, k2, p1, p2 = (float(c) for c in cam.distortion)
-        r2 = x * x + y * y
-        radial = 1.0 + k1 * r2 + k2 * r2 * r2
-        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        xd = distort(np.stack([x, y], axis=1), cam.distortion_model, cam.distortion)
+        # Rays behind the raw camera have no image.
+        xd[~(ray[:, 2] > 0.0)] = np.nan
         K = cam.K
-        return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=1)
+        return np.stack(
+            [K[0, 0] * xd[:, 0] + K[0, 1] * xd[:, 1] + K[0, 2], K[1, 1] * xd[:, 1] + K[1, 2]],
+            axis=1,
+        )
 
     def sample_rectified(
         self, img: U8, rows: NDArray[np.int64], cols: NDArray[np.int64], right: bool = False

@@ -110,6 +110,10 @@ class CameraConfig:
     body's right). Scenario ``trajectory`` (EuRoC flights, whose IMU has x up) uses EuRoC's
     nominal cam0 mount instead (optical axis along body +z), see ``svains.sim.simulate``.
     ``image_noise_std`` is in grey levels; ``pixel_noise_std`` (px) perturbs features0.
+    ``lens``: ``pinhole`` (ideal rectified pair) or ``equidistant``: both cameras then get a
+    Kannala-Brandt fisheye lens with the same ``f, cu, cv`` and ``fisheye_distortion``
+    (k1..k4), rendered by ``svains.sim.fisheye``; rectification maps such a pair back to the
+    ideal pinhole pair, in which features0 stays.
     """
 
     enabled: bool = True
@@ -128,6 +132,12 @@ class CameraConfig:
     brightness_period_s: float = 20.0
     max_depth: float = 40.0  # landmarks farther than this are not reported in features0
     render_images: bool = True
+    lens: str = "pinhole"
+    # A real wide-angle Kannala-Brandt lens (RealSense T265 class) on EuRoC-like intrinsics:
+    # about 94° horizontal and 112° diagonal field of view at 752x480.
+    fisheye_distortion: list[float] = field(
+        default_factory=lambda: [-0.00626, 0.04132, -0.03836, 0.00649]
+    )
 
 
 @dataclass
@@ -189,6 +199,12 @@ class SimConfig:
                 raise ConfigError(f"{name}.rate_hz must be positive")
         if self.camera.pixel_noise_std < 0 or self.camera.image_noise_std < 0:
             raise ConfigError("camera noise stds must be non-negative")
+        if self.camera.lens not in ("pinhole", "equidistant"):
+            raise ConfigError(
+                f"camera.lens must be 'pinhole' or 'equidistant', got {self.camera.lens!r}"
+            )
+        if len(self.camera.fisheye_distortion) != 4:
+            raise ConfigError("camera.fisheye_distortion must have 4 numbers (k1, k2, k3, k4)")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

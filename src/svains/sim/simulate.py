@@ -134,16 +134,21 @@ def _T(R: F64, p: F64) -> F64:
     return T
 
 
-def camera_calibs(rig: RectifiedStereo, rate_hz: float) -> tuple[CameraCalib, CameraCalib]:
-    """Ideal rectified cam0/cam1 calibrations: zero distortion, equal orientation."""
+def camera_calibs(
+    rig: RectifiedStereo, rate_hz: float, lens: str = "pinhole",
+    fisheye_distortion: list[float] | None = None,
+) -> tuple[CameraCalib, CameraCalib]:
+    """cam0/cam1 calibrations with equal orientation: ideal rectified (zero radial-tangential
+    distortion) or, for ``lens="equidistant"``, fisheye with ``fisheye_distortion`` (k1..k4)."""
     intr = np.array([rig.f, rig.f, rig.cu, rig.cv])
     p1 = rig.p_B_C + rig.R_B_C[:, 0] * rig.baseline
     res = (rig.width, rig.height)
-    zero = np.zeros(4)
+    model, dist = "radial-tangential", np.zeros(4)
+    if lens == "equidistant":
+        model, dist = "equidistant", np.asarray(fisheye_distortion, dtype=float)
     return (
-        CameraCalib("cam0", _T(rig.R_B_C, rig.p_B_C), rate_hz, res, intr,
-                    "radial-tangential", zero),
-        CameraCalib("cam1", _T(rig.R_B_C, p1), rate_hz, res, intr, "radial-tangential", zero),
+        CameraCalib("cam0", _T(rig.R_B_C, rig.p_B_C), rate_hz, res, intr, model, dist.copy()),
+        CameraCalib("cam1", _T(rig.R_B_C, p1), rate_hz, res, intr, model, dist.copy()),
     )
 
 
@@ -177,7 +182,17 @@ def _images(scene: Scene, t_ns: NDArray[np.int64], right: bool, seed: int) -> It
     from svains.sim.render import NoiseBank, Renderer, finish_image  # OpenCV only here
 
     cfg = scene.config.camera
-    renderer = Renderer(scene.world, scene.rig)
+    if cfg.lens == "equidistant":
+        from svains.sim.fisheye import FisheyeRenderer
+
+        fisheye = FisheyeRenderer(scene.world, scene.rig, cfg.fisheye_distortion)
+        render = fisheye.render
+    else:
+        renderer = Renderer(scene.world, scene.rig)
+
+        def render(R_W_C: F64, p_W_C: F64, t_s: float) -> NDArray[np.uint8]:
+            return renderer.render_with_depth(R_W_C, p_W_C, t_s, full_depth=False)[0]
+
     rng = np.random.default_rng(seed)
     bank = NoiseBank((scene.rig.height, scene.rig.width), rng)
     truth = scene.trajectory.evaluate(t_ns * 1e-9)
@@ -188,7 +203,7 @@ def _images(scene: Scene, t_ns: NDArray[np.int64], right: bool, seed: int) -> It
         if right:
             p_W_C = p_W_C + R_W_C[:, 0] * scene.rig.baseline
         gain = 1.0 + cfg.brightness_amplitude * np.sin(2 * np.pi * t_s / cfg.brightness_period_s)
-        img = renderer.render_with_depth(R_W_C, p_W_C, t_s, full_depth=False)[0]
+        img = render(R_W_C, p_W_C, t_s)
         yield finish_image(img, gain, cfg.image_noise_std, rng, bank)
 
 
@@ -254,7 +269,8 @@ def simulate(config: SimConfig, out_dir: Path | str) -> Path:
     if cfg.camera.enabled:
         t_cam = sample_times_ns(cfg.camera.rate_hz, cfg.duration_s)
         writer.write_features(simulate_features(scene, t_cam, rngs[4]))
-        cal0, cal1 = camera_calibs(scene.rig, cfg.camera.rate_hz)
+        cal0, cal1 = camera_calibs(scene.rig, cfg.camera.rate_hz, cfg.camera.lens,
+                                   cfg.camera.fisheye_distortion)
         render = cfg.camera.render_images
         t_img = t_cam if render else t_cam[:0]
         seed = int(rngs[5].integers(2**31))
