@@ -272,10 +272,12 @@ def _from_gps(dataset: Dataset, layout: StateLayout, o: InitOptions) -> InitialS
         info["heading"] = "magnetometer"
     else:
         R_W_B = _align_up(f_B, f_W / np.linalg.norm(f_W))
-        # Heading from the GPS course while moving (ground vehicle: sideslip ~0).
+        # Attitude from the GPS course while moving (ground vehicle: sideslip ~0), over the
+        # same first GPS interval as the specific force.
         course = course_heading_or_none(
-            gps.v_W_G[0], R_W_B, imu.gyro_B[k] @ R_B_S.T, dataset.gps_calib.p_B_G,
-            -g_W, dataset.gps_calib.velocity_noise_std, o.course_min_speed_mps,
+            0.5 * (gps.v_W_G[0] + gps.v_W_G[1]), f_B, f_W, imu.gyro_B[win].mean(axis=0) @ R_B_S.T,
+            dataset.gps_calib.p_B_G, -g_W, dataset.gps_calib.velocity_noise_std,
+            o.course_min_speed_mps, (0.5 * (ta + tb) - t0) * 1e-9,
         )  # fmt: skip
         if course is not None:
             R_W_B, yaw_std, info["heading"] = course.R_W_B, course.yaw_std_rad, "gps course"
