@@ -45,10 +45,10 @@ def denied_village(seed: int, duration_s: float, rate_hz: float, root: Path) -> 
 
 def denied_options(**method_options: object) -> RunOptions:
     """Run options of the GPS-denied, magnetometer-free runs (ground-truth start, features0,
-    ``imu`` motion model unless ``rotation`` is given), with extra vision ``method_options``."""
+    the default vision options), with extra vision ``method_options``."""
     return RunOptions(
         model="biased", init=InitOptions(mode="groundtruth"), use_gps=False, use_mag=False,
-        method_options={"source": "features", "rotation": "imu", **method_options},
+        method_options={"source": "features", **method_options},
     )
 
 

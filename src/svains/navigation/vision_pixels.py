@@ -92,6 +92,7 @@ class PixelUpdater:
         std = self.source.pixel_noise_std if std is None else std
         self.sigma_px = max(float(std), 0.05) * options.noise_scale()
         self.clones = CloneWindow() if options.rotation == "clone" else None
+        self._min_disparity_px = options.min_disparity(self.sigma_px)
         self._fused: tuple[int, I64] | None = None  # (frame time, track ids) of the last update
         # Track ids and disparities (px) at the k-1 frame of the last tracks (``_near``).
         self._disparity_before: tuple[I64, F64] = (np.zeros(0, np.int64), np.zeros(0))
@@ -121,7 +122,7 @@ class PixelUpdater:
         ``min_disparity_px``. Gating on the k-1 disparity itself would bias the triangulation
         that uses it (a far feature whose noise happened to enlarge its disparity passes, one
         whose noise shrank it does not); the k-2 pixels carry independent noise."""
-        d_min = self.options.min_disparity_px
+        d_min = self._min_disparity_px
         if tr is None or d_min <= 0.0:
             return True
         ids, disp = self._disparity_before
