@@ -76,7 +76,7 @@ def test_lc_model_with_true_state_matches_true_egomotion(village: Dataset) -> No
 
 def test_lc_measurement_covariance_is_consistent(village: Dataset) -> None:
     """NEES of the true egomotion error against the front end's own covariance (factor 1) and
-    against the one the updater fuses (default ``LC_COV_SCALE``).
+    against the one the ``imu`` model fuses (default ``LC_COV_SCALE``; clones default to 1).
 
     The old residual-scaled normal matrix gave 140-200 (6 if consistent). The four-pixel
     covariance (``frontend.egomotion_cov``) gives 18-29 on features0 (seeds 0, 3, 5), the rest
@@ -84,7 +84,7 @@ def test_lc_measurement_covariance_is_consistent(village: Dataset) -> None:
     bound 45 fails if the covariance regresses. ``LC_COV_SCALE`` = 30 is chosen for lc's
     accuracy, not consistency, so the fused covariance is conservative (NEES ~1)."""
     raw = LcUpdater(village, VisionOptions(source="features", lc_cov_scale=1.0))
-    fused = LcUpdater(village, VisionOptions(source="features"))
+    fused = LcUpdater(village, VisionOptions(source="features", rotation="imu"))
     nees_raw, nees_fused = [], []
     for tr, z_true, _ in _frames(village, raw):
         assert tr.egomotion is not None
