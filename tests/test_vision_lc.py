@@ -76,7 +76,7 @@ def test_lc_model_with_true_state_matches_true_egomotion(village: Dataset) -> No
 
 def test_lc_measurement_covariance_is_consistent(village: Dataset) -> None:
     """NEES of the true egomotion error against the front end's own covariance (factor 1) and
-    against the one the ``imu`` model fuses (default ``LC_COV_SCALE``; clones default to 1).
+    against the one the updater fuses (default ``LC_COV_SCALE``).
 
     The old residual-scaled normal matrix gave 140-200 (6 if consistent). The four-pixel
     covariance (``frontend.egomotion_cov``) gives 18-29 on features0 (seeds 0, 3, 5), the rest
