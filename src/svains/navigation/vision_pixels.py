@@ -92,7 +92,8 @@ class PixelUpdater:
         std = self.source.pixel_noise_std if std is None else std
         self.sigma_px = max(float(std), 0.05) * options.noise_scale()
         self.clones = CloneWindow() if options.rotation == "clone" else None
-        self._min_disparity_px = options.min_disparity(self.sigma_px)
+        known = options.pixel_noise_std is not None or self.source.kind == "features"
+        self._min_disparity_px = options.min_disparity(self.sigma_px, known)
         self._fused: tuple[int, I64] | None = None  # (frame time, track ids) of the last update
         # Track ids and disparities (px) at the k-1 frame of the last tracks (``_near``).
         self._disparity_before: tuple[I64, F64] = (np.zeros(0, np.int64), np.zeros(0))
