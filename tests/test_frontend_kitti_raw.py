@@ -53,8 +53,8 @@ def _row_offsets(ds: Dataset, rect: StereoRectifier, frame: int) -> tuple[F64, F
 
 def test_real_matches_share_rows_after_rectification(kitti_raw: Path) -> None:
     """Raw left-right matches of real pairs, mapped through the rectification, lie on one row
-    (README: median 0.41 px); in the outer thirds of the image (beyond a third of the width from the centre), where k3 acts, the five
-    coefficients do clearly better than four (k3 dropped)."""
+    (README: median 0.41 px); beyond a third of the width from the centre, where k3 acts, the
+    five coefficients do clearly better than four (k3 dropped)."""
     ds = load_dataset(kitti_raw)
     assert ds.cam0 is not None and ds.cam1 is not None
     rect5 = StereoRectifier.from_calibration(ds.cam0, ds.cam1)
