@@ -66,6 +66,18 @@ def imu_noise(dataset: Dataset, layout: StateLayout, options: NoiseOptions) -> I
     )
 
 
+def imu_sample_period(dataset: Dataset, t_s: F64) -> float:
+    """Period (s) that sets one IMU sample's white-noise variance ``σ²/h``: the sensor's own
+    rate from ``sensor.yaml`` (a sample averages the signal over its sensor period, whatever
+    gaps the recording leaves: KITTI raw keeps 100 Hz OXTS records 10-250 ms apart); the
+    median step without a calibration. Propagation and the accumulated process noise use each
+    step's own length (``propagate_to``)."""
+    cal = dataset.imu_calib
+    if cal is not None and cal.rate_hz > 0:
+        return 1.0 / float(cal.rate_hz)
+    return float(np.median(np.diff(t_s))) if len(t_s) > 1 else 0.005
+
+
 class InsFilter:
     """UKF + IMU timeline; ``t_ns`` is the time of the current estimate ``ukf.x``, ``ukf.P``."""
 
@@ -101,7 +113,7 @@ class InsFilter:
             filter_options.propagation == "preintegrated",
         )
         self.noise = imu_noise(dataset, layout, noise_options)
-        self._h_imu = float(np.median(np.diff(self._t_s))) if len(self._t_s) > 1 else 0.005
+        self._h_imu = imu_sample_period(dataset, self._t_s)
         points = MerweScaledSigmaPoints(
             layout.ndx, filter_options.alpha, filter_options.beta, filter_options.kappa
         )
@@ -233,8 +245,8 @@ class InsFilter:
         return 0.5 * (Y[0::2] - Y[1::2])
 
     def tangent_std(self) -> F64:
-        """Standard deviations (ndx,) of the estimate's error, ω's white part included."""
-        var = np.diag(self.ukf.P).copy()
+        """Standard deviations (ndx,) of the navigation error, ω's white part included."""
+        var = np.diag(self.ukf.P)[: self.layout.ndx].copy()  # pose clones excluded
         var[DW] += self.omega_white
         return np.sqrt(var)
 

@@ -69,6 +69,7 @@ class InitOptions:
     flight_roll_pitch_std: float = 0.05  # rad (in-flight start from GPS)
     yaw_std: float = 0.1  # rad (with magnetometer or ground truth)
     yaw_std_unknown: float = 0.5  # rad (no heading source)
+    course_min_speed_mps: float = 3.0  # GPS start without magnetometer: heading from the course
     omega_std: float = 0.01  # rad/s
     gyro_bias_std: float = 0.005  # rad/s
     accel_bias_std: float = 0.1  # m/s²

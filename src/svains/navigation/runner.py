@@ -151,7 +151,7 @@ def run_method(
     gate = options.filter.gate_probability
     counts: dict[str, dict[str, int]] = {}
     updates: list[UpdateStats] = []
-    log_t, log_x, log_std, log_P9 = [ins.t_ns], [ins.ukf.x.copy()], [], []
+    log_t, log_x, log_std, log_P9 = [ins.t_ns], [ins.ukf.x[: layout.nx].copy()], [], []
     log_std.append(ins.tangent_std())
     log_P9.append(ins.ukf.P[:9, :9].copy())
     t_prev_frame: int | None = None
@@ -199,12 +199,14 @@ def run_method(
             ins.add_omega_white()  # paper model: the vision models see ω's gyro white noise
             stats = updater.update(ctx)
             ins.remove_omega_white()
+            if hasattr(updater, "after_frame"):
+                updater.after_frame(ctx)  # pose clones (rotation="clone")
             if stats is not None:
                 count(stats, method)
             t_prev_frame = t
         if has_tick:
             log_t.append(t)
-            log_x.append(ins.ukf.x.copy())
+            log_x.append(ins.ukf.x[: layout.nx].copy())
             log_std.append(ins.tangent_std())
             log_P9.append(ins.ukf.P[:9, :9].copy())
         e = e_end
