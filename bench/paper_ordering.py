@@ -6,7 +6,9 @@ them. Prints the ATE of every method per seed (posyaw alignment for all four, as
 compare`` does for runs started from the true pose; VO's se3-aligned ATE is printed too), the
 means, and how often each pair is ordered as the paper claims, by ATE and by final error.
 
-    python bench/paper_ordering.py [--seeds 10] [--duration 60] [--rate 5]
+    python bench/paper_ordering.py [--seeds 10] [--duration 60] [--rate 5] [--set KEY=VALUE ...]
+
+``--set`` passes vision options (``rotation=clone``, ``min_disparity_px=5``, ...) to lc/tc/3d.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import numpy as np
 from svains.datasets.loader import load_dataset
 from svains.datasets.types import Dataset
 from svains.evaluation.compare import align_to_groundtruth, run_methods
+from svains.navigation.config_io import parse_setting
 from svains.navigation.options import InitOptions, RunOptions, VisionOptions
 from svains.sim import SimConfig, simulate
 
@@ -42,10 +45,10 @@ def denied_village(seed: int, duration_s: float, rate_hz: float, root: Path) -> 
 
 def denied_options(**vision: object) -> RunOptions:
     """Run options of the GPS-denied, magnetometer-free runs (ground-truth start, features0,
-    ``imu`` motion model), with extra ``vision`` options."""
+    the default vision options), with extra ``vision`` options."""
     return RunOptions(
         model="biased", init=InitOptions(mode="groundtruth"), use_gps=False, use_mag=False,
-        vision=VisionOptions(**{"source": "features", "rotation": "imu", **vision}),  # type: ignore[arg-type]
+        vision=VisionOptions(**{"source": "features", **vision}),  # type: ignore[arg-type]
     )
 
 
@@ -54,12 +57,14 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--duration", type=float, default=60.0)
     ap.add_argument("--rate", type=float, default=5.0, help="stereo rate [Hz]")
+    ap.add_argument("--set", action="append", default=[], help="vision option KEY=VALUE")
     args = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)
-    opts = denied_options()
+    opts = denied_options(**dict(parse_setting(item) for item in args.set))
     ate = np.full((args.seeds, len(METHODS)), np.nan)
     final = np.full_like(ate, np.nan)
     vo_se3 = np.full(args.seeds, np.nan)
+    nees_3d: list[float] = []
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(args.seeds):
@@ -70,7 +75,10 @@ def main() -> None:
                 final[seed, j] = res[m].report.get("final_error_pct_of_path", np.nan)
             se3 = align_to_groundtruth(res["vo"], ds, "se3")
             vo_se3[seed] = se3.rmse if se3 is not None else np.nan
+            nees = res["3d"].report.get("nees_mean", np.nan)
             row = "  ".join(f"{m} {ate[seed, j]:.3f}" for j, m in enumerate(METHODS))
+            row += f"  (3d NEES {nees:.1f})"
+            nees_3d.append(nees)
             print(f"seed {seed}: ATE [m]  {row}  (vo se3-aligned {vo_se3[seed]:.3f})", flush=True)
     print(f"\n{args.seeds} seeds, {args.duration:.0f} s GPS-denied village, "
           f"stereo {args.rate:g} Hz ({time.perf_counter() - t0:.0f} s)")
@@ -78,6 +86,7 @@ def main() -> None:
     for j, m in enumerate(METHODS):
         print(f"{m:6s}  {np.mean(ate[:, j]):12.3f}  {np.median(ate[:, j]):14.3f}  "
               f"{np.mean(final[:, j]):10.2f}")
+    print(f"3d mean NEES (9 dof): {np.mean(nees_3d):.2f}")
     print(f"vo with se3 alignment (roll/pitch drift aligned away): ATE mean {np.mean(vo_se3):.3f}")
     idx = {m: j for j, m in enumerate(METHODS)}
     for name, val in (("ATE", ate), ("final error", final)):

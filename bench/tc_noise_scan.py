@@ -1,11 +1,12 @@
 """How the ``3d`` filter's pixel-noise inflation and feature count trade accuracy and consistency.
 
 Per seed: a 60 s GPS-denied, magnetometer-free village flight (feature-level simulation, stereo
-5 Hz, as ``bench/paper_ordering.py``), then ``3d`` with the default vision options and with
+5 Hz, as ``bench/paper_ordering.py``), then ``3d`` with the ``imu`` motion model and with
 ``pixel_noise_scale`` 1.0 / 1.4, all features instead of ``max_features=120``, both, and (all
 features) the inter-frame gyro noise modelled as a feature-correlated term instead of a
-per-frame gyro-bias walk, or not modelled. Prints ATE (posyaw) m / final error % of path / mean
-NEES (9 dof) per variant.
+per-frame gyro-bias walk, or not modelled; then with pose clones (the default) and without
+their far-feature gate, without single-use pixels, or with all features. Prints ATE (posyaw)
+m / final error % of path / mean NEES (9 dof) per variant.
 
     python bench/tc_noise_scan.py [SEED ...]   (default seeds 0 1 2)
 """
@@ -21,16 +22,24 @@ from paper_ordering import denied_options, denied_village  # same runs as the or
 
 from svains.evaluation.compare import run_methods
 
+_IMU = {"rotation": "imu"}
 VARIANTS: dict[str, dict[str, object]] = {
-    "default": {},
-    "scale1": {"pixel_noise_scale": 1.0},
-    "scale1.4": {"pixel_noise_scale": 1.4},
-    "all_feats": {"max_features": None},
-    "scale1.4_all": {"pixel_noise_scale": 1.4, "max_features": None},
+    "imu": _IMU,
+    "imu_scale1": {**_IMU, "pixel_noise_scale": 1.0},
+    "imu_scale1.4": {**_IMU, "pixel_noise_scale": 1.4},
+    "imu_all_feats": {**_IMU, "max_features": None},
+    "imu_scale1.4_all": {**_IMU, "pixel_noise_scale": 1.4, "max_features": None},
     # The gyro noise integrated between frames, shared by all features of a frame: modelled as a
     # feature-correlated noise term instead of the per-frame bias walk, or not at all.
-    "G_term_all": {"max_features": None, "frame_gyro_walk": False},
-    "no_imu_noise_all": {"max_features": None, "frame_gyro_walk": False, "imu_noise": False},
+    "imu_G_term_all": {**_IMU, "max_features": None, "frame_gyro_walk": False},
+    "imu_no_imu_noise_all": {**_IMU, "max_features": None, "frame_gyro_walk": False,
+                             "imu_noise": False},
+    # Pose clones (the default): true pixel noise; without the far-feature gate; without
+    # single-use pixels; all features.
+    "clone": {},
+    "clone_no_gate": {"min_disparity_px": 0.0},
+    "clone_reuse_pixels": {"single_use_pixels": False},
+    "clone_all_feats": {"max_features": None},
 }
 
 

@@ -46,6 +46,13 @@ CASES = [
     Case("village_tc", "village", "tc", init="groundtruth"),
     Case("village_3d", "village", "3d", init="groundtruth"),
     Case("village_3d_paper", "village", "3d", model="paper", init="groundtruth"),
+    # Pose clones (the default motion model since the clone branch).
+    Case("euroc_3d_clone", "euroc_synth", "3d", duration_s=15.0, vision={"rotation": "clone"}),
+    Case("village_3d_clone", "village", "3d", init="groundtruth", vision={"rotation": "clone"}),
+    Case("village_lc_clone", "village", "lc", init="groundtruth", vision={"rotation": "clone"}),
+    Case("village_tc_clone", "village", "tc", init="groundtruth", vision={"rotation": "clone"}),
+    Case("euroc_images_3d_clone", "euroc_images", "3d", duration_s=4.4,
+         vision={"source": "images", "rotation": "clone"}),
 ]  # fmt: skip
 
 
@@ -99,7 +106,8 @@ def case_options(case: Case, ds: Any) -> Any:
 
     cfg = RunConfig(method=case.method, model=case.model,  # type: ignore[arg-type]
                     init=InitOptions(mode=case.init),  # type: ignore[arg-type]
-                    duration_s=case.duration_s, vision=VisionOptions(**case.vision))
+                    duration_s=case.duration_s,
+                    vision=VisionOptions(**{"rotation": "imu", **case.vision}))
     return resolve_config(ds, cfg)
 
 

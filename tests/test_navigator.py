@@ -92,7 +92,8 @@ def _config(case: Case, f: dict[str, Any]) -> RunConfig:
         return cfg
     fs = f["features"]
     cfg = replace(cfg, vision=VisionOptions(source="features",
-                                            pixel_noise_std=float(fs.pixel_noise_std)))
+                                            pixel_noise_std=float(fs.pixel_noise_std),
+                                            **{"rotation": "imu", **case.vision}))
     period = float(np.median(np.diff(np.unique(fs.t_ns)))) * 1e-9
     return tune_for_frames(cfg, f["imu_cal"], period)
 
@@ -129,8 +130,9 @@ def feed_by_hand(case: Case, tmp: Path) -> Any:
     return res
 
 
-HAND_CASES = [c for c in CASES if c.data in ("euroc_synth", "village")
-              and c.name not in ("euroc_ins_paper", "village_3d_paper", "village_ins_gpsinit")]
+HAND_CASES = [c for c in CASES if c.name in (
+    "euroc_ins", "euroc_lc", "euroc_tc", "euroc_3d", "village_ins", "village_lc", "village_tc",
+    "village_3d", "village_3d_clone")]
 
 
 @pytest.mark.slow

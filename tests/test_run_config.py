@@ -57,7 +57,7 @@ def test_bad_settings_name_their_key() -> None:
 
 
 def test_rotation_has_one_default() -> None:
-    assert VisionOptions().rotation == "imu" == RunConfig().vision.rotation
+    assert VisionOptions().rotation == "clone" == RunConfig().vision.rotation
 
 
 def test_effective_config_reproduces_the_run_byte_for_byte(village_gps: Path,

@@ -86,7 +86,7 @@ def test_lc_measurement_covariance_is_consistent(village: Dataset) -> None:
     bound 45 fails if the covariance regresses. ``LC_COV_SCALE`` = 30 is chosen for lc's
     accuracy, not consistency, so the fused covariance is conservative (NEES ~1)."""
     raw = updater_for("lc", village, VisionOptions(source="features", lc_cov_scale=1.0))
-    fused = updater_for("lc", village, VisionOptions(source="features"))
+    fused = updater_for("lc", village, VisionOptions(source="features", rotation="imu"))
     nees_raw, nees_fused = [], []
     for tr, z_true, _ in _frames(village, raw):
         assert tr.egomotion is not None

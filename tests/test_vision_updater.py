@@ -21,6 +21,7 @@ from svains.navigation.options import RunOptions, VisionOptions
 RIG = make_rig()
 T0 = 5_000_000_000
 DT_S = 0.2
+# The paper's state-at-k model (one frame pair, no clone needed).
 
 
 def _calibs() -> tuple[CameraCalib, CameraCalib]:
@@ -72,6 +73,41 @@ def test_update_pulls_velocity_towards_truth(method: str) -> None:
     # 0.54 m/s prior error; one frame of noise-free features removes most of it.
     assert err < 0.1, err
     assert upd.summary()["frames_fused"] == 1
+
+
+@pytest.mark.parametrize("method", ["3d", "tc", "lc"])
+def test_clone_update_pulls_position_towards_truth(method: str) -> None:
+    """Pose clones: after ``after_frame`` at k-1 the state carries the k-1 pose; the state is
+    then moved to k with a 0.3 m position error (as a propagation would, with its variance),
+    and the frame's update measures the k-1 -> k motion against the clone."""
+    tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
+    upd = updater_for(method, _dataset(tf),
+                      VisionOptions(rotation="clone", min_disparity_px=0.0))
+    ukf = _ukf(tf.x_km1, np.zeros(3))
+    ctx0 = FrameContext(ukf, PAPER, T0, None, None, [], None)  # type: ignore[arg-type]
+    upd.after_frame(ctx0)
+    assert ukf.x.size == 13 + 7 and upd.clones.times == [T0]
+    np.testing.assert_array_equal(ukf.x[13:16], tf.x_km1[0:3])
+    x = ukf.x.copy()
+    x[:13] = tf.x_k
+    x[0:3] += [0.3, -0.2, 0.1]
+    P = ukf.P.copy()
+    P[0:3, 0:3] += 0.1 * np.eye(3)  # the propagation's own position uncertainty
+    ukf.resize(ukf.manifold, x, P)
+    stats = upd.update(_ctx(ukf))
+    assert stats is not None and stats.accepted
+    assert np.linalg.norm(ukf.x[0:3] - tf.x_k[0:3]) < 0.02
+    # The next frame will start from this one: its clone replaces the old one.
+    upd.after_frame(_ctx(ukf))
+    assert upd.clones.times == [T0 + int(DT_S * 1e9)] and ukf.x.size == 20
+
+
+def test_clone_update_skips_a_frame_without_clone() -> None:
+    tf = two_frames(RIG, DT_S, np.zeros(3), np.zeros(3), n_features=60)
+    upd = updater_for("3d", _dataset(tf), VisionOptions())  # the default: clones
+    ukf = _ukf(tf.x_k, np.zeros(3))
+    assert upd.update(_ctx(ukf)) is None
+    assert upd.summary()["frames_without_tracks"] == 1
 
 
 def test_feature_gate_drops_and_counts_corrupted_features() -> None:
@@ -192,7 +228,8 @@ def test_tune_for_frames_sets_frame_gyro_walk() -> None:
     from svains.sensors.types import ImuCalib
 
     cal = ImuCalib(np.eye(4), 200.0, 1.7e-4, 2e-5, 2e-3, 3e-3)
-    opts = RunOptions(method="3d", model="biased")
+    opts = RunOptions(method="3d", model="biased", vision=VisionOptions(rotation="imu"))
+    assert tune_for_frames(replace(opts, vision=VisionOptions()), cal, 0.05).noise == opts.noise
     tuned = tune_for_frames(opts, cal, 0.05)
     assert tuned.noise.gyro_random_walk == pytest.approx(1.7e-4 / 0.05)
     assert tuned.vision.imu_noise is False

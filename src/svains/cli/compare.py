@@ -67,9 +67,10 @@ def compare(
     ] = None,
     model: Annotated[str, typer.Option("--model", help="State model: paper or biased.")] = "biased",
     rotation: Annotated[
-        str,
-        typer.Option("--rotation", help="Vision motion model: imu, linear (paper eq. 18) or exp."),
-    ] = "imu",
+        str | None,
+        typer.Option("--rotation", help="Vision motion model: clone (default), imu, linear "
+                     "(paper eq. 18) or exp."),
+    ] = None,
     init: Annotated[
         str, typer.Option("--init", help="static, gps (in flight) or groundtruth.")
     ] = "groundtruth",
@@ -100,7 +101,7 @@ def compare(
     _common.check_out_dir(out, force)
     try:
         source = {None: "auto", True: "features", False: "images"}[features]
-        settings = [f"vision.rotation={rotation}", *(setting or [])]
+        settings = [*([f"vision.rotation={rotation}"] if rotation else []), *(setting or [])]
         opts = build_options(model, init, gps, mag, duration, source, settings)
         run_compare(dataset, out, [m.strip() for m in methods.split(",") if m.strip()], opts,
                     figures, Console(), synthetic_features)

@@ -33,9 +33,10 @@ def demo(
         ),
     ] = True,
     rotation: Annotated[
-        str,
-        typer.Option("--rotation", help="Vision motion model: linear (paper eq. 18), exp or imu."),
-    ] = "imu",
+        str | None,
+        typer.Option("--rotation", help="Vision motion model: clone (default), imu, linear "
+                     "(paper eq. 18) or exp."),
+    ] = None,
     methods: Annotated[
         str, typer.Option("--methods", help="Comma-separated methods.")
     ] = "ins,vo,lc,tc,3d",
@@ -60,7 +61,7 @@ def demo(
         # With images the tracks come from the real front end, not from the true features0.
         source = "images" if images else "features"
         opts = build_options("biased", "groundtruth", True, True, None, source,
-                             [f"vision.rotation={rotation}"])
+                             [f"vision.rotation={rotation}"] if rotation else [])
         run_compare(root, out / "compare", [m.strip() for m in methods.split(",") if m.strip()],
                     opts, True, console)
     except SvainsError as exc:

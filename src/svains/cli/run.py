@@ -60,8 +60,8 @@ def run(
     ] = None,
     rotation: Annotated[
         str | None,
-        typer.Option("--rotation", help="Vision motion model: imu (default), linear (paper eq. "
-                     "18) or exp."),
+        typer.Option("--rotation", help="Vision motion model: clone (default), imu, linear "
+                     "(paper eq. 18) or exp."),
     ] = None,
     setting: Annotated[
         list[str] | None,

@@ -148,6 +148,7 @@ def accuracy_report(
         out["errors_alignment"] = "none" if fit is None else fit.alignment
         if fit is not None:
             xe, P = align_states(xe, P, fit.T_align)
+    out.update(drift_report(xe[:, 0:3], quat_to_rotmat(xe[:, 6:10]), p, quat_to_rotmat(q)))
     e = navigation_errors(xe, p, v, q)
     nees = nees_of(e, P)
     std = np.sqrt(np.einsum("nii->ni", P))
@@ -161,6 +162,65 @@ def accuracy_report(
         position_within_3sigma=float(np.mean(np.abs(e[:, 0:3]) <= 3.0 * std[:, 0:3])),
         evaluated_states=int(inside.sum()),
     )
+    return out
+
+
+# Segment lengths (m) of the KITTI-style drift figures in ``report.json`` (``drift_50m_pct``, ...).
+DRIFT_SEGMENTS_M: tuple[float, ...] = (50.0, 100.0)
+
+
+def path_distances(p_W: F64) -> F64:
+    """Cumulative path length (N,) m along positions (N, 3), 0 at the first."""
+    steps = np.linalg.norm(np.diff(np.asarray(p_W, float), axis=0), axis=1)
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def segment_drift_pct(
+    p_est: F64, R_est: F64, p_ref: F64, R_ref: F64, length_m: float
+) -> float | None:
+    """KITTI odometry's translational error over ``length_m`` segments, % of the length.
+
+    For every start sample i, the segment ends at the first sample j whose reference path
+    length from i is at least ``length_m``. The relative-pose error
+    ``E = (T_est_i^-1 T_est_j)^-1 (T_ref_i^-1 T_ref_j)`` has translation ``t_E``; the figure is
+    the mean of ``|t_E| / length_m`` over all segments, times 100. (The KITTI devkit steps the
+    start by 10 frames; every sample is used here.) Poses: body positions (N, 3) m and
+    attitudes ``R_W_B`` (N, 3, 3), both sampled at the same times. None when the reference path
+    is shorter than ``length_m``. Invariant to a rigid transform of either trajectory.
+    """
+    dist = path_distances(p_ref)
+    i = np.arange(len(dist))
+    j = np.searchsorted(dist, dist + length_m, side="left")
+    ok = j < len(dist)
+    if not ok.any():
+        return None
+    i, j = i[ok], j[ok]
+
+    def relative(p: F64, R: F64) -> tuple[F64, F64]:
+        Ri = R[i]
+        return Ri.transpose(0, 2, 1) @ R[j], np.einsum("nji,nj->ni", Ri, p[j] - p[i])
+
+    dR_e, dp_e = relative(p_est, R_est)
+    _, dp_r = relative(p_ref, R_ref)
+    # E = (dR_e, dp_e)^-1 (dR_r, dp_r): translation dR_e^T (dp_r - dp_e).
+    t_err = np.einsum("nji,nj->ni", dR_e, dp_r - dp_e)
+    return float(np.mean(np.linalg.norm(t_err, axis=1)) / length_m * 100.0)
+
+
+def drift_report(p_est: F64, R_est: F64, p_ref: F64, R_ref: F64) -> dict[str, Any]:
+    """``path_length_m``, ``final_error_m`` and ``final_error_pct`` (final position error over
+    the reference path length, %), and ``drift_<L>m_pct`` (:func:`segment_drift_pct`) for each
+    ``DRIFT_SEGMENTS_M`` length (None when the path is shorter). Inputs as
+    :func:`segment_drift_pct`, already in the reference's world frame."""
+    path = float(path_distances(p_ref)[-1])
+    final = float(np.linalg.norm(p_est[-1] - p_ref[-1]))
+    out: dict[str, Any] = {
+        "path_length_m": path,
+        "final_error_m": final,
+        "final_error_pct": 100.0 * final / path if path > 0 else None,
+    }
+    for length in DRIFT_SEGMENTS_M:
+        out[f"drift_{length:g}m_pct"] = segment_drift_pct(p_est, R_est, p_ref, R_ref, length)
     return out
 
 

@@ -191,6 +191,8 @@ _COLUMNS = (
     ("vel RMSE [m/s]", "velocity_rmse_mps", "{:.3f}"),
     ("max err in outages [m]", "outage_max_error_m", "{}"),
     ("final err [% path]", "final_error_pct_of_path", "{:.2f}"),
+    ("drift 50 m [%]", "drift_50m_pct", "{:.2f}"),
+    ("drift 100 m [%]", "drift_100m_pct", "{:.2f}"),
     ("real-time factor", "realtime_factor", "{:.1f}"),
 )
 

@@ -94,8 +94,27 @@ class UKF:
         self._sigma_cache = (key, X, dX)
         return X, dX
 
+    def resize(self, manifold: Manifold, x: F64, P: F64) -> None:
+        """Replace the state space (augmenting or marginalising states, e.g. pose clones) with
+        its mean ``x`` (nx,) and covariance ``P`` (ndx, ndx); the sigma-point parameters stay."""
+        p = self.points
+        self.points = MerweScaledSigmaPoints(manifold.ndx, p.alpha, p.beta, p.kappa)
+        self.manifold = manifold
+        self._sigma_cache = None
+        self.x = np.asarray(x, dtype=float).copy()
+        self.P = 0.5 * (P + P.T)
+        if self.x.shape != (manifold.nx,) or self.P.shape != (manifold.ndx, manifold.ndx):
+            raise ConfigError(
+                f"x {self.x.shape} / P {self.P.shape} do not match nx={manifold.nx}, "
+                f"ndx={manifold.ndx}"
+            )
+
     def predict(self, f: ProcessFn, u: Any, dt: float, Q: F64) -> None:
-        """Propagate through ``f(X, u, dt)`` and add ``Q`` (ndx, ndx) or its diagonal (ndx,)."""
+        """Propagate through ``f(X, u, dt)`` and add ``Q`` (n, n) or its diagonal (n,).
+
+        ``Q`` may cover only the leading n <= ndx tangent components: the trailing ones (e.g.
+        pose clones, which ``f`` must leave unchanged) get no process noise.
+        """
         X, _ = self.sigma_points()
         Y = f(X, u, dt)
         if not np.all(np.isfinite(Y)):
@@ -103,7 +122,10 @@ class UKF:
         x = self.manifold.mean(Y, self.points.Wm)
         dY = self.manifold.local(Y, x)
         P = dY.T @ (self.points.Wc[:, None] * dY)
-        P += np.diag(Q) if np.ndim(Q) == 1 else Q
+        n = np.shape(Q)[0]
+        if n > P.shape[0]:
+            raise ConfigError(f"process noise of size {n} for a {P.shape[0]}-dim tangent")
+        P[:n, :n] += np.diag(Q) if np.ndim(Q) == 1 else Q
         self.x = x
         self.P = 0.5 * (P + P.T)
 

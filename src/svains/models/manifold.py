@@ -57,23 +57,27 @@ class NavManifold:
     def mean(self, X: F64, w: F64) -> F64:
         """Weighted mean: linear blocks summed, attitude by Gauss-Newton on the local error."""
         out = w @ X
-        q = X[:, Q]
-        # Start from the sign-aligned chordal mean (already within rounding of the answer for
-        # sigma-point spreads); a few Gauss-Newton steps make it the intrinsic mean.
-        sign = np.where(q @ q[0] < 0.0, -1.0, 1.0)
-        qm = (w * sign) @ q
-        qm /= np.sqrt(qm @ qm)
-        qT = q.T
-        for _ in range(_MEAN_ITERATIONS):
-            step = _box_minus(qT, qm) @ w
-            qm = left_matrix(qm) @ qexp(step)
-            qm /= np.sqrt(qm @ qm)
-            # Gauss-Newton converges fast: a step below 1e-7 rad leaves < 1e-10 rad to go
-            # (measured on EuRoC sigma points: 2nd step <= 3e-11 rad), so stop there.
-            if float(step @ step) < 1e-14:
-                break
-        out[Q] = qm
+        out[Q] = quat_mean(X[:, Q], w)
         return out
+
+
+def quat_mean(q: F64, w: F64) -> F64:
+    """Weighted intrinsic mean (4,) of unit quaternions ``q`` (S, 4) (weights may be negative)."""
+    # Start from the sign-aligned chordal mean (already within rounding of the answer for
+    # sigma-point spreads); a few Gauss-Newton steps make it the intrinsic mean.
+    sign = np.where(q @ q[0] < 0.0, -1.0, 1.0)
+    qm = (w * sign) @ q
+    qm /= np.sqrt(qm @ qm)
+    qT = q.T
+    for _ in range(_MEAN_ITERATIONS):
+        step = _box_minus(qT, qm) @ w
+        qm = left_matrix(qm) @ qexp(step)
+        qm /= np.sqrt(qm @ qm)
+        # Gauss-Newton converges fast: a step below 1e-7 rad leaves < 1e-10 rad to go
+        # (measured on EuRoC sigma points: 2nd step <= 3e-11 rad), so stop there.
+        if float(step @ step) < 1e-14:
+            break
+    return qm
 
 
 def _box_minus(qT: F64, q_ref: F64) -> F64:

@@ -105,6 +105,11 @@ def current_projections(
 ) -> tuple[F64, F64]:
     """``P_c = K [R_c | -r_c]`` and ``P_d = K [R_c | -r_c - b]`` (S, 3, 4) at t_k (eqs. 16-20)."""
     R_c, r_c = camera_motion(X, dt_s, rig, rotation, imu)
+    return projections_from_motion(R_c, r_c, rig)
+
+
+def projections_from_motion(R_c: F64, r_c: F64, rig: RectifiedStereo) -> tuple[F64, F64]:
+    """``P_c``, ``P_d`` (S, 3, 4) from the camera motion ``R_c`` (S, 3, 3), ``r_c`` (S, 3)."""
     b = np.array([rig.baseline, 0.0, 0.0])
     K = rig.K
     P_c = K @ np.concatenate([R_c, -r_c[:, :, None]], axis=2)
@@ -128,12 +133,22 @@ def predict_pixels_tc(
     (with ``imu``, see ``vision_common.camera_motion``).
     """
     _, single = as_sigma_points(X)
+    R_c, r_c = camera_motion(X, dt_s, rig, rotation, imu)
+    out = pixels_tc_from_motion(R_c, r_c, uv_left_prev, uv_right_prev, rig)
+    return out[0] if single else out
+
+
+def pixels_tc_from_motion(
+    R_c: F64, r_c: F64, uv_left_prev: ArrayLike, uv_right_prev: ArrayLike, rig: RectifiedStereo
+) -> F64:
+    """TC pixels at t_k (S, 4M) transferred with the camera motion ``R_c`` (S, 3, 3), ``r_c``
+    (S, 3) (``d_k = R_c d_{k-1} - r_c``, e.g. from a cloned pose) from the k-1 pixels (M, 2)."""
     uv_a = as_pixels(uv_left_prev, "uv_left_prev")
     uv_b = as_pixels(uv_right_prev, "uv_right_prev")
     if uv_a.shape != uv_b.shape:
         raise ValueError(f"uv_left_prev {uv_a.shape} and uv_right_prev {uv_b.shape} differ")
     P_a, P_b = stereo_projections(rig)
-    P_c, P_d = current_projections(X, dt_s, rig, rotation, imu)
+    P_c, P_d = projections_from_motion(R_c, r_c, rig)
     # One tensor over both target views: r indexes the 6 rows of [P_c; P_d].
     T = np.einsum("iqm,srm->siqr", _tensor_basis(P_a, P_b), np.concatenate([P_c, P_d], axis=1))
     lines = perpendicular_lines(fundamental_from_projections(P_a, P_b), uv_a, uv_b)
@@ -143,5 +158,4 @@ def predict_pixels_tc(
     with np.errstate(divide="ignore", invalid="ignore"):
         uv_c = p_cd[..., 0:2] / p_cd[..., 2:3]
         uv_d = p_cd[..., 3:5] / p_cd[..., 5:6]
-    out = np.concatenate([uv_c, uv_d], axis=-1).reshape(uv_c.shape[0], -1)
-    return out[0] if single else out
+    return np.concatenate([uv_c, uv_d], axis=-1).reshape(uv_c.shape[0], -1)

@@ -17,6 +17,7 @@ from svains.errors import InitialisationError
 from svains.geometry.rotation import quat_normalize, rotmat_to_quat
 from svains.models.imu import stencil_consistent_rate
 from svains.models.state import BA, BG, DBA, DBG, DP, DTH, DV, DW, P, Q, StateLayout, V, W
+from svains.navigation.heading import course_heading_or_none
 from svains.navigation.options import InitOptions
 from svains.sensors.types import GpsCalib, GroundTruth, ImuCalib, MagCalib
 
@@ -313,8 +314,18 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
         info["heading"] = "magnetometer"
     else:
         R_W_B = _align_up(f_B, f_W / np.linalg.norm(f_W))
-        info["heading"] = "none (arbitrary yaw)"
-        log.warning("no magnetometer at the start: heading starts arbitrary")
+        # Attitude from the GPS course while moving (ground vehicle: sideslip ~0), over the
+        # same first GPS interval as the specific force.
+        course = course_heading_or_none(
+            0.5 * (gps.v_W_G[0] + gps.v_W_G[1]), f_B, f_W, imu.gyro_B[win].mean(axis=0) @ R_B_S.T,
+            dataset.gps_calib.p_B_G, -g_W, dataset.gps_calib.velocity_noise_std,
+            o.course_min_speed_mps, (0.5 * (ta + tb) - t0) * 1e-9,
+        )  # fmt: skip
+        if course is not None:
+            R_W_B, yaw_std, info["heading"] = course.R_W_B, course.yaw_std_rad, "gps course"
+        else:
+            info["heading"] = "none (arbitrary yaw)"
+            log.warning("no magnetometer at the start: heading starts arbitrary")
     x = np.zeros(layout.nx)
     x[Q] = quat_normalize(rotmat_to_quat(R_W_B))
     # Position and velocity of the body at t0 from the first fix (t0 is within one IMU period).

@@ -66,6 +66,17 @@ def imu_noise(c: ImuCalib | None, layout: StateLayout, options: NoiseOptions) ->
     )
 
 
+def imu_sample_period(rig: Rig) -> float:
+    """Period (s) that sets one IMU sample's white-noise variance ``σ²/h``: the sensor's own
+    rate from its calibration (a sample averages the signal over its sensor period, whatever
+    gaps the recording leaves: KITTI raw keeps 100 Hz OXTS records 10-250 ms apart); the
+    nominal step ``rig.imu_period_s`` without one. Propagation and the accumulated process
+    noise use each step's own length (``propagate_to``)."""
+    if rig.imu is not None and rig.imu.rate_hz > 0:
+        return 1.0 / float(rig.imu.rate_hz)
+    return float(rig.imu_period_s)
+
+
 class InsFilter:
     """UKF + IMU timeline; ``t_ns`` is the time of the current estimate ``ukf.x``, ``ukf.P``."""
 
@@ -94,7 +105,7 @@ class InsFilter:
             filter_options.propagation == "preintegrated",
         )
         self.noise = imu_noise(rig.imu, layout, noise_options)
-        self._h_imu = float(rig.imu_period_s)
+        self._h_imu = imu_sample_period(rig)
         points = MerweScaledSigmaPoints(
             layout.ndx, filter_options.alpha, filter_options.beta, filter_options.kappa
         )
@@ -243,8 +254,8 @@ class InsFilter:
         return 0.5 * (Y[0::2] - Y[1::2])
 
     def tangent_std(self) -> F64:
-        """Standard deviations (ndx,) of the estimate's error, ω's white part included."""
-        var = np.diag(self.ukf.P).copy()
+        """Standard deviations (ndx,) of the navigation error, ω's white part included."""
+        var = np.diag(self.ukf.P)[: self.layout.ndx].copy()  # pose clones excluded
         var[DW] += self.omega_white
         return np.sqrt(var)
 

@@ -162,6 +162,8 @@ class Core:
         ins.add_omega_white()  # paper model: the vision models see ω's gyro white noise
         stats = updater.update(ctx)
         ins.remove_omega_white()
+        if hasattr(updater, "after_frame"):
+            updater.after_frame(ctx)  # pose clones (rotation="clone")
         if stats is not None:
             self._record(stats, cfg.method)
         self._t_prev_frame = t
@@ -183,12 +185,15 @@ class Core:
 
     # ---- outputs ------------------------------------------------------------------------
     def snapshot(self) -> NavState:
-        return NavState.from_state(self.ins.t_ns, self.ins.ukf.x, self.ins.ukf.P, self.layout)
+        # The navigation block only (pose clones, when the state holds any, are left out).
+        nx, ndx = self.layout.nx, self.layout.ndx
+        x, P = self.ins.ukf.x, self.ins.ukf.P
+        return NavState.from_state(self.ins.t_ns, x[:nx], P[:ndx, :ndx], self.layout)
 
     def _log(self) -> None:
         ins = self.ins
         self._log_t.append(ins.t_ns)
-        self._log_x.append(ins.ukf.x.copy())
+        self._log_x.append(ins.ukf.x[: self.layout.nx].copy())
         self._log_std.append(ins.tangent_std())
         self._log_P9.append(ins.ukf.P[:9, :9].copy())
         self._emit(self.snapshot())

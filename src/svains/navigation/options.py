@@ -81,6 +81,7 @@ class InitOptions:
     flight_roll_pitch_std: float = 0.05  # rad (in-flight start from GPS)
     yaw_std: float = 0.1  # rad (with magnetometer or ground truth)
     yaw_std_unknown: float = 0.5  # rad (no heading source)
+    course_min_speed_mps: float = 3.0  # GPS start without magnetometer: heading from the course
     omega_std: float = 0.01  # rad/s
     gyro_bias_std: float = 0.005  # rad/s
     accel_bias_std: float = 0.1  # m/s²
@@ -106,6 +107,10 @@ class InitOptions:
 # close on the village (whose optimum, ~512, is worse on EuRoC).
 LC_COV_SCALE = 30.0
 
+# Vision motion models: the state-at-k ones of ``models.vision_common`` and ``clone`` (the pose
+# at k-1 cloned into the state, ``navigation.vision_clones``; exact relative motion).
+MOTION_MODELS = (*ROTATION_MODELS, "clone")
+
 
 @dataclass(frozen=True)
 class VisionOptions:
@@ -114,45 +119,51 @@ class VisionOptions:
     ``source``: where tracks come from in a replay (``features``: a recorded ``features0``
     stream, ``images``: the stereo front end, ``auto``: features when the data set has them).
     ``pixel_noise_std`` px (None: the features0 value, 1 px for images; a replay resolves it)
-    times ``pixel_noise_scale`` (triangulation at k-1 and the small-motion model add error the
-    paper's pixel noise does not model); ``feature_gate_probability`` per-feature chi-square(4)
-    gate (None: off); ``max_features`` per frame (evenly subsampled; None: all); ``rotation``
-    "imu" (relative motion from the IMU samples between the frames, beyond the paper:
-    ``models.vision_imu``), "linear" (paper eq. 18) or "exp"; ``frame_stride`` uses every n-th
-    stereo frame; ``lc_cov_scale`` multiplies the egomotion covariance (default 30, measured for
-    lc's accuracy, see ``LC_COV_SCALE``); ``lc_min_std`` (rad, m) floors its standard
-    deviations; ``imu_noise`` adds the IMU increment's noise (``rotation="imu"``) to the pixel
-    covariance as a feature-correlated term; ``frame_gyro_walk`` (``imu`` only, applied by
-    ``tune_for_frames``) instead lets the gyro-bias state absorb it, see there;
-    ``motion_prior`` hands the image front end the camera motion the filter predicts between
-    its frames (``vision_motion.MotionPrior``), with ``motion_prior_inflation`` (variance
-    factor) and ``motion_prior_min_std`` (rad, m) floors (off by default: on the simulated
-    village sets, whose gyro is noisy, ``3d`` with the prior was better on the 20 Hz bench set,
-    0.041 m against 0.045 m RMSE, see ``bench/bench_methods.py``, and worse on the 2 Hz demo
-    flight, 0.358 m against 0.259 m).
+    times ``pixel_noise_scale`` (None: ``noise_scale()``, 1 with clones, 2 for the approximate
+    motion models); ``feature_gate_probability`` per-feature chi-square(4) gate (None: off);
+    ``max_features`` per frame (evenly subsampled; None: all); ``rotation`` is the motion
+    model between frames: "clone" (default: the pose at k-1 cloned into the state, exact
+    relative motion, ``navigation.vision_clones``), "linear" (paper eq. 18), "exp" or "imu"
+    (relative motion from the IMU samples between the frames: ``models.vision_imu``);
+    ``single_use_pixels`` (clones) lets each feature pixel enter one update only (a feature
+    fused at k-1 is not triangulated again at k); ``min_disparity_px`` (None:
+    ``min_disparity()``) drops features whose disparity one frame earlier is smaller;
+    ``frame_stride`` uses every n-th stereo frame; ``lc_cov_scale`` multiplies the egomotion
+    covariance (None: ``lc_scale()``, 30, measured for lc's accuracy, see ``LC_COV_SCALE``);
+    ``lc_min_std`` (rad, m) floors its standard deviations; ``imu_noise`` adds the IMU
+    increment's noise (``rotation="imu"``) to the pixel covariance as a feature-correlated
+    term; ``frame_gyro_walk`` (``imu`` only, applied by ``tune_for_frames``) instead lets the
+    gyro-bias state absorb it, see there; ``motion_prior`` hands the image front end the
+    camera motion the filter predicts between its frames (``vision_motion.MotionPrior``), with
+    ``motion_prior_inflation`` (variance factor) and ``motion_prior_min_std`` (rad, m) floors
+    (off by default: on the simulated village sets, whose gyro is noisy, ``3d`` with the prior
+    was better on the 20 Hz bench set, 0.041 m against 0.045 m RMSE, see
+    ``bench/bench_methods.py``, and worse on the 2 Hz demo flight, 0.358 m against 0.259 m).
     """
 
     source: SourceName = "auto"
     pixel_noise_std: float | None = None
-    pixel_noise_scale: float = 2.0
+    pixel_noise_scale: float | None = None
     feature_gate_probability: float | None = 0.999
     max_features: int | None = 120
     min_features: int = 3
-    rotation: str = "imu"
+    rotation: str = "clone"
     frame_stride: int = 1
     max_row_diff_px: float | None = 2.0
-    lc_cov_scale: float = LC_COV_SCALE
+    lc_cov_scale: float | None = None
     lc_min_std: tuple[float, float] = (1e-4, 1e-3)
     imu_noise: bool = True
     frame_gyro_walk: bool = True
+    single_use_pixels: bool = True
+    min_disparity_px: float | None = None
     motion_prior: bool = False
     motion_prior_inflation: float = 4.0
     motion_prior_min_std: tuple[float, float] = (2e-3, 5e-3)
 
     def __post_init__(self) -> None:
-        if self.rotation not in ROTATION_MODELS:
+        if self.rotation not in MOTION_MODELS:
             raise ConfigError(
-                f"vision.rotation must be one of {ROTATION_MODELS}, got {self.rotation!r}"
+                f"vision.rotation must be one of {MOTION_MODELS}, got {self.rotation!r}"
             )
         if self.source not in ("auto", "features", "images"):
             raise ConfigError(
@@ -160,6 +171,46 @@ class VisionOptions:
             )
         if self.frame_stride < 1:
             raise ConfigError(f"vision.frame_stride must be >= 1, got {self.frame_stride}")
+
+    def noise_scale(self) -> float:
+        """``pixel_noise_scale``, or its default: 1 with clones (the relative motion is exact),
+        2 for the models that approximate it (measured, see ``bench/tc_noise_scan.py``)."""
+        if self.pixel_noise_scale is not None:
+            return float(self.pixel_noise_scale)
+        return 1.0 if self.rotation == "clone" else 2.0
+
+    def min_disparity(self, sigma_px: float, noise_known: bool = True) -> float:
+        """``min_disparity_px``, or its default: 12 pixel-noise standard deviations with
+        clones when the pixel noise is known (``noise_known``: recorded features or a given
+        ``pixel_noise_std``), none otherwise (the image front end's 1 px is a placeholder) and
+        for the other models (their measured settings).
+
+        Far features bias a clone-based update twice: their triangulated depth is non-linear
+        in a disparity a few σ from zero (the linearised pixel noise no longer holds), and only
+        features in front of the camera (k-1 disparity > 0) can be used, a selection on the
+        k-1 noise. Measured on the 60 s village (10 seeds, 0.5 px): without the gate the
+        position NEES is 50-140 (3 dof), ATE 0.35-0.40 m (seeds 0-2); gated at 5 px on the k-2
+        disparity (``PixelUpdater._near``), ATE 0.10 m, NEES 14.9 (9 dof); at 6 px (12 σ) the
+        NEES of seeds 0-3 falls from 17.0/17.8/15.0/12.1 to 12.4/14.5/12.8/8.8. On KITTI raw
+        (images, σ taken as 1 px) any gate costs accuracy: final error 1.43 % ungated, 1.64 %
+        at 5 px, 1.72 % at 10 px, 1.82 % at 12 px (largest error in two 10 s GPS outages 1.04 m
+        against 0.85 m ungated).
+        """
+        if self.min_disparity_px is not None:
+            return float(self.min_disparity_px)
+        return 12.0 * sigma_px if self.rotation == "clone" and noise_known else 0.0
+
+    def lc_scale(self) -> float:
+        """``lc_cov_scale``, or its default ``LC_COV_SCALE``, with clones too. The clone puts the
+        egomotion's correlation with the state at k-1 in the model, but not the correlation
+        between consecutive egomotions (both use the k-1 pixels) nor the front end's own
+        overconfidence on features0 (raw NEES 18-29 for 6 dof). Measured with clones, factor 1
+        against 30: village 60 s seeds 0-2, ATE 0.415/0.310/0.501 m against 0.404/0.282/0.271,
+        NEES 88/84/42 against 8.1/6.7/7.2; KITTI raw GPS-denied, final error 1.93 % (62 of 179
+        frames rejected by the gate) against 1.39 %."""
+        if self.lc_cov_scale is not None:
+            return float(self.lc_cov_scale)
+        return LC_COV_SCALE
 
 
 @dataclass(frozen=True)

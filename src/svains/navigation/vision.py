@@ -20,6 +20,7 @@ the front end's motion prior in ``vision_motion``; this module re-exports ``Pixe
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
@@ -29,10 +30,13 @@ from numpy.typing import NDArray
 from svains.errors import DatasetError
 from svains.filter.ukf import UpdateStats
 from svains.frontend.types import StereoTracks
+from svains.models.vision_clone import predict_egomotion_clone
+from svains.models.vision_common import ImuIncrement
 from svains.models.vision_lc import egomotion_measurement, predict_egomotion_lc
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.options import RunConfig, VisionOptions
+from svains.navigation.vision_clones import CloneWindow, next_reference_ns
 from svains.navigation.vision_pixels import (
     PixelUpdater,
     VisionCounters,
@@ -65,6 +69,7 @@ class LcUpdater:
         self.counters = VisionCounters()
         self._imu, self._prior = imu_and_prior(history, rig, options, self.source)
         self._nis_per_dof: list[float] = []  # consistency check: should average ~1
+        self.clones = CloneWindow() if options.rotation == "clone" else None
 
     def measurement(self, tr: StereoTracks) -> tuple[F64, F64]:
         """``z`` (6,) (rotation vector rad, translation m) and its covariance (6, 6): the front
@@ -73,7 +78,7 @@ class LcUpdater:
         if tr.egomotion is None:
             raise DatasetError(f"tracks at t={tr.t_ns} ns carry no egomotion (lc needs one)")
         z, cov = egomotion_measurement(tr.egomotion)
-        cov = cov * self.options.lc_cov_scale
+        cov = cov * self.options.lc_scale()
         floor = np.repeat(np.square(self.options.lc_min_std), 3)
         return z, cov + np.diag(np.maximum(floor - np.diag(cov), 0.0))
 
@@ -87,14 +92,11 @@ class LcUpdater:
             return None
         dt_s = (tr.t_ns - tr.t_prev_ns) * 1e-9
         z, cov = self.measurement(tr)
-        rig, rot = self.rig, self.options.rotation
-        if self._imu is None or rot != "imu":
-            inc = None
-        elif inc is None:  # no prior, or it spanned another interval
-            inc = self._imu.between(ctx, tr.t_prev_ns, tr.t_ns)
-        block = MeasurementBlock(
-            name="vision_lc", h=lambda X: predict_egomotion_lc(X, dt_s, rig, rot, inc), z=z, R=cov
-        )
+        h = self._model(ctx, tr, dt_s, inc)
+        if h is None:  # no clone of the k-1 frame (e.g. the first frame)
+            c.frames_without_tracks += 1
+            return None
+        block = MeasurementBlock(name="vision_lc", h=h, z=z, R=cov)
         stats = apply_blocks(ctx, [block, *ctx.extra])
         if stats.dof > 0 and np.isfinite(stats.nis):
             self._nis_per_dof.append(stats.nis / stats.dof)
@@ -105,11 +107,31 @@ class LcUpdater:
             c.frames_rejected += 1
         return stats
 
+    def _model(
+        self, ctx: FrameContext, tr: StereoTracks, dt_s: float, inc: ImuIncrement | None
+    ) -> Callable[[F64], F64] | None:
+        """``h(X) -> (S, 6)``: the egomotion from the clone of the k-1 frame (``clone``; None
+        without one) or from the state at k."""
+        rig, rot = self.rig, self.options.rotation
+        if self.clones is not None:
+            cols = self.clones.columns(ctx.ukf, tr.t_prev_ns)
+            return None if cols is None else (lambda X: predict_egomotion_clone(X, cols, rig))
+        if self._imu is None or rot != "imu":
+            inc = None
+        elif inc is None:  # no prior, or it spanned another interval
+            inc = self._imu.between(ctx, tr.t_prev_ns, tr.t_ns)
+        return lambda X: predict_egomotion_lc(X, dt_s, rig, rot, inc)
+
+    def after_frame(self, ctx: FrameContext) -> None:
+        """Once per frame, after ``update``: keep the clone the next frame needs."""
+        if self.clones is not None:
+            self.clones.after_frame(ctx.ukf, ctx.t_ns, next_reference_ns(self.source, ctx.t_ns))
+
     def summary(self) -> dict[str, Any]:
         out: dict[str, Any] = self.counters.as_dict()
         nis = np.asarray(self._nis_per_dof)
         out.update(
-            source=self.source.kind, lc_cov_scale=self.options.lc_cov_scale,
+            source=self.source.kind, lc_cov_scale=self.options.lc_scale(),
             frontend_status=dict(getattr(self.source, "status_counts", {})),
             nis_per_dof_mean=float(nis.mean()) if nis.size else None,
             nis_per_dof_median=float(np.median(nis)) if nis.size else None,

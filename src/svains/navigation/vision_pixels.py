@@ -7,6 +7,7 @@ prior, the stacked update).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any
 
@@ -17,10 +18,12 @@ from svains.errors import ConfigError
 from svains.filter.ukf import UpdateStats
 from svains.frontend.types import StereoTracks
 from svains.models.vision_3d import pixels_from_motion
+from svains.models.vision_clone import clone_camera_motion
 from svains.models.vision_common import ImuIncrement, camera_motion, stack_pixels
-from svains.models.vision_tc import predict_pixels_tc
+from svains.models.vision_tc import pixels_tc_from_motion
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.imu_history import ImuHistory
+from svains.navigation.vision_clones import CloneWindow, next_reference_ns
 from svains.navigation.vision_motion import (
     CachedModel,
     ImuIncrements,
@@ -41,6 +44,7 @@ if TYPE_CHECKING:
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
+MotionFn = Callable[[F64], tuple[F64, F64]]
 
 
 @dataclass
@@ -82,43 +86,87 @@ class PixelUpdater:
         self.rig = self.source.rig
         std = options.pixel_noise_std
         std = self.source.pixel_noise_std if std is None else std
-        self.sigma_px = max(float(std), 0.05) * options.pixel_noise_scale
+        self.sigma_px = max(float(std), 0.05) * options.noise_scale()
+        self.clones = CloneWindow() if options.rotation == "clone" else None
+        known = options.pixel_noise_std is not None or self.source.kind == "features"
+        self._min_disparity_px = options.min_disparity(self.sigma_px, known)
+        self._fused: tuple[int, I64] | None = None  # (frame time, track ids) of the last update
+        # Track ids and disparities (px) at the k-1 frame of the last tracks (``_near``).
+        self._disparity_before: tuple[I64, F64] = (np.zeros(0, np.int64), np.zeros(0))
+        self._disparity_t_ns: int | None = None
         self.counters = VisionCounters()
         self._imu, self._prior = imu_and_prior(history, rig, options, self.source)
         self._imu_noise = (
             None if options.rotation != "imu" or self._imu is None else self._imu.noise
         )
 
-    def _model(
-        self, uvl0: F64, uvr0: F64, dt_s: float, inc: ImuIncrement | None,
-        p_F: F64 | None = None,
-    ) -> Any:
+    def _fresh(self, tr: StereoTracks | None) -> NDArray[np.bool_] | bool:
+        """Features (M,) whose k-1 pixels no update has used (``single_use_pixels``, clones
+        only): a pixel fused at k-1 has moved the clone, so triangulating it again at k would
+        correlate the measurement noise with the state error."""
+        last = self._fused
+        if tr is None or self.clones is None or not self.options.single_use_pixels:
+            return True
+        if last is None or last[0] != tr.t_prev_ns:
+            return True
+        return ~np.isin(tr.track_id, last[1])
+
+    def _near(self, tr: StereoTracks | None) -> NDArray[np.bool_] | bool:
+        """Features (M,) whose disparity one frame earlier (k-2) is at least
+        ``min_disparity_px``. Gating on the k-1 disparity itself would bias the triangulation
+        that uses it (a far feature whose noise happened to enlarge its disparity passes, one
+        whose noise shrank it does not); the k-2 pixels carry independent noise."""
+        d_min = self._min_disparity_px
+        if tr is None or d_min <= 0.0:
+            return True
+        ids, disp = self._disparity_before
+        self._disparity_before = (
+            tr.track_id, tr.uv_left_prev[:, 0] - tr.uv_right_prev[:, 0]
+        ) if tr is not None else (np.zeros(0, np.int64), np.zeros(0))
+        if ids.size == 0 or self._disparity_t_ns != tr.t_prev_ns:
+            self._disparity_t_ns = tr.t_ns
+            return np.zeros(tr.track_id.size, bool)
+        self._disparity_t_ns = tr.t_ns
+        order = np.argsort(ids)
+        pos = np.clip(np.searchsorted(ids[order], tr.track_id), 0, ids.size - 1)
+        found = ids[order][pos] == tr.track_id
+        return found & (disp[order][pos] >= d_min)
+
+    def _motion(
+        self, ctx: FrameContext, tr: StereoTracks, dt_s: float, inc: ImuIncrement | None
+    ) -> MotionFn | None:
+        """Camera motion k-1 -> k of sigma points, ``X (S, nx) -> (R_c (S, 3, 3), r_c (S, 3))``:
+        from the clone of the k-1 frame (``rotation="clone"``; None when there is none) or
+        from the state at k (``vision_common.camera_motion``)."""
+        rig, rot = self.rig, self.options.rotation
+        if self.clones is not None:
+            cols = self.clones.columns(ctx.ukf, tr.t_prev_ns)
+            return None if cols is None else (lambda X: clone_camera_motion(X, cols, rig))
+        return lambda X: camera_motion(X, dt_s, rig, rot, inc)
+
+    def _model(self, uvl0: F64, uvr0: F64, motion: MotionFn, p_F: F64 | None = None) -> Any:
         """``h(X)`` from the k-1 pixels (M, 2): ``3d`` triangulates them (eq. 10; or takes
         ``p_F`` (M, 3)) and moves the points with each sigma point's camera motion, ``tc``
         transfers them (eq. 21)."""
-        rot, rig = self.options.rotation, self.rig
+        rig = self.rig
         if self.method == "3d":
             p = rig.triangulate(uvl0, uvr0) if p_F is None else p_F
-            return lambda X: pixels_from_motion(*camera_motion(X, dt_s, rig, rot, inc), p, rig)
-        return lambda X: predict_pixels_tc(X, uvl0, uvr0, dt_s, rig, rot, inc)
+            return lambda X: pixels_from_motion(*motion(X), p, rig)
+        return lambda X: pixels_tc_from_motion(*motion(X), uvl0, uvr0, rig)
 
     def _predict(
-        self, ctx: FrameContext, X: F64, uvl0: F64, uvr0: F64, dt_s: float,
-        inc: ImuIncrement | None,
+        self, ctx: FrameContext, X: F64, uvl0: F64, uvr0: F64, motion: MotionFn
     ) -> tuple[F64, F64, F64, F64 | None]:
         """Predicted pixels ``Y`` (S, 4M) of the sigma points ``X``, the camera motion ``R_c``
         (3, 3), ``r_c`` (3,) at the mean state, and (``3d``) the k-1 points (M, 3)."""
-        rot = self.options.rotation
+        # One camera-motion evaluation for the sigma points and the mean (last row).
+        R_all, r_all = motion(np.vstack([X, ctx.ukf.x[None, :]]))
         if self.method == "3d":
-            # One camera-motion evaluation for the sigma points and the mean (last row).
-            R_all, r_all = camera_motion(np.vstack([X, ctx.ukf.x[None, :]]), dt_s, self.rig,
-                                         rot, inc)
             p_F = self.rig.triangulate(uvl0, uvr0)
             Y = pixels_from_motion(R_all[:-1], r_all[:-1], p_F, self.rig)
             return Y, R_all[-1], r_all[-1], p_F
-        Y = self._model(uvl0, uvr0, dt_s, inc)(X)
-        R_m, r_m = camera_motion(ctx.ukf.x[None, :], dt_s, self.rig, rot, inc)
-        return Y, R_m[0], r_m[0], None
+        Y = pixels_tc_from_motion(R_all[:-1], r_all[:-1], uvl0, uvr0, self.rig)
+        return Y, R_all[-1], r_all[-1], None
 
     def update(self, ctx: FrameContext) -> UpdateStats | None:
         """Fuse the frame at ``ctx.t_ns`` (see the module docstring)."""
@@ -129,6 +177,7 @@ class PixelUpdater:
             np.zeros(0, bool) if tr is None
             else tr.inlier & np.isfinite(tr.p_Ckm1_F).all(axis=1) & (tr.p_Ckm1_F[:, 2] > 0)
         )
+        usable &= self._fresh(tr) & self._near(tr)
         if tr is None or usable.sum() < self.options.min_features or tr.t_ns <= tr.t_prev_ns:
             c.frames_without_tracks += 1
             return None
@@ -140,8 +189,12 @@ class PixelUpdater:
             inc = None
         elif inc is None:  # no prior, or it spanned another interval
             inc = self._imu.between(ctx, tr.t_prev_ns, tr.t_ns)
+        motion = self._motion(ctx, tr, dt_s, inc)
+        if motion is None:  # no clone of the k-1 frame (e.g. the first frame)
+            c.frames_without_tracks += 1
+            return None
         X, _ = ctx.ukf.sigma_points()  # reused by the update below (same state)
-        Y, R_c, r_c, p_F = self._predict(ctx, X, uvl0, uvr0, dt_s, inc)
+        Y, R_c, r_c, p_F = self._predict(ctx, X, uvl0, uvr0, motion)
         # Per-feature 4x4 noise: pixel noise at k plus the k-1 pixel noise carried through
         # triangulation/transfer (dominant for far points), and in "imu" mode the IMU
         # increment's noise as a feature-correlated factor G (4M, 6). Closed form at the mean
@@ -164,16 +217,21 @@ class PixelUpdater:
             c.frames_without_tracks += 1
             return None
         kept = np.flatnonzero(keep)
-        h_kept = self._model(uvl0[kept], uvr0[kept], dt_s, inc,
-                             None if p_F is None else p_F[kept])
+        h_kept = self._model(uvl0[kept], uvr0[kept], motion, None if p_F is None else p_F[kept])
         block = _whitened_block(f"vision_{self.method}", kept, X, Y, z, R_blocks, G, h_kept)
         stats = apply_blocks(ctx, [block, *ctx.extra])
         if stats.accepted:
             c.frames_fused += 1
             c.features_fused += int(keep.sum())
+            self._fused = (tr.t_ns, tr.track_id[idx[kept]])
         else:
             c.frames_rejected += 1
         return stats
+
+    def after_frame(self, ctx: FrameContext) -> None:
+        """Once per frame, after ``update``: keep the clone the next frame needs."""
+        if self.clones is not None:
+            self.clones.after_frame(ctx.ukf, ctx.t_ns, next_reference_ns(self.source, ctx.t_ns))
 
     def summary(self) -> dict[str, Any]:
         """Counters and settings for ``report.json``."""

@@ -72,8 +72,10 @@ def resolve_config(ds: Dataset, config: RunConfig) -> RunConfig:
     if source == "auto":  # without parsing features0 (a lazy stream) when it is absent
         source = "features" if ds.has_stream("features") else "images"
     std = v.pixel_noise_std
-    if std is None:
-        std = float(ds.features.pixel_noise_std) if source == "features" and ds.features else 1.0
+    if std is None and source == "features" and ds.features is not None:
+        # The recorded features' noise. Images keep None: the front end's 1 px is a
+        # placeholder, not a known noise (``VisionOptions.min_disparity``).
+        std = float(ds.features.pixel_noise_std)
     config = replace(config, vision=replace(v, source=source, pixel_noise_std=std))
     if source == "features" and ds.features is not None:
         times = ds.features.frame_times()

@@ -1,0 +1,160 @@
+"""Stochastic cloning: the navigation state augmented with copies of past body poses.
+
+State ``x`` = navigation block (nx numbers, ``models.state``) followed by K clones, each
+``(p_W_B (3, m), q_W_B_wxyz (4))`` at a past frame time: nx + 7K numbers. Tangent ``dx`` =
+navigation tangent (ndx) followed by each clone's ``(δp (3, m), δθ_B (3, rad))``, the attitude
+error on the right as everywhere else (``q = q̂ ⊗ Exp(δθ_B)``): ndx + 6K numbers.
+
+A clone is an exact copy of the current pose, so its tangent error equals the navigation
+block's ``(δp, δθ_B)``: augmenting is ``x' = (x, p, q)`` and ``P' = J P J^T`` with the
+selection ``J = [I; S]`` (cross-covariances included). Marginalising a clone deletes its rows
+and columns. The process model never touches the clones (the IMU propagators copy every column
+beyond the navigation block; ``UKF.predict`` adds ``Q`` to the navigation block only), so a
+clone keeps its value and its correlation with the propagated state evolves through the sigma
+points: the relative motion between the clone time and now is then a function of the state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from svains.errors import ConfigError
+from svains.models._quat import qexp, qlog, qmul
+from svains.models.manifold import NavManifold, quat_mean
+from svains.models.state import DP, DTH
+from svains.models.state import P as P_SLICE
+from svains.models.state import Q as Q_SLICE
+
+F64 = NDArray[np.float64]
+
+CLONE_NX = 7  # p_W_B (3), q_W_B_wxyz (4)
+CLONE_NDX = 6  # δp (3), δθ_B (3)
+
+
+@dataclass(frozen=True)
+class CloneManifold:
+    """Box-plus/minus and mean of the navigation block plus ``n_clones`` pose clones."""
+
+    nav: NavManifold
+    n_clones: int = 0
+
+    @property
+    def nx(self) -> int:
+        return self.nav.nx + CLONE_NX * self.n_clones
+
+    @property
+    def ndx(self) -> int:
+        return self.nav.ndx + CLONE_NDX * self.n_clones
+
+    def columns(self, i: int) -> tuple[slice, slice]:
+        """Columns of clone ``i`` in ``x``: ``(p_W_B, q_W_B_wxyz)`` slices."""
+        if not 0 <= i < self.n_clones:
+            raise ConfigError(f"clone index {i} out of range (the state has {self.n_clones})")
+        a = self.nav.nx + CLONE_NX * i
+        return slice(a, a + 3), slice(a + 3, a + 7)
+
+    def tangent(self, i: int) -> slice:
+        """Columns of clone ``i``'s ``(δp, δθ_B)`` in the tangent vector."""
+        if not 0 <= i < self.n_clones:
+            raise ConfigError(f"clone index {i} out of range (the state has {self.n_clones})")
+        a = self.nav.ndx + CLONE_NDX * i
+        return slice(a, a + CLONE_NDX)
+
+    def _split(self, X: F64) -> tuple[F64, F64]:
+        """Clone positions (S, K, 3) and quaternions as (4, S, K) from (S, nx)."""
+        C = X[:, self.nav.nx :].reshape(X.shape[0], self.n_clones, CLONE_NX)
+        return C[..., :3], np.moveaxis(C[..., 3:], -1, 0)
+
+    def retract(self, X: F64, dX: F64) -> F64:
+        """``X ⊞ dX``: (S, nx), (S, ndx) -> (S, nx)."""
+        nav = self.nav
+        out = np.empty((X.shape[0], self.nx))
+        out[:, : nav.nx] = nav.retract(X[:, : nav.nx], dX[:, : nav.ndx])
+        if self.n_clones == 0:
+            return out
+        p, q = self._split(X)
+        d = dX[:, nav.ndx :].reshape(X.shape[0], self.n_clones, CLONE_NDX)
+        qn = qmul(q, qexp(np.moveaxis(d[..., 3:], -1, 0)))
+        qn /= np.sqrt((qn * qn).sum(axis=0))
+        C = out[:, nav.nx :].reshape(X.shape[0], self.n_clones, CLONE_NX)
+        C[..., :3] = p + d[..., :3]
+        C[..., 3:] = np.moveaxis(qn, 0, -1)
+        return out
+
+    def local(self, X: F64, x_ref: F64) -> F64:
+        """``X ⊟ x_ref``: (S, nx), (nx,) -> (S, ndx)."""
+        nav = self.nav
+        out = np.empty((X.shape[0], self.ndx))
+        out[:, : nav.ndx] = nav.local(X[:, : nav.nx], x_ref[: nav.nx])
+        if self.n_clones == 0:
+            return out
+        p, q = self._split(X)
+        p0, q0 = self._split(x_ref[None, :])
+        conj = q0 * np.array([1.0, -1.0, -1.0, -1.0])[:, None, None]
+        d = out[:, nav.ndx :].reshape(X.shape[0], self.n_clones, CLONE_NDX)
+        d[..., :3] = p - p0
+        d[..., 3:] = np.moveaxis(qlog(qmul(conj, q)), 0, -1)
+        return out
+
+    def mean(self, X: F64, w: F64) -> F64:
+        """Weighted mean: the navigation block's, clone positions summed, clone attitudes by the
+        same intrinsic quaternion mean as the navigation attitude."""
+        nav = self.nav
+        out = np.empty(self.nx)
+        out[: nav.nx] = nav.mean(X[:, : nav.nx], w)
+        for i in range(self.n_clones):
+            cp, cq = self.columns(i)
+            out[cp] = w @ X[:, cp]
+            out[cq] = quat_mean(X[:, cq], w)
+        return out
+
+
+# Variance (m², rad²) added to a new clone's own block. An exact copy makes P singular, and the
+# sigma points need its Cholesky factor; 1e-12 (1 µm, 1 µrad) is far below any pose variance
+# the filter carries and far above the rounding error of the factorisation.
+CLONE_JITTER = 1e-12
+
+
+def augment_clone(
+    x: F64, P: F64, manifold: CloneManifold, jitter: float = CLONE_JITTER
+) -> tuple[F64, F64, CloneManifold]:
+    """Append a clone of the current body pose: ``x'`` (nx + 7,), ``P'`` (ndx + 6, ndx + 6).
+
+    Exact: the clone's error is the navigation block's ``(δp, δθ_B)``, so ``P' = J P J^T`` with
+    ``J`` the identity stacked on that selection (the new clone is fully correlated with now),
+    plus ``jitter`` on the clone's own diagonal (``CLONE_JITTER``: keeps P positive definite).
+    """
+    x = np.asarray(x, dtype=float)
+    P = np.asarray(P, dtype=float)
+    if x.shape != (manifold.nx,) or P.shape != (manifold.ndx, manifold.ndx):
+        raise ConfigError(
+            f"x {x.shape} / P {P.shape} do not match nx={manifold.nx}, ndx={manifold.ndx}"
+        )
+    n = manifold.ndx
+    sel = np.r_[np.arange(n)[DP], np.arange(n)[DTH]]  # the pose's rows of the tangent
+    J = np.zeros((n + CLONE_NDX, n))
+    J[:n] = np.eye(n)
+    J[n + np.arange(CLONE_NDX), sel] = 1.0
+    P_new = J @ P @ J.T
+    P_new[n:, n:] += jitter * np.eye(CLONE_NDX)
+    x_new = np.concatenate([x, x[P_SLICE], x[Q_SLICE]])
+    return x_new, 0.5 * (P_new + P_new.T), CloneManifold(manifold.nav, manifold.n_clones + 1)
+
+
+def marginalize_clone(
+    x: F64, P: F64, manifold: CloneManifold, i: int
+) -> tuple[F64, F64, CloneManifold]:
+    """Drop clone ``i``: its 7 numbers from ``x`` and its 6 rows/columns from ``P``."""
+    cp, cq = manifold.columns(i)
+    dt = manifold.tangent(i)
+    keep_x = np.r_[0 : cp.start, cq.stop : manifold.nx]
+    keep_dx = np.r_[0 : dt.start, dt.stop : manifold.ndx]
+    P = np.asarray(P, dtype=float)
+    return (
+        np.asarray(x, dtype=float)[keep_x],
+        P[np.ix_(keep_dx, keep_dx)],
+        CloneManifold(manifold.nav, manifold.n_clones - 1),
+    )

@@ -1,0 +1,80 @@
+"""Exact relative-motion vision models from a cloned pose (stochastic cloning, beyond the paper).
+
+The state carries the body pose at the previous frame as a clone (``models.clones``): columns
+``(p_W_Bkm1, q_W_Bkm1_wxyz)`` of every sigma point. The left camera's motion k-1 -> k is then
+exact, with no small-motion or IMU-increment approximation::
+
+    R_c = C^T R_k^T R_km1 C
+    r_c = C^T (c_B + R_k^T (p_k - p_km1) - R_k^T R_km1 c_B)      d_k = R_c d_{k-1} - r_c
+
+(``C`` = ``R_B_C``, ``c_B`` = ``p_B_C``, eq. 15's convention). The ``3d``, ``tc`` and ``lc``
+predictions follow from it as from the paper's ``camera_motion``; ``3d`` equals
+``vision_3d.predict_pixels_3d_exact`` with the clone's pose (tests check it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from svains.geometry.camera import RectifiedStereo
+from svains.geometry.rotation import so3_log
+from svains.models._quat import rotmat_rows
+from svains.models.state import P, Q
+from svains.models.vision_3d import pixels_from_motion
+from svains.models.vision_common import as_points, as_sigma_points
+from svains.models.vision_tc import pixels_tc_from_motion
+
+F64 = NDArray[np.float64]
+
+
+def clone_camera_motion(
+    X: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo
+) -> tuple[F64, F64]:
+    """Left-camera motion from the clone to the current pose: ``R_c`` (S, 3, 3), ``r_c`` (S, 3).
+
+    ``X`` (S, nx) augmented sigma points (or one state (nx,)); ``clone`` the columns
+    ``(p_W_B, q_W_B_wxyz)`` of the clone (``CloneManifold.columns``).
+    """
+    x, _ = as_sigma_points(X)
+    C = np.asarray(rig.R_B_C, dtype=float)
+    c_B = np.asarray(rig.p_B_C, dtype=float)
+    cp, cq = clone
+    R_k = rotmat_rows(x[:, Q])
+    R_km1 = rotmat_rows(x[:, cq])
+    dR = R_k.transpose(0, 2, 1) @ R_km1  # R_k^T R_km1 (S, 3, 3)
+    dp_B = ((x[:, P] - x[:, cp])[:, None, :] @ R_k)[:, 0]  # R_k^T (p_k - p_km1)
+    r_B = c_B + dp_B - dR @ c_B
+    return C.T @ dR @ C, r_B @ C
+
+
+def predict_pixels_3d_clone(
+    X: ArrayLike, p_Ckm1_F: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo
+) -> F64:
+    """``3d`` pixels at t_k (S, 4M) of points (M, 3) triangulated at the clone's frame."""
+    _, single = as_sigma_points(X)
+    R_c, r_c = clone_camera_motion(X, clone, rig)
+    out = pixels_from_motion(R_c, r_c, as_points(p_Ckm1_F), rig)
+    return out[0] if single else out
+
+
+def predict_pixels_tc_clone(
+    X: ArrayLike, uv_left_prev: ArrayLike, uv_right_prev: ArrayLike,
+    clone: tuple[slice, slice], rig: RectifiedStereo,
+) -> F64:
+    """``tc`` pixels at t_k (S, 4M) transferred from the clone frame's pixels (M, 2)."""
+    _, single = as_sigma_points(X)
+    R_c, r_c = clone_camera_motion(X, clone, rig)
+    out = pixels_tc_from_motion(R_c, r_c, uv_left_prev, uv_right_prev, rig)
+    return out[0] if single else out
+
+
+def predict_egomotion_clone(
+    X: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo
+) -> F64:
+    """``lc``'s ``(Log R_Ck_Ckm1, p_Ck_Ckm1)`` (S, 6) between the clone and now (eqs. 30-33
+    with the exact motion: ``R_Ck_Ckm1 = R_c``, ``p_Ck_Ckm1 = -r_c``)."""
+    _, single = as_sigma_points(X)
+    R_c, r_c = clone_camera_motion(X, clone, rig)
+    out = np.concatenate([so3_log(R_c), -r_c], axis=1)
+    return out[0] if single else out
