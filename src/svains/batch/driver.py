@@ -1,0 +1,145 @@
+"""Run a campaign: its unfinished tasks on Dask (or in this process), then :func:`aggregate`.
+
+Without a scheduler address a local cluster is started: one worker process per core, one thread
+each, listening on the loopback interface only, no dashboard. With ``scheduler``
+(``tcp://HOST:8786``, or ``tls://...`` with Dask's TLS settings from its configuration) the same
+tasks go to that cluster; its workers need this version of svains installed and, for real data
+sets, the data at the same path. Each result is written by this process as soon as it arrives,
+so an interrupted campaign resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import yaml
+
+from svains.batch.aggregate import CampaignSummary, aggregate
+from svains.batch.spec import CampaignSpec, Task
+from svains.batch.store import is_finished, write_atomic, write_result
+from svains.batch.task import TaskResult, run_task
+
+if TYPE_CHECKING:
+    from dask.distributed import Client
+
+log = logging.getLogger(__name__)
+
+# One BLAS/OpenMP thread per worker process: the workers already fill the cores.
+WORKER_ENV: dict[str, str] = {
+    "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+    "NUMBA_NUM_THREADS": "1",
+}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class CampaignProgress:
+    """After each finished run: runs ``done`` (this session) of ``todo``, ``failed`` among
+    them, ``skipped`` (finished before), and the ``last`` result."""
+
+    done: int
+    todo: int
+    failed: int
+    skipped: int
+    last: TaskResult
+
+
+ProgressFn = Callable[[CampaignProgress], None]
+
+
+@contextmanager
+def dask_client(scheduler: str | None = None, n_workers: int | None = None,
+                timeout_s: float = 30.0) -> Iterator[Client]:  # fmt: skip
+    """A client of the cluster at ``scheduler``, or of a new local cluster on 127.0.0.1 with
+    ``n_workers`` processes (default: one per core) of one thread each; closed on exit."""
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler:
+        with Client(scheduler, timeout=timeout_s) as client:
+            yield client
+        return
+    with (
+        LocalCluster(
+            n_workers=n_workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+            host="127.0.0.1", dashboard_address=None, silence_logs=logging.WARNING,
+            env=WORKER_ENV,
+        ) as cluster,
+        Client(cluster, timeout=timeout_s) as client,
+    ):  # fmt: skip
+        yield client
+
+
+def _failed(task: Task, exc: BaseException) -> TaskResult:
+    # The task itself never raises: this is a lost worker or a cancelled future.
+    return TaskResult(task.task_id, "failed", error=f"{type(exc).__name__}: {exc}")
+
+
+def execute(
+    tasks: Sequence[Task], out_dir: Path, client: Client | None,
+    on_result: Callable[[TaskResult], None],
+) -> None:  # fmt: skip
+    """Run ``tasks`` on ``client`` (in this process, in order, when None), writing each result
+    into ``out_dir`` as it arrives, then calling ``on_result``."""
+    if client is None:
+        for task in tasks:
+            result = run_task(task)
+            write_result(out_dir, task, result)
+            on_result(result)
+        return
+    from dask.distributed import as_completed
+
+    keys = [f"svains-batch-{t.task_id}" for t in tasks]
+    futures = client.map(run_task, tasks, key=keys, pure=False)
+    by_key = dict(zip(keys, tasks, strict=True))
+    for future in as_completed(futures):
+        task = by_key[future.key]
+        try:
+            result = future.result()
+        except Exception as exc:  # a worker died or the scheduler went away
+            result = _failed(task, exc)
+        future.release()
+        write_result(out_dir, task, result)
+        on_result(result)
+
+
+def run_campaign(
+    spec: CampaignSpec,
+    out_dir: Path,
+    *,
+    scheduler: str | None = None,
+    n_workers: int | None = None,
+    sequential: bool = False,
+    progress: ProgressFn | None = None,
+    figures: bool = True,
+) -> CampaignSummary:
+    """Run the spec's unfinished runs (on Dask, or in this process when ``sequential``) into
+    ``out_dir``, then aggregate every finished run into its tables and figures."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_atomic(out_dir / "spec.yaml", yaml.safe_dump(spec.raw, sort_keys=False))
+    tasks = spec.tasks()
+    todo = [t for t in tasks if not is_finished(out_dir, t)]
+    log.info("campaign %s: %d runs, %d finished before, %d to run", spec.name, len(tasks),
+             len(tasks) - len(todo), len(todo))  # fmt: skip
+    count = {"done": 0, "failed": 0}
+
+    def on_result(result: TaskResult) -> None:
+        count["done"] += 1
+        count["failed"] += result.status != "ok"
+        log.info("run %d/%d %s: %s", count["done"], len(todo), result.task_id,
+                 result.status if result.error is None else result.error)  # fmt: skip
+        if progress is not None:
+            progress(CampaignProgress(count["done"], len(todo), count["failed"],
+                                      len(tasks) - len(todo), result))  # fmt: skip
+
+    if todo and sequential:
+        execute(todo, out_dir, None, on_result)
+    elif todo:
+        with dask_client(scheduler, n_workers) as client:
+            execute(todo, out_dir, client, on_result)
+    return aggregate(spec, out_dir, figures)
