@@ -23,7 +23,7 @@ import yaml
 from svains.batch.aggregate import CampaignSummary, aggregate
 from svains.batch.spec import CampaignSpec, Task
 from svains.batch.store import is_finished, write_atomic, write_result
-from svains.batch.task import TaskResult, run_task
+from svains.batch.task import TaskResult, run_group
 
 if TYPE_CHECKING:
     from dask.distributed import Client
@@ -74,9 +74,18 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
         yield client
 
 
-def _failed(task: Task, exc: BaseException) -> TaskResult:
-    # The task itself never raises: this is a lost worker or a cancelled future.
-    return TaskResult(task.task_id, "failed", error=f"{type(exc).__name__}: {exc}")
+def _lost(group: Sequence[Task], exc: BaseException) -> list[TaskResult]:
+    # Tasks never raise: this is a lost worker or a cancelled future.
+    return [TaskResult(t.task_id, "failed", error=f"{type(exc).__name__}: {exc}") for t in group]
+
+
+def data_groups(tasks: Sequence[Task]) -> list[list[Task]]:
+    """``tasks`` grouped by :meth:`Task.data_key`, in order of first appearance: one Dask task
+    per group, so a simulated flight is made once for all the methods and configs run on it."""
+    groups: dict[str, list[Task]] = {}
+    for task in tasks:
+        groups.setdefault(task.data_key(), []).append(task)
+    return list(groups.values())
 
 
 def execute(
@@ -85,26 +94,30 @@ def execute(
 ) -> None:  # fmt: skip
     """Run ``tasks`` on ``client`` (in this process, in order, when None), writing each result
     into ``out_dir`` as it arrives, then calling ``on_result``."""
-    if client is None:
-        for task in tasks:
-            result = run_task(task)
+    groups = data_groups(tasks)
+
+    def finish(group: Sequence[Task], results: Sequence[TaskResult]) -> None:
+        for task, result in zip(group, results, strict=True):
             write_result(out_dir, task, result)
             on_result(result)
+
+    if client is None:
+        for group in groups:
+            finish(group, run_group(group))
         return
     from dask.distributed import as_completed
 
-    keys = [f"svains-batch-{t.task_id}" for t in tasks]
-    futures = client.map(run_task, tasks, key=keys, pure=False)
-    by_key = dict(zip(keys, tasks, strict=True))
+    keys = [f"svains-batch-{g[0].task_id}" for g in groups]
+    futures = client.map(run_group, groups, key=keys, pure=False)
+    by_key = dict(zip(keys, groups, strict=True))
     for future in as_completed(futures):
-        task = by_key[future.key]
+        group = by_key[future.key]
         try:
-            result = future.result()
+            results = future.result()
         except Exception as exc:  # a worker died or the scheduler went away
-            result = _failed(task, exc)
+            results = _lost(group, exc)
         future.release()
-        write_result(out_dir, task, result)
-        on_result(result)
+        finish(group, results)
 
 
 def run_campaign(

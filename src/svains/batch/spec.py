@@ -64,6 +64,12 @@ class Task:
                 "method": self.method, "config": self.config, "settings": self.settings,
                 "seed": self.seed}  # fmt: skip
 
+    def data_key(self) -> str:
+        """Identifies the task's data (source, data parameters and seed): tasks with equal keys
+        run on identical data, so their data can be made once."""
+        return _canonical({"source": self.source, "kind": self.kind, "data": self.data,
+                           "seed": self.seed})  # fmt: skip
+
     @property
     def task_id(self) -> str:
         """Readable and unique: ``source-config-method-sSEED-HASH8``, the hash over

@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import tempfile
 import traceback
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -68,29 +69,49 @@ def task_dataset(task: Task, tmp: Path) -> Dataset:
     return with_synthetic_features(ds, rate_hz=float(hz), seed=int(task.seed or 0))
 
 
-def _run(task: Task) -> TaskResult:
-    with tempfile.TemporaryDirectory(prefix="svains-task-") as tmp:
-        ds = task_dataset(task, Path(tmp))
-        # The same per-method noise treatment as ``svains run`` and ``svains compare``.
-        options = tune_run_options(ds, task.method, run_options_from_settings(task.settings))
-        result = run_method(ds, task.method, options)
-        # ``svains compare``'s keys (ATE with the alignment that fits the run, final error).
-        result.report.update(trajectory_metrics(result, ds, task.method, options.use_gps))
-        nees = nees_series(result, ds)
+def _run(task: Task, ds: Dataset) -> TaskResult:
+    # The same per-method noise treatment as ``svains run`` and ``svains compare``.
+    options = tune_run_options(ds, task.method, run_options_from_settings(task.settings))
+    result = run_method(ds, task.method, options)
+    # ``svains compare``'s keys (ATE with the alignment that fits the run, final error).
+    result.report.update(trajectory_metrics(result, ds, task.method, options.use_gps))
+    nees = nees_series(result, ds)
     return TaskResult(
         task.task_id, "ok", result.report, result.t_ns, result.x, result.std,
         None if nees is None else nees[0], None if nees is None else nees[1],
     )  # fmt: skip
 
 
-def run_task(task: Task) -> TaskResult:
-    """Run one task; never raises for a failing run: its error is returned, so one bad run does
-    not stop a campaign. Linear algebra runs on one thread (one task per core, and results that
-    do not depend on the machine's BLAS threading)."""
+def _failed(task: Task, exc: BaseException) -> TaskResult:
+    log.warning("task %s failed: %s: %s", task.task_id, type(exc).__name__, exc)
+    return TaskResult(task.task_id, "failed", error=f"{type(exc).__name__}: {exc}",
+                      traceback=traceback.format_exc())  # fmt: skip
+
+
+def run_task(task: Task, dataset: Dataset | None = None) -> TaskResult:
+    """Run one task on ``dataset`` (its data, already loaded) or on the data it loads or
+    simulates itself. Never raises for a failing run: its error is returned, so one bad run
+    does not stop a campaign. Linear algebra runs on one thread (one task per core, and results
+    that do not depend on the machine's BLAS threading)."""
     try:
         with threadpool_limits(limits=1):
-            return _run(task)
+            if dataset is not None:
+                return _run(task, dataset)
+            with tempfile.TemporaryDirectory(prefix="svains-task-") as tmp:
+                return _run(task, task_dataset(task, Path(tmp)))
     except Exception as exc:  # a failed run is a result, whatever raised
-        log.warning("task %s failed: %s: %s", task.task_id, type(exc).__name__, exc)
-        return TaskResult(task.task_id, "failed", error=f"{type(exc).__name__}: {exc}",
-                          traceback=traceback.format_exc())  # fmt: skip
+        return _failed(task, exc)
+
+
+def run_group(tasks: Sequence[Task]) -> list[TaskResult]:
+    """Run tasks that share their data (equal :meth:`Task.data_key`): the data are simulated or
+    loaded once, then each run goes through :func:`run_task`. A run's result is the same as
+    alone (the runs never modify the data set)."""
+    if len({t.data_key() for t in tasks}) > 1:
+        raise ValueError("run_group needs tasks with one data key")
+    try:
+        with threadpool_limits(limits=1), tempfile.TemporaryDirectory(prefix="svains-") as tmp:
+            ds = task_dataset(tasks[0], Path(tmp))
+            return [run_task(t, ds) for t in tasks]
+    except Exception as exc:  # the data could not be made: every run of the group failed
+        return [_failed(t, exc) for t in tasks]
