@@ -59,6 +59,10 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
     ``n_workers`` processes (default: one per core) of one thread each; closed on exit."""
     from dask.distributed import Client, LocalCluster
 
+    if not logging.getLogger().isEnabledFor(logging.INFO):
+        # distributed installs its own INFO handler on import; a local scheduler would log every
+        # connection. Follow the application's level instead.
+        logging.getLogger("distributed").setLevel(logging.WARNING)
     if scheduler:
         with Client(scheduler, timeout=timeout_s) as client:
             yield client
