@@ -18,7 +18,7 @@ import pytest
 
 from svains.batch import CampaignProgress, aggregate, parse_spec, run_campaign
 from svains.batch.consistency import chi2_average_bounds
-from svains.batch.driver import data_groups
+from svains.batch.driver import dask_client, data_groups
 from svains.batch.store import read_marker, read_nees, read_report, run_dir, write_result
 from svains.batch.task import TIMING_KEYS, run_group
 
@@ -48,7 +48,16 @@ def campaigns(tmp_path_factory: pytest.TempPathFactory) -> tuple[Any, Path, Path
     root = tmp_path_factory.mktemp("batch")
     spec = parse_spec(SPEC, root)
     dask_dir, seq_dir = root / "dask", root / "seq"
-    run_campaign(spec, dask_dir, n_workers=2, figures=False)
+    with dask_client(n_workers=2) as client:
+        # Loopback only: the scheduler, both workers and their nannies.
+        info = client.scheduler_info()
+        addresses = [info["address"], *info["workers"],
+                     *(w["nanny"] for w in info["workers"].values())]  # fmt: skip
+        assert len(addresses) == 5
+        assert all(a.startswith("tcp://127.0.0.1:") for a in addresses), addresses
+        # The HTTP routes (no dashboard) on a free port, not Dask's fixed 8787.
+        assert info["services"].get("dashboard", 0) != 8787
+        run_campaign(spec, dask_dir, client=client, figures=False)
     for group in data_groups(spec.tasks()):
         for task, result in zip(group[::-1], run_group(group[::-1]), strict=True):
             write_result(seq_dir, task, result)

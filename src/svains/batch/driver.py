@@ -72,6 +72,9 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
             n_workers=n_workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
             host="127.0.0.1", dashboard_address=None, silence_logs=logging.WARNING,
             env=WORKER_ENV,
+            # No dashboard; the scheduler's remaining HTTP routes (health, metrics) on a free
+            # loopback port instead of the fixed 8787.
+            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
         ) as cluster,
         Client(cluster, timeout=timeout_s) as client,
     ):  # fmt: skip
@@ -131,11 +134,13 @@ def run_campaign(
     scheduler: str | None = None,
     n_workers: int | None = None,
     sequential: bool = False,
+    client: Client | None = None,
     progress: ProgressFn | None = None,
     figures: bool = True,
 ) -> CampaignSummary:
-    """Run the spec's unfinished runs (on Dask, or in this process when ``sequential``) into
-    ``out_dir``, then aggregate every finished run into its tables and figures."""
+    """Run the spec's unfinished runs into ``out_dir`` on ``client``, or on a cluster reached or
+    started by :func:`dask_client` (``scheduler``, ``n_workers``), or in this process when
+    ``sequential``; then aggregate every finished run into its tables and figures."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     write_atomic(out_dir / "spec.yaml", yaml.safe_dump(spec.raw, sort_keys=False))
@@ -154,8 +159,8 @@ def run_campaign(
             progress(CampaignProgress(count["done"], len(todo), count["failed"],
                                       len(tasks) - len(todo), result))  # fmt: skip
 
-    if todo and sequential:
-        execute(todo, out_dir, None, on_result)
+    if todo and (sequential or client is not None):
+        execute(todo, out_dir, client, on_result)
     elif todo:
         with dask_client(scheduler, n_workers) as client:
             execute(todo, out_dir, client, on_result)
