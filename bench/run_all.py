@@ -23,6 +23,7 @@ SCRIPTS: list[str] = [
     "euroc_rotation_check.py",
     "paper_ordering.py",
     "tc_noise_scan.py",
+    "batch_scaling.py",
     "bench_render.py",
 ]
 
