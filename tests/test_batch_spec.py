@@ -143,3 +143,16 @@ def test_the_nees_test_accepts_consistent_runs_and_flags_an_overconfident_filter
     # Only the steps every run has are tested.
     short = nees_test([*runs[:3], (t_ns[50:], runs[3][1][50:])])
     assert short is not None and len(short.t_ns) == 150 and short.n_runs == 4
+
+
+def test_svains_batch_names_a_bad_key_and_exits_1(tmp_path: Path) -> None:
+    import yaml
+    from typer.testing import CliRunner
+
+    from svains.cli.main import app
+
+    p = tmp_path / "spec.yaml"
+    p.write_text(yaml.safe_dump(_spec(settings={"vision.rotaton": "imu"})))
+    res = CliRunner().invoke(app, ["batch", str(p), "--out", str(tmp_path / "o")])
+    assert res.exit_code == 1
+    assert "rotaton" in res.output and not (tmp_path / "o").exists()

@@ -24,6 +24,7 @@ from svains.batch.aggregate import CampaignSummary, aggregate
 from svains.batch.spec import CampaignSpec, Task
 from svains.batch.store import is_finished, write_atomic, write_result
 from svains.batch.task import TaskResult, run_group
+from svains.errors import ConfigError
 
 if TYPE_CHECKING:
     from dask.distributed import Client
@@ -64,7 +65,11 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
         # connection. Follow the application's level instead.
         logging.getLogger("distributed").setLevel(logging.WARNING)
     if scheduler:
-        with Client(scheduler, timeout=timeout_s) as client:
+        try:
+            client = Client(scheduler, timeout=timeout_s)
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise ConfigError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc}") from exc
+        with client:
             yield client
         return
     with (

@@ -54,6 +54,7 @@ def batch(
                 campaign, out, scheduler=scheduler, n_workers=workers, sequential=sequential,
                 progress=show, figures=figures,
             )
+            bar.update(task, completed=total - summary.count("pending"))
     except SvainsError as exc:
         err.print(f"[red]error:[/red] {escape(str(exc))}")
         raise typer.Exit(1) from exc
