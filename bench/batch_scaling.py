@@ -3,8 +3,9 @@
 The campaign: ``3d`` on ``--runs`` seeds of a ``--duration`` s GPS-denied village flight
 (feature-level simulation inside each task, stereo 5 Hz), one Dask task per run. Each cluster is
 started and warmed up (imports, numba cache) before the clock starts, so the figure is the
-steady throughput a long campaign sees. The load average is printed beside every figure: the
-machine may be shared.
+steady throughput a long campaign sees. The load average and the cores the workers actually got
+are printed beside every figure: on a shared machine (Linux groups a session's processes for
+CPU sharing, ``sched_autogroup``) two workers may get no more CPU than one.
 
     python bench/batch_scaling.py [--runs 12] [--duration 20] [--workers 1 2]
 """
@@ -14,6 +15,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import resource
 import tempfile
 import time
 from pathlib import Path
@@ -38,9 +40,16 @@ def loadavg() -> str:
     return " ".join(Path("/proc/loadavg").read_text().split()[:3])
 
 
-def runs_per_minute(n_workers: int, runs: int, duration_s: float) -> tuple[float, int]:
+def _cpu_s() -> float:
+    """CPU seconds (user + system) this process has used."""
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    return ru.ru_utime + ru.ru_stime
+
+
+def runs_per_minute(n_workers: int, runs: int, duration_s: float) -> tuple[float, int, float]:
     """Runs per minute of ``runs`` fresh runs on an ``n_workers`` local cluster, after one
-    warm-up run per worker; and how many failed."""
+    warm-up run per worker; how many failed; and the cores the workers used meanwhile (CPU
+    seconds over wall seconds: below ``n_workers`` when the machine is shared)."""
     warm = parse_spec(_spec(n_workers, 2.0, 10_000)).tasks()
     tasks = parse_spec(_spec(runs, duration_s, 0)).tasks()
     failed = 0
@@ -54,10 +63,12 @@ def runs_per_minute(n_workers: int, runs: int, duration_s: float) -> tuple[float
         futures = [client.submit(run_group, [t], workers=[a], pure=False)
                    for t, a in zip(warm, addresses, strict=True)]  # fmt: skip
         client.gather(futures)
+        cpu0 = sum(client.run(_cpu_s).values())
         t0 = time.perf_counter()
         execute(tasks, Path(tmp), client, count)
         wall = time.perf_counter() - t0
-    return 60.0 * runs / wall, failed
+        cores = (sum(client.run(_cpu_s).values()) - cpu0) / wall
+    return 60.0 * runs / wall, failed, cores
 
 
 def main() -> None:
@@ -72,9 +83,9 @@ def main() -> None:
     rate: dict[int, float] = {}
     for n in args.workers:
         before = loadavg()
-        rate[n], failed = runs_per_minute(n, args.runs, args.duration)
-        print(f"{n} worker(s): {rate[n]:.1f} runs/min ({failed} failed; load average before "
-              f"{before}, after {loadavg()})", flush=True)
+        rate[n], failed, cores = runs_per_minute(n, args.runs, args.duration)
+        print(f"{n} worker(s): {rate[n]:.1f} runs/min, the workers used {cores:.2f} cores "
+              f"({failed} failed; load average before {before}, after {loadavg()})", flush=True)
     if 1 in rate:
         for n in (k for k in rate if k != 1):
             print(f"speed-up with {n} workers: {rate[n] / rate[1]:.2f}x")
