@@ -22,6 +22,9 @@ from svains.batch.driver import dask_client, data_groups
 from svains.batch.store import read_marker, read_nees, read_report, run_dir, write_result
 from svains.batch.task import TIMING_KEYS, run_group
 
+# Dask clusters and 60 s of simulated flights: about 30 s for the whole file on 2 cores.
+pytestmark = pytest.mark.slow
+
 SPEC: dict[str, Any] = {
     "name": "test",
     "scenarios": {"village10": {"duration_s": 10.0, "camera.rate_hz": 5.0,
