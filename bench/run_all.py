@@ -24,6 +24,7 @@ SCRIPTS: list[str] = [
     "paper_ordering.py",
     "tc_noise_scan.py",
     "batch_scaling.py",
+    "nees_blocks.py",
     "bench_render.py",
 ]
 
