@@ -1,5 +1,6 @@
 """Imports flow one way (geometry <- filter <- models <- frontend <- datasets/sim <- navigation
-<- evaluation <- cli), heavy dependencies stay in their layer, and the library never prints.
+<- evaluation <- batch <- cli), heavy dependencies stay in their layer, and the library never
+prints.
 
 Every import of every module under ``src/svains`` is read with ``ast`` (function-level lazy
 imports included), so a violation fails here whatever its style.
@@ -15,7 +16,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "svains"
 # Layer rank of each sub-package: a module may import its own layer and the layers below.
 LAYERS: dict[str, int] = {
     "geometry": 0, "filter": 1, "models": 2, "frontend": 3, "datasets": 4, "sim": 4,
-    "navigation": 5, "evaluation": 6, "cli": 7,
+    "navigation": 5, "evaluation": 6, "batch": 7, "cli": 8,
 }  # fmt: skip
 # Top-level modules every layer may use.
 SHARED = {"errors", "outputs", "threads"}
@@ -40,12 +41,14 @@ CONFINED: dict[str, dict[str, str]] = {
     "typer": {"cli": "the command line"},
     "rich": {"cli": "terminal tables and progress bars"},
     "evo": {"evaluation": "ATE/RPE equal to evo_ape/evo_rpe"},
-    "matplotlib": {"evaluation": "the paper's figures"},
+    "matplotlib": {"evaluation": "the paper's figures", "batch/figures.py": "campaign figures"},
     "rosbags": {
         "datasets/rosbag.py": "reading ROS1/ROS2 bags",
         "datasets/rosbag_writer.py": "writing ROS1/ROS2 bags",
     },
     "rerun": {"evaluation/viewer.py": "the optional viewer (svains[viz])"},
+    "dask": {"batch": "campaigns on a Dask cluster"},
+    "distributed": {"batch": "campaigns on a Dask cluster"},
 }
 
 
