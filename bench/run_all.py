@@ -24,6 +24,8 @@ SCRIPTS: list[str] = [
     "euroc_rotation_check.py",
     "paper_ordering.py",
     "tc_noise_scan.py",
+    "batch_scaling.py",
+    "nees_blocks.py",
     "bench_render.py",
     "faults.py",
 ]

@@ -1,7 +1,7 @@
 """Imports flow one way (geometry/sensors <- filter <- models <- frontend <- navigation (the
-estimator, ``svains.Navigator``) <- datasets/sim <- replay <- evaluation <- cli), heavy dependencies
-stay in their layer, and the library never prints. So the estimator cannot reach a data set:
-only the replay driver, the evaluation and the command line do.
+estimator, ``svains.Navigator``) <- datasets/sim <- replay <- evaluation <- batch <- cli), heavy
+dependencies stay in their layer, and the library never prints. So the estimator cannot reach a
+data set: only the replay driver, the evaluation, the campaigns and the command line do.
 
 Every import of every module under ``src/svains`` is read with ``ast`` (function-level lazy
 imports included), so a violation fails here whatever its style.
@@ -17,7 +17,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "svains"
 # Layer rank of each sub-package: a module may import its own layer and the layers below.
 LAYERS: dict[str, int] = {
     "geometry": 0, "sensors": 0, "filter": 1, "models": 2, "frontend": 3, "navigation": 4,
-    "datasets": 5, "sim": 5, "replay": 6, "evaluation": 7, "cli": 8,
+    "datasets": 5, "sim": 5, "replay": 6, "evaluation": 7, "batch": 8, "cli": 9,
 }  # fmt: skip
 # Top-level modules every layer may use.
 SHARED = {"errors", "outputs", "threads"}
@@ -42,12 +42,14 @@ CONFINED: dict[str, dict[str, str]] = {
     "typer": {"cli": "the command line"},
     "rich": {"cli": "terminal tables and progress bars"},
     "evo": {"evaluation": "ATE/RPE equal to evo_ape/evo_rpe"},
-    "matplotlib": {"evaluation": "the paper's figures"},
+    "matplotlib": {"evaluation": "the paper's figures", "batch/figures.py": "campaign figures"},
     "rosbags": {
         "datasets/rosbag.py": "reading ROS1/ROS2 bags",
         "datasets/rosbag_writer.py": "writing ROS1/ROS2 bags",
     },
     "rerun": {"evaluation/viewer.py": "the optional viewer (svains[viz])"},
+    "dask": {"batch": "campaigns on a Dask cluster"},
+    "distributed": {"batch": "campaigns on a Dask cluster"},
 }
 
 

@@ -26,6 +26,7 @@ COMMAND_MODULES: list[str] = [
     "frontend",
     "simulate",
     "demo",
+    "batch",
 ]
 
 app = typer.Typer(

@@ -13,6 +13,7 @@ barely moves. The covariance is rotated with the states, so the NEES stays consi
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -107,6 +108,68 @@ def align_states(x: F64, P9: F64, T_Wref_West: F64) -> tuple[F64, F64]:
     return xa, J @ P9 @ J.T
 
 
+def _aligned(
+    t_in: I64, xe: F64, P: F64, p: F64, q: F64, errors_alignment: str, up_W: ArrayLike
+) -> tuple[F64, F64, str]:
+    """States (N, nx) and covariances (N, 9, 9) after ``errors_alignment`` against the reference
+    ``p``, ``q`` at ``t_in``, and the alignment used (``se3`` falls back when degenerate)."""
+    if errors_alignment == "posyaw":
+        # Positions and headings: a resting vehicle's positions leave the yaw undetermined.
+        T = align_posyaw_poses(xe[:, 0:3], quat_to_rotmat(xe[:, 6:10]), p, quat_to_rotmat(q), up_W)
+        xe, P = align_states(xe, P, T)
+    elif errors_alignment == "se3":
+        fit = ate_result_with_fallback(t_in, xe[:, 0:3], xe[:, 6:10], p, q, "se3", up_W)
+        if fit is None:
+            return xe, P, "none"
+        xe, P = align_states(xe, P, fit.T_align)
+        return xe, P, fit.alignment
+    return xe, P, errors_alignment
+
+
+@dataclass(frozen=True)
+class StateErrors:
+    """Per-state errors against ground truth after an alignment: ``t_ns`` (N,) logged times
+    inside the ground truth's span, ``e`` (N, 9) ``truth ⊟ estimate`` of (p m, v m/s, δθ rad),
+    ``P9`` (N, 9, 9) covariances mapped by the same alignment, ``alignment`` the one used,
+    ``x`` (N, nx) the aligned states."""
+
+    t_ns: I64
+    e: F64
+    P9: F64
+    alignment: str
+    x: F64
+
+    @property
+    def nees(self) -> F64:
+        """NEES (N,) of (p, v, δθ), 9 dof."""
+        return nees_of(self.e, self.P9)
+
+
+def state_errors(
+    t_ns: I64,
+    x: F64,
+    P9: F64,
+    gt: GroundTruth | None,
+    errors_alignment: str = "none",
+    up_W: ArrayLike = (0.0, 0.0, 1.0),
+) -> StateErrors | None:
+    """Errors of states ``x`` (T, nx) with covariances ``P9`` (T, 9, 9) at ``t_ns`` (T,) after
+    ``errors_alignment`` (``none``, ``posyaw`` about ``up_W`` or ``se3``); ``None`` without
+    ground truth or with fewer than 2 states inside its span."""
+    if errors_alignment not in ERROR_ALIGNMENTS:
+        raise ConfigError(
+            f"unknown errors alignment {errors_alignment!r} (one of {', '.join(ERROR_ALIGNMENTS)})"
+        )
+    if gt is None or len(gt.t_ns) < 2:
+        return None
+    inside, p, v, q = interpolate_groundtruth(gt, t_ns)
+    if inside.sum() < 2:
+        return None
+    t_in = np.asarray(t_ns)[inside]
+    xe, P, used = _aligned(t_in, x[inside], P9[inside], p, q, errors_alignment, up_W)
+    return StateErrors(t_in, navigation_errors(xe, p, v, q), P, used, xe)
+
+
 def accuracy_report(
     t_ns: I64,
     x: F64,
@@ -120,47 +183,34 @@ def accuracy_report(
 
     ``ate_rmse_m`` after ``alignment`` (key ``alignment``: the one used after fallback);
     position/velocity/attitude RMSE, NEES and the 3σ coverage after ``errors_alignment``
-    (``none``, ``posyaw`` about ``up_W`` or ``se3``; key ``errors_alignment``: the one used).
+    (``none``, ``posyaw`` about ``up_W`` or ``se3``; key ``errors_alignment``: the one used),
+    from :func:`state_errors`.
     """
-    if errors_alignment not in ERROR_ALIGNMENTS:
-        raise ConfigError(
-            f"unknown errors alignment {errors_alignment!r} (one of {', '.join(ERROR_ALIGNMENTS)})"
-        )
     keys = ("ate_rmse_m", "position_rmse_m", "velocity_rmse_mps", "attitude_rmse_deg", "nees_mean")
     out: dict[str, Any] = dict.fromkeys(keys)
     out["alignment"] = alignment
     out["errors_alignment"] = errors_alignment
-    if gt is None or len(gt.t_ns) < 2:
+    errs = state_errors(t_ns, x, P9, gt, errors_alignment, up_W)
+    if errs is None:
         return out
-    inside, p, v, q = interpolate_groundtruth(gt, t_ns)
-    if inside.sum() < 2:
-        return out
-    t_in = np.asarray(t_ns)[inside]
+    assert gt is not None  # state_errors returns None without ground truth
+    inside, p, _, q = interpolate_groundtruth(gt, t_ns)
     xe = x[inside]
-    P = P9[inside]
-    ate_m, out["alignment"] = ate_with_fallback(t_in, xe[:, 0:3], xe[:, 6:10], p, q, alignment)
-    if errors_alignment == "posyaw":
-        # Positions and headings: a resting vehicle's positions leave the yaw undetermined.
-        T = align_posyaw_poses(xe[:, 0:3], quat_to_rotmat(xe[:, 6:10]), p, quat_to_rotmat(q), up_W)
-        xe, P = align_states(xe, P, T)
-    elif errors_alignment == "se3":
-        fit = ate_result_with_fallback(t_in, xe[:, 0:3], xe[:, 6:10], p, q, "se3", up_W)
-        out["errors_alignment"] = "none" if fit is None else fit.alignment
-        if fit is not None:
-            xe, P = align_states(xe, P, fit.T_align)
-    out.update(drift_report(xe[:, 0:3], quat_to_rotmat(xe[:, 6:10]), p, quat_to_rotmat(q)))
-    e = navigation_errors(xe, p, v, q)
-    nees = nees_of(e, P)
-    std = np.sqrt(np.einsum("nii->ni", P))
+    ate_m, out["alignment"] = ate_with_fallback(errs.t_ns, xe[:, 0:3], xe[:, 6:10], p, q,
+                                                alignment)  # fmt: skip
+    e, std = errs.e, np.sqrt(np.einsum("nii->ni", errs.P9))
+    xa = errs.x
+    out.update(drift_report(xa[:, 0:3], quat_to_rotmat(xa[:, 6:10]), p, quat_to_rotmat(q)))
     out.update(
         ate_rmse_m=ate_m,
         position_rmse_m=float(np.sqrt(np.mean(np.sum(e[:, 0:3] ** 2, axis=1)))),
         velocity_rmse_mps=float(np.sqrt(np.mean(np.sum(e[:, 3:6] ** 2, axis=1)))),
         attitude_rmse_deg=float(np.degrees(np.sqrt(np.mean(np.sum(e[:, 6:9] ** 2, axis=1))))),
-        nees_mean=float(nees.mean()),
+        nees_mean=float(errs.nees.mean()),
         nees_dof=9,
+        errors_alignment=errs.alignment,
         position_within_3sigma=float(np.mean(np.abs(e[:, 0:3]) <= 3.0 * std[:, 0:3])),
-        evaluated_states=int(inside.sum()),
+        evaluated_states=len(errs.t_ns),
     )
     return out
 

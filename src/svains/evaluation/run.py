@@ -14,9 +14,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from svains.datasets.types import Dataset
-from svains.evaluation.accuracy import accuracy_report, gps_outage_report
+from svains.evaluation.accuracy import accuracy_report, gps_outage_report, state_errors
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import RunResult
 from svains.replay import replay, resolve_config
@@ -35,13 +36,18 @@ def errors_alignment_for(result: RunResult) -> str:
     return "se3" if result.report.get("method") == "vo" else "posyaw"
 
 
+def _up_W(dataset: Dataset) -> NDArray[np.float64]:
+    """Unit up vector (3,) of the data set's world frame: against gravity."""
+    g_W = np.asarray(dataset.gravity_W, dtype=float)
+    return -g_W / np.linalg.norm(g_W)
+
+
 def run_accuracy(result: RunResult, dataset: Dataset) -> dict[str, Any]:
     """The accuracy keys of ``report.json`` for ``result`` (see ``docs/formats.md``): ATE,
     RMSE and NEES after :func:`errors_alignment_for`, GPS-outage figures when GPS was used."""
-    g_W = np.asarray(dataset.gravity_W, dtype=float)
     out = accuracy_report(
         result.t_ns, result.x, result.P9, dataset.groundtruth,
-        errors_alignment=errors_alignment_for(result), up_W=-g_W / np.linalg.norm(g_W),
+        errors_alignment=errors_alignment_for(result), up_W=_up_W(dataset),
     )  # fmt: skip
     if not result.has_covariance:
         # No covariance (VO): NEES and the 3σ coverage are not defined.
@@ -56,6 +62,21 @@ def run_accuracy(result: RunResult, dataset: Dataset) -> dict[str, Any]:
             # Issue 6's key: the largest position error inside each GPS outage (m).
             out["outage_max_error_m"] = [o["error_max_m"] for o in outages["gps_outages"]]
     return out
+
+
+def nees_series(
+    result: RunResult, dataset: Dataset
+) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
+    """Per logged state: ``t_ns`` (N,) and NEES (N,) of (p, v, δθ), 9 dof, after
+    :func:`errors_alignment_for` (the series whose mean is ``report.json``'s ``nees_mean``);
+    ``None`` without a covariance or ground truth."""
+    if not result.has_covariance:
+        return None
+    errs = state_errors(
+        result.t_ns, result.x, result.P9, dataset.groundtruth, errors_alignment_for(result),
+        up_W=_up_W(dataset),
+    )
+    return None if errs is None else (errs.t_ns, errs.nees)
 
 
 def run_method(

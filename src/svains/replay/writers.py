@@ -67,7 +67,7 @@ def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None =
             vals = " ".join(f"{v:.9f}" for v in (*xs[0:3], *xs[7:10], xs[6]))
             fh.write(f"{int(t) // 1_000_000_000}.{int(t) % 1_000_000_000:09d} {vals}\n")
     write_euroc_csv(out_dir / "trajectory_euroc.csv", result)
-    if result.has_covariance:
+    if result.has_covariance and len(result.P9) == len(result.t_ns):  # (kept by the run)
         write_pose_covariance(out_dir / "pose_covariance.csv", result)
     header = ",".join(["t_ns", *_STATE_NAMES[: layout.nx], *_STD_NAMES[: layout.ndx]])
     with atomic_path(out_dir / "states.csv") as tmp, open(tmp, "w", encoding="utf-8") as fh:

@@ -1,0 +1,172 @@
+"""Run a campaign: its unfinished tasks on Dask (or in this process), then :func:`aggregate`.
+
+Without a scheduler address a local cluster is started: one worker process per core, one thread
+each, listening on the loopback interface only, no dashboard. With ``scheduler``
+(``tcp://HOST:8786``, or ``tls://...`` with Dask's TLS settings from its configuration) the same
+tasks go to that cluster; its workers need this version of svains installed and, for real data
+sets, the data at the same path. Each result is written by this process as soon as it arrives,
+so an interrupted campaign resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import yaml
+
+from svains.batch.aggregate import CampaignSummary, aggregate
+from svains.batch.spec import CampaignSpec, Task
+from svains.batch.store import is_finished, write_atomic, write_result
+from svains.batch.task import TaskResult, run_group
+from svains.errors import ConfigError
+
+if TYPE_CHECKING:
+    from dask.distributed import Client
+
+log = logging.getLogger(__name__)
+
+# One BLAS/OpenMP thread per worker process: the workers already fill the cores.
+WORKER_ENV: dict[str, str] = {
+    "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+    "NUMBA_NUM_THREADS": "1",
+}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class CampaignProgress:
+    """After each finished run: runs ``done`` (this session) of ``todo``, ``failed`` among
+    them, ``skipped`` (finished before), and the ``last`` result."""
+
+    done: int
+    todo: int
+    failed: int
+    skipped: int
+    last: TaskResult
+
+
+ProgressFn = Callable[[CampaignProgress], None]
+
+
+@contextmanager
+def dask_client(scheduler: str | None = None, n_workers: int | None = None,
+                timeout_s: float = 30.0) -> Iterator[Client]:  # fmt: skip
+    """A client of the cluster at ``scheduler``, or of a new local cluster on 127.0.0.1 with
+    ``n_workers`` processes (default: one per core) of one thread each; closed on exit."""
+    from dask.distributed import Client, LocalCluster
+
+    if not logging.getLogger().isEnabledFor(logging.INFO):
+        # distributed installs its own INFO handler on import; a local scheduler would log every
+        # connection. Follow the application's level instead.
+        logging.getLogger("distributed").setLevel(logging.WARNING)
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout=timeout_s)
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise ConfigError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc}") from exc
+        with client:
+            yield client
+        return
+    with (
+        LocalCluster(
+            n_workers=n_workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+            host="127.0.0.1", dashboard_address=None, silence_logs=logging.WARNING,
+            env=WORKER_ENV,
+            # No dashboard; the scheduler's remaining HTTP routes (health, metrics) on a free
+            # loopback port instead of the fixed 8787.
+            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+        ) as cluster,
+        Client(cluster, timeout=timeout_s) as client,
+    ):  # fmt: skip
+        yield client
+
+
+def _lost(group: Sequence[Task], exc: BaseException) -> list[TaskResult]:
+    # Tasks never raise: this is a lost worker or a cancelled future.
+    return [TaskResult(t.task_id, "failed", error=f"{type(exc).__name__}: {exc}") for t in group]
+
+
+def data_groups(tasks: Sequence[Task]) -> list[list[Task]]:
+    """``tasks`` grouped by :meth:`Task.data_key`, in order of first appearance: one Dask task
+    per group, so a simulated flight is made once for all the methods and configs run on it."""
+    groups: dict[str, list[Task]] = {}
+    for task in tasks:
+        groups.setdefault(task.data_key(), []).append(task)
+    return list(groups.values())
+
+
+def execute(
+    tasks: Sequence[Task], out_dir: Path, client: Client | None,
+    on_result: Callable[[TaskResult], None],
+) -> None:  # fmt: skip
+    """Run ``tasks`` on ``client`` (in this process, in order, when None), writing each result
+    into ``out_dir`` as it arrives, then calling ``on_result``."""
+    groups = data_groups(tasks)
+
+    def finish(group: Sequence[Task], results: Sequence[TaskResult]) -> None:
+        for task, result in zip(group, results, strict=True):
+            write_result(out_dir, task, result)
+            on_result(result)
+
+    if client is None:
+        for group in groups:
+            finish(group, run_group(group))
+        return
+    from dask.distributed import as_completed
+
+    keys = [f"svains-batch-{g[0].task_id}" for g in groups]
+    futures = client.map(run_group, groups, key=keys, pure=False)
+    by_key = dict(zip(keys, groups, strict=True))
+    for future in as_completed(futures):
+        group = by_key[future.key]
+        try:
+            results = future.result()
+        except Exception as exc:  # a worker died or the scheduler went away
+            results = _lost(group, exc)
+        future.release()
+        finish(group, results)
+
+
+def run_campaign(
+    spec: CampaignSpec,
+    out_dir: Path,
+    *,
+    scheduler: str | None = None,
+    n_workers: int | None = None,
+    sequential: bool = False,
+    client: Client | None = None,
+    progress: ProgressFn | None = None,
+    figures: bool = True,
+) -> CampaignSummary:
+    """Run the spec's unfinished runs into ``out_dir`` on ``client``, or on a cluster reached or
+    started by :func:`dask_client` (``scheduler``, ``n_workers``), or in this process when
+    ``sequential``; then aggregate every finished run into its tables and figures."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_atomic(out_dir / "spec.yaml", yaml.safe_dump(spec.raw, sort_keys=False))
+    tasks = spec.tasks()
+    todo = [t for t in tasks if not is_finished(out_dir, t)]
+    log.info("campaign %s: %d runs, %d finished before, %d to run", spec.name, len(tasks),
+             len(tasks) - len(todo), len(todo))  # fmt: skip
+    count = {"done": 0, "failed": 0}
+
+    def on_result(result: TaskResult) -> None:
+        count["done"] += 1
+        count["failed"] += result.status != "ok"
+        log.info("run %d/%d %s: %s", count["done"], len(todo), result.task_id,
+                 result.status if result.error is None else result.error)  # fmt: skip
+        if progress is not None:
+            progress(CampaignProgress(count["done"], len(todo), count["failed"],
+                                      len(tasks) - len(todo), result))  # fmt: skip
+
+    if todo and (sequential or client is not None):
+        execute(todo, out_dir, client, on_result)
+    elif todo:
+        with dask_client(scheduler, n_workers) as client:
+            execute(todo, out_dir, client, on_result)
+    return aggregate(spec, out_dir, figures)

@@ -1,0 +1,89 @@
+"""A campaign's folder: one sub-folder per run, marked finished atomically.
+
+``DIR/runs/<task_id>/`` holds what ``svains run`` writes (``trajectory.tum``, ``states.csv``,
+``report.json``), ``nees.csv`` (``t_ns,nees`` per logged state) and, written last by an atomic
+rename, ``result.json``: the task's parameters and its status (``ok``, or ``failed`` with the
+error and traceback). A run with an ``ok`` marker is finished and is skipped when the campaign is
+run again; a failed one is run again.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from svains.batch.spec import Task
+from svains.batch.task import TaskResult
+from svains.navigation.outputs import RunResult
+from svains.replay.writers import write_outputs
+
+MARKER = "result.json"
+
+
+def run_dir(out_dir: Path, task: Task) -> Path:
+    return Path(out_dir) / "runs" / task.task_id
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` so that readers see the old file or the whole new one."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def read_marker(out_dir: Path, task: Task) -> dict[str, Any] | None:
+    """The run's ``result.json`` content, ``None`` if it never finished."""
+    path = run_dir(out_dir, task) / MARKER
+    if not path.is_file():
+        return None
+    try:
+        marker: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError):
+        return None  # unreadable marker: run it again
+    return marker
+
+
+def is_finished(out_dir: Path, task: Task) -> bool:
+    marker = read_marker(out_dir, task)
+    return marker is not None and marker.get("status") == "ok"
+
+
+def write_result(out_dir: Path, task: Task, result: TaskResult) -> None:
+    """Write a finished task's files, then its marker (last, atomically)."""
+    d = run_dir(out_dir, task)
+    d.mkdir(parents=True, exist_ok=True)
+    marker: dict[str, Any] = {"task_id": task.task_id, "status": result.status,
+                              "replicate": task.replicate, **task.params()}  # fmt: skip
+    if result.status == "ok":
+        assert result.report is not None and result.t_ns is not None  # set for status ok
+        assert result.x is not None and result.std is not None
+        run = RunResult(result.t_ns, result.x, result.std, np.zeros((0, 9, 9)), result.report)
+        write_outputs(d, run)
+        if result.nees is not None and result.nees_t_ns is not None:
+            rows = "".join(f"{int(t)},{v:.9g}\n" for t, v in zip(result.nees_t_ns, result.nees,
+                                                                 strict=True))  # fmt: skip
+            write_atomic(d / "nees.csv", "t_ns,nees\n" + rows)
+    else:
+        marker.update(error=result.error, traceback=result.traceback)
+    write_atomic(d / MARKER, json.dumps(marker, indent=2) + "\n")
+
+
+def read_report(out_dir: Path, task: Task) -> dict[str, Any]:
+    report: dict[str, Any] = json.loads(
+        (run_dir(out_dir, task) / "report.json").read_text(encoding="utf-8")
+    )
+    return report
+
+
+def read_nees(out_dir: Path, task: Task) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
+    """``t_ns`` (N,) and NEES (N,) of a finished run, ``None`` if it has none."""
+    path = run_dir(out_dir, task) / "nees.csv"
+    if not path.is_file():
+        return None
+    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    return data[:, 0].astype(np.int64), data[:, 1]

@@ -1,0 +1,197 @@
+"""Campaigns end to end: a 2-worker local Dask cluster against the same runs in this process, in
+another order; resuming; a failing run; the NEES files; a separate scheduler and worker reached
+through ``svains batch --scheduler``."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from svains.batch import CampaignProgress, aggregate, parse_spec, run_campaign
+from svains.batch.consistency import chi2_average_bounds
+from svains.batch.driver import dask_client, data_groups
+from svains.batch.store import read_marker, read_nees, read_report, run_dir, write_result
+from svains.batch.task import TIMING_KEYS, run_group
+
+# Dask clusters and 60 s of simulated flights: about 30 s for the whole file on 2 cores.
+pytestmark = pytest.mark.slow
+
+SPEC: dict[str, Any] = {
+    "name": "test",
+    "scenarios": {"village10": {"duration_s": 10.0, "camera.rate_hz": 5.0,
+                                "camera.render_images": False}},
+    "datasets": {"missing": {"path": "no/such/folder"}},
+    "methods": ["ins", "3d"],
+    "seeds": [0, 1, 2],
+    "settings": {"init.mode": "groundtruth", "vision.source": "features",
+                 "vision.rotation": "imu"},
+}  # fmt: skip
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    """summary.csv rows without the columns that time the machine."""
+    with open(path, encoding="utf-8", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    return [{k: v for k, v in r.items() if k not in TIMING_KEYS} for r in rows]
+
+
+@pytest.fixture(scope="module")
+def campaigns(tmp_path_factory: pytest.TempPathFactory) -> tuple[Any, Path, Path]:
+    """The spec run on a 2-worker local cluster, and the same runs in this process with every
+    group's runs in reverse order on one shared data set."""
+    root = tmp_path_factory.mktemp("batch")
+    spec = parse_spec(SPEC, root)
+    dask_dir, seq_dir = root / "dask", root / "seq"
+    with dask_client(n_workers=2) as client:
+        # Loopback only: the scheduler, both workers and their nannies.
+        info = client.scheduler_info()
+        addresses = [info["address"], *info["workers"],
+                     *(w["nanny"] for w in info["workers"].values())]  # fmt: skip
+        assert len(addresses) == 5
+        assert all(a.startswith("tcp://127.0.0.1:") for a in addresses), addresses
+        # The HTTP routes (no dashboard) on a free port, not Dask's fixed 8787.
+        assert info["services"].get("dashboard", 0) != 8787
+        run_campaign(spec, dask_dir, client=client, figures=False)
+    for group in data_groups(spec.tasks()):
+        for task, result in zip(group[::-1], run_group(group[::-1]), strict=True):
+            write_result(seq_dir, task, result)
+    aggregate(spec, seq_dir, figures=False)
+    return spec, dask_dir, seq_dir
+
+
+def test_a_campaign_on_two_workers_gives_the_rows_of_the_runs_done_in_this_process(
+    campaigns: tuple[Any, Path, Path],
+) -> None:
+    spec, dask_dir, seq_dir = campaigns
+    rows = _rows(dask_dir / "summary.csv")
+    assert len(rows) == len(spec.tasks()) == 8
+    assert rows == _rows(seq_dir / "summary.csv")
+    ok = [r for r in rows if r["status"] == "ok"]
+    assert len(ok) == 6 and {r["method"] for r in ok} == {"ins", "3d"}
+    assert all(float(r["nees_mean"]) > 0 for r in ok)
+    # Three seeds give three different flights; both methods of a seed share one.
+    assert len({(r["seed"], r["ate_m"]) for r in ok}) == 6
+    assert len({r["seed"] for r in ok}) == 3
+
+
+def test_a_failing_run_records_its_error_and_the_others_finish(
+    campaigns: tuple[Any, Path, Path],
+) -> None:
+    spec, dask_dir, _ = campaigns
+    failed = [r for r in _rows(dask_dir / "summary.csv") if r["status"] == "failed"]
+    assert {r["source"] for r in failed} == {"missing"} and len(failed) == 2
+    assert all("data set folder not found" in r["error"] for r in failed)
+    task = next(t for t in spec.tasks() if t.source == "missing")
+    marker = read_marker(dask_dir, task)
+    assert marker is not None and "DatasetError" in marker["traceback"]
+    summary = (dask_dir / "summary.md").read_text()
+    assert "8 runs: 6 finished, 2 failed" in summary and "## Failed runs" in summary
+
+
+def test_each_runs_nees_series_averages_to_its_report_and_feeds_the_consistency_test(
+    campaigns: tuple[Any, Path, Path],
+) -> None:
+    spec, dask_dir, _ = campaigns
+    for task in spec.tasks():
+        if task.source != "village10":
+            continue
+        t_ns, nees = read_nees(dask_dir, task)  # type: ignore[misc]
+        assert len(t_ns) == read_report(dask_dir, task)["evaluated_states"]
+        assert np.mean(nees) == pytest.approx(read_report(dask_dir, task)["nees_mean"], 1e-8)
+    lo, hi = chi2_average_bounds(3)
+    md = (dask_dir / "summary.md").read_text()
+    assert f"[{lo:.3f}, {hi:.3f}]" in md
+    with open(dask_dir / "consistency.csv", encoding="utf-8") as fh:
+        steps = [r for r in csv.DictReader(fh) if r["method"] == "3d"]
+    assert len(steps) == 101 and {r["n_runs"] for r in steps} == {"3"}
+
+
+def test_a_second_run_skips_the_finished_runs_and_retries_the_failed_ones(
+    campaigns: tuple[Any, Path, Path],
+) -> None:
+    spec, dask_dir, _ = campaigns
+    ok_task = next(t for t in spec.tasks() if t.source == "village10")
+    stamp = (run_dir(dask_dir, ok_task) / "result.json").stat().st_mtime_ns
+    seen: list[CampaignProgress] = []
+    summary = run_campaign(spec, dask_dir, sequential=True, progress=seen.append, figures=True)
+    assert [p.last.task_id for p in seen] == [t.task_id for t in spec.tasks()
+                                              if t.source == "missing"]  # fmt: skip
+    assert seen[-1].skipped == 6 and seen[-1].failed == 2
+    assert (run_dir(dask_dir, ok_task) / "result.json").stat().st_mtime_ns == stamp
+    assert summary.count("ok") == 6
+    assert (dask_dir / "box_ate_m.png").stat().st_size > 0
+    assert (dask_dir / "nees_village10_default_3d.png").stat().st_size > 0
+
+
+# --- a separate scheduler and worker on 127.0.0.1 ----------------------------------------------
+
+
+def _dask_cli() -> list[str]:
+    exe = Path(sys.executable).with_name("dask")
+    return [str(exe)] if exe.is_file() else [sys.executable, "-m", "dask"]
+
+
+@pytest.fixture
+def scheduler_address(tmp_path: Path) -> Iterator[str]:
+    """A ``dask scheduler`` and one ``dask worker`` on 127.0.0.1 (free ports chosen by the OS),
+    stopped (then killed) however the test ends."""
+    sched_file = tmp_path / "scheduler.json"
+    common = ["--no-dashboard"]
+    procs = [subprocess.Popen(
+        [*_dask_cli(), "scheduler", "--host", "127.0.0.1", "--port", "0",
+         "--scheduler-file", str(sched_file), *common],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )]  # fmt: skip
+    try:
+        deadline = time.monotonic() + 30.0
+        while not sched_file.is_file() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert sched_file.is_file(), "the dask scheduler did not start within 30 s"
+        address = json.loads(sched_file.read_text())["address"]
+        assert address.startswith("tcp://127.0.0.1:")
+        procs.append(subprocess.Popen(
+            [*_dask_cli(), "worker", "--scheduler-file", str(sched_file), "--host", "127.0.0.1",
+             "--nworkers", "1", "--nthreads", "1", *common],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        ))  # fmt: skip
+        yield address
+    finally:
+        for p in procs[::-1]:  # the worker first: it would wait for a stopped scheduler
+            p.terminate()
+            try:
+                p.wait(timeout=10.0)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(timeout=10.0)
+
+
+def test_svains_batch_sends_a_campaign_to_a_running_scheduler(
+    scheduler_address: str, tmp_path: Path
+) -> None:
+    import yaml
+
+    spec = {**SPEC, "methods": ["ins"], "seeds": [4], "datasets": {},
+            "scenarios": {"village5": {"duration_s": 5.0, "camera.enabled": False,
+                                       "world.n_inner_objects": 0}}}  # fmt: skip
+    spec_path = tmp_path / "spec.yaml"
+    spec_path.write_text(yaml.safe_dump(spec))
+    out = tmp_path / "out"
+    svains = Path(sys.executable).with_name("svains")
+    done = subprocess.run(
+        [str(svains), "batch", str(spec_path), "--out", str(out), "--no-figures",
+         "--scheduler", scheduler_address],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "1 of 1 runs finished, 0 failed" in done.stdout
+    (row,) = _rows(out / "summary.csv")
+    assert row["status"] == "ok" and row["seed"] == "4" and float(row["ate_m"]) > 0
