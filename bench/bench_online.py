@@ -10,7 +10,9 @@
    ``--old-rev`` (default the commit before the Navigator, 2a6a877), run in a subprocess.
 
 Plain script: prints its figures with the load average; timings depend on the machine's load.
-Usage: ``.venv/bin/python bench/bench_online.py [--duration S] [--old-rev REV]``.
+Usage: ``.venv/bin/python bench/bench_online.py [--duration S] [--old-rev REV] [--rotation M]``
+(``M``: the vision motion model of both runs, default ``imu``, the model of the pre-Navigator
+commit; ``clone`` needs an ``--old-rev`` that has clones, e.g. ``main`` before the merge).
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from svains.navigation.options import InitOptions, RunOptions
 from svains.navigation.vision import tune_run_options
 ds = load_dataset(sys.argv[1])
 opts = RunOptions(model="biased", init=InitOptions(mode="groundtruth"),
-                  method_options={"source": "images", "rotation": "imu"})
+                  method_options={"source": "images", "rotation": sys.argv[2]})
 opts = tune_run_options(ds, "3d", opts)
 best = None
 for _ in range(2):  # the first run pays the imports and caches: report the better one
@@ -47,14 +49,15 @@ print(json.dumps(best))
 """
 
 
-def _args() -> tuple[float, str]:
+def _args() -> tuple[float, str, str]:
     a = sys.argv
     duration = float(a[a.index("--duration") + 1]) if "--duration" in a else 10.0
     rev = a[a.index("--old-rev") + 1] if "--old-rev" in a else "2a6a877"
-    return duration, rev
+    rotation = a[a.index("--rotation") + 1] if "--rotation" in a else "imu"
+    return duration, rev, rotation
 
 
-def bench_latency(root: Path) -> None:
+def bench_latency(root: Path, rotation: str) -> None:
     from svains.datasets.loader import load_dataset
     from svains.navigation.navigator import Navigator
     from svains.navigation.options import BufferOptions, InitOptions, RunConfig, VisionOptions
@@ -69,7 +72,8 @@ def bench_latency(root: Path) -> None:
 
     ds = load_dataset(root)
     cfg = RunConfig(method="3d", init=InitOptions(mode="groundtruth"),
-                    vision=VisionOptions(source="images"), buffer=BufferOptions(window_s=0.0))
+                    vision=VisionOptions(source="images", rotation=rotation),
+                    buffer=BufferOptions(window_s=0.0))
     cfg = resolve_config(ds, cfg)
     nav = Navigator(cfg, rig_from_dataset(ds), initial_state=groundtruth_start(ds, cfg, None))
     lat: list[tuple[float, float]] = []  # (wall, main-thread CPU) ms per frame
@@ -95,14 +99,14 @@ def bench_latency(root: Path) -> None:
           f"median {np.median(ms[:, 1]):.1f} ms, p99 {np.percentile(ms[:, 1], 99):.1f} ms")
 
 
-def bench_replay(root: Path, old_rev: str) -> None:
+def bench_replay(root: Path, old_rev: str, rotation: str) -> None:
     from svains.datasets.loader import load_dataset
     from svains.evaluation.run import run_method
     from svains.navigation.options import InitOptions, RunConfig, VisionOptions
 
     ds = load_dataset(root)
     cfg = RunConfig(method="3d", init=InitOptions(mode="groundtruth"),
-                    vision=VisionOptions(source="images"))
+                    vision=VisionOptions(source="images", rotation=rotation))
     load = os.getloadavg()[0]
     runs = []
     for _ in range(2):  # like the old runner's figure: the better of two runs
@@ -120,7 +124,7 @@ def bench_replay(root: Path, old_rev: str) -> None:
         subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
         env = {**os.environ, "PYTHONPATH": str(Path(tmp) / "src")}
         load = os.getloadavg()[0]
-        out = subprocess.run([sys.executable, "-c", OLD_SCRIPT, str(root)], env=env,
+        out = subprocess.run([sys.executable, "-c", OLD_SCRIPT, str(root), rotation], env=env,
                              capture_output=True, text=True, check=True).stdout  # fmt: skip
     import json
 
@@ -133,7 +137,7 @@ def bench_replay(root: Path, old_rev: str) -> None:
 def main() -> None:
     from svains.sim import SimConfig, simulate
 
-    duration, old_rev = _args()
+    duration, old_rev, rotation = _args()
     with tempfile.TemporaryDirectory() as tmp:
         cfg = SimConfig()
         cfg = replace(cfg, duration_s=duration, camera=replace(cfg.camera, rate_hz=20.0))
@@ -141,8 +145,9 @@ def main() -> None:
         root = simulate(cfg, Path(tmp) / "sim")
         print(f"simulated {duration:.0f} s at 20 Hz with 752x480 images in "
               f"{time.perf_counter() - t0:.1f} s")
-        bench_latency(root)
-        bench_replay(root, old_rev)
+        print(f"3d from images, vision.rotation={rotation}")
+        bench_latency(root, rotation)
+        bench_replay(root, old_rev, rotation)
 
 
 if __name__ == "__main__":
