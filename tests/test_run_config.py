@@ -117,5 +117,11 @@ def test_gps_outage_windows_and_gps_until(village_gps: Path, tmp_path: Path) -> 
     assert cut["measurements"]["gps"]["fused"] == n - 3
     assert until["measurements"]["gps"]["fused"] == n - until["gps_outage_fixes_skipped"]
     assert until["gps_outage_fixes_skipped"] >= 3
+    # The configured outage is evaluated like a gap in the GPS stream: one outage, from the
+    # last fix before it (1 s) to the first after it (5 s); the clean run has none.
+    (outage,) = cut["gps_outages"]
+    assert outage["duration_s"] == pytest.approx(4.0, abs=1e-6)
+    assert cut["outage_max_error_m"] == [outage["error_max_m"]]
+    assert not full.get("gps_outages")
     with pytest.raises(AssertionError):
         _cli(["run", str(village_gps), "--gps-outage", "2-3", "--out", str(tmp_path / "x")])

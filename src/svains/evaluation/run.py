@@ -55,13 +55,24 @@ def run_accuracy(result: RunResult, dataset: Dataset) -> dict[str, Any]:
         out.pop("position_within_3sigma", None)
     if dataset.groundtruth is not None and dataset.gps is not None and result.gps_used:
         outages = gps_outage_report(
-            result.t_ns, result.x, result.std, dataset.gps.t_ns, dataset.groundtruth
+            result.t_ns, result.x, result.std, fused_gps_times(result, dataset.gps.t_ns),
+            dataset.groundtruth,
         )
         out.update(outages)
         if outages["gps_outages"]:
             # Issue 6's key: the largest position error inside each GPS outage (m).
             out["outage_max_error_m"] = [o["error_max_m"] for o in outages["gps_outages"]]
     return out
+
+
+def fused_gps_times(result: RunResult, t_gps_ns: NDArray[np.int64]) -> NDArray[np.int64]:
+    """GPS fix times (N,) ns that the run could fuse: those outside the configured GPS-off
+    windows (``--gps-outage``, ``--gps-until``), so those windows count as outages."""
+    t = np.asarray(t_gps_ns, dtype=np.int64)
+    keep = np.ones(t.size, dtype=bool)
+    for a, b in result.report.get("gps_off_windows_ns", []):
+        keep &= ~((t >= a) & (t < b))
+    return t[keep]
 
 
 def nees_series(

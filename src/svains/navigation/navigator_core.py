@@ -232,6 +232,10 @@ class Core:
             report["dropped"] = dict(dropped)
         if self.gps_outage_skipped:
             report["gps_outage_fixes_skipped"] = self.gps_outage_skipped
+        if self._gps_off:
+            # Configured windows without GPS (int64 ns, [start, end)): the accuracy step reports
+            # the error inside them as it does for gaps in the GPS stream.
+            report["gps_off_windows_ns"] = [[int(a), int(b)] for a, b in self._gps_off]
         updater = self._vision_updater()
         if updater is not None and hasattr(updater, "summary"):
             # Vision counters: frames fused/rejected, features gated (see the updater's summary).
