@@ -191,3 +191,23 @@ def test_process_model_finite_differences_match_error_state_jacobians(layout, pr
     if layout.biased:
         # Accelerometer bias: ∂v/∂ba = −R0 ∫ΔR dt (here ≈ −R0 T for small rotations).
         assert np.linalg.norm(J[3:6, 15:18] + R0 * T) < 0.05 * T
+
+
+def test_missing_samples_scale_the_white_noise_by_the_held_interval() -> None:
+    from svains.models.imu import white_noise_duration_s
+
+    h = 0.01  # a 100 Hz sensor
+    # A regular stream (jitter below the missing-sample factor): the white terms span the steps.
+    dt = np.array([0.01, 0.0101, 0.0099])
+    assert white_noise_duration_s(dt, dt, h) == pytest.approx(dt.sum(), rel=1e-15)
+    # One kept sample held over 250 ms: its white noise enters as σ² D² / h, 25x σ² D.
+    assert white_noise_duration_s(np.array([0.25]), np.array([0.25]), h) == pytest.approx(6.25)
+    # Split by a frame time inside the interval, the pieces add up to the same.
+    pieces = white_noise_duration_s(np.array([0.1, 0.15]), np.array([0.25, 0.25]), h)
+    assert pieces == pytest.approx(6.25)
+    noise = ImuNoise(1e-3, 1e-4, 2e-2, 1e-3)
+    Q1 = process_noise(BIASED, noise, 0.25, h)
+    Q25 = process_noise(BIASED, noise, 0.25, h, white_duration_s=6.25)
+    white = np.r_[0:9]  # p, v, θ: white-noise terms scale by 25
+    np.testing.assert_allclose(Q25[np.ix_(white, white)], 25 * Q1[np.ix_(white, white)])
+    np.testing.assert_array_equal(Q25[9:, 9:], Q1[9:, 9:])  # ω sample noise and random walks

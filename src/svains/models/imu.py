@@ -197,8 +197,38 @@ def omega_white_variance(layout: StateLayout, noise: ImuNoise, h_imu_s: float) -
     return coef * noise.gyro_noise_density**2 / h_imu_s
 
 
-def process_noise(layout: StateLayout, noise: ImuNoise, duration_s: float, h_imu_s: float) -> F64:
+# An IMU interval longer than this many sensor periods lacks samples of the sensor's own stream.
+MISSING_SAMPLE_FACTOR = 1.5
+
+
+def white_noise_duration_s(
+    dt_s: F64, interval_s: F64, h_imu_s: float, factor: float = MISSING_SAMPLE_FACTOR
+) -> float:
+    """Duration (s) that sets the white-noise terms of ``process_noise`` over steps ``dt_s``.
+
+    A step inside a regular stream (its IMU interval ``interval_s`` at most ``factor`` sensor
+    periods ``h_imu_s``) counts its own length. A recording may keep only some samples of a
+    sensor (KITTI raw: 100 Hz OXTS records 10-250 ms apart); a kept sample then stands for the
+    whole interval D it starts, so its white noise (variance σ²/h) enters the increment as
+    σ² D² / h instead of σ² D: the step counts ``dt · D / h``. Equal to ``sum(dt_s)`` on a
+    regular stream. ``dt_s`` (N,) step lengths, ``interval_s`` (N,) the IMU interval holding each.
+    """
+    dt = np.asarray(dt_s, dtype=float)
+    D = np.asarray(interval_s, dtype=float)
+    return float(np.sum(np.where(factor * h_imu_s < D, dt * D / h_imu_s, dt)))
+
+
+def process_noise(
+    layout: StateLayout,
+    noise: ImuNoise,
+    duration_s: float,
+    h_imu_s: float,
+    white_duration_s: float | None = None,
+) -> F64:
     """Tangent-space process noise ``Q`` (ndx, ndx) accumulated over ``duration_s``.
+
+    ``white_duration_s`` (default ``duration_s``): the white-noise terms' duration, longer where
+    the recording lacks samples (``white_noise_duration_s``); random walks use ``duration_s``.
 
     Accelerometer white noise integrates into v and p with the exact double-integrator
     covariance (T, T²/2, T³/3); gyro white noise gives the attitude random walk σ² T. In the
@@ -209,12 +239,14 @@ def process_noise(layout: StateLayout, noise: ImuNoise, duration_s: float, h_imu
     """
     T = duration_s
     Qm = np.zeros((layout.ndx, layout.ndx))
-    qa = noise.accel_noise_density**2
+    # Missing samples scale the white terms: variance grows by white_duration / duration.
+    r = 1.0 if white_duration_s is None or T <= 0 else white_duration_s / T
+    qa = noise.accel_noise_density**2 * r
     eye = np.eye(3)
     Qm[DP, DP] = qa * T**3 / 3.0 * eye
     Qm[DP, DV] = Qm[DV, DP] = qa * T**2 / 2.0 * eye
     Qm[DV, DV] = qa * T * eye
-    Qm[DTH, DTH] = noise.gyro_noise_density**2 * T * eye
+    Qm[DTH, DTH] = noise.gyro_noise_density**2 * r * T * eye
     if layout.biased:
         Qm[DW, DW] = noise.gyro_noise_density**2 / h_imu_s * eye
         Qm[DBG, DBG] = noise.gyro_random_walk**2 * T * eye

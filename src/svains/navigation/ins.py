@@ -19,11 +19,13 @@ from svains.filter.sigma_points import MerweScaledSigmaPoints
 from svains.filter.ukf import UKF, UpdateStats
 from svains.models.gps import gps_position, gps_position_velocity
 from svains.models.imu import (
+    MISSING_SAMPLE_FACTOR,
     ImuChunk,
     ImuModel,
     ImuNoise,
     omega_white_variance,
     process_noise,
+    white_noise_duration_s,
 )
 from svains.models.magnetometer import magnetic_field
 from svains.models.manifold import NavManifold
@@ -219,7 +221,20 @@ class InsFilter:
             j1 = min(j0 + step, n_steps) + 1
             tt = t_nodes[j0:j1]
             chunk = ImuChunk(np.diff(tt) * 1e-9, gyro[j0:j1], accel[j0:j1], alpha[j0:j1])
-            self.ukf.predict(self.model, chunk, 0.0, self._noise(int(tt[-1] - tt[0])))
+            self.ukf.predict(self.model, chunk, 0.0, self._chunk_noise(tt))
+
+    def _chunk_noise(self, tt: NDArray[np.int64]) -> F64:
+        """Process noise over the nodes ``tt`` (int64 ns); white terms longer where the IMU
+        interval holding a step lacks samples (``models.imu.white_noise_duration_s``)."""
+        span_ns = int(tt[-1] - tt[0])
+        t_imu = self.t_imu
+        k = np.searchsorted(t_imu, tt[1:])  # the IMU sample ending each step's interval
+        interval_ns = t_imu[k] - t_imu[k - 1]
+        h_ns = self._h_imu * 1e9
+        if not np.any(interval_ns > MISSING_SAMPLE_FACTOR * h_ns):
+            return self._noise(span_ns)
+        white_s = white_noise_duration_s(np.diff(tt) * 1e-9, interval_ns * 1e-9, self._h_imu)
+        return process_noise(self.layout, self.noise, span_ns * 1e-9, self._h_imu, white_s)
 
     def add_omega_white(self) -> None:
         """Paper model: add ω̂'s gyro white noise to P while a vision updater inspects the filter
