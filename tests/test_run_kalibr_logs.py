@@ -118,3 +118,17 @@ def test_a_missing_kalibr_file_is_refused(euroc_micro: Path, tmp_path: Path) -> 
                               "--calib", str(tmp_path / "nope.yaml")])  # fmt: skip
     assert res.exit_code != 0
     assert "nope.yaml" in res.output
+
+
+def test_compare_takes_the_kalibr_files_for_a_bag(bag_and_kalibr, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    bag, chain, imu = bag_and_kalibr
+    args = ["compare", str(bag), "--out", str(tmp_path), "--methods", "3d", "--images",
+            "--no-figures", "--duration", "1", "--rotation", "imu"]  # fmt: skip
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output  # compare goes on past a failed method
+    assert not (tmp_path / "3d" / "report.json").exists()  # a bag has no camera calibration
+    res = runner.invoke(app, [*args, "--force", "--calib", str(chain), "--imu-calib", str(imu)])
+    assert res.exit_code == 0, res.output
+    rep = json.loads((tmp_path / "compare.json").read_text())["3d"]
+    assert rep["vision"]["frames_fused"] >= 8
+    assert all((tmp_path / "3d" / n).is_file() for n in ("updates.csv", "tracks.csv"))

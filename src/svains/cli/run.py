@@ -102,7 +102,12 @@ def run(
     """Run METHOD over DATASET; write trajectory.tum, trajectory_euroc.csv, pose_covariance.csv,
     states.csv, updates.csv, tracks.csv (vision), report.json and the effective config.yaml into
     OUT; with --rerun/--rerun-spawn, then a rerun recording of the run."""
-    from svains.cli.run_config import build_config, effective_config_text, parse_outage
+    from svains.cli.run_config import (
+        build_config,
+        effective_config_text,
+        kalibr_switches,
+        parse_outage,
+    )
     from svains.datasets import load_dataset
     from svains.evaluation.run import run_method
     from svains.replay import resolve_config
@@ -124,9 +129,7 @@ def run(
             "gps_outages": None if not gps_outage else [list(parse_outage(g))
                                                         for g in gps_outage],
             "replay.synthetic_features_hz": synthetic_features,
-            # Absolute: OUT/config.yaml must find them from any working directory.
-            "replay.calib": None if calib is None else str(calib.resolve()),
-            "replay.imu_calib": None if imu_calib is None else str(imu_calib.resolve()),
+            **kalibr_switches(calib, imu_calib),
         }  # fmt: skip
         config = build_config(config_file, setting, switches)
         ds = load_dataset(dataset, calib=config.replay.calib, imu_calib=config.replay.imu_calib)
