@@ -128,7 +128,7 @@ def test_run_refuses_a_non_empty_out_and_force_keeps_other_files(
     assert res.exit_code == 0, res.stderr
     assert sorted(p.name for p in out.iterdir()) == [
         "config.yaml", "notes.txt", "pose_covariance.csv", "report.json", "states.csv",
-        "trajectory.tum", "trajectory_euroc.csv",
+        "trajectory.tum", "trajectory_euroc.csv", "updates.csv",
     ]  # fmt: skip
     assert (out / "notes.txt").read_text() == "mine\n"
 
@@ -158,4 +158,4 @@ def test_interrupted_run_leaves_no_report(
     assert res.exit_code == 130
     assert sorted(p.name for p in out.iterdir()) == [  # the previous run's config.yaml stays
         "config.yaml", "pose_covariance.csv", "states.csv", "trajectory.tum",
-        "trajectory_euroc.csv"]
+        "trajectory_euroc.csv", "updates.csv"]

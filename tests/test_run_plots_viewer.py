@@ -66,11 +66,21 @@ def test_plot_writes_errors_nees_and_measurement_panels(
         assert head == b"\x89PNG\r\n\x1a\n", name
 
 
-def test_plot_without_updates_log_shows_report_totals(run_dir: Path, tmp_path: Path) -> None:
+def test_plot_uses_the_updates_log_the_run_wrote(run_dir: Path, tmp_path: Path) -> None:
+    c = read_run(run_dir).report["measurements"]["3d"]
     files = plot_run(run_dir, None, tmp_path)
+    assert files[0].panels == (f"3d: {c['fused']} fused, {c['rejected']} rejected",)
+
+
+def test_plot_without_updates_log_shows_report_totals(run_dir: Path, tmp_path: Path) -> None:
+    d = tmp_path / "run"
+    d.mkdir()
+    for name in ("states.csv", "report.json"):  # an older run's folder: no updates.csv
+        (d / name).write_text((run_dir / name).read_text())
+    files = plot_run(d, None, tmp_path)
     assert [f.path.name for f in files] == ["measurements.png"]
     assert files[0].panels[0].startswith("fused/rejected totals (report.json; no updates.csv")
-    res = runner.invoke(app, ["plot", str(run_dir), "--out", str(tmp_path / "cli")])
+    res = runner.invoke(app, ["plot", str(d), "--out", str(tmp_path / "cli")])
     assert res.exit_code == 0, res.output
     assert (tmp_path / "cli" / "measurements.png").is_file()
     assert "no --dataset: errors.png and nees.png need its ground truth" in res.output

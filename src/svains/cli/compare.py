@@ -16,12 +16,15 @@ from svains.errors import SvainsError
 def build_options(
     model: str, init: str, gps: bool, mag: bool, duration: float | None, source: str,
     settings: list[str] | None, config_file: Path | None = None,
+    calib: Path | None = None, imu_calib: Path | None = None,
 ) -> Any:
-    """``RunConfig`` from the command-line switches (``settings``: ``--set`` items)."""
-    from svains.cli.run_config import build_config
+    """``RunConfig`` from the command-line switches (``settings``: ``--set`` items; ``calib``,
+    ``imu_calib``: Kalibr files, kept absolute in ``replay``)."""
+    from svains.cli.run_config import build_config, kalibr_switches
 
     switches = {"model": model, "init.mode": init, "use_gps": gps, "use_mag": mag,
-                "duration_s": duration, "vision.source": source}  # fmt: skip
+                "duration_s": duration, "vision.source": source,
+                **kalibr_switches(calib, imu_calib)}  # fmt: skip
     return build_config(config_file, settings, switches)
 
 
@@ -33,7 +36,7 @@ def run_compare(
     from svains.datasets.loader import load_dataset
     from svains.evaluation.compare import run_methods, write_comparison
 
-    ds = load_dataset(dataset)
+    ds = load_dataset(dataset, calib=options.replay.calib, imu_calib=options.replay.imu_calib)
     if synthetic_features_hz is not None:
         from svains.replay.synthetic import with_synthetic_features
 
@@ -55,7 +58,7 @@ def run_compare(
 
 
 def compare(
-    dataset: Annotated[Path, typer.Argument(help="Data set folder (ASL layout).")],
+    dataset: Annotated[Path, typer.Argument(help="Data set folder or ROS bag.")],
     out: Annotated[Path, typer.Option("--out", help="Output folder.")],
     methods: Annotated[
         str, typer.Option("--methods", help="Comma-separated methods: ins,vo,lc,tc,3d.")
@@ -93,6 +96,10 @@ def compare(
                      help="Simulate features0 at this rate [Hz] along the ground truth.",
                      callback=_common.positive_finite),
     ] = None,
+    calib: Annotated[
+        Path | None, typer.Option("--calib", help="Kalibr camchain-imucam.yaml.")
+    ] = None,
+    imu_calib: Annotated[Path | None, typer.Option("--imu-calib", help="Kalibr imu.yaml.")] = None,
     force: Annotated[
         bool, typer.Option("--force", help="Write into a non-empty --out (replacing files).")
     ] = False,
@@ -102,7 +109,8 @@ def compare(
     try:
         source = {None: "auto", True: "features", False: "images"}[features]
         settings = [*([f"vision.rotation={rotation}"] if rotation else []), *(setting or [])]
-        opts = build_options(model, init, gps, mag, duration, source, settings)
+        opts = build_options(model, init, gps, mag, duration, source, settings,
+                             calib=calib, imu_calib=imu_calib)
         run_compare(dataset, out, [m.strip() for m in methods.split(",") if m.strip()], opts,
                     figures, Console(), synthetic_features)
     except SvainsError as exc:

@@ -19,7 +19,8 @@ _SHOWN = ("ate_rmse_m", "position_rmse_m", "velocity_rmse_mps", "attitude_rmse_d
 
 
 def run(
-    dataset: Annotated[Path, typer.Argument(help="Data-set folder (ASL/EuRoC layout).")],
+    dataset: Annotated[Path, typer.Argument(help="Data set: ASL/EuRoC, TUM-VI or KITTI folder, "
+                                                 "or a ROS bag (.bag, .db3, .mcap).")],
     out: Annotated[Path, typer.Option("--out", help="Output folder.")] = Path("run_out"),
     config_file: Annotated[
         Path | None,
@@ -76,13 +77,37 @@ def run(
             callback=positive_finite,
         ),
     ] = None,
+    calib: Annotated[
+        Path | None,
+        typer.Option("--calib", help="Kalibr camchain-imucam.yaml replacing the data set's "
+                     "camera calibration (config key replay.calib)."),
+    ] = None,
+    imu_calib: Annotated[
+        Path | None,
+        typer.Option("--imu-calib", help="Kalibr imu.yaml replacing the data set's IMU noise "
+                     "(config key replay.imu_calib)."),
+    ] = None,
+    rerun: Annotated[
+        Path | None,
+        typer.Option("--rerun", help="After the run, save a rerun recording (.rrd; needs "
+                     "svains[viz])."),
+    ] = None,
+    rerun_spawn: Annotated[
+        bool, typer.Option("--rerun-spawn", help="After the run, open the rerun viewer.")
+    ] = False,
     force: Annotated[
         bool, typer.Option("--force", help="Write into a non-empty --out (replacing files).")
     ] = False,
 ) -> None:
     """Run METHOD over DATASET; write trajectory.tum, trajectory_euroc.csv, pose_covariance.csv,
-    states.csv, report.json and the effective config.yaml into OUT."""
-    from svains.cli.run_config import build_config, effective_config_text, parse_outage
+    states.csv, updates.csv, tracks.csv (vision), report.json and the effective config.yaml into
+    OUT; with --rerun/--rerun-spawn, then a rerun recording of the run."""
+    from svains.cli.run_config import (
+        build_config,
+        effective_config_text,
+        kalibr_switches,
+        parse_outage,
+    )
     from svains.datasets import load_dataset
     from svains.evaluation.run import run_method
     from svains.replay import resolve_config
@@ -104,9 +129,10 @@ def run(
             "gps_outages": None if not gps_outage else [list(parse_outage(g))
                                                         for g in gps_outage],
             "replay.synthetic_features_hz": synthetic_features,
+            **kalibr_switches(calib, imu_calib),
         }  # fmt: skip
         config = build_config(config_file, setting, switches)
-        ds = load_dataset(dataset)
+        ds = load_dataset(dataset, calib=config.replay.calib, imu_calib=config.replay.imu_calib)
         hz = config.replay.synthetic_features_hz
         if hz is not None:
             from svains.replay.synthetic import with_synthetic_features
@@ -124,6 +150,10 @@ def run(
                 ds, None, config, out_dir=out, progress=lambda f: bar.update(task, completed=f),
                 config_text=effective_config_text(config, dataset),
             )
+        if rerun is not None or rerun_spawn:
+            from svains.evaluation.viewer import write_recording
+
+            write_recording(out, ds, rerun, spawn=rerun_spawn)
     except SvainsError as exc:
         fail(exc)
     rep = result.report
@@ -147,8 +177,11 @@ def run(
             "outage max error [m]", ", ".join(f"{e:.2f}" for e in rep["outage_max_error_m"])
         )
     console.print(table)
+    logs = "".join(f", {n}" for n in ("updates.csv", "tracks.csv") if (out / n).is_file())
     console.print(f"wrote {out}/trajectory.tum, trajectory_euroc.csv, pose_covariance.csv, "
-                  "states.csv, report.json, config.yaml")
+                  f"states.csv{logs}, report.json, config.yaml")
+    if rerun is not None:
+        console.print(f"wrote {rerun} (open with: rerun {rerun})")
 
 
 def register(app: typer.Typer) -> None:

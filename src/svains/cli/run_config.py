@@ -28,6 +28,15 @@ def parse_outage(text: str) -> tuple[float, float]:
         raise ConfigError(f"--gps-outage expects START:DURATION in seconds, got {text!r}") from exc
 
 
+def kalibr_switches(calib: Path | None, imu_calib: Path | None) -> dict[str, str | None]:
+    """``replay.calib``/``replay.imu_calib`` switches from ``--calib``/``--imu-calib``: absolute
+    paths, so that ``OUT/config.yaml`` finds the files from any working directory."""
+    return {
+        "replay.calib": None if calib is None else str(calib.resolve()),
+        "replay.imu_calib": None if imu_calib is None else str(imu_calib.resolve()),
+    }
+
+
 def build_config(
     config_file: Path | None, settings: list[str] | None, switches: dict[str, Any]
 ) -> Any:

@@ -19,7 +19,7 @@ from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.event_queue import FRAME, GPS, MAG, SONAR, TICK
 from svains.navigation.ins import InsFilter
 from svains.navigation.options import RunConfig
-from svains.navigation.outputs import NavState, RunResult, WorldFrame
+from svains.navigation.outputs import NavState, RunResult, UpdateRecord, WorldFrame
 from svains.navigation.vision import LcUpdater, PixelUpdater, make_vision_updater
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames
 from svains.sensors.types import Rig
@@ -53,6 +53,7 @@ class Core:
             self._gps_off.append((t_first + int(config.gps_until_s * 1e9) + 1, 2**62))
         self.counts: dict[str, dict[str, int]] = {}
         self.updates: list[UpdateStats] = []
+        self.update_log: list[UpdateRecord] = []
         self.gps_outage_skipped = 0
         self._log_t: list[int] = []
         self._log_x: list[np.ndarray] = []
@@ -182,6 +183,7 @@ class Core:
         c = self.counts.setdefault(key, {"fused": 0, "rejected": 0})
         c["fused" if stats.accepted else "rejected"] += 1
         self.updates.append(stats)
+        self.update_log.append(UpdateRecord(int(self.ins.t_ns), key, stats))  # filter is at t
 
     # ---- outputs ------------------------------------------------------------------------
     def snapshot(self) -> NavState:
@@ -211,7 +213,8 @@ class Core:
         t = np.array(self._log_t, dtype=np.int64)
         res = RunResult(
             t, np.array(self._log_x), np.array(self._log_std), np.array(self._log_P9), {},
-            self.updates, world_frame=self._world_frame(),
+            self.updates, self.update_log, getattr(self._source, "track_log", None),
+            world_frame=self._world_frame(),
             gps_used=bool(cfg.use_gps and self.rig.gps is not None),
         )  # fmt: skip
         duration = (t[-1] - t[0]) * 1e-9

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -56,6 +57,40 @@ class NavState:
         )  # fmt: skip
 
 
+@dataclass(frozen=True)
+class UpdateRecord:
+    """One measurement update at ``t_ns`` (the filter's time): ``sensor`` the key it is counted
+    under in ``report["measurements"]`` (``gps``, ``mag``, ``sonar``, the vision method)."""
+
+    t_ns: int
+    sensor: str
+    stats: UpdateStats
+
+
+class TrackLog:
+    """The left pixels of each frame's tracks, as the vision updater received them: per frame,
+    ``track_id`` (M,), ``uv_left_px`` (M, 2) in the rectified rig (``raw`` False) or the raw
+    left image (``raw`` True, see ``to_raw``), ``inlier`` (M,) the front end's flag (RANSAC and
+    stereo gates). Float32 pixels: a long run keeps a few hundred features per frame."""
+
+    def __init__(self, raw: bool = False) -> None:
+        self.raw = raw
+        self.frames: list[tuple[int, I64, NDArray[np.float32], NDArray[np.bool_]]] = []
+
+    def add(self, t_ns: int, track_id: I64, uv_left_px: F64, inlier: NDArray[np.bool_]) -> None:
+        """Keep one frame's tracks (copies)."""
+        self.frames.append((int(t_ns), np.array(track_id, np.int64),
+                            np.array(uv_left_px, np.float32).reshape(-1, 2),
+                            np.array(inlier, bool)))  # fmt: skip
+
+    def to_raw(self, unrectify: Callable[[F64], F64]) -> TrackLog:
+        """The same tracks with pixels mapped by ``unrectify`` (rectified (N, 2) -> raw (N, 2))."""
+        out = TrackLog(raw=True)
+        for t, ids, uv, inl in self.frames:
+            out.add(t, ids, unrectify(uv.astype(float)), inl)
+        return out
+
+
 @dataclass
 class RunResult:
     """Logged estimates: ``t_ns`` (T,), ``x`` (T, nx), ``std`` (T, ndx) tangent std devs,
@@ -65,6 +100,8 @@ class RunResult:
     ``groundtruth`` (initialised from it), ``gps`` (GPS fixes fused) or ``local`` (static start
     without GPS: yaw and position are arbitrary, so raw errors against ground truth mean nothing).
     ``gps_used``: GPS was enabled and present; ``has_covariance``: False for filter-free methods.
+    ``update_log``: every measurement update with its time and sensor (``updates.csv``);
+    ``tracks``: the vision tracks of every frame (``tracks.csv``), None without vision.
     """
 
     t_ns: I64
@@ -73,6 +110,8 @@ class RunResult:
     P9: F64
     report: dict[str, Any]
     updates: list[UpdateStats] = field(default_factory=list, repr=False)
+    update_log: list[UpdateRecord] = field(default_factory=list, repr=False)
+    tracks: TrackLog | None = field(default=None, repr=False)
     world_frame: WorldFrame = "groundtruth"
     gps_used: bool = False
     has_covariance: bool = True

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 from svains.errors import ConfigError
 from svains.frontend.types import Egomotion, StereoTracks
 from svains.geometry.camera import RectifiedStereo
+from svains.navigation.outputs import TrackLog
 from svains.navigation.tracks import TrackBuilder, TrackOptions
 from svains.sensors.types import CameraCalib
 
@@ -33,6 +34,13 @@ def rig_from_calibrations(cam0: CameraCalib | None, cam1: CameraCalib | None) ->
     return StereoRectifier.from_calibration(cam0, cam1).rig
 
 
+def _logged(log: TrackLog, tracks: StereoTracks | None) -> StereoTracks | None:
+    """``tracks``, kept in ``log`` (the run's ``tracks.csv``) first."""
+    if tracks is not None:
+        log.add(tracks.t_ns, tracks.track_id, tracks.uv_left, tracks.inlier)
+    return tracks
+
+
 class FeatureFrames:
     """Tracks from pre-tracked features (``features0`` or an external front end).
 
@@ -46,6 +54,7 @@ class FeatureFrames:
         self.pixel_noise_std = 1.0
         self._builder = TrackBuilder(rig, track_options)
         self._tracks: dict[int, StereoTracks] = {}
+        self.track_log = TrackLog()
 
     def push(self, t_ns: int, track_id: I64, uv_left: F64, uv_right: F64) -> bool:
         """Pair this frame with the previous one; True if it gave tracks (not the first)."""
@@ -59,7 +68,7 @@ class FeatureFrames:
 
     def tracks_at(self, t_ns: int, motion_prior: Egomotion | None = None) -> StereoTracks | None:
         """The tracks ending at ``t_ns`` (``motion_prior`` is not needed here)."""
-        return self._tracks.pop(int(t_ns), None)
+        return _logged(self.track_log, self._tracks.pop(int(t_ns), None))
 
 
 class ImageFrames:
@@ -82,6 +91,7 @@ class ImageFrames:
         self.frontend_ms: list[float] = []
         self.stage_ms: list[dict[str, float]] = []
         self.status_counts: dict[str, int] = {}
+        self.track_log = TrackLog()
 
     def push(self, t_ns: int, left: U8, right: U8) -> bool:
         """Keep the pair until its turn (the Navigator hands over its own copies)."""
@@ -110,4 +120,4 @@ class ImageFrames:
         self.stage_ms.append(dict(self.frontend.stats.timings_ms))
         status = self.frontend.stats.status or "none"
         self.status_counts[status] = self.status_counts.get(status, 0) + 1
-        return tracks
+        return _logged(self.track_log, tracks)

@@ -209,6 +209,12 @@ def replay(
             progress(min(1.0, (t - t0) / span))
             next_report = t + span // 200
     result = nav.close()
+    if result.tracks is not None and ds.cam0 is not None and ds.cam1 is not None:
+        # tracks.csv holds raw left-image pixels (what the viewer draws on the recorded image).
+        from svains.frontend.rectify import StereoRectifier
+
+        rect = StereoRectifier.from_calibration(ds.cam0, ds.cam1)
+        result.tracks = result.tracks.to_raw(rect.unrectify_points)
     if progress is not None:
         progress(1.0)
     rep = result.report

@@ -1,5 +1,5 @@
 """Output files of a run: ``trajectory.tum``, ``trajectory_euroc.csv``, ``pose_covariance.csv``,
-``states.csv``, ``report.json`` (layouts in ``docs/formats.md``).
+``states.csv``, ``updates.csv``, ``tracks.csv``, ``report.json`` (layouts in ``docs/formats.md``).
 
 Each file is written atomically (temporary name, then rename), ``report.json`` last: a folder
 with a ``report.json`` holds a complete run.
@@ -74,6 +74,15 @@ def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None =
         fh.write(header + "\n")
         for t, xs, ss in zip(result.t_ns, x, result.std, strict=True):
             fh.write(f"{int(t)}," + ",".join(f"{v:.9g}" for v in np.concatenate([xs, ss])) + "\n")
+    # A replaced run's logs go when this run has none (the viewer would take them for its own).
+    if result.update_log:
+        write_updates(out_dir / "updates.csv", result)
+    else:
+        (out_dir / "updates.csv").unlink(missing_ok=True)
+    if result.tracks is not None and result.tracks.frames:
+        write_tracks(out_dir / "tracks.csv", result)
+    else:
+        (out_dir / "tracks.csv").unlink(missing_ok=True)
     if config_text is not None:
         atomic_write_text(out_dir / "config.yaml", config_text)
     atomic_write_text(
@@ -102,3 +111,23 @@ def write_pose_covariance(path: Path, result: RunResult) -> None:
         for t, P in zip(result.t_ns, P9, strict=True):
             vals = (*P[6:9, 6:9][_IU], *P[0:3, 0:3][_IU])
             fh.write(f"{int(t)}," + ",".join(f"{v:.9g}" for v in vals) + "\n")
+
+
+def write_updates(path: Path, result: RunResult) -> None:
+    """One row per measurement update: ``t_ns,sensor,nis,dof,accepted`` (1 passed the gate)."""
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        fh.write("t_ns,sensor,nis,dof,accepted\n")
+        for u in result.update_log:
+            s = u.stats
+            fh.write(f"{u.t_ns},{u.sensor},{s.nis:.9g},{s.dof},{int(s.accepted)}\n")
+
+
+def write_tracks(path: Path, result: RunResult) -> None:
+    """One row per feature per frame: ``t_ns,track_id,u_px,v_px,inlier`` (left image pixel)."""
+    assert result.tracks is not None
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        fh.write("t_ns,track_id,u_px,v_px,inlier\n")
+        for t, ids, uv, inl in result.tracks.frames:
+            fh.writelines(f"{t},{i},{u:.3f},{v:.3f},{int(k)}\n"
+                          for i, (u, v), k in zip(ids.tolist(), uv.tolist(), inl.tolist(),
+                                                  strict=True))  # fmt: skip
