@@ -1,0 +1,167 @@
+"""Sensor-fault handling of the ``Navigator``: the IMU guard and the consistency recovery wired in.
+
+- :class:`ImuFaults` (Navigator side): every IMU sample passes ``ImuGuard``; a dropped sample
+  never reaches the ``ImuHistory`` (propagation bridges it by interpolating its neighbours); a
+  gap is queued with its covariance (``gap_covariance``, sized by the sample spread before it)
+  until the filter propagates across it (:meth:`ImuFaults.take_gaps`).
+- :class:`Recovery` (Core side): every gated update goes to ``ConsistencyMonitor``; its
+  actions are applied to the filter: ``inflate`` scales the p/v/θ block of P (cross terms by
+  the square root, so P stays positive semi-definite); ``reset`` re-initialises position and
+  velocity from the next GPS fix (lever arm through the current attitude).
+
+Each event is logged as a warning, at most one per kind per ``warn_interval_s`` of data time
+(the rest are counted in the next warning). Counters go to ``report.json`` (``imu_faults``,
+``recovery``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from svains.filter.ukf import UKF, UpdateStats
+from svains.models.gps import gps_position, gps_velocity
+from svains.models.state import DP, DTH, DV, P, V
+from svains.navigation.consistency import ConsistencyMonitor, ConsistencyOptions, RecoveryAction
+from svains.navigation.imu_guard import ImuGuard, ImuGuardOptions, gap_covariance
+from svains.navigation.imu_history import ImuHistory
+from svains.navigation.options import FaultOptions
+from svains.sensors.types import GpsCalib, Rig
+
+F64 = NDArray[np.float64]
+log = logging.getLogger(__name__)
+NAV9 = slice(0, 9)  # δp, δv, δθ in the tangent space (``models.state``)
+
+
+class RateLimitedLog:
+    """Warnings at most once per ``interval_ns`` of data time per kind; the rest are counted."""
+
+    def __init__(self, interval_s: float) -> None:
+        self._interval_ns = int(interval_s * 1e9)
+        self._last: dict[str, int] = {}
+        self._suppressed: dict[str, int] = {}
+
+    def warn(self, kind: str, t_ns: int, message: str) -> None:
+        last = self._last.get(kind)
+        if last is not None and t_ns - last < self._interval_ns:
+            self._suppressed[kind] = self._suppressed.get(kind, 0) + 1
+            return
+        more = self._suppressed.pop(kind, 0)
+        self._last[kind] = t_ns
+        tail = f" ({more} more since the last warning)" if more else ""
+        log.warning("t=%.3f s: %s%s", t_ns * 1e-9, message, tail)
+
+
+class ImuFaults:
+    """``ImuGuard`` on the incoming samples (sensor frame S) and the gaps waiting for the core."""
+
+    def __init__(self, rig: Rig, options: FaultOptions, warn: RateLimitedLog) -> None:
+        assert rig.imu is not None
+        self._options = options
+        self._warn = warn
+        self._densities = (rig.imu.accel_noise_density, rig.imu.gyro_noise_density)
+        guard_options = ImuGuardOptions(gap_factor=options.imu_gap_factor)
+        self.guard = ImuGuard.from_calib(rig.imu, guard_options)
+        self._gaps: list[tuple[int, F64]] = []  # (start_ns, covariance (9, 9)) not yet applied
+
+    def accept(self, t_ns: int, gyro_S: ArrayLike, accel_S: ArrayLike, history: ImuHistory) -> bool:
+        """Whether the sample at ``t_ns`` enters ``history`` (queues the gap it ends, if any)."""
+        verdict = self.guard.check(t_ns, gyro_S, accel_S)
+        if verdict.kind == "drop":
+            why = f"IMU sample dropped ({verdict.reason}), bridged by its neighbours"
+            self._warn.warn(f"imu-{verdict.reason}", t_ns, why)
+            return False
+        if verdict.kind == "gap":
+            start_ns = t_ns - round(verdict.gap_s * 1e9)
+            self._gaps.append((start_ns, self._gap_cov(verdict.gap_s, start_ns, history)))
+            self._warn.warn("imu-gap", t_ns, f"IMU gap of {verdict.gap_s:.3f} s: covariance "
+                            "inflated by the noise it skipped")  # fmt: skip
+        return True
+
+    def _gap_cov(self, gap_s: float, start_ns: int, history: ImuHistory) -> F64:
+        """``gap_covariance`` with the per-axis spread of the samples before the gap (at least
+        the white noise of one sample)."""
+        t = history.t_ns
+        sel = t >= start_ns - int(self._options.gap_spread_s * 1e9)
+        spacing = self.guard.median_spacing_s() or 0.01
+        accel_std, gyro_std = (d / math.sqrt(spacing) for d in self._densities)
+        if np.count_nonzero(sel) >= 2:
+            accel_std = max(accel_std, float(np.mean(np.std(history.accel_B[sel], axis=0))))
+            gyro_std = max(gyro_std, float(np.mean(np.std(history.gyro_B[sel], axis=0))))
+        return gap_covariance(gap_s, accel_std, gyro_std)
+
+    def take_gaps(self, t_ns: int) -> list[F64]:
+        """Covariances of the queued gaps that start before ``t_ns`` (the filter crossed them)."""
+        due = [Q for start, Q in self._gaps if start < t_ns]
+        self._gaps = [g for g in self._gaps if g[0] >= t_ns]
+        return due
+
+    def summary(self) -> dict[str, object]:
+        return self.guard.summary()
+
+
+class Recovery:
+    """``ConsistencyMonitor`` fed by every gated update; applies its actions to ``ukf``."""
+
+    def __init__(self, options: FaultOptions, warn: RateLimitedLog) -> None:
+        self.monitor = ConsistencyMonitor(ConsistencyOptions(inflate_factor=options.inflate_factor))
+        self._warn = warn
+        self.reset_pending = False
+
+    def observe(self, stats: UpdateStats, key: str, t_ns: int) -> None:
+        if math.isfinite(stats.gate):  # ungated updates say nothing about the filter's health
+            self.monitor.observe(key, stats.accepted, stats.nis, stats.dof, t_ns)
+
+    def check(self, ukf: UKF, t_ns: int) -> None:
+        """Ask the monitor after a group of updates and apply its action."""
+        position_std_m = math.sqrt(float(np.trace(ukf.P[DP, DP])) / 3.0)
+        action = self.monitor.should_recover(t_ns, position_std_m)
+        if action is None:
+            return
+        self._warn.warn(f"recovery-{action.kind}", t_ns,
+                        f"filter inconsistent ({action.reason}): {action.kind}")  # fmt: skip
+        if action.kind == "inflate":
+            inflate(ukf, action)
+        else:
+            self.reset_pending = True
+
+    def reset_from_gps(self, ukf: UKF, cal: GpsCalib, p_W_G: F64, v_W_G: F64 | None) -> None:
+        """Position (and velocity, when the fix has one) from the GPS fix; their covariance
+        from its noise, uncorrelated with the rest of the state."""
+        x = ukf.x.copy()
+        x[P] = 0.0
+        x[P] = p_W_G - gps_position(x[None], cal.p_B_G)[0]
+        idx = [*range(DP.start, DP.stop)]
+        var = [cal.position_noise_std**2] * 3
+        if v_W_G is not None:
+            x[V] = 0.0
+            x[V] = v_W_G - gps_velocity(x[None], cal.p_B_G)[0]
+            idx += [*range(DV.start, DV.stop)]
+            var += [cal.velocity_noise_std**2] * 3
+        Pm = ukf.P.copy()
+        Pm[idx, :] = 0.0
+        Pm[:, idx] = 0.0
+        Pm[idx, idx] = var
+        ukf.x, ukf.P = x, Pm
+        self.reset_pending = False
+
+    def summary(self) -> dict[str, object]:
+        return self.monitor.summary()
+
+
+def inflate(ukf: UKF, action: RecoveryAction) -> None:
+    """P ← D P D with D = sqrt(factor) on δp, δv, δθ and 1 elsewhere."""
+    d = np.ones(ukf.P.shape[0])
+    d[NAV9] = math.sqrt(action.inflate_factor)
+    assert DTH.stop == NAV9.stop
+    ukf.P = ukf.P * np.outer(d, d)
+
+
+def add_gap_covariance(ukf: UKF, Q9: F64) -> None:
+    """Add a gap's covariance (9, 9) to the p/v/θ block of ``ukf.P``."""
+    Pm = ukf.P.copy()
+    Pm[NAV9, NAV9] += Q9
+    ukf.P = Pm
