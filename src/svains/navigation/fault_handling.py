@@ -2,8 +2,8 @@
 
 - :class:`ImuFaults` (Navigator side): every IMU sample passes ``ImuGuard``; a dropped sample
   never reaches the ``ImuHistory`` (propagation bridges it by interpolating its neighbours); a
-  gap is queued with its covariance (``gap_covariance``, sized by the sample spread before it)
-  until the filter propagates across it (:meth:`ImuFaults.take_gaps`).
+  gap's noise (``imu_guard.gap_covariance``'s model, sized by the sample spread before it) is
+  added as the filter propagates across it (:meth:`ImuFaults.take_noise`).
 - :class:`Recovery` (Core side): every gated update goes to ``ConsistencyMonitor``; its
   actions are applied to the filter: ``inflate`` scales the p/v/θ block of P (cross terms by
   the square root, so P stays positive semi-definite); ``reset`` re-initialises position and
@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -26,7 +27,7 @@ from svains.filter.ukf import UKF, UpdateStats
 from svains.models.gps import gps_position, gps_velocity
 from svains.models.state import DP, DTH, DV, P, V
 from svains.navigation.consistency import ConsistencyMonitor, ConsistencyOptions, RecoveryAction
-from svains.navigation.imu_guard import ImuGuard, ImuGuardOptions, gap_covariance
+from svains.navigation.imu_guard import ImuGuard, ImuGuardOptions
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.options import FaultOptions
 from svains.sensors.types import GpsCalib, Rig
@@ -55,6 +56,42 @@ class RateLimitedLog:
         log.warning("t=%.3f s: %s%s", t_ns * 1e-9, message, tail)
 
 
+@dataclass
+class _Gap:
+    """An IMU gap ``[start_ns, end_ns]`` whose noise is added as the filter crosses it.
+
+    The held specific force and rate are off by a constant over the gap (``gap_covariance``);
+    added all at once at the gap's start, that covariance would be spent by the first updates
+    inside the gap, before the error it stands for has grown. So it is spread over the gap as
+    white noise of intensity ``σ² T`` (T the gap's length): at the gap's end the velocity and
+    attitude variances equal ``gap_covariance``'s, the position's is 4/3 of it.
+    """
+
+    start_ns: int
+    end_ns: int
+    accel_std: float  # m/s²
+    gyro_std: float  # rad/s
+    applied_ns: int = -1  # gap time up to which the noise was added (-1: none yet)
+
+    def take(self, t_ns: int) -> F64 | None:
+        """Noise (9, 9) of ``[applied, min(t_ns, end)]``, None when nothing new is crossed."""
+        a = max(self.applied_ns, self.start_ns)
+        b = min(t_ns, self.end_ns)
+        if b <= a:
+            return None
+        self.applied_ns = b
+        T = (self.end_ns - self.start_ns) * 1e-9
+        dt = (b - a) * 1e-9
+        qa, qw = self.accel_std**2 * T, self.gyro_std**2 * T
+        Q = np.zeros((9, 9))
+        eye = np.eye(3)
+        Q[0:3, 0:3] = qa * dt**3 / 3 * eye
+        Q[0:3, 3:6] = Q[3:6, 0:3] = qa * dt**2 / 2 * eye
+        Q[3:6, 3:6] = qa * dt * eye
+        Q[6:9, 6:9] = qw * dt * eye
+        return Q
+
+
 class ImuFaults:
     """``ImuGuard`` on the incoming samples (sensor frame S) and the gaps waiting for the core."""
 
@@ -65,7 +102,7 @@ class ImuFaults:
         self._densities = (rig.imu.accel_noise_density, rig.imu.gyro_noise_density)
         guard_options = ImuGuardOptions(gap_factor=options.imu_gap_factor)
         self.guard = ImuGuard.from_calib(rig.imu, guard_options)
-        self._gaps: list[tuple[int, F64]] = []  # (start_ns, covariance (9, 9)) not yet applied
+        self._gaps: list[_Gap] = []  # gaps not yet crossed in full by the filter
 
     def accept(self, t_ns: int, gyro_S: ArrayLike, accel_S: ArrayLike, history: ImuHistory) -> bool:
         """Whether the sample at ``t_ns`` enters ``history`` (queues the gap it ends, if any)."""
@@ -76,14 +113,14 @@ class ImuFaults:
             return False
         if verdict.kind == "gap":
             start_ns = t_ns - round(verdict.gap_s * 1e9)
-            self._gaps.append((start_ns, self._gap_cov(verdict.gap_s, start_ns, history)))
+            self._gaps.append(_Gap(start_ns, t_ns, *self._spread(start_ns, history)))
             self._warn.warn("imu-gap", t_ns, f"IMU gap of {verdict.gap_s:.3f} s: covariance "
                             "inflated by the noise it skipped")  # fmt: skip
         return True
 
-    def _gap_cov(self, gap_s: float, start_ns: int, history: ImuHistory) -> F64:
-        """``gap_covariance`` with the per-axis spread of the samples before the gap (at least
-        the white noise of one sample)."""
+    def _spread(self, start_ns: int, history: ImuHistory) -> tuple[float, float]:
+        """Per-axis std (m/s², rad/s) of the accelerometer and gyro samples in the
+        ``gap_spread_s`` before ``start_ns`` (at least the white noise of one sample)."""
         t = history.t_ns
         sel = t >= start_ns - int(self._options.gap_spread_s * 1e9)
         spacing = self.guard.median_spacing_s() or 0.01
@@ -91,13 +128,18 @@ class ImuFaults:
         if np.count_nonzero(sel) >= 2:
             accel_std = max(accel_std, float(np.mean(np.std(history.accel_B[sel], axis=0))))
             gyro_std = max(gyro_std, float(np.mean(np.std(history.gyro_B[sel], axis=0))))
-        return gap_covariance(gap_s, accel_std, gyro_std)
+        return accel_std, gyro_std
 
-    def take_gaps(self, t_ns: int) -> list[F64]:
-        """Covariances of the queued gaps that start before ``t_ns`` (the filter crossed them)."""
-        due = [Q for start, Q in self._gaps if start < t_ns]
-        self._gaps = [g for g in self._gaps if g[0] >= t_ns]
-        return due
+    def take_noise(self, t_ns: int) -> F64 | None:
+        """Covariance (9, 9) of the gap time the filter crossed since the last call, up to
+        ``t_ns`` (None: no gap crossed)."""
+        total: F64 | None = None
+        for gap in self._gaps:
+            Q = gap.take(t_ns)
+            if Q is not None:
+                total = Q if total is None else total + Q
+        self._gaps = [g for g in self._gaps if g.applied_ns < g.end_ns]
+        return total
 
     def summary(self) -> dict[str, object]:
         return self.guard.summary()

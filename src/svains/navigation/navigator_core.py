@@ -132,7 +132,8 @@ class Core:
         """The IMU to ``t``, with the noise of the IMU gaps crossed on the way."""
         self.ins.propagate_to(t)
         if self._imu_faults is not None:
-            for Q9 in self._imu_faults.take_gaps(t):
+            Q9 = self._imu_faults.take_noise(t)
+            if Q9 is not None:
                 add_gap_covariance(self.ins.ukf, Q9)
 
     def _group(self, t: int, items: list[tuple[int, Any]]) -> None:
