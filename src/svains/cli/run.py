@@ -79,6 +79,11 @@ def run(
     force: Annotated[
         bool, typer.Option("--force", help="Write into a non-empty --out (replacing files).")
     ] = False,
+    allow_degraded: Annotated[
+        bool,
+        typer.Option("--allow-degraded",
+                     help="Exit 0 even when a vision method fused no vision at all."),
+    ] = False,
 ) -> None:
     """Run METHOD over DATASET; write trajectory.tum, trajectory_euroc.csv, pose_covariance.csv,
     states.csv, report.json and the effective config.yaml into OUT."""
@@ -149,6 +154,10 @@ def run(
     console.print(table)
     console.print(f"wrote {out}/trajectory.tum, trajectory_euroc.csv, pose_covariance.csv, "
                   "states.csv, report.json, config.yaml")
+    if rep.get("vision_degraded") and not allow_degraded:
+        # Never silently degraded: the outputs are written, but the run is not what was asked.
+        fail(f"{rep['method']} fused no vision update: the run is plain INS (see report.json "
+             "vision_gaps; --allow-degraded accepts it)")
 
 
 def register(app: typer.Typer) -> None:
