@@ -34,6 +34,9 @@ from svains.sensors.types import GpsCalib, Rig
 
 F64 = NDArray[np.float64]
 log = logging.getLogger(__name__)
+# s, blocks whose means give the signal's spread before a gap (bench/faults.py, 5 s gap, 3d:
+# 0.1 s blocks gave 1.68x the clean RMSE, 0.25 s 1.27x; raw samples, white noise included, 4.1x)
+_BLOCK_S = 0.25
 NAV9 = slice(0, 9)  # δp, δv, δθ in the tangent space (``models.state``)
 
 
@@ -119,15 +122,22 @@ class ImuFaults:
         return True
 
     def _spread(self, start_ns: int, history: ImuHistory) -> tuple[float, float]:
-        """Per-axis std (m/s², rad/s) of the accelerometer and gyro samples in the
-        ``gap_spread_s`` before ``start_ns`` (at least the white noise of one sample)."""
+        """Per-axis std (m/s², rad/s) of the accelerometer and gyro signal in the
+        ``gap_spread_s`` before ``start_ns``: the spread of its ``_BLOCK_S`` block means, so the
+        samples' white noise (which averages out over a gap) does not count as motion; at
+        least the white noise of one block mean."""
         t = history.t_ns
-        sel = t >= start_ns - int(self._options.gap_spread_s * 1e9)
-        spacing = self.guard.median_spacing_s() or 0.01
-        accel_std, gyro_std = (d / math.sqrt(spacing) for d in self._densities)
-        if np.count_nonzero(sel) >= 2:
-            accel_std = max(accel_std, float(np.mean(np.std(history.accel_B[sel], axis=0))))
-            gyro_std = max(gyro_std, float(np.mean(np.std(history.gyro_B[sel], axis=0))))
+        sel = np.flatnonzero(t >= start_ns - int(self._options.gap_spread_s * 1e9))
+        accel_std, gyro_std = (d / math.sqrt(_BLOCK_S) for d in self._densities)
+        if sel.size >= 2:
+            block = (t[sel] - t[sel[0]]) // int(_BLOCK_S * 1e9)
+            _, first = np.unique(block, return_index=True)
+            if first.size >= 2:
+                n = np.diff([*first, sel.size])[:, None]
+                a = np.add.reduceat(history.accel_B[sel], first) / n
+                g = np.add.reduceat(history.gyro_B[sel], first) / n
+                accel_std = max(accel_std, float(np.mean(np.std(a, axis=0))))
+                gyro_std = max(gyro_std, float(np.mean(np.std(g, axis=0))))
         return accel_std, gyro_std
 
     def take_noise(self, t_ns: int) -> F64 | None:
