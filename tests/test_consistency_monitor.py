@@ -75,3 +75,18 @@ def test_windowed_nis_per_dof() -> None:
         m.observe("gps", True, nis, 3, k * S)
     assert m.nis_mean("gps") == pytest.approx((1.0 + 1.0 + 2.0 + 1.0) / 4)
     assert m.nis_mean("mag") is None
+
+
+def test_relative_sensors_rejecting_while_gps_is_fused_is_not_lost() -> None:
+    # clean data, a model error (the paper model's 3d and sonar on the village): GPS still
+    # passes its gate, so the filter is anchored and nothing is inflated
+    m = ConsistencyMonitor()
+    _feed(m, "3d", "arrrr", 0.0, 0.5)
+    _feed(m, "sonar", "arrrr", 0.0, 0.1)
+    t = _feed(m, "gps", "aaa", 0.0, 1.0)
+    assert m.rejecting(t) == ("3d", "sonar") and m.anchored(t)
+    assert m.should_recover(t, 0.3) is None
+    t = _feed(m, "gps", "r", 3.0, 1.0)  # a rejected fix lifts the veto
+    assert not m.anchored(t)
+    action = m.should_recover(t, 0.3)
+    assert action is not None and action.kind == "inflate"

@@ -98,6 +98,11 @@ def run(
     force: Annotated[
         bool, typer.Option("--force", help="Write into a non-empty --out (replacing files).")
     ] = False,
+    allow_degraded: Annotated[
+        bool,
+        typer.Option("--allow-degraded",
+                     help="Exit 0 even when a vision method fused no vision at all."),
+    ] = False,
 ) -> None:
     """Run METHOD over DATASET; write trajectory.tum, trajectory_euroc.csv, pose_covariance.csv,
     states.csv, updates.csv, tracks.csv (vision), report.json and the effective config.yaml into
@@ -182,6 +187,10 @@ def run(
                   f"states.csv{logs}, report.json, config.yaml")
     if rerun is not None:
         console.print(f"wrote {rerun} (open with: rerun {rerun})")
+    if rep.get("vision_degraded") and not allow_degraded:
+        # Never silently degraded: the outputs are written, but the run is not what was asked.
+        fail(f"{rep['method']} fused no vision update: the run is plain INS (see report.json "
+             "vision_gaps; --allow-degraded accepts it)")
 
 
 def register(app: typer.Typer) -> None:

@@ -14,7 +14,8 @@ sensors are rejected together while the covariance is small, asks for a recovery
 
 "Lost" means: at least ``min_sensors`` sensors each with ``min_consecutive`` rejections in a row,
 the latest within ``window_s``; or an absolute-position sensor (``anchor_sensors``, GPS) alone
-rejected that often, since nothing else can contradict it. A large covariance is not lost:
+rejected that often, since nothing else can contradict it. A filter whose anchor sensor was
+fused within ``window_s`` (and not rejected since) is not lost. A large covariance is not lost:
 the gates then widen by themselves. Pure logic; the core applies the actions.
 """
 
@@ -59,6 +60,7 @@ class _SensorTrack:
     nis_per_dof: deque[float]
     consecutive_rejections: int = 0
     last_rejection_ns: int | None = None
+    last_accepted_ns: int | None = None
     fused: int = 0
     rejected: int = 0
 
@@ -84,6 +86,7 @@ class ConsistencyMonitor:
         if accepted:
             s.fused += 1
             s.consecutive_rejections = 0
+            s.last_accepted_ns = int(t_ns)
         else:
             s.rejected += 1
             s.consecutive_rejections += 1
@@ -103,6 +106,18 @@ class ConsistencyMonitor:
             )
         )
 
+    def anchored(self, t_ns: int) -> bool:
+        """Whether an anchor sensor (GPS) was fused within ``window_s`` and not rejected since:
+        a filter whose absolute position passes its gate is not lost, even when relative
+        sensors reject (a model error on clean data, e.g. the paper model's 3d and sonar)."""
+        recent = int(self.options.window_s * 1e9)
+        for name in self.options.anchor_sensors:
+            s = self._sensors.get(name)
+            if (s is not None and s.consecutive_rejections == 0 and s.last_accepted_ns is not None
+                    and t_ns - s.last_accepted_ns <= recent):  # fmt: skip
+                return True
+        return False
+
     def should_recover(self, t_ns: int, position_std_m: float) -> RecoveryAction | None:
         """The recovery to apply now, or None. ``position_std_m``: the filter's position
         standard deviation (e.g. sqrt(trace(P_pp) / 3)). Counts the action it returns."""
@@ -110,6 +125,8 @@ class ConsistencyMonitor:
         bad = self.rejecting(t_ns)
         anchors = [s for s in bad if s in o.anchor_sensors]
         if not (len(bad) >= o.min_sensors or anchors) or not position_std_m < o.max_position_std_m:
+            return None
+        if self.anchored(t_ns):
             return None
         why = (
             f"{', '.join(bad)} rejected {o.min_consecutive}+ times in a row with a position "

@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from svains.errors import ConfigError
 from svains.models.state import BIASED, PAPER
 from svains.navigation.event_queue import FRAME, GPS, MAG, SONAR, EventQueue
+from svains.navigation.fault_handling import ImuFaults, RateLimitedLog
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.init import InitialState
 from svains.navigation.ins import InsFilter
@@ -72,6 +73,12 @@ class Navigator:
         if self._window_ns < 0:
             raise ConfigError(f"buffer.window_s must be >= 0, got {config.buffer.window_s}")
         self.starter = Starter(config.init, rig, self.layout, initial_state)
+        self._warn = RateLimitedLog(config.faults.warn_interval_s)
+        self.imu_faults = (
+            ImuFaults(rig, config.faults, self._warn)
+            if config.faults.imu_guard and rig.imu is not None
+            else None
+        )
         self._on_output = on_output
         self._outputs: deque[NavState] = deque()
         self._backlog: list[tuple[int, int, Any]] = []  # released before the initial state
@@ -98,6 +105,10 @@ class Navigator:
         if last is not None and t_ns <= last:
             self.queue.drop("imu", t_ns, "stamp not after the previous IMU sample")
             return
+        if self.imu_faults is not None and not self.imu_faults.accept(
+            t_ns, gyro_S, accel_S, self.history
+        ):
+            return  # dropped: propagation bridges it from its neighbours
         self.history.append(t_ns, gyro_S, accel_S)
         self._advance(t_ns - self._window_ns)
 
@@ -209,7 +220,8 @@ class Navigator:
     def _start(self, init: InitialState) -> None:
         ins = InsFilter(self.history, self.rig, self.layout, init, self.config.filter,
                         self.config.noise)  # fmt: skip
-        self.core = Core(self.config, self.rig, ins, init.info, self._source, self._emit)
+        self.core = Core(self.config, self.rig, ins, init.info, self._source, self._emit,
+                         self.imu_faults, self._warn)  # fmt: skip
         if self.config.duration_s is not None:
             end = int(init.t_ns) + int(self.config.duration_s * 1e9)
             self._end_ns = end if self._end_ns is None else min(end, self._end_ns)

@@ -17,10 +17,17 @@ import numpy as np
 from svains.filter.ukf import UpdateStats
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.event_queue import FRAME, GPS, MAG, SONAR, TICK
+from svains.navigation.fault_handling import (
+    ImuFaults,
+    RateLimitedLog,
+    Recovery,
+    add_gap_covariance,
+)
 from svains.navigation.ins import InsFilter
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import NavState, RunResult, UpdateRecord, WorldFrame
 from svains.navigation.vision import LcUpdater, PixelUpdater, make_vision_updater
+from svains.navigation.vision_gaps import vision_gap_report
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames
 from svains.sensors.types import Rig
 
@@ -31,6 +38,7 @@ class Core:
     def __init__(
         self, config: RunConfig, rig: Rig, ins: InsFilter, init_info: dict[str, object],
         source: FeatureFrames | ImageFrames | None, emit: Callable[[NavState], None],
+        imu_faults: ImuFaults | None = None, warn: RateLimitedLog | None = None,
     ) -> None:
         self.config = config
         self.rig = rig
@@ -59,6 +67,11 @@ class Core:
         self._log_x: list[np.ndarray] = []
         self._log_std: list[np.ndarray] = []
         self._log_P9: list[np.ndarray] = []
+        self._warn = warn or RateLimitedLog(config.faults.warn_interval_s)
+        self._imu_faults = imu_faults
+        self._recovery = Recovery(config.faults, self._warn) if config.faults.consistency else None
+        self._vision_fused_t: list[int] = []
+        self._vision_warned_gap = False
         self._log()
 
     # ---- the event loop -----------------------------------------------------------------
@@ -113,12 +126,20 @@ class Core:
 
     def finish(self, end_ns: int) -> None:
         """The final state at ``end_ns`` (logged like a tick)."""
-        self.ins.propagate_to(end_ns)
+        self._propagate(end_ns)
         self._log()
+
+    def _propagate(self, t: int) -> None:
+        """The IMU to ``t``, with the noise of the IMU gaps crossed on the way."""
+        self.ins.propagate_to(t)
+        if self._imu_faults is not None:
+            Q9 = self._imu_faults.take_noise(t)
+            if Q9 is not None:
+                add_gap_covariance(self.ins.ukf, Q9)
 
     def _group(self, t: int, items: list[tuple[int, Any]]) -> None:
         ins, cfg = self.ins, self.config
-        ins.propagate_to(t)
+        self._propagate(t)
         blocks: list[MeasurementBlock] = []
         has_frame = has_tick = False
         for kind, payload in items:
@@ -127,6 +148,9 @@ class Core:
                     self.gps_outage_skipped += 1
                     continue
                 assert self.rig.gps is not None
+                if self._recovery is not None and self._recovery.reset_pending:
+                    v = payload[1] if cfg.use_gps_velocity else None
+                    self._recovery.reset_from_gps(ins.ukf, self.rig.gps, payload[0], v)
                 blocks.append(ins.gps_block(self.rig.gps, payload[0], payload[1],
                                             cfg.use_gps_velocity))  # fmt: skip
             elif kind == MAG:
@@ -145,10 +169,13 @@ class Core:
             for stats in ins.ukf.update_blocks(
                 [(b.h, b.z, b.R, b.residual, b.name) for b in blocks], gate
             ):
-                self._record(stats, stats.name)
+                self._record(stats, stats.name, t)
             blocks = []
         if has_frame:
             self._frame(t, blocks)
+        if self._recovery is not None and (has_frame or blocks or len(items) > has_tick):
+            self._recovery.check(ins.ukf, t)
+        self._check_vision_gap(t)
         if has_tick:
             self._log()
 
@@ -166,7 +193,7 @@ class Core:
         if hasattr(updater, "after_frame"):
             updater.after_frame(ctx)  # pose clones (rotation="clone")
         if stats is not None:
-            self._record(stats, cfg.method)
+            self._record(stats, cfg.method, t)
         self._t_prev_frame = t
 
     def _vision_updater(self) -> PixelUpdater | LcUpdater | None:
@@ -178,12 +205,40 @@ class Core:
     def set_source(self, source: FeatureFrames | ImageFrames) -> None:
         self._source = source
 
-    def _record(self, stats: UpdateStats, key: str) -> None:
+    def _record(self, stats: UpdateStats, key: str, t: int) -> None:
         # The one place where every measurement update's outcome is known.
         c = self.counts.setdefault(key, {"fused": 0, "rejected": 0})
         c["fused" if stats.accepted else "rejected"] += 1
         self.updates.append(stats)
         self.update_log.append(UpdateRecord(int(self.ins.t_ns), key, stats))  # filter is at t
+        if self._recovery is not None:
+            self._recovery.observe(stats, key, t)
+        if key == self.config.method and stats.accepted:
+            self._vision_fused_t.append(t)
+            self._vision_warned_gap = False
+
+    def _check_vision_gap(self, t: int) -> None:
+        """Warn once per stretch without fused vision longer than ``faults.vision_max_gap_s``."""
+        if self.config.method == "ins" or self._vision_warned_gap:
+            return
+        since = self._vision_fused_t[-1] if self._vision_fused_t else self.t0_ns
+        gap_s = (t - since) * 1e-9
+        if gap_s > self.config.faults.vision_max_gap_s:
+            self._vision_warned_gap = True
+            self._warn.warn("vision-gap", t, f"{self.config.method}: no vision fused for "
+                            f"{gap_s:.1f} s: the estimate is inertial only")  # fmt: skip
+
+    def _fault_report(self, t_start_ns: int, t_end_ns: int) -> dict[str, Any]:
+        """``imu_faults``, ``recovery`` and, for vision methods, the ``vision_gaps`` keys."""
+        out: dict[str, Any] = {}
+        if self._imu_faults is not None:
+            out["imu_faults"] = self._imu_faults.summary()
+        if self._recovery is not None:
+            out["recovery"] = self._recovery.summary()
+        if self.config.method != "ins":
+            out.update(vision_gap_report(self._vision_fused_t, t_start_ns, t_end_ns,
+                                         self.config.faults.vision_max_gap_s))  # fmt: skip
+        return out
 
     # ---- outputs ------------------------------------------------------------------------
     def snapshot(self) -> NavState:
@@ -243,5 +298,6 @@ class Core:
         if updater is not None and hasattr(updater, "summary"):
             # Vision counters: frames fused/rejected, features gated (see the updater's summary).
             report["vision"] = updater.summary()
+        report.update(self._fault_report(int(t[0]), int(t[-1])))
         res.report = report
         return res

@@ -238,6 +238,41 @@ class ReplayOptions:
 
 
 @dataclass(frozen=True)
+class FaultOptions:
+    """Sensor-fault handling (``RunConfig.faults``; issue 12).
+
+    ``imu_guard``: check every IMU sample (``navigation.imu_guard.ImuGuard``: non-finite,
+    all-zero, saturated and spike samples are dropped and bridged by their neighbours; a gap of
+    more than ``imu_gap_factor`` median spacings adds the noise it skipped to the covariance,
+    ``gap_covariance`` with the sample spread of the ``gap_spread_s`` before it).
+    ``consistency``: watch every gated update (``navigation.consistency``) and, when the
+    filter rejects independent sensors (or GPS alone) with a small covariance, inflate the
+    position/velocity/attitude covariance by ``inflate_factor`` or reset position and velocity
+    from the next GPS fix. ``vision_max_gap_s``: a vision method that fuses no vision for
+    longer is warned about and reported (``vision_gaps``). ``warn_interval_s``: at most one
+    warning per kind of event in this much data time (the rest are counted).
+    """
+
+    imu_guard: bool = True
+    imu_gap_factor: float = 10.0  # median IMU spacings: a longer spacing is a gap
+    gap_spread_s: float = 1.0  # s of samples before a gap whose spread sizes its covariance
+    consistency: bool = True
+    inflate_factor: float = 100.0  # variance factor on the p/v/θ block at an inflation
+    vision_max_gap_s: float = 2.0  # s without a fused vision update before it is a gap
+    warn_interval_s: float = 1.0  # s of data time between two warnings of one kind
+
+    def __post_init__(self) -> None:
+        if not self.imu_gap_factor > 1:
+            raise ConfigError(f"faults.imu_gap_factor must be > 1, got {self.imu_gap_factor}")
+        if not self.inflate_factor >= 1:
+            raise ConfigError(f"faults.inflate_factor must be >= 1, got {self.inflate_factor}")
+        if not self.vision_max_gap_s > 0:
+            raise ConfigError(
+                f"faults.vision_max_gap_s must be positive, got {self.vision_max_gap_s}"
+            )
+
+
+@dataclass(frozen=True)
 class RunConfig:
     """Everything a run needs besides the sensors' calibrations (``svains.sensors.types.Rig``)
     and their measurements.
@@ -268,6 +303,7 @@ class RunConfig:
     vision: VisionOptions = field(default_factory=VisionOptions)
     buffer: BufferOptions = field(default_factory=BufferOptions)
     replay: ReplayOptions = field(default_factory=ReplayOptions)
+    faults: FaultOptions = field(default_factory=FaultOptions)
 
     def __post_init__(self) -> None:
         if self.method not in ("ins", "vo", "lc", "tc", "3d"):

@@ -1,0 +1,131 @@
+"""Sensor faults through the Navigator (issue 12): the IMU guard, gap noise, the consistency
+recovery and the vision-gap report keys, on a short simulated GPS-aided flight."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from svains.cli.main import app
+from svains.datasets import load_dataset
+from svains.datasets.types import Dataset, ImuStream
+from svains.errors import ConfigError
+from svains.evaluation.run import run_method
+from svains.navigation.config_io import with_settings
+from svains.navigation.options import FaultOptions, InitOptions, RunConfig
+from svains.navigation.outputs import RunResult
+
+S = 1_000_000_000
+FAULT_AT_S = 6.0
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 12 s simulated flight (seed 3) with GPS at 1 Hz, features, no images."""
+    from svains.sim import SimConfig, simulate
+
+    cfg = SimConfig(duration_s=12.0, seed=3)
+    cfg.camera.render_images = False
+    cfg.gps.outages = []
+    return simulate(cfg, tmp_path_factory.mktemp("faults") / "flight")
+
+
+def _with_imu(ds: Dataset, edit: str) -> Dataset:
+    """``ds`` with an IMU fault at ``FAULT_AT_S``: ``spike`` (one 1000 m/s² sample), ``nospike``
+    (that sample removed) or ``gap`` (2 s without samples)."""
+    assert ds.imu is not None
+    t, g, a = ds.imu.t_ns.copy(), ds.imu.gyro_B.copy(), ds.imu.accel_B.copy()
+    k = int(np.searchsorted(t, t[0] + int(FAULT_AT_S * S)))
+    keep = np.ones(t.size, bool)
+    if edit == "spike":
+        a[k] = [1000.0, 0.0, 0.0]
+    elif edit == "nospike":
+        keep[k] = False
+    elif edit == "gap":
+        keep = ~((t >= t[k]) & (t < t[k] + 2 * S))
+    return replace(ds, imu=ImuStream(t[keep], g[keep], a[keep]))
+
+
+def _run(ds: Dataset, method: str = "ins", **faults: object) -> RunResult:
+    config = RunConfig(init=InitOptions(mode="groundtruth"), faults=FaultOptions(**faults))  # type: ignore[arg-type]
+    return run_method(ds, method, config)
+
+
+def test_a_spike_sample_is_dropped_and_bridged_exactly_like_a_missing_one(flight: Path) -> None:
+    ds = load_dataset(flight)
+    spiked = _run(_with_imu(ds, "spike"))
+    missing = _run(_with_imu(ds, "nospike"))
+    faults = spiked.report["imu_faults"]
+    assert faults["dropped"]["spike"] + faults["dropped"]["saturated"] == 1
+    assert faults["accepted"] == missing.report["imu_faults"]["accepted"]
+    np.testing.assert_array_equal(spiked.x, missing.x)
+    np.testing.assert_array_equal(spiked.P9, missing.P9)
+    unguarded = _run(_with_imu(ds, "spike"), imu_guard=False)
+    assert "imu_faults" not in unguarded.report
+    assert unguarded.report["position_rmse_m"] > 3 * spiked.report["position_rmse_m"]
+
+
+def test_an_imu_gap_is_counted_and_widens_the_covariance_while_crossed(flight: Path) -> None:
+    ds = _with_imu(load_dataset(flight), "gap")
+    guarded = _run(ds)
+    plain = _run(ds, imu_guard=False)
+    faults = guarded.report["imu_faults"]
+    assert faults["gaps"] == 1 and 1.9 < faults["longest_gap_s"] < 2.1
+    # output ticks in a gap snap to its end (the first sample after it): there, the attitude
+    # variance holds the gap's gyro noise, far above the filter's own white-noise growth
+    t0 = int(guarded.t_ns[0])
+    i = int(np.searchsorted(guarded.t_ns, t0 + int((FAULT_AT_S + 0.3) * S)))
+    assert guarded.t_ns[i] - t0 > (FAULT_AT_S + 1.9) * S
+    assert np.trace(guarded.P9[i, 6:9, 6:9]) > 3 * np.trace(plain.P9[i, 6:9, 6:9])
+    assert np.array_equal(guarded.P9[: i - 1], plain.P9[: i - 1])  # nothing before the gap
+
+
+def test_clean_data_is_bit_identical_with_and_without_fault_handling(flight: Path) -> None:
+    ds = load_dataset(flight)
+    on = _run(ds, "3d")
+    off = _run(ds, "3d", imu_guard=False, consistency=False)
+    np.testing.assert_array_equal(on.x, off.x)
+    np.testing.assert_array_equal(on.P9, off.P9)
+    assert on.report["recovery"]["inflations"] == on.report["recovery"]["resets"] == 0
+    assert on.report["vision_fused_frames"] > 15 and not on.report["vision_degraded"]
+
+
+def test_a_lost_filter_recovers_and_fuses_gps_again(flight: Path) -> None:
+    # The spike let through (guard off) throws the filter off: without the monitor every later
+    # fix is rejected; with it, the covariance is inflated (or reset) and fixes return.
+    ds = _with_imu(load_dataset(flight), "spike")
+    lost = _run(ds, imu_guard=False, consistency=False)
+    kept = _run(ds, imu_guard=False)
+    gps_lost = [u.accepted for u in lost.updates if u.name == "gps"]
+    gps_kept = [u.accepted for u in kept.updates if u.name == "gps"]
+    assert not any(gps_lost[-3:])
+    rec = kept.report["recovery"]
+    assert rec["inflations"] + rec["resets"] >= 1
+    assert all(gps_kept[-3:])
+    assert kept.report["position_rmse_m"] < lost.report["position_rmse_m"] / 2
+
+
+def test_fault_options_are_checked_and_set_by_dotted_key() -> None:
+    with pytest.raises(ConfigError, match=r"faults\.vision_max_gap_s must be positive"):
+        FaultOptions(vision_max_gap_s=0.0)
+    with pytest.raises(ConfigError, match=r"faults\.imu_gap_factor"):
+        FaultOptions(imu_gap_factor=1.0)
+    config = with_settings(RunConfig(), {"faults.consistency": False, "faults.inflate_factor": 10})
+    assert config.faults.consistency is False and config.faults.inflate_factor == 10.0
+
+
+def test_run_exits_1_when_a_vision_method_fuses_no_vision(flight: Path, tmp_path: Path) -> None:
+    # no frame has 100000 features: the 3d run fuses no vision
+    args = ["run", str(flight), "--method", "3d", "--init", "groundtruth",
+            "--set", "vision.min_features=100000"]  # fmt: skip
+    res = CliRunner().invoke(app, [*args, "--out", str(tmp_path / "a")])
+    assert res.exit_code == 1, res.output
+    err = res.stderr.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: 3d fused no vision update")
+    assert (tmp_path / "a" / "report.json").is_file()  # outputs still written
+    ok = CliRunner().invoke(app, [*args, "--out", str(tmp_path / "b"), "--allow-degraded"])
+    assert ok.exit_code == 0, ok.output
