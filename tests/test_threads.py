@@ -117,3 +117,22 @@ def test_nested_none_keeps_the_outer_limit(monkeypatch: pytest.MonkeyPatch) -> N
                 assert set(_blas_threads()) == {2}
         assert os.environ[ENV_VAR] == "2"
     assert ENV_VAR not in os.environ
+
+
+def test_replay_runs_with_the_limit_and_restores_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    from _ins_truth import make_dataset
+    from svains.navigation.options import InitOptions, RunOptions
+    from svains.replay import replay
+
+    seen: list[list[int]] = []
+
+    def on_output(state: object) -> None:
+        if not seen:  # threadpool_info costs ~ms: once is enough
+            seen.append(_blas_threads())
+
+    monkeypatch.setenv(ENV_VAR, "1")
+    ds = make_dataset(2.0)
+    with threadpool_limits(limits=2):
+        replay(ds, RunOptions(init=InitOptions(mode="groundtruth")), on_output=on_output)
+        assert seen and set(seen[0]) == {1}
+        assert set(_blas_threads()) == {2}
