@@ -137,10 +137,10 @@ def augment_clone(
         )
     n = manifold.ndx
     sel = np.r_[np.arange(n)[DP], np.arange(n)[DTH]]  # the pose's rows of the tangent
-    # ``J P J^T`` with the 0/1 selection ``J``: the rows and columns ``rows`` of P, copied
-    # (the same numbers as the product, without the two matrix products).
-    rows = np.r_[np.arange(n), sel]
-    P_new = P[np.ix_(rows, rows)]
+    J = np.zeros((n + CLONE_NDX, n))
+    J[:n] = np.eye(n)
+    J[n + np.arange(CLONE_NDX), sel] = 1.0
+    P_new = J @ P @ J.T
     P_new[n:, n:] += jitter * np.eye(CLONE_NDX)
     x_new = np.concatenate([x, x[P_SLICE], x[Q_SLICE]])
     return x_new, 0.5 * (P_new + P_new.T), CloneManifold(manifold.nav, manifold.n_clones + 1)
