@@ -1,6 +1,7 @@
 """One timed navigation run in its own process, for ``bench_methods.py``; prints one JSON line.
 
-``python bench/_method_run.py DATA METHOD [--barrier DIR --peers N] [--extras] [--profile]``
+``python bench/_method_run.py DATA METHOD [--barrier DIR --peers N] [--rotation M] [--extras]
+[--profile]`` (``M``: the vision motion model, default the library's).
 
 The vision methods take their tracks from the images (the front end runs inside the filter
 loop). ``--barrier``: after loading, wait until ``N`` runs are ready, so parallel runs overlap.
@@ -115,7 +116,8 @@ def run_one(args: argparse.Namespace) -> dict[str, object]:
     vs.ImageFrames.tracks_at = _tracks_at  # type: ignore[assignment,method-assign]
     ds = load_dataset(args.data)
     opts = RunOptions(method=args.method, model="biased", init=InitOptions(mode="groundtruth"),
-                      vision=VisionOptions(source="images", rotation="imu"))
+                      vision=VisionOptions(source="images",
+                                           rotation=args.rotation or VisionOptions().rotation))
     opts = resolve_config(ds, opts)
     if args.barrier is not None:
         _wait(Path(args.barrier), args.peers)
@@ -128,7 +130,8 @@ def run_one(args: argparse.Namespace) -> dict[str, object]:
     if prof is not None:
         prof.disable()
     out: dict[str, object] = {
-        "method": args.method, "wall_s": rep["wall_s"], "rtf": rep["realtime_factor"],
+        "method": args.method, "rotation": opts.vision.rotation, "wall_s": rep["wall_s"],
+        "rtf": rep["realtime_factor"],
         "cpu_s": time.process_time() - c0, "load_avg": load_avg,
         "rmse_m": rep.get("position_rmse_m"), "data_s": rep["data_duration_s"],
     }  # fmt: skip
@@ -159,6 +162,7 @@ def main() -> None:
     ap.add_argument("method")
     ap.add_argument("--barrier", default=None)
     ap.add_argument("--peers", type=int, default=1)
+    ap.add_argument("--rotation", default=None)
     ap.add_argument("--extras", action="store_true")
     ap.add_argument("--profile", action="store_true")
     args = ap.parse_args()

@@ -31,6 +31,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 METHODS = ("3d", "ins", "vo", "lc", "tc")
+RUN_FLAGS: list[str] = []  # given to every run (``--rotation``), set by ``main``
 
 
 def _best_of(fn, repeat: int = 7, number: int = 20) -> float:
@@ -76,7 +77,7 @@ def simulate_20hz(out: Path, duration_s: float) -> Path:
 
 def _launch(data: Path, method: str, flags: list[str], env: dict[str, str]) -> subprocess.Popen:
     cmd = [sys.executable, str(Path(__file__).with_name("_method_run.py")), str(data), method]
-    return subprocess.Popen([*cmd, *flags], stdout=subprocess.PIPE, env=env, text=True)
+    return subprocess.Popen([*cmd, *RUN_FLAGS, *flags], stdout=subprocess.PIPE, env=env, text=True)
 
 
 def _result(proc: subprocess.Popen) -> dict:
@@ -150,6 +151,7 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=None, help="reuse a simulated data set")
     ap.add_argument("--duration", type=float, default=20.0, help="simulated flight, s")
     ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--rotation", default=None, help="vision motion model (default: clone)")
     ap.add_argument("--threads", type=int, default=None, help="SVAINS_THREADS for the runs")
     ap.add_argument("--no-parallel", action="store_true", help="skip the two-at-once runs")
     ap.add_argument("--extras", action="store_true", help="motion prior and filter replay")
@@ -157,9 +159,12 @@ def main() -> None:
     ap.add_argument("--no-models", action="store_true", help="skip the model evaluation costs")
     args = ap.parse_args()
     env = dict(os.environ)
+    if args.rotation is not None:
+        RUN_FLAGS[:] = ["--rotation", args.rotation]
     if args.threads is not None:
         env["SVAINS_THREADS"] = str(args.threads)
-    print(f"threads per numerical library: SVAINS_THREADS={env.get('SVAINS_THREADS', '(1)')}")
+    print(f"threads per numerical library: SVAINS_THREADS={env.get('SVAINS_THREADS', '(1)')}; "
+          f"vision.rotation={args.rotation or 'default (clone)'}")
     if not args.no_models:
         bench_models()
     with tempfile.TemporaryDirectory() as tmp:

@@ -11,8 +11,9 @@
 
 Plain script: prints its figures with the load average; timings depend on the machine's load.
 Usage: ``.venv/bin/python bench/bench_online.py [--duration S] [--old-rev REV] [--rotation M]``
-(``M``: the vision motion model of both runs, default ``imu``, the model of the pre-Navigator
-commit; ``clone`` needs an ``--old-rev`` that has clones, e.g. ``main`` before the merge).
+(``M``: the vision motion model of both runs, default the library's, ``clone``; the old runner
+runs with ``imu`` (the model of the pre-Navigator commit) or when ``--old-rev`` is given: it must
+have the model). Threads per numerical library: ``SVAINS_THREADS`` (default 1), entered once.
 """
 
 from __future__ import annotations
@@ -49,11 +50,16 @@ print(json.dumps(best))
 """
 
 
-def _args() -> tuple[float, str, str]:
+def _args() -> tuple[float, str | None, str]:
+    """Duration (s), the old runner's revision (None: skip it) and the motion model."""
+    from svains.navigation.options import VisionOptions
+
     a = sys.argv
     duration = float(a[a.index("--duration") + 1]) if "--duration" in a else 10.0
-    rev = a[a.index("--old-rev") + 1] if "--old-rev" in a else "2a6a877"
-    rotation = a[a.index("--rotation") + 1] if "--rotation" in a else "imu"
+    rotation = a[a.index("--rotation") + 1] if "--rotation" in a else VisionOptions().rotation
+    rev = a[a.index("--old-rev") + 1] if "--old-rev" in a else None
+    if rev is None and rotation == "imu":
+        rev = "2a6a877"  # the commit before the Navigator (no clones)
     return duration, rev, rotation
 
 
@@ -99,7 +105,7 @@ def bench_latency(root: Path, rotation: str) -> None:
           f"median {np.median(ms[:, 1]):.1f} ms, p99 {np.percentile(ms[:, 1], 99):.1f} ms")
 
 
-def bench_replay(root: Path, old_rev: str, rotation: str) -> None:
+def bench_replay(root: Path, old_rev: str | None, rotation: str) -> None:
     from svains.datasets.loader import load_dataset
     from svains.evaluation.run import run_method
     from svains.navigation.options import InitOptions, RunConfig, VisionOptions
@@ -118,6 +124,10 @@ def bench_replay(root: Path, old_rev: str, rotation: str) -> None:
           f"{rep['wall_s']:.2f} s "
           f"wall, {cpu:.2f} s CPU -> real-time factor {rep['realtime_factor']:.2f}x (load "
           f"average {load:.1f}); position RMSE {rep['position_rmse_m']:.4f} m")
+    if old_rev is None:
+        print(f"old batch runner: skipped (vision.rotation={rotation}; give --old-rev REV "
+              "with that model)")
+        return
     with tempfile.TemporaryDirectory() as tmp:
         archive = subprocess.run(["git", "archive", old_rev], cwd=ROOT, capture_output=True,
                                  check=True).stdout  # fmt: skip
@@ -151,4 +161,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from svains.threads import limit_threads
+
+    with limit_threads(None):  # SVAINS_THREADS, default one thread per library
+        main()

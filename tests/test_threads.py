@@ -102,3 +102,37 @@ def test_cli_applies_the_limit_for_the_command(
     assert res.exit_code != 0
     assert "Invalid value for '--threads'" in res.output
     assert "greater than or equal to 0" in res.output
+
+
+def test_nested_none_keeps_the_outer_limit(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The replay enters limit_threads(None) inside ``svains --threads N``: it must keep N.
+    monkeypatch.delenv(ENV_VAR, raising=False)
+    with threadpool_limits(limits=1), limit_threads(2):
+        assert os.environ[ENV_VAR] == "2"
+        with limit_threads(None):
+            assert set(_blas_threads()) == {2}
+        with limit_threads(0):
+            assert os.environ[ENV_VAR] == "0"
+            with limit_threads(None):  # 0 outside: the libraries keep their threads
+                assert set(_blas_threads()) == {2}
+        assert os.environ[ENV_VAR] == "2"
+    assert ENV_VAR not in os.environ
+
+
+def test_replay_runs_with_the_limit_and_restores_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    from _ins_truth import make_dataset
+    from svains.navigation.options import InitOptions, RunOptions
+    from svains.replay import replay
+
+    seen: list[list[int]] = []
+
+    def on_output(state: object) -> None:
+        if not seen:  # threadpool_info costs ~ms: once is enough
+            seen.append(_blas_threads())
+
+    monkeypatch.setenv(ENV_VAR, "1")
+    ds = make_dataset(2.0)
+    with threadpool_limits(limits=2):
+        replay(ds, RunOptions(init=InitOptions(mode="groundtruth")), on_output=on_output)
+        assert seen and set(seen[0]) == {1}
+        assert set(_blas_threads()) == {2}

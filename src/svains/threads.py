@@ -10,8 +10,11 @@ scales better than threads inside one process.
 
 ``SVAINS_THREADS`` (environment) or ``svains --threads N`` changes the limit: a positive N
 allows N threads per library; 0 leaves every library at its own default. The command line
-applies it for the whole command; library users enter ``limit_threads()`` once around a run
-(entering and leaving costs about 0.6 ms: not per frame).
+applies it for the whole command; ``svains.replay.replay`` enters ``limit_threads(None)`` once
+around its loop, and other library users enter ``limit_threads()`` once around a run (entering
+and leaving costs about 0.6 ms: not per frame). Inside a block ``SVAINS_THREADS`` holds the
+block's limit, so a nested ``limit_threads(None)`` (the replay under ``svains --threads N``)
+keeps the outer one.
 """
 
 from __future__ import annotations
@@ -62,12 +65,16 @@ def limit_threads(n: int | None = DEFAULT_THREADS) -> Iterator[None]:
     n = threads_from_env() if n is None else int(n)
     if n < 0:
         raise ConfigError(f"thread limit must be >= 0, got {n}")
+    saved_env = {k: os.environ.get(k) for k in (ENV_VAR, *_LIBRARY_ENV)}
+    os.environ[ENV_VAR] = str(n)
     if n == 0:
-        yield
+        try:
+            yield
+        finally:
+            _restore_env(saved_env)
         return
     from threadpoolctl import threadpool_limits
 
-    saved_env = {k: os.environ.get(k) for k in _LIBRARY_ENV}
     os.environ.update({k: str(n) for k in _LIBRARY_ENV})
     # Only touch OpenCV if something already imported it (the front end): importing it here
     # would cost every command its load time, and the layering keeps cv2 in frontend/.
@@ -82,8 +89,12 @@ def limit_threads(n: int | None = DEFAULT_THREADS) -> Iterator[None]:
     finally:
         if cv2 is not None and cv2_saved is not None:
             cv2.setNumThreads(cv2_saved)
-        for k, v in saved_env.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+        _restore_env(saved_env)
+
+
+def _restore_env(saved: dict[str, str | None]) -> None:
+    for k, v in saved.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v

@@ -66,7 +66,9 @@ class CloneManifold:
     def _split(self, X: F64) -> tuple[F64, F64]:
         """Clone positions (S, K, 3) and quaternions as (4, S, K) from (S, nx)."""
         C = X[:, self.nav.nx :].reshape(X.shape[0], self.n_clones, CLONE_NX)
-        return C[..., :3], np.moveaxis(C[..., 3:], -1, 0)
+        # ``transpose`` is the view ``np.moveaxis`` returns, without its argument checks
+        # (measurable at 4 calls per frame).
+        return C[..., :3], C[..., 3:].transpose(2, 0, 1)
 
     def retract(self, X: F64, dX: F64) -> F64:
         """``X ⊞ dX``: (S, nx), (S, ndx) -> (S, nx)."""
@@ -77,11 +79,11 @@ class CloneManifold:
             return out
         p, q = self._split(X)
         d = dX[:, nav.ndx :].reshape(X.shape[0], self.n_clones, CLONE_NDX)
-        qn = qmul(q, qexp(np.moveaxis(d[..., 3:], -1, 0)))
+        qn = qmul(q, qexp(d[..., 3:].transpose(2, 0, 1)))
         qn /= np.sqrt((qn * qn).sum(axis=0))
         C = out[:, nav.nx :].reshape(X.shape[0], self.n_clones, CLONE_NX)
         C[..., :3] = p + d[..., :3]
-        C[..., 3:] = np.moveaxis(qn, 0, -1)
+        C[..., 3:] = qn.transpose(1, 2, 0)
         return out
 
     def local(self, X: F64, x_ref: F64) -> F64:
@@ -96,7 +98,7 @@ class CloneManifold:
         conj = q0 * np.array([1.0, -1.0, -1.0, -1.0])[:, None, None]
         d = out[:, nav.ndx :].reshape(X.shape[0], self.n_clones, CLONE_NDX)
         d[..., :3] = p - p0
-        d[..., 3:] = np.moveaxis(qlog(qmul(conj, q)), 0, -1)
+        d[..., 3:] = qlog(qmul(conj, q)).transpose(1, 2, 0)
         return out
 
     def mean(self, X: F64, w: F64) -> F64:
