@@ -205,6 +205,8 @@ def test_missing_samples_scale_the_white_noise_by_the_held_interval() -> None:
     # Split by a frame time inside the interval, the pieces add up to the same.
     pieces = white_noise_duration_s(np.array([0.1, 0.15]), np.array([0.25, 0.25]), h)
     assert pieces == pytest.approx(6.25)
+    # A dropout (longer than MAX_HELD_INTERVAL_S) is the fault guard's gap, not a held sample.
+    assert white_noise_duration_s(np.array([2.0]), np.array([2.0]), h) == pytest.approx(2.0)
     noise = ImuNoise(1e-3, 1e-4, 2e-2, 1e-3)
     Q1 = process_noise(BIASED, noise, 0.25, h)
     Q25 = process_noise(BIASED, noise, 0.25, h, white_duration_s=6.25)

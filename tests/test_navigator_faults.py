@@ -75,16 +75,12 @@ def test_an_imu_gap_is_counted_and_widens_the_covariance_while_crossed(flight: P
     plain = _run(ds, imu_guard=False)
     faults = guarded.report["imu_faults"]
     assert faults["gaps"] == 1 and 1.9 < faults["longest_gap_s"] < 2.1
-    # output ticks in a gap snap to its end (the first sample after it). There, even without
-    # the guard, the attitude variance holds the held sample's white noise over the whole gap
-    # (``models.imu.white_noise_duration_s``), far above its level before the gap; the guard
-    # adds the motion the gap hides on top of it.
+    # output ticks in a gap snap to its end (the first sample after it): there, the attitude
+    # variance holds the gap's gyro noise, far above the filter's own white-noise growth
     t0 = int(guarded.t_ns[0])
     i = int(np.searchsorted(guarded.t_ns, t0 + int((FAULT_AT_S + 0.3) * S)))
     assert guarded.t_ns[i] - t0 > (FAULT_AT_S + 1.9) * S
-    att = lambda r, k: np.trace(r.P9[k, 6:9, 6:9])  # noqa: E731
-    assert att(plain, i) > 3 * att(plain, i - 1)
-    assert att(guarded, i) > 1.05 * att(plain, i)
+    assert np.trace(guarded.P9[i, 6:9, 6:9]) > 3 * np.trace(plain.P9[i, 6:9, 6:9])
     assert np.array_equal(guarded.P9[: i - 1], plain.P9[: i - 1])  # nothing before the gap
 
 

@@ -199,6 +199,10 @@ def omega_white_variance(layout: StateLayout, noise: ImuNoise, h_imu_s: float) -
 
 # An IMU interval longer than this many sensor periods lacks samples of the sensor's own stream.
 MISSING_SAMPLE_FACTOR = 1.5
+# Longer intervals are dropouts, not a recording that keeps some samples: the sample says
+# nothing about the motion there, so the fault guard's gap noise covers them
+# (``navigation.fault_handling``), not a held sample's white noise.
+MAX_HELD_INTERVAL_S = 0.5
 
 
 def white_noise_duration_s(
@@ -211,11 +215,13 @@ def white_noise_duration_s(
     sensor (KITTI raw: 100 Hz OXTS records 10-250 ms apart); a kept sample then stands for the
     whole interval D it starts, so its white noise (variance σ²/h) enters the increment as
     σ² D² / h instead of σ² D: the step counts ``dt · D / h``. Equal to ``sum(dt_s)`` on a
-    regular stream. ``dt_s`` (N,) step lengths, ``interval_s`` (N,) the IMU interval holding each.
+    regular stream, and on dropouts longer than ``MAX_HELD_INTERVAL_S``. ``dt_s`` (N,) step
+    lengths, ``interval_s`` (N,) the IMU interval holding each.
     """
     dt = np.asarray(dt_s, dtype=float)
     D = np.asarray(interval_s, dtype=float)
-    return float(np.sum(np.where(factor * h_imu_s < D, dt * D / h_imu_s, dt)))
+    held = (factor * h_imu_s < D) & (D <= MAX_HELD_INTERVAL_S)
+    return float(np.sum(np.where(held, dt * D / h_imu_s, dt)))
 
 
 def process_noise(

@@ -19,6 +19,7 @@ from svains.filter.sigma_points import MerweScaledSigmaPoints
 from svains.filter.ukf import UKF, UpdateStats
 from svains.models.gps import gps_position, gps_position_velocity
 from svains.models.imu import (
+    MAX_HELD_INTERVAL_S,
     MISSING_SAMPLE_FACTOR,
     ImuChunk,
     ImuModel,
@@ -231,7 +232,10 @@ class InsFilter:
         k = np.searchsorted(t_imu, tt[1:])  # the IMU sample ending each step's interval
         interval_ns = t_imu[k] - t_imu[k - 1]
         h_ns = self._h_imu * 1e9
-        if not np.any(interval_ns > MISSING_SAMPLE_FACTOR * h_ns):
+        held = (interval_ns > MISSING_SAMPLE_FACTOR * h_ns) & (
+            interval_ns <= MAX_HELD_INTERVAL_S * 1e9
+        )
+        if not np.any(held):
             return self._noise(span_ns)
         white_s = white_noise_duration_s(np.diff(tt) * 1e-9, interval_ns * 1e-9, self._h_imu)
         return process_noise(self.layout, self.noise, span_ns * 1e-9, self._h_imu, white_s)
