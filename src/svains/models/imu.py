@@ -205,6 +205,15 @@ MISSING_SAMPLE_FACTOR = 1.5
 MAX_HELD_INTERVAL_S = 0.5
 
 
+def held_intervals(
+    interval_s: F64, h_imu_s: float, factor: float = MISSING_SAMPLE_FACTOR
+) -> NDArray[np.bool_]:
+    """Which IMU intervals (N,) s stand for missing samples of the sensor's own stream: longer
+    than ``factor`` sensor periods ``h_imu_s``, at most ``MAX_HELD_INTERVAL_S``."""
+    D = np.asarray(interval_s, dtype=float)
+    return (factor * h_imu_s < D) & (D <= MAX_HELD_INTERVAL_S)
+
+
 def white_noise_duration_s(
     dt_s: F64, interval_s: F64, h_imu_s: float, factor: float = MISSING_SAMPLE_FACTOR
 ) -> float:
@@ -220,7 +229,7 @@ def white_noise_duration_s(
     """
     dt = np.asarray(dt_s, dtype=float)
     D = np.asarray(interval_s, dtype=float)
-    held = (factor * h_imu_s < D) & (D <= MAX_HELD_INTERVAL_S)
+    held = held_intervals(D, h_imu_s, factor)
     return float(np.sum(np.where(held, dt * D / h_imu_s, dt)))
 
 

@@ -19,11 +19,10 @@ from svains.filter.sigma_points import MerweScaledSigmaPoints
 from svains.filter.ukf import UKF, UpdateStats
 from svains.models.gps import gps_position, gps_position_velocity
 from svains.models.imu import (
-    MAX_HELD_INTERVAL_S,
-    MISSING_SAMPLE_FACTOR,
     ImuChunk,
     ImuModel,
     ImuNoise,
+    held_intervals,
     omega_white_variance,
     process_noise,
     white_noise_duration_s,
@@ -231,11 +230,7 @@ class InsFilter:
         t_imu = self.t_imu
         k = np.searchsorted(t_imu, tt[1:])  # the IMU sample ending each step's interval
         interval_ns = t_imu[k] - t_imu[k - 1]
-        h_ns = self._h_imu * 1e9
-        held = (interval_ns > MISSING_SAMPLE_FACTOR * h_ns) & (
-            interval_ns <= MAX_HELD_INTERVAL_S * 1e9
-        )
-        if not np.any(held):
+        if not np.any(held_intervals(interval_ns * 1e-9, self._h_imu)):
             return self._noise(span_ns)
         white_s = white_noise_duration_s(np.diff(tt) * 1e-9, interval_ns * 1e-9, self._h_imu)
         return process_noise(self.layout, self.noise, span_ns * 1e-9, self._h_imu, white_s)
