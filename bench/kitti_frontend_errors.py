@@ -69,8 +69,8 @@ def predicted_direction_std(e):  # type: ignore[no-untyped-def]
 
 
 def reference_consistency(ds, t_ns, prev_idx, rig, v_late_ns: int = 30_000_000):  # type: ignore[no-untyped-def]
-    """Per step (vertical deg, horizontal deg, length ratio - 1, relative difference) of the reference's position
-    increment against its velocity integrated over the same step (the README's 30 ms velocity
+    """Per step (vertical deg, horizontal deg, length ratio - 1, relative difference) of the
+    reference's position increment against its velocity integrated over the same step (the README's 30 ms velocity
     latency removed), in left-camera axes at k-1: a floor on the reference's own step noise."""
     gt = ds.groundtruth
     tg = np.asarray(gt.t_ns, np.int64)
@@ -123,7 +123,7 @@ def main() -> None:
     s, v, h, rel = E[ok, 0], E[ok, 1], E[ok, 2], E[ok, 3]
     q = lambda x: np.percentile(x, [25, 50, 75])  # noqa: E731
     print(f"{ok.sum()} steps > 0.5 m; median relative step error {np.median(rel) * 100:.2f} %")
-    print(f"scale |t_est|/|t_ref|: quartiles {q(s)}, MAD-std {1.4826 * np.median(np.abs(s - np.median(s))):.4f}")
+    print(f"scale |t_est|/|t_ref|: quartiles {q(s)}, robust std {robust_std(s):.4f}")
     print(f"vertical tilt (deg): quartiles {q(v)}; horizontal: {q(h)}")
     se = s - np.median(s)
     print(f"lag-1 correlation of scale errors: {np.corrcoef(se[:-1], se[1:])[0, 1]:+.3f}")
@@ -134,9 +134,8 @@ def main() -> None:
           f"{np.median(np.hypot(np.radians(v), np.radians(h))) * 100:.2f} %")
     dt = np.diff(t_ns) * 1e-9
     speed = E[ok, 4] / np.median(dt)
-    print(f"frame interval: median {np.median(dt) * 1e3:.1f} ms, MAD-std "
-          f"{1.4826 * np.median(np.abs(dt - np.median(dt))) * 1e3:.2f} ms; std of 2-frame "
-          f"intervals {np.std(np.diff(t_ns[::2])) * 1e-6:.2f} ms; speed median {np.median(speed):.1f} m/s")
+    print(f"frame interval: median {np.median(dt) * 1e3:.1f} ms, robust std "
+          f"{robust_std(dt) * 1e3:.2f} ms; speed median {np.median(speed):.1f} m/s")
     disp = np.array([disparity.get(i, np.nan) for i in range(len(ego))])[ok]
     for lo, hi in [(0, 15), (15, 25), (25, 40), (40, 1e9)]:
         m = (disp >= lo) & (disp < hi)

@@ -3,6 +3,7 @@ and a Monte Carlo check that the clone-based 3d update is consistent on two fram
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import partial
 
 import numpy as np
@@ -12,10 +13,11 @@ from _vision_truth import make_rig, true_pixels, two_frames
 from svains.errors import ConfigError
 from svains.filter.sigma_points import MerweScaledSigmaPoints
 from svains.filter.ukf import UKF
-from svains.geometry.rotation import quat_to_rotmat
+from svains.geometry.rotation import quat_to_rotmat, so3_exp
 from svains.models.clones import (
     CLONE_JITTER,
     CloneManifold,
+    augment_calibration,
     augment_clone,
     marginalize_clone,
 )
@@ -24,6 +26,7 @@ from svains.models.manifold import NavManifold
 from svains.models.state import BIASED, DP, DTH, PAPER
 from svains.models.vision_3d import predict_pixels_3d_exact
 from svains.models.vision_clone import (
+    clone_camera_motion,
     predict_egomotion_clone,
     predict_pixels_3d_clone,
     predict_pixels_tc_clone,
@@ -180,3 +183,51 @@ def _motion_at(x: np.ndarray, cols: tuple[slice, slice]) -> tuple[np.ndarray, np
 
     R_c, r_c = clone_camera_motion(x, cols, RIG)
     return R_c[0], r_c[0]
+
+
+def test_calibration_block_sits_between_navigation_and_clones() -> None:
+    """``augment_calibration`` inserts δφ_C after the navigation block, uncorrelated; clones
+    keep working behind it and the manifold operations stay consistent."""
+    rng = np.random.default_rng(4)
+    x, P = _random_state(rng)
+    m = CloneManifold(NavManifold(BIASED), 0)
+    x, P, m = augment_clone(x, P, m)
+    phi = np.array([0.01, -0.02, 0.005])
+    xc, Pc, mc = augment_calibration(x, P, m, phi, 1e-4 * np.eye(3))
+    assert (mc.nx, mc.ndx, mc.n_calib) == (BIASED.nx + 3 + 7, BIASED.ndx + 3 + 6, 3)
+    cx, cdx = mc.calib  # type: ignore[misc]
+    np.testing.assert_array_equal(xc[cx], phi)
+    np.testing.assert_array_equal(xc[mc.columns(0)[0]], x[m.columns(0)[0]])
+    keep = np.r_[0 : cdx.start, cdx.stop : mc.ndx]
+    np.testing.assert_array_equal(Pc[np.ix_(keep, keep)], P)
+    np.testing.assert_array_equal(Pc[cdx, cdx], 1e-4 * np.eye(3))
+    assert not Pc[cdx][:, keep].any()
+    xd, _, md = augment_clone(xc, Pc, mc)  # a second clone goes behind the first
+    np.testing.assert_array_equal(xd[md.columns(1)[1]], xc[6:10])
+    xe, _, me = marginalize_clone(xd, augment_clone(xc, Pc, mc)[1], md, 0)
+    np.testing.assert_array_equal(xe[me.calib[0]], phi)  # type: ignore[index]
+    dX = rng.normal(scale=0.1, size=(5, md.ndx))
+    X = md.retract(np.broadcast_to(xd, (5, md.nx)), dX)
+    np.testing.assert_allclose(md.local(X, xd), dX, atol=1e-12)
+    np.testing.assert_allclose(md.mean(X, np.full(5, 0.2))[md.calib[0]],  # type: ignore[index]
+                               phi + dX[:, md.calib[1]].mean(axis=0), atol=1e-15)  # type: ignore[index]
+    with pytest.raises(ConfigError, match="already has a calibration block of 3"):
+        augment_calibration(xc, Pc, mc, phi, np.eye(3))
+
+
+def test_clone_motion_with_rotation_correction_equals_the_turned_rig() -> None:
+    tf = two_frames(RIG, 0.5, OMEGA_B, A_W)
+    x, cols = _augmented(tf)
+    phi = np.array([0.004, -0.006, 0.002])
+    x_cal = np.concatenate([x[:13], phi, x[13:]])
+    cols_cal = (slice(16, 19), slice(19, 23))
+    turned = replace(RIG, R_B_C=RIG.R_B_C @ so3_exp(phi))
+    R_a, r_a = clone_camera_motion(x_cal, cols_cal, RIG, slice(13, 16))
+    R_b, r_b = clone_camera_motion(x, cols, turned)
+    np.testing.assert_allclose(R_a, R_b, atol=1e-14)
+    np.testing.assert_allclose(r_a, r_b, atol=1e-14)
+    R_0, r_0 = clone_camera_motion(x, cols, RIG)
+    assert np.abs(r_a - r_0).max() > 1e-4  # the correction does move the prediction
+    np.testing.assert_allclose(
+        predict_egomotion_clone(x_cal, cols_cal, RIG, slice(13, 16)),
+        predict_egomotion_clone(x, cols, turned), atol=1e-14)

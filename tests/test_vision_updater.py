@@ -237,3 +237,43 @@ def test_tune_for_frames_sets_frame_gyro_walk() -> None:
     assert tune_for_frames(replace(opts, method="vo"), cal, 0.05).noise == opts.noise
     paper = replace(opts, vision=VisionOptions(rotation="linear"))
     assert tune_for_frames(paper, cal, 0.05) is paper
+
+
+@pytest.mark.parametrize(("method", "tolerance"), [("3d", 0.2), ("lc", 0.35)])
+def test_online_extrinsic_rotation_moves_towards_the_true_camera(
+    method: str, tolerance: float
+) -> None:
+    """Pixels from a camera turned by ``phi`` against the nominal calibration: with
+    ``estimate_extrinsics`` and a well-known pose, one frame pair's update explains the motion
+    in camera axes by the rotation correction, which moves most of the way to ``phi``."""
+    from dataclasses import replace
+
+    from svains.geometry.rotation import so3_exp
+
+    phi = np.radians([0.4, -0.3, 0.2])
+    turned = replace(RIG, R_B_C=RIG.R_B_C @ so3_exp(phi))
+    tf = two_frames(turned, DT_S, np.array([0.3, -0.4, 0.2]), np.zeros(3), n_features=80)
+    # lc without its accuracy allowance (``lc_cov_scale``): one noise-free egomotion.
+    opts = VisionOptions(rotation="clone", min_disparity_px=0.0, estimate_extrinsics=True,
+                         lc_cov_scale=1.0)
+    upd = updater_for(method, _dataset(tf), opts)
+    ukf = UKF(NavManifold(PAPER), MerweScaledSigmaPoints(12), tf.x_km1.copy(),
+              np.eye(12) * 1e-10)
+    upd.after_frame(FrameContext(ukf, PAPER, T0, None, None, [], None))  # type: ignore[arg-type]
+    assert ukf.x.size == 13 + 3 + 7  # navigation, δφ_C, one clone
+    x = ukf.x.copy()
+    x[:13] = tf.x_k
+    ukf.resize(ukf.manifold, x, ukf.P)
+    stats = upd.update(_ctx(ukf))
+    assert stats is not None and stats.accepted
+    upd.after_frame(_ctx(ukf))
+    est = np.radians(upd.summary()["extrinsic_rotation_deg"])
+    # lc measures 6 numbers per frame against 3d's 4 per feature: it gets less far.
+    assert np.linalg.norm(est - phi) < tolerance * np.linalg.norm(phi), np.degrees(est)
+
+
+def test_online_extrinsics_need_clones() -> None:
+    with pytest.raises(ConfigError, match="estimate_extrinsics needs vision.rotation=clone"):
+        VisionOptions(rotation="imu", estimate_extrinsics=True)
+    with pytest.raises(ConfigError, match="extrinsics_std_deg must be positive"):
+        VisionOptions(extrinsics_std_deg=0.0)

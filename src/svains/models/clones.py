@@ -1,9 +1,13 @@
 """Stochastic cloning: the navigation state augmented with copies of past body poses.
 
-State ``x`` = navigation block (nx numbers, ``models.state``) followed by K clones, each
-``(p_W_B (3, m), q_W_B_wxyz (4))`` at a past frame time: nx + 7K numbers. Tangent ``dx`` =
-navigation tangent (ndx) followed by each clone's ``(δp (3, m), δθ_B (3, rad))``, the attitude
-error on the right as everywhere else (``q = q̂ ⊗ Exp(δθ_B)``): ndx + 6K numbers.
+State ``x`` = navigation block (nx numbers, ``models.state``), then ``n_calib`` calibration
+numbers (optional; Euclidean, equal in ``x`` and the tangent: e.g. the camera-IMU rotation
+correction ``δφ_C`` (3, rad) of ``navigation.vision_clones``), then K clones, each
+``(p_W_B (3, m), q_W_B_wxyz (4))`` at a past frame time: nx + n_calib + 7K numbers. Tangent
+``dx`` = navigation tangent (ndx), the calibration numbers, then each clone's
+``(δp (3, m), δθ_B (3, rad))``, the attitude error on the right as everywhere else
+(``q = q̂ ⊗ Exp(δθ_B)``): ndx + n_calib + 6K numbers. The process model leaves the calibration
+constant, like the clones.
 
 A clone is an exact copy of the current pose, so its tangent error equals the navigation
 block's ``(δp, δθ_B)``: augmenting is ``x' = (x, p, q)`` and ``P' = J P J^T`` with the
@@ -40,32 +44,45 @@ class CloneManifold:
 
     nav: NavManifold
     n_clones: int = 0
+    n_calib: int = 0
 
     @property
     def nx(self) -> int:
-        return self.nav.nx + CLONE_NX * self.n_clones
+        return self.nav.nx + self.n_calib + CLONE_NX * self.n_clones
 
     @property
     def ndx(self) -> int:
-        return self.nav.ndx + CLONE_NDX * self.n_clones
+        return self.nav.ndx + self.n_calib + CLONE_NDX * self.n_clones
+
+    @property
+    def calib(self) -> tuple[slice, slice] | None:
+        """Columns of the calibration block in ``x`` and in the tangent (None: no block)."""
+        if self.n_calib == 0:
+            return None
+        return (slice(self.nav.nx, self.nav.nx + self.n_calib),
+                slice(self.nav.ndx, self.nav.ndx + self.n_calib))
+
+    def with_clones(self, n_clones: int) -> CloneManifold:
+        """The same layout with ``n_clones`` clones."""
+        return CloneManifold(self.nav, n_clones, self.n_calib)
 
     def columns(self, i: int) -> tuple[slice, slice]:
         """Columns of clone ``i`` in ``x``: ``(p_W_B, q_W_B_wxyz)`` slices."""
         if not 0 <= i < self.n_clones:
             raise ConfigError(f"clone index {i} out of range (the state has {self.n_clones})")
-        a = self.nav.nx + CLONE_NX * i
+        a = self.nav.nx + self.n_calib + CLONE_NX * i
         return slice(a, a + 3), slice(a + 3, a + 7)
 
     def tangent(self, i: int) -> slice:
         """Columns of clone ``i``'s ``(δp, δθ_B)`` in the tangent vector."""
         if not 0 <= i < self.n_clones:
             raise ConfigError(f"clone index {i} out of range (the state has {self.n_clones})")
-        a = self.nav.ndx + CLONE_NDX * i
+        a = self.nav.ndx + self.n_calib + CLONE_NDX * i
         return slice(a, a + CLONE_NDX)
 
     def _split(self, X: F64) -> tuple[F64, F64]:
         """Clone positions (S, K, 3) and quaternions as (4, S, K) from (S, nx)."""
-        C = X[:, self.nav.nx :].reshape(X.shape[0], self.n_clones, CLONE_NX)
+        C = X[:, self.nav.nx + self.n_calib :].reshape(X.shape[0], self.n_clones, CLONE_NX)
         # ``transpose`` is the view ``np.moveaxis`` returns, without its argument checks
         # (measurable at 4 calls per frame).
         return C[..., :3], C[..., 3:].transpose(2, 0, 1)
@@ -75,13 +92,17 @@ class CloneManifold:
         nav = self.nav
         out = np.empty((X.shape[0], self.nx))
         out[:, : nav.nx] = nav.retract(X[:, : nav.nx], dX[:, : nav.ndx])
+        nc = self.n_calib
+        if nc:
+            cx, cdx = slice(nav.nx, nav.nx + nc), slice(nav.ndx, nav.ndx + nc)
+            out[:, cx] = X[:, cx] + dX[:, cdx]
         if self.n_clones == 0:
             return out
         p, q = self._split(X)
-        d = dX[:, nav.ndx :].reshape(X.shape[0], self.n_clones, CLONE_NDX)
+        d = dX[:, nav.ndx + nc :].reshape(X.shape[0], self.n_clones, CLONE_NDX)
         qn = qmul(q, qexp(d[..., 3:].transpose(2, 0, 1)))
         qn /= np.sqrt((qn * qn).sum(axis=0))
-        C = out[:, nav.nx :].reshape(X.shape[0], self.n_clones, CLONE_NX)
+        C = out[:, nav.nx + nc :].reshape(X.shape[0], self.n_clones, CLONE_NX)
         C[..., :3] = p + d[..., :3]
         C[..., 3:] = qn.transpose(1, 2, 0)
         return out
@@ -91,22 +112,27 @@ class CloneManifold:
         nav = self.nav
         out = np.empty((X.shape[0], self.ndx))
         out[:, : nav.ndx] = nav.local(X[:, : nav.nx], x_ref[: nav.nx])
+        nc = self.n_calib
+        if nc:
+            cx, cdx = slice(nav.nx, nav.nx + nc), slice(nav.ndx, nav.ndx + nc)
+            out[:, cdx] = X[:, cx] - x_ref[cx]
         if self.n_clones == 0:
             return out
         p, q = self._split(X)
         p0, q0 = self._split(x_ref[None, :])
         conj = q0 * np.array([1.0, -1.0, -1.0, -1.0])[:, None, None]
-        d = out[:, nav.ndx :].reshape(X.shape[0], self.n_clones, CLONE_NDX)
+        d = out[:, nav.ndx + nc :].reshape(X.shape[0], self.n_clones, CLONE_NDX)
         d[..., :3] = p - p0
         d[..., 3:] = qlog(qmul(conj, q)).transpose(1, 2, 0)
         return out
 
     def mean(self, X: F64, w: F64) -> F64:
-        """Weighted mean: the navigation block's, clone positions summed, clone attitudes by the
-        same intrinsic quaternion mean as the navigation attitude."""
+        """Weighted mean: the navigation block's, calibration and clone positions summed, clone
+        attitudes by the same intrinsic quaternion mean as the navigation attitude."""
         nav = self.nav
         out = np.empty(self.nx)
         out[: nav.nx] = nav.mean(X[:, : nav.nx], w)
+        out[nav.nx : nav.nx + self.n_calib] = w @ X[:, nav.nx : nav.nx + self.n_calib]
         for i in range(self.n_clones):
             cp, cq = self.columns(i)
             out[cp] = w @ X[:, cp]
@@ -143,7 +169,7 @@ def augment_clone(
     P_new = J @ P @ J.T
     P_new[n:, n:] += jitter * np.eye(CLONE_NDX)
     x_new = np.concatenate([x, x[P_SLICE], x[Q_SLICE]])
-    return x_new, 0.5 * (P_new + P_new.T), CloneManifold(manifold.nav, manifold.n_clones + 1)
+    return x_new, 0.5 * (P_new + P_new.T), manifold.with_clones(manifold.n_clones + 1)
 
 
 def marginalize_clone(
@@ -158,5 +184,23 @@ def marginalize_clone(
     return (
         np.asarray(x, dtype=float)[keep_x],
         P[np.ix_(keep_dx, keep_dx)],
-        CloneManifold(manifold.nav, manifold.n_clones - 1),
+        manifold.with_clones(manifold.n_clones - 1),
     )
+
+
+def augment_calibration(
+    x: F64, P: F64, manifold: CloneManifold, value: F64, cov: F64
+) -> tuple[F64, F64, CloneManifold]:
+    """Insert a calibration block (``value`` (n,), covariance ``cov`` (n, n), uncorrelated with
+    the rest) after the navigation block of a state that has none: ``x'``, ``P'``, manifold."""
+    if manifold.n_calib:
+        raise ConfigError(f"the state already has a calibration block of {manifold.n_calib}")
+    value = np.asarray(value, dtype=float)
+    n = value.size
+    a, b = manifold.nav.nx, manifold.nav.ndx
+    x_new = np.concatenate([x[:a], value, x[a:]])
+    P_new = np.zeros((manifold.ndx + n, manifold.ndx + n))
+    keep = np.r_[0:b, b + n : manifold.ndx + n]
+    P_new[np.ix_(keep, keep)] = P
+    P_new[b : b + n, b : b + n] = cov
+    return x_new, P_new, CloneManifold(manifold.nav, manifold.n_clones, n)

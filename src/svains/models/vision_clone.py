@@ -7,8 +7,10 @@ exact, with no small-motion or IMU-increment approximation::
     R_c = C^T R_k^T R_km1 C
     r_c = C^T (c_B + R_k^T (p_k - p_km1) - R_k^T R_km1 c_B)      d_k = R_c d_{k-1} - r_c
 
-(``C`` = ``R_B_C``, ``c_B`` = ``p_B_C``, eq. 15's convention). The ``3d``, ``tc`` and ``lc``
-predictions follow from it as from the paper's ``camera_motion``; ``3d`` equals
+(``C`` = ``R_B_C``, ``c_B`` = ``p_B_C``, eq. 15's convention). With an online camera-IMU
+rotation correction ``δφ_C`` (rad, left-camera axes) in the state, ``C = R_B_C Exp(δφ_C)`` per
+sigma point (the whole stereo rig turns; ``navigation.vision_clones``). The ``3d``, ``tc`` and
+``lc`` predictions follow from it as from the paper's ``camera_motion``; ``3d`` equals
 ``vision_3d.predict_pixels_3d_exact`` with the clone's pose (tests check it).
 """
 
@@ -18,7 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from svains.geometry.camera import RectifiedStereo
-from svains.geometry.rotation import so3_log
+from svains.geometry.rotation import so3_exp, so3_log
 from svains.models._quat import rotmat_rows
 from svains.models.state import P, Q
 from svains.models.vision_3d import pixels_from_motion
@@ -29,12 +31,13 @@ F64 = NDArray[np.float64]
 
 
 def clone_camera_motion(
-    X: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo
+    X: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo, calib: slice | None = None
 ) -> tuple[F64, F64]:
     """Left-camera motion from the clone to the current pose: ``R_c`` (S, 3, 3), ``r_c`` (S, 3).
 
     ``X`` (S, nx) augmented sigma points (or one state (nx,)); ``clone`` the columns
-    ``(p_W_B, q_W_B_wxyz)`` of the clone (``CloneManifold.columns``).
+    ``(p_W_B, q_W_B_wxyz)`` of the clone (``CloneManifold.columns``); ``calib`` the columns of
+    the camera rotation correction ``δφ_C`` (3, rad) when the state estimates it.
     """
     x, _ = as_sigma_points(X)
     C = np.asarray(rig.R_B_C, dtype=float)
@@ -45,15 +48,19 @@ def clone_camera_motion(
     dR = R_k.transpose(0, 2, 1) @ R_km1  # R_k^T R_km1 (S, 3, 3)
     dp_B = ((x[:, P] - x[:, cp])[:, None, :] @ R_k)[:, 0]  # R_k^T (p_k - p_km1)
     r_B = c_B + dp_B - dR @ c_B
-    return C.T @ dR @ C, r_B @ C
+    if calib is None:
+        return C.T @ dR @ C, r_B @ C
+    C_s = C @ so3_exp(x[:, calib])  # (S, 3, 3)
+    return C_s.transpose(0, 2, 1) @ dR @ C_s, np.einsum("sji,sj->si", C_s, r_B)
 
 
 def predict_pixels_3d_clone(
-    X: ArrayLike, p_Ckm1_F: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo
+    X: ArrayLike, p_Ckm1_F: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo,
+    calib: slice | None = None,
 ) -> F64:
     """``3d`` pixels at t_k (S, 4M) of points (M, 3) triangulated at the clone's frame."""
     _, single = as_sigma_points(X)
-    R_c, r_c = clone_camera_motion(X, clone, rig)
+    R_c, r_c = clone_camera_motion(X, clone, rig, calib)
     out = pixels_from_motion(R_c, r_c, as_points(p_Ckm1_F), rig)
     return out[0] if single else out
 
@@ -70,11 +77,11 @@ def predict_pixels_tc_clone(
 
 
 def predict_egomotion_clone(
-    X: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo
+    X: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo, calib: slice | None = None
 ) -> F64:
     """``lc``'s ``(Log R_Ck_Ckm1, p_Ck_Ckm1)`` (S, 6) between the clone and now (eqs. 30-33
     with the exact motion: ``R_Ck_Ckm1 = R_c``, ``p_Ck_Ckm1 = -r_c``)."""
     _, single = as_sigma_points(X)
-    R_c, r_c = clone_camera_motion(X, clone, rig)
+    R_c, r_c = clone_camera_motion(X, clone, rig, calib)
     out = np.concatenate([so3_log(R_c), -r_c], axis=1)
     return out[0] if single else out

@@ -138,7 +138,10 @@ class VisionOptions:
     ``motion_prior_inflation`` (variance factor) and ``motion_prior_min_std`` (rad, m) floors
     (off by default: on the simulated village sets, whose gyro is noisy, ``3d`` with the prior
     was better on the 20 Hz bench set, 0.041 m against 0.045 m RMSE, see
-    ``bench/bench_methods.py``, and worse on the 2 Hz demo flight, 0.358 m against 0.259 m).
+    ``bench/bench_methods.py``, and worse on the 2 Hz demo flight, 0.358 m against 0.259 m);
+    ``estimate_extrinsics`` (clones only) adds the camera-IMU rotation correction to the state
+    with prior standard deviation ``extrinsics_std_deg`` per axis
+    (``navigation.vision_clones``).
     """
 
     source: SourceName = "auto"
@@ -159,6 +162,8 @@ class VisionOptions:
     motion_prior: bool = False
     motion_prior_inflation: float = 4.0
     motion_prior_min_std: tuple[float, float] = (2e-3, 5e-3)
+    estimate_extrinsics: bool = False
+    extrinsics_std_deg: float = 1.0
 
     def __post_init__(self) -> None:
         if self.rotation not in MOTION_MODELS:
@@ -171,6 +176,15 @@ class VisionOptions:
             )
         if self.frame_stride < 1:
             raise ConfigError(f"vision.frame_stride must be >= 1, got {self.frame_stride}")
+        if self.estimate_extrinsics and self.rotation != "clone":
+            raise ConfigError(
+                "vision.estimate_extrinsics needs vision.rotation=clone (the camera rotation "
+                f"is estimated against the cloned pose), got {self.rotation!r}"
+            )
+        if not self.extrinsics_std_deg > 0:
+            raise ConfigError(
+                f"vision.extrinsics_std_deg must be positive, got {self.extrinsics_std_deg}"
+            )
 
     def noise_scale(self) -> float:
         """``pixel_noise_scale``, or its default: 1 with clones (the relative motion is exact),

@@ -36,7 +36,7 @@ from svains.models.vision_lc import egomotion_measurement, predict_egomotion_lc
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.options import RunConfig, VisionOptions
-from svains.navigation.vision_clones import CloneWindow, next_reference_ns
+from svains.navigation.vision_clones import clone_window, next_reference_ns
 from svains.navigation.vision_pixels import (
     PixelUpdater,
     VisionCounters,
@@ -69,7 +69,7 @@ class LcUpdater:
         self.counters = VisionCounters()
         self._imu, self._prior = imu_and_prior(history, rig, options, self.source)
         self._nis_per_dof: list[float] = []  # consistency check: should average ~1
-        self.clones = CloneWindow() if options.rotation == "clone" else None
+        self.clones = clone_window(options)
 
     def measurement(self, tr: StereoTracks) -> tuple[F64, F64]:
         """``z`` (6,) (rotation vector rad, translation m) and its covariance (6, 6): the front
@@ -115,7 +115,9 @@ class LcUpdater:
         rig, rot = self.rig, self.options.rotation
         if self.clones is not None:
             cols = self.clones.columns(ctx.ukf, tr.t_prev_ns)
-            return None if cols is None else (lambda X: predict_egomotion_clone(X, cols, rig))
+            calib = self.clones.calib(ctx.ukf)
+            return None if cols is None else (
+                lambda X: predict_egomotion_clone(X, cols, rig, calib))
         if self._imu is None or rot != "imu":
             inc = None
         elif inc is None:  # no prior, or it spanned another interval
@@ -136,6 +138,8 @@ class LcUpdater:
             nis_per_dof_mean=float(nis.mean()) if nis.size else None,
             nis_per_dof_median=float(np.median(nis)) if nis.size else None,
         )
+        if self.clones is not None:
+            out.update(self.clones.summary())
         return out
 
 

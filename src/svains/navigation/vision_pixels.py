@@ -23,7 +23,7 @@ from svains.models.vision_common import ImuIncrement, camera_motion, stack_pixel
 from svains.models.vision_tc import pixels_tc_from_motion
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.imu_history import ImuHistory
-from svains.navigation.vision_clones import CloneWindow, next_reference_ns
+from svains.navigation.vision_clones import clone_window, next_reference_ns
 from svains.navigation.vision_motion import (
     CachedModel,
     ImuIncrements,
@@ -87,7 +87,7 @@ class PixelUpdater:
         std = options.pixel_noise_std
         std = self.source.pixel_noise_std if std is None else std
         self.sigma_px = max(float(std), 0.05) * options.noise_scale()
-        self.clones = CloneWindow() if options.rotation == "clone" else None
+        self.clones = clone_window(options)
         known = options.pixel_noise_std is not None or self.source.kind == "features"
         self._min_disparity_px = options.min_disparity(self.sigma_px, known)
         self._fused: tuple[int, I64] | None = None  # (frame time, track ids) of the last update
@@ -141,7 +141,8 @@ class PixelUpdater:
         rig, rot = self.rig, self.options.rotation
         if self.clones is not None:
             cols = self.clones.columns(ctx.ukf, tr.t_prev_ns)
-            return None if cols is None else (lambda X: clone_camera_motion(X, cols, rig))
+            calib = self.clones.calib(ctx.ukf)
+            return None if cols is None else (lambda X: clone_camera_motion(X, cols, rig, calib))
         return lambda X: camera_motion(X, dt_s, rig, rot, inc)
 
     def _model(self, uvl0: F64, uvr0: F64, motion: MotionFn, p_F: F64 | None = None) -> Any:
@@ -238,6 +239,8 @@ class PixelUpdater:
         out: dict[str, Any] = self.counters.as_dict()
         out.update(source=self.source.kind, sigma_px=self.sigma_px, rotation=self.options.rotation,
                    frontend_status=dict(getattr(self.source, "status_counts", {})))
+        if self.clones is not None:
+            out.update(self.clones.summary())
         return out
 
 
