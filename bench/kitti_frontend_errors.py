@@ -68,10 +68,13 @@ def predicted_direction_std(e):  # type: ignore[no-untyped-def]
     return float(np.sqrt(np.trace(perp @ Ct @ perp) / 2) / np.linalg.norm(t))
 
 
-def reference_consistency(ds, t_ns, prev_idx, rig, v_late_ns: int = 30_000_000):  # type: ignore[no-untyped-def]
+def reference_consistency(  # type: ignore[no-untyped-def]
+    ds, t_ns, prev_idx, rig, v_late_ns: int = 30_000_000
+):
     """Per step (vertical deg, horizontal deg, length ratio - 1, relative difference) of the
-    reference's position increment against its velocity integrated over the same step (the README's 30 ms velocity
-    latency removed), in left-camera axes at k-1: a floor on the reference's own step noise."""
+    reference's position increment against its velocity integrated over the same step (the
+    README's 30 ms velocity latency removed), in left-camera axes at k-1: a floor on the
+    reference's own step noise."""
     gt = ds.groundtruth
     tg = np.asarray(gt.t_ns, np.int64)
     out = np.full((len(t_ns), 4), np.nan)

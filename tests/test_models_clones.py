@@ -226,7 +226,7 @@ def test_clone_motion_with_rotation_correction_equals_the_turned_rig() -> None:
     R_b, r_b = clone_camera_motion(x, cols, turned)
     np.testing.assert_allclose(R_a, R_b, atol=1e-14)
     np.testing.assert_allclose(r_a, r_b, atol=1e-14)
-    R_0, r_0 = clone_camera_motion(x, cols, RIG)
+    _, r_0 = clone_camera_motion(x, cols, RIG)
     assert np.abs(r_a - r_0).max() > 1e-4  # the correction does move the prediction
     np.testing.assert_allclose(
         predict_egomotion_clone(x_cal, cols_cal, RIG, slice(13, 16)),

@@ -273,7 +273,7 @@ def test_online_extrinsic_rotation_moves_towards_the_true_camera(
 
 
 def test_online_extrinsics_need_clones() -> None:
-    with pytest.raises(ConfigError, match="estimate_extrinsics needs vision.rotation=clone"):
+    with pytest.raises(ConfigError, match=r"estimate_extrinsics needs vision\.rotation=clone"):
         VisionOptions(rotation="imu", estimate_extrinsics=True)
     with pytest.raises(ConfigError, match="extrinsics_std_deg must be positive"):
         VisionOptions(extrinsics_std_deg=0.0)
