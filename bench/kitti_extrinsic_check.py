@@ -5,9 +5,12 @@ with the reference's camera displacement expressed through the calibrated ``R_B_
 tilt that is not zero is a rotation error of the camera-IMU calibration (or of the
 rectification), which no filter without an online extrinsic state can remove. With
 ``--correct`` the tilt is removed from both cameras' ``T_B_C`` (fitted on the ground truth: a
-diagnostic, not a calibration) and ``3d`` runs GPS-denied from the reference start.
+diagnostic, not a calibration) and ``3d`` runs GPS-denied from the reference start. With
+``--from-gps`` the rotation is instead estimated online (``vision.estimate_extrinsics``) by a
+``3d`` run WITH GPS (no ground truth involved, but note that a data set's GPS may be derived
+from its reference, as KITTI raw's gps0 is), then applied and ``3d`` runs GPS-denied.
 
-    python bench/kitti_extrinsic_check.py [DATASET] [--correct] [--set KEY=VALUE ...]
+    python bench/kitti_extrinsic_check.py [DATASET] [--correct | --from-gps] [--set KEY=VALUE]
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import numpy as np
 from svains.cli.run_config import build_config
 from svains.datasets.loader import load_dataset
 from svains.datasets.types import Dataset
+from svains.evaluation.extrinsics import turn_cameras
 from svains.evaluation.run import run_method
 from svains.geometry.rotation import quat_to_rotmat, so3_exp
 from svains.navigation.vision_sources import ImageFrames
@@ -67,10 +71,25 @@ def corrected(ds: Dataset, vertical_deg: float, horizontal_deg: float) -> Datase
     return replace(ds, cam0=turn(ds.cam0), cam1=turn(ds.cam1))
 
 
+def from_gps(ds: Dataset, sets: list[str], until_s: float | None = None) -> Dataset:
+    """``ds`` with the camera rotation a ``3d`` run with GPS estimates online (over the first
+    ``until_s`` seconds only, when given)."""
+    opts = build_config(None, [*sets, "vision.estimate_extrinsics=true"], {
+        "init.mode": "groundtruth", "use_gps": True, "use_mag": False,
+        "vision.source": "images", "vision.rotation": "clone", "duration_s": until_s})
+    vis = run_method(ds, "3d", opts).report["vision"]
+    phi, std = vis["extrinsic_rotation_deg"], vis["extrinsic_rotation_std_deg"]
+    print(f"estimated with GPS: correction {np.round(phi, 3)} deg (std {np.round(std, 3)})")
+    return turn_cameras(ds, np.radians(phi))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("dataset", nargs="?", default="../shared/data/kitti_raw_0926_41s")
     ap.add_argument("--correct", action="store_true")
+    ap.add_argument("--from-gps", action="store_true")
+    ap.add_argument("--held-out", type=float, default=None, metavar="S",
+                    help="with --from-gps: calibrate on [0, S) s, run GPS-denied from S s on")
     ap.add_argument("--set", action="append", default=[], help="vision option KEY=VALUE")
     args = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)
@@ -78,17 +97,21 @@ def main() -> None:
     v, h, n = direction_tilt_deg(ds)
     print(f"translation direction, front end minus reference: vertical {v:+.3f} deg, "
           f"horizontal {h:+.3f} deg (median of {n} frames)")
-    if not args.correct:
+    if not (args.correct or args.from_gps):
         return
-    ds = corrected(ds, v, h)
-    v2, h2, _ = direction_tilt_deg(ds)
+    ds_fixed = from_gps(ds, args.set, args.held_out) if args.from_gps else corrected(ds, v, h)
+    v2, h2, _ = direction_tilt_deg(ds_fixed)
     print(f"after the correction: vertical {v2:+.3f} deg, horizontal {h2:+.3f} deg")
+    start = {} if args.held_out is None else {"replay.start_s": args.held_out}
     opts = build_config(None, args.set, {"init.mode": "groundtruth", "use_gps": False,
-                                         "vision.source": "images", "vision.rotation": "clone"})
-    mo = opts.vision
-    r = run_method(ds, "3d", opts).report
-    print(f"3d {mo}: final error {r['final_error_pct']:.2f} % of {r['path_length_m']:.0f} m, "
-          f"NEES {r['nees_mean']:.1f}, inside 3 sigma {r['position_within_3sigma']:.3f}")
+                                         "vision.source": "images", "vision.rotation": "clone",
+                                         **start})
+    print(f"3d {opts.vision}")
+    for name, d in (("as calibrated", ds), ("corrected", ds_fixed)):
+        r = run_method(d, "3d", opts).report
+        print(f"3d GPS-denied from {args.held_out or 0:.0f} s, {name}: final error "
+              f"{r['final_error_pct']:.2f} % of {r['path_length_m']:.0f} m, NEES "
+              f"{r['nees_mean']:.1f}, inside 3 sigma {r['position_within_3sigma']:.3f}")
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 
 from svains.datasets.types import Dataset, GroundTruth
 from svains.errors import AlignmentError, ConfigError
+from svains.evaluation.extrinsics import write_estimated_camchain
 from svains.evaluation.metrics import AteResult, ate
 from svains.evaluation.run import run_accuracy
 from svains.navigation.options import RunConfig
@@ -175,6 +176,7 @@ def run_methods(
         log.info("%s done in %.1f s", m, time.perf_counter() - t0)
         if sub is not None:
             write_outputs(sub, res)
+            write_estimated_camchain(sub, ds, res.report)
         results[m] = res
     return results
 

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 
 from svains.datasets.types import Dataset
 from svains.evaluation.accuracy import accuracy_report, gps_outage_report, state_errors
+from svains.evaluation.extrinsics import write_estimated_camchain
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import RunResult
 from svains.replay import replay, resolve_config
@@ -100,8 +101,9 @@ def run_method(
 ) -> RunResult:
     """Replay ``dataset`` through the estimator with ``options`` (a ``RunConfig``; ``method``,
     when given, replaces ``options.method``), add the accuracy keys to the report; write
-    ``trajectory.tum``, ``states.csv`` and ``report.json`` (and the other output files) into
-    ``out_dir`` if given, with ``config_text`` as ``config.yaml`` when given. The configuration
+    ``trajectory.tum``, ``states.csv`` and ``report.json`` (and the other output files, and
+    ``camchain_estimated.yaml`` when the run estimated the camera rotation) into ``out_dir`` if
+    given, with ``config_text`` as ``config.yaml`` when given. The configuration
     is first resolved against the data set (``svains.replay.resolve_config``)."""
     config = options or RunConfig()
     if method is not None and method != config.method:
@@ -111,4 +113,5 @@ def run_method(
     result.report.update(run_accuracy(result, dataset))
     if out_dir is not None:
         write_outputs(Path(out_dir), result, config_text=config_text)
+        write_estimated_camchain(Path(out_dir), dataset, result.report)
     return result
