@@ -24,7 +24,7 @@ import numpy as np
 from svains.cli.run_config import build_config
 from svains.datasets.loader import load_dataset
 from svains.datasets.types import Dataset
-from svains.evaluation.extrinsics import turn_cameras
+from svains.evaluation.extrinsics import corrected_calibration
 from svains.evaluation.run import run_method
 from svains.geometry.rotation import quat_to_rotmat, so3_exp
 from svains.navigation.vision_sources import ImageFrames
@@ -80,7 +80,7 @@ def from_gps(ds: Dataset, sets: list[str], until_s: float | None = None) -> Data
     vis = run_method(ds, "3d", opts).report["vision"]
     phi, std = vis["extrinsic_rotation_deg"], vis["extrinsic_rotation_std_deg"]
     print(f"estimated with GPS: correction {np.round(phi, 3)} deg (std {np.round(std, 3)})")
-    return turn_cameras(ds, np.radians(phi))
+    return corrected_calibration(ds, np.radians(phi))
 
 
 def main() -> None:

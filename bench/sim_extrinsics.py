@@ -5,9 +5,11 @@ pose, as ``bench/specs/paper_ordering.yaml``. For each seed, ``3d`` and ``lc`` r
 calibration as simulated (exact) and with both cameras' ``T_B_C`` turned by ``--tilt-deg``
 (about the left camera's x and y axes: the kind of error KITTI's calibration chain shows),
 each with and without the online estimate. Prints the position RMSE, final error (% of the path),
-NEES mean (9 dof) and the estimated correction against the one applied.
+NEES mean (9 dof) and the estimated correction against the one applied. With ``--from-gps``,
+the turned set's rotation is instead estimated by a ``3d`` run WITH GPS, applied
+(``evaluation.extrinsics.corrected_calibration``), and ``3d`` runs GPS-denied with it.
 
-    python bench/sim_extrinsics.py [--seeds 3] [--duration 60] [--tilt-deg 0.4]
+    python bench/sim_extrinsics.py [--seeds 3] [--duration 60] [--tilt-deg 0.4] [--from-gps]
 """
 
 from __future__ import annotations
@@ -15,7 +17,6 @@ from __future__ import annotations
 import argparse
 import logging
 import tempfile
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -23,22 +24,33 @@ import numpy as np
 from svains.cli.run_config import build_config
 from svains.datasets.loader import load_dataset
 from svains.datasets.types import Dataset
+from svains.evaluation.extrinsics import corrected_calibration, turn_cameras
 from svains.evaluation.run import run_method
-from svains.geometry.rotation import so3_exp
 from svains.sim import SimConfig, simulate
 
 
 def turned(ds: Dataset, phi_rad: np.ndarray) -> Dataset:
-    """``ds`` whose calibration says both cameras sit turned by ``Exp(-phi)`` (camera axes)
-    from where they are: the true correction the filter should find is ``phi``."""
-    delta = so3_exp(-phi_rad)
+    """``ds`` whose calibration says the stereo rig sits turned by ``Exp(-phi)`` (cam0 axes,
+    rigidly) from where it is: the correction the filter should find is ``phi``."""
+    return turn_cameras(ds, -phi_rad)
 
-    def turn(cam):  # type: ignore[no-untyped-def]
-        T = np.array(cam.T_B_C, dtype=float)
-        T[:3, :3] = T[:3, :3] @ delta
-        return replace(cam, T_B_C=T)
 
-    return replace(ds, cam0=turn(ds.cam0), cam1=turn(ds.cam1))
+def gps_calibrated(seed: int, exact: Dataset, wrong: Dataset, sets: list[str]) -> None:
+    """Estimate the rotation with GPS on ``wrong``, apply it, run 3d GPS-denied; print all."""
+    base = {"init.mode": "groundtruth", "use_mag": False, "vision.source": "features",
+            "vision.rotation": "clone"}
+    opts = build_config(None, [*sets, "vision.estimate_extrinsics=true"],
+                        {**base, "use_gps": True})
+    vis = run_method(wrong, "3d", opts).report["vision"]
+    phi = np.array(vis["extrinsic_rotation_deg"])
+    print(f"{seed:4d} with GPS: estimated {np.round(phi, 3).tolist()} deg, "
+          f"std {np.round(vis['extrinsic_rotation_std_deg'], 3).tolist()}")
+    denied = build_config(None, sets, {**base, "use_gps": False})
+    for name, d in (("exact", exact), ("turned", wrong),
+                    ("turned+gps-estimate", corrected_calibration(wrong, np.radians(phi)))):
+        r = run_method(d, "3d", denied).report
+        print(f"{seed:4d} 3d GPS-denied, {name:20s} RMSE {r['position_rmse_m']:.3f} m, final "
+              f"{r['final_error_pct']:.2f} %, NEES {r['nees_mean']:.1f}", flush=True)
 
 
 def main() -> None:
@@ -48,6 +60,7 @@ def main() -> None:
     ap.add_argument("--tilt-deg", type=float, default=0.4)
     ap.add_argument("--methods", default="3d,lc")
     ap.add_argument("--set", action="append", default=[], help="option KEY=VALUE")
+    ap.add_argument("--from-gps", action="store_true")
     args = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)
     phi = np.radians([args.tilt_deg, -args.tilt_deg, 0.0])
@@ -58,6 +71,9 @@ def main() -> None:
             cfg = SimConfig.from_dict({"duration_s": args.duration, "seed": seed,
                                        "camera": {"rate_hz": 5.0, "render_images": False}})
             ds0 = load_dataset(simulate(cfg, Path(tmp) / "data"))
+            if args.from_gps:
+                gps_calibrated(seed, ds0, turned(ds0, phi), args.set)
+                continue
             for calib, ds in (("exact", ds0), ("turned", turned(ds0, phi))):
                 for method in args.methods.split(","):
                     for est in (False, True):

@@ -9,7 +9,8 @@ import numpy as np
 from svains.datasets.kalibr import apply_kalibr
 from svains.datasets.types import CameraCalib, Dataset
 from svains.evaluation.extrinsics import CAMCHAIN_NAME, write_estimated_camchain
-from svains.geometry.rotation import so3_exp
+from svains.geometry.rotation import so3_exp, so3_log
+from svains.navigation.vision_sources import rig_from_calibrations
 
 
 def _dataset() -> Dataset:
@@ -17,7 +18,9 @@ def _dataset() -> Dataset:
     T0[:3, :3] = so3_exp(np.array([-1.2, 1.2, -1.2]))  # x right, y down, z forward-ish
     T0[:3, 3] = [1.08, -0.31, 0.73]
     T1 = T0.copy()
-    T1[:3, 3] += T0[:3, :3] @ np.array([0.54, 0.0, 0.0])
+    # cam1 turned 2 deg from cam0, as KITTI's: the rectified frame is not cam0's.
+    T1[:3, :3] = T0[:3, :3] @ so3_exp(np.radians([0.5, 1.5, -1.0]))
+    T1[:3, 3] += T0[:3, :3] @ np.array([0.54, 0.005, -0.004])
     intr = np.array([980.0, 981.0, 690.0, 233.0])
     dist = np.array([-0.37, 0.2, 0.002, 0.001, -0.07])  # five coefficients, as KITTI's
     cams = [CameraCalib(n, T, 4.8, (1392, 512), intr, "radtan", dist)
@@ -32,10 +35,16 @@ def test_estimated_rotation_round_trips_through_calib(tmp_path: Path) -> None:
     path = write_estimated_camchain(tmp_path, ds, report)
     assert path == tmp_path / CAMCHAIN_NAME
     back = apply_kalibr(ds, path)
-    delta = so3_exp(np.radians(phi_deg))
+    # The filter's correction is in the rectified frame: rectifying the written pair gives the
+    # rectified rig turned by it, and the relative pose of the two cameras is unchanged.
+    rig, rig_back = (rig_from_calibrations(d.cam0, d.cam1) for d in (ds, back))
+    np.testing.assert_allclose(
+        rig_back.R_B_C, rig.R_B_C @ so3_exp(np.radians(phi_deg)), atol=1e-9)
+    assert np.degrees(np.linalg.norm(so3_log(rig_back.R_B_C.T @ back.cam0.T_B_C[:3, :3]))) > 0.5
+    rel = [np.linalg.inv(d.cam0.T_B_C) @ d.cam1.T_B_C for d in (ds, back)]
+    np.testing.assert_allclose(rel[1], rel[0], atol=1e-12)
+    np.testing.assert_allclose(back.cam0.T_B_C[:3, 3], ds.cam0.T_B_C[:3, 3], atol=1e-12)
     for old, new in ((ds.cam0, back.cam0), (ds.cam1, back.cam1)):
-        np.testing.assert_allclose(new.T_B_C[:3, :3], old.T_B_C[:3, :3] @ delta, atol=1e-12)
-        np.testing.assert_allclose(new.T_B_C[:3, 3], old.T_B_C[:3, 3], atol=1e-12)
         np.testing.assert_allclose(new.distortion, old.distortion)
     assert back.extras["timeshift_cam_imu_ns"] == 0  # the image stamps stay where they were
 
