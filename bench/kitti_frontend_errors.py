@@ -14,7 +14,9 @@ which part the reference itself explains:
   error growing with range);
 - **direction:** the median tilt (a camera-IMU rotation or rectification error) and its spread.
 
-    python bench/kitti_frontend_errors.py [DATASET] [--shift-ms A:B:STEP]
+    python bench/kitti_frontend_errors.py [DATASET] [--shift-ms A:B:STEP] [--calib CAMCHAIN]
+
+``--calib`` replaces the cameras' calibration (e.g. a run's ``camchain_estimated.yaml``).
 """
 
 from __future__ import annotations
@@ -100,9 +102,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("dataset", nargs="?", default="../shared/data/kitti_raw_0926_41s")
     ap.add_argument("--shift-ms", default="-40:41:5", help="image-stamp shifts A:B:STEP (ms)")
+    ap.add_argument("--calib", default=None, help="Kalibr camchain replacing the calibration")
     args = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)
     ds = load_dataset(args.dataset)
+    if args.calib is not None:
+        from svains.datasets.kalibr import apply_kalibr
+
+        ds = apply_kalibr(ds, args.calib)
     pairs = stereo_pairs(ds)
     t_ns = pairs[0]
     disparity: dict[int, float] = {}
