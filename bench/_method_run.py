@@ -1,7 +1,9 @@
 """One timed navigation run in its own process, for ``bench_methods.py``; prints one JSON line.
 
-``python bench/_method_run.py DATA METHOD [--barrier DIR --peers N] [--rotation M] [--extras]
-[--profile]`` (``M``: the vision motion model, default the library's).
+``python bench/_method_run.py DATA METHOD [--barrier DIR --peers N] [--rotation M] [--aided]
+[--extras] [--profile]`` (``M``: the vision motion model, default the library's; ``--aided``:
+GPS, magnetometer and sonar fused too, otherwise none, as ``svains run --no-gps --no-mag
+--no-sonar``).
 
 The vision methods take their tracks from the images (the front end runs inside the filter
 loop). ``--barrier``: after loading, wait until ``N`` runs are ready, so parallel runs overlap.
@@ -117,7 +119,8 @@ def run_one(args: argparse.Namespace) -> dict[str, object]:
     ds = load_dataset(args.data)
     opts = RunOptions(method=args.method, model="biased", init=InitOptions(mode="groundtruth"),
                       vision=VisionOptions(source="images",
-                                           rotation=args.rotation or VisionOptions().rotation))
+                                           rotation=args.rotation or VisionOptions().rotation),
+                      use_gps=args.aided, use_mag=args.aided, use_sonar=args.aided)
     opts = resolve_config(ds, opts)
     if args.barrier is not None:
         _wait(Path(args.barrier), args.peers)
@@ -163,6 +166,7 @@ def main() -> None:
     ap.add_argument("--barrier", default=None)
     ap.add_argument("--peers", type=int, default=1)
     ap.add_argument("--rotation", default=None)
+    ap.add_argument("--aided", action="store_true")
     ap.add_argument("--extras", action="store_true")
     ap.add_argument("--profile", action="store_true")
     args = ap.parse_args()

@@ -153,6 +153,9 @@ def main() -> None:
     ap.add_argument("--methods", default=",".join(METHODS))
     ap.add_argument("--rotation", default=None, help="vision motion model (default: clone)")
     ap.add_argument("--threads", type=int, default=None, help="SVAINS_THREADS for the runs")
+    ap.add_argument("--aided", action="store_true",
+                    help="also fuse GPS, magnetometer and sonar (default: none, as issue 11's "
+                    "`svains run ... --no-gps --no-mag --no-sonar`)")
     ap.add_argument("--no-parallel", action="store_true", help="skip the two-at-once runs")
     ap.add_argument("--extras", action="store_true", help="motion prior and filter replay")
     ap.add_argument("--profile", action="store_true", help="cProfile one 3d run")
@@ -161,10 +164,13 @@ def main() -> None:
     env = dict(os.environ)
     if args.rotation is not None:
         RUN_FLAGS[:] = ["--rotation", args.rotation]
+    if args.aided:
+        RUN_FLAGS.append("--aided")
     if args.threads is not None:
         env["SVAINS_THREADS"] = str(args.threads)
     print(f"threads per numerical library: SVAINS_THREADS={env.get('SVAINS_THREADS', '(1)')}; "
-          f"vision.rotation={args.rotation or 'default (clone)'}")
+          f"vision.rotation={args.rotation or 'default (clone)'}; "
+          + ("GPS, magnetometer and sonar fused" if args.aided else "no GPS, mag or sonar"))
     if not args.no_models:
         bench_models()
     with tempfile.TemporaryDirectory() as tmp:

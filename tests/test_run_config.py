@@ -123,5 +123,24 @@ def test_gps_outage_windows_and_gps_until(village_gps: Path, tmp_path: Path) -> 
     assert outage["duration_s"] == pytest.approx(4.0, abs=1e-6)
     assert cut["outage_max_error_m"] == [outage["error_max_m"]]
     assert not full.get("gps_outages")
+    # --gps-until: from the last fix fused (4 s) to the end of the run, marked as such.
+    (tail,) = until["gps_outages"]
+    assert tail["to_end"] is True
+    assert tail["start_s"] == pytest.approx(4.0, abs=0.05)
+    assert tail["error_max_m"] >= tail["error_start_m"]
     with pytest.raises(AssertionError):
         _cli(["run", str(village_gps), "--gps-outage", "2-3", "--out", str(tmp_path / "x")])
+
+
+def test_compare_takes_the_gps_outage_switches(village_gps: Path, tmp_path: Path) -> None:
+    import json
+
+    out = tmp_path / "cmp"
+    _cli(["compare", str(village_gps), "--out", str(out), "--methods", "ins", "--no-figures",
+          "--no-sonar", "--gps-outage", "2:3"])
+    rep = json.loads((out / "compare.json").read_text())["ins"]
+    assert rep["gps_outage_fixes_skipped"] == 3
+    (outage,) = rep["gps_outages"]
+    assert outage["duration_s"] == pytest.approx(4.0, abs=1e-6)
+    assert rep["outage_max_error_m"] == [outage["error_max_m"]]
+    assert "max err in outages" in (out / "compare.md").read_text()

@@ -16,14 +16,19 @@ from svains.errors import SvainsError
 def build_options(
     model: str, init: str, gps: bool, mag: bool, duration: float | None, source: str,
     settings: list[str] | None, config_file: Path | None = None,
-    calib: Path | None = None, imu_calib: Path | None = None,
+    calib: Path | None = None, imu_calib: Path | None = None, sonar: bool | None = None,
+    gps_outages: list[str] | None = None, gps_until: float | None = None,
 ) -> Any:
     """``RunConfig`` from the command-line switches (``settings``: ``--set`` items; ``calib``,
-    ``imu_calib``: Kalibr files, kept absolute in ``replay``)."""
-    from svains.cli.run_config import build_config, kalibr_switches
+    ``imu_calib``: Kalibr files, kept absolute in ``replay``; ``gps_outages``: START:DURATION
+    texts)."""
+    from svains.cli.run_config import build_config, kalibr_switches, parse_outage
 
     switches = {"model": model, "init.mode": init, "use_gps": gps, "use_mag": mag,
-                "duration_s": duration, "vision.source": source,
+                "use_sonar": sonar, "duration_s": duration, "vision.source": source,
+                "gps_outages": None if not gps_outages else [list(parse_outage(g))
+                                                             for g in gps_outages],
+                "gps_until_s": gps_until,
                 **kalibr_switches(calib, imu_calib)}  # fmt: skip
     return build_config(config_file, settings, switches)
 
@@ -79,6 +84,15 @@ def compare(
     ] = "groundtruth",
     gps: Annotated[bool, typer.Option("--gps/--no-gps", help="Fuse GPS when present.")] = True,
     mag: Annotated[bool, typer.Option("--mag/--no-mag", help="Fuse magnetometer.")] = True,
+    sonar: Annotated[bool | None, typer.Option("--sonar/--no-sonar", help="Fuse sonar.")] = None,
+    gps_outage: Annotated[
+        list[str] | None,
+        typer.Option("--gps-outage", help="START:DURATION [s from the first IMU sample fed] "
+                     "without GPS; repeatable."),
+    ] = None,
+    gps_until: Annotated[
+        float | None, typer.Option("--gps-until", help="No GPS after S seconds.")
+    ] = None,
     duration: Annotated[
         float | None,
         typer.Option("--duration", help="Use only the first S seconds.",
@@ -110,7 +124,8 @@ def compare(
         source = {None: "auto", True: "features", False: "images"}[features]
         settings = [*([f"vision.rotation={rotation}"] if rotation else []), *(setting or [])]
         opts = build_options(model, init, gps, mag, duration, source, settings,
-                             calib=calib, imu_calib=imu_calib)
+                             calib=calib, imu_calib=imu_calib, sonar=sonar,
+                             gps_outages=gps_outage, gps_until=gps_until)
         run_compare(dataset, out, [m.strip() for m in methods.split(",") if m.strip()], opts,
                     figures, Console(), synthetic_features)
     except SvainsError as exc:

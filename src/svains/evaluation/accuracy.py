@@ -279,7 +279,8 @@ def gps_outage_report(
 ) -> dict[str, Any]:
     """Position error while GPS is available, and its growth over each GPS outage.
 
-    An outage is a gap longer than ``min_gap_s`` between consecutive GPS fixes. Returns
+    An outage is a gap longer than ``min_gap_s`` between consecutive GPS fixes, or from the
+    last fix to the end of the run (``--gps-until``; ``"to_end": true``). Returns
     ``position_rmse_with_gps_m`` (logged states outside outages) and ``gps_outages``: for each,
     start/end (s from the first state), position error at the start and at the end, its maximum,
     and the filter's 3σ position bound (norm of the 3σ per axis) at the end.
@@ -290,10 +291,12 @@ def gps_outage_report(
     sig3 = 3.0 * np.linalg.norm(std[inside, 0:3], axis=1)
     g = np.asarray(gps_t_ns, dtype=np.int64)
     gaps = np.flatnonzero(np.diff(g) > int(min_gap_s * 1e9))
+    windows = [(int(g[k]), int(g[k + 1]), False) for k in gaps]
+    if g.size and len(t) and int(t[-1]) - int(g[-1]) > int(min_gap_s * 1e9):
+        windows.append((int(g[-1]), int(t[-1]) + 1, True))  # no fix from the last one on
     in_outage = np.zeros(len(t), dtype=bool)
     outages = []
-    for k in gaps:
-        a, b = int(g[k]), int(g[k + 1])
+    for a, b, to_end in windows:
         sel = (t >= a) & (t < b)
         if not sel.any():
             continue
@@ -308,6 +311,7 @@ def gps_outage_report(
                 "error_max_m": float(e.max()),
                 "growth_m": float(e[-1] - e[0]),
                 "bound_3sigma_end_m": float(sig3[sel][-1]),
+                **({"to_end": True} if to_end else {}),
             }
         )
     ok = ~in_outage

@@ -131,7 +131,10 @@ def trajectory_metrics(
         "final_position_error_m": final,
         "final_error_pct_of_path": 100.0 * final / path if path > 0 else None,
     }
-    outages = gps_outages(ds) if gps_ok else []
+    # With configured GPS-off windows (--gps-outage, --gps-until) the report's own outage keys
+    # (``run_accuracy``: gaps in the fixes the run could fuse) already cover them.
+    configured = bool(result.report.get("gps_off_windows_ns"))
+    outages = gps_outages(ds) if gps_ok and not configured else []
     if outages:
         errs = outage_max_errors(result.t_ns, result.x[:, 0:3], gt, outages)
         out["gps_outages_ns"] = outages

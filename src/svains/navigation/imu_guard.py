@@ -136,8 +136,7 @@ class ImuGuard:
     def check(self, t_ns: int, gyro_B: ArrayLike, accel_B: ArrayLike) -> Verdict:
         """Verdict on the sample at ``t_ns``: ``gyro_B`` (3,) rad/s, ``accel_B`` (3,) m/s²."""
         # Plain floats: this runs once per IMU sample, where numpy's per-call cost dominates.
-        g = tuple(float(v) for v in np.ravel(gyro_B))
-        a = tuple(float(v) for v in np.ravel(accel_B))
+        g, a = _floats(gyro_B), _floats(accel_B)
         reason = self._fault(int(t_ns), g, a)
         if reason is not None:
             self.counts.dropped[reason] += 1
@@ -146,7 +145,7 @@ class ImuGuard:
 
     def _fault(self, t_ns: int, g: Vec3, a: Vec3) -> DropReason | None:
         values = g + a
-        if not all(math.isfinite(v) for v in values):
+        if not all(map(math.isfinite, values)):
             return "nonfinite"
         if not any(values):
             return "zeros"
@@ -205,6 +204,13 @@ class ImuGuard:
             "reanchored": c.reanchored,
             "median_spacing_s": self.median_spacing_s(),
         }
+
+
+def _floats(v: ArrayLike) -> Vec3:
+    """The numbers of ``v`` as a tuple of Python floats (``tolist`` is the fast way for arrays)."""
+    if isinstance(v, np.ndarray):
+        return tuple(v.astype(float, copy=False).ravel().tolist())  # type: ignore[return-value]
+    return tuple(float(x) for x in np.ravel(v))  # type: ignore[return-value]
 
 
 def gap_covariance(gap_s: float, accel_std: float, gyro_std: float) -> NDArray[np.float64]:

@@ -6,6 +6,12 @@ vectorised pass when the arrays are read. α at sample k uses samples k-2..k onl
 stencil of ``models.imu.angular_acceleration``, with the same element-wise floating-point
 operations, so it equals the whole-recording result bit for bit); samples 0 and 1 share the
 first difference. Storage grows by doubling; the arrays are views of it.
+
+Bounded memory for long runs: once ``keep_from_ns`` is set (the estimator sets it as it goes),
+a full store first drops the rows stamped before it (at least the last two rows stay, for the
+stencil) instead of growing; ``dropped`` counts the rows gone, so an absolute sample index is
+``local index + dropped``. Dropping changes no value: the stencil's times keep the first
+sample's origin.
 """
 
 from __future__ import annotations
@@ -27,6 +33,9 @@ class ImuHistory:
         self._R_T: F64 | None = None if np.array_equal(R, np.eye(3)) else R.T.copy()
         self.n = 0
         self._done = 0  # rows rotated and with α
+        self.dropped = 0  # rows dropped from the front (``keep_from_ns``)
+        self.keep_from_ns: int | None = None  # rows before it may be dropped (None: keep all)
+        self._t_origin: int | None = None  # the stencil's time origin (first sample ever)
         self._t = np.empty(capacity, np.int64)
         self._ts = np.empty(capacity)  # the stencil's times, s from the first sample
         self._raw = np.empty((capacity, 6))  # gyro_S | accel_S as received
@@ -59,6 +68,8 @@ class ImuHistory:
         """Add one sample (``t_ns`` must be later than the last one)."""
         k = self.n
         if k == self._t.size:
+            k = self._drop_old()
+        if k == self._t.size:
             self._t = np.resize(self._t, 2 * k)
             self._ts = np.resize(self._ts, 2 * k)
             raw = np.empty((2 * k, 6))
@@ -67,6 +78,8 @@ class ImuHistory:
             data = np.empty((2 * k, 9))
             data[:k] = self._data
             self._data = data
+        if self._t_origin is None:
+            self._t_origin = int(t_ns)
         self._t[k] = t_ns
         self._raw[k, 0:3] = gyro_S
         self._raw[k, 3:6] = accel_S
@@ -85,7 +98,7 @@ class ImuHistory:
             self._data[a:n, 3:6] = raw[:, 3:6] @ self._R_T
         g = self._data[:, 0:3]
         t = self._ts
-        t[a:n] = (self._t[a:n] - self._t[0]) * 1e-9
+        t[a:n] = (self._t[a:n] - self._t_origin) * 1e-9
         if n >= 2 and a < 2:
             self._data[0:2, 6:9] = (g[1] - g[0]) / (t[1] - t[0])
         elif n < 2:
@@ -100,3 +113,19 @@ class ImuHistory:
                 + g[k0:n] * (h1 + 2.0 * h2) / (h2 * (h1 + h2))
             )
         self._done = n
+
+    def _drop_old(self) -> int:
+        """Drop the rows before ``keep_from_ns`` (keeping the last two) when that frees at
+        least a quarter of the store; returns the new row count."""
+        if self.keep_from_ns is None:
+            return self.n
+        self._sync()
+        cut = min(int(np.searchsorted(self._t[: self.n], self.keep_from_ns)), self.n - 2)
+        if cut < self._t.size // 4:
+            return self.n
+        m = self.n - cut
+        for arr in (self._t, self._ts, self._raw, self._data):
+            arr[:m] = arr[cut : self.n]
+        self.n = self._done = m
+        self.dropped += cut
+        return m

@@ -129,7 +129,8 @@ class InsFilter:
         if k >= len(self.t_imu) or self.t_imu[k] != init.t_ns:
             raise ConfigError("the initial time must be an IMU sample time")
         self.t_ns = int(init.t_ns)
-        self._k_next = k + 1
+        # Absolute index (``history.dropped`` + local) of the next sample to integrate.
+        self._k_next_abs = k + 1 + self.history.dropped
         self._u = (self.gyro_B[k], self.accel_B[k], self.alpha_B[k])
         self._q_cache: dict[int, F64] = {}
 
@@ -182,7 +183,8 @@ class InsFilter:
         if t_ns == self.t_ns:
             return
         k_end = int(np.searchsorted(self.t_imu, t_ns, side="right"))
-        k_cur = self._k_next - 1
+        k_next = self._k_next_abs - self.history.dropped
+        k_cur = k_next - 1
         if self.t_imu[k_cur] == self.t_ns and self.t_imu[k_end - 1] == t_ns:
             # Fast path: both ends are IMU samples, the nodes are slices (no copies).
             self._predict_nodes(
@@ -192,10 +194,10 @@ class InsFilter:
                 self.alpha_B[k_cur:k_end],
             )
             self.t_ns = t_ns
-            self._k_next = k_end
+            self._k_next_abs = k_end + self.history.dropped
             self._u = (self.gyro_B[k_end - 1], self.accel_B[k_end - 1], self.alpha_B[k_end - 1])
             return
-        ks = np.arange(self._k_next, k_end)
+        ks = np.arange(k_next, k_end)
         times = [np.array([self.t_ns]), self.t_imu[ks]]
         u_end = None
         if len(ks) == 0 or self.t_imu[ks[-1]] != t_ns:
@@ -210,7 +212,7 @@ class InsFilter:
             arrays.append(np.concatenate(parts))
         self._predict_nodes(t_nodes, *arrays)
         self.t_ns = t_ns
-        self._k_next = k_end
+        self._k_next_abs = k_end + self.history.dropped
         self._u = (arrays[0][-1], arrays[1][-1], arrays[2][-1])
 
     def _predict_nodes(self, t_nodes: NDArray[np.int64], gyro: F64, accel: F64, alpha: F64) -> None:

@@ -112,13 +112,17 @@ class Navigator:
         self.history.append(t_ns, gyro_S, accel_S)
         self._advance(t_ns - self._window_ns)
 
-    def feed_stereo(self, t_ns: int, left: NDArray[np.uint8], right: NDArray[np.uint8]) -> None:
+    def feed_stereo(
+        self, t_ns: int, left: NDArray[np.uint8], right: NDArray[np.uint8], copy: bool = True
+    ) -> None:
         """A stereo pair (8-bit grey, raw cam0/cam1 images): the front end runs on it when the
-        estimator reaches ``t_ns`` (camera clock = IMU clock; the arrays are copied). Ignored
-        by ``ins``."""
+        estimator reaches ``t_ns`` (camera clock = IMU clock). The arrays are copied unless
+        ``copy=False``, which hands them over: the caller must not change them afterwards.
+        Ignored by ``ins``."""
         if self.config.method != "ins":
-            # Copied now: drivers reuse their image buffers while the pair waits in the queue.
-            pair = (np.array(left, np.uint8, copy=True), np.array(right, np.uint8, copy=True))
+            # Copied by default: drivers reuse their image buffers while the pair waits.
+            pair = (np.array(left, np.uint8, copy=True), np.array(right, np.uint8, copy=True)) \
+                if copy else (np.asarray(left, np.uint8), np.asarray(right, np.uint8))
             self._push(int(t_ns), FRAME, ("images", *pair))
 
     def feed_tracks(

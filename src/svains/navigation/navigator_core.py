@@ -27,6 +27,7 @@ from svains.navigation.ins import InsFilter
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import NavState, RunResult, UpdateRecord, WorldFrame
 from svains.navigation.vision import LcUpdater, PixelUpdater, make_vision_updater
+from svains.navigation.vision_clones import next_reference_ns
 from svains.navigation.vision_gaps import vision_gap_report
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames
 from svains.sensors.types import Rig
@@ -72,6 +73,7 @@ class Core:
         self._recovery = Recovery(config.faults, self._warn) if config.faults.consistency else None
         self._vision_fused_t: list[int] = []
         self._vision_warned_gap = False
+        self._next_keep_ns = self.t0_ns  # when ``_keep_imu`` runs next
         self._log()
 
     # ---- the event loop -----------------------------------------------------------------
@@ -176,6 +178,8 @@ class Core:
         if self._recovery is not None and (has_frame or blocks or len(items) > has_tick):
             self._recovery.check(ins.ukf, t)
         self._check_vision_gap(t)
+        if t >= self._next_keep_ns:
+            self._keep_imu(t)
         if has_tick:
             self._log()
 
@@ -195,6 +199,22 @@ class Core:
         if stats is not None:
             self._record(stats, cfg.method, t)
         self._t_prev_frame = t
+
+    def _keep_imu(self, t: int) -> None:
+        """Let the IMU history drop what nothing can reach any more: samples more than
+        ``buffer.imu_keep_s`` before the oldest of now, the previous frame and the front end's
+        reference frame (re-checked once a second)."""
+        keep_s = self.config.buffer.imu_keep_s
+        self._next_keep_ns = t + 1_000_000_000
+        if keep_s is None:
+            return
+        oldest = t if self._t_prev_frame is None else min(t, self._t_prev_frame)
+        if self._source is not None:
+            ref = next_reference_ns(self._source, t)
+            oldest = oldest if ref is None else min(oldest, ref)
+        # The gap covariance reads the signal's spread before a gap (``faults.gap_spread_s``).
+        keep_s = max(keep_s, self.config.faults.gap_spread_s)
+        self.ins.history.keep_from_ns = oldest - int(keep_s * 1e9)
 
     def _vision_updater(self) -> PixelUpdater | LcUpdater | None:
         if self._updater is None and self._source is not None:

@@ -238,10 +238,14 @@ class BufferOptions:
     """The Navigator's time-ordered input buffer. A measurement stamped t is processed once an
     IMU sample stamped later than ``t + window_s`` has arrived (so measurements up to
     ``window_s`` late are put back in order); one stamped at or before the last processed time
-    is dropped, counted and warned about. ``max_pending`` bounds the waiting measurements."""
+    is dropped, counted and warned about. ``max_pending`` bounds the waiting measurements.
+    ``imu_keep_s``: IMU samples older than this before the previous frame (or the front end's
+    reference frame, or now) are let go, so a long online run keeps bounded memory (None: keep
+    every sample)."""
 
     window_s: float = 0.1
     max_pending: int = 100_000
+    imu_keep_s: float | None = 60.0
 
 
 @dataclass(frozen=True)

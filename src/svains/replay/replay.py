@@ -172,7 +172,7 @@ def feed(nav: Navigator, kind: int, t: int, payload: Any) -> None:
     elif kind == _SONAR:
         nav.feed_sonar(t, float(payload[0]))
     elif payload[0] == "images":
-        nav.feed_stereo(t, payload[1], payload[2])
+        nav.feed_stereo(t, payload[1], payload[2], copy=False)  # freshly decoded, not reused
     else:
         nav.feed_tracks(t, payload[1], payload[2], payload[3])
 
