@@ -6,6 +6,7 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -54,6 +55,13 @@ def test_run_vo_writes_outputs(village_short: Path, tmp_path: Path) -> None:
     assert set(rep) >= INS_KEYS
     assert rep["method"] == "vo" and rep["vo"]["frames"] >= 25  # 6 s at 5 Hz
     assert rep["position_rmse_m"] < 1.0
+    # --start skips the first seconds for vo as for the filter methods.
+    late = _run([str(village_short), "--method", "vo", "--out", str(tmp_path / "vo2"),
+                 "--init", "groundtruth", "--start", "3"])
+    assert late["vo"]["frames"] <= rep["vo"]["frames"] - 14  # 3 s fewer at 5 Hz
+    t_full = np.loadtxt(tmp_path / "vo" / "trajectory.tum")[:, 0]
+    t_late = np.loadtxt(tmp_path / "vo2" / "trajectory.tum")[:, 0]
+    assert t_late[0] >= t_full[0] + 2.8
 
 
 @pytest.mark.parametrize("method", ["3d", "lc"])

@@ -189,7 +189,8 @@ def replay(
     if config.method == "vo":
         from svains.replay.vo import run as run_vo
 
-        return run_vo(ds, config, progress)
+        with limit_threads(None):
+            return run_vo(ds, config, progress)
     if config.method != "ins" and config.vision.source == "images":
         n_pairs = stereo_pairs(ds)[0].size if ds.left is not None and ds.right is not None else 0
         if n_pairs < 2:

@@ -62,9 +62,11 @@ def body_states_from_camera_poses(t_ns: I64, T_W_C: F64, R_B_C: F64, p_B_C: F64)
     return x
 
 
-def _frame_tracks(ds: Dataset, config: RunConfig) -> Iterator[tuple[int, StereoTracks | None]]:
-    """(t_ns, tracks) of every frame that may carry tracks, after ``frame_stride`` and
-    ``duration_s`` (counted from the first such frame)."""
+def _frame_tracks(
+    ds: Dataset, config: RunConfig, t0_ns: int
+) -> Iterator[tuple[int, StereoTracks | None]]:
+    """(t_ns, tracks) of every frame from ``t0_ns`` on that may carry tracks, after
+    ``frame_stride`` and ``duration_s`` (counted from the first such frame)."""
     v = config.vision
     stride = max(1, v.frame_stride)
     opts = TrackOptions(max_row_diff_px=v.max_row_diff_px, egomotion=True)
@@ -73,7 +75,8 @@ def _frame_tracks(ds: Dataset, config: RunConfig) -> Iterator[tuple[int, StereoT
         feats = FeatureFrames(rig_from_calibrations(ds.cam0, ds.cam1), opts)
         times, bounds = frame_slices(ds.features)
         fs = ds.features
-        for k in range(0, len(times), stride):
+        k0 = int(np.searchsorted(times, t0_ns))
+        for k in range(k0, len(times), stride):
             t = int(times[k])
             rows = slice(bounds[k], bounds[k + 1])
             if not feats.push(t, fs.track_id[rows], fs.uv_left[rows], fs.uv_right[rows]):
@@ -88,7 +91,7 @@ def _frame_tracks(ds: Dataset, config: RunConfig) -> Iterator[tuple[int, StereoT
         raise DatasetError(f"{ds.root}: vo needs features0 or cam0/cam1 images")
     images = ImageFrames(ds.cam0, ds.cam1)
     t_all, il, ir = stereo_pairs(ds)
-    for k in range(0, len(t_all), stride):
+    for k in range(int(np.searchsorted(t_all, t0_ns)), len(t_all), stride):
         t = int(t_all[k])
         if end is None and config.duration_s is not None:
             end = t + int(config.duration_s * 1e9)
@@ -109,7 +112,10 @@ def run(
     egos: list[Egomotion | None] = []
     t_list: list[int] = []
     kind = config.vision.source
-    for i, (_, tr) in enumerate(_frame_tracks(dataset, config)):
+    # ``--start``: the same origin as the filter methods' replay (the first IMU sample).
+    t_first = int(dataset.imu.t_ns[0]) if dataset.imu is not None else -(2**62)
+    t0 = t_first + int(config.replay.start_s * 1e9)
+    for i, (_, tr) in enumerate(_frame_tracks(dataset, config, t0)):
         if tr is None:
             continue
         if not t_list:
