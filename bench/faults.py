@@ -9,10 +9,19 @@ library entry (``svains.evaluation.run.run_method``, started from the ground tru
   3d <= 1.5x);
 - the measurements rejected by the gates, and the filter's recoveries (``recovery.resets`` /
   ``recovery.inflations`` in ``report.json``, "-" when ``faults.consistency`` is off);
-- the mean NEES (9 dof) after the fault (target <= 10);
+- the mean NEES (9 dof) after the fault (target <= 10), and its position, velocity and attitude
+  blocks (3 dof each, each against its own 3x3 covariance: consistent blocks average 3);
 - how long after the fault's end GPS fixes are accepted again (target <= 5 s).
 
-    python bench/faults.py [--seed 0] [--at 10] [--methods ins,3d] [--guard]
+    python bench/faults.py [--seeds 0] [--at 10] [--methods ins,3d] [--guard]
+                           [--set filter.alpha=0.5 ...]
+
+``--seeds 0-7`` (or ``0,1``) runs every seed and ends with a table over the seeds: the mean NEES
+after the fault and how many seeds exceed 10, the mean and largest RMSE ratio, the latest GPS
+return. One run's NEES mean is one draw: its errors are correlated over tens of seconds (a
+GPS-aided position error is an average of the last fixes' noise), so a consistent filter
+exceeds 10 on a fair share of seeds; the mean over seeds is the consistency test. ``--set``
+overrides run settings as ``svains run --set`` does (every run, clean ones included).
 
 The Navigator checks every IMU sample itself (``RunConfig.faults``); ``--guard`` also leaves the
 samples a separate ``ImuGuard`` drops out of the faulty copy (it changes nothing now, kept to
@@ -34,10 +43,11 @@ from svains.datasets import load_dataset
 from svains.datasets.asl_writer import AslWriter
 from svains.datasets.types import Dataset, ImuStream
 from svains.evaluation.run import run_method
+from svains.navigation.config_io import parse_setting, with_settings
 from svains.navigation.imu_guard import ImuGuard
 from svains.navigation.options import InitOptions, RunOptions
 from svains.navigation.outputs import RunResult
-from svains.replay.groundtruth import nees_series
+from svains.replay.groundtruth import interpolate_groundtruth, navigation_errors, nees_of
 from svains.sim import SimConfig, simulate
 
 G0 = 9.80665
@@ -121,43 +131,82 @@ def gps_back_after_s(ds: Dataset, res: RunResult, fault_end_ns: int) -> float | 
     return (int(ok[0]) - fault_end_ns) / S if ok else None
 
 
-def row(ds: Dataset, res: RunResult, clean_rmse: float | None, at_s: float, fault: Fault) -> str:
+BLOCKS = (slice(0, 9), slice(0, 3), slice(3, 6), slice(6, 9))  # all, position, velocity, attitude
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One run's figures: RMSE [m], its ratio to the clean run, NEES after the fault (9 dof,
+    then the p/v/θ blocks) and the GPS return [s] (None: never)."""
+
+    rmse_m: float
+    ratio: float
+    nees_after: tuple[float, float, float, float]
+    gps_back_s: float | None
+
+
+def outcome(ds: Dataset, res: RunResult, clean_rmse: float | None, at_s: float,
+            fault: Fault) -> Outcome:  # fmt: skip
+    """The figures of run ``res`` of ``fault`` on ``ds`` (``clean_rmse`` None: the clean run)."""
+    rmse = float(res.report["position_rmse_m"])
+    end_ns = int((at_s + fault.duration_s) * S)
+    assert ds.groundtruth is not None
+    inside, p, v, q = interpolate_groundtruth(ds.groundtruth, res.t_ns)
+    after = np.asarray(res.t_ns)[inside] >= end_ns
+    e = navigation_errors(res.x[inside][after], p[after], v[after], q[after])
+    P = res.P9[inside][after]
+    nees = tuple(float(nees_of(e[:, b], P[:, b, b]).mean()) for b in BLOCKS)
+    return Outcome(rmse, rmse / clean_rmse if clean_rmse else 1.0, nees,  # type: ignore[arg-type]
+                   gps_back_after_s(ds, res, end_ns))  # fmt: skip
+
+
+def row(res: RunResult, out: Outcome, fault: Fault) -> str:
     rep = res.report
-    rmse = rep["position_rmse_m"]
-    ratio = f"{rmse / clean_rmse:.2f}" if clean_rmse else "1.00"
     rejected = sum(c["rejected"] for c in rep.get("measurements", {}).values())
     recovery = rep.get("recovery")
     resets = (
         f"{recovery.get('resets', 0)}/{recovery.get('inflations', 0)}" if recovery else "-"
     )
-    end_ns = int((at_s + fault.duration_s) * S)
-    assert ds.groundtruth is not None
-    t, nees = nees_series(res.t_ns, res.x, res.P9, ds.groundtruth)
-    after = nees[t >= end_ns]
-    back = gps_back_after_s(ds, res, end_ns)
-    back_txt = "never" if back is None else f"{back:.1f}"
+    back_txt = "never" if out.gps_back_s is None else f"{out.gps_back_s:.1f}"
+    n9, n_p, n_v, n_a = out.nees_after
     return (
-        f"| {fault.name} | {rep['method']} | {rmse:.3f} | {ratio} | {rejected} | {resets} | "
-        f"{after.mean():.3g} | {back_txt} |"
+        f"| {fault.name} | {rep['method']} | {out.rmse_m:.3f} | {out.ratio:.2f} | {rejected} | "
+        f"{resets} | {n9:.3g} | {n_p:.2f} / {n_v:.2f} / {n_a:.2f} | {back_txt} |"
     )
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--at", type=float, default=10.0, help="fault time (s from the start)")
-    ap.add_argument("--methods", default="ins,3d")
-    ap.add_argument("--guard", action="store_true",
-                    help="drop the samples ImuGuard rejects before the run (a preview of item 1)")
-    args = ap.parse_args()
+def summary(results: dict[tuple[str, str], list[Outcome]], seeds: list[int]) -> None:
+    """The table over the seeds (one row per fault and method)."""
+    print(f"\nOver seeds {', '.join(map(str, seeds))}:\n")
+    print("| fault | method | NEES after: mean (max) | seeds > 10 | x clean: mean (max) | "
+          "GPS back, latest [s] |")  # fmt: skip
+    print("|---|---|---|---|---|---|")
+    for (fault, method), outs in results.items():
+        nees = np.array([o.nees_after[0] for o in outs])
+        ratio = np.array([o.ratio for o in outs])
+        back = [o.gps_back_s for o in outs]
+        back_txt = "never" if None in back else f"{max(b for b in back if b is not None):.1f}"
+        print(f"| {fault} | {method} | {nees.mean():.2f} ({nees.max():.2f}) | "
+              f"{int((nees > 10).sum())}/{nees.size} | {ratio.mean():.2f} ({ratio.max():.2f}) | "
+              f"{back_txt} |")
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"0-7"``, ``"0,1,5"`` or ``"3"`` -> seeds."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        lo, _, hi = part.partition("-")
+        seeds += list(range(int(lo), int(hi or lo) + 1))
+    return seeds
+
+
+def run_seed(seed: int, args: argparse.Namespace, options: RunOptions,
+             results: dict[tuple[str, str], list[Outcome]]) -> None:  # fmt: skip
+    """Simulate the flight of ``seed``, run every fault and method, print a row each."""
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    cfg = SimConfig(duration_s=30.0, seed=args.seed)
+    cfg = SimConfig(duration_s=30.0, seed=seed)
     cfg.camera.render_images = False
     cfg.gps.outages = []
-    options = RunOptions(init=InitOptions(mode="groundtruth"))
-    print("| fault | method | pos RMSE [m] | x clean | rejected | resets/inflations | "
-          "NEES after | GPS back after [s] |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         clean = simulate(cfg, Path(tmp) / "clean")
         clean_rmse: dict[str, float] = {}
@@ -166,9 +215,36 @@ def main() -> None:
             ds = load_dataset(root)
             for method in methods:
                 res = run_method(ds, method, options)
+                out = outcome(ds, res, clean_rmse.get(method), args.at, fault)
                 if fault.name == "clean":
-                    clean_rmse[method] = float(res.report["position_rmse_m"])
-                print(row(ds, res, clean_rmse.get(method), args.at, fault), flush=True)
+                    clean_rmse[method] = out.rmse_m
+                results.setdefault((fault.name, method), []).append(out)
+                print(row(res, out, fault), flush=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", "--seed", default="0", help="seeds: 0, 0,1 or 0-7")
+    ap.add_argument("--at", type=float, default=10.0, help="fault time (s from the start)")
+    ap.add_argument("--methods", default="ins,3d")
+    ap.add_argument("--guard", action="store_true",
+                    help="drop the samples ImuGuard rejects before the run (a preview of item 1)")
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="run setting override (repeatable)")
+    args = ap.parse_args()
+    seeds = parse_seeds(args.seeds)
+    options = with_settings(RunOptions(init=InitOptions(mode="groundtruth")),
+                            dict(parse_setting(item) for item in args.set))  # fmt: skip
+    results: dict[tuple[str, str], list[Outcome]] = {}
+    print("| fault | method | pos RMSE [m] | x clean | rejected | resets/inflations | "
+          "NEES after | p / v / θ | GPS back after [s] |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|")
+    for seed in seeds:
+        if len(seeds) > 1:
+            print(f"| seed {seed} | | | | | | | | |")
+        run_seed(seed, args, options, results)
+    if len(seeds) > 1:
+        summary(results, seeds)
 
 
 if __name__ == "__main__":
