@@ -12,6 +12,7 @@ from svains.geometry.rotation import quat_box_minus, quat_to_rotmat
 from svains.models.state import BIASED, PAPER
 from svains.navigation.init import initialise
 from svains.navigation.options import InitOptions
+from svains.sensors.types import GpsCalib
 
 G_W = np.array([0.0, 0.0, -9.81])
 M_W = np.array([0.2, 0.0, -0.4])
@@ -29,6 +30,7 @@ def test_static_start_recovers_attitude_and_gyro_bias() -> None:
 
 def test_static_start_without_magnetometer_levels_and_widens_yaw() -> None:
     ds, q = static_dataset(with_mag=False)
+    ds.gps_calib = GpsCalib(np.zeros(3), 1.0, 10.0, 0.1)  # GPS fused: the heading is unknown
     init = initialise(ds, PAPER, InitOptions())
     R = quat_to_rotmat(init.x[6:10])
     # Gravity direction right, heading arbitrary: the body z axis matches the truth's.
@@ -36,6 +38,17 @@ def test_static_start_without_magnetometer_levels_and_widens_yaw() -> None:
     assert "arbitrary" in init.info["heading"]
     up_B = R.T @ [0, 0, 1.0]
     assert up_B @ init.P[6:9, 6:9] @ up_B == pytest.approx(0.5**2, rel=1e-6)
+
+
+def test_static_start_without_heading_or_gps_defines_a_local_yaw() -> None:
+    # Nothing fixes the world's yaw: the start defines it, so its std is a small gauge value.
+    ds, q = static_dataset(with_mag=False)
+    init = initialise(ds, PAPER, InitOptions(yaw_std_local=0.02))
+    R = quat_to_rotmat(init.x[6:10])
+    np.testing.assert_allclose(R[2], quat_to_rotmat(q)[2], atol=5e-3)
+    assert "local frame" in init.info["heading"]
+    up_B = R.T @ [0, 0, 1.0]
+    assert up_B @ init.P[6:9, 6:9] @ up_B == pytest.approx(0.02**2, rel=1e-6)
 
 
 def test_moving_start_is_refused_with_a_clear_message() -> None:

@@ -71,6 +71,9 @@ class InitData:
     gps: GpsArrays | None = None
     gps_calib: GpsCalib | None = None
     groundtruth: GroundTruth | None = None
+    # Whether the run fuses GPS (None: whenever ``gps_calib`` is given). Without GPS and without
+    # a heading source the world frame is local and its yaw is defined by the start.
+    gps_fused: bool | None = None
 
 
 def _triad(a_B: F64, b_B: F64, a_W: F64, b_W: F64) -> F64:
@@ -183,8 +186,15 @@ def _from_static(dataset: InitData, layout: StateLayout, o: InitOptions) -> Init
         info["heading"] = "magnetometer"
     else:
         R_W_B = _align_up(f_B, up_W)
-        info["heading"] = "none (arbitrary yaw)"
-        log.warning("no magnetometer in the static interval: heading starts arbitrary")
+        gps_fused = getattr(dataset, "gps_fused", None)  # a Dataset has no such field
+        if gps_fused is None:
+            gps_fused = dataset.gps_calib is not None
+        if gps_fused:
+            info["heading"] = "none (arbitrary yaw)"
+            log.warning("no magnetometer in the static interval: heading starts arbitrary")
+        else:
+            yaw_std = o.yaw_std_local
+            info["heading"] = "none (local frame: the start defines its yaw)"
     x = np.zeros(layout.nx)
     x[Q] = quat_normalize(rotmat_to_quat(R_W_B))
     if dataset.gps is not None and dataset.gps_calib is not None and len(dataset.gps.t_ns):

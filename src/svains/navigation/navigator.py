@@ -72,7 +72,8 @@ class Navigator:
         self._window_ns = round(config.buffer.window_s * 1e9)
         if self._window_ns < 0:
             raise ConfigError(f"buffer.window_s must be >= 0, got {config.buffer.window_s}")
-        self.starter = Starter(config.init, rig, self.layout, initial_state)
+        self.starter = Starter(config.init, rig, self.layout, initial_state,
+                               gps_fused=config.use_gps and rig.gps is not None)
         self._warn = RateLimitedLog(config.faults.warn_interval_s)
         self.imu_faults = (
             ImuFaults(rig, config.faults, self._warn)

@@ -31,8 +31,10 @@ class Starter:
     """Collects what the initialisation needs; ``try_start`` returns the state once decided."""
 
     def __init__(
-        self, options: InitOptions, rig: Rig, layout: StateLayout, given: InitialState | None
+        self, options: InitOptions, rig: Rig, layout: StateLayout, given: InitialState | None,
+        gps_fused: bool | None = None,
     ) -> None:
+        """``gps_fused``: whether the run fuses GPS (None: when the rig has one)."""
         if given is None and options.mode == "groundtruth":
             raise ConfigError("init.mode groundtruth needs the initial state (initial_state=)")
         if given is None and options.mode == "gps" and rig.gps is None:
@@ -41,6 +43,7 @@ class Starter:
         self.rig = rig
         self.layout = layout
         self.given = given
+        self.gps_fused = gps_fused
         self._mag: list[tuple[int, np.ndarray]] = []
         self._gps: list[tuple[int, np.ndarray, np.ndarray]] = []
 
@@ -63,7 +66,7 @@ class Starter:
         return InitData(
             "navigator", self.rig.gravity_W,
             ImuArrays(history.t_ns.copy(), history.gyro_B.copy(), history.accel_B.copy()),
-            None, mag, self.rig.mag, gps, self.rig.gps,
+            None, mag, self.rig.mag, gps, self.rig.gps, gps_fused=self.gps_fused,
         )  # fmt: skip
 
     def try_start(self, history: ImuHistory, horizon_ns: int | None) -> InitialState | None:
