@@ -38,20 +38,15 @@ class StereoMatchOptions:
     """Left-right matching: ``method`` "sparse" (KLT), "sgbm" or "elas" (dense);
     ``epipolar_max_px`` row tolerance; disparity range px; SGBM block size; ``klt_levels``
     pyramid levels and ``klt_win_px`` window of the left-right KLT refinement (its start is
-    already close; a small window limits foreground fattening at depth edges. No pyramid level
-    above the base: the seed, the predicted disparity or the row search, is within a pixel or
-    two, and a coarse level only lets KLT drift to another match; with one level EuRoC V1_01
-    micro kept fewer inliers (193 against 210) and OpenCV, which cannot take prebuilt pyramids
-    in its Python binding (``tracking.Pyramid``), spent 0.5 ms more per pair building it);
-    ``fb_check`` adds a right-to-left pass (the row, disparity-range and row-search agreement
-    checks always apply)."""
+    already close; a small window limits foreground fattening at depth edges); ``fb_check`` adds
+    a right-to-left pass (the row, disparity-range and row-search agreement checks always apply)."""
 
     method: str = "sparse"
     epipolar_max_px: float = 1.0
     min_disparity_px: float = 0.3
     max_disparity_px: float = 128.0
     sgbm_block: int = 5
-    klt_levels: int = 0
+    klt_levels: int = 1
     klt_win_px: int = 13
     fb_check: bool = False
 
