@@ -110,7 +110,7 @@ def _truncated_sigma2(e2: F64, Z: F64, r: F64, gate_px: float, s2: float) -> flo
     ``σ² = median(e2) / median(χ² of samples surviving the gate at σ)``, from ``s2``; ``Z``,
     ``r`` from ``_unit_samples``."""
     z2 = (Z * Z).sum(-1)
-    med = float(np.median(e2))
+    med = _median(e2)
     for _ in range(4):
         g = _gate_mask(r, gate_px / np.sqrt(s2))
         if not g.any():
@@ -121,8 +121,22 @@ def _truncated_sigma2(e2: F64, Z: F64, r: F64, gate_px: float, s2: float) -> flo
 
 def _stereo_residuals(q: F64, uvl: F64, uvr: F64, rig: RectifiedStereo) -> F64:
     """Predicted minus measured pixels (M, 4) ``(u_l, v_l, u_r, v_r)`` of moved points ``q``
-    (M, 3) in C_k against the rectified pixels ``uvl``/``uvr`` (M, 2)."""
-    return np.concatenate([rig.project(q) - uvl, rig.project_right(q) - uvr], axis=1)
+    (M, 3) in C_k against the rectified pixels ``uvl``/``uvr`` (M, 2) (eq. 10's projection
+    written out: it runs on every frame, and ``rig.project`` twice cost 3x as much)."""
+    fz = rig.f / q[:, 2]
+    r = np.empty((q.shape[0], 4))
+    r[:, 0] = q[:, 0] * fz + rig.cu - uvl[:, 0]
+    r[:, 1] = q[:, 1] * fz + rig.cv - uvl[:, 1]
+    r[:, 2] = (q[:, 0] - rig.baseline) * fz + rig.cu - uvr[:, 0]
+    r[:, 3] = q[:, 1] * fz + rig.cv - uvr[:, 1]
+    return r
+
+
+def _median(x: F64) -> float:
+    """``np.median`` of a short finite 1-D array, without its generic-axis overhead."""
+    s = np.sort(x)
+    n = s.size
+    return float(0.5 * (s[(n - 1) // 2] + s[n // 2]))
 
 
 def _projection_jacobian(q: F64, f: float, b: float) -> F64:
@@ -145,7 +159,7 @@ def _previous_pixel_factor(PR: F64, p: F64, f: float, b: float) -> tuple[F64, F6
     d p/d u_r = p z/(f b) (along the ray), d p/d u_l = (z/f, 0, 0) - p z/(f b),
     d p/d v_l = (0, z/f, 0)."""
     zp = p[:, 2]
-    ray = np.einsum("mkj,mj->mk", PR, p)
+    ray = (PR @ p[:, :, None])[..., 0]
     a = ray * (zp / (f * b))[:, None]  # residual per px of u_r at k-1
     G = np.empty((p.shape[0], 4, 3))
     G[:, :, 0] = PR[..., 0] * (zp / f)[:, None] - a
@@ -224,8 +238,8 @@ def egomotion_covariance(
         # rᵀ S⁻¹ r with S⁻¹ = I - G (I + GᵀG)⁻¹ Gᵀ (Woodbury: a 3x3 inverse, not a 4x4 one).
         Gst = np.swapaxes(Gs, 1, 2)
         yv = (Gst @ r[..., None])[..., 0]
-        e2 = (r * r).sum(-1) - np.einsum("mi,mij,mj->m", yv, _inv3_sym(Gst @ Gs + _I3), yv)
-        s2 = float(np.median(e2)) / _CHI2_4_MEDIAN
+        e2 = (r * r).sum(-1) - (yv * (_inv3_sym(Gst @ Gs + _I3) @ yv[..., None])[..., 0]).sum(-1)
+        s2 = _median(e2) / _CHI2_4_MEDIAN
         # Only a noise comparable to the gate is truncated noticeably: then correct for it.
         if gate_px is not None and s2 > sigma2 and 4.0 * s2 * _INACTIVE_RATIO > gate_px**2:
             s2 = _truncated_sigma2(e2, *_unit_samples(Gs @ Gst + _I4), gate_px, s2)
@@ -240,7 +254,7 @@ def egomotion_covariance(
         # Features whose 2-D residual spread stays far below the gate keep K = S (and add the
         # plain terms above); the others swap them for the gated ones.
         Gl, Gr = G[:, :2], G[:, 2:]
-        spread = 1.0 + np.maximum(np.einsum("mij,mij->m", Gl, Gl), np.einsum("mij,mij->m", Gr, Gr))
+        spread = 1.0 + np.maximum((Gl * Gl).sum((1, 2)), (Gr * Gr).sum((1, 2)))
         act = np.flatnonzero(spread * _INACTIVE_RATIO > c * c)
         if act.size:
             Ga, Gat, Ja, WJa = G[act], Gt[act], J[act], WJ[act]
