@@ -44,6 +44,13 @@ def _case(name: str) -> Any:
     return next(c for c in CASES if c.name == name)
 
 
+@pytest.fixture(scope="session")
+def golden_tmp(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    # The session's base folder, as tests/test_golden.py and tests/test_navigator.py use: the
+    # 30 s village is simulated once per worker, not once per test.
+    return tmp_path_factory.getbasetemp()
+
+
 @pytest.mark.slow
 def test_images_60_ms_late_give_the_in_order_result(tmp_path: Path) -> None:
     case = _case("euroc_images_3d")
@@ -59,9 +66,9 @@ def test_images_60_ms_late_give_the_in_order_result(tmp_path: Path) -> None:
     assert "dropped" not in late.report
 
 
-def test_jittered_gps_mag_sonar_within_the_window_change_nothing(tmp_path: Path) -> None:
+def test_jittered_gps_mag_sonar_within_the_window_change_nothing(golden_tmp: Path) -> None:
     case = _case("village_3d")
-    ds = load_case_dataset(case, tmp_path)
+    ds = load_case_dataset(case, golden_tmp)
     cfg = replace(case_options(case, ds), duration_s=4.0)
     rng = np.random.default_rng(5)
     jitter = rng.integers(0, 90_000_000, 100_000)
@@ -71,9 +78,9 @@ def test_jittered_gps_mag_sonar_within_the_window_change_nothing(tmp_path: Path)
     assert late.report["measurements"] == in_order.report["measurements"]
 
 
-def test_beyond_the_window_frames_are_dropped_and_counted(tmp_path: Path) -> None:
+def test_beyond_the_window_frames_are_dropped_and_counted(golden_tmp: Path) -> None:
     case = _case("village_3d")
-    ds = load_case_dataset(case, tmp_path)
+    ds = load_case_dataset(case, golden_tmp)
     cfg = replace(case_options(case, ds), duration_s=8.0, buffer=BufferOptions(window_s=0.05))
     late = _run(ds, cfg, {_FRAME: lambda i: 60_000_000 if i % 2 else 0})
     in_order = _run(ds, cfg, {})

@@ -218,12 +218,14 @@ def simulate(config: SimConfig, out_dir: Path | str, overwrite: bool = False) ->
     Returns the data-set root ``out_dir``. Raises ``ConfigError`` for invalid configurations
     and ``OutputError`` when ``out_dir`` already holds a ``mav0/`` and not ``overwrite``.
     """
-    scene = build_scene(config)
+    config.validate()
     out = Path(out_dir)
+    # Refused before the scene is built: the village alone takes about a second.
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out} exists and is not a folder")
     if (out / "mav0").exists() and not overwrite:
         raise OutputError(f"{out} already holds a data set (mav0/); overwrite it explicitly")
+    scene = build_scene(config)
     with staging_dir(out) as stage:
         streams = _write_dataset(scene, stage)
         write_marker(stage / "mav0", streams, writer="svains simulate")

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -56,10 +57,13 @@ class Solid:
 
 @dataclass
 class World:
-    """Ground (periodic tile), solids, faces and landmarks (ids = row index)."""
+    """Ground (periodic tile), solids, faces and landmarks (ids = row index).
+
+    ``ground_pixels()`` composes the ground tile; :attr:`ground_texture` calls it once, on first
+    use: a data set without images never pays for the 2048² tile."""
 
     ground_height: float
-    ground_texture: U8
+    ground_pixels: Callable[[], U8]
     ground_texel_m: float
     ground_origin_W: F64
     solids: list[Solid]
@@ -70,6 +74,11 @@ class World:
     moving_amplitude: float = 0.0
     moving_period_s: float = 1.0
     _spheres: tuple[F64, F64] | None = field(default=None, repr=False)
+
+    @cached_property
+    def ground_texture(self) -> U8:
+        """The periodic ground tile (H, W) uint8."""
+        return self.ground_pixels()
 
     def moving_offset_W(self, t_s: float) -> F64:
         """Displacement (3,) m of the moving solid at time ``t_s``: a walk back and forth.

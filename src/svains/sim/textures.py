@@ -3,10 +3,13 @@
 Texture coordinates ``st`` = (column s, row t) with texel centres at integers, so the boundary
 between texels ``i - 1`` and ``i`` is at ``i - 0.5``. Every generator returns the texture
 (H, W) uint8 and the corners (K, 2) float64 that make good landmarks (L-corners of high-contrast
-rectangles: window frames, paving stones, checker squares, pole bands). Pure numpy.
+rectangles: window frames, paving stones, checker squares, pole bands); the ground tile's texture
+comes as a function that composes it on demand. Pure numpy.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -18,8 +21,13 @@ U8 = NDArray[np.uint8]
 def periodic_noise(shape: tuple[int, int], rng: np.random.Generator, cells: int) -> F64:
     """Smooth periodic value noise (H, W) in [-1, 1]: a ``cells``-periodic random grid bilinearly
     upsampled with wrap-around, so tiles repeat seamlessly."""
+    return _upsample_periodic(rng.uniform(-1.0, 1.0, (cells, cells)), shape)
+
+
+def _upsample_periodic(grid: F64, shape: tuple[int, int]) -> F64:
+    """The periodic grid (cells, cells) bilinearly upsampled to (H, W) with wrap-around."""
     h, w = shape
-    grid = rng.uniform(-1.0, 1.0, (cells, cells))
+    cells = grid.shape[0]
     # separable bilinear interpolation: along x on the small grid, then along y
     xs = np.arange(w) * cells / w
     x0 = np.floor(xs).astype(int)
@@ -28,18 +36,32 @@ def periodic_noise(shape: tuple[int, int], rng: np.random.Generator, cells: int)
     ys = np.arange(h) * cells / h
     y0 = np.floor(ys).astype(int)
     fy = (ys - y0)[:, None]
-    return gx[y0] * (1 - fy) + gx[(y0 + 1) % cells] * fy
+    # In place (same operations, same order): the full-size temporaries dominate the cost.
+    out = gx[y0]
+    out *= 1 - fy
+    upper = gx[(y0 + 1) % cells]
+    upper *= fy
+    out += upper
+    return out
 
 
-def _fbm(shape: tuple[int, int], rng: np.random.Generator, base: int, octaves: int) -> F64:
-    """Fractal sum of periodic noises (H, W), roughly in [-1, 1]."""
+def _fbm(shape: tuple[int, int], grids: list[F64]) -> F64:
+    """Fractal sum (H, W), roughly in [-1, 1], of the periodic noises of ``grids`` (octaves,
+    coarse to fine, from :func:`_fbm_grids`)."""
     out = np.zeros(shape)
     amp, total = 1.0, 0.0
-    for k in range(octaves):
-        out += amp * periodic_noise(shape, rng, base * 2**k)
+    for grid in grids:
+        octave = _upsample_periodic(grid, shape)
+        octave *= amp
+        out += octave
         total += amp
         amp *= 0.65  # slow decay keeps fine grain for the near ground
     return out / total
+
+
+def _fbm_grids(rng: np.random.Generator, base: int, octaves: int) -> list[F64]:
+    """The random grids of :func:`_fbm`'s octaves (``base * 2**k`` cells)."""
+    return [rng.uniform(-1.0, 1.0, (base * 2**k, base * 2**k)) for k in range(octaves)]
 
 
 def _rect_corners(s0: F64, t0: F64, s1: F64, t1: F64) -> F64:
@@ -52,12 +74,17 @@ def _rect_corners(s0: F64, t0: F64, s1: F64, t1: F64) -> F64:
     ).reshape(-1, 2)
 
 
-def ground_texture(size_px: int, rng: np.random.Generator, cell_px: int) -> tuple[U8, F64]:
+def ground_tile(
+    size_px: int, rng: np.random.Generator, cell_px: int
+) -> tuple[Callable[[], U8], F64]:
     """Square periodic ground tile: grassy fractal noise plus paving stones (one per cell of
-    ``cell_px`` with probability 0.45), stones' corners returned."""
+    ``cell_px`` with probability 0.45). Returns the stones' corners (K, 2) and a function that
+    composes the texture (``size_px``², uint8). Every random draw happens here, so the tile does
+    not depend on whether (or when) it is composed; its pixels, the costly part, only images
+    need."""
     n = size_px // cell_px
-    img = 110.0 + 45.0 * _fbm((size_px, size_px), rng, 8, 7)
-    img += 3.0 * rng.standard_normal((size_px, size_px))
+    grids = _fbm_grids(rng, 8, 7)
+    grain = rng.standard_normal((size_px, size_px))
     occupied = rng.random((n, n)) < 0.45
     ci, cj = np.nonzero(occupied)
     margin = cell_px // 8
@@ -66,11 +93,18 @@ def ground_texture(size_px: int, rng: np.random.Generator, cell_px: int) -> tupl
     s0 = cj * cell_px + margin + rng.integers(0, cell_px - 2 * margin - w + 1)
     t0 = ci * cell_px + margin + rng.integers(0, cell_px - 2 * margin - h + 1)
     tones = rng.choice([35.0, 60.0, 190.0, 220.0], len(ci))
-    for k in range(len(ci)):
-        img[t0[k] : t0[k] + h[k], s0[k] : s0[k] + w[k]] = tones[k] + rng.normal(0, 4.0)
+    stones = [tones[k] + rng.normal(0, 4.0) for k in range(len(ci))]
     corners = _rect_corners(s0.astype(float), t0.astype(float), (s0 + w).astype(float),
                             (t0 + h).astype(float))
-    return np.clip(img, 0, 255).astype(np.uint8), corners
+
+    def compose() -> U8:
+        img = 110.0 + 45.0 * _fbm((size_px, size_px), grids)
+        img += 3.0 * grain
+        for k in range(len(ci)):
+            img[t0[k] : t0[k] + h[k], s0[k] : s0[k] + w[k]] = stones[k]
+        return np.clip(img, 0, 255).astype(np.uint8)
+
+    return compose, corners
 
 
 def wall_texture(

@@ -29,7 +29,7 @@ from svains.sim.solids import (
 from svains.sim.textures import (
     band_texture,
     checker_texture,
-    ground_texture,
+    ground_tile,
     object_texture,
     roof_texture,
     wall_texture,
@@ -201,7 +201,7 @@ def build_world(cfg: WorldConfig, path_xy: F64, seed: int, ground_height: float 
             crate(c, yaw, size, clutter, moving=True)
 
     # own stream: the ground does not change when objects are added or removed
-    tex, st = ground_texture(GROUND_TILE_PX, np.random.default_rng([seed, 1]), GROUND_CELL_PX)
+    tex, st = ground_tile(GROUND_TILE_PX, np.random.default_rng([seed, 1]), GROUND_CELL_PX)
     origin = np.array([lo[0] - 40.0, lo[1] - 40.0, ground_height])
     ground_pts = _tile_landmarks(st, origin, lo - 25.0, hi + 25.0)
     world = World(ground_height, tex, GROUND_TEXEL_M, origin, solids, faces,
