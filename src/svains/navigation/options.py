@@ -31,16 +31,7 @@ class FilterOptions:
     updater (``FrameContext.extra``) instead of fusing them first.
     """
 
-    # Sigma points sit at alpha·sqrt(n) sigma: n = 24 with a clone, so 1.47 sigma at 0.3 (near the
-    # sqrt(3) that matches a Gaussian's 4th moment) against 4.9 at 1.0, whose points sample the
-    # attitude nonlinearity far out when the attitude covariance is wide. Measured (issue 12,
-    # bench/faults.py --seeds 0-7, 3d after a 5 s IMU gap): NEES 14.0 -> 12.0, RMSE 2.08x ->
-    # 1.77x clean; with the gap's gyro variance x10 (seeds 0-3) NEES 108 -> 11, 5.6x -> 1.8x.
-    # Unchanged at 1e-2 relative: every other fault class, paper_ordering (tc/3d ATE 0.095 m,
-    # NEES 11.8 -> 11.7), KITTI 3d (1.41 %, NEES 67.0), KITTI GPS outages (0.69/0.49 m).
-    # The centre weights turn negative (Wm0 = -10.1, Wc0 = -7.2): no covariance lost positive
-    # definiteness in any of these runs. 0.1 measured the same within noise, with Wm0 = -99.
-    alpha: float = 0.3
+    alpha: float = 1.0
     beta: float = 2.0
     kappa: float = 0.0
     max_predict_steps: int = 20
