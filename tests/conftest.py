@@ -1,10 +1,24 @@
-"""Shared test fixtures: paths to the real data beside the project."""
+"""Shared test fixtures: paths to the real data beside the project.
+
+Every numerical library runs one thread in the tests, as svains runs them by default
+(``svains.threads``): two pytest-xdist workers on two cores would otherwise each start a
+second BLAS/OpenMP thread and oversubscribe the machine.
+"""
 
 from __future__ import annotations
 
-from pathlib import Path
+import os
 
-import pytest
+for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS", "OMP_NUM_THREADS",
+             "OPENCV_FOR_THREADS_NUM"):  # fmt: skip
+    os.environ.setdefault(_var, "1")
+
+from pathlib import Path  # noqa: E402
+
+import pytest  # noqa: E402
+from threadpoolctl import threadpool_limits  # noqa: E402
+
+threadpool_limits(limits=1)  # libraries loaded before this file (none expected) too
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = PROJECT_ROOT.parent / "shared" / "data"

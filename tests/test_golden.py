@@ -12,14 +12,6 @@ from _golden_cases import CASES, GOLDEN_DIR, Case, run_case, summarise
 from svains.models.state import P
 
 
-@pytest.fixture(autouse=True)
-def _recorded_threads(monkeypatch: pytest.MonkeyPatch) -> None:
-    # The goldens were recorded with the BLAS libraries' default threads; the replay now limits
-    # them (SVAINS_THREADS, default 1), which rounds euroc_3d_clone's covariance differently at
-    # 2.5e-7 relative (3.7e-14 absolute), past this file's 1e-7. 0 reproduces the recording.
-    monkeypatch.setenv("SVAINS_THREADS", "0")
-
-
 @pytest.fixture(scope="session")
 def golden_tmp(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return tmp_path_factory.getbasetemp()  # shared: the village is simulated once per session

@@ -1,6 +1,7 @@
 """Record ``tests/golden/*.npz`` from the current run entry (run once, on purpose).
 
-Usage: ``.venv/bin/python tests/golden/record.py``.
+Usage: ``.venv/bin/python tests/golden/record.py`` (one thread per numerical library, as the tests
+and svains run by default: ``SVAINS_THREADS`` unset or 1).
 """
 
 from __future__ import annotations
