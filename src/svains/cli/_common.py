@@ -22,7 +22,7 @@ import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Annotated, Any, NoReturn
 
 import typer
 from typer.core import TyperGroup
@@ -151,3 +151,17 @@ class OneLineErrorGroup(TyperGroup):
             )
             sys.exit(EXIT_BAD_INPUT)
         sys.exit(rv if isinstance(rv, int) else EXIT_OK)
+
+
+# Options that ``run`` and ``compare`` share, spelled once.
+SonarOption = Annotated[
+    bool | None, typer.Option("--sonar/--no-sonar", help="Fuse sonar.")
+]
+GpsOutageOption = Annotated[
+    list[str] | None,
+    typer.Option("--gps-outage", help="START:DURATION [s from the first IMU sample fed] "
+                 "without GPS; repeatable."),
+]
+GpsUntilOption = Annotated[
+    float | None, typer.Option("--gps-until", help="No GPS after S seconds.")
+]

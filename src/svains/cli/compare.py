@@ -22,13 +22,11 @@ def build_options(
     """``RunConfig`` from the command-line switches (``settings``: ``--set`` items; ``calib``,
     ``imu_calib``: Kalibr files, kept absolute in ``replay``; ``gps_outages``: START:DURATION
     texts)."""
-    from svains.cli.run_config import build_config, kalibr_switches, parse_outage
+    from svains.cli.run_config import build_config, gps_off_switches, kalibr_switches
 
     switches = {"model": model, "init.mode": init, "use_gps": gps, "use_mag": mag,
                 "use_sonar": sonar, "duration_s": duration, "vision.source": source,
-                "gps_outages": None if not gps_outages else [list(parse_outage(g))
-                                                             for g in gps_outages],
-                "gps_until_s": gps_until,
+                **gps_off_switches(gps_outages, gps_until),
                 **kalibr_switches(calib, imu_calib)}  # fmt: skip
     return build_config(config_file, settings, switches)
 
@@ -84,15 +82,9 @@ def compare(
     ] = "groundtruth",
     gps: Annotated[bool, typer.Option("--gps/--no-gps", help="Fuse GPS when present.")] = True,
     mag: Annotated[bool, typer.Option("--mag/--no-mag", help="Fuse magnetometer.")] = True,
-    sonar: Annotated[bool | None, typer.Option("--sonar/--no-sonar", help="Fuse sonar.")] = None,
-    gps_outage: Annotated[
-        list[str] | None,
-        typer.Option("--gps-outage", help="START:DURATION [s from the first IMU sample fed] "
-                     "without GPS; repeatable."),
-    ] = None,
-    gps_until: Annotated[
-        float | None, typer.Option("--gps-until", help="No GPS after S seconds.")
-    ] = None,
+    sonar: _common.SonarOption = None,
+    gps_outage: _common.GpsOutageOption = None,
+    gps_until: _common.GpsUntilOption = None,
     duration: Annotated[
         float | None,
         typer.Option("--duration", help="Use only the first S seconds.",

@@ -11,7 +11,14 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from svains.cli._common import check_out_dir, fail, positive_finite
+from svains.cli._common import (
+    GpsOutageOption,
+    GpsUntilOption,
+    SonarOption,
+    check_out_dir,
+    fail,
+    positive_finite,
+)
 from svains.errors import SvainsError
 
 _SHOWN = ("ate_rmse_m", "position_rmse_m", "velocity_rmse_mps", "attitude_rmse_deg", "nees_mean",
@@ -35,7 +42,7 @@ def run(
     ] = None,
     gps: Annotated[bool | None, typer.Option("--gps/--no-gps", help="Fuse GPS.")] = None,
     mag: Annotated[bool | None, typer.Option("--mag/--no-mag", help="Fuse magnetometer.")] = None,
-    sonar: Annotated[bool | None, typer.Option("--sonar/--no-sonar", help="Fuse sonar.")] = None,
+    sonar: SonarOption = None,
     start: Annotated[
         float | None, typer.Option("--start", help="Skip the first S seconds of the data.")
     ] = None,
@@ -44,14 +51,8 @@ def run(
         typer.Option("--duration", help="Stop S seconds after the start.",
                      callback=positive_finite),
     ] = None,
-    gps_outage: Annotated[
-        list[str] | None,
-        typer.Option("--gps-outage", help="START:DURATION [s from the first IMU sample fed] "
-                     "without GPS; repeatable."),
-    ] = None,
-    gps_until: Annotated[
-        float | None, typer.Option("--gps-until", help="No GPS after S seconds.")
-    ] = None,
+    gps_outage: GpsOutageOption = None,
+    gps_until: GpsUntilOption = None,
     features: Annotated[
         bool | None,
         typer.Option(
@@ -110,8 +111,8 @@ def run(
     from svains.cli.run_config import (
         build_config,
         effective_config_text,
+        gps_off_switches,
         kalibr_switches,
-        parse_outage,
     )
     from svains.datasets import load_dataset
     from svains.evaluation.run import run_method
@@ -129,10 +130,9 @@ def run(
         switches = {
             "method": method, "model": model, "init.mode": init, "use_gps": gps,
             "use_mag": mag, "use_sonar": sonar, "duration_s": duration, "replay.start_s": start,
-            "gps_until_s": gps_until, "vision.rotation": rotation,
+            "vision.rotation": rotation,
             "vision.source": {None: None, True: "features", False: "images"}[features],
-            "gps_outages": None if not gps_outage else [list(parse_outage(g))
-                                                        for g in gps_outage],
+            **gps_off_switches(gps_outage, gps_until),
             "replay.synthetic_features_hz": synthetic_features,
             **kalibr_switches(calib, imu_calib),
         }  # fmt: skip

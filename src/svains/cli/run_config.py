@@ -28,6 +28,17 @@ def parse_outage(text: str) -> tuple[float, float]:
         raise ConfigError(f"--gps-outage expects START:DURATION in seconds, got {text!r}") from exc
 
 
+def gps_off_switches(
+    gps_outage: list[str] | None, gps_until: float | None
+) -> dict[str, Any]:
+    """``gps_outages``/``gps_until_s`` switches from ``--gps-outage`` (repeatable) and
+    ``--gps-until`` (``None`` = not given)."""
+    return {
+        "gps_outages": None if not gps_outage else [list(parse_outage(g)) for g in gps_outage],
+        "gps_until_s": gps_until,
+    }
+
+
 def kalibr_switches(calib: Path | None, imu_calib: Path | None) -> dict[str, str | None]:
     """``replay.calib``/``replay.imu_calib`` switches from ``--calib``/``--imu-calib``: absolute
     paths, so that ``OUT/config.yaml`` finds the files from any working directory."""

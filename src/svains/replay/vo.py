@@ -113,8 +113,8 @@ def run(
     t_list: list[int] = []
     kind = config.vision.source
     # ``--start``: the same origin as the filter methods' replay (the first IMU sample).
-    t_first = int(dataset.imu.t_ns[0]) if dataset.imu is not None else -(2**62)
-    t0 = t_first + int(config.replay.start_s * 1e9)
+    assert dataset.imu is not None  # ``replay`` refuses a data set without IMU first
+    t0 = int(dataset.imu.t_ns[0]) + int(config.replay.start_s * 1e9)
     for i, (_, tr) in enumerate(_frame_tracks(dataset, config, t0)):
         if tr is None:
             continue
