@@ -186,3 +186,26 @@ def test_stereo_pairs_drop_unpaired(tmp_path: Path) -> None:
     t, il, ir = stereo_pairs(ds)
     assert t.size == 3 and il.tolist() == [0, 2, 3] and ir.tolist() == [0, 1, 2]
     np.testing.assert_array_equal(ds.left.t_ns[il], ds.right.t_ns[ir])
+
+
+def test_png_images_are_stored_without_deflate(tmp_path: Path) -> None:
+    """Written PNGs use zlib level 0 (EuRoC's choice): readers skip the inflate cost."""
+    import struct
+    import zlib
+
+    from svains.datasets._image_io import read_grey, write_grey
+
+    img = np.tile(np.arange(64, dtype=np.uint8), (48, 1))  # very compressible on purpose
+    write_grey(tmp_path / "a.png", img)
+    data = (tmp_path / "a.png").read_bytes()
+    idat, pos = b"", 8
+    while pos < len(data):
+        (length,) = struct.unpack(">I", data[pos : pos + 4])
+        if data[pos + 4 : pos + 8] == b"IDAT":
+            idat += data[pos + 8 : pos + 8 + length]
+        pos += 12 + length
+    # zlib header FLEVEL bits (0 = fastest/stored) and the first deflate block type (00 = stored).
+    assert idat[1] >> 6 == 0
+    assert idat[2] & 0b110 == 0
+    assert len(zlib.decompress(idat)) == img.shape[0] * (img.shape[1] + 1)
+    np.testing.assert_array_equal(read_grey(tmp_path / "a.png"), img)

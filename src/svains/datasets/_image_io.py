@@ -21,13 +21,19 @@ def read_grey(path: Path) -> NDArray[np.uint8]:
 
 
 def write_grey(path: Path, image: NDArray[np.uint8]) -> None:
-    """Encode an 8-bit grey (H, W) image to ``path`` (format from the suffix, PNG lossless)."""
+    """Encode an 8-bit grey (H, W) image to ``path`` (format from the suffix, PNG lossless).
+
+    PNG is stored without deflate, as EuRoC stores its images: a rendered 752x480 frame then
+    decodes in ~1.4 ms instead of ~3.4 ms (inflate dominates), at about twice the file size.
+    A 20 Hz stereo replay decodes 40 images per second, so this is CPU every reader saves.
+    """
     import cv2
 
     img = np.asarray(image)
     if img.dtype != np.uint8 or img.ndim != 2:
         raise ValueError(f"expected a uint8 (H, W) image, got {img.dtype} {img.shape}")
-    if not cv2.imwrite(str(path), img):
+    params = [cv2.IMWRITE_PNG_COMPRESSION, 0] if Path(path).suffix.lower() == ".png" else []
+    if not cv2.imwrite(str(path), img, params):
         raise DatasetError(f"could not write image: {path}")
 
 
