@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from svains.filter.ukf import UKF, UpdateStats
+from svains.models.clones import CLONE_JITTER, CloneManifold
 from svains.models.gps import gps_position, gps_velocity
 from svains.models.state import DP, DTH, DV, P, V
 from svains.navigation.consistency import ConsistencyMonitor, ConsistencyOptions, RecoveryAction
@@ -182,8 +183,15 @@ class Recovery:
 
     def reset_from_gps(self, ukf: UKF, cal: GpsCalib, p_W_G: F64, v_W_G: F64 | None) -> None:
         """Position (and velocity, when the fix has one) from the GPS fix; their covariance
-        from its noise, uncorrelated with the rest of the state."""
+        from its noise, uncorrelated with the rest of the state.
+
+        Pose clones (``models.clones``) move with the position: the filter had lost the absolute
+        position, not the motion since each clone, so each clone is shifted by the same amount
+        and its position error set equal to the new one (``shift_clones``). Otherwise the next
+        vision update would see the reset's jump as motion between two frames.
+        """
         x = ukf.x.copy()
+        p_old = x[P].copy()
         x[P] = 0.0
         x[P] = p_W_G - gps_position(x[None], cal.p_B_G)[0]
         idx = [*range(DP.start, DP.stop)]
@@ -197,11 +205,29 @@ class Recovery:
         Pm[idx, :] = 0.0
         Pm[:, idx] = 0.0
         Pm[idx, idx] = var
+        if isinstance(ukf.manifold, CloneManifold) and ukf.manifold.n_clones:
+            x, Pm = shift_clones(x, Pm, ukf.manifold, x[P] - p_old)
         ukf.x, ukf.P = x, Pm
         self.reset_pending = False
 
     def summary(self) -> dict[str, object]:
         return self.monitor.summary()
+
+
+def shift_clones(x: F64, P_: F64, manifold: CloneManifold, dp_W: F64) -> tuple[F64, F64]:
+    """Clone positions moved by ``dp_W`` (3, m), their position errors made equal to the
+    current position's (rows, columns and the block among them copied from ``δp``, plus the
+    clone jitter): ``x`` (nx,), ``P`` (ndx, ndx) -> new copies. Clone attitudes are kept."""
+    x, P_ = x.copy(), P_.copy()
+    dp = np.arange(P_.shape[0])[DP]
+    rows = [manifold.tangent(i).start + np.arange(3) for i in range(manifold.n_clones)]
+    for i, r in enumerate(rows):
+        x[manifold.columns(i)[0]] += dp_W
+        P_[r, :] = P_[dp, :]
+        P_[:, r] = P_[:, dp]
+    for r in rows:  # with the copies above, every pair of the group now holds P[δp, δp]
+        P_[r, r] += CLONE_JITTER
+    return x, 0.5 * (P_ + P_.T)
 
 
 def inflate(ukf: UKF, action: RecoveryAction) -> None:

@@ -1,0 +1,52 @@
+"""A GPS reset of a lost filter moves the pose clones with the position (fault handling)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from svains.filter.sigma_points import MerweScaledSigmaPoints
+from svains.filter.ukf import UKF
+from svains.models.clones import CLONE_JITTER, CloneManifold, augment_clone
+from svains.models.manifold import NavManifold
+from svains.models.state import BIASED, DP
+from svains.navigation.fault_handling import RateLimitedLog, Recovery
+from svains.navigation.options import FaultOptions
+from svains.sensors.types import GpsCalib
+
+
+def _ukf_with_two_clones() -> UKF:
+    rng = np.random.default_rng(7)
+    x = rng.normal(size=BIASED.nx)
+    x[6:10] /= np.linalg.norm(x[6:10])
+    A = rng.normal(size=(BIASED.ndx, BIASED.ndx)) * 0.1
+    P = A @ A.T + 1e-3 * np.eye(BIASED.ndx)
+    m = CloneManifold(NavManifold(BIASED), 0)
+    x, P, m = augment_clone(x, P, m)
+    x[0:3] += [2.0, -1.0, 0.5]  # the body moved on after the first clone
+    x, P, m = augment_clone(x, P, m)
+    x[0:3] += [1.0, 0.5, 0.0]
+    return UKF(m, MerweScaledSigmaPoints(m.ndx), x, P)
+
+
+def test_reset_shifts_clones_keeps_relative_motion_and_correlates_their_errors() -> None:
+    ukf = _ukf_with_two_clones()
+    m = ukf.manifold
+    before = ukf.x.copy()
+    cal = GpsCalib(np.zeros(3), 1.0, 0.5, 0.1)
+    rec = Recovery(FaultOptions(), RateLimitedLog(1.0))
+    p_fix = before[0:3] + np.array([30.0, -40.0, 5.0])  # the filter was 50 m off
+    rec.reset_from_gps(ukf, cal, p_fix, None)
+    np.testing.assert_allclose(ukf.x[0:3], p_fix)
+    for i in range(2):
+        cp, cq = m.columns(i)
+        # The motion since each clone is what it was; the clone attitude is untouched.
+        np.testing.assert_allclose(ukf.x[0:3] - ukf.x[cp], before[0:3] - before[cp], atol=1e-12)
+        np.testing.assert_array_equal(ukf.x[cq], before[cq])
+        t = m.tangent(i)
+        r = np.arange(t.start, t.start + 3)
+        dp = np.arange(ukf.P.shape[0])[DP]
+        np.testing.assert_allclose(ukf.P[np.ix_(r, r)], 0.25 * np.eye(3) + CLONE_JITTER * np.eye(3))
+        np.testing.assert_allclose(ukf.P[np.ix_(r, dp)], 0.25 * np.eye(3))
+    np.testing.assert_allclose(ukf.P, ukf.P.T)
+    assert np.linalg.eigvalsh(ukf.P).min() > 0.0  # the sigma points still have a factor
+    assert not rec.reset_pending
