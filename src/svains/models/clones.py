@@ -21,6 +21,7 @@ points: the relative motion between the clone time and now is then a function of
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,11 +47,12 @@ class CloneManifold:
     n_clones: int = 0
     n_calib: int = 0
 
-    @property
+    # Cached (the dataclass is frozen): read several times per sigma-point operation.
+    @cached_property
     def nx(self) -> int:
         return self.nav.nx + self.n_calib + CLONE_NX * self.n_clones
 
-    @property
+    @cached_property
     def ndx(self) -> int:
         return self.nav.ndx + self.n_calib + CLONE_NDX * self.n_clones
 
