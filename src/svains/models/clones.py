@@ -164,11 +164,11 @@ def augment_clone(
             f"x {x.shape} / P {P.shape} do not match nx={manifold.nx}, ndx={manifold.ndx}"
         )
     n = manifold.ndx
-    sel = np.r_[np.arange(n)[DP], np.arange(n)[DTH]]  # the pose's rows of the tangent
-    J = np.zeros((n + CLONE_NDX, n))
-    J[:n] = np.eye(n)
-    J[n + np.arange(CLONE_NDX), sel] = 1.0
-    P_new = J @ P @ J.T
+    # ``J P J^T`` with J the identity stacked on the pose's rows of the tangent: J only
+    # selects rows, so indexing gives the same numbers without the two products.
+    rows = np.arange(n)
+    J_rows = np.concatenate([rows, rows[DP], rows[DTH]])
+    P_new = P[np.ix_(J_rows, J_rows)]
     P_new[n:, n:] += jitter * np.eye(CLONE_NDX)
     x_new = np.concatenate([x, x[P_SLICE], x[Q_SLICE]])
     return x_new, 0.5 * (P_new + P_new.T), manifold.with_clones(manifold.n_clones + 1)
