@@ -141,7 +141,8 @@ def bench_method(data: Path, method: str, repeat: int, env: dict[str, str], para
         print(f"3d {'with' if op['motion_prior'] else 'without'} the IMU motion prior: position "
               f"RMSE {op['rmse_m']:.4f} m (default: {ex['rmse_m']:.4f} m)")
         print(f"3d filter side only (recorded tracks replayed, {ex['frames']} frames): "
-              f"{ex['replay_cpu_ms']:.2f} ms CPU, {ex['replay_wall_ms']:.2f} ms wall per frame")
+              f"{ex['replay_cpu_ms']:.2f} ms main-thread CPU, {ex['replay_wall_ms']:.2f} ms "
+              "wall per frame")
     return out
 
 

@@ -29,9 +29,10 @@ def qmul(p: F64, q: F64) -> F64:
     )
 
 
-def left_matrix(p: F64) -> F64:
+def left_matrix(p: F64 | tuple[float, float, float, float]) -> F64:
     """4x4 matrix ``L(p)`` with ``p ⊗ q = L(p) q`` for one quaternion ``p`` (4,)."""
-    w, x, y, z = p
+    # Python floats: building the array from NumPy scalars costs several times more.
+    w, x, y, z = p.tolist() if isinstance(p, np.ndarray) else p
     return np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
 
 

@@ -21,6 +21,7 @@ points: the relative motion between the clone time and now is then a function of
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,11 +47,12 @@ class CloneManifold:
     n_clones: int = 0
     n_calib: int = 0
 
-    @property
+    # Cached (the dataclass is frozen): read several times per sigma-point operation.
+    @cached_property
     def nx(self) -> int:
         return self.nav.nx + self.n_calib + CLONE_NX * self.n_clones
 
-    @property
+    @cached_property
     def ndx(self) -> int:
         return self.nav.ndx + self.n_calib + CLONE_NDX * self.n_clones
 
@@ -162,11 +164,11 @@ def augment_clone(
             f"x {x.shape} / P {P.shape} do not match nx={manifold.nx}, ndx={manifold.ndx}"
         )
     n = manifold.ndx
-    sel = np.r_[np.arange(n)[DP], np.arange(n)[DTH]]  # the pose's rows of the tangent
-    J = np.zeros((n + CLONE_NDX, n))
-    J[:n] = np.eye(n)
-    J[n + np.arange(CLONE_NDX), sel] = 1.0
-    P_new = J @ P @ J.T
+    # ``J P J^T`` with J the identity stacked on the pose's rows of the tangent: J only
+    # selects rows, so indexing gives the same numbers without the two products.
+    rows = np.arange(n)
+    J_rows = np.concatenate([rows, rows[DP], rows[DTH]])
+    P_new = P[np.ix_(J_rows, J_rows)]
     P_new[n:, n:] += jitter * np.eye(CLONE_NDX)
     x_new = np.concatenate([x, x[P_SLICE], x[Q_SLICE]])
     return x_new, 0.5 * (P_new + P_new.T), manifold.with_clones(manifold.n_clones + 1)

@@ -7,6 +7,7 @@ quaternion replaced by the body rotation vector ``δθ_B``: ``q = q̂ ⊗ Exp(δ
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,11 +26,12 @@ class NavManifold:
 
     layout: StateLayout
 
-    @property
+    # Cached: read several times per sigma-point operation.
+    @cached_property
     def nx(self) -> int:
         return self.layout.nx
 
-    @property
+    @cached_property
     def ndx(self) -> int:
         return self.layout.ndx
 
@@ -82,5 +84,5 @@ def quat_mean(q: F64, w: F64) -> F64:
 
 def _box_minus(qT: F64, q_ref: F64) -> F64:
     """``Log(q_ref^-1 ⊗ q)`` for component-first ``qT`` (4, S) -> (3, S)."""
-    conj = np.array([q_ref[0], -q_ref[1], -q_ref[2], -q_ref[3]])
-    return qlog(left_matrix(conj) @ qT)
+    w, x, y, z = q_ref.tolist()
+    return qlog(left_matrix((w, -x, -y, -z)) @ qT)

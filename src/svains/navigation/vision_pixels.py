@@ -63,6 +63,15 @@ class VisionCounters:
         return {f.name: int(getattr(self, f.name)) for f in fields(self)}
 
 
+def _member(ids: I64, sorted_ids: I64) -> NDArray[np.bool_]:
+    """``np.isin(ids, sorted_ids)`` for ascending ``sorted_ids`` (a binary search: several times
+    cheaper than ``isin`` at a few hundred tracks)."""
+    if sorted_ids.size == 0:
+        return np.zeros(ids.shape, bool)
+    pos = np.minimum(np.searchsorted(sorted_ids, ids), sorted_ids.size - 1)
+    return sorted_ids[pos] == ids
+
+
 def _subsample(idx: I64, n_max: int | None) -> I64:
     """At most ``n_max`` of ``idx``, evenly spread (tracks are ordered by id, i.e. by age)."""
     if n_max is None or idx.size <= n_max:
@@ -109,7 +118,7 @@ class PixelUpdater:
             return True
         if last is None or last[0] != tr.t_prev_ns:
             return True
-        return ~np.isin(tr.track_id, last[1])
+        return ~_member(tr.track_id, last[1])
 
     def _near(self, tr: StereoTracks | None) -> NDArray[np.bool_] | bool:
         """Features (M,) whose disparity one frame earlier (k-2) is at least
@@ -224,7 +233,7 @@ class PixelUpdater:
         if stats.accepted:
             c.frames_fused += 1
             c.features_fused += int(keep.sum())
-            self._fused = (tr.t_ns, tr.track_id[idx[kept]])
+            self._fused = (tr.t_ns, np.sort(tr.track_id[idx[kept]]))
         else:
             c.frames_rejected += 1
         return stats
