@@ -17,6 +17,9 @@ F64 = NDArray[np.float64]
 
 _EPS_ROT = 1e-6  # rad
 _EPS_POS = 1e-6  # m
+# Below this many σ of disparity the second difference of the depth ``f b / d`` departs from
+# its second-order term by more than 3 % (``d² / (d² - σ²)``): no bias correction there.
+MIN_BIAS_DISPARITY_SIGMAS = 6.0
 
 
 def feature_gate(
@@ -132,7 +135,8 @@ def previous_pixel_bias(
     prediction from noisy pixels overshoots the feature's flow on average; unremoved, the filter
     reads it as motion (the simulated village, 3d, 0.5 px: the along-track speed came out 0.5 %
     low on all of 8 seeds, the position NEES along track 4x the cross-track one). Non-finite
-    entries (a perturbed disparity at or below zero) are 0: such features are gated out anyway.
+    entries are 0, and so is the bias of features whose k-1 disparity is below
+    ``MIN_BIAS_DISPARITY_SIGMAS`` σ, where a second-order expansion does not hold.
     """
     base = h_prev(uvl0, uvr0)
     bias = np.zeros_like(base)
@@ -142,6 +146,8 @@ def previous_pixel_bias(
         plus[which][:, col] += sigma_px
         minus[which][:, col] -= sigma_px
         bias += 0.5 * (h_prev(*plus) + h_prev(*minus) - 2.0 * base)
+    valid = uvl0[:, 0] - uvr0[:, 0] >= MIN_BIAS_DISPARITY_SIGMAS * sigma_px  # (M,)
+    bias = np.where(np.repeat(valid, 4), bias, 0.0)
     return np.where(np.isfinite(bias), bias, 0.0)
 
 

@@ -87,7 +87,8 @@ class PixelUpdater:
         self.rig = self.source.rig
         std = options.pixel_noise_std
         std = self.source.pixel_noise_std if std is None else std
-        self.sigma_px = max(float(std), 0.05) * options.noise_scale()
+        self._pixel_std_px = max(float(std), 0.05)  # the pixels' own noise, unscaled
+        self.sigma_px = self._pixel_std_px * options.noise_scale()
         self.clones = clone_window(options)
         known = options.pixel_noise_std is not None or self.source.kind == "features"
         self._min_disparity_px = options.min_disparity(self.sigma_px, known)
@@ -174,7 +175,8 @@ class PixelUpdater:
         return Y, R_all[-1], r_all[-1], None
 
     def _bias(self, R_c: F64, r_c: F64, uvl0: F64, uvr0: F64) -> F64:
-        """Second-order bias (4M,) px of the predicted pixels from the k-1 pixel noise, at the
+        """Second-order bias (4M,) px of the predicted pixels from the k-1 pixel noise (the
+        pixels' own std, not the scaled ``sigma_px``, which also covers model error), at the
         mean camera motion ``R_c`` (3, 3), ``r_c`` (3,); zeros when the noise is unknown."""
         if not self._debias:
             return np.zeros(4 * len(uvl0))
@@ -185,7 +187,7 @@ class PixelUpdater:
         else:
             def h_prev(ul: F64, ur: F64) -> F64:
                 return pixels_tc_from_motion(R1, r1, ul, ur, rig)[0]
-        return previous_pixel_bias(h_prev, uvl0, uvr0, self.sigma_px)
+        return previous_pixel_bias(h_prev, uvl0, uvr0, self._pixel_std_px)
 
     def update(self, ctx: FrameContext) -> UpdateStats | None:
         """Fuse the frame at ``ctx.t_ns`` (see the module docstring)."""
