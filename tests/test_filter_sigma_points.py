@@ -51,3 +51,15 @@ def test_bad_parameters_and_covariance_raise_clear_errors() -> None:
         sp.offsets(np.diag([1.0, -1.0]))
     with pytest.raises(FilterError, match="non-finite"):
         sp.offsets(np.array([[1.0, np.nan], [np.nan, 1.0]]))
+
+
+@pytest.mark.parametrize("n", [12, 18, 24, 36, 60])
+def test_default_alpha_keeps_every_covariance_weight_non_negative(n: int) -> None:
+    from svains.navigation.options import FilterOptions
+
+    o = FilterOptions()
+    sp = MerweScaledSigmaPoints(n, o.alpha, o.beta, o.kappa)
+    assert sp.Wc.min() >= 0.0  # the Woodbury gain path needs it (filter.ukf.kalman_correction)
+    assert sp.scale < np.sqrt(n)  # tighter than alpha = 1
+    # Just below the bound sqrt(2 - sqrt(3)) the centre weight turns negative.
+    assert MerweScaledSigmaPoints(n, 0.517, o.beta, o.kappa).Wc[0] < 0.0

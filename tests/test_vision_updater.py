@@ -277,3 +277,38 @@ def test_online_extrinsics_need_clones() -> None:
         VisionOptions(rotation="imu", estimate_extrinsics=True)
     with pytest.raises(ConfigError, match="extrinsics_std_deg must be positive"):
         VisionOptions(extrinsics_std_deg=0.0)
+
+
+def test_previous_pixel_bias_matches_the_mean_over_pixel_noise() -> None:
+    from svains.geometry.camera import RectifiedStereo
+    from svains.geometry.rotation import so3_exp
+    from svains.models.vision_3d import pixels_from_motion
+    from svains.navigation.vision_noise import previous_pixel_bias
+
+    rig = RectifiedStereo(458.654, 367.2, 248.4, 0.11, np.eye(3), np.zeros(3), 752, 480)
+    rng = np.random.default_rng(7)
+    p_F = np.column_stack([rng.uniform(-3, 3, 6), rng.uniform(-2, 2, 6), rng.uniform(3, 8, 6)])
+    R_c, r_c = so3_exp(np.array([0.01, 0.02, -0.01]))[None], np.array([[0.05, -0.02, 0.8]])
+    uvl, uvr = rig.project(p_F), rig.project_right(p_F)
+
+    def h_prev(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return pixels_from_motion(R_c, r_c, rig.triangulate(a, b), rig)[0]
+
+    sigma = 0.5
+    bias = previous_pixel_bias(h_prev, uvl, uvr, sigma)
+    # Monte Carlo: the mean prediction from noisy k-1 pixels minus the noise-free prediction.
+    n = 20_000
+    nl, nr = sigma * rng.standard_normal((2, n, 6, 2))
+    Y = np.stack([h_prev(uvl + nl[i], uvr + nr[i]) for i in range(n)])
+    mc = Y.mean(axis=0) - h_prev(uvl, uvr)
+    se = Y.std(axis=0) / np.sqrt(len(Y))
+    assert np.abs(bias).max() > 0.02  # a real effect: 1 m forward at 3-8 m depth
+    assert np.all(np.abs(bias - mc) < 4 * se + 2e-3)
+
+    # At rest the prediction is linear in the k-1 pixels: no bias.
+    def h_rest(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return pixels_from_motion(np.eye(3)[None], np.zeros((1, 3)), rig.triangulate(a, b), rig)[0]
+
+    np.testing.assert_allclose(previous_pixel_bias(h_rest, uvl, uvr, sigma), 0.0, atol=1e-9)
+    # Below 6 sigma of disparity the expansion does not hold: no correction.
+    assert not np.any(previous_pixel_bias(h_prev, uvl, uvr, 10.0))

@@ -17,8 +17,10 @@ class MerweScaledSigmaPoints:
     """Sigma points ``0, ±sqrt(n+λ) L_i`` (L the Cholesky factor of P), ``λ = α²(n+κ) − n``.
 
     ``Wm`` (2n+1,) weights the mean, ``Wc`` (2n+1,) the covariance (``Wc0 = Wm0 + 1 − α² + β``).
-    The defaults α=1, β=2, κ=0 give W0m = 0 and all other weights positive, which keeps the
-    predicted covariance a positive combination (no negative centre weight on a manifold).
+    The class defaults α=1, β=2, κ=0 give W0m = 0 and all other weights positive; for κ=0 and
+    β=2, ``Wc0 = 4 − α² − α⁻²`` stays non-negative down to α = sqrt(2 − sqrt(3)) ≈ 0.5176 (the
+    run default, ``navigation.options.FilterOptions.alpha``), which keeps the predicted
+    covariance a positive combination; ``Wm0`` is then negative (the manifold mean allows it).
     """
 
     n: int

@@ -17,6 +17,9 @@ F64 = NDArray[np.float64]
 
 _EPS_ROT = 1e-6  # rad
 _EPS_POS = 1e-6  # m
+# Below this many σ of disparity the second difference of the depth ``f b / d`` departs from
+# its second-order term by more than 3 % (``d² / (d² - σ²)``): no bias correction there.
+MIN_BIAS_DISPARITY_SIGMAS = 6.0
 
 
 def feature_gate(
@@ -117,6 +120,37 @@ def previous_pixel_noise(
         J[:, :, j] = ((h_prev(*plus) - h_prev(*minus)) / (2 * eps)).reshape(m, 4)
     J = np.where(np.isfinite(J), J, 0.0)
     return sigma_px**2 * (np.eye(4) + np.einsum("mik,mjk->mij", J, J))
+
+
+def previous_pixel_bias(
+    h_prev: Callable[[F64, F64], F64], uvl0: F64, uvr0: F64, sigma_px: float
+) -> F64:
+    """Second-order bias (4M,) px of the prediction ``h_prev(uvl0, uvr0) -> (4M,)`` (at the mean
+    state) made from noisy k-1 pixels: ``E[h(uv + n)] - h(uv) = ½ σ² Σ_j ∂²h/∂u_j²`` over the k-1
+    pixels that enter it (``u_left, v_left, u_right``), by central second differences with step
+    σ (exact for the quadratic term). Subtracting it from the prediction leaves an innovation
+    with zero mean to second order.
+
+    Why: the depth ``f b / d`` and the reprojection at k are convex in the k-1 disparity, so a
+    prediction from noisy pixels overshoots the feature's flow on average and the filter reads
+    the excess as motion. It is a small part of a larger bias: on the simulated village (3d,
+    0.5 px, 8 seeds) the along-track speed comes out low on every seed, 0.50 % without this
+    correction, 0.46 % with it (0.18 % at 0.05 px: the rest scales with the pixel noise too,
+    first order in the noise, not removed here). Non-finite
+    entries are 0, and so is the bias of features whose k-1 disparity is below
+    ``MIN_BIAS_DISPARITY_SIGMAS`` σ, where a second-order expansion does not hold.
+    """
+    base = h_prev(uvl0, uvr0)
+    bias = np.zeros_like(base)
+    for which, col in ((0, 0), (0, 1), (1, 0)):
+        plus = [uvl0.copy(), uvr0.copy()]
+        minus = [uvl0.copy(), uvr0.copy()]
+        plus[which][:, col] += sigma_px
+        minus[which][:, col] -= sigma_px
+        bias += 0.5 * (h_prev(*plus) + h_prev(*minus) - 2.0 * base)
+    valid = uvl0[:, 0] - uvr0[:, 0] >= MIN_BIAS_DISPARITY_SIGMAS * sigma_px  # (M,)
+    bias = np.where(np.repeat(valid, 4), bias, 0.0)
+    return np.where(np.isfinite(bias), bias, 0.0)
 
 
 def whiten(Y: F64, W_inv: F64) -> F64:

@@ -34,6 +34,7 @@ from svains.navigation.vision_noise import (
     analytic_noise,
     feature_gate,
     lowrank_factors,
+    previous_pixel_bias,
     whiten_chol,
 )
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames
@@ -95,10 +96,14 @@ class PixelUpdater:
         self.rig = self.source.rig
         std = options.pixel_noise_std
         std = self.source.pixel_noise_std if std is None else std
-        self.sigma_px = max(float(std), 0.05) * options.noise_scale()
+        self._pixel_std_px = max(float(std), 0.05)  # the pixels' own noise, unscaled
+        self.sigma_px = self._pixel_std_px * options.noise_scale()
         self.clones = clone_window(options)
         known = options.pixel_noise_std is not None or self.source.kind == "features"
         self._min_disparity_px = options.min_disparity(self.sigma_px, known)
+        # The k-1 pixel noise biases the prediction (``vision_noise.previous_pixel_bias``); the
+        # correction needs the true noise, so it is made only when that is known.
+        self._debias = known
         self._fused: tuple[int, I64] | None = None  # (frame time, track ids) of the last update
         # Track ids and disparities (px) at the k-1 frame of the last tracks (``_near``).
         self._disparity_before: tuple[I64, F64] = (np.zeros(0, np.int64), np.zeros(0))
@@ -178,6 +183,21 @@ class PixelUpdater:
         Y = pixels_tc_from_motion(R_all[:-1], r_all[:-1], uvl0, uvr0, self.rig)
         return Y, R_all[-1], r_all[-1], None
 
+    def _bias(self, R_c: F64, r_c: F64, uvl0: F64, uvr0: F64) -> F64:
+        """Second-order bias (4M,) px of the predicted pixels from the k-1 pixel noise (the
+        pixels' own std, not the scaled ``sigma_px``, which also covers model error), at the
+        mean camera motion ``R_c`` (3, 3), ``r_c`` (3,); zeros when the noise is unknown."""
+        if not self._debias:
+            return np.zeros(4 * len(uvl0))
+        rig, R1, r1 = self.rig, R_c[None], r_c[None]
+        if self.method == "3d":
+            def h_prev(ul: F64, ur: F64) -> F64:
+                return pixels_from_motion(R1, r1, rig.triangulate(ul, ur), rig)[0]
+        else:
+            def h_prev(ul: F64, ur: F64) -> F64:
+                return pixels_tc_from_motion(R1, r1, ul, ur, rig)[0]
+        return previous_pixel_bias(h_prev, uvl0, uvr0, self._pixel_std_px)
+
     def update(self, ctx: FrameContext) -> UpdateStats | None:
         """Fuse the frame at ``ctx.t_ns`` (see the module docstring)."""
         c = self.counters
@@ -205,6 +225,8 @@ class PixelUpdater:
             return None
         X, _ = ctx.ukf.sigma_points()  # reused by the update below (same state)
         Y, R_c, r_c, p_F = self._predict(ctx, X, uvl0, uvr0, motion)
+        bias = self._bias(R_c, r_c, uvl0, uvr0)
+        Y = Y - bias
         # Per-feature 4x4 noise: pixel noise at k plus the k-1 pixel noise carried through
         # triangulation/transfer (dominant for far points), and in "imu" mode the IMU
         # increment's noise as a feature-correlated factor G (4M, 6). Closed form at the mean
@@ -228,6 +250,9 @@ class PixelUpdater:
             return None
         kept = np.flatnonzero(keep)
         h_kept = self._model(uvl0[kept], uvr0[kept], motion, None if p_F is None else p_F[kept])
+        if np.any(bias):
+            h_raw, b_kept = h_kept, bias.reshape(-1, 4)[kept].reshape(-1)
+            h_kept = lambda X_: h_raw(X_) - b_kept  # noqa: E731
         block = _whitened_block(f"vision_{self.method}", kept, X, Y, z, R_blocks, G, h_kept)
         stats = apply_blocks(ctx, [block, *ctx.extra])
         if stats.accepted:
