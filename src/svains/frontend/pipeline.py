@@ -31,7 +31,7 @@ from svains.frontend.options import HOLD_STATUSES, FrameStats, FrontendOptions
 from svains.frontend.reacquire import Reacquired, Reacquirer
 from svains.frontend.rectify import StereoRectifier
 from svains.frontend.stereo import dense_disparity, match_dense, match_sparse
-from svains.frontend.tracking import Pyramid, track_klt
+from svains.frontend.tracking import Pyramid, levels_for_residual, track_klt
 from svains.frontend.types import Egomotion, StereoTracks
 from svains.geometry.camera import RectifiedStereo
 from svains.sensors.types import CameraCalib
@@ -69,6 +69,9 @@ class StereoFrontend:
         self._held = 0
         self._failed: list[F64] = []  # unmatched new corners of the last few frames
         self._flow_px = 0.0  # median image motion of the features tracked into the last frame
+        # 90th percentile px of how far the last prior-predicted tracks ended from their
+        # predicted starts (NaN: the last frame was not tracked from a motion prior).
+        self._prior_residual_px = np.nan
         self._n_after_detect = 0  # reference features right after the last corner search
         self._since_detect = 0  # frames since the last corner search
         self._rng = np.random.default_rng(self.options.ransac.seed)
@@ -285,15 +288,22 @@ class StereoFrontend:
             good = np.isfinite(uv_pred).all(1) & (q[:, 2] > 0.1) & self.rig.in_image(uv_pred)
             guess = np.where(good[:, None], uv_pred, ref.uv_left)
             levels = o.klt.levels_predicted
+            if o.klt.adaptive_levels:
+                levels = levels_for_residual(self._prior_residual_px, o.klt)
             # Predicted disparity seeds the left-right match (it grows as the camera approaches).
             with np.errstate(divide="ignore", invalid="ignore"):
                 d_pred = self.rig.f * self.rig.baseline / q[:, 2]
             disp_prev = np.where(good & np.isfinite(d_pred), d_pred, disp_prev)
+        guess_img = None if guess is None else self._to_img(guess)
         uv_img, ok_t = track_klt(
-            ref.left, pl, self._to_img(ref.uv_left), o.klt,
-            guess=None if guess is None else self._to_img(guess), max_level=levels,
+            ref.left, pl, self._to_img(ref.uv_left), o.klt, guess=guess_img, max_level=levels,
             fb_max_level=o.klt.fb_levels, fb_check=guess is None or o.klt.fb_when_predicted,
         )
+        self._prior_residual_px = np.nan
+        if guess_img is not None and ok_t.any():
+            d = np.linalg.norm(uv_img[ok_t] - guess_img[ok_t], axis=1)
+            k = int(0.9 * (d.size - 1))
+            self._prior_residual_px = float(np.partition(d, k)[k])
         uv_l = self._to_rect(uv_img)
         ok_t &= np.isfinite(uv_l).all(1) & self.rig.in_image(uv_l)
         # A tracked feature never falls back to the row search: no finite seed, no match.
