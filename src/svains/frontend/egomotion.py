@@ -149,13 +149,6 @@ def kabsch(p_prev: F64, p_cur: F64) -> tuple[F64, F64]:
     return R, t
 
 
-def _max_error(r: F64) -> F64:
-    """Larger of the left and right pixel errors (H, M) from residuals (H, M, 4); NaN -> inf."""
-    r2 = r * r
-    e2 = np.maximum(r2[..., 0] + r2[..., 1], r2[..., 2] + r2[..., 3])
-    return np.sqrt(np.where(np.isfinite(e2), e2, np.inf))
-
-
 def _score(
     R: F64, t: F64, p_prev: F64, uv_left: F64, uv_right: F64, rig: RectifiedStereo,
     inlier_px: float,
@@ -252,23 +245,18 @@ def estimate_egomotion(
     best = int(np.argmax(score))
     if inl[best].sum() < opts.min_inliers:
         return nothing
-    R, t = Rh[best : best + 1], th[best : best + 1]
+    R, t = Rh[best].copy(), th[best].copy()
     w = inl[best].astype(float)
     # Depth variance / pixel variance of eq. 10: σ_z = z² σ_d / (f b), σ_d² = 2 σ_px².
-    zf = p_prev[idx, 2] ** 2 / (rig.f * rig.baseline)
+    zf = P_i[:, 2] ** 2 / (rig.f * rig.baseline)
     dvar = 2.0 * zf * zf if opts.depth_weighting else None
-    P1, L1, R1 = p_prev[idx][None], uv_left[idx][None], uv_right[idx][None]
-    for _ in range(max(opts.refine_rounds, 1)):  # refine, re-select, until the set settles
-        R, t = gauss_newton(
-            R, t, P1, L1, R1, w[None], rig, opts.refine_iterations,
-            None if dvar is None else dvar[None], tol=opts.refine_tol,
-        )
-        e = _max_error(reprojection_residuals(R, t, P1, L1, R1, rig)[0])[0]
-        w_new = (e < opts.inlier_px).astype(float)
-        same = bool(np.array_equal(w_new, w))
-        w = w_new
-        if same:
-            break
+    e = np.empty(idx.size)
+    # Refine, re-select, until the set settles (compiled: one call for all rounds).
+    kern.refine_select(
+        R, t, P_i, L_i, R_i, w, zf if dvar is None else dvar, dvar is not None, rig.f, rig.cu,
+        rig.cv, rig.baseline, opts.refine_iterations, float(opts.refine_tol),
+        opts.refine_rounds, float(opts.inlier_px), e,
+    )
     inlier_sub = w > 0
     if inlier_sub.sum() < opts.min_inliers:
         return nothing
@@ -279,9 +267,9 @@ def estimate_egomotion(
     sel = idx[inlier_sub]
     dsel = None if dvar is None else dvar[inlier_sub]
     cov = egomotion_covariance(
-        R[0], t[0], p_prev[sel], uv_left[sel], uv_right[sel], rig, opts.pixel_sigma_px,
+        R, t, p_prev[sel], uv_left[sel], uv_right[sel], rig, opts.pixel_sigma_px,
         robust=opts.cov_robust, inflation=opts.cov_inflation, estimator_depth_var_px2=dsel,
         gate_px=opts.inlier_px,
     )
-    ego = Egomotion(R_Ck_Ckm1=R[0], p_Ck_Ckm1=t[0], cov=cov)
+    ego = Egomotion(R_Ck_Ckm1=R, p_Ck_Ckm1=t, cov=cov)
     return EgomotionResult(ego, inlier, error)

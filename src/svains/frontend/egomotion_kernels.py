@@ -176,6 +176,28 @@ def _rotate_left(R: F64, w0: float, w1: float, w2: float) -> None:
 
 
 @njit(cache=True, nogil=True)
+def _gauss_newton_one(
+    R: F64, t: F64, P: F64, L: F64, Rr: F64, W: F64, dvar: F64, use_dvar: bool, f: float,
+    cu: float, cv: float, b: float, iterations: int, tol: float, A: F64, g: F64, delta: F64,
+) -> None:
+    """Refine one motion ``R`` (3, 3), ``t`` (3,) in place (``gauss_newton_batch``; ``A``, ``g``,
+    ``delta`` are scratch)."""
+    for _ in range(iterations):
+        _accumulate(R, t, P, L, Rr, W, dvar, use_dvar, f, cu, cv, b, A, g)
+        if not _solve6(A, g, delta):
+            break
+        _rotate_left(R, delta[0], delta[1], delta[2])
+        t[0] += delta[3]
+        t[1] += delta[4]
+        t[2] += delta[5]
+        big = 0.0
+        for i in range(6):
+            big = max(big, abs(delta[i]))
+        if big < tol:
+            break
+
+
+@njit(cache=True, nogil=True)
 def gauss_newton_batch(
     R: F64, t: F64, P: F64, L: F64, Rr: F64, W: F64, dvar: F64, use_dvar: bool, f: float,
     cu: float, cv: float, b: float, iterations: int, tol: float,
@@ -187,20 +209,58 @@ def gauss_newton_batch(
     g = np.zeros(6)
     delta = np.zeros(6)
     for h in range(R.shape[0]):
-        for _ in range(iterations):
-            _accumulate(R[h], t[h], P[h], L[h], Rr[h], W[h], dvar[h], use_dvar, f, cu, cv, b,
-                        A, g)  # fmt: skip
-            if not _solve6(A, g, delta):
-                break
-            _rotate_left(R[h], delta[0], delta[1], delta[2])
-            t[h, 0] += delta[3]
-            t[h, 1] += delta[4]
-            t[h, 2] += delta[5]
-            big = 0.0
-            for i in range(6):
-                big = max(big, abs(delta[i]))
-            if big < tol:
-                break
+        _gauss_newton_one(R[h], t[h], P[h], L[h], Rr[h], W[h], dvar[h], use_dvar, f, cu, cv, b,
+                          iterations, tol, A, g, delta)  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def max_errors(R: F64, t: F64, P: F64, L: F64, Rr: F64, f: float, cu: float, cv: float,
+               b: float, err: F64) -> None:  # fmt: skip
+    """``err`` (M,) px: the larger of the left and right pixel errors of points ``P`` (M, 3)
+    moved by ``R`` (3, 3), ``t`` (3,) against pixels ``L``/``Rr`` (M, 2); inf for a point
+    behind the camera or a non-finite error."""
+    for m in range(P.shape[0]):
+        x = R[0, 0] * P[m, 0] + R[0, 1] * P[m, 1] + R[0, 2] * P[m, 2] + t[0]
+        y = R[1, 0] * P[m, 0] + R[1, 1] * P[m, 1] + R[1, 2] * P[m, 2] + t[1]
+        z = R[2, 0] * P[m, 0] + R[2, 1] * P[m, 1] + R[2, 2] * P[m, 2] + t[2]
+        if not z > MIN_DEPTH_M:
+            err[m] = np.inf
+            continue
+        fz = f / z
+        u = x * fz + cu
+        v = y * fz + cv
+        du, dv = u - L[m, 0], v - L[m, 1]
+        dur, dvr = u - b * fz - Rr[m, 0], v - Rr[m, 1]
+        e2 = max(du * du + dv * dv, dur * dur + dvr * dvr)
+        err[m] = math.sqrt(e2) if np.isfinite(e2) else np.inf
+
+
+@njit(cache=True, nogil=True)
+def refine_select(
+    R: F64, t: F64, P: F64, L: F64, Rr: F64, W: F64, dvar: F64, use_dvar: bool, f: float,
+    cu: float, cv: float, b: float, iterations: int, tol: float, rounds: int,
+    inlier_px: float, err: F64,
+) -> None:
+    """RANSAC's final refinement of one motion ``R`` (3, 3), ``t`` (3,) (in place): Gauss-Newton
+    (at most ``iterations``, down to ``tol``) on the features selected by ``W`` (M,) in {0, 1},
+    then every feature whose larger left/right error is below ``inlier_px`` is selected
+    (``W`` updated in place), repeated for at most ``rounds`` rounds until the selection stops
+    changing. ``err`` (M,) receives the errors (px) of the last round."""
+    A = np.zeros((6, 6))
+    g = np.zeros(6)
+    delta = np.zeros(6)
+    for _ in range(max(rounds, 1)):
+        _gauss_newton_one(R, t, P, L, Rr, W, dvar, use_dvar, f, cu, cv, b, iterations, tol,
+                          A, g, delta)  # fmt: skip
+        max_errors(R, t, P, L, Rr, f, cu, cv, b, err)
+        same = True
+        for m in range(P.shape[0]):
+            w = 1.0 if err[m] < inlier_px else 0.0
+            if w != W[m]:
+                same = False
+            W[m] = w
+        if same:
+            break
 
 
 @njit(cache=True, nogil=True)
