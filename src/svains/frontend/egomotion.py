@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from svains.frontend import egomotion_kernels as kern
+from svains.frontend import egomotion_seeds as seeds
 from svains.frontend.egomotion_cov import egomotion_covariance
 from svains.frontend.types import Egomotion
 from svains.geometry.camera import RectifiedStereo
@@ -145,7 +146,7 @@ def kabsch(p_prev: F64, p_cur: F64) -> tuple[F64, F64]:
     C = np.ascontiguousarray(p_cur, dtype=float)
     R = np.empty((P.shape[0], 3, 3))
     t = np.empty((P.shape[0], 3))
-    kern.align_batch(P, C, R, t)
+    seeds.align_batch(P, C, R, t)
     return R, t
 
 
@@ -184,23 +185,19 @@ def _hypotheses(
     ``idx``, seeded by 3-point alignment of ``p_cur``; with a ``prior`` it is refined on one more
     triple and also competes unrefined (H' = h + 2)."""
     triples = idx[_distinct_triples(rng, h, idx.size)]  # (H, 3)
-    P3, L3, R3 = p_prev[triples], uv_left[triples], uv_right[triples]
-    if p_cur is not None:  # triples with a non-finite point at k start from the identity
-        R0, t0 = kabsch(P3, p_cur[triples])
-    else:
-        R0, t0 = np.broadcast_to(np.eye(3), (h, 3, 3)).copy(), np.zeros((h, 3))
+    R_p, t_p = np.eye(3), np.zeros(3)
     if prior is not None:
-        R0 = np.concatenate([R0, prior.R_Ck_Ckm1[None]], axis=0)
-        t0 = np.concatenate([t0, prior.p_Ck_Ckm1[None]], axis=0)
-        pick = rng.choice(idx, size=3, replace=False)
-        P3 = np.concatenate([P3, p_prev[pick][None]])
-        L3 = np.concatenate([L3, uv_left[pick][None]])
-        R3 = np.concatenate([R3, uv_right[pick][None]])
-    Rh, th = gauss_newton(R0, t0, P3, L3, R3, np.ones(P3.shape[:2]), rig, opts.gn_iterations)
-    if prior is not None:
-        # The prior itself also competes unrefined (it may be better than any triple).
-        Rh = np.concatenate([Rh, prior.R_Ck_Ckm1[None]])
-        th = np.concatenate([th, prior.p_Ck_Ckm1[None]])
+        R_p, t_p = prior.R_Ck_Ckm1, prior.p_Ck_Ckm1
+        triples = np.concatenate([triples, rng.choice(idx, size=3, replace=False)[None]])
+    n_out = triples.shape[0] + (prior is not None)
+    Rh, th = np.empty((n_out, 3, 3)), np.empty((n_out, 3))
+    # Triples with a non-finite point at k start from the identity (compiled: one call).
+    c = np.ascontiguousarray
+    seeds.triple_hypotheses(
+        p_prev, uv_left, uv_right, p_prev if p_cur is None else p_cur, p_cur is not None,
+        triples, c(R_p, dtype=float), c(t_p, dtype=float), prior is not None,
+        opts.gn_iterations, rig.f, rig.cu, rig.cv, rig.baseline, Rh, th,
+    )
     return Rh, th
 
 
