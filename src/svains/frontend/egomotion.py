@@ -11,6 +11,7 @@ covariance is converted to the project's local convention ``R = R̂ Exp(δθ)`` 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,10 +45,19 @@ class RansacOptions:
     all-inlier triple was drawn (``(1 - w³)^n``): a clean frame then costs a third of the
     hypotheses, a frame with many outliers (a moving object) gets all of them. The default draws
     all 50 at once (the paper's RANSAC): with 16 first, a sharp turn of the 2 Hz village flight
-    (frame at t = 35 s, seed 0) ended without consensus and broke stereo VO there."""
+    (frame at t = 35 s, seed 0) ended without consensus and broke stereo VO there.
+    With a ``prior`` (the IMU prediction or the last motion), the prior is first refined
+    (as the best hypothesis would be) on the features it predicts within ``prior_gate_px``; if
+    that keeps at least ``prior_accept_fraction`` of the usable features as inliers it is the
+    answer and no triple is drawn (a larger consensus elsewhere cannot exist then). Otherwise
+    RANSAC runs as above. On the 20 Hz simulated bench flight 395 of 398 frames take the prior's
+    path (RANSAC stage 0.3 ms less per frame), at the 5 Hz of KITTI raw 11 of 178 (a car's
+    last motion predicts the next one poorly); above 1 turns it off."""
 
     iterations: int = 50
     first_batch: int = 50
+    prior_gate_px: float = 3.0
+    prior_accept_fraction: float = 0.8
     confidence: float = 0.999
     inlier_px: float = 1.5
     gn_iterations: int = 2
@@ -201,6 +211,54 @@ def _hypotheses(
     return Rh, th
 
 
+def _from_prior(
+    prior: Egomotion, P_i: F64, L_i: F64, R_i: F64, rig: RectifiedStereo, opts: RansacOptions,
+    refine: Callable[[F64, F64, F64], None], e: F64,
+) -> tuple[F64, F64, F64] | None:
+    """The prior refined on the features it predicts within ``prior_gate_px`` (``refine``
+    re-selects them at ``inlier_px``), if that keeps ``prior_accept_fraction`` of them:
+    R (3, 3), t (3,), selection (M,) in {0, 1}; else None. ``e`` (M,) px: scratch errors."""
+    need = max(opts.min_inliers, opts.prior_accept_fraction * P_i.shape[0])
+    if opts.prior_accept_fraction > 1.0 or P_i.shape[0] < need:
+        return None
+    R = np.array(prior.R_Ck_Ckm1, dtype=float, order="C")
+    t = np.array(prior.p_Ck_Ckm1, dtype=float, order="C")
+    kern.max_errors(R, t, P_i, L_i, R_i, rig.f, rig.cu, rig.cv, rig.baseline, e)
+    w = (e < opts.prior_gate_px).astype(float)
+    if w.sum() < need:
+        return None
+    refine(R, t, w)
+    return (R, t, w) if w.sum() >= need else None
+
+
+def _ransac(
+    idx: NDArray[np.int64], p_prev: F64, uv_left: F64, uv_right: F64, p_cur: F64 | None,
+    prior: Egomotion | None, rig: RectifiedStereo, opts: RansacOptions, rng: np.random.Generator,
+    sub: tuple[F64, F64, F64],
+) -> tuple[F64, F64, F64] | None:
+    """RANSAC over random triples of the usable features ``idx`` (and the prior): the best
+    hypothesis R (3, 3), t (3,) and its inliers (M,) in {0, 1} among ``idx``; None if it has
+    fewer than ``min_inliers``. ``sub``: points and pixels of the features ``idx``."""
+    h1 = min(opts.iterations, max(opts.first_batch, 1))
+    Rh, th = _hypotheses(h1, idx, p_prev, uv_left, uv_right, p_cur, prior, rig, opts, rng)
+    P_i, L_i, R_i = sub
+    score, inl = _score(Rh, th, P_i, L_i, R_i, rig, opts.inlier_px)
+    h2 = opts.iterations - h1
+    if h2 > 0:
+        w3 = (inl.sum(axis=1).max() / idx.size) ** 3
+        # Chance that none of the h1 triples was all inliers, at the best ratio found so far.
+        miss = (1.0 - w3) ** h1 if w3 < 1.0 else 0.0
+        if miss > 1.0 - opts.confidence:
+            R2, t2 = _hypotheses(h2, idx, p_prev, uv_left, uv_right, p_cur, None, rig, opts, rng)
+            s2, i2 = _score(R2, t2, P_i, L_i, R_i, rig, opts.inlier_px)
+            Rh, th = np.concatenate([Rh, R2]), np.concatenate([th, t2])
+            score, inl = np.concatenate([score, s2]), np.concatenate([inl, i2])
+    best = int(np.argmax(score))
+    if inl[best].sum() < opts.min_inliers:
+        return None
+    return Rh[best].copy(), th[best].copy(), inl[best].astype(float)
+
+
 def estimate_egomotion(
     p_prev: F64, uv_left: F64, uv_right: F64, rig: RectifiedStereo, opts: RansacOptions,
     p_cur: F64 | None = None, prior: Egomotion | None = None,
@@ -224,36 +282,29 @@ def estimate_egomotion(
     idx = np.flatnonzero(usable)
     if idx.size < max(opts.min_inliers, 3):
         return nothing
-    rng = rng if rng is not None else np.random.default_rng(opts.seed)
-    h1 = min(opts.iterations, max(opts.first_batch, 1))
-    Rh, th = _hypotheses(h1, idx, p_prev, uv_left, uv_right, p_cur, prior, rig, opts, rng)
     P_i, L_i, R_i = p_prev[idx], uv_left[idx], uv_right[idx]
-    score, inl = _score(Rh, th, P_i, L_i, R_i, rig, opts.inlier_px)
-    h2 = opts.iterations - h1
-    if h2 > 0:
-        w3 = (inl.sum(axis=1).max() / idx.size) ** 3
-        # Chance that none of the h1 triples was all inliers, at the best ratio found so far.
-        miss = (1.0 - w3) ** h1 if w3 < 1.0 else 0.0
-        if miss > 1.0 - opts.confidence:
-            R2, t2 = _hypotheses(h2, idx, p_prev, uv_left, uv_right, p_cur, None, rig, opts, rng)
-            s2, i2 = _score(R2, t2, P_i, L_i, R_i, rig, opts.inlier_px)
-            Rh, th = np.concatenate([Rh, R2]), np.concatenate([th, t2])
-            score, inl = np.concatenate([score, s2]), np.concatenate([inl, i2])
-    best = int(np.argmax(score))
-    if inl[best].sum() < opts.min_inliers:
-        return nothing
-    R, t = Rh[best].copy(), th[best].copy()
-    w = inl[best].astype(float)
     # Depth variance / pixel variance of eq. 10: σ_z = z² σ_d / (f b), σ_d² = 2 σ_px².
     zf = P_i[:, 2] ** 2 / (rig.f * rig.baseline)
     dvar = 2.0 * zf * zf if opts.depth_weighting else None
     e = np.empty(idx.size)
-    # Refine, re-select, until the set settles (compiled: one call for all rounds).
-    kern.refine_select(
-        R, t, P_i, L_i, R_i, w, zf if dvar is None else dvar, dvar is not None, rig.f, rig.cu,
-        rig.cv, rig.baseline, opts.refine_iterations, float(opts.refine_tol),
-        opts.refine_rounds, float(opts.inlier_px), e,
-    )
+
+    def refine(R: F64, t: F64, w: F64) -> None:
+        """Refine, re-select, until the set settles (compiled: one call for all rounds)."""
+        kern.refine_select(
+            R, t, P_i, L_i, R_i, w, zf if dvar is None else dvar, dvar is not None, rig.f,
+            rig.cu, rig.cv, rig.baseline, opts.refine_iterations, float(opts.refine_tol),
+            opts.refine_rounds, float(opts.inlier_px), e,
+        )
+
+    got = None if prior is None else _from_prior(prior, P_i, L_i, R_i, rig, opts, refine, e)
+    if got is None:
+        rng = rng if rng is not None else np.random.default_rng(opts.seed)
+        got = _ransac(idx, p_prev, uv_left, uv_right, p_cur, prior, rig, opts, rng,
+                      (P_i, L_i, R_i))  # fmt: skip
+        if got is None:
+            return nothing
+        refine(*got)
+    R, t, w = got
     inlier_sub = w > 0
     if inlier_sub.sum() < opts.min_inliers:
         return nothing
