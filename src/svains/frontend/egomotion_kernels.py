@@ -34,6 +34,7 @@ def _accumulate(
     g[:] = 0.0
     J = np.zeros((4, 6))
     r = np.zeros(4)
+    ja = np.zeros(6)
     cost = 0.0
     for m in range(P.shape[0]):
         w = W[m]
@@ -103,11 +104,11 @@ def _accumulate(
             ar = a0 * r[0] + a1 * (r[1] + r[3]) + a2 * r[2]
             wc = w * c
             for i in range(6):
-                jai = a0 * J[0, i] + a1 * (J[1, i] + J[3, i]) + a2 * J[2, i]
-                g[i] -= wc * ar * jai
+                ja[i] = a0 * J[0, i] + a1 * (J[1, i] + J[3, i]) + a2 * J[2, i]
+            for i in range(6):
+                g[i] -= wc * ar * ja[i]
                 for j in range(i, 6):
-                    jaj = a0 * J[0, j] + a1 * (J[1, j] + J[3, j]) + a2 * J[2, j]
-                    A[i, j] -= wc * jai * jaj
+                    A[i, j] -= wc * ja[i] * ja[j]
             e2 -= c * ar * ar
         cost += w * e2
     for i in range(6):
