@@ -194,3 +194,20 @@ def test_compiled_per_feature_terms_match_their_definitions() -> None:
     gl = (G_ref[:, :2] ** 2).sum((1, 2))
     gr = (G_ref[:, 2:] ** 2).sum((1, 2))
     np.testing.assert_allclose(spread, 1.0 + np.maximum(gl, gr), rtol=1e-12)
+
+
+def test_compiled_sandwich_matches_numpy_and_reports_singular() -> None:
+    """``sandwich``: scale * sym(A⁻¹ B A⁻ᵀ) as numpy computes it, for a badly scaled A (rotation
+    rows 1e6 x the translation ones); False for a singular A."""
+    from svains.frontend import egomotion_cov_kernels as ck
+
+    rng = np.random.default_rng(11)
+    X = rng.normal(size=(40, 6)) * np.r_[1e3, 1e3, 1e3, 1.0, 1.0, 1.0]
+    A, B = X.T @ X, np.cov(rng.normal(size=(6, 50)))
+    out = np.empty((6, 6))
+    assert ck.sandwich(A, B, 2.5, out)
+    Ai = np.linalg.inv(A)
+    ref = 2.5 * Ai @ B @ Ai.T
+    np.testing.assert_allclose(out, 0.5 * (ref + ref.T), rtol=1e-9, atol=0.0)
+    A[5], A[:, 5] = A[4], A[:, 4]  # two equal rows and columns
+    assert not ck.sandwich(A, B, 1.0, out)

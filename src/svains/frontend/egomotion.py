@@ -261,13 +261,14 @@ def _ransac(
 
 def estimate_egomotion(
     p_prev: F64, uv_left: F64, uv_right: F64, rig: RectifiedStereo, opts: RansacOptions,
-    p_cur: F64 | None = None, prior: Egomotion | None = None,
+    p_cur: F64 | Callable[[], F64] | None = None, prior: Egomotion | None = None,
     rng: np.random.Generator | None = None,
 ) -> EgomotionResult:
     """RANSAC + Gauss-Newton egomotion from N features.
 
     ``p_prev`` (N, 3) m in C_{k-1} (NaN rows are never inliers); ``uv_left``/``uv_right`` (N, 2) px
-    rectified at k; ``p_cur`` (N, 3) m triangulated at k seeds hypotheses by 3-point alignment;
+    rectified at k; ``p_cur`` (N, 3) m triangulated at k seeds hypotheses by 3-point alignment
+    (or a function giving them, called only if random hypotheses are drawn);
     ``prior`` (e.g. the previous motion) is one extra hypothesis. Never raises on degenerate input.
     """
     p_prev = np.asarray(p_prev, dtype=float).reshape(-1, 3)
@@ -276,8 +277,6 @@ def estimate_egomotion(
     n = p_prev.shape[0]
     usable = np.isfinite(p_prev).all(1) & (p_prev[:, 2] > _MIN_DEPTH_M)
     usable &= np.isfinite(uv_left).all(1) & np.isfinite(uv_right).all(1)
-    if p_cur is not None:
-        p_cur = np.asarray(p_cur, dtype=float).reshape(-1, 3)
     nothing = EgomotionResult(None, np.zeros(n, dtype=bool), np.full(n, np.inf))
     idx = np.flatnonzero(usable)
     if idx.size < max(opts.min_inliers, 3):
@@ -299,6 +298,10 @@ def estimate_egomotion(
     got = None if prior is None else _from_prior(prior, P_i, L_i, R_i, rig, opts, refine, e)
     if got is None:
         rng = rng if rng is not None else np.random.default_rng(opts.seed)
+        if callable(p_cur):
+            p_cur = p_cur()
+        if p_cur is not None:
+            p_cur = np.ascontiguousarray(p_cur, dtype=float).reshape(-1, 3)
         got = _ransac(idx, p_prev, uv_left, uv_right, p_cur, prior, rig, opts, rng,
                       (P_i, L_i, R_i))  # fmt: skip
         if got is None:

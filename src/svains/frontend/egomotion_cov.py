@@ -42,6 +42,8 @@ The rotation error is local, ``R = R̂ Exp(δθ)`` (docs/conventions.md): ``dq/d
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -65,6 +67,15 @@ _INACTIVE_RATIO = 9.0
 _ROBUST_FEATURES = 96
 _ROBUST_TAKEOVER = 1.5
 _I3, _I4 = np.eye(3), np.eye(4)
+
+
+@lru_cache(maxsize=64)
+def _spread(m: int, k: int) -> NDArray[np.int64]:
+    """``k`` indices spread evenly over [0, m) (``np.linspace`` truncated; cached: the same
+    few sizes come back every frame)."""
+    out = np.linspace(0, m - 1, k).astype(np.int64)
+    out.flags.writeable = False
+    return out
 
 
 def _inv3_sym(M: F64) -> F64:
@@ -218,7 +229,7 @@ def egomotion_covariance(
     sigma2 = pixel_sigma_px**2
     if robust:
         # On at most _ROBUST_FEATURES features spread over the set: a median needs no more.
-        sub = np.linspace(0, m - 1, min(m, _ROBUST_FEATURES)).astype(np.int64)
+        sub = _spread(m, min(m, _ROBUST_FEATURES))
         s2 = _median(e2[sub]) / _CHI2_4_MEDIAN
         # Only a noise comparable to the gate is truncated noticeably: then correct for it.
         if gate_px is not None and s2 > sigma2 and 4.0 * s2 * _INACTIVE_RATIO > gate_px**2:
@@ -242,14 +253,15 @@ def egomotion_covariance(
             WJa_f = WJa.reshape(-1, 6)
             A += KWJ.T @ SiJ.reshape(-1, 6) - Ja.reshape(-1, 6).T @ WJa_f  # Σ Jᵀ W K S⁻¹ J
             B += WJa_f.T @ KWJ - WJa_f.T @ (Sa @ WJa).reshape(-1, 6)
-    try:
-        Ai = np.linalg.inv(A)
-    except np.linalg.LinAlgError:
-        Ai = np.linalg.pinv(A)
     # ``inflation`` floors the effective pixel variance at inflation σ² (errors shared by the
     # features); a white noise measured above that floor (robust) takes over.
-    cov = max(sigma2, inflation * pixel_sigma_px**2) * (Ai @ B @ Ai.T)
-    return 0.5 * (cov + cov.T)
+    scale = max(sigma2, inflation * pixel_sigma_px**2)
+    cov = np.empty((6, 6))
+    if not ck.sandwich(A, B, scale, cov):  # singular: pseudo-inverse
+        Ai = np.linalg.pinv(A)
+        cov = scale * (Ai @ B @ Ai.T)
+        cov = 0.5 * (cov + cov.T)
+    return cov
 
 
 def whitened_residuals(

@@ -135,3 +135,45 @@ def covariance_terms(
         for c in range(a):
             A[a, c] = A[c, a]
             B[a, c] = B[c, a]
+
+
+@njit(cache=True, nogil=True)
+def sandwich(A: F64, B: F64, scale: float, out: F64) -> bool:
+    """``out`` (6, 6) = ``scale`` sym(A⁻¹ B A⁻ᵀ) (sym: the mean with its transpose), ``A`` by
+    Gauss-Jordan elimination with partial pivoting (a LAPACK call costs more than the
+    arithmetic at this size). False (``out`` untouched) if ``A`` is singular to working
+    precision."""
+    n = A.shape[0]
+    M = A.copy()
+    Ai = np.eye(n)
+    big = 0.0
+    for i in range(n):
+        for j in range(n):
+            big = max(big, abs(A[i, j]))
+    for c in range(n):
+        p = c
+        for r in range(c + 1, n):
+            if abs(M[r, c]) > abs(M[p, c]):
+                p = r
+        if not abs(M[p, c]) > 1e-14 * big:  # also false for NaN
+            return False
+        if p != c:
+            for j in range(n):
+                M[c, j], M[p, j] = M[p, j], M[c, j]
+                Ai[c, j], Ai[p, j] = Ai[p, j], Ai[c, j]
+        d = 1.0 / M[c, c]
+        for j in range(n):
+            M[c, j] *= d
+            Ai[c, j] *= d
+        for r in range(n):
+            if r != c and M[r, c] != 0.0:
+                f = M[r, c]
+                for j in range(n):
+                    M[r, j] -= f * M[c, j]
+                    Ai[r, j] -= f * Ai[c, j]
+    T = Ai @ B
+    C = T @ Ai.T
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = 0.5 * scale * (C[i, j] + C[j, i])
+    return True

@@ -68,7 +68,7 @@ class StereoFrontend:
         self._last_motion: Egomotion | None = None
         self._held = 0
         self._failed: list[F64] = []  # unmatched new corners of the last few frames
-        self._flow_px = 0.0  # median image motion of the features tracked into the last frame
+        self._flow_px = 0.0  # median image motion of the tracked features (at the last search)
         # 90th percentile px of how far the last prior-predicted tracks ended from their
         # predicted starts (NaN: the last frame was not tracked from a motion prior).
         self._prior_residual_px = np.nan
@@ -187,8 +187,6 @@ class StereoFrontend:
         predicted = False
         if ref is not None:
             uv_l, ok_t, disp_guess, predicted = self._track_temporal(ref, pl, motion_prior, tm)
-            flow = np.linalg.norm(uv_l[ok_t] - ref.uv_left[ok_t], axis=1)
-            self._flow_px = float(np.median(flow)) if flow.size else np.inf
 
         # New corners are sought before the left-right match, away from the features tracked
         # now, so that one left-right KLT pass serves the tracked and the new features alike.
@@ -209,6 +207,9 @@ class StereoFrontend:
         tm["stereo"] = (time.perf_counter() - t3) * 1e3
         new_r, ok_new = uv_q[n_t:], ok_q[n_t:]
         if search:
+            if ref is not None:  # only read here: worked out on the frames that search
+                flow = np.linalg.norm(uv_l[ok_t] - ref.uv_left[ok_t], axis=1)
+                self._flow_px = float(np.median(flow)) if flow.size else np.inf
             if o.retry_failed_after > 0 and self._flow_px <= o.retry_max_flow_px:
                 self._failed = [*self._failed, self._to_img(new_l[~ok_new])]
                 self._failed = self._failed[-o.retry_failed_after :]
@@ -384,7 +385,7 @@ class StereoFrontend:
         t6 = time.perf_counter()
         prior = motion_prior or self._last_motion
         res = estimate_egomotion(
-            p_prev, uvl, uvr, self.rig, ransac, p_cur=self.rig.triangulate(uvl, uvr),
+            p_prev, uvl, uvr, self.rig, ransac, p_cur=lambda: self.rig.triangulate(uvl, uvr),
             prior=prior, rng=self._rng,
         )
         tm["ransac"] = tm.get("ransac", 0.0) + (time.perf_counter() - t6) * 1e3
