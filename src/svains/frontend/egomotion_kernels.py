@@ -80,16 +80,13 @@ def _accumulate(
         J[2, 5] = c2
         for j in range(6):
             J[3, j] = J[1, j]
+        # The right v row equals the left one (rectified rows): three distinct rows, the
+        # second counted twice.
+        r13 = r[1] + r[3]
         for i in range(6):
-            gi = 0.0
-            for k in range(4):
-                gi += J[k, i] * r[k]
-            g[i] += w * gi
+            g[i] += w * (J[0, i] * r[0] + J[1, i] * r13 + J[2, i] * r[2])
             for j in range(i, 6):
-                s = 0.0
-                for k in range(4):
-                    s += J[k, i] * J[k, j]
-                A[i, j] += w * s
+                A[i, j] += w * (J[0, i] * J[0, j] + 2.0 * J[1, i] * J[1, j] + J[2, i] * J[2, j])
         e2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2] + r[3] * r[3]
         if use_dvar and P[m, 2] > 0.0 and np.isfinite(dvar[m]):
             # Depth uncertainty along the ray: residual covariance I + s2 a aᵀ, inverted by
