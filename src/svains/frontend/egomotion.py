@@ -324,3 +324,27 @@ def estimate_egomotion(
     )
     ego = Egomotion(R_Ck_Ckm1=R, p_Ck_Ckm1=t, cov=cov)
     return EgomotionResult(ego, inlier, error)
+
+
+_warm = False
+
+
+def warm_up(rig: RectifiedStereo) -> None:
+    """Run ``estimate_egomotion`` once on a small exact problem, with and without a prior, so
+    that the compiled kernels are loaded now (numba's first call in a process costs ~0.3 s of
+    start-up, then 5-20 ms per kernel): at set-up instead of on the first frame, which would
+    otherwise stall that long. Once per process."""
+    global _warm
+    if _warm:
+        return
+    rng = np.random.default_rng(0)
+    z = rng.uniform(2.0, 20.0, 24)
+    uv = np.c_[rng.uniform(0, rig.width - 1, 24), rng.uniform(0, rig.height - 1, 24)]
+    p = np.c_[(uv[:, 0] - rig.cu) * z / rig.f, (uv[:, 1] - rig.cv) * z / rig.f, z]
+    uvl, uvr = rig.project(p), rig.project_right(p)
+    still = Egomotion(R_Ck_Ckm1=np.eye(3), p_Ck_Ckm1=np.zeros(3), cov=np.eye(6))
+    for prior in (still, None):
+        estimate_egomotion(p, uvl, uvr, rig, RansacOptions(iterations=4, first_batch=4),
+                           p_cur=p, prior=prior, rng=rng)  # fmt: skip
+    _warm = True
+

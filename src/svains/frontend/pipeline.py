@@ -23,7 +23,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.frontend.egomotion import RansacOptions, estimate_egomotion
+from svains.frontend.egomotion import RansacOptions, estimate_egomotion, warm_up
 from svains.frontend.features import detect_corners
 from svains.frontend.images import as_grey, texture_std
 from svains.frontend.motion_checks import agrees_with_prior, plausible
@@ -82,6 +82,7 @@ class StereoFrontend:
         self._geo: StereoRectifier | None = rectifier if raw else None
         self._last_images: tuple[U8, U8] | None = None
         self._reacquirer = Reacquirer(self.rig, self.options.reacquire)
+        warm_up(self.rig)  # compiled RANSAC kernels loaded now, not on the first frame
 
     @property
     def reference_t_ns(self) -> int | None:
