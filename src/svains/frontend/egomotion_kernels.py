@@ -212,24 +212,31 @@ def gauss_newton_batch(
 
 
 @njit(cache=True, nogil=True)
+def _sq_error(R: F64, t: F64, P: F64, L: F64, Rr: F64, m: int, f: float, cu: float, cv: float,
+              b: float) -> float:  # fmt: skip
+    """Squared larger-of-left-and-right pixel error (px²) of point ``P[m]`` moved by ``R``,
+    ``t``; inf behind the camera (``MIN_DEPTH_M``) or for a NaN depth."""
+    x = R[0, 0] * P[m, 0] + R[0, 1] * P[m, 1] + R[0, 2] * P[m, 2] + t[0]
+    y = R[1, 0] * P[m, 0] + R[1, 1] * P[m, 1] + R[1, 2] * P[m, 2] + t[1]
+    z = R[2, 0] * P[m, 0] + R[2, 1] * P[m, 1] + R[2, 2] * P[m, 2] + t[2]
+    if not z > MIN_DEPTH_M:
+        return np.inf
+    fz = f / z
+    u = x * fz + cu
+    v = y * fz + cv
+    du, dv = u - L[m, 0], v - L[m, 1]
+    dur, dvr = u - b * fz - Rr[m, 0], v - Rr[m, 1]
+    return max(du * du + dv * dv, dur * dur + dvr * dvr)
+
+
+@njit(cache=True, nogil=True)
 def max_errors(R: F64, t: F64, P: F64, L: F64, Rr: F64, f: float, cu: float, cv: float,
                b: float, err: F64) -> None:  # fmt: skip
     """``err`` (M,) px: the larger of the left and right pixel errors of points ``P`` (M, 3)
     moved by ``R`` (3, 3), ``t`` (3,) against pixels ``L``/``Rr`` (M, 2); inf for a point
     behind the camera or a non-finite error."""
     for m in range(P.shape[0]):
-        x = R[0, 0] * P[m, 0] + R[0, 1] * P[m, 1] + R[0, 2] * P[m, 2] + t[0]
-        y = R[1, 0] * P[m, 0] + R[1, 1] * P[m, 1] + R[1, 2] * P[m, 2] + t[1]
-        z = R[2, 0] * P[m, 0] + R[2, 1] * P[m, 1] + R[2, 2] * P[m, 2] + t[2]
-        if not z > MIN_DEPTH_M:
-            err[m] = np.inf
-            continue
-        fz = f / z
-        u = x * fz + cu
-        v = y * fz + cv
-        du, dv = u - L[m, 0], v - L[m, 1]
-        dur, dvr = u - b * fz - Rr[m, 0], v - Rr[m, 1]
-        e2 = max(du * du + dv * dv, dur * dur + dvr * dvr)
+        e2 = _sq_error(R, t, P, L, Rr, m, f, cu, cv, b)
         err[m] = math.sqrt(e2) if np.isfinite(e2) else np.inf
 
 
@@ -289,17 +296,7 @@ def score_batch(
         count = 0
         err = 0.0
         for m in range(M):
-            x = R[h, 0, 0] * P[m, 0] + R[h, 0, 1] * P[m, 1] + R[h, 0, 2] * P[m, 2] + t[h, 0]
-            y = R[h, 1, 0] * P[m, 0] + R[h, 1, 1] * P[m, 1] + R[h, 1, 2] * P[m, 2] + t[h, 1]
-            z = R[h, 2, 0] * P[m, 0] + R[h, 2, 1] * P[m, 1] + R[h, 2, 2] * P[m, 2] + t[h, 2]
-            if not z > MIN_DEPTH_M:
-                continue
-            fz = f / z
-            u = x * fz + cu
-            v = y * fz + cv
-            du, dv = u - L[m, 0], v - L[m, 1]
-            dur, dvr = u - b * fz - Rr[m, 0], v - Rr[m, 1]
-            e2 = max(du * du + dv * dv, dur * dur + dvr * dvr)
+            e2 = _sq_error(R[h], t[h], P, L, Rr, m, f, cu, cv, b)
             if e2 < thr2:  # NaN never passes
                 inl[h, m] = True
                 count += 1
