@@ -1,11 +1,15 @@
 """Front-end CPU time per stage on a recorded run, for A/B comparisons of front-end code.
 
 ``record``: one ``3d`` run from images (as ``bench/_method_run.py``, no GPS, magnetometer or
-sonar) saving the IMU motion prior the filter handed the front end at every stereo pair.
-``replay``: the front end alone on the same pairs and priors, images decoded up front, with CPU
-time (``time.process_time``, all threads) per stage in place of the wall clock, so that two code
-versions run interleaved on a loaded machine compare fairly; also the mean egomotion error
-against the ground truth (translation % of step, rotation deg) of the frames both runs accept.
+sonar) saving the motion prior the filter handed the front end at every stereo pair (``None``
+with the default ``VisionOptions.motion_prior=False``: the front end then predicts from its
+last motion). ``replay``: the front end alone on the same pairs and priors, each pair copied
+just before it is processed (fresh in cache, as a decoded image is), with CPU time
+(``time.process_time``, all threads) in place of the wall clock in the per-stage timers, so
+that two code versions run interleaved on a loaded machine compare fairly; best of
+``--repeat`` runs per stage (the first run also pays one-time costs such as loading compiled
+kernels). Also the median and mean egomotion error of the measured frames against the ground
+truth (translation % of the step, rotation deg).
 
 ``python bench/frontend_replay.py record DATA PRIORS.pkl``
 ``python bench/frontend_replay.py replay DATA PRIORS.pkl [--repeat N]`` (prints one JSON line;
