@@ -60,6 +60,38 @@ def test_ransac_works_without_triangulation_at_k_and_uses_prior() -> None:
     assert not np.any(res.inlier & out)
 
 
+def test_a_prior_explaining_most_features_is_refined_without_random_hypotheses() -> None:
+    """10 % outliers and a prior 1 px off (about 0.1 deg and 1 cm): the refined prior is the
+    answer (the sampler is never drawn from) and matches full RANSAC; a prior that explains
+    too few features (30 % outliers with ``prior_accept_fraction`` 0.8, or a prior 20 px off)
+    falls back to RANSAC and still finds the motion."""
+    p_prev, uvl, uvr, out = _scene(4, outlier_frac=0.1)
+    p_cur = RIG.triangulate(uvl, uvr)
+    near = Egomotion(so3_exp([0.0, 0.0015, 0.0]) @ R_TRUE, T_TRUE + 0.01, np.eye(6) * 1e-4)
+    rng = np.random.default_rng(5)
+    before = rng.bit_generator.state
+    res = estimate_egomotion(p_prev, uvl, uvr, RIG, RansacOptions(), p_cur, near, rng)
+    assert rng.bit_generator.state == before  # no random triple drawn
+    full = estimate_egomotion(p_prev, uvl, uvr, RIG, RansacOptions(prior_accept_fraction=1.5),
+                              p_cur, near)  # fmt: skip
+    assert res.egomotion is not None and full.egomotion is not None
+    assert np.array_equal(res.inlier, full.inlier)
+    assert not np.any(res.inlier & out) and res.inlier.sum() >= 0.95 * (~out).sum()
+    np.testing.assert_allclose(res.egomotion.p_Ck_Ckm1, full.egomotion.p_Ck_Ckm1, atol=1e-9)
+    assert np.linalg.norm(res.egomotion.p_Ck_Ckm1 - T_TRUE) < 0.01
+    far = Egomotion(so3_exp([0.0, 0.03, 0.0]) @ R_TRUE, T_TRUE, np.eye(6) * 1e-4)
+    for prior, frac in ((far, 0.1), (near, 0.3)):
+        p_prev, uvl, uvr, out = _scene(4, outlier_frac=frac)
+        rng = np.random.default_rng(5)
+        before = rng.bit_generator.state
+        res = estimate_egomotion(p_prev, uvl, uvr, RIG, RansacOptions(),
+                                 RIG.triangulate(uvl, uvr), prior, rng)  # fmt: skip
+        assert rng.bit_generator.state != before  # RANSAC ran
+        assert res.egomotion is not None
+        assert np.linalg.norm(res.egomotion.p_Ck_Ckm1 - T_TRUE) < 0.01
+        assert not np.any(res.inlier & out)
+
+
 def test_degenerate_inputs_give_no_motion() -> None:
     p_prev, uvl, uvr, _ = _scene(3, n=5)
     res = estimate_egomotion(p_prev, uvl, uvr, RIG, RansacOptions(min_inliers=8))

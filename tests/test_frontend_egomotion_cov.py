@@ -152,3 +152,62 @@ def test_unusable_points_are_ignored(bad: str) -> None:
     p = p_prev.copy()
     p[0] = np.nan if bad == "nan_point" else np.array([0.0, 0.0, -5.0])
     np.testing.assert_allclose(egomotion_covariance(R, t, p, uvl, uvr, RIG, 0.1), ref)
+
+
+def test_compiled_per_feature_terms_match_their_definitions() -> None:
+    """``covariance_terms`` (numba) against the formulas written with numpy: J = d residual /
+    d (δθ, δt) with ``q = R Exp(δθ) p + t + δt``, the estimator's weights ``W = I - c a aᵀ``,
+    ``G`` from eq. 10, the sums ``Σ Jᵀ W J`` and ``Σ Jᵀ W (I + G Gᵀ) W J`` and the whitened
+    residuals of ``whitened_residuals``."""
+    from svains.frontend import egomotion_cov_kernels as ck
+    from svains.frontend.egomotion_cov import _previous_pixel_factor, _projection_jacobian
+
+    rng = np.random.default_rng(3)
+    R, t, p, uvl, uvr = _frame(rng, 40, 0.3, 30.0, yaw=0.2)
+    m = p.shape[0]
+    s_e = rng.uniform(0.0, 5.0, m)
+    f, b = RIG.f, RIG.baseline
+    J, WJ, G = np.empty((m, 4, 6)), np.empty((m, 4, 6)), np.empty((m, 4, 3))
+    e2, spread, A, B = np.empty(m), np.empty(m), np.empty((6, 6)), np.empty((6, 6))
+    ck.covariance_terms(R, t, p, uvl, uvr, s_e, True, f, RIG.cu, RIG.cv, b, J, WJ, G, e2,
+                        spread, A, B)  # fmt: skip
+    q = p @ R.T + t
+    P = _projection_jacobian(q, f, b)
+    skew = np.zeros((m, 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -p[:, 2], p[:, 1], -p[:, 0]
+    skew -= np.swapaxes(skew, 1, 2)
+    J_ref = np.concatenate([P @ (-R @ skew), P], axis=2)
+    G_ref, ray = _previous_pixel_factor(P @ R, p, f, b)
+    a = ray / p[:, 2:3]
+    c = s_e / (1.0 + s_e * (a * a).sum(1))
+    W = np.eye(4) - c[:, None, None] * a[:, :, None] * a[:, None, :]
+    S = np.eye(4) + G_ref @ np.swapaxes(G_ref, 1, 2)
+    WJ_ref = W @ J_ref
+    np.testing.assert_allclose(J, J_ref, rtol=1e-10, atol=1e-9)
+    np.testing.assert_allclose(G, G_ref, rtol=1e-10, atol=1e-9)
+    np.testing.assert_allclose(WJ, WJ_ref, rtol=1e-10, atol=1e-9)
+    A_ref = np.einsum("mia,mib->ab", J_ref, WJ_ref)
+    B_ref = np.einsum("mia,mij,mjb->ab", WJ_ref, S, WJ_ref)
+    np.testing.assert_allclose(A, A_ref, rtol=1e-10)
+    np.testing.assert_allclose(B, B_ref, rtol=1e-10)
+    np.testing.assert_allclose(e2, whitened_residuals(R, t, p, uvl, uvr, RIG), rtol=1e-9)
+    gl = (G_ref[:, :2] ** 2).sum((1, 2))
+    gr = (G_ref[:, 2:] ** 2).sum((1, 2))
+    np.testing.assert_allclose(spread, 1.0 + np.maximum(gl, gr), rtol=1e-12)
+
+
+def test_compiled_sandwich_matches_numpy_and_reports_singular() -> None:
+    """``sandwich``: scale * sym(A⁻¹ B A⁻ᵀ) as numpy computes it, for a badly scaled A (rotation
+    rows 1e6 x the translation ones); False for a singular A."""
+    from svains.frontend import egomotion_cov_kernels as ck
+
+    rng = np.random.default_rng(11)
+    X = rng.normal(size=(40, 6)) * np.r_[1e3, 1e3, 1e3, 1.0, 1.0, 1.0]
+    A, B = X.T @ X, np.cov(rng.normal(size=(6, 50)))
+    out = np.empty((6, 6))
+    assert ck.sandwich(A, B, 2.5, out)
+    Ai = np.linalg.inv(A)
+    ref = 2.5 * Ai @ B @ Ai.T
+    np.testing.assert_allclose(out, 0.5 * (ref + ref.T), rtol=1e-9, atol=0.0)
+    A[5], A[:, 5] = A[4], A[:, 4]  # two equal rows and columns
+    assert not ck.sandwich(A, B, 1.0, out)

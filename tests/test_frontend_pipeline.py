@@ -183,13 +183,19 @@ def test_still_camera_searches_new_corners_only_when_tracks_are_lost() -> None:
         assert fe.stats.inliers >= 0.95 * n0
     fe.process(4, left, right)  # every 4th frame regardless
     assert "detect" in fe.stats.timings_ms
-    # Half of the view goes blank: many tracks are lost, so corners are sought at once.
+    # Half of the view goes blank: many tracks are lost, so corners are sought. A track that
+    # KLT loses counts at once; one that KLT lets drift over the blank half (with the few
+    # pyramid levels a still camera gets, KltOptions.adaptive_levels) is lost at the
+    # left-right match, and counts on the next frame.
     blank_l, blank_r = left.copy(), right.copy()
     blank_l[:, 160:] = 128
     blank_r[:, 150:] = 128
-    fe.process(5, blank_l, blank_r)
+    tr = fe.process(5, blank_l, blank_r)
     assert fe.stats.status == "ok" and fe.stats.inliers < 0.7 * n0
-    assert "detect" in fe.stats.timings_ms
+    assert tr is not None and np.all(tr.uv_left[tr.inlier, 0] < 160 + 6)  # half a KLT window
+    searched = "detect" in fe.stats.timings_ms
+    fe.process(6, blank_l, blank_r)
+    assert searched or "detect" in fe.stats.timings_ms
 
 
 @pytest.mark.parametrize("retry_levels", [0, 4])
@@ -258,3 +264,37 @@ def test_reference_time_is_the_last_good_frame() -> None:
     assert fe.reference_t_ns == 20  # a degenerate frame does not replace the reference
     fe.process(40, *_pair(tex))
     assert fe.reference_t_ns == 40
+
+
+def test_klt_levels_follow_the_last_prediction_residual() -> None:
+    """``levels_for_residual``: the fewest levels whose reach (2 px doubling per level) covers
+    1.5x the residual, all levels for an unknown one; the front end tracks a still plane with
+    no level above the base once its prediction proved exact, and with all of them after the
+    unpredicted retry (the prediction 80 px off: the plane reverses)."""
+    import svains.frontend.pipeline as pipeline
+    from svains.frontend.tracking import KltOptions, levels_for_residual
+
+    o = KltOptions()
+    got = [levels_for_residual(r, o) for r in (0.0, 1.3, 1.4, 2.6, 2.7, 5.4, 50.0, np.nan)]
+    assert got == [0, 0, 1, 1, 2, 3, 3, 3]
+    used: list[int | None] = []
+    track = pipeline.track_klt
+
+    def spy(*a: object, **k: object) -> object:
+        used.append(k.get("max_level"))  # type: ignore[arg-type]
+        return track(*a, **k)  # type: ignore[arg-type]
+
+    pipeline.track_klt = spy  # type: ignore[assignment]
+    try:
+        fe = _frontend(reacquire=ReacquireOptions(enabled=False))
+        tex = _texture(3, (240, 700))
+        for k, s in enumerate([100, 100, 100, 140, 180, 140, 100]):
+            fe.process(k, *_pair(tex, s))
+    finally:
+        pipeline.track_klt = track  # type: ignore[assignment]
+    # Frame 1 is unpredicted (all 3 levels); 2: still, residual unknown yet -> 3; 3: the still
+    # prediction was exact -> 0 levels, but the plane jumps 40 px: no consensus, retry with
+    # retry_levels (4); 4: no residual after the retry -> 3, and the constant-velocity
+    # prediction is exact again; 5: 0 levels, the plane reverses (80 px off): retry (4); 6: 3.
+    assert used == [3, 3, 0, 4, 3, 0, 4, 3]
+    assert fe.stats.status == "ok"

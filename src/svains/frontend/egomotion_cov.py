@@ -42,9 +42,12 @@ The rotation error is local, ``R = R̂ Exp(δθ)`` (docs/conventions.md): ``dq/d
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from numpy.typing import NDArray
 
+from svains.frontend import egomotion_cov_kernels as ck
 from svains.geometry.camera import RectifiedStereo
 
 F64 = NDArray[np.float64]
@@ -64,6 +67,15 @@ _INACTIVE_RATIO = 9.0
 _ROBUST_FEATURES = 96
 _ROBUST_TAKEOVER = 1.5
 _I3, _I4 = np.eye(3), np.eye(4)
+
+
+@lru_cache(maxsize=64)
+def _spread(m: int, k: int) -> NDArray[np.int64]:
+    """``k`` indices spread evenly over [0, m) (``np.linspace`` truncated; cached: the same
+    few sizes come back every frame)."""
+    out = np.linspace(0, m - 1, k).astype(np.int64)
+    out.flags.writeable = False
+    return out
 
 
 def _inv3_sym(M: F64) -> F64:
@@ -206,58 +218,34 @@ def egomotion_covariance(
         p, q, uvl, uvr = p[ok], q[ok], uvl[ok], uvr[ok]
         s_e = None if s_e is None else s_e[ok]
     m = p.shape[0]
-    P = _projection_jacobian(q, f, b)  # (M, 4, 3) at k: rows left u, left v, right u, right v
-    PR = (P.reshape(-1, 3) @ R).reshape(m, 4, 3)  # d residual / d p_prev, one BLAS call
-    # Motion Jacobian (local): q = R Exp(δθ) p + t + δt, dq/dδθ = -R [p]x, so each row of PR
-    # becomes (row x p); written out (np.cross on 3-vectors is slow).
-    J = np.empty((m, 4, 6))
-    p0, p1, p2 = p[:, None, 0], p[:, None, 1], p[:, None, 2]
-    a0, a1, a2 = PR[..., 0], PR[..., 1], PR[..., 2]
-    J[..., 0] = a2 * p1 - a1 * p2
-    J[..., 1] = a0 * p2 - a2 * p0
-    J[..., 2] = a1 * p0 - a0 * p1
-    J[..., 3:] = P
-    G, ray = _previous_pixel_factor(PR, p, f, b)  # k-1 pixels through eq. 10
-    zp = p[:, 2]
-    Gt = np.swapaxes(G, 1, 2)
-    # The estimator's weights: identity minus its rank-one depth term (Sherman-Morrison) on the
-    # residual per metre of depth, PR p / z.
-    WJ = J
-    if s_e is not None:
-        s_e = np.where(np.isfinite(s_e), s_e, 0.0)
-        ae = ray / zp[:, None]
-        ce = s_e / (1.0 + s_e * (ae * ae).sum(-1))
-        aJ = ae[:, None, :] @ J  # (M, 1, 6)
-        WJ = J - (ce[:, None] * ae)[:, :, None] * aJ
+    c_ = np.ascontiguousarray
+    J, WJ, G = np.empty((m, 4, 6)), np.empty((m, 4, 6)), np.empty((m, 4, 3))
+    e2, spread, A, B = np.empty(m), np.empty(m), np.empty((6, 6)), np.empty((6, 6))
+    # J, W J, G, whitened residuals, Σ Jᵀ W J and Σ Jᵀ W S W J (compiled, one call).
+    ck.covariance_terms(
+        c_(R), c_(t), c_(p), c_(uvl), c_(uvr), e2 if s_e is None else c_(s_e), s_e is not None,
+        f, rig.cu, rig.cv, b, J, WJ, G, e2, spread, A, B,
+    )
     sigma2 = pixel_sigma_px**2
     if robust:
         # On at most _ROBUST_FEATURES features spread over the set: a median needs no more.
-        sub = np.linspace(0, m - 1, min(m, _ROBUST_FEATURES)).astype(np.int64)
-        Gs = G[sub]
-        r = _stereo_residuals(q[sub], uvl[sub], uvr[sub], rig)
-        # rᵀ S⁻¹ r with S⁻¹ = I - G (I + GᵀG)⁻¹ Gᵀ (Woodbury: a 3x3 inverse, not a 4x4 one).
-        Gst = np.swapaxes(Gs, 1, 2)
-        yv = (Gst @ r[..., None])[..., 0]
-        e2 = (r * r).sum(-1) - (yv * (_inv3_sym(Gst @ Gs + _I3) @ yv[..., None])[..., 0]).sum(-1)
-        s2 = _median(e2) / _CHI2_4_MEDIAN
+        sub = _spread(m, min(m, _ROBUST_FEATURES))
+        s2 = _median(e2[sub]) / _CHI2_4_MEDIAN
         # Only a noise comparable to the gate is truncated noticeably: then correct for it.
         if gate_px is not None and s2 > sigma2 and 4.0 * s2 * _INACTIVE_RATIO > gate_px**2:
-            s2 = _truncated_sigma2(e2, *_unit_samples(Gs @ Gst + _I4), gate_px, s2)
+            Gs = G[sub]
+            s2 = _truncated_sigma2(e2[sub], *_unit_samples(Gs @ np.swapaxes(Gs, 1, 2) + _I4),
+                                   gate_px, s2)  # fmt: skip
         if s2 > _ROBUST_TAKEOVER * sigma2:
             sigma2 = s2
-    Jf, WJf = J.reshape(-1, 6), WJ.reshape(-1, 6)
-    GtWJ = (Gt @ WJ).reshape(-1, 6)
-    A = Jf.T @ WJf  # Σ Jᵀ W J
-    B = WJf.T @ WJf + GtWJ.T @ GtWJ  # Σ Jᵀ W S W J
     if gate_px is not None:
         c = gate_px / np.sqrt(sigma2)  # gate in units of σ
         # Features whose 2-D residual spread stays far below the gate keep K = S (and add the
         # plain terms above); the others swap them for the gated ones.
-        Gl, Gr = G[:, :2], G[:, 2:]
-        spread = 1.0 + np.maximum((Gl * Gl).sum((1, 2)), (Gr * Gr).sum((1, 2)))
         act = np.flatnonzero(spread * _INACTIVE_RATIO > c * c)
         if act.size:
-            Ga, Gat, Ja, WJa = G[act], Gt[act], J[act], WJ[act]
+            Ga, Ja, WJa = G[act], J[act], WJ[act]
+            Gat = np.swapaxes(Ga, 1, 2)
             Sa = Ga @ Gat + _I4
             K = _gated_second_moment(_unit_samples(Sa)[1], c)
             SiJ = Ja - Ga @ (_inv3_sym(Gat @ Ga + _I3) @ (Gat @ Ja))  # S⁻¹ J (Woodbury)
@@ -265,14 +253,15 @@ def egomotion_covariance(
             WJa_f = WJa.reshape(-1, 6)
             A += KWJ.T @ SiJ.reshape(-1, 6) - Ja.reshape(-1, 6).T @ WJa_f  # Σ Jᵀ W K S⁻¹ J
             B += WJa_f.T @ KWJ - WJa_f.T @ (Sa @ WJa).reshape(-1, 6)
-    try:
-        Ai = np.linalg.inv(A)
-    except np.linalg.LinAlgError:
-        Ai = np.linalg.pinv(A)
     # ``inflation`` floors the effective pixel variance at inflation σ² (errors shared by the
     # features); a white noise measured above that floor (robust) takes over.
-    cov = max(sigma2, inflation * pixel_sigma_px**2) * (Ai @ B @ Ai.T)
-    return 0.5 * (cov + cov.T)
+    scale = max(sigma2, inflation * pixel_sigma_px**2)
+    cov = np.empty((6, 6))
+    if not ck.sandwich(A, B, scale, cov):  # singular: pseudo-inverse
+        Ai = np.linalg.pinv(A)
+        cov = scale * (Ai @ B @ Ai.T)
+        cov = 0.5 * (cov + cov.T)
+    return cov
 
 
 def whitened_residuals(

@@ -34,6 +34,7 @@ def _accumulate(
     g[:] = 0.0
     J = np.zeros((4, 6))
     r = np.zeros(4)
+    ja = np.zeros(6)
     cost = 0.0
     for m in range(P.shape[0]):
         w = W[m]
@@ -79,16 +80,13 @@ def _accumulate(
         J[2, 5] = c2
         for j in range(6):
             J[3, j] = J[1, j]
+        # The right v row equals the left one (rectified rows): three distinct rows, the
+        # second counted twice.
+        r13 = r[1] + r[3]
         for i in range(6):
-            gi = 0.0
-            for k in range(4):
-                gi += J[k, i] * r[k]
-            g[i] += w * gi
+            g[i] += w * (J[0, i] * r[0] + J[1, i] * r13 + J[2, i] * r[2])
             for j in range(i, 6):
-                s = 0.0
-                for k in range(4):
-                    s += J[k, i] * J[k, j]
-                A[i, j] += w * s
+                A[i, j] += w * (J[0, i] * J[0, j] + 2.0 * J[1, i] * J[1, j] + J[2, i] * J[2, j])
         e2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2] + r[3] * r[3]
         if use_dvar and P[m, 2] > 0.0 and np.isfinite(dvar[m]):
             # Depth uncertainty along the ray: residual covariance I + s2 a aᵀ, inverted by
@@ -103,11 +101,11 @@ def _accumulate(
             ar = a0 * r[0] + a1 * (r[1] + r[3]) + a2 * r[2]
             wc = w * c
             for i in range(6):
-                jai = a0 * J[0, i] + a1 * (J[1, i] + J[3, i]) + a2 * J[2, i]
-                g[i] -= wc * ar * jai
+                ja[i] = a0 * J[0, i] + a1 * (J[1, i] + J[3, i]) + a2 * J[2, i]
+            for i in range(6):
+                g[i] -= wc * ar * ja[i]
                 for j in range(i, 6):
-                    jaj = a0 * J[0, j] + a1 * (J[1, j] + J[3, j]) + a2 * J[2, j]
-                    A[i, j] -= wc * jai * jaj
+                    A[i, j] -= wc * ja[i] * ja[j]
             e2 -= c * ar * ar
         cost += w * e2
     for i in range(6):
@@ -176,6 +174,28 @@ def _rotate_left(R: F64, w0: float, w1: float, w2: float) -> None:
 
 
 @njit(cache=True, nogil=True)
+def _gauss_newton_one(
+    R: F64, t: F64, P: F64, L: F64, Rr: F64, W: F64, dvar: F64, use_dvar: bool, f: float,
+    cu: float, cv: float, b: float, iterations: int, tol: float, A: F64, g: F64, delta: F64,
+) -> None:
+    """Refine one motion ``R`` (3, 3), ``t`` (3,) in place (``gauss_newton_batch``; ``A``, ``g``,
+    ``delta`` are scratch)."""
+    for _ in range(iterations):
+        _accumulate(R, t, P, L, Rr, W, dvar, use_dvar, f, cu, cv, b, A, g)
+        if not _solve6(A, g, delta):
+            break
+        _rotate_left(R, delta[0], delta[1], delta[2])
+        t[0] += delta[3]
+        t[1] += delta[4]
+        t[2] += delta[5]
+        big = 0.0
+        for i in range(6):
+            big = max(big, abs(delta[i]))
+        if big < tol:
+            break
+
+
+@njit(cache=True, nogil=True)
 def gauss_newton_batch(
     R: F64, t: F64, P: F64, L: F64, Rr: F64, W: F64, dvar: F64, use_dvar: bool, f: float,
     cu: float, cv: float, b: float, iterations: int, tol: float,
@@ -187,20 +207,65 @@ def gauss_newton_batch(
     g = np.zeros(6)
     delta = np.zeros(6)
     for h in range(R.shape[0]):
-        for _ in range(iterations):
-            _accumulate(R[h], t[h], P[h], L[h], Rr[h], W[h], dvar[h], use_dvar, f, cu, cv, b,
-                        A, g)  # fmt: skip
-            if not _solve6(A, g, delta):
-                break
-            _rotate_left(R[h], delta[0], delta[1], delta[2])
-            t[h, 0] += delta[3]
-            t[h, 1] += delta[4]
-            t[h, 2] += delta[5]
-            big = 0.0
-            for i in range(6):
-                big = max(big, abs(delta[i]))
-            if big < tol:
-                break
+        _gauss_newton_one(R[h], t[h], P[h], L[h], Rr[h], W[h], dvar[h], use_dvar, f, cu, cv, b,
+                          iterations, tol, A, g, delta)  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def _sq_error(R: F64, t: F64, P: F64, L: F64, Rr: F64, m: int, f: float, cu: float, cv: float,
+              b: float) -> float:  # fmt: skip
+    """Squared larger-of-left-and-right pixel error (px²) of point ``P[m]`` moved by ``R``,
+    ``t``; inf behind the camera (``MIN_DEPTH_M``) or for a NaN depth."""
+    x = R[0, 0] * P[m, 0] + R[0, 1] * P[m, 1] + R[0, 2] * P[m, 2] + t[0]
+    y = R[1, 0] * P[m, 0] + R[1, 1] * P[m, 1] + R[1, 2] * P[m, 2] + t[1]
+    z = R[2, 0] * P[m, 0] + R[2, 1] * P[m, 1] + R[2, 2] * P[m, 2] + t[2]
+    if not z > MIN_DEPTH_M:
+        return np.inf
+    fz = f / z
+    u = x * fz + cu
+    v = y * fz + cv
+    du, dv = u - L[m, 0], v - L[m, 1]
+    dur, dvr = u - b * fz - Rr[m, 0], v - Rr[m, 1]
+    return max(du * du + dv * dv, dur * dur + dvr * dvr)
+
+
+@njit(cache=True, nogil=True)
+def max_errors(R: F64, t: F64, P: F64, L: F64, Rr: F64, f: float, cu: float, cv: float,
+               b: float, err: F64) -> None:  # fmt: skip
+    """``err`` (M,) px: the larger of the left and right pixel errors of points ``P`` (M, 3)
+    moved by ``R`` (3, 3), ``t`` (3,) against pixels ``L``/``Rr`` (M, 2); inf for a point
+    behind the camera or a non-finite error."""
+    for m in range(P.shape[0]):
+        e2 = _sq_error(R, t, P, L, Rr, m, f, cu, cv, b)
+        err[m] = math.sqrt(e2) if np.isfinite(e2) else np.inf
+
+
+@njit(cache=True, nogil=True)
+def refine_select(
+    R: F64, t: F64, P: F64, L: F64, Rr: F64, W: F64, dvar: F64, use_dvar: bool, f: float,
+    cu: float, cv: float, b: float, iterations: int, tol: float, rounds: int,
+    inlier_px: float, err: F64,
+) -> None:
+    """RANSAC's final refinement of one motion ``R`` (3, 3), ``t`` (3,) (in place): Gauss-Newton
+    (at most ``iterations``, down to ``tol``) on the features selected by ``W`` (M,) in {0, 1},
+    then every feature whose larger left/right error is below ``inlier_px`` is selected
+    (``W`` updated in place), repeated for at most ``rounds`` rounds until the selection stops
+    changing. ``err`` (M,) receives the errors (px) of the last round."""
+    A = np.zeros((6, 6))
+    g = np.zeros(6)
+    delta = np.zeros(6)
+    for _ in range(max(rounds, 1)):
+        _gauss_newton_one(R, t, P, L, Rr, W, dvar, use_dvar, f, cu, cv, b, iterations, tol,
+                          A, g, delta)  # fmt: skip
+        max_errors(R, t, P, L, Rr, f, cu, cv, b, err)
+        same = True
+        for m in range(P.shape[0]):
+            w = 1.0 if err[m] < inlier_px else 0.0
+            if w != W[m]:
+                same = False
+            W[m] = w
+        if same:
+            break
 
 
 @njit(cache=True, nogil=True)
@@ -231,106 +296,10 @@ def score_batch(
         count = 0
         err = 0.0
         for m in range(M):
-            x = R[h, 0, 0] * P[m, 0] + R[h, 0, 1] * P[m, 1] + R[h, 0, 2] * P[m, 2] + t[h, 0]
-            y = R[h, 1, 0] * P[m, 0] + R[h, 1, 1] * P[m, 1] + R[h, 1, 2] * P[m, 2] + t[h, 1]
-            z = R[h, 2, 0] * P[m, 0] + R[h, 2, 1] * P[m, 1] + R[h, 2, 2] * P[m, 2] + t[h, 2]
-            if not z > MIN_DEPTH_M:
-                continue
-            fz = f / z
-            u = x * fz + cu
-            v = y * fz + cv
-            du, dv = u - L[m, 0], v - L[m, 1]
-            dur, dvr = u - b * fz - Rr[m, 0], v - Rr[m, 1]
-            e2 = max(du * du + dv * dv, dur * dur + dvr * dvr)
+            e2 = _sq_error(R[h], t[h], P, L, Rr, m, f, cu, cv, b)
             if e2 < thr2:  # NaN never passes
                 inl[h, m] = True
                 count += 1
                 err += math.sqrt(e2)
         score[h] = count - err / (inlier_px * (M + 1))
     return score, inl
-
-
-@njit(cache=True, nogil=True)
-def align_batch(P: F64, C: F64, R: F64, t: F64) -> None:
-    """Rigid alignment ``C ≈ R P + t`` of H point sets ``P``/``C`` (H, M, 3) into ``R`` (H, 3, 3),
-    ``t`` (H, 3) (least squares; Horn's unit-quaternion method). The quaternion is the dominant
-    eigenvector of Horn's 4x4 matrix, found by repeated squaring of the matrix shifted to be
-    positive semi-definite (2^16-th power; no LAPACK call). Sets with a non-finite point get the
-    identity."""
-    H, M = P.shape[0], P.shape[1]
-    N = np.zeros((4, 4))
-    Q = np.zeros((4, 4))
-    Q2 = np.zeros((4, 4))
-    ma = np.zeros(3)
-    mb = np.zeros(3)
-    S = np.zeros((3, 3))
-    for h in range(H):
-        finite = True
-        ma[:] = 0.0
-        mb[:] = 0.0
-        for m in range(M):
-            for i in range(3):
-                if not (np.isfinite(P[h, m, i]) and np.isfinite(C[h, m, i])):
-                    finite = False
-                ma[i] += P[h, m, i] / M
-                mb[i] += C[h, m, i] / M
-        if not finite:
-            for i in range(3):
-                for j in range(3):
-                    R[h, i, j] = 1.0 if i == j else 0.0
-                t[h, i] = 0.0
-            continue
-        S[:, :] = 0.0  # S[a, b] = Σ (p_a - μ_a)(c_b - μ_b)
-        for m in range(M):
-            for i in range(3):
-                for j in range(3):
-                    S[i, j] += (P[h, m, i] - ma[i]) * (C[h, m, j] - mb[j])
-        sxx, sxy, sxz = S[0, 0], S[0, 1], S[0, 2]
-        syx, syy, syz = S[1, 0], S[1, 1], S[1, 2]
-        szx, szy, szz = S[2, 0], S[2, 1], S[2, 2]
-        N[0, 0], N[0, 1], N[0, 2], N[0, 3] = sxx + syy + szz, syz - szy, szx - sxz, sxy - syx
-        N[1, 1], N[1, 2], N[1, 3] = sxx - syy - szz, sxy + syx, szx + sxz
-        N[2, 2], N[2, 3] = -sxx + syy - szz, syz + szy
-        N[3, 3] = -sxx - syy + szz
-        for i in range(4):
-            for j in range(i):
-                N[i, j] = N[j, i]
-        # Shift by the Frobenius norm (a bound on the spectral radius): eigenvalues >= 0.
-        shift = 0.0
-        for i in range(4):
-            for j in range(4):
-                shift += N[i, j] * N[i, j]
-        shift = max(math.sqrt(shift), 1e-300)
-        for i in range(4):
-            for j in range(4):
-                Q[i, j] = N[i, j] + (shift if i == j else 0.0)
-        for _ in range(16):  # Q <- Q² / max|Q|: converges to the dominant eigenprojector
-            nrm = 0.0
-            for i in range(4):
-                for j in range(4):
-                    v = (Q[i, 0] * Q[0, j] + Q[i, 1] * Q[1, j] + Q[i, 2] * Q[2, j]
-                         + Q[i, 3] * Q[3, j])
-                    Q2[i, j] = v
-                    nrm = max(nrm, abs(v))
-            nrm = max(nrm, 1e-300)
-            for i in range(4):
-                for j in range(4):
-                    Q[i, j] = Q2[i, j] / nrm
-        best, col = -1.0, 0
-        for j in range(4):
-            s = Q[0, j] ** 2 + Q[1, j] ** 2 + Q[2, j] ** 2 + Q[3, j] ** 2
-            if s > best:
-                best, col = s, j
-        nq = math.sqrt(best)
-        w, x, y, z = Q[0, col] / nq, Q[1, col] / nq, Q[2, col] / nq, Q[3, col] / nq
-        R[h, 0, 0] = 1 - 2 * (y * y + z * z)
-        R[h, 0, 1] = 2 * (x * y - w * z)
-        R[h, 0, 2] = 2 * (x * z + w * y)
-        R[h, 1, 0] = 2 * (x * y + w * z)
-        R[h, 1, 1] = 1 - 2 * (x * x + z * z)
-        R[h, 1, 2] = 2 * (y * z - w * x)
-        R[h, 2, 0] = 2 * (x * z - w * y)
-        R[h, 2, 1] = 2 * (y * z + w * x)
-        R[h, 2, 2] = 1 - 2 * (x * x + y * y)
-        for i in range(3):
-            t[h, i] = mb[i] - (R[h, i, 0] * ma[0] + R[h, i, 1] * ma[1] + R[h, i, 2] * ma[2])

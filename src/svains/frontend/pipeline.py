@@ -23,7 +23,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.frontend.egomotion import RansacOptions, estimate_egomotion
+from svains.frontend.egomotion import RansacOptions, estimate_egomotion, warm_up
 from svains.frontend.features import detect_corners
 from svains.frontend.images import as_grey, texture_std
 from svains.frontend.motion_checks import agrees_with_prior, plausible
@@ -31,7 +31,7 @@ from svains.frontend.options import HOLD_STATUSES, FrameStats, FrontendOptions
 from svains.frontend.reacquire import Reacquired, Reacquirer
 from svains.frontend.rectify import StereoRectifier
 from svains.frontend.stereo import dense_disparity, match_dense, match_sparse
-from svains.frontend.tracking import Pyramid, track_klt
+from svains.frontend.tracking import Pyramid, levels_for_residual, track_klt
 from svains.frontend.types import Egomotion, StereoTracks
 from svains.geometry.camera import RectifiedStereo
 from svains.sensors.types import CameraCalib
@@ -68,7 +68,10 @@ class StereoFrontend:
         self._last_motion: Egomotion | None = None
         self._held = 0
         self._failed: list[F64] = []  # unmatched new corners of the last few frames
-        self._flow_px = 0.0  # median image motion of the features tracked into the last frame
+        self._flow_px = 0.0  # median image motion of the tracked features (at the last search)
+        # 90th percentile px of how far the last prior-predicted tracks ended from their
+        # predicted starts (NaN: the last frame was not tracked from a motion prior).
+        self._prior_residual_px = np.nan
         self._n_after_detect = 0  # reference features right after the last corner search
         self._since_detect = 0  # frames since the last corner search
         self._rng = np.random.default_rng(self.options.ransac.seed)
@@ -79,6 +82,7 @@ class StereoFrontend:
         self._geo: StereoRectifier | None = rectifier if raw else None
         self._last_images: tuple[U8, U8] | None = None
         self._reacquirer = Reacquirer(self.rig, self.options.reacquire)
+        warm_up(self.rig)  # compiled RANSAC kernels loaded now, not on the first frame
 
     @property
     def reference_t_ns(self) -> int | None:
@@ -184,8 +188,6 @@ class StereoFrontend:
         predicted = False
         if ref is not None:
             uv_l, ok_t, disp_guess, predicted = self._track_temporal(ref, pl, motion_prior, tm)
-            flow = np.linalg.norm(uv_l[ok_t] - ref.uv_left[ok_t], axis=1)
-            self._flow_px = float(np.median(flow)) if flow.size else np.inf
 
         # New corners are sought before the left-right match, away from the features tracked
         # now, so that one left-right KLT pass serves the tracked and the new features alike.
@@ -206,6 +208,9 @@ class StereoFrontend:
         tm["stereo"] = (time.perf_counter() - t3) * 1e3
         new_r, ok_new = uv_q[n_t:], ok_q[n_t:]
         if search:
+            if ref is not None:  # only read here: worked out on the frames that search
+                flow = np.linalg.norm(uv_l[ok_t] - ref.uv_left[ok_t], axis=1)
+                self._flow_px = float(np.median(flow)) if flow.size else np.inf
             if o.retry_failed_after > 0 and self._flow_px <= o.retry_max_flow_px:
                 self._failed = [*self._failed, self._to_img(new_l[~ok_new])]
                 self._failed = self._failed[-o.retry_failed_after :]
@@ -285,15 +290,22 @@ class StereoFrontend:
             good = np.isfinite(uv_pred).all(1) & (q[:, 2] > 0.1) & self.rig.in_image(uv_pred)
             guess = np.where(good[:, None], uv_pred, ref.uv_left)
             levels = o.klt.levels_predicted
+            if o.klt.adaptive_levels:
+                levels = levels_for_residual(self._prior_residual_px, o.klt)
             # Predicted disparity seeds the left-right match (it grows as the camera approaches).
             with np.errstate(divide="ignore", invalid="ignore"):
                 d_pred = self.rig.f * self.rig.baseline / q[:, 2]
             disp_prev = np.where(good & np.isfinite(d_pred), d_pred, disp_prev)
+        guess_img = None if guess is None else self._to_img(guess)
         uv_img, ok_t = track_klt(
-            ref.left, pl, self._to_img(ref.uv_left), o.klt,
-            guess=None if guess is None else self._to_img(guess), max_level=levels,
+            ref.left, pl, self._to_img(ref.uv_left), o.klt, guess=guess_img, max_level=levels,
             fb_max_level=o.klt.fb_levels, fb_check=guess is None or o.klt.fb_when_predicted,
         )
+        self._prior_residual_px = np.nan
+        if guess_img is not None and ok_t.any():
+            d = np.linalg.norm(uv_img[ok_t] - guess_img[ok_t], axis=1)
+            k = int(0.9 * (d.size - 1))
+            self._prior_residual_px = float(np.partition(d, k)[k])
         uv_l = self._to_rect(uv_img)
         ok_t &= np.isfinite(uv_l).all(1) & self.rig.in_image(uv_l)
         # A tracked feature never falls back to the row search: no finite seed, no match.
@@ -374,7 +386,7 @@ class StereoFrontend:
         t6 = time.perf_counter()
         prior = motion_prior or self._last_motion
         res = estimate_egomotion(
-            p_prev, uvl, uvr, self.rig, ransac, p_cur=self.rig.triangulate(uvl, uvr),
+            p_prev, uvl, uvr, self.rig, ransac, p_cur=lambda: self.rig.triangulate(uvl, uvr),
             prior=prior, rng=self._rng,
         )
         tm["ransac"] = tm.get("ransac", 0.0) + (time.perf_counter() - t6) * 1e3

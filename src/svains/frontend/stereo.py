@@ -56,6 +56,26 @@ class StereoMatchOptions:
     fb_check: bool = False
 
 
+def _windows(img: U8, row: NDArray[np.int64], col: NDArray[np.int64], half: int,
+             before: int) -> U8:  # fmt: skip
+    """Windows (N, 2 half + 1, before + half + 1) of ``img`` (H, W): rows ``row ± half``,
+    columns ``col - before`` to ``col + half``, edge-replicated outside the image. Windows
+    inside are block copies from a strided view (no padded copy of the whole image, which
+    cost more than the search); the few that cross an edge gather clipped indices."""
+    h, w = img.shape
+    k = 2 * half + 1
+    out = np.empty((row.size, k, before + half + 1), np.uint8)
+    inside = (row >= half) & (row < h - half) & (col >= before) & (col < w - half)
+    view = sliding_window_view(img, (k, before + half + 1))
+    out[inside] = view[row[inside] - half, col[inside] - before]
+    if not inside.all():
+        o = ~inside
+        rows = np.clip(row[o, None] + np.arange(-half, half + 1), 0, h - 1)
+        cols = np.clip(col[o, None] + np.arange(-before, half + 1), 0, w - 1)
+        out[o] = img[rows[:, :, None], cols[:, None, :]]
+    return out
+
+
 def block_match_rows(
     img_left: U8, img_right: U8, uv_left: F64, max_disparity_px: float, half: int = 5,
     min_ncc: float = 0.8, uniqueness: float = 0.97, rectifier: StereoRectifier | None = None,
@@ -79,12 +99,8 @@ def block_match_rows(
     row = np.rint(uv[:, 1]).astype(np.int64)
     row, col = np.clip(row, 0, h - 1), np.clip(col, 0, w - 1)
     if rectifier is None:
-        # Edge-replicated borders, then each patch/strip is one window of a strided view:
-        # a block copy per feature instead of per-pixel fancy indexing.
-        pad_l = cv2.copyMakeBorder(img_left, half, half, half, half, cv2.BORDER_REPLICATE)
-        lp = sliding_window_view(pad_l, (k, k))[row, col].astype(np.float32)  # (N, k, k)
-        pad_r = cv2.copyMakeBorder(img_right, half, half, half + D, half, cv2.BORDER_REPLICATE)
-        rs = sliding_window_view(pad_r, (k, D + k))[row, col].astype(np.float32)  # (N, k, D+k)
+        lp = _windows(img_left, row, col, half, half).astype(np.float32)  # (N, k, k)
+        rs = _windows(img_right, row, col, half, half + D).astype(np.float32)  # (N, k, D+k)
     else:
         off = np.arange(-half, half + 1)
         rows = np.clip(row[:, None] + off, 0, h - 1)[:, :, None]  # (N, k, 1)
