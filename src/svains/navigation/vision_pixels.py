@@ -73,6 +73,11 @@ def _member(ids: I64, sorted_ids: I64) -> NDArray[np.bool_]:
     return sorted_ids[pos] == ids
 
 
+def _debiased(h: Callable[[F64], F64], bias: F64) -> Callable[[F64], F64]:
+    """The measurement function ``h`` (sigma points -> (S, 4K) px) minus ``bias`` (4K,) px."""
+    return lambda X: h(X) - bias
+
+
 def _subsample(idx: I64, n_max: int | None) -> I64:
     """At most ``n_max`` of ``idx``, evenly spread (tracks are ordered by id, i.e. by age)."""
     if n_max is None or idx.size <= n_max:
@@ -183,12 +188,13 @@ class PixelUpdater:
         Y = pixels_tc_from_motion(R_all[:-1], r_all[:-1], uvl0, uvr0, self.rig)
         return Y, R_all[-1], r_all[-1], None
 
-    def _bias(self, R_c: F64, r_c: F64, uvl0: F64, uvr0: F64) -> F64:
+    def _bias(self, R_c: F64, r_c: F64, uvl0: F64, uvr0: F64) -> F64 | None:
         """Second-order bias (4M,) px of the predicted pixels from the k-1 pixel noise (the
         pixels' own std, not the scaled ``sigma_px``, which also covers model error), at the
-        mean camera motion ``R_c`` (3, 3), ``r_c`` (3,); zeros when the noise is unknown."""
+        mean camera motion ``R_c`` (3, 3), ``r_c`` (3,); None when the noise is unknown or the
+        bias is zero everywhere (nothing to correct)."""
         if not self._debias:
-            return np.zeros(4 * len(uvl0))
+            return None
         rig, R1, r1 = self.rig, R_c[None], r_c[None]
         if self.method == "3d":
             def h_prev(ul: F64, ur: F64) -> F64:
@@ -196,7 +202,8 @@ class PixelUpdater:
         else:
             def h_prev(ul: F64, ur: F64) -> F64:
                 return pixels_tc_from_motion(R1, r1, ul, ur, rig)[0]
-        return previous_pixel_bias(h_prev, uvl0, uvr0, self._pixel_std_px)
+        bias = previous_pixel_bias(h_prev, uvl0, uvr0, self._pixel_std_px)
+        return bias if np.any(bias) else None
 
     def update(self, ctx: FrameContext) -> UpdateStats | None:
         """Fuse the frame at ``ctx.t_ns`` (see the module docstring)."""
@@ -226,7 +233,8 @@ class PixelUpdater:
         X, _ = ctx.ukf.sigma_points()  # reused by the update below (same state)
         Y, R_c, r_c, p_F = self._predict(ctx, X, uvl0, uvr0, motion)
         bias = self._bias(R_c, r_c, uvl0, uvr0)
-        Y = Y - bias
+        if bias is not None:
+            Y = Y - bias
         # Per-feature 4x4 noise: pixel noise at k plus the k-1 pixel noise carried through
         # triangulation/transfer (dominant for far points), and in "imu" mode the IMU
         # increment's noise as a feature-correlated factor G (4M, 6). Closed form at the mean
@@ -250,9 +258,8 @@ class PixelUpdater:
             return None
         kept = np.flatnonzero(keep)
         h_kept = self._model(uvl0[kept], uvr0[kept], motion, None if p_F is None else p_F[kept])
-        if np.any(bias):
-            h_raw, b_kept = h_kept, bias.reshape(-1, 4)[kept].reshape(-1)
-            h_kept = lambda X_: h_raw(X_) - b_kept  # noqa: E731
+        if bias is not None:
+            h_kept = _debiased(h_kept, bias.reshape(-1, 4)[kept].reshape(-1))
         block = _whitened_block(f"vision_{self.method}", kept, X, Y, z, R_blocks, G, h_kept)
         stats = apply_blocks(ctx, [block, *ctx.extra])
         if stats.accepted:
