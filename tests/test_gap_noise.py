@@ -58,10 +58,12 @@ def test_gap_covariance_covers_the_noise_of_the_bridge_end_samples() -> None:
     err = np.array([e for _, e in draws])
     measured_v = err[:, 0:3].var(axis=0).mean()
     measured_th = err[:, 3:6].var(axis=0).mean()
-    # The model also holds the (small) block-mean spread of the still samples, so it expects
-    # ~0.93; 900 squared draws estimate a variance to ~5 %.
-    assert 0.8 < measured_v / Q[3, 3] < 1.15
-    assert 0.8 < measured_th / Q[6, 6] < 1.15
+    # The model also holds the spread of the block means before the gap; its last block is the
+    # end sample alone, so on a still IMU the model is ~1.5x the bridge's error. Without the
+    # end samples' term it is ~0.45x (the bridge's error ~2.2x the model). 900 squared draws
+    # estimate a variance to ~5 %.
+    assert 0.5 < measured_v / Q[3, 3] < 1.15
+    assert 0.5 < measured_th / Q[6, 6] < 1.15
 
 
 def test_gap_covariance_grows_with_the_square_of_the_gap() -> None:

@@ -147,15 +147,12 @@ class ImuFaults:
         sel = np.flatnonzero(t >= start_ns - int(self._options.gap_spread_s * 1e9))
         accel_std, gyro_std = (d / math.sqrt(_BLOCK_S) for d in self._densities)
         if sel.size >= 2:
-            # Blocks counted back from the gap, and only those at least half full: a block of
-            # a few samples would carry their white noise into the spread as motion.
-            block = (start_ns - 1 - t[sel]) // int(_BLOCK_S * 1e9)  # non-increasing
-            first = np.flatnonzero(np.r_[True, block[1:] != block[:-1]])
-            n = np.diff([*first, sel.size])
-            full = n >= 0.5 * n.max()
-            if full.sum() >= 2:
-                a = np.add.reduceat(history.accel_B[sel], first)[full] / n[full, None]
-                g = np.add.reduceat(history.gyro_B[sel], first)[full] / n[full, None]
+            block = (t[sel] - t[sel[0]]) // int(_BLOCK_S * 1e9)
+            _, first = np.unique(block, return_index=True)
+            if first.size >= 2:
+                n = np.diff([*first, sel.size])[:, None]
+                a = np.add.reduceat(history.accel_B[sel], first) / n
+                g = np.add.reduceat(history.gyro_B[sel], first) / n
                 accel_std = max(accel_std, float(np.mean(np.std(a, axis=0))))
                 gyro_std = max(gyro_std, float(np.mean(np.std(g, axis=0))))
         return accel_std, gyro_std

@@ -285,7 +285,8 @@ class FaultOptions:
     ``imu_guard``: check every IMU sample (``navigation.imu_guard.ImuGuard``: non-finite,
     all-zero, saturated and spike samples are dropped and bridged by their neighbours; a gap of
     more than ``imu_gap_factor`` median spacings adds the noise it skipped to the covariance,
-    ``gap_covariance`` with the sample spread of the ``gap_spread_s`` before it).
+    ``gap_covariance`` with the sample spread of the ``gap_spread_s`` before it plus the white
+    noise of the two samples the bridge is drawn between).
     ``consistency``: watch every gated update (``navigation.consistency``) and, when the
     filter rejects independent sensors (or GPS alone) with a small covariance, inflate the
     position/velocity/attitude covariance by ``inflate_factor`` or reset position and velocity
