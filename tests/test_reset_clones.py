@@ -1,4 +1,5 @@
-"""A GPS reset of a lost filter moves the pose clones with the position (fault handling)."""
+"""A GPS reset of a lost filter moves the pose clones with the position, and an inflation scales
+them with the current pose (fault handling)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,8 @@ from svains.filter.ukf import UKF
 from svains.models.clones import CLONE_JITTER, CloneManifold, augment_clone
 from svains.models.manifold import NavManifold
 from svains.models.state import BIASED, DP
-from svains.navigation.fault_handling import RateLimitedLog, Recovery
+from svains.navigation.consistency import RecoveryAction
+from svains.navigation.fault_handling import RateLimitedLog, Recovery, inflate
 from svains.navigation.options import FaultOptions
 from svains.sensors.types import GpsCalib
 
@@ -50,3 +52,21 @@ def test_reset_shifts_clones_keeps_relative_motion_and_correlates_their_errors()
     np.testing.assert_allclose(ukf.P, ukf.P.T)
     assert np.linalg.eigvalsh(ukf.P).min() > 0.0  # the sigma points still have a factor
     assert not rec.reset_pending
+
+
+def test_inflation_scales_the_clones_with_the_current_pose() -> None:
+    # The clones are past poses of the same lost filter: left small, the next vision update
+    # would pin the inflated position back onto a wrong clone.
+    ukf = _ukf_with_two_clones()
+    m = ukf.manifold
+    before = ukf.P.copy()
+    inflate(ukf, RecoveryAction("inflate", "test", ("gps",), inflate_factor=100.0))
+    clones = np.concatenate([np.arange(m.tangent(i).start, m.tangent(i).stop) for i in range(2)])
+    scaled = np.concatenate([np.arange(9), clones])
+    rest = np.setdiff1d(np.arange(before.shape[0]), scaled)
+    np.testing.assert_allclose(
+        ukf.P[np.ix_(scaled, scaled)], 100.0 * before[np.ix_(scaled, scaled)]
+    )
+    np.testing.assert_allclose(ukf.P[np.ix_(rest, rest)], before[np.ix_(rest, rest)])
+    np.testing.assert_allclose(ukf.P[np.ix_(scaled, rest)], 10.0 * before[np.ix_(scaled, rest)])
+    assert np.linalg.eigvalsh(ukf.P).min() > 0.0
