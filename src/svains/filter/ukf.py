@@ -22,6 +22,7 @@ import scipy.special
 from numpy.typing import NDArray
 
 from svains.errors import ConfigError, FilterError
+from svains.filter.iterated import iterated_update
 from svains.filter.manifold import Manifold
 from svains.filter.sigma_points import MerweScaledSigmaPoints, safe_cholesky
 
@@ -189,6 +190,7 @@ class UKF:
         residual: ResidualFn | None = None,
         name: str = "",
         R_low_rank: F64 | None = None,
+        iterations: int = 1,
     ) -> UpdateStats:
         """Fuse ``z`` (nz,) with model ``h`` and noise ``R`` (nz, nz) or diagonal (nz,).
 
@@ -197,6 +199,9 @@ class UKF:
         ``R`` the update then stays O(S² nz) (see ``kalman_correction``).
         With ``gate_probability`` the update is skipped (``accepted=False``) when the NIS exceeds
         the chi-square quantile of that probability with nz degrees of freedom.
+        ``iterations`` > 1 re-linearises ``h`` over the posterior that many times
+        (``filter.iterated``, plain residuals only; dense, O(nz³)); the gate then uses the last
+        linearisation's NIS.
         """
         z = np.asarray(z, dtype=float).ravel()
         R = np.asarray(R, dtype=float)
@@ -208,6 +213,10 @@ class UKF:
             raise ConfigError(
                 f"{name or 'measurement'}: R_low_rank has shape {D.shape}, expected (k, {nz})"
             )
+        if iterations > 1:
+            if residual is not None:
+                raise ConfigError(f"{name or 'measurement'}: iterated updates need plain residuals")
+            return self._update_iterated(h, z, R, D, gate_probability, name, iterations)
         X, dX = self.sigma_points()
         Y = np.asarray(h(X), dtype=float).reshape(X.shape[0], nz)
         Wc = self.points.Wc
@@ -226,6 +235,25 @@ class UKF:
         P = self.P - dP
         self.P = 0.5 * (P + P.T)
         return UpdateStats(name, True, float(nis), nz, float(gate))
+
+
+    def _update_iterated(
+        self, h: MeasurementFn, z: F64, R: F64, D: F64 | None, gate_probability: float | None,
+        name: str, iterations: int,
+    ) -> UpdateStats:
+        """``update`` with ``iterations`` posterior linearisations (``filter.iterated``)."""
+        Rm = np.diag(R) if R.ndim == 1 else R
+        if D is not None:
+            Rm = Rm + D.T @ D
+        x, P, nis = iterated_update(self.manifold, self.points, self.x, self.P, h, z, Rm,
+                                    iterations, name or "measurement")  # fmt: skip
+        gate = chi2_gate(gate_probability, z.size) if gate_probability is not None else np.inf
+        if not np.isfinite(nis):
+            raise FilterError(f"{name or 'measurement'}: non-finite innovation")
+        if nis > gate:
+            return UpdateStats(name, False, nis, z.size, float(gate))
+        self.x, self.P = x, P
+        return UpdateStats(name, True, nis, z.size, float(gate))
 
 
 def kalman_correction(

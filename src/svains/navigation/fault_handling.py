@@ -38,6 +38,7 @@ log = logging.getLogger(__name__)
 # s, blocks whose means give the signal's spread before a gap (bench/faults.py, 5 s gap, 3d:
 # 0.1 s blocks gave 1.68x the clean RMSE, 0.25 s 1.27x; raw samples, white noise included, 4.1x)
 _BLOCK_S = 0.25
+_AFTER_GAP_S = 1.0  # s after a gap during which the prediction still counts as bridged
 NAV9 = slice(0, 9)  # δp, δv, δθ in the tangent space (``models.state``)
 
 
@@ -107,6 +108,7 @@ class ImuFaults:
         guard_options = ImuGuardOptions(gap_factor=options.imu_gap_factor)
         self.guard = ImuGuard.from_calib(rig.imu, guard_options)
         self._gaps: list[_Gap] = []  # gaps not yet crossed in full by the filter
+        self._spans: list[tuple[int, int]] = []  # (start, end) ns of the gaps, for ``bridging``
 
     def accept(self, t_ns: int, gyro_S: ArrayLike, accel_S: ArrayLike, history: ImuHistory) -> bool:
         """Whether the sample at ``t_ns`` enters ``history`` (queues the gap it ends, if any)."""
@@ -118,6 +120,7 @@ class ImuFaults:
         if verdict.kind == "gap":
             start_ns = t_ns - round(verdict.gap_s * 1e9)
             self._gaps.append(_Gap(start_ns, t_ns, *self._spread(start_ns, history)))
+            self._spans.append((start_ns, t_ns))
             self._warn.warn("imu-gap", t_ns, f"IMU gap of {verdict.gap_s:.3f} s: covariance "
                             "inflated by the noise it skipped")  # fmt: skip
         return True
@@ -167,6 +170,14 @@ class ImuFaults:
                 total = Q if total is None else total + Q
         self._gaps = [g for g in self._gaps if g.applied_ns < g.end_ns]
         return total
+
+    def bridging(self, t_ns: int) -> bool:
+        """Whether ``t_ns`` lies in an IMU gap or less than ``_AFTER_GAP_S`` after one: the
+        prediction there rests on the bridge and its wide noise (the Core then linearises the
+        vision update again, ``faults.gap_vision_iterations``)."""
+        after_ns = int(_AFTER_GAP_S * 1e9)
+        self._spans = [s for s in self._spans if t_ns <= s[1] + after_ns]
+        return any(a < t_ns for a, _ in self._spans)
 
     def summary(self) -> dict[str, object]:
         return self.guard.summary()

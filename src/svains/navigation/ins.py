@@ -300,9 +300,11 @@ class InsFilter:
         return MeasurementBlock("sonar", h, np.array([range_m]), np.array([cal.noise_std**2]))
 
     def apply(
-        self, blocks: Sequence[MeasurementBlock], gate_probability: float | None = None
+        self, blocks: Sequence[MeasurementBlock], gate_probability: float | None = None,
+        iterations: int = 1,
     ) -> UpdateStats:
-        """One UKF update with the blocks stacked (one gate on the stacked innovation)."""
+        """One UKF update with the blocks stacked (one gate on the stacked innovation),
+        linearised ``iterations`` times (``UKF.update``)."""
         if len(blocks) == 0:
             raise ConfigError("apply() needs at least one measurement block")
         if len(blocks) == 1:
@@ -318,7 +320,8 @@ class InsFilter:
             # the attitude).
             self.remove_omega_white()
             D = self._omega_white_D(h, np.size(z))
-        return self.ukf.update(h, z, R, gate_probability, *tail, R_low_rank=D)
+        return self.ukf.update(h, z, R, gate_probability, *tail, R_low_rank=D,
+                               iterations=iterations)  # fmt: skip
 
 
 def stack_blocks(blocks: Sequence[MeasurementBlock]) -> tuple:

@@ -190,7 +190,8 @@ class Core:
             return
         ctx = FrameContext(ins.ukf, self.layout, t, self._t_prev_frame,
                            cfg.filter.gate_probability, blocks,
-                           lambda bs: ins.apply(bs, cfg.filter.gate_probability))  # fmt: skip
+                           lambda bs: ins.apply(bs, cfg.filter.gate_probability,
+                                                self._vision_iterations(t, bs)))  # fmt: skip
         ins.add_omega_white()  # paper model: the vision models see ω's gyro white noise
         stats = updater.update(ctx)
         ins.remove_omega_white()
@@ -199,6 +200,14 @@ class Core:
         if stats is not None:
             self._record(stats, cfg.method, t)
         self._t_prev_frame = t
+
+    def _vision_iterations(self, t: int, blocks: list[MeasurementBlock]) -> int:
+        """Linearisations of the vision update at ``t``: more while the prediction rests on an
+        IMU gap's bridge (``faults.gap_vision_iterations``), one otherwise."""
+        faults = self._imu_faults
+        if faults is None or not faults.bridging(t) or any(b.residual for b in blocks):
+            return 1
+        return self.config.faults.gap_vision_iterations
 
     def _keep_imu(self, t: int) -> None:
         """Let the IMU history drop what nothing can reach any more: samples more than

@@ -286,7 +286,8 @@ class FaultOptions:
     all-zero, saturated and spike samples are dropped and bridged by their neighbours; a gap of
     more than ``imu_gap_factor`` median spacings adds the noise it skipped to the covariance,
     ``gap_covariance`` with the sample spread of the ``gap_spread_s`` before it plus the white
-    noise of the two samples the bridge is drawn between).
+    noise of the two samples the bridge is drawn between; vision updates in a gap and 1 s after
+    it are linearised ``gap_vision_iterations`` times, ``filter.iterated``).
     ``consistency``: watch every gated update (``navigation.consistency``) and, when the
     filter rejects independent sensors (or GPS alone) with a small covariance, inflate the
     position/velocity/attitude covariance by ``inflate_factor`` or reset position and velocity
@@ -297,6 +298,7 @@ class FaultOptions:
 
     imu_guard: bool = True
     imu_gap_factor: float = 10.0  # median IMU spacings: a longer spacing is a gap
+    gap_vision_iterations: int = 3  # vision update linearisations in and 1 s after a gap
     gap_spread_s: float = 1.0  # s of samples before a gap whose spread sizes its covariance
     consistency: bool = True
     inflate_factor: float = 100.0  # variance factor on the p/v/θ block at an inflation
@@ -306,6 +308,10 @@ class FaultOptions:
     def __post_init__(self) -> None:
         if not self.imu_gap_factor > 1:
             raise ConfigError(f"faults.imu_gap_factor must be > 1, got {self.imu_gap_factor}")
+        if self.gap_vision_iterations < 1:
+            raise ConfigError(
+                f"faults.gap_vision_iterations must be >= 1, got {self.gap_vision_iterations}"
+            )
         if not self.inflate_factor >= 1:
             raise ConfigError(f"faults.inflate_factor must be >= 1, got {self.inflate_factor}")
         if not self.vision_max_gap_s > 0:
