@@ -84,6 +84,12 @@ def _zeros(t: np.ndarray, g: np.ndarray, a: np.ndarray, k: int) -> np.ndarray:
     return np.ones(t.size, bool)
 
 
+def _frozen(t: np.ndarray, g: np.ndarray, a: np.ndarray, k: int) -> np.ndarray:
+    bad = (t >= t[k]) & (t < t[k] + S)  # the sample at k repeated for 1 s, with new stamps
+    g[bad], a[bad] = g[k], a[k]
+    return np.ones(t.size, bool)
+
+
 def _gap(t: np.ndarray, g: np.ndarray, a: np.ndarray, k: int) -> np.ndarray:
     return ~((t >= t[k]) & (t < t[k] + 5 * S))
 
@@ -94,6 +100,7 @@ FAULTS = (
     Fault("accel 16 g x3", 0.03, _saturate),
     Fault("gyro 35 rad/s x1", 0.0, _spike_gyro),
     Fault("zeros 1 s", 1.0, _zeros),
+    Fault("frozen 1 s", 1.0, _frozen),
     Fault("gap 5 s", 5.0, _gap),
 )
 

@@ -54,6 +54,7 @@ def test_clean_stream_is_accepted_whole() -> None:
         ("35 rad/s gyro spike", "saturated", 1),
         ("NaN", "nonfinite", 1),
         ("1 s of zeros", "zeros", 100),
+        ("1 s frozen", "frozen", 100),
     ],
 )
 def test_each_fault_sample_is_dropped_and_only_those(fault: str, reason: str, n_bad: int) -> None:
@@ -68,6 +69,8 @@ def test_each_fault_sample_is_dropped_and_only_those(fault: str, reason: str, n_
         g[k, 0] = 35.0
     elif fault == "NaN":
         a[k, 1] = np.nan
+    elif fault == "1 s frozen":  # the sample before k repeated, with new stamps
+        g[bad], a[bad] = g[k - 1], a[k - 1]
     else:
         g[bad], a[bad] = 0.0, 0.0
     guard = _guard()
@@ -76,7 +79,7 @@ def test_each_fault_sample_is_dropped_and_only_those(fault: str, reason: str, n_
     assert dropped == list(range(k, k + n_bad))
     assert {verdicts[i].reason for i in dropped} == {reason}
     after = verdicts[k + n_bad]
-    if fault == "1 s of zeros":
+    if fault in ("1 s of zeros", "1 s frozen"):
         # the integrator bridged 1 s: reported as a gap, so the core can add its noise
         assert after.kind == "gap" and after.gap_s == pytest.approx(1.01)
     else:
@@ -155,3 +158,10 @@ def test_gap_covariance_matches_a_held_sample_error_integrated() -> None:
     # rtol: 5 % on the variances; atol: 5 sampling std of a covariance estimate from n draws
     np.testing.assert_allclose(np.cov(e.T), Q, rtol=0.05, atol=5 * Q.max() / np.sqrt(n))
     assert np.all(np.linalg.eigvalsh(Q) >= -1e-12)
+
+
+def test_a_frozen_sample_is_kept_when_the_check_is_off() -> None:
+    t, g, a = _clean()
+    g[1000:1003], a[1000:1003] = g[999], a[999]
+    verdicts = _run(_guard(options=ImuGuardOptions(drop_frozen=False)), t, g, a)
+    assert all(v.accepted for v in verdicts)

@@ -1,4 +1,4 @@
-"""Per-sample IMU fault filter: saturation, spikes, dead (all-zero) output and gaps.
+"""Per-sample IMU fault filter: saturation, spikes, dead (all-zero or frozen) output and gaps.
 
 ``ImuGuard.check(t_ns, gyro_B, accel_B)`` returns a :class:`Verdict` for each sample, in time
 order. A dropped sample is to be skipped by the integrator, which then bridges from the last
@@ -20,7 +20,10 @@ Thresholds (``ImuGuardOptions``), each from a model or a measurement:
   KITTI raw's OXTS up to 2.1 m/s² and 0.14 rad/s; the floors, 40 m/s² and 5 rad/s, leave a
   margin of 3x and more, and a spike of 100 m/s² or 10 rad/s is still caught.
 - **dead output**: all six channels exactly zero (a level IMU reads gravity, noise never gives
-  six exact zeros).
+  six exact zeros), or **frozen**: all six exactly equal to the last accepted sample's (a hung
+  sensor or a driver repeating its last message with new stamps; noise never repeats six
+  values: none of EuRoC V1_01's 29,120 samples nor KITTI raw's 597 does). Off with
+  ``drop_frozen=False`` for a coarsely quantised IMU at rest.
 - **gap**: accepted samples further apart than ``gap_factor`` times the median observed spacing
   (the rate in ``sensor.yaml`` is nominal only: KITTI raw's OXTS, nominally 100 Hz, has a median
   spacing of 40 ms and gaps up to 250 ms, which must not be flagged sample after sample).
@@ -44,8 +47,8 @@ Vec3 = tuple[float, ...]
 G0 = 9.80665  # m/s², standard gravity (full scales are quoted in g)
 
 VerdictKind = Literal["accept", "drop", "gap"]
-DropReason = Literal["nonfinite", "zeros", "saturated", "spike"]
-DROP_REASONS: tuple[DropReason, ...] = ("nonfinite", "zeros", "saturated", "spike")
+DropReason = Literal["nonfinite", "zeros", "frozen", "saturated", "spike"]
+DROP_REASONS: tuple[DropReason, ...] = ("nonfinite", "zeros", "frozen", "saturated", "spike")
 _MEDIAN_EVERY = 16  # accepted spacings between two recomputations of the running median
 
 
@@ -64,6 +67,7 @@ class ImuGuardOptions:
     gap_factor: float = 10.0  # a spacing above this many median spacings is a gap
     spacing_window: int = 64  # accepted spacings in the running median
     max_consecutive_drops: int = 5  # spike drops in a row before the new level is accepted
+    drop_frozen: bool = True  # drop a sample equal on all six channels to the last accepted
 
 
 @dataclass(frozen=True)
@@ -149,6 +153,9 @@ class ImuGuard:
             return "nonfinite"
         if not any(values):
             return "zeros"
+        last = self._last
+        if self.options.drop_frozen and last is not None and values == last[1] + last[2]:
+            return "frozen"
         if max(map(abs, g)) >= self._gyro_sat or max(map(abs, a)) >= self._accel_sat:
             return "saturated"
         if self._last is not None and self._is_spike(t_ns, g, a):
