@@ -204,10 +204,13 @@ class Core:
     def _vision_iterations(self, t: int, blocks: list[MeasurementBlock]) -> int:
         """Linearisations of the vision update at ``t``: more while the prediction rests on an
         IMU gap's bridge (``faults.gap_vision_iterations``), one otherwise."""
-        faults = self._imu_faults
-        if faults is None or not faults.bridging(t) or any(b.residual for b in blocks):
+        if any(b.residual for b in blocks):
             return 1
-        return self.config.faults.gap_vision_iterations
+        n = self.config.vision.update_iterations
+        faults = self._imu_faults
+        if faults is not None and faults.bridging(t):
+            n = max(n, self.config.faults.gap_vision_iterations)
+        return n
 
     def _keep_imu(self, t: int) -> None:
         """Let the IMU history drop what nothing can reach any more: samples more than
