@@ -144,6 +144,8 @@ def test_vision_is_linearised_again_only_across_a_gap(flight: Path) -> None:
     assert it3.report["vision_fused_frames"] >= it1.report["vision_fused_frames"]
     with pytest.raises(ConfigError, match="gap_vision_iterations must be >= 1"):
         FaultOptions(gap_vision_iterations=0)
+    with pytest.raises(ConfigError, match=r"gap_vision_gate_probability must be in \(0, 1\)"):
+        FaultOptions(gap_vision_gate_probability=1.0)
     every = with_settings(RunConfig(init=InitOptions(mode="groundtruth")),
                           {"vision.update_iterations": 3})  # fmt: skip
     assert not np.array_equal(run_method(ds, "3d", every).x, clean1.x)

@@ -189,9 +189,7 @@ class Core:
         if updater is None:
             return
         ctx = FrameContext(ins.ukf, self.layout, t, self._t_prev_frame,
-                           cfg.filter.gate_probability, blocks,
-                           lambda bs: ins.apply(bs, cfg.filter.gate_probability,
-                                                self._vision_iterations(t, bs)))  # fmt: skip
+                           cfg.filter.gate_probability, blocks, self._vision_apply(t))  # fmt: skip
         ins.add_omega_white()  # paper model: the vision models see ω's gyro white noise
         stats = updater.update(ctx)
         ins.remove_omega_white()
@@ -201,16 +199,23 @@ class Core:
             self._record(stats, cfg.method, t)
         self._t_prev_frame = t
 
-    def _vision_iterations(self, t: int, blocks: list[MeasurementBlock]) -> int:
-        """Linearisations of the vision update at ``t``: more while the prediction rests on an
-        IMU gap's bridge (``faults.gap_vision_iterations``), one otherwise."""
-        if any(b.residual for b in blocks):
-            return 1
-        n = self.config.vision.update_iterations
-        faults = self._imu_faults
-        if faults is not None and faults.bridging(t):
-            n = max(n, self.config.faults.gap_vision_iterations)
-        return n
+    def _vision_apply(self, t: int) -> Callable[[list[MeasurementBlock]], UpdateStats]:
+        """How the vision update at ``t`` is applied. While the prediction rests on an IMU
+        gap's bridge it is linearised ``faults.gap_vision_iterations`` times and gated at
+        ``faults.gap_vision_gate_probability``: the bridge's error is not Gaussian, and the
+        frames are then the only evidence of the motion."""
+        ins, cfg = self.ins, self.config
+        gate, n = cfg.filter.gate_probability, cfg.vision.update_iterations
+        if self._imu_faults is not None and self._imu_faults.bridging(t):
+            n = max(n, cfg.faults.gap_vision_iterations)
+            if gate is not None:
+                gate = max(gate, cfg.faults.gap_vision_gate_probability)
+
+        def apply(blocks: list[MeasurementBlock]) -> UpdateStats:
+            plain = any(b.residual for b in blocks)  # iterated updates need plain residuals
+            return ins.apply(blocks, gate, 1 if plain else n)
+
+        return apply
 
     def _keep_imu(self, t: int) -> None:
         """Let the IMU history drop what nothing can reach any more: samples more than

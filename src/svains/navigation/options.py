@@ -296,7 +296,8 @@ class FaultOptions:
     more than ``imu_gap_factor`` median spacings adds the noise it skipped to the covariance,
     ``gap_covariance`` with the sample spread of the ``gap_spread_s`` before it plus the white
     noise of the two samples the bridge is drawn between; vision updates in a gap and 1 s after
-    it are linearised ``gap_vision_iterations`` times, ``filter.iterated``).
+    it are linearised ``gap_vision_iterations`` times, ``filter.iterated``, and gated at
+    ``gap_vision_gate_probability``).
     ``consistency``: watch every gated update (``navigation.consistency``) and, when the
     filter rejects independent sensors (or GPS alone) with a small covariance, inflate the
     position/velocity/attitude covariance by ``inflate_factor`` or reset position and velocity
@@ -308,6 +309,7 @@ class FaultOptions:
     imu_guard: bool = True
     imu_gap_factor: float = 10.0  # median IMU spacings: a longer spacing is a gap
     gap_vision_iterations: int = 3  # vision update linearisations in and 1 s after a gap
+    gap_vision_gate_probability: float = 0.9999999  # the vision update's gate there
     gap_spread_s: float = 1.0  # s of samples before a gap whose spread sizes its covariance
     consistency: bool = True
     inflate_factor: float = 100.0  # variance factor on the p/v/θ block at an inflation
@@ -317,6 +319,9 @@ class FaultOptions:
     def __post_init__(self) -> None:
         if not self.imu_gap_factor > 1:
             raise ConfigError(f"faults.imu_gap_factor must be > 1, got {self.imu_gap_factor}")
+        if not 0 < self.gap_vision_gate_probability < 1:
+            raise ConfigError("faults.gap_vision_gate_probability must be in (0, 1), got "
+                              f"{self.gap_vision_gate_probability}")  # fmt: skip
         if self.gap_vision_iterations < 1:
             raise ConfigError(
                 f"faults.gap_vision_iterations must be >= 1, got {self.gap_vision_iterations}"
