@@ -236,7 +236,6 @@ class UKF:
         self.P = 0.5 * (P + P.T)
         return UpdateStats(name, True, float(nis), nz, float(gate))
 
-
     def _update_iterated(
         self, h: MeasurementFn, z: F64, R: F64, D: F64 | None, gate_probability: float | None,
         name: str, iterations: int,

@@ -292,8 +292,9 @@ class FaultOptions:
     """Sensor-fault handling (``RunConfig.faults``; issue 12).
 
     ``imu_guard``: check every IMU sample (``navigation.imu_guard.ImuGuard``: non-finite,
-    all-zero, saturated and spike samples are dropped and bridged by their neighbours; a gap of
-    more than ``imu_gap_factor`` median spacings adds the noise it skipped to the covariance,
+    all-zero, frozen, saturated and spike samples are dropped and bridged by their neighbours; a
+    gap of more than ``imu_gap_factor`` median spacings adds the noise it skipped to the
+    covariance,
     ``gap_covariance`` with the sample spread of the ``gap_spread_s`` before it plus the white
     noise of the two samples the bridge is drawn between; vision updates in a gap and 1 s after
     it are linearised ``gap_vision_iterations`` times, ``filter.iterated``, and gated at
