@@ -85,6 +85,39 @@ class ImuHistory:
         self._raw[k, 3:6] = accel_S
         self.n = k + 1
 
+    def fit_last(
+        self, window_s: float, noise_std: ArrayLike, tolerance: float = 2.0
+    ) -> tuple[NDArray[np.bool_], int]:
+        """Replace channels of the last sample by the value at its stamp of a least-squares line
+        through the samples of the last ``window_s`` seconds (sensor frame): the white noise of
+        one sample drops to that of a fitted end point, and a linear trend is kept (no lag).
+
+        Only where the line explains the samples up to their white noise (residual RMS at most
+        ``tolerance`` times ``noise_std`` (6,), gyro then accel, per sample): where the samples
+        stray further (vibration, a turn) the spread is signal, and the sample stays as it is.
+        Returns which of the 6 channels were replaced (none with fewer than 3 samples) and how
+        many samples the line went through. The estimator must not have propagated past the
+        previous sample yet."""
+        n = self.n
+        replaced = np.zeros(6, bool)
+        if n < 3:
+            return replaced, 0
+        t = self._t[:n]
+        k0 = int(np.searchsorted(t, t[-1] - int(window_s * 1e9)))
+        m = n - k0
+        if m < 3:
+            return replaced, m
+        x = (t[k0:] - t[-1]) * 1e-9  # s, the last sample at 0
+        A = np.column_stack([np.ones(m), x])
+        Y = self._raw[k0:n]
+        coef, *_ = np.linalg.lstsq(A, Y, rcond=None)
+        rms = np.sqrt(((Y - A @ coef) ** 2).sum(axis=0) / (m - 2))
+        replaced = rms <= tolerance * np.asarray(noise_std, float)
+        if replaced.any():
+            self._raw[n - 1, replaced] = coef[0, replaced]  # the line at x = 0
+            self._done = min(self._done, n - 1)  # rotate again and redo α from this row
+        return replaced, m
+
     def _sync(self) -> None:
         """Rotate the new rows and compute their α (one pass over the rows since the last)."""
         a, n = self._done, self.n
