@@ -2,7 +2,8 @@
 
 Plain script (not a timed test). It simulates a 30 s village flight (GPS at 1 Hz without
 outages, magnetometer, sonar, features0), writes one modified copy of the data set per fault
-class of issue 12 into a temporary folder, runs ``ins`` and ``3d`` on each through the public
+class of issue 12 (and a frozen output: the sample at the fault repeated for 1 s) into a
+temporary folder, runs ``ins`` and ``3d`` on each through the public
 library entry (``svains.evaluation.run.run_method``, started from the ground truth) and prints:
 
 - the position RMSE against ground truth, and its ratio to the clean run's (targets: ins <= 2x,
