@@ -347,4 +347,3 @@ def warm_up(rig: RectifiedStereo) -> None:
         estimate_egomotion(p, uvl, uvr, rig, RansacOptions(iterations=4, first_batch=4),
                            p_cur=p, prior=prior, rng=rng)  # fmt: skip
     _warm = True
-

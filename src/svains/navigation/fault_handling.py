@@ -110,8 +110,8 @@ class ImuFaults:
         self._densities = (rig.imu.accel_noise_density, rig.imu.gyro_noise_density)
         guard_options = ImuGuardOptions(gap_factor=options.imu_gap_factor)
         self.guard = ImuGuard.from_calib(rig.imu, guard_options)
-        self._gaps: list[_Gap] = []  # gaps not yet crossed in full by the filter
-        self._spans: list[tuple[int, int]] = []  # (start, end) ns of the gaps, for ``bridging``
+        # gaps not yet crossed in full by the filter, or crossed less than _AFTER_GAP_S ago
+        self._gaps: list[_Gap] = []
 
     def accept(self, t_ns: int, gyro_S: ArrayLike, accel_S: ArrayLike, history: ImuHistory) -> bool:
         """Whether the sample at ``t_ns`` enters ``history`` (queues the gap it ends, if any)."""
@@ -123,18 +123,30 @@ class ImuFaults:
         if verdict.kind == "gap":
             start_ns = t_ns - round(verdict.gap_s * 1e9)
             motion = self._spread(start_ns, history)  # before the fit: from the raw samples
-            self._gaps.append(_Gap(start_ns, t_ns, *self._bridge_noise(motion, history)))
-            self._spans.append((start_ns, t_ns))
+            sample_std = self._sample_std()
+            if sample_std is not None:
+                history.fit_last(_FIT_S, np.repeat(sample_std[::-1], 3))  # gyro, then accel
+            self._gaps.append(_Gap(start_ns, t_ns, *self._bridge_noise(motion, sample_std)))
             self._warn.warn("imu-gap", t_ns, f"IMU gap of {verdict.gap_s:.3f} s: covariance "
                             "inflated by the noise it skipped")  # fmt: skip
         return True
 
+    def _sample_std(self) -> tuple[float, float] | None:
+        """One sample's white noise (accel m/s², gyro rad/s) at the observed spacing (None
+        before any spacing is known)."""
+        dt_s = self.guard.median_spacing_s() or 0.0
+        if dt_s <= 0:
+            return None
+        accel_d, gyro_d = self._densities
+        return accel_d / math.sqrt(dt_s), gyro_d / math.sqrt(dt_s)
+
+    @staticmethod
     def _bridge_noise(
-        self, motion: tuple[float, float], history: ImuHistory
+        motion: tuple[float, float], sample_std: tuple[float, float] | None
     ) -> tuple[float, float]:
-        """Per-axis std (m/s², rad/s) of the bridge's error over the gap that ``history``'s
-        last sample starts: the motion spread before it (``_spread``) and the white noise of the
-        bridge's two end samples, in quadrature.
+        """Per-axis std (m/s², rad/s) of the bridge's error over a gap: the motion spread
+        before it (``_spread``) and the white noise of the bridge's two end samples
+        (``sample_std``, accel and gyro), in quadrature.
 
         Each end sample's noise is held across the gap: their mean error integrates to
         ``T (n0 + n1) / 2``, a variance of ``(σ0² + σ1²) T² / 4``, i.e. ``σ² / 2`` in the
@@ -147,16 +159,10 @@ class ImuFaults:
         9.76 so, 10.22 with the fitted point's ``(4n - 2) / (n (n + 1))`` of a sample's
         variance; the RMSE is the same either way).
         """
-        dt_s = self.guard.median_spacing_s() or 0.0
-        if dt_s <= 0:
+        if sample_std is None:
             return motion
-        accel_d, gyro_d = self._densities
-        sample_var = np.repeat([gyro_d**2 / dt_s, accel_d**2 / dt_s], 3)  # gyro, then accel
-        history.fit_last(_FIT_S, np.sqrt(sample_var))
-        end_var = sample_var / 2.0
-        accel_std = math.sqrt(motion[0] ** 2 + float(end_var[3]))
-        gyro_std = math.sqrt(motion[1] ** 2 + float(end_var[0]))
-        return accel_std, gyro_std
+        return (math.sqrt(motion[0] ** 2 + sample_std[0] ** 2 / 2.0),
+                math.sqrt(motion[1] ** 2 + sample_std[1] ** 2 / 2.0))  # fmt: skip
 
     def _spread(self, start_ns: int, history: ImuHistory) -> tuple[float, float]:
         """Per-axis std (m/s², rad/s) of the accelerometer and gyro signal in the
@@ -185,7 +191,8 @@ class ImuFaults:
             Q = gap.take(t_ns)
             if Q is not None:
                 total = Q if total is None else total + Q
-        self._gaps = [g for g in self._gaps if g.applied_ns < g.end_ns]
+        after_ns = int(_AFTER_GAP_S * 1e9)
+        self._gaps = [g for g in self._gaps if t_ns <= g.end_ns + after_ns]
         return total
 
     def bridging(self, t_ns: int) -> bool:
@@ -193,8 +200,7 @@ class ImuFaults:
         prediction there rests on the bridge and its wide noise (the Core then linearises the
         vision update again, ``faults.gap_vision_iterations``)."""
         after_ns = int(_AFTER_GAP_S * 1e9)
-        self._spans = [s for s in self._spans if t_ns <= s[1] + after_ns]
-        return any(a < t_ns for a, _ in self._spans)
+        return any(g.start_ns < t_ns <= g.end_ns + after_ns for g in self._gaps)
 
     def summary(self) -> dict[str, object]:
         return self.guard.summary()

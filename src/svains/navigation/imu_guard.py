@@ -158,7 +158,7 @@ class ImuGuard:
             return "frozen"
         if max(map(abs, g)) >= self._gyro_sat or max(map(abs, a)) >= self._accel_sat:
             return "saturated"
-        if self._last is not None and self._is_spike(t_ns, g, a):
+        if last is not None and self._is_spike(t_ns, g, a):
             self._streak += 1
             if self._streak <= self.options.max_consecutive_drops:
                 return "spike"

@@ -212,8 +212,8 @@ class Core:
                 gate = max(gate, cfg.faults.gap_vision_gate_probability)
 
         def apply(blocks: list[MeasurementBlock]) -> UpdateStats:
-            plain = any(b.residual for b in blocks)  # iterated updates need plain residuals
-            return ins.apply(blocks, gate, 1 if plain else n)
+            custom = any(b.residual for b in blocks)  # iterated updates need plain residuals
+            return ins.apply(blocks, gate, 1 if custom else n)
 
         return apply
 
