@@ -188,8 +188,10 @@ class Core:
         updater = self._vision_updater()
         if updater is None:
             return
+        bridging = self._imu_faults is not None and self._imu_faults.bridging(t)
         ctx = FrameContext(ins.ukf, self.layout, t, self._t_prev_frame,
-                           cfg.filter.gate_probability, blocks, self._vision_apply(t))  # fmt: skip
+                           cfg.filter.gate_probability, blocks, self._vision_apply(t),
+                           bridging and cfg.faults.gap_vision_two_view)  # fmt: skip
         ins.add_omega_white()  # paper model: the vision models see ω's gyro white noise
         stats = updater.update(ctx)
         ins.remove_omega_white()

@@ -28,32 +28,33 @@ def feature_gate(
 ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
     """Per-feature innovation gate: (keep (M,), finite (M,)).
 
-    ``Y`` (S, 4M) predicted pixels of the sigma points, weights ``Wm``/``Wc`` (S,), ``z`` (4M,),
-    ``R_blocks`` (M, 4, 4) each feature's measurement noise.
-    A feature is kept when its predictions are finite and ``r^T S_m^-1 r`` (S_m its 4x4 innovation
-    covariance, plus the block of ``G G^T`` when given) is below the chi-square(4) quantile of
-    ``probability``.
+    ``Y`` (S, dM) predictions of the sigma points, weights ``Wm``/``Wc`` (S,), ``z`` (dM,),
+    ``R_blocks`` (M, d, d) each feature's measurement noise (d = 4 pixels, or 5 for the
+    two-view model). A feature is kept when its predictions are finite and ``r^T S_m^-1 r`` (S_m
+    its d x d innovation covariance, plus the block of ``G G^T`` (dM, k) when given) is below
+    the chi-square(d) quantile of ``probability``.
     """
     S, n = Y.shape
-    m = n // 4
+    nb = R_blocks.shape[1]
+    m = n // nb
     # Reductions over the long axis first: NumPy is slow reducing many axes of length 4.
     fin_rows = np.isfinite(Y)
-    finite = fin_rows.all(axis=0).reshape(m, 4).all(axis=1)
+    finite = fin_rows.all(axis=0).reshape(m, nb).all(axis=1)
     if probability is None:
         return finite, finite
     Yf = Y if finite.all() else np.where(fin_rows, Y, 0.0)
     y = Wm @ Yf
-    dY = (Yf - y).reshape(S, m, 4)
+    dY = (Yf - y).reshape(S, m, nb)
     A = dY.transpose(1, 2, 0)  # (m, 4, S)
     cov = (A * Wc) @ A.transpose(0, 2, 1) + R_blocks  # batched products: faster than einsum
     if G is not None:
-        Gm = G.reshape(m, 4, -1)
+        Gm = G.reshape(m, nb, -1)
         cov += Gm @ Gm.transpose(0, 2, 1)
-    r = (z - y).reshape(m, 4)
+    r = (z - y).reshape(m, nb)
     # Features behind/at the camera give huge or non-finite predictions: never kept.
     ok = (
         finite
-        & np.isfinite(cov.reshape(m, 16)).all(axis=1)
+        & np.isfinite(cov.reshape(m, nb * nb)).all(axis=1)
         & (np.abs(r).max(axis=1) < 1e6)
     )
     d2 = np.full(m, np.inf)
@@ -63,8 +64,8 @@ def feature_gate(
             sol = np.linalg.solve(c, rk[:, :, None])[:, :, 0]
         except np.linalg.LinAlgError:
             sol = (np.linalg.pinv(c) @ rk[:, :, None])[:, :, 0]
-        d2[ok] = (rk * sol) @ np.ones(4)
-    return ok & (d2 <= chi2_gate(probability, 4)), finite
+        d2[ok] = (rk * sol) @ np.ones(nb)
+    return ok & (d2 <= chi2_gate(probability, nb)), finite
 
 
 def increment_noise_factor(
@@ -161,16 +162,16 @@ def whiten(Y: F64, W_inv: F64) -> F64:
 
 
 def whiten_chol(Y: F64, L: F64) -> F64:
-    """``whiten`` with the Cholesky factors ``L`` (K, 4, 4) (``R_m = L_m L_m^T``) instead of their
-    inverses: each feature's 4 numbers of every row of ``Y`` (..., 4K) times ``L_m^-1``, one
+    """``whiten`` with the Cholesky factors ``L`` (K, d, d) (``R_m = L_m L_m^T``) instead of their
+    inverses: each feature's d numbers of every row of ``Y`` (..., dK) times ``L_m^-1``, one
     batched solve for all rows (no explicit inverse)."""
-    k = L.shape[0]
-    b = Y.reshape(-1, k, 4)  # (rows, K, 4)
+    k, nb = L.shape[0], L.shape[1]
+    b = Y.reshape(-1, k, nb)  # (rows, K, d)
     out = np.empty_like(b)
     # Forward substitution written out term by term, vectorised over rows and features (a
     # batched LU solve of 4x4 systems, or a reduction over an axis of 4, costs several times more).
-    o = [out[..., i] for i in range(4)]
-    for i in range(4):
+    o = [out[..., i] for i in range(nb)]
+    for i in range(nb):
         acc = b[..., i].copy()
         for j in range(i):
             acc -= L[:, i, j] * o[j]

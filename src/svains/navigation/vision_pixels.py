@@ -38,6 +38,7 @@ from svains.navigation.vision_noise import (
     whiten_chol,
 )
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames
+from svains.navigation.vision_two_view import TwoViewFeatures
 from svains.sensors.types import Rig
 
 if TYPE_CHECKING:
@@ -95,6 +96,8 @@ class PixelUpdater:
         """``source`` gives the tracks; ``history`` the IMU (``rotation="imu"``, motion prior)."""
         if method not in ("tc", "3d"):
             raise ConfigError(f"pixel updater serves tc or 3d, got {method!r}")
+        if options.two_view and method != "3d":
+            raise ConfigError("vision.two_view serves the 3d method only")
         self.method = method
         self.options = options
         self.source = source
@@ -118,6 +121,7 @@ class PixelUpdater:
         self._imu_noise = (
             None if options.rotation != "imu" or self._imu is None else self._imu.noise
         )
+        self.two_view = options.two_view
 
     def _fresh(self, tr: StereoTracks | None) -> NDArray[np.bool_] | bool:
         """Features (M,) whose k-1 pixels no update has used (``single_use_pixels``, clones
@@ -231,35 +235,53 @@ class PixelUpdater:
             c.frames_without_tracks += 1
             return None
         X, _ = ctx.ukf.sigma_points()  # reused by the update below (same state)
-        Y, R_c, r_c, p_F = self._predict(ctx, X, uvl0, uvr0, motion)
-        bias = self._bias(R_c, r_c, uvl0, uvr0)
-        if bias is not None:
-            Y = Y - bias
-        # Per-feature 4x4 noise: pixel noise at k plus the k-1 pixel noise carried through
-        # triangulation/transfer (dominant for far points), and in "imu" mode the IMU
-        # increment's noise as a feature-correlated factor G (4M, 6). Closed form at the mean
-        # state (``analytic_noise``; tests check it against finite differences of the model).
-        R_blocks, G = analytic_noise(
-            R_c, r_c, uvl0, uvr0, self.rig, self.sigma_px, inc, dt_s, self._imu_noise, p_F
-        )
-        pts = ctx.ukf.points
-        keep, finite = feature_gate(
-            Y, pts.Wm, pts.Wc, z, R_blocks, self.options.feature_gate_probability, G
-        )
-        # Near-zero disparity makes the prediction hypersensitive to the k-1 pixels (|J| > 100):
-        # such features carry no information and would make R_blocks numerically singular.
-        sane = np.abs(R_blocks.reshape(-1, 16)).max(axis=1) < (100.0 * self.sigma_px) ** 2
-        finite &= sane
-        keep &= sane
+        two_view = self.two_view or (ctx.two_view and self.method == "3d")
+        if two_view:
+            R_all, r_all = motion(np.vstack([X, ctx.ukf.x[None, :]]))
+            z8 = np.concatenate([uvl0, uvr0, tr.uv_left[idx], tr.uv_right[idx]], axis=1)
+            G = None
+            if self._imu_noise is not None and inc is not None:
+                _, G = analytic_noise(R_all[-1], r_all[-1], uvl0, uvr0, self.rig, self.sigma_px,
+                                      inc, dt_s, self._imu_noise)  # fmt: skip
+            tv = TwoViewFeatures.build(R_all, r_all, z8, self.rig.triangulate(uvl0, uvr0),
+                                       self.rig, self.sigma_px, G)  # fmt: skip
+            keep, finite = tv.gate(ctx.ukf.points, self.options.feature_gate_probability)
+            R_blocks, Y, z, G = tv.R_blocks, tv.Y, tv.z, tv.G
+        else:
+            Y, R_c, r_c, p_F = self._predict(ctx, X, uvl0, uvr0, motion)
+            bias = self._bias(R_c, r_c, uvl0, uvr0)
+            if bias is not None:
+                Y = Y - bias
+            # Per-feature 4x4 noise: pixel noise at k plus the k-1 pixel noise carried through
+            # triangulation/transfer (dominant for far points), and in "imu" mode the IMU
+            # increment's noise as a feature-correlated factor G (4M, 6). Closed form at the
+            # mean state (``analytic_noise``; tests check it against finite differences).
+            R_blocks, G = analytic_noise(
+                R_c, r_c, uvl0, uvr0, self.rig, self.sigma_px, inc, dt_s, self._imu_noise, p_F
+            )
+            pts = ctx.ukf.points
+            keep, finite = feature_gate(
+                Y, pts.Wm, pts.Wc, z, R_blocks, self.options.feature_gate_probability, G
+            )
+            # Near-zero disparity makes the prediction hypersensitive to the k-1 pixels
+            # (|J| > 100): such features carry no information and would make R_blocks
+            # numerically singular.
+            sane = np.abs(R_blocks.reshape(-1, 16)).max(axis=1) < (100.0 * self.sigma_px) ** 2
+            finite &= sane
+            keep &= sane
         c.features_invalid += int((~finite).sum())
         c.features_gated += int((finite & ~keep).sum())
         if keep.sum() < self.options.min_features:
             c.frames_without_tracks += 1
             return None
         kept = np.flatnonzero(keep)
-        h_kept = self._model(uvl0[kept], uvr0[kept], motion, None if p_F is None else p_F[kept])
-        if bias is not None:
-            h_kept = _debiased(h_kept, bias.reshape(-1, 4)[kept].reshape(-1))
+        if two_view:
+            h_kept = tv.model(kept, motion)
+        else:
+            h_kept = self._model(uvl0[kept], uvr0[kept], motion,
+                                 None if p_F is None else p_F[kept])  # fmt: skip
+            if bias is not None:
+                h_kept = _debiased(h_kept, bias.reshape(-1, 4)[kept].reshape(-1))
         block = _whitened_block(f"vision_{self.method}", kept, X, Y, z, R_blocks, G, h_kept)
         stats = apply_blocks(ctx, [block, *ctx.extra])
         if stats.accepted:
@@ -288,13 +310,14 @@ class PixelUpdater:
 def _whitened_block(
     name: str, kept: I64, X: F64, Y: F64, z: F64, R_blocks: F64, G: F64 | None, h_kept: Any
 ) -> MeasurementBlock:
-    """The kept features (K,) as one block with unit diagonal noise: each feature's 4 numbers
-    whitened (rows times ``L_m^-1``, ``R_m = L_m L_m^T``) so the filter takes its fast Woodbury
-    path instead of a dense nz x nz Cholesky. The IMU term ``G`` (4M, 6), common to all features,
-    is whitened too: ``(I + Gw Gw^T)^-1/2`` is identity minus a rank-6 correction. ``h`` reuses
-    the predictions ``Y`` (S, 4M) made for the sigma points ``X`` (and calls ``h_kept`` for any
-    other points)."""
-    rows = (4 * kept[:, None] + np.arange(4)).reshape(-1)
+    """The kept features (K,) as one block with unit diagonal noise: each feature's d numbers
+    (``R_blocks`` (M, d, d): 4 pixels, or 5 for the two-view model) whitened (rows times
+    ``L_m^-1``, ``R_m = L_m L_m^T``) so the filter takes its fast Woodbury path instead of a
+    dense nz x nz Cholesky. The IMU term ``G`` (dM, 6), common to all features, is whitened too:
+    ``(I + Gw Gw^T)^-1/2`` is identity minus a rank-6 correction. ``h`` reuses the predictions
+    ``Y`` (S, dM) made for the sigma points ``X`` (and calls ``h_kept`` for any other points)."""
+    nb = R_blocks.shape[1]
+    rows = (nb * kept[:, None] + np.arange(nb)).reshape(-1)
     L = np.linalg.cholesky(R_blocks[kept])  # (K, 4, 4)
     Gw = None if G is None else whiten_chol(G[rows].T, L).T
     U, d = lowrank_factors(Gw)

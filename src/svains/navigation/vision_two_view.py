@@ -1,0 +1,123 @@
+"""The ``3d`` update with each feature's point marginalised (``vision.two_view``).
+
+``PixelUpdater`` hands over the 8 tracked pixels of each feature (k-1 and k stereo pairs) and
+the camera motion k-1 -> k of every sigma point and of the mean (``models.vision_two_view``):
+
+1. the point is refined by Gauss-Newton over its 8 pixels at the mean motion (start: the k-1
+   stereo point);
+2. each feature's 8 residuals (tracked minus predicted pixels) are projected onto the left null
+   space of the point Jacobian (5 numbers, noise ``σ² I`` since the basis is orthonormal). The
+   block's measurement is 0 and ``h`` returns the projected negative residuals, so an iterated
+   update (``filter.iterated``) refines the points and their null spaces again at each new
+   linearisation point (the sigma points' centre, ``X[0]``);
+3. the features are gated on those 5 numbers; the kept ones form one whitened block.
+
+The projection removes the point's error to first order, so the k-1 stereo noise no longer sits
+in the regressor of the fused translation (``3d`` alone is attenuated by it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from svains.filter.sigma_points import MerweScaledSigmaPoints
+from svains.geometry.camera import RectifiedStereo
+from svains.models.vision_two_view import (
+    NUM_FUSED,
+    NUM_PIXELS,
+    inverse_depth,
+    null_space,
+    point_jacobian,
+    refine_points,
+    two_view_pixels,
+)
+from svains.navigation.vision_noise import feature_gate
+
+F64 = NDArray[np.float64]
+MotionFn = Callable[[F64], tuple[F64, F64]]
+_FAR_RHO = 1e-3  # 1/m, stand-in point (1 km ahead) for a feature whose refinement failed
+
+
+@dataclass
+class TwoViewFeatures:
+    """One frame's features in the two-view form: ``Y`` (S, 5M) the sigma points' projected
+    predictions minus the tracked pixels, ``z`` (5M,) zeros, ``R_blocks`` (M, 5, 5), ``G``
+    (5M, 6) or None (IMU increment noise, ``rotation="imu"``), the null-space bases ``N``
+    (M, 8, 5), the refined points ``a_F`` (M, 3) (inverse depth at k-1), ``valid`` (M,)
+    (refinement converged in front of both cameras) and the tracked pixels ``z8`` (M, 8)."""
+
+    Y: F64
+    z: F64
+    R_blocks: F64
+    G: F64 | None
+    N: F64
+    a_F: F64
+    valid: NDArray[np.bool_]
+    rig: RectifiedStereo
+    z8: F64
+
+    @classmethod
+    def build(
+        cls, R_all: F64, r_all: F64, z8: F64, p_Ckm1_F: F64, rig: RectifiedStereo,
+        sigma_px: float, G4: F64 | None = None,
+    ) -> TwoViewFeatures:
+        """``R_all`` (S+1, 3, 3), ``r_all`` (S+1, 3): camera motion of the sigma points, the
+        mean last; ``z8`` (M, 8) px tracked pixels; ``p_Ckm1_F`` (M, 3) m the k-1 stereo
+        points; ``sigma_px`` one pixel's noise; ``G4`` (4M, 6) the k pixels' IMU-noise factor."""
+        a, valid, N = _linearised(inverse_depth(p_Ckm1_F), z8, R_all[-1], r_all[-1], rig)
+        Y = _projected(N, two_view_pixels(R_all[:-1], r_all[:-1], a, rig), z8)
+        M = z8.shape[0]
+        z = np.zeros(M * NUM_FUSED)
+        R_blocks = np.broadcast_to(sigma_px**2 * np.eye(NUM_FUSED), (M, NUM_FUSED, NUM_FUSED))
+        G = None
+        if G4 is not None:
+            # The IMU increment moves only the k pixels (rows 4..7 of each feature's 8).
+            G = np.einsum("mkj,mkc->mjc", N[:, NUM_PIXELS // 2:], G4.reshape(M, 4, -1))
+            G = G.reshape(M * NUM_FUSED, -1)
+        return cls(Y, z, np.ascontiguousarray(R_blocks), G, N, a, valid, rig, z8)
+
+    def gate(
+        self, points: MerweScaledSigmaPoints, probability: float | None
+    ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+        """(keep (M,), finite (M,)): ``vision_noise.feature_gate`` on the 5 numbers, and only
+        features whose point refinement succeeded."""
+        keep, finite = feature_gate(self.Y, points.Wm, points.Wc, self.z, self.R_blocks,
+                                    probability, self.G)  # fmt: skip
+        finite &= self.valid
+        return keep & self.valid, finite
+
+    def model(self, kept: NDArray[np.int64], motion: MotionFn) -> Callable[[F64], F64]:
+        """``h(X)`` (S, 5K) of the kept features for any sigma points ``X`` (S, nx) (iterated
+        updates): points and null spaces linearised again at the motion of ``X[0]``."""
+        a0, z8, rig = self.a_F[kept], self.z8[kept], self.rig
+
+        def h(X: F64) -> F64:
+            R_c, r_c = motion(X)
+            a, _, N = _linearised(a0, z8, R_c[0], r_c[0], rig)
+            return _projected(N, two_view_pixels(R_c, r_c, a, rig), z8)
+
+        return h
+
+
+def _linearised(
+    a0: F64, z8: F64, R_c: F64, r_c: F64, rig: RectifiedStereo
+) -> tuple[F64, NDArray[np.bool_], F64]:
+    """Points refined from ``a0`` (M, 3) over the pixels ``z8`` (M, 8) at the camera motion
+    ``R_c`` (3, 3), ``r_c`` (3,): (points (M, 3), valid (M,), null spaces (M, 8, 5)). A point
+    whose refinement failed or lies behind either camera is invalid (and replaced by a far
+    stand-in so the bases stay finite)."""
+    a = refine_points(a0, z8, R_c, r_c, rig)
+    valid = np.isfinite(a).all(axis=1) & (a[:, 2] > 0.0)
+    a = np.where(valid[:, None], a, [0.0, 0.0, _FAR_RHO])
+    q_z = R_c[2, 2] - a[:, 2] * r_c[2] + a[:, :2] @ R_c[2, :2]
+    valid &= q_z > 0.0  # in front of the camera at k too
+    return a, valid, null_space(point_jacobian(R_c, r_c, a, rig))
+
+
+def _projected(N: F64, Y8: F64, z8: F64) -> F64:
+    """Predicted minus tracked pixels (S, M, 8) onto the bases ``N`` (M, 8, 5): (S, 5M)."""
+    return np.einsum("mkj,smk->smj", N, Y8 - z8).reshape(Y8.shape[0], -1)
