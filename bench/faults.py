@@ -14,7 +14,7 @@ library entry (``svains.evaluation.run.run_method``, started from the ground tru
   blocks (3 dof each, each against its own 3x3 covariance: consistent blocks average 3);
 - how long after the fault's end GPS fixes are accepted again (target <= 5 s).
 
-    python bench/faults.py [--seeds 0] [--at 10] [--methods ins,3d] [--guard]
+    python bench/faults.py [--seeds 0] [--at 10] [--gap-s 5] [--methods ins,3d] [--guard]
                            [--set filter.alpha=0.5 ...]
 
 ``--seeds 0-7`` (or ``0,1``) runs every seed and ends with a table over the seeds: the mean NEES
@@ -91,8 +91,11 @@ def _frozen(t: np.ndarray, g: np.ndarray, a: np.ndarray, k: int) -> np.ndarray:
     return np.ones(t.size, bool)
 
 
-def _gap(t: np.ndarray, g: np.ndarray, a: np.ndarray, k: int) -> np.ndarray:
-    return ~((t >= t[k]) & (t < t[k] + 5 * S))
+def _gap(gap_s: float) -> Callable[[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray]:
+    def inject(t: np.ndarray, g: np.ndarray, a: np.ndarray, k: int) -> np.ndarray:
+        return ~((t >= t[k]) & (t < t[k] + round(gap_s * S)))
+
+    return inject
 
 
 FAULTS = (
@@ -102,8 +105,13 @@ FAULTS = (
     Fault("gyro 35 rad/s x1", 0.0, _spike_gyro),
     Fault("zeros 1 s", 1.0, _zeros),
     Fault("frozen 1 s", 1.0, _frozen),
-    Fault("gap 5 s", 5.0, _gap),
+    Fault("gap 5 s", 5.0, _gap(5.0)),
 )
+
+
+def with_gap(gap_s: float) -> tuple[Fault, ...]:
+    """``FAULTS`` with the gap ``gap_s`` long (s)."""
+    return (*FAULTS[:-1], Fault(f"gap {gap_s:g} s", gap_s, _gap(gap_s)))
 
 
 def faulty_copy(clean: Path, fault: Fault, at_s: float, out: Path, guard: bool) -> Path:
@@ -218,7 +226,7 @@ def run_seed(seed: int, args: argparse.Namespace, options: RunOptions,
     with tempfile.TemporaryDirectory() as tmp:
         clean = simulate(cfg, Path(tmp) / "clean")
         clean_rmse: dict[str, float] = {}
-        for i, fault in enumerate(FAULTS):
+        for i, fault in enumerate(with_gap(args.gap_s)):
             root = faulty_copy(clean, fault, args.at, Path(tmp) / f"fault{i}", args.guard)
             ds = load_dataset(root)
             for method in methods:
@@ -235,6 +243,7 @@ def main() -> None:
     ap.add_argument("--seeds", "--seed", default="0", help="seeds: 0, 0,1 or 0-7")
     ap.add_argument("--at", type=float, default=10.0, help="fault time (s from the start)")
     ap.add_argument("--methods", default="ins,3d")
+    ap.add_argument("--gap-s", type=float, default=5.0, help="length of the IMU gap (s)")
     ap.add_argument("--guard", action="store_true",
                     help="drop the samples ImuGuard rejects before the run (a preview of item 1)")
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",

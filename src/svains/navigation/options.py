@@ -168,7 +168,8 @@ class VisionOptions:
     linearises every vision update that many times over its posterior (``filter.iterated``; 1:
     the plain sigma-point update). Off by default: on KITTI raw ``3d`` GPS-denied 3 gave 1.354
     -> 1.350 % and NEES 73.7 -> 73.4 for 13 % more wall time; across IMU gaps the Navigator
-    iterates anyway (``FaultOptions.gap_vision_iterations``). ``two_view`` (``3d`` only):
+    iterates anyway (``FaultOptions.gap_vision_iterations``). ``two_view`` (``3d`` with
+    ``rotation="clone"`` only, where single-use pixels keep the k-1 pixels unfused):
     estimate each feature's point from both frames' 8 pixels and fuse the 5 numbers free of it
     (``navigation.vision_two_view``) instead of taking the k-1 stereo point as exact. Off by
     default, i.e. the paper's model; across IMU gaps the Navigator uses it anyway

@@ -96,8 +96,14 @@ class PixelUpdater:
         """``source`` gives the tracks; ``history`` the IMU (``rotation="imu"``, motion prior)."""
         if method not in ("tc", "3d"):
             raise ConfigError(f"pixel updater serves tc or 3d, got {method!r}")
-        if options.two_view and method != "3d":
-            raise ConfigError("vision.two_view serves the 3d method only")
+        if options.two_view and (
+            method != "3d" or options.rotation != "clone" or not options.single_use_pixels
+        ):
+            raise ConfigError(
+                "vision.two_view serves the 3d method with vision.rotation=clone and "
+                f"vision.single_use_pixels=true only (got {method}, rotation "
+                f"{options.rotation}, single_use_pixels {options.single_use_pixels})"
+            )
         self.method = method
         self.options = options
         self.source = source
@@ -122,6 +128,11 @@ class PixelUpdater:
             None if options.rotation != "imu" or self._imu is None else self._imu.noise
         )
         self.two_view = options.two_view
+        # The two-view update fuses the k-1 pixels themselves: only the clone of the k-1 frame
+        # (with single-use pixels) keeps them independent of what the filter already fused.
+        self._two_view_in_gaps = (
+            method == "3d" and self.clones is not None and options.single_use_pixels
+        )
 
     def _fresh(self, tr: StereoTracks | None) -> NDArray[np.bool_] | bool:
         """Features (M,) whose k-1 pixels no update has used (``single_use_pixels``, clones
@@ -235,7 +246,7 @@ class PixelUpdater:
             c.frames_without_tracks += 1
             return None
         X, _ = ctx.ukf.sigma_points()  # reused by the update below (same state)
-        two_view = self.two_view or (ctx.two_view and self.method == "3d")
+        two_view = self.two_view or (ctx.two_view and self._two_view_in_gaps)
         if two_view:
             R_all, r_all = motion(np.vstack([X, ctx.ukf.x[None, :]]))
             z8 = np.concatenate([uvl0, uvr0, tr.uv_left[idx], tr.uv_right[idx]], axis=1)
