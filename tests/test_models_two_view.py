@@ -102,15 +102,14 @@ def test_two_view_features_vanish_at_the_true_motion_and_reject_points_behind() 
     assert np.abs(h(np.zeros((3, 19)))).max() < 1e-8
 
 
-@pytest.mark.parametrize(("method", "rotation", "single_use"),
-                         [("tc", "clone", True), ("3d", "exp", True), ("3d", "imu", True),
-                          ("3d", "clone", False)])  # fmt: skip
-def test_two_view_is_refused_outside_3d_with_clones(
-    method: str, rotation: str, single_use: bool
+@pytest.mark.parametrize(("rotation", "single_use"),
+                         [("exp", True), ("imu", True), ("linear", True), ("clone", False)])
+def test_two_view_is_refused_without_clones_and_single_use_pixels(
+    rotation: str, single_use: bool
 ) -> None:
     # Without the k-1 frame's clone and single-use pixels, the k-1 pixels were already fused as
     # the last frame's k pixels: fusing them again would count them twice.
     options = VisionOptions(two_view=True, rotation=rotation, single_use_pixels=single_use)
-    with pytest.raises(ConfigError, match=rf"vision\.two_view serves the 3d .* \(got {method}, "
-                       rf"rotation {rotation}, single_use_pixels {single_use}\)"):  # fmt: skip
-        PixelUpdater(method, options, None, None, None)  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match=rf"vision\.two_view needs .* \(got rotation {rotation}, "
+                       rf"single_use_pixels {single_use}\)"):  # fmt: skip
+        PixelUpdater("3d", options, None, None, None)  # type: ignore[arg-type]

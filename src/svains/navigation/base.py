@@ -73,7 +73,7 @@ class FrameContext:
     gate_probability: float | None
     extra: list[MeasurementBlock] = field(default_factory=list)
     apply: Callable[[Sequence[MeasurementBlock]], UpdateStats] = field(repr=False, default=None)  # type: ignore[assignment]
-    # 3d: marginalise each point over both frames for this frame (``vision.two_view``), set by
+    # tc/3d: marginalise each point over both frames for this frame (``vision.two_view``), set by
     # the Core while the prediction rests on an IMU gap's bridge (``faults.gap_vision_two_view``)
     two_view: bool = False
 

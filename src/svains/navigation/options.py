@@ -168,11 +168,12 @@ class VisionOptions:
     linearises every vision update that many times over its posterior (``filter.iterated``; 1:
     the plain sigma-point update). Off by default: on KITTI raw ``3d`` GPS-denied 3 gave 1.354
     -> 1.350 % and NEES 73.7 -> 73.4 for 13 % more wall time; across IMU gaps the Navigator
-    iterates anyway (``FaultOptions.gap_vision_iterations``). ``two_view`` (``3d`` with
-    ``rotation="clone"`` only, where single-use pixels keep the k-1 pixels unfused):
+    iterates anyway (``FaultOptions.gap_vision_iterations``). ``two_view`` (``tc``/``3d`` with
+    ``rotation="clone"`` and ``single_use_pixels`` only, which keep the k-1 pixels unfused):
     estimate each feature's point from both frames' 8 pixels and fuse the 5 numbers free of it
-    (``navigation.vision_two_view``) instead of taking the k-1 stereo point as exact. Off by
-    default, i.e. the paper's model; across IMU gaps the Navigator uses it anyway
+    (``navigation.vision_two_view``) instead of taking the k-1 stereo point as exact (``3d``) or
+    transferring the k-1 pixels (``tc``, the same prediction in a rectified pair). Off by
+    default, i.e. the paper's models; across IMU gaps the Navigator uses it anyway
     (``FaultOptions.gap_vision_two_view``). On KITTI raw ``3d`` GPS-denied it gave 1.354 ->
     1.093 % final error but NEES 73.7 -> 92.1 and 60 % more wall time.
     """
@@ -305,7 +306,7 @@ class FaultOptions:
     ``gap_covariance`` with the sample spread of the ``gap_spread_s`` before it plus the white
     noise of the two samples the bridge is drawn between; vision updates in a gap and 1 s after
     it are linearised ``gap_vision_iterations`` times, ``filter.iterated``, and gated at
-    ``gap_vision_gate_probability``; ``3d`` there marginalises each point over both frames,
+    ``gap_vision_gate_probability``; ``tc``/``3d`` there marginalise each point over both frames,
     ``gap_vision_two_view``, since the frames then carry the translation alone and the k-1
     stereo point taken as exact attenuates it).
     ``consistency``: watch every gated update (``navigation.consistency``) and, when the
@@ -320,7 +321,7 @@ class FaultOptions:
     imu_gap_factor: float = 10.0  # median IMU spacings: a longer spacing is a gap
     gap_vision_iterations: int = 3  # vision update linearisations in and 1 s after a gap
     gap_vision_gate_probability: float = 0.9999999  # the vision update's gate there
-    gap_vision_two_view: bool = True  # 3d there: each point marginalised over both frames
+    gap_vision_two_view: bool = True  # tc/3d there: each point marginalised over both frames
     gap_spread_s: float = 1.0  # s of samples before a gap whose spread sizes its covariance
     consistency: bool = True
     inflate_factor: float = 100.0  # variance factor on the p/v/θ block at an inflation

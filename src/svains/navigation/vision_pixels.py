@@ -96,13 +96,11 @@ class PixelUpdater:
         """``source`` gives the tracks; ``history`` the IMU (``rotation="imu"``, motion prior)."""
         if method not in ("tc", "3d"):
             raise ConfigError(f"pixel updater serves tc or 3d, got {method!r}")
-        if options.two_view and (
-            method != "3d" or options.rotation != "clone" or not options.single_use_pixels
-        ):
+        if options.two_view and (options.rotation != "clone" or not options.single_use_pixels):
             raise ConfigError(
-                "vision.two_view serves the 3d method with vision.rotation=clone and "
-                f"vision.single_use_pixels=true only (got {method}, rotation "
-                f"{options.rotation}, single_use_pixels {options.single_use_pixels})"
+                "vision.two_view needs vision.rotation=clone and vision.single_use_pixels=true "
+                f"(got rotation {options.rotation}, single_use_pixels "
+                f"{options.single_use_pixels})"
             )
         self.method = method
         self.options = options
@@ -127,12 +125,13 @@ class PixelUpdater:
         self._imu_noise = (
             None if options.rotation != "imu" or self._imu is None else self._imu.noise
         )
+        # In a rectified pair tc's transfer and 3d's triangulation predict the same k pixels
+        # from the same rigid motion of the k-1 stereo point, so the two-view update (the point
+        # marginalised over both frames, ``navigation.vision_two_view``) stands for either. It
+        # fuses the k-1 pixels themselves: only the clone of the k-1 frame with single-use
+        # pixels keeps them independent of what the filter already fused.
         self.two_view = options.two_view
-        # The two-view update fuses the k-1 pixels themselves: only the clone of the k-1 frame
-        # (with single-use pixels) keeps them independent of what the filter already fused.
-        self._two_view_in_gaps = (
-            method == "3d" and self.clones is not None and options.single_use_pixels
-        )
+        self._two_view_in_gaps = self.clones is not None and options.single_use_pixels
 
     def _fresh(self, tr: StereoTracks | None) -> NDArray[np.bool_] | bool:
         """Features (M,) whose k-1 pixels no update has used (``single_use_pixels``, clones

@@ -1,4 +1,4 @@
-"""The ``3d`` update with each feature's point marginalised (``vision.two_view``).
+"""The ``tc``/``3d`` update with each feature's point marginalised (``vision.two_view``).
 
 ``PixelUpdater`` hands over the 8 tracked pixels of each feature (k-1 and k stereo pairs) and
 the camera motion k-1 -> k of every sigma point and of the mean (``models.vision_two_view``):
@@ -13,7 +13,8 @@ the camera motion k-1 -> k of every sigma point and of the mean (``models.vision
 3. the features are gated on those 5 numbers; the kept ones form one whitened block.
 
 The projection removes the point's error to first order, so the k-1 stereo noise no longer sits
-in the regressor of the fused translation (``3d`` alone is attenuated by it).
+in the regressor of the fused translation (the paper's ``3d``, and ``tc`` whose transfer gives
+the same prediction in a rectified pair, are attenuated by it).
 """
 
 from __future__ import annotations
