@@ -9,7 +9,7 @@ from svains.filter.sigma_points import MerweScaledSigmaPoints
 from svains.filter.ukf import UKF
 from svains.models.clones import CLONE_JITTER, CloneManifold, augment_clone
 from svains.models.manifold import NavManifold
-from svains.models.state import BIASED, DP
+from svains.models.state import BIASED, DBA, DBG, DP, DW, PAPER
 from svains.navigation.consistency import RecoveryAction
 from svains.navigation.fault_handling import RateLimitedLog, Recovery, inflate
 from svains.navigation.options import FaultOptions
@@ -54,15 +54,17 @@ def test_reset_shifts_clones_keeps_relative_motion_and_correlates_their_errors()
     assert not rec.reset_pending
 
 
-def test_inflation_scales_the_clones_with_the_current_pose() -> None:
+def test_inflation_scales_the_biases_and_the_clones_with_the_current_pose() -> None:
     # The clones are past poses of the same lost filter: left small, the next vision update
-    # would pin the inflated position back onto a wrong clone.
+    # would pin the inflated position back onto a wrong clone. The biases: after a bias step
+    # a filter sure of the old bias would drift off again after every recovery.
     ukf = _ukf_with_two_clones()
     m = ukf.manifold
     before = ukf.P.copy()
     inflate(ukf, RecoveryAction("inflate", "test", ("gps",), inflate_factor=100.0))
     clones = np.concatenate([np.arange(m.tangent(i).start, m.tangent(i).stop) for i in range(2)])
-    scaled = np.concatenate([np.arange(9), clones])
+    biases = np.arange(DBG.start, DBA.stop)
+    scaled = np.concatenate([np.arange(9), biases, clones])
     rest = np.setdiff1d(np.arange(before.shape[0]), scaled)
     np.testing.assert_allclose(
         ukf.P[np.ix_(scaled, scaled)], 100.0 * before[np.ix_(scaled, scaled)]
@@ -70,3 +72,16 @@ def test_inflation_scales_the_clones_with_the_current_pose() -> None:
     np.testing.assert_allclose(ukf.P[np.ix_(rest, rest)], before[np.ix_(rest, rest)])
     np.testing.assert_allclose(ukf.P[np.ix_(scaled, rest)], 10.0 * before[np.ix_(scaled, rest)])
     assert np.linalg.eigvalsh(ukf.P).min() > 0.0
+
+
+def test_inflation_of_the_paper_state_scales_the_pose_only() -> None:
+    rng = np.random.default_rng(8)
+    x = rng.normal(size=PAPER.nx)
+    x[6:10] /= np.linalg.norm(x[6:10])
+    A = rng.normal(size=(PAPER.ndx, PAPER.ndx)) * 0.1
+    P = A @ A.T + 1e-3 * np.eye(PAPER.ndx)
+    ukf = UKF(NavManifold(PAPER), MerweScaledSigmaPoints(PAPER.ndx), x, P)
+    inflate(ukf, RecoveryAction("inflate", "test", ("gps",), inflate_factor=4.0))
+    np.testing.assert_allclose(ukf.P[:9, :9], 4.0 * P[:9, :9])
+    np.testing.assert_allclose(ukf.P[DW, DW], P[DW, DW])  # no bias blocks: ω is left alone
+    np.testing.assert_allclose(ukf.P[:9, DW], 2.0 * P[:9, DW])

@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 from svains.filter.ukf import UKF, UpdateStats
 from svains.models.clones import CLONE_JITTER, CloneManifold
 from svains.models.gps import gps_position, gps_velocity
-from svains.models.state import DP, DTH, DV, P, V
+from svains.models.state import DBA, DBG, DP, DTH, DV, P, V
 from svains.navigation.consistency import ConsistencyMonitor, ConsistencyOptions, RecoveryAction
 from svains.navigation.imu_guard import ImuGuard, ImuGuardOptions
 from svains.navigation.imu_history import ImuHistory
@@ -281,18 +281,26 @@ def shift_clones(x: F64, P_: F64, manifold: CloneManifold, dp_W: F64) -> tuple[F
 
 
 def inflate(ukf: UKF, action: RecoveryAction) -> None:
-    """P ← D P D with D = sqrt(factor) on δp, δv, δθ and on every pose clone's (δp, δθ), 1
-    elsewhere.
+    """P ← D P D with D = sqrt(factor) on δp, δv, δθ, on the IMU biases (biased model) and on
+    every pose clone's (δp, δθ), 1 elsewhere.
 
-    The clones are past poses of the same lost filter: left as they were, their small
-    covariance would let the next vision update (relative motion to a clone) pin the inflated
-    position back onto the clone's wrong one. Scaling them with the current pose keeps every
-    correlation.
+    The biases: a filter lost after a bias step (a knocked or overheated IMU) would otherwise
+    be sure of the old bias, drift off again after each recovery and lock GPS out for good
+    (bench: a 0.5 m/s² accelerometer step). The clones are past poses of the same lost filter:
+    left as they were, their small covariance would let the next vision update (relative
+    motion to a clone) pin the inflated position back onto the clone's wrong one. Scaling them
+    with the current pose keeps every correlation.
     """
     d = np.ones(ukf.P.shape[0])
     root = math.sqrt(action.inflate_factor)
     d[NAV9] = root
     assert DTH.stop == NAV9.stop
+    nav_ndx = ukf.P.shape[0]
+    if isinstance(ukf.manifold, CloneManifold):
+        nav_ndx = ukf.manifold.nav.ndx
+    if nav_ndx >= DBA.stop:  # biased layout: gyro and accelerometer biases
+        d[DBG] = root
+        d[DBA] = root
     if isinstance(ukf.manifold, CloneManifold):
         for i in range(ukf.manifold.n_clones):
             d[ukf.manifold.tangent(i)] = root
