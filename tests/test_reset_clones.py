@@ -9,19 +9,24 @@ from svains.filter.sigma_points import MerweScaledSigmaPoints
 from svains.filter.ukf import UKF
 from svains.models.clones import CLONE_JITTER, CloneManifold, augment_clone
 from svains.models.manifold import NavManifold
-from svains.models.state import BIASED, DBA, DBG, DP, DW, PAPER
+from svains.models.state import BIASED, DBA, DBG, DP, DW, PAPER, StateLayout
 from svains.navigation.consistency import RecoveryAction
 from svains.navigation.fault_handling import RateLimitedLog, Recovery, inflate
 from svains.navigation.options import FaultOptions
 from svains.sensors.types import GpsCalib
 
 
-def _ukf_with_two_clones() -> UKF:
-    rng = np.random.default_rng(7)
-    x = rng.normal(size=BIASED.nx)
+def _random_state(layout: StateLayout, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A random state (unit quaternion) and a random positive-definite covariance."""
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=layout.nx)
     x[6:10] /= np.linalg.norm(x[6:10])
-    A = rng.normal(size=(BIASED.ndx, BIASED.ndx)) * 0.1
-    P = A @ A.T + 1e-3 * np.eye(BIASED.ndx)
+    A = rng.normal(size=(layout.ndx, layout.ndx)) * 0.1
+    return x, A @ A.T + 1e-3 * np.eye(layout.ndx)
+
+
+def _ukf_with_two_clones() -> UKF:
+    x, P = _random_state(BIASED, 7)
     m = CloneManifold(NavManifold(BIASED), 0)
     x, P, m = augment_clone(x, P, m)
     x[0:3] += [2.0, -1.0, 0.5]  # the body moved on after the first clone
@@ -75,11 +80,7 @@ def test_inflation_scales_the_biases_and_the_clones_with_the_current_pose() -> N
 
 
 def test_inflation_of_the_paper_state_scales_the_pose_only() -> None:
-    rng = np.random.default_rng(8)
-    x = rng.normal(size=PAPER.nx)
-    x[6:10] /= np.linalg.norm(x[6:10])
-    A = rng.normal(size=(PAPER.ndx, PAPER.ndx)) * 0.1
-    P = A @ A.T + 1e-3 * np.eye(PAPER.ndx)
+    x, P = _random_state(PAPER, 8)
     ukf = UKF(NavManifold(PAPER), MerweScaledSigmaPoints(PAPER.ndx), x, P)
     inflate(ukf, RecoveryAction("inflate", "test", ("gps",), inflate_factor=4.0))
     np.testing.assert_allclose(ukf.P[:9, :9], 4.0 * P[:9, :9])

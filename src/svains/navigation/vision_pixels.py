@@ -249,14 +249,10 @@ class PixelUpdater:
         if two_view:
             R_all, r_all = motion(np.vstack([X, ctx.ukf.x[None, :]]))
             z8 = np.concatenate([uvl0, uvr0, tr.uv_left[idx], tr.uv_right[idx]], axis=1)
-            G = None
-            if self._imu_noise is not None and inc is not None:
-                _, G = analytic_noise(R_all[-1], r_all[-1], uvl0, uvr0, self.rig, self.sigma_px,
-                                      inc, dt_s, self._imu_noise)  # fmt: skip
             tv = TwoViewFeatures.build(R_all, r_all, z8, self.rig.triangulate(uvl0, uvr0),
-                                       self.rig, self.sigma_px, G)  # fmt: skip
+                                       self.rig, self.sigma_px)  # fmt: skip
             keep, finite = tv.gate(ctx.ukf.points, self.options.feature_gate_probability)
-            R_blocks, Y, z, G = tv.R_blocks, tv.Y, tv.z, tv.G
+            R_blocks, Y, z, G = tv.R_blocks, tv.Y, tv.z, None  # clones: no IMU-increment term
         else:
             Y, R_c, r_c, p_F = self._predict(ctx, X, uvl0, uvr0, motion)
             bias = self._bias(R_c, r_c, uvl0, uvr0)

@@ -29,7 +29,6 @@ from svains.filter.sigma_points import MerweScaledSigmaPoints
 from svains.geometry.camera import RectifiedStereo
 from svains.models.vision_two_view import (
     NUM_FUSED,
-    NUM_PIXELS,
     inverse_depth,
     null_space,
     point_jacobian,
@@ -46,15 +45,15 @@ _FAR_RHO = 1e-3  # 1/m, stand-in point (1 km ahead) for a feature whose refineme
 @dataclass
 class TwoViewFeatures:
     """One frame's features in the two-view form: ``Y`` (S, 5M) the sigma points' projected
-    predictions minus the tracked pixels, ``z`` (5M,) zeros, ``R_blocks`` (M, 5, 5), ``G``
-    (5M, 6) or None (IMU increment noise, ``rotation="imu"``), the null-space bases ``N``
-    (M, 8, 5), the refined points ``a_F`` (M, 3) (inverse depth at k-1), ``valid`` (M,)
-    (refinement converged in front of both cameras) and the tracked pixels ``z8`` (M, 8)."""
+    predictions minus the tracked pixels, ``z`` (5M,) zeros, ``R_blocks`` (M, 5, 5), the
+    null-space bases ``N`` (M, 8, 5), the refined points ``a_F`` (M, 3) (inverse depth at k-1),
+    ``valid`` (M,) (refinement converged in front of both cameras) and the tracked pixels
+    ``z8`` (M, 8). The camera motion comes from the k-1 frame's pose clone, so no IMU
+    increment noise enters (``rotation="imu"`` is refused)."""
 
     Y: F64
     z: F64
     R_blocks: F64
-    G: F64 | None
     N: F64
     a_F: F64
     valid: NDArray[np.bool_]
@@ -64,22 +63,17 @@ class TwoViewFeatures:
     @classmethod
     def build(
         cls, R_all: F64, r_all: F64, z8: F64, p_Ckm1_F: F64, rig: RectifiedStereo,
-        sigma_px: float, G4: F64 | None = None,
+        sigma_px: float,
     ) -> TwoViewFeatures:
         """``R_all`` (S+1, 3, 3), ``r_all`` (S+1, 3): camera motion of the sigma points, the
         mean last; ``z8`` (M, 8) px tracked pixels; ``p_Ckm1_F`` (M, 3) m the k-1 stereo
-        points; ``sigma_px`` one pixel's noise; ``G4`` (4M, 6) the k pixels' IMU-noise factor."""
+        points; ``sigma_px`` one pixel's noise."""
         a, valid, N = _linearised(inverse_depth(p_Ckm1_F), z8, R_all[-1], r_all[-1], rig)
         Y = _projected(N, two_view_pixels(R_all[:-1], r_all[:-1], a, rig), z8)
         M = z8.shape[0]
         z = np.zeros(M * NUM_FUSED)
         R_blocks = np.broadcast_to(sigma_px**2 * np.eye(NUM_FUSED), (M, NUM_FUSED, NUM_FUSED))
-        G = None
-        if G4 is not None:
-            # The IMU increment moves only the k pixels (rows 4..7 of each feature's 8).
-            G = np.einsum("mkj,mkc->mjc", N[:, NUM_PIXELS // 2:], G4.reshape(M, 4, -1))
-            G = G.reshape(M * NUM_FUSED, -1)
-        return cls(Y, z, np.ascontiguousarray(R_blocks), G, N, a, valid, rig, z8)
+        return cls(Y, z, np.ascontiguousarray(R_blocks), N, a, valid, rig, z8)
 
     def gate(
         self, points: MerweScaledSigmaPoints, probability: float | None
@@ -87,7 +81,7 @@ class TwoViewFeatures:
         """(keep (M,), finite (M,)): ``vision_noise.feature_gate`` on the 5 numbers, and only
         features whose point refinement succeeded."""
         keep, finite = feature_gate(self.Y, points.Wm, points.Wc, self.z, self.R_blocks,
-                                    probability, self.G)  # fmt: skip
+                                    probability)  # fmt: skip
         finite &= self.valid
         return keep & self.valid, finite
 
