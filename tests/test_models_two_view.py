@@ -20,7 +20,6 @@ from svains.models.vision_two_view import (
     two_view_pixels,
 )
 from svains.navigation.options import VisionOptions
-from svains.navigation.vision_pixels import PixelUpdater
 from svains.navigation.vision_two_view import TwoViewFeatures
 
 RIG = RectifiedStereo(400.0, 320.0, 240.0, 0.3, np.eye(3), np.zeros(3), 640, 480)
@@ -109,7 +108,7 @@ def test_two_view_is_refused_without_clones_and_single_use_pixels(
 ) -> None:
     # Without the k-1 frame's clone and single-use pixels, the k-1 pixels were already fused as
     # the last frame's k pixels: fusing them again would count them twice.
-    options = VisionOptions(two_view=True, rotation=rotation, single_use_pixels=single_use)
-    with pytest.raises(ConfigError, match=rf"vision\.two_view needs .* \(got rotation {rotation}, "
-                       rf"single_use_pixels {single_use}\)"):  # fmt: skip
-        PixelUpdater("3d", options, None, None, None)  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match=rf"vision\.two_view needs .* got rotation "
+                       rf"'{rotation}', single_use_pixels {single_use}"):  # fmt: skip
+        VisionOptions(two_view=True, rotation=rotation, single_use_pixels=single_use)
+    VisionOptions(two_view=True)  # the defaults (clone, single-use pixels) take it

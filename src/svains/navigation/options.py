@@ -221,6 +221,12 @@ class VisionOptions:
                 "vision.estimate_extrinsics needs vision.rotation=clone (the camera rotation "
                 f"is estimated against the cloned pose), got {self.rotation!r}"
             )
+        if self.two_view and (self.rotation != "clone" or not self.single_use_pixels):
+            raise ConfigError(
+                "vision.two_view needs vision.rotation=clone and vision.single_use_pixels=true "
+                f"(it fuses the k-1 pixels themselves, which only then are unfused), got "
+                f"rotation {self.rotation!r}, single_use_pixels {self.single_use_pixels}"
+            )
         if not self.extrinsics_std_deg > 0:
             raise ConfigError(
                 f"vision.extrinsics_std_deg must be positive, got {self.extrinsics_std_deg}"

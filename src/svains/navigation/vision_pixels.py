@@ -96,12 +96,6 @@ class PixelUpdater:
         """``source`` gives the tracks; ``history`` the IMU (``rotation="imu"``, motion prior)."""
         if method not in ("tc", "3d"):
             raise ConfigError(f"pixel updater serves tc or 3d, got {method!r}")
-        if options.two_view and (options.rotation != "clone" or not options.single_use_pixels):
-            raise ConfigError(
-                "vision.two_view needs vision.rotation=clone and vision.single_use_pixels=true "
-                f"(got rotation {options.rotation}, single_use_pixels "
-                f"{options.single_use_pixels})"
-            )
         self.method = method
         self.options = options
         self.source = source
