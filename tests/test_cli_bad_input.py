@@ -157,6 +157,24 @@ def test_stereo_pairs_a_millisecond_apart_are_paired(base: Path, tmp_path: Path)
     assert stereo_pairs(ds)[0].size == 3
 
 
+def test_unreadable_images_are_dropped_and_a_run_without_any_fails(
+    base: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # Each unreadable file drops its pair with a warning (a lost frame, not the end of the
+    # run); when no pair is left, the vision run fused nothing and says so.
+    root = _copy(base, tmp_path, _same_images)
+    for png in (root / "mav0" / "cam0" / "data").glob("*.png"):
+        png.write_bytes(b"not a png")
+    with caplog.at_level("WARNING", logger="svains.replay.images"):
+        args = ["run", str(root), "--out", str(tmp_path / "run"), "--method", "3d", "--images",
+                "--init", "groundtruth"]
+        res = runner.invoke(app, args)
+    assert res.exit_code == 1 and "Traceback" not in res.stdout + res.stderr
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error: ")]
+    assert len(errors) == 1 and "3d fused no vision update" in errors[0]
+    assert caplog.text.count("stereo pair dropped") == 3
+
+
 USAGE_CASES: list[tuple[list[str], str]] = [
     (["run", "{ds}", "--out", "{tmp}/o", "--set", "frame_stride=abc"],
      "vision.frame_stride must be an integer, got 'abc'"),

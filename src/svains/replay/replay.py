@@ -36,6 +36,7 @@ from svains.navigation.options import RunConfig
 from svains.navigation.outputs import NavState, RunResult
 from svains.navigation.tracks import frame_slices
 from svains.navigation.vision import tune_for_frames
+from svains.replay.images import PairReader
 from svains.sensors.types import Rig
 from svains.threads import limit_threads
 
@@ -107,22 +108,24 @@ def groundtruth_start(ds: Dataset, config: RunConfig, t_start_ns: int | None) ->
 def _image_pairs(ds: Dataset, t0: int) -> Iterator[tuple[int, int, Any]]:
     """Stereo pairs from ``t0`` on, each decoded while the previous one is processed."""
     assert ds.left is not None and ds.right is not None
-    left, right = ds.left, ds.right
     t, il, ir = stereo_pairs(ds)
     sel = np.flatnonzero(t >= t0)
     if sel.size == 0:
         return
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="svains-png") as pool:
 
+        reader = PairReader(ds)
+
         def load(k: int) -> Any:
-            return pool.submit(lambda: (left.load(int(il[k])), right.load(int(ir[k]))))
+            return pool.submit(reader.read, int(il[k]), int(ir[k]), int(t[k]))
 
         pending = load(int(sel[0]))
         for n, k in enumerate(sel):
             pair = pending.result()
             if n + 1 < sel.size:
                 pending = load(int(sel[n + 1]))
-            yield int(t[k]), _FRAME, ("images", *pair)
+            if pair is not None:  # None: unreadable, dropped (``PairReader`` warned)
+                yield int(t[k]), _FRAME, ("images", *pair)
 
 
 def _feature_frames(ds: Dataset, t0: int) -> Iterator[tuple[int, int, Any]]:

@@ -28,6 +28,7 @@ from svains.navigation.outputs import RunResult
 from svains.navigation.tracks import TrackOptions, frame_slices
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames, rig_from_calibrations
 from svains.replay.groundtruth import interpolate_groundtruth
+from svains.replay.images import PairReader
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -90,6 +91,7 @@ def _frame_tracks(
     if ds.left is None or ds.right is None:
         raise DatasetError(f"{ds.root}: vo needs features0 or cam0/cam1 images")
     images = ImageFrames(ds.cam0, ds.cam1)
+    reader = PairReader(ds)
     t_all, il, ir = stereo_pairs(ds)
     for k in range(int(np.searchsorted(t_all, t0_ns)), len(t_all), stride):
         t = int(t_all[k])
@@ -97,7 +99,10 @@ def _frame_tracks(
             end = t + int(config.duration_s * 1e9)
         if end is not None and t > end:
             return
-        images.push(t, ds.left.load(int(il[k])), ds.right.load(int(ir[k])))
+        pair = reader.read(int(il[k]), int(ir[k]), t)
+        if pair is None:  # unreadable: dropped (``PairReader`` warned)
+            continue
+        images.push(t, *pair)
         yield t, images.tracks_at(t)
 
 
