@@ -108,6 +108,8 @@ DATA_CASES: list[tuple[str, Edit, str]] = [
     ("wrong image size", _images(0, (320, 240)), "image is 320x240 px but"),
     ("invalid yaml", lambda r: (r / "mav0/mag0/sensor.yaml").write_text("a: [1, 2\n"),
      "mag0/sensor.yaml: invalid YAML"),
+    ("negative camera rate", lambda r: _set_yaml(r / "mav0/cam0/sensor.yaml", "rate_hz", "-2.0"),
+     "cam0/sensor.yaml: field 'rate_hz' must be >= 0"),
     ("nan in imu", lambda r: (r / "mav0/imu0/data.csv").write_text(
         "#h\n1,0,0,0,0,0,nan\n2,0,0,0,0,0,9.8\n"), "imu0/data.csv:2: NaN or infinite"),
     ("not a data set", lambda r: shutil.rmtree(r / "mav0"), "unrecognised data set"),
@@ -192,6 +194,8 @@ USAGE_CASES: list[tuple[list[str], str]] = [
     (["run", "{ds}", "--out", "{tmp}/full"], "is not empty; use --force"),
     (["compare", "{ds}", "--out", "{tmp}/full"], "is not empty; use --force"),
     (["compare", "{ds}", "--out", "{tmp}/o", "--duration", "-1"], "'--duration'"),
+    (["compare", "{ds}", "--out", "{tmp}/o", "--methods", "ins,foo"],
+     "--methods: unknown 'foo'; known: ins, vo, lc, tc, 3d"),
     (["frontend", "{ds}", "--out", "{tmp}/full"], "is not empty; use --force"),
     (["simulate", "--out", "{ds}", "--duration", "3", "--no-images"], "is not empty"),
     (["simulate", "--out", "{tmp}/o", "--duration", "nan"], "'--duration'"),

@@ -111,6 +111,12 @@ def compare(
     ] = False,
 ) -> None:
     """Run all methods on DATASET; write DIR/compare.md, DIR/compare.json and the figures."""
+    from svains.evaluation.compare import METHODS
+
+    unknown = [m.strip() for m in methods.split(",") if m.strip() and m.strip() not in METHODS]
+    if unknown:
+        raise typer.BadParameter(f"--methods: unknown {', '.join(map(repr, unknown))}; "
+                                 f"known: {', '.join(METHODS)}")  # fmt: skip
     _common.check_out_dir(out, force)
     try:
         source = {None: "auto", True: "features", False: "images"}[features]

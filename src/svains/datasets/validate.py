@@ -97,6 +97,8 @@ def check_camera_calib(c: CameraCalib, path: Path) -> None:
     w, h = c.resolution
     if w <= 0 or h <= 0:
         raise CalibrationError(f"{path}: field 'resolution' must be positive, got {w}x{h}")
+    # 0: unknown (no rate_hz and fewer than two frames to take it from)
+    check_number(c.rate_hz, path, "rate_hz", non_negative=True)
     fu, fv, cu, cv = (float(v) for v in c.intrinsics)
     check_number(fu, path, "intrinsics[0] (fu)", positive=True)
     check_number(fv, path, "intrinsics[1] (fv)", positive=True)
