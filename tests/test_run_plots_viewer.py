@@ -121,3 +121,21 @@ def test_view_and_plot_refuse_a_folder_that_is_not_a_run(tmp_path: Path) -> None
         read_run(tmp_path)
     res = runner.invoke(app, ["view", str(tmp_path)])
     assert res.exit_code == 2 and "--out x.rrd, --spawn, or both" in res.output
+
+
+def test_view_and_plot_never_replace_a_file_without_force(run_dir: Path, tmp_path: Path) -> None:
+    # Checked before any work: a user's file of that name is left as it was.
+    mine = tmp_path / "mine.rrd"
+    mine.write_text("mine\n")
+    res = runner.invoke(app, ["view", str(run_dir), "--out", str(mine)])
+    assert res.exit_code == 2 and "exists; use --force to replace it" in res.stderr
+    assert mine.read_text() == "mine\n"
+    out = tmp_path / "figs"
+    out.mkdir()
+    (out / "measurements.png").write_text("mine\n")
+    res = runner.invoke(app, ["plot", str(run_dir), "--out", str(out)])
+    assert res.exit_code == 2 and "measurements.png exists; use --force" in res.stderr
+    assert (out / "measurements.png").read_text() == "mine\n"
+    res = runner.invoke(app, ["plot", str(run_dir), "--out", str(out), "--force"])
+    assert res.exit_code == 0, res.output
+    assert (out / "measurements.png").read_bytes()[:4] == b"\x89PNG"

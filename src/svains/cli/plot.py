@@ -9,7 +9,7 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from svains.cli._common import fail
+from svains.cli._common import check_out_file, fail
 from svains.errors import SvainsError
 
 
@@ -22,10 +22,14 @@ def plot(
     out: Annotated[
         Path | None, typer.Option("--out", help="Where to write the PNGs (default RUN_DIR).")
     ] = None,
+    force: Annotated[bool, typer.Option("--force", help="Replace existing PNGs.")] = False,
 ) -> None:
     """Write errors.png, nees.png and measurements.png for a run."""
     from svains.datasets import load_dataset
-    from svains.evaluation.plots import plot_run
+    from svains.evaluation.plots import PLOT_NAMES, plot_run
+
+    for name in PLOT_NAMES:  # before any work: never replace a file without --force
+        check_out_file((out if out is not None else run_dir) / name, force, "--out")
 
     try:
         ds = load_dataset(dataset) if dataset is not None else None

@@ -10,7 +10,7 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from svains.cli._common import fail
+from svains.cli._common import check_out_file, fail
 from svains.errors import SvainsError
 
 
@@ -27,6 +27,7 @@ def view(
     image_stride: Annotated[
         int, typer.Option("--image-stride", help="Log every N-th left image.")
     ] = 1,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing --out file.")] = False,
 ) -> None:
     """Save a rerun recording of a run (.rrd), or show it live with --spawn."""
     from svains.datasets import load_dataset
@@ -34,6 +35,7 @@ def view(
 
     if out is None and not spawn:
         raise typer.BadParameter("give --out x.rrd, --spawn, or both")
+    check_out_file(out, force, "--out")
     try:
         ds = load_dataset(dataset) if dataset is not None else None
         path = write_recording(run_dir, ds, out, spawn=spawn, image_stride=image_stride)
