@@ -167,7 +167,7 @@ def test_unreadable_images_are_dropped_and_a_run_without_any_fails(
     root = _copy(base, tmp_path, _same_images)
     for png in (root / "mav0" / "cam0" / "data").glob("*.png"):
         png.write_bytes(b"not a png")
-    with caplog.at_level("WARNING", logger="svains.replay.images"):
+    with caplog.at_level("WARNING", logger="svains.datasets.loader"):
         args = ["run", str(root), "--out", str(tmp_path / "run"), "--method", "3d", "--images",
                 "--init", "groundtruth"]
         res = runner.invoke(app, args)

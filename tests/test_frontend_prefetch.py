@@ -37,7 +37,7 @@ def test_an_unreadable_image_drops_its_pair_with_a_warning(
     paths = list(ds.left.paths)
     paths[int(il[1])] = bad
     ds = replace(ds, left=replace(ds.left, paths=tuple(paths)))
-    with caplog.at_level("WARNING", logger="svains.replay.images"):
+    with caplog.at_level("WARNING", logger="svains.datasets.loader"):
         got = [g[0] for g in _image_pairs(ds, int(t[0]))]
     assert got == [int(t[0]), *t[2:].tolist()]  # every pair but the unreadable one
     assert f"stereo pair dropped (1 so far): unreadable image: {bad}" in caplog.text

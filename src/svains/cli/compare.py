@@ -113,7 +113,8 @@ def compare(
     """Run all methods on DATASET; write DIR/compare.md, DIR/compare.json and the figures."""
     from svains.evaluation.compare import METHODS
 
-    unknown = [m.strip() for m in methods.split(",") if m.strip() and m.strip() not in METHODS]
+    names = [m.strip() for m in methods.split(",") if m.strip()]
+    unknown = [m for m in names if m not in METHODS]
     if unknown:
         raise typer.BadParameter(f"--methods: unknown {', '.join(map(repr, unknown))}; "
                                  f"known: {', '.join(METHODS)}")  # fmt: skip
@@ -124,7 +125,7 @@ def compare(
         opts = build_options(model, init, gps, mag, duration, source, settings,
                              calib=calib, imu_calib=imu_calib, sonar=sonar,
                              gps_outages=gps_outage, gps_until=gps_until)
-        run_compare(dataset, out, [m.strip() for m in methods.split(",") if m.strip()], opts,
+        run_compare(dataset, out, names, opts,
                     figures, Console(), synthetic_features)
     except SvainsError as exc:
         _common.fail(exc)

@@ -38,7 +38,7 @@ log = logging.getLogger(__name__)
 # s, blocks whose means give the signal's spread before a gap (bench/faults.py, 5 s gap, 3d:
 # 0.1 s blocks gave 1.68x the clean RMSE, 0.25 s 1.27x; raw samples, white noise included, 4.1x)
 _BLOCK_S = 0.25
-_AFTER_GAP_S = 1.0  # s after a gap during which the prediction still counts as bridged
+_AFTER_GAP_NS = 1_000_000_000  # after a gap, the time the prediction still counts as bridged
 # s of samples the line through the bridge's first end point is fitted to (less than the
 # Navigator's 0.1 s reordering window, so the filter has not reached that sample yet)
 _FIT_S = 0.09
@@ -110,7 +110,7 @@ class ImuFaults:
         self._densities = (rig.imu.accel_noise_density, rig.imu.gyro_noise_density)
         guard_options = ImuGuardOptions(gap_factor=options.imu_gap_factor)
         self.guard = ImuGuard.from_calib(rig.imu, guard_options)
-        # gaps not yet crossed in full by the filter, or crossed less than _AFTER_GAP_S ago
+        # gaps not yet crossed in full by the filter, or crossed less than _AFTER_GAP_NS ago
         self._gaps: list[_Gap] = []
 
     def accept(self, t_ns: int, gyro_S: ArrayLike, accel_S: ArrayLike, history: ImuHistory) -> bool:
@@ -191,16 +191,14 @@ class ImuFaults:
             Q = gap.take(t_ns)
             if Q is not None:
                 total = Q if total is None else total + Q
-        after_ns = int(_AFTER_GAP_S * 1e9)
-        self._gaps = [g for g in self._gaps if t_ns <= g.end_ns + after_ns]
+        self._gaps = [g for g in self._gaps if t_ns <= g.end_ns + _AFTER_GAP_NS]
         return total
 
     def bridging(self, t_ns: int) -> bool:
-        """Whether ``t_ns`` lies in an IMU gap or less than ``_AFTER_GAP_S`` after one: the
+        """Whether ``t_ns`` lies in an IMU gap or less than ``_AFTER_GAP_NS`` after one: the
         prediction there rests on the bridge and its wide noise (the Core then linearises the
         vision update again, ``faults.gap_vision_iterations``)."""
-        after_ns = int(_AFTER_GAP_S * 1e9)
-        return any(g.start_ns < t_ns <= g.end_ns + after_ns for g in self._gaps)
+        return any(g.start_ns < t_ns <= g.end_ns + _AFTER_GAP_NS for g in self._gaps)
 
     def summary(self) -> dict[str, object]:
         return self.guard.summary()
@@ -298,12 +296,11 @@ def inflate(ukf: UKF, action: RecoveryAction) -> None:
     nav_ndx = ukf.P.shape[0]
     if isinstance(ukf.manifold, CloneManifold):
         nav_ndx = ukf.manifold.nav.ndx
+        for i in range(ukf.manifold.n_clones):
+            d[ukf.manifold.tangent(i)] = root
     if nav_ndx >= DBA.stop:  # biased layout: gyro and accelerometer biases
         d[DBG] = root
         d[DBA] = root
-    if isinstance(ukf.manifold, CloneManifold):
-        for i in range(ukf.manifold.n_clones):
-            d[ukf.manifold.tangent(i)] = root
     ukf.P = ukf.P * np.outer(d, d)
 
 

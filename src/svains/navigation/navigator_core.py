@@ -190,7 +190,7 @@ class Core:
             return
         bridging = self._imu_faults is not None and self._imu_faults.bridging(t)
         ctx = FrameContext(ins.ukf, self.layout, t, self._t_prev_frame,
-                           cfg.filter.gate_probability, blocks, self._vision_apply(t),
+                           cfg.filter.gate_probability, blocks, self._vision_apply(bridging),
                            bridging and cfg.faults.gap_vision_two_view)  # fmt: skip
         ins.add_omega_white()  # paper model: the vision models see ω's gyro white noise
         stats = updater.update(ctx)
@@ -201,14 +201,14 @@ class Core:
             self._record(stats, cfg.method, t)
         self._t_prev_frame = t
 
-    def _vision_apply(self, t: int) -> Callable[[list[MeasurementBlock]], UpdateStats]:
-        """How the vision update at ``t`` is applied. While the prediction rests on an IMU
-        gap's bridge it is linearised ``faults.gap_vision_iterations`` times and gated at
+    def _vision_apply(self, bridging: bool) -> Callable[[list[MeasurementBlock]], UpdateStats]:
+        """How a vision update is applied. While the prediction rests on an IMU gap's bridge
+        (``bridging``) it is linearised ``faults.gap_vision_iterations`` times and gated at
         ``faults.gap_vision_gate_probability``: the bridge's error is not Gaussian, and the
         frames are then the only evidence of the motion."""
         ins, cfg = self.ins, self.config
         gate, n = cfg.filter.gate_probability, cfg.vision.update_iterations
-        if self._imu_faults is not None and self._imu_faults.bridging(t):
+        if bridging:
             n = max(n, cfg.faults.gap_vision_iterations)
             if gate is not None:
                 gate = max(gate, cfg.faults.gap_vision_gate_probability)

@@ -37,7 +37,7 @@ def feature_gate(
     S, n = Y.shape
     nb = R_blocks.shape[1]
     m = n // nb
-    # Reductions over the long axis first: NumPy is slow reducing many axes of length 4.
+    # Reductions over the long axis first: NumPy is slow reducing many short axes.
     fin_rows = np.isfinite(Y)
     finite = fin_rows.all(axis=0).reshape(m, nb).all(axis=1)
     if probability is None:
@@ -45,7 +45,7 @@ def feature_gate(
     Yf = Y if finite.all() else np.where(fin_rows, Y, 0.0)
     y = Wm @ Yf
     dY = (Yf - y).reshape(S, m, nb)
-    A = dY.transpose(1, 2, 0)  # (m, 4, S)
+    A = dY.transpose(1, 2, 0)  # (m, d, S)
     cov = (A * Wc) @ A.transpose(0, 2, 1) + R_blocks  # batched products: faster than einsum
     if G is not None:
         Gm = G.reshape(m, nb, -1)

@@ -86,6 +86,22 @@ def _subsample(idx: I64, n_max: int | None) -> I64:
     return idx[np.linspace(0, idx.size - 1, n_max).round().astype(np.int64)]
 
 
+@dataclass(frozen=True)
+class _Features:
+    """One frame's candidate features: the sigma points' predictions ``Y`` (S, dM), ``z``
+    (dM,), per-feature noise ``R_blocks`` (M, d, d), the IMU-increment factor ``G`` (dM, 6) or
+    None, ``keep``/``finite`` (M,) from the gate, and ``model(kept)``: ``h`` of the kept
+    features for any sigma points."""
+
+    Y: F64
+    z: F64
+    R_blocks: F64
+    G: F64 | None
+    keep: NDArray[np.bool_]
+    finite: NDArray[np.bool_]
+    model: Callable[[I64], Callable[[F64], F64]]
+
+
 class PixelUpdater:
     """``tc`` or ``3d`` updater: 4 pixels per inlier feature, see the module docstring."""
 
@@ -213,6 +229,51 @@ class PixelUpdater:
         bias = previous_pixel_bias(h_prev, uvl0, uvr0, self._pixel_std_px)
         return bias if np.any(bias) else None
 
+    def _paper_features(
+        self, ctx: FrameContext, X: F64, z: F64, uvl0: F64, uvr0: F64, motion: MotionFn,
+        inc: ImuIncrement | None, dt_s: float,
+    ) -> _Features:
+        """The paper's ``tc``/``3d`` features: 4 pixels at k each, predicted from the k-1 pixels
+        (second-order bias removed where the pixel noise is known), gated one by one."""
+        Y, R_c, r_c, p_F = self._predict(ctx, X, uvl0, uvr0, motion)
+        bias = self._bias(R_c, r_c, uvl0, uvr0)
+        if bias is not None:
+            Y = Y - bias
+        # Per-feature 4x4 noise: pixel noise at k plus the k-1 pixel noise carried through
+        # triangulation/transfer (dominant for far points), and in "imu" mode the IMU
+        # increment's noise as a feature-correlated factor G (4M, 6). Closed form at the mean
+        # state (``analytic_noise``; tests check it against finite differences of the model).
+        R_blocks, G = analytic_noise(
+            R_c, r_c, uvl0, uvr0, self.rig, self.sigma_px, inc, dt_s, self._imu_noise, p_F
+        )
+        pts = ctx.ukf.points
+        keep, finite = feature_gate(
+            Y, pts.Wm, pts.Wc, z, R_blocks, self.options.feature_gate_probability, G
+        )
+        # Near-zero disparity makes the prediction hypersensitive to the k-1 pixels (|J| > 100):
+        # such features carry no information and would make R_blocks numerically singular.
+        sane = np.abs(R_blocks.reshape(-1, 16)).max(axis=1) < (100.0 * self.sigma_px) ** 2
+
+        def model(kept: I64) -> Callable[[F64], F64]:
+            h = self._model(uvl0[kept], uvr0[kept], motion, None if p_F is None else p_F[kept])
+            return h if bias is None else _debiased(h, bias.reshape(-1, 4)[kept].reshape(-1))
+
+        return _Features(Y, z, R_blocks, G, keep & sane, finite & sane, model)
+
+    def _two_view_features(
+        self, ctx: FrameContext, X: F64, z: F64, uvl0: F64, uvr0: F64, motion: MotionFn
+    ) -> _Features:
+        """Each feature's point marginalised over its 8 pixels at k-1 and k
+        (``navigation.vision_two_view``): 5 numbers each, gated one by one. Clones only, so no
+        IMU-increment term."""
+        R_all, r_all = motion(np.vstack([X, ctx.ukf.x[None, :]]))
+        z8 = np.concatenate([uvl0, uvr0, z.reshape(-1, 4)], axis=1)
+        tv = TwoViewFeatures.build(R_all, r_all, z8, self.rig.triangulate(uvl0, uvr0), self.rig,
+                                   self.sigma_px)  # fmt: skip
+        keep, finite = tv.gate(ctx.ukf.points, self.options.feature_gate_probability)
+        return _Features(tv.Y, tv.z, tv.R_blocks, None, keep, finite,
+                         lambda kept: tv.model(kept, motion))  # fmt: skip
+
     def update(self, ctx: FrameContext) -> UpdateStats | None:
         """Fuse the frame at ``ctx.t_ns`` (see the module docstring)."""
         c = self.counters
@@ -239,54 +300,22 @@ class PixelUpdater:
             c.frames_without_tracks += 1
             return None
         X, _ = ctx.ukf.sigma_points()  # reused by the update below (same state)
-        two_view = self.two_view or (ctx.two_view and self._two_view_in_gaps)
-        if two_view:
-            R_all, r_all = motion(np.vstack([X, ctx.ukf.x[None, :]]))
-            z8 = np.concatenate([uvl0, uvr0, tr.uv_left[idx], tr.uv_right[idx]], axis=1)
-            tv = TwoViewFeatures.build(R_all, r_all, z8, self.rig.triangulate(uvl0, uvr0),
-                                       self.rig, self.sigma_px)  # fmt: skip
-            keep, finite = tv.gate(ctx.ukf.points, self.options.feature_gate_probability)
-            R_blocks, Y, z, G = tv.R_blocks, tv.Y, tv.z, None  # clones: no IMU-increment term
+        if self.two_view or (ctx.two_view and self._two_view_in_gaps):
+            f = self._two_view_features(ctx, X, z, uvl0, uvr0, motion)
         else:
-            Y, R_c, r_c, p_F = self._predict(ctx, X, uvl0, uvr0, motion)
-            bias = self._bias(R_c, r_c, uvl0, uvr0)
-            if bias is not None:
-                Y = Y - bias
-            # Per-feature 4x4 noise: pixel noise at k plus the k-1 pixel noise carried through
-            # triangulation/transfer (dominant for far points), and in "imu" mode the IMU
-            # increment's noise as a feature-correlated factor G (4M, 6). Closed form at the
-            # mean state (``analytic_noise``; tests check it against finite differences).
-            R_blocks, G = analytic_noise(
-                R_c, r_c, uvl0, uvr0, self.rig, self.sigma_px, inc, dt_s, self._imu_noise, p_F
-            )
-            pts = ctx.ukf.points
-            keep, finite = feature_gate(
-                Y, pts.Wm, pts.Wc, z, R_blocks, self.options.feature_gate_probability, G
-            )
-            # Near-zero disparity makes the prediction hypersensitive to the k-1 pixels
-            # (|J| > 100): such features carry no information and would make R_blocks
-            # numerically singular.
-            sane = np.abs(R_blocks.reshape(-1, 16)).max(axis=1) < (100.0 * self.sigma_px) ** 2
-            finite &= sane
-            keep &= sane
-        c.features_invalid += int((~finite).sum())
-        c.features_gated += int((finite & ~keep).sum())
-        if keep.sum() < self.options.min_features:
+            f = self._paper_features(ctx, X, z, uvl0, uvr0, motion, inc, dt_s)
+        c.features_invalid += int((~f.finite).sum())
+        c.features_gated += int((f.finite & ~f.keep).sum())
+        if f.keep.sum() < self.options.min_features:
             c.frames_without_tracks += 1
             return None
-        kept = np.flatnonzero(keep)
-        if two_view:
-            h_kept = tv.model(kept, motion)
-        else:
-            h_kept = self._model(uvl0[kept], uvr0[kept], motion,
-                                 None if p_F is None else p_F[kept])  # fmt: skip
-            if bias is not None:
-                h_kept = _debiased(h_kept, bias.reshape(-1, 4)[kept].reshape(-1))
-        block = _whitened_block(f"vision_{self.method}", kept, X, Y, z, R_blocks, G, h_kept)
+        kept = np.flatnonzero(f.keep)
+        block = _whitened_block(f"vision_{self.method}", kept, X, f.Y, f.z, f.R_blocks, f.G,
+                                f.model(kept))  # fmt: skip
         stats = apply_blocks(ctx, [block, *ctx.extra])
         if stats.accepted:
             c.frames_fused += 1
-            c.features_fused += int(keep.sum())
+            c.features_fused += kept.size
             self._fused = (tr.t_ns, np.sort(tr.track_id[idx[kept]]))
         else:
             c.frames_rejected += 1
@@ -318,7 +347,7 @@ def _whitened_block(
     ``Y`` (S, dM) made for the sigma points ``X`` (and calls ``h_kept`` for any other points)."""
     nb = R_blocks.shape[1]
     rows = (nb * kept[:, None] + np.arange(nb)).reshape(-1)
-    L = np.linalg.cholesky(R_blocks[kept])  # (K, 4, 4)
+    L = np.linalg.cholesky(R_blocks[kept])  # (K, d, d)
     Gw = None if G is None else whiten_chol(G[rows].T, L).T
     U, d = lowrank_factors(Gw)
 

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from svains.datasets.loader import stereo_pairs
+from svains.datasets.loader import PairReader, stereo_pairs
 from svains.datasets.types import DEFAULT_GRAVITY_W, Dataset
 from svains.errors import DatasetError
 from svains.models.state import BIASED, PAPER
@@ -36,7 +36,6 @@ from svains.navigation.options import RunConfig
 from svains.navigation.outputs import NavState, RunResult
 from svains.navigation.tracks import frame_slices
 from svains.navigation.vision import tune_for_frames
-from svains.replay.images import PairReader
 from svains.sensors.types import Rig
 from svains.threads import limit_threads
 

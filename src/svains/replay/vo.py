@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.datasets.loader import stereo_pairs
+from svains.datasets.loader import PairReader, stereo_pairs
 from svains.datasets.types import Dataset
 from svains.errors import DatasetError
 from svains.frontend.types import Egomotion, StereoTracks
@@ -28,7 +28,6 @@ from svains.navigation.outputs import RunResult
 from svains.navigation.tracks import TrackOptions, frame_slices
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames, rig_from_calibrations
 from svains.replay.groundtruth import interpolate_groundtruth
-from svains.replay.images import PairReader
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
