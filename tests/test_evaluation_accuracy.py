@@ -15,7 +15,7 @@ from _ins_truth import make_dataset, static_dataset
 from svains.cli.main import app
 from svains.datasets.types import GpsCalib, GpsStream, GroundTruth
 from svains.errors import ConfigError
-from svains.evaluation.accuracy import accuracy_report, align_states
+from svains.evaluation.accuracy import NEES_BLOCKS_DOF, accuracy_report, align_states, nees_blocks
 from svains.evaluation.alignment import align_posyaw, align_posyaw_poses, rotation_about_axis
 from svains.evaluation.run import errors_alignment_for, run_method
 from svains.geometry.rotation import (
@@ -195,3 +195,68 @@ def test_static_euroc_run_reports_errors_after_posyaw(euroc_micro: Path, tmp_pat
     assert rep["velocity_rmse_mps"] < 0.05
     assert rep["nees_mean"] < 9.0 * 3  # was 684
     assert rep["position_within_3sigma"] > 0.9
+    # V1_01's Vicon frame is tilted 0.24 deg from gravity: removed before the posyaw errors.
+    assert rep["reference_tilt_deg"] == pytest.approx(0.237, abs=0.005)
+    assert rep["reference_gravity"]["g_Wr_mps2"] == pytest.approx([-0.0405, 0.0014, -9.8071],
+                                                                  abs=1e-3)  # fmt: skip
+    assert set(rep["nees_blocks"]) == {"position", "velocity", "roll_pitch", "yaw"}
+
+
+def _random_rotations(n: int, rng: np.random.Generator) -> np.ndarray:
+    return quat_to_rotmat(quat_exp(rng.normal(scale=1.5, size=(n, 3))))
+
+
+def test_nees_blocks_average_their_dof_for_errors_drawn_from_the_covariance() -> None:
+    rng = np.random.default_rng(11)
+    n = 4000
+    R_W_B = _random_rotations(n, rng)  # strongly tilted bodies: body and world axes differ
+    A = rng.normal(size=(n, 9, 9)) * 0.3
+    P = A @ A.transpose(0, 2, 1) + np.diag([0.04] * 3 + [0.01] * 3 + [1e-6] * 3)
+    P[:, 6:9, 6:9] += np.diag([1e-6, 1e-6, 1e-3])  # attitude much less certain about body z
+    e = np.einsum("nij,nj->ni", np.linalg.cholesky(P), rng.normal(size=(n, 9)))
+    blocks = nees_blocks(e, P, R_W_B)
+    assert set(blocks) == set(NEES_BLOCKS_DOF) == {"position", "velocity", "roll_pitch", "yaw"}
+    for name, dof in NEES_BLOCKS_DOF.items():  # mean of chi2(dof): σ = sqrt(2 dof / n)
+        assert blocks[name].mean() == pytest.approx(dof, abs=5 * np.sqrt(2 * dof / n)), name
+    # A covariance twice too large halves every block.
+    for name, v in nees_blocks(e, 2.0 * P, R_W_B).items():
+        assert v.mean() == pytest.approx(NEES_BLOCKS_DOF[name] / 2, abs=0.15), name
+
+
+def test_pure_yaw_error_of_a_rotated_body_is_yaw_only() -> None:
+    # Body rolled 90 deg (its z axis horizontal) and pitched: a truth yawed from the estimate
+    # about the world's up axis is a yaw error, although body axes see it about body y/x.
+    R_hat = quat_to_rotmat(quat_exp([np.pi / 2, 0.0, 0.0])) @ quat_to_rotmat(quat_exp([0, 0.4, 0]))
+    psi = 0.01
+    R_true = rotation_about_axis(UP, psi) @ R_hat
+    x = np.zeros((1, 13))
+    x[0, 6:10] = rotmat_to_quat(R_hat)
+    e = navigation_errors(x, np.zeros((1, 3)), np.zeros((1, 3)), rotmat_to_quat(R_true)[None])
+    assert abs(e[0, 8]) < 0.5 * psi  # about body z: not where a yaw error shows
+    P = np.tile(np.eye(9) * 1e-4, (1, 1, 1))
+    b = nees_blocks(e, P, R_hat[None])
+    assert b["yaw"][0] == pytest.approx(psi**2 / 1e-4, rel=1e-6)
+    assert b["roll_pitch"][0] < 1e-9
+    # A pure tilt (about world x) is roll/pitch only; a downward up axis gives the same split.
+    R_tilt = rotation_about_axis([1.0, 0.0, 0.0], psi) @ R_hat
+    e2 = navigation_errors(x, np.zeros((1, 3)), np.zeros((1, 3)), rotmat_to_quat(R_tilt)[None])
+    b2 = nees_blocks(e2, P, R_hat[None], up_W=(0.0, 0.0, -1.0))
+    assert b2["roll_pitch"][0] == pytest.approx(psi**2 / 1e-4, rel=1e-6) and b2["yaw"][0] < 1e-9
+
+
+def test_report_carries_nees_blocks() -> None:
+    rng = np.random.default_rng(8)
+    n = 60
+    t_ns = (np.arange(n) * 1e8).astype(np.int64)
+    x_true = _truth_states(n, rng, 0.3)
+    P9 = np.tile(np.eye(9) * 0.01, (n, 1, 1))
+    # Position off by 0.1 m along x, heading off by 0.05 rad about the world's up axis.
+    x = x_true.copy()
+    x[:, 0] -= 0.1
+    x[:, 6:10] = quat_multiply(rotmat_to_quat(rotation_about_axis(UP, -0.05))[None], x[:, 6:10])
+    rep = accuracy_report(t_ns, x, P9, _gt_of(t_ns, x_true))
+    assert rep["nees_blocks_dof"] == {"position": 3, "velocity": 3, "roll_pitch": 2, "yaw": 1}
+    assert rep["nees_blocks"] == pytest.approx(
+        {"position": 1.0, "velocity": 0.0, "roll_pitch": 0.0, "yaw": 0.25}, abs=1e-9
+    )
+    assert accuracy_report(t_ns, x, P9, None)["nees_blocks"] is None

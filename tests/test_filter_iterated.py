@@ -67,3 +67,23 @@ def test_iterated_updates_refuse_a_custom_residual() -> None:
     ukf = _ukf(np.zeros(2), np.eye(2))
     with pytest.raises(ConfigError, match="iterated updates need plain residuals"):
         ukf.update(lambda X: X, np.zeros(2), np.ones(2), residual=lambda a, b: a - b, iterations=2)
+
+
+def test_an_exact_copy_in_the_prior_is_iterated_like_the_plain_update() -> None:
+    # The third state copies the first (a pose clone without jitter): P0 is singular, the
+    # sigma points and the regression ``H = Ψ^T P_j^-1`` both need the repaired factor.
+    J = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 0.0]])
+    P0 = J @ np.array([[1e4, 0.3], [0.3, 2.0]]) @ J.T
+    x0 = np.array([1.0, -2.0, 1.0])
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.cholesky(P0)
+    H = np.array([[1.0, 0.5, 0.0], [0.0, 1.0, 0.0]])
+    z, R = np.array([2.0, -1.0]), np.full(2, 0.1)
+    plain, iterated = _ukf(x0, P0), _ukf(x0, P0)
+    s1 = plain.update(lambda X: X @ H.T, z, R)
+    s3 = iterated.update(lambda X: X @ H.T, z, R, iterations=3)
+    np.testing.assert_allclose(iterated.x, plain.x, rtol=1e-6)
+    # Both keep the repair's floor (1e-10 of the prior's scale) along the copy direction.
+    np.testing.assert_allclose(iterated.P, plain.P, rtol=0, atol=1e-9 * np.abs(P0).max())
+    assert s3.nis == pytest.approx(s1.nis, rel=1e-6)
+    assert iterated.x[2] == pytest.approx(iterated.x[0], rel=1e-6)  # the copy moves along

@@ -7,6 +7,7 @@ import pytest
 
 from svains.errors import ConfigError, FilterError
 from svains.filter import UKF, Euclidean, MerweScaledSigmaPoints, chi2_gate
+from svains.filter.ukf import kalman_correction
 
 
 def _linear_problem(seed: int = 0, n: int = 4, nz: int = 2):
@@ -220,3 +221,49 @@ def test_chi2_gate_equals_scipy_stats(probability: float) -> None:
 
     for dof in (1, 2, 4, 6, 15, 400, 1600):
         assert chi2_gate(probability, dof) == float(chi2.ppf(probability, dof))
+
+
+def _duplicated_measurement_ukf() -> UKF:
+    """A 3-state filter (variance 1e4 on the first) and its sigma points for ``X[:, [0, 0]]``:
+    the same noiseless component twice, an innovation covariance singular to round-off."""
+    return UKF(Euclidean(3), MerweScaledSigmaPoints(3, alpha=0.5176), np.zeros(3),
+               np.diag([1e4, 1.0, 2.0]))  # fmt: skip
+
+
+def test_an_innovation_covariance_singular_to_round_off_is_repaired() -> None:
+    def twice(X: np.ndarray) -> np.ndarray:
+        return X[:, [0, 0]]
+
+    ukf = _duplicated_measurement_ukf()
+    X, dX = ukf.sigma_points()
+    Wc = ukf.points.Wc
+    dY = twice(X) - ukf.points.Wm @ twice(X)
+    S = dY.T @ (Wc[:, None] * dY)
+    with pytest.raises(np.linalg.LinAlgError):  # what a plain factorisation does with it
+        np.linalg.cholesky(0.5 * (S + S.T))
+    z = np.array([3.0, 3.0])
+    once = _duplicated_measurement_ukf()
+    s1 = once.update(lambda X: X[:, :1], z[:1], np.zeros((1, 1)))
+    dx, nis, dP = kalman_correction(dX, dY, Wc, np.zeros((2, 2)), z, name="twice")
+    np.testing.assert_allclose(dx, once.x, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(ukf.P - dP, once.P, rtol=0, atol=1e-6)
+    assert nis == pytest.approx(s1.nis, rel=1e-6)
+    s2 = ukf.update(twice, z, np.zeros((2, 2)), name="twice")
+    assert s2.accepted and s2.nis == pytest.approx(s1.nis, rel=1e-6)
+    np.testing.assert_allclose(ukf.x, once.x, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(ukf.P, once.P, rtol=0, atol=1e-6)
+    blocks = _duplicated_measurement_ukf()
+    (s3,) = blocks.update_blocks([(twice, z, np.zeros((2, 2)), None, "twice")])
+    assert s3.accepted and s3.nis == pytest.approx(s1.nis, rel=1e-6)
+    np.testing.assert_allclose(blocks.x, once.x, rtol=1e-6, atol=1e-9)
+
+
+def test_an_indefinite_measurement_noise_still_raises() -> None:
+    # A front end's covariance with negative variances (not round-off) must stop the update.
+    ukf = _duplicated_measurement_ukf()
+    R = np.array([[-5e7, 1e9], [1e9, -1e9]])
+    with pytest.raises(FilterError, match=r"innovation covariance of vision_lc is not positive "
+                       r"definite \(smallest eigenvalue -"):
+        ukf.update(lambda X: X[:, :2], np.zeros(2), R, name="vision_lc")
+    with pytest.raises(FilterError, match="innovation covariance of vision_lc"):
+        ukf.update_blocks([(lambda X: X[:, :2], np.zeros(2), R, None, "vision_lc")])

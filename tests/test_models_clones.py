@@ -16,6 +16,7 @@ from svains.filter.ukf import UKF
 from svains.geometry.rotation import quat_to_rotmat, so3_exp
 from svains.models.clones import (
     CLONE_JITTER,
+    CLONE_JITTER_REL,
     CloneManifold,
     augment_calibration,
     augment_clone,
@@ -58,9 +59,34 @@ def test_augment_copies_pose_and_covariance_exactly() -> None:
     pose = np.r_[np.arange(n)[DP], np.arange(n)[DTH]]
     np.testing.assert_allclose(P1[:n, :n], P, atol=1e-15)
     np.testing.assert_allclose(P1[n:, :n], P[pose], atol=1e-15)
-    np.testing.assert_allclose(P1[n:, n:], P[np.ix_(pose, pose)] + CLONE_JITTER * np.eye(6))
+    jitter = np.maximum(CLONE_JITTER, CLONE_JITTER_REL * np.diag(P)[pose])
+    np.testing.assert_array_equal(jitter, CloneManifold.clone_jitter(np.diag(P)[pose]))
+    np.testing.assert_allclose(P1[n:, n:], P[np.ix_(pose, pose)] + np.diag(jitter), rtol=1e-15)
     assert np.allclose(P1, P1.T, atol=0.0)
     assert np.linalg.eigvalsh(P1).min() > 0.0  # positive definite thanks to the jitter
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_clone_jitter_is_relative_to_the_variances_it_copies(seed: int) -> None:
+    # 100 m position deviations (variance 1e4 m²): an absolute 1e-12 would sit below the
+    # rounding of the factorisation (eps · 1e4), and the plain Cholesky factor would fail.
+    rng = np.random.default_rng(seed)
+    x, P = _random_state(rng)
+    s = np.ones(BIASED.ndx)
+    s[DP] = 100.0 * np.sqrt(3.0)
+    P = s[:, None] * P * s[None, :]
+    m0 = CloneManifold(NavManifold(BIASED), 0)
+    x1, P1, m1 = augment_clone(x, P, m0)
+    n = BIASED.ndx
+    pose = np.r_[np.arange(n)[DP], np.arange(n)[DTH]]
+    v = np.diag(P)[pose]
+    np.testing.assert_allclose(np.diag(P1)[n:] - v, np.maximum(1e-12, 1e-9 * v), rtol=1e-6)
+    assert (np.diag(P1)[n:] - v)[:3].min() > 1e-6  # position: 1e-9 of ~1e4 m²
+    np.linalg.cholesky(P1)  # positive definite without any repair
+    _, P2, _ = augment_clone(x1, P1, m1)  # a second clone of the same pose
+    np.linalg.cholesky(P2)
+    _, P0, _ = augment_clone(x, P, m0, jitter=0.0)  # an explicit jitter is absolute
+    np.testing.assert_array_equal(P0[n:, n:], P[np.ix_(pose, pose)])
 
 
 def test_marginalize_undoes_augment_and_picks_the_right_clone() -> None:

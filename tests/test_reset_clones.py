@@ -4,10 +4,11 @@ them with the current pose (fault handling)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from svains.filter.sigma_points import MerweScaledSigmaPoints
 from svains.filter.ukf import UKF
-from svains.models.clones import CLONE_JITTER, CloneManifold, augment_clone
+from svains.models.clones import CLONE_JITTER, CLONE_JITTER_REL, CloneManifold, augment_clone
 from svains.models.manifold import NavManifold
 from svains.models.state import BIASED, DBA, DBG, DP, DW, PAPER, StateLayout
 from svains.navigation.consistency import RecoveryAction
@@ -52,11 +53,27 @@ def test_reset_shifts_clones_keeps_relative_motion_and_correlates_their_errors()
         t = m.tangent(i)
         r = np.arange(t.start, t.start + 3)
         dp = np.arange(ukf.P.shape[0])[DP]
-        np.testing.assert_allclose(ukf.P[np.ix_(r, r)], 0.25 * np.eye(3) + CLONE_JITTER * np.eye(3))
+        jitter = np.maximum(CLONE_JITTER, CLONE_JITTER_REL * 0.25)
+        np.testing.assert_allclose(ukf.P[np.ix_(r, r)], (0.25 + jitter) * np.eye(3), rtol=1e-15)
         np.testing.assert_allclose(ukf.P[np.ix_(r, dp)], 0.25 * np.eye(3))
     np.testing.assert_allclose(ukf.P, ukf.P.T)
     assert np.linalg.eigvalsh(ukf.P).min() > 0.0  # the sigma points still have a factor
     assert not rec.reset_pending
+
+
+@pytest.mark.parametrize("std_m", [123.4, 77.7, 250.1, 1000.3])
+def test_a_reset_to_a_coarse_fix_leaves_a_covariance_with_a_plain_cholesky_factor(
+    std_m: float,
+) -> None:
+    # Every clone's position error copies the new one's (variance std_m² ~ 1e4): the jitter
+    # must be relative to that variance, an absolute 1e-12 is below its rounding.
+    ukf = _ukf_with_two_clones()
+    cal = GpsCalib(np.zeros(3), 1.0, std_m, 0.1)
+    rec = Recovery(FaultOptions(), RateLimitedLog(1.0))
+    rec.reset_from_gps(ukf, cal, ukf.x[0:3] + 30.0, None)
+    L = np.linalg.cholesky(ukf.P)  # no repair needed
+    assert np.all(np.diag(L) > 0.0)
+    ukf.predict(lambda X, u, dt: X, None, 0.1, np.zeros(3))  # the sigma points draw
 
 
 def test_inflation_scales_the_biases_and_the_clones_with_the_current_pose() -> None:

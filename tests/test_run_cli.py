@@ -31,13 +31,18 @@ def village_short(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return simulate(cfg, tmp_path_factory.mktemp("village") / "ds")
 
 
-def _run(args: list[str]) -> dict:
+def _invoke(args: list[str]) -> tuple[dict, str]:
+    """``svains run ARGS``: its report.json and its printed output."""
     res = CliRunner().invoke(app, ["run", *args])
     assert res.exit_code == 0, res.output
     out = Path(args[args.index("--out") + 1])
     for name in ("trajectory.tum", "states.csv", "report.json"):
         assert (out / name).is_file(), name
-    return json.loads((out / "report.json").read_text())
+    return json.loads((out / "report.json").read_text()), res.output
+
+
+def _run(args: list[str]) -> dict:
+    return _invoke(args)[0]
 
 
 def test_run_vo_writes_outputs(village_short: Path, tmp_path: Path) -> None:
@@ -54,6 +59,7 @@ def test_run_vo_writes_outputs(village_short: Path, tmp_path: Path) -> None:
     )
     assert set(rep) >= INS_KEYS
     assert rep["method"] == "vo" and rep["vo"]["frames"] >= 25  # 6 s at 5 Hz
+    assert rep["nees_blocks"] is None and "nees_blocks_dof" not in rep  # no covariance
     assert rep["position_rmse_m"] < 1.0
     # --start skips the first seconds for vo as for the filter methods.
     late = _run([str(village_short), "--method", "vo", "--out", str(tmp_path / "vo2"),
@@ -68,7 +74,7 @@ def test_run_vo_writes_outputs(village_short: Path, tmp_path: Path) -> None:
 def test_run_vision_method_reports_vision_counters(
     village_short: Path, tmp_path: Path, method: str
 ) -> None:
-    rep = _run(
+    rep, printed = _invoke(
         [
             str(village_short),
             "--method",
@@ -94,6 +100,16 @@ def test_run_vision_method_reports_vision_counters(
     assert {"features_fused", "features_gated", "frames_rejected"} <= set(v)
     if method == "3d":
         assert v["rotation"] == "imu" and v["features_fused"] > 100
+    # NEES per block (position, velocity, roll/pitch, yaw), in the report and the table.
+    assert set(rep["nees_blocks"]) == {"position", "velocity", "roll_pitch", "yaw"}
+    assert rep["nees_blocks_dof"] == {"position": 3, "velocity": 3, "roll_pitch": 2, "yaw": 1}
+    assert all(np.isfinite(b) and b >= 0 for b in rep["nees_blocks"].values())
+    assert "nees_blocks p/v/rp/yaw" in printed
+    # The simulator's reference is level: over 6 s, 0.12 ± 0.17 deg (not significant), and a
+    # run started from the ground truth is in its frame anyway: nothing removed.
+    assert rep["reference_tilt_deg"] is None
+    grav = rep["reference_gravity"]
+    assert not grav["significant"] and grav["tilt_deg"] < 3 * grav["tilt_std_deg"] < 1.0
 
 
 def test_run_refuses_bad_settings(village_short: Path, tmp_path: Path) -> None:

@@ -170,6 +170,14 @@ def run(
         table.add_row(
             key, "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.4g}"
         )
+        if key == "nees_mean" and rep.get("nees_blocks"):
+            # Each block against its own marginal covariance; consistent: 3/3/2/1.
+            b = rep["nees_blocks"]
+            table.add_row("nees_blocks p/v/rp/yaw", "/".join(
+                f"{b[k]:.3g}" for k in ("position", "velocity", "roll_pitch", "yaw")))  # fmt: skip
+    if rep.get("reference_tilt_deg") is not None:
+        # The reference frame's tilt from gravity, removed before the errors and the NEES.
+        table.add_row("reference tilt removed [deg]", f"{rep['reference_tilt_deg']:.3f}")
     if rep.get("errors_alignment") is not None:
         # Which degrees of freedom were aligned before the RMSE/NEES rows (none: raw errors).
         table.add_row("errors alignment", str(rep["errors_alignment"]))

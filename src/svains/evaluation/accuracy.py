@@ -8,12 +8,18 @@ inertial or visual-inertial filter: yaw about the up axis and translation, the u
 convention). That yaw is fitted on positions and headings
 (:func:`svains.evaluation.alignment.align_posyaw_poses`), so it stays determined when the vehicle
 barely moves. The covariance is rotated with the states, so the NEES stays consistent.
+
+The NEES is also reported per block (:func:`nees_blocks`): position, velocity, and the attitude
+error about world axes split into tilt (roll/pitch, 2 dof) and yaw (1 dof). A reference frame
+tilted from gravity can be levelled first (``R_W_Wref``, from
+:mod:`svains.evaluation.reference_tilt`): the per-state errors and the NEES then compare with
+the levelled reference; the ATE keeps the reference as it is (it equals ``evo_ape``).
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -126,6 +132,54 @@ def _aligned(
     return xe, P, errors_alignment
 
 
+# Degrees of freedom of each NEES block (``report.json``'s ``nees_blocks_dof``).
+NEES_BLOCKS_DOF: dict[str, int] = {"position": 3, "velocity": 3, "roll_pitch": 2, "yaw": 1}
+
+
+def vertical_basis(up_W: ArrayLike) -> F64:
+    """Rows (3, 3): two horizontal unit vectors and the unit ``up_W``, right-handed; the
+    identity for ``up_W`` = +z."""
+    u = np.asarray(up_W, float) / np.linalg.norm(up_W)
+    a = np.array([1.0, 0.0, 0.0]) if abs(u[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = a - (a @ u) * u
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, np.cross(u, e1), u])
+
+
+def nees_blocks(e: F64, P9: F64, R_W_B: F64, up_W: ArrayLike = (0.0, 0.0, 1.0)) -> dict[str, F64]:
+    """NEES (N,) of each block of errors ``e`` (N, 9) (p, v, δθ_B) with covariances ``P9``
+    (N, 9, 9), each against its own marginal covariance (``NEES_BLOCKS_DOF``).
+
+    The attitude error is on the right, body axes (``R = R̂ Exp(δθ_B)``), hence about world
+    axes ``δθ_W = R̂_W_B δθ_B`` (``R = Exp(δθ_W) R̂``), covariance ``R̂ P_θθ R̂ᵀ``. In the
+    basis of :func:`vertical_basis` (world x, y, z when ``up_W`` is z), its two horizontal
+    components are the tilt (``roll_pitch``) and its vertical one the ``yaw`` error.
+    ``R_W_B`` (N, 3, 3) is the estimate's attitude.
+    """
+    V = vertical_basis(up_W)
+    J = np.einsum("ij,njk->nik", V, R_W_B)  # δθ_V = V R̂ δθ_B
+    e_V = np.einsum("nij,nj->ni", J, e[:, 6:9])
+    P_V = J @ P9[:, 6:9, 6:9] @ J.transpose(0, 2, 1)
+    return {
+        "position": nees_of(e[:, 0:3], P9[:, 0:3, 0:3]),
+        "velocity": nees_of(e[:, 3:6], P9[:, 3:6, 3:6]),
+        "roll_pitch": nees_of(e_V[:, 0:2], P_V[:, 0:2, 0:2]),
+        "yaw": e_V[:, 2] ** 2 / P_V[:, 2, 2],
+    }
+
+
+def reference_at(
+    gt: GroundTruth, t_ns: I64, R_W_Wref: ArrayLike | None = None
+) -> tuple[NDArray[np.bool_], F64, F64, F64]:
+    """Ground truth at ``t_ns`` (:func:`interpolate_groundtruth`: mask, p, v, q), rotated by
+    ``R_W_Wref`` (3, 3) from the reference's world into the levelled one when given."""
+    inside, p, v, q = interpolate_groundtruth(gt, t_ns)
+    if R_W_Wref is None:
+        return inside, p, v, q
+    R = np.asarray(R_W_Wref, float)
+    return inside, p @ R.T, v @ R.T, quat_multiply(rotmat_to_quat(R)[None, :], q)
+
+
 @dataclass(frozen=True)
 class StateErrors:
     """Per-state errors against ground truth after an alignment: ``t_ns`` (N,) logged times
@@ -138,11 +192,17 @@ class StateErrors:
     P9: F64
     alignment: str
     x: F64
+    up_W: F64 = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
 
     @property
     def nees(self) -> F64:
         """NEES (N,) of (p, v, δθ), 9 dof."""
         return nees_of(self.e, self.P9)
+
+    @property
+    def nees_blocks(self) -> dict[str, F64]:
+        """NEES (N,) per block (:func:`nees_blocks`; dof in ``NEES_BLOCKS_DOF``)."""
+        return nees_blocks(self.e, self.P9, quat_to_rotmat(self.x[:, 6:10]), self.up_W)
 
 
 def state_errors(
@@ -152,22 +212,25 @@ def state_errors(
     gt: GroundTruth | None,
     errors_alignment: str = "none",
     up_W: ArrayLike = (0.0, 0.0, 1.0),
+    R_W_Wref: ArrayLike | None = None,
 ) -> StateErrors | None:
     """Errors of states ``x`` (T, nx) with covariances ``P9`` (T, 9, 9) at ``t_ns`` (T,) after
-    ``errors_alignment`` (``none``, ``posyaw`` about ``up_W`` or ``se3``); ``None`` without
-    ground truth or with fewer than 2 states inside its span."""
+    ``errors_alignment`` (``none``, ``posyaw`` about ``up_W`` or ``se3``) against the ground
+    truth levelled by ``R_W_Wref`` (3, 3) when given; ``None`` without ground truth or with
+    fewer than 2 states inside its span."""
     if errors_alignment not in ERROR_ALIGNMENTS:
         raise ConfigError(
             f"unknown errors alignment {errors_alignment!r} (one of {', '.join(ERROR_ALIGNMENTS)})"
         )
     if gt is None or len(gt.t_ns) < 2:
         return None
-    inside, p, v, q = interpolate_groundtruth(gt, t_ns)
+    inside, p, v, q = reference_at(gt, t_ns, R_W_Wref)
     if inside.sum() < 2:
         return None
     t_in = np.asarray(t_ns)[inside]
     xe, P, used = _aligned(t_in, x[inside], P9[inside], p, q, errors_alignment, up_W)
-    return StateErrors(t_in, navigation_errors(xe, p, v, q), P, used, xe)
+    up = np.asarray(up_W, float) / np.linalg.norm(up_W)
+    return StateErrors(t_in, navigation_errors(xe, p, v, q), P, used, xe, up)
 
 
 def accuracy_report(
@@ -178,19 +241,23 @@ def accuracy_report(
     alignment: str = "se3",
     errors_alignment: str = "none",
     up_W: ArrayLike = (0.0, 0.0, 1.0),
+    R_W_Wref: ArrayLike | None = None,
 ) -> dict[str, Any]:
     """Report keys against ground truth (None values when there is none).
 
     ``ate_rmse_m`` after ``alignment`` (key ``alignment``: the one used after fallback);
-    position/velocity/attitude RMSE, NEES and the 3σ coverage after ``errors_alignment``
-    (``none``, ``posyaw`` about ``up_W`` or ``se3``; key ``errors_alignment``: the one used),
-    from :func:`state_errors`.
+    position/velocity/attitude RMSE, NEES (whole, ``nees_mean``, and per block,
+    ``nees_blocks`` with ``nees_blocks_dof``), drift and the 3σ coverage after
+    ``errors_alignment`` (``none``, ``posyaw`` about ``up_W`` or ``se3``; key
+    ``errors_alignment``: the one used) against the reference levelled by ``R_W_Wref`` (3, 3)
+    when given, from :func:`state_errors`. The ATE uses the reference as it is.
     """
-    keys = ("ate_rmse_m", "position_rmse_m", "velocity_rmse_mps", "attitude_rmse_deg", "nees_mean")
+    keys = ("ate_rmse_m", "position_rmse_m", "velocity_rmse_mps", "attitude_rmse_deg", "nees_mean",
+            "nees_blocks")  # fmt: skip
     out: dict[str, Any] = dict.fromkeys(keys)
     out["alignment"] = alignment
     out["errors_alignment"] = errors_alignment
-    errs = state_errors(t_ns, x, P9, gt, errors_alignment, up_W)
+    errs = state_errors(t_ns, x, P9, gt, errors_alignment, up_W, R_W_Wref)
     if errs is None:
         return out
     assert gt is not None  # state_errors returns None without ground truth
@@ -200,6 +267,7 @@ def accuracy_report(
                                                 alignment)  # fmt: skip
     e, std = errs.e, np.sqrt(np.einsum("nii->ni", errs.P9))
     xa = errs.x
+    _, p, _, q = reference_at(gt, t_ns, R_W_Wref)
     out.update(drift_report(xa[:, 0:3], quat_to_rotmat(xa[:, 6:10]), p, quat_to_rotmat(q)))
     out.update(
         ate_rmse_m=ate_m,
@@ -208,6 +276,8 @@ def accuracy_report(
         attitude_rmse_deg=float(np.degrees(np.sqrt(np.mean(np.sum(e[:, 6:9] ** 2, axis=1))))),
         nees_mean=float(errs.nees.mean()),
         nees_dof=9,
+        nees_blocks={k: float(v.mean()) for k, v in errs.nees_blocks.items()},
+        nees_blocks_dof=dict(NEES_BLOCKS_DOF),
         errors_alignment=errs.alignment,
         position_within_3sigma=float(np.mean(np.abs(e[:, 0:3]) <= 3.0 * std[:, 0:3])),
         evaluated_states=len(errs.t_ns),

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from svains.datasets.types import Dataset
 from svains.evaluation.accuracy import accuracy_report, gps_outage_report, state_errors
 from svains.evaluation.extrinsics import write_estimated_camchain
+from svains.evaluation.reference_tilt import estimate_reference_gravity, leveling_rotation
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import RunResult
 from svains.replay import replay, resolve_config
@@ -43,16 +44,45 @@ def _up_W(dataset: Dataset) -> NDArray[np.float64]:
     return -g_W / np.linalg.norm(g_W)
 
 
+def reference_leveling(
+    result: RunResult, dataset: Dataset
+) -> tuple[NDArray[np.float64] | None, dict[str, Any]]:
+    """``R_W_Wref`` (3, 3) levelling the ground truth before the errors of ``result`` (None:
+    left as it is) and the report keys ``reference_tilt_deg`` (the tilt removed, deg, or None)
+    and ``reference_gravity`` (:class:`ReferenceGravity` as a dict, None when not estimated:
+    no IMU or ground truth).
+
+    The tilt is removed only when :func:`estimate_reference_gravity` finds it significant and
+    before a ``posyaw`` alignment, which cannot remove it. With ``none`` the run's world is the
+    reference's by construction (started from it, or fixed by GPS); ``se3`` removes a tilt
+    itself.
+    """
+    keys: dict[str, Any] = {"reference_tilt_deg": None, "reference_gravity": None}
+    est = estimate_reference_gravity(dataset)
+    if est is None:
+        return None, keys
+    keys["reference_gravity"] = est.as_report()
+    if not est.significant or errors_alignment_for(result) != "posyaw":
+        return None, keys
+    keys["reference_tilt_deg"] = est.tilt_deg
+    return leveling_rotation(est.g_Wr, dataset.gravity_W), keys
+
+
 def run_accuracy(result: RunResult, dataset: Dataset) -> dict[str, Any]:
     """The accuracy keys of ``report.json`` for ``result`` (see ``docs/formats.md``): ATE,
-    RMSE and NEES after :func:`errors_alignment_for`, GPS-outage figures when GPS was used."""
+    RMSE and NEES after :func:`errors_alignment_for` (against the reference levelled by
+    :func:`reference_leveling`), GPS-outage figures when GPS was used."""
+    R_W_Wref, tilt_keys = reference_leveling(result, dataset)
     out = accuracy_report(
         result.t_ns, result.x, result.P9, dataset.groundtruth,
-        errors_alignment=errors_alignment_for(result), up_W=_up_W(dataset),
+        errors_alignment=errors_alignment_for(result), up_W=_up_W(dataset), R_W_Wref=R_W_Wref,
     )  # fmt: skip
+    out.update(tilt_keys)
     if not result.has_covariance:
         # No covariance (VO): NEES and the 3σ coverage are not defined.
         out["nees_mean"] = None
+        out["nees_blocks"] = None
+        out.pop("nees_blocks_dof", None)
         out.pop("position_within_3sigma", None)
     if dataset.groundtruth is not None and dataset.gps is not None and result.gps_used:
         outages = gps_outage_report(
@@ -86,7 +116,7 @@ def nees_series(
         return None
     errs = state_errors(
         result.t_ns, result.x, result.P9, dataset.groundtruth, errors_alignment_for(result),
-        up_W=_up_W(dataset),
+        up_W=_up_W(dataset), R_W_Wref=reference_leveling(result, dataset)[0],
     )
     return None if errs is None else (errs.t_ns, errs.nees)
 

@@ -22,10 +22,11 @@ from numpy.typing import NDArray
 
 from svains.datasets.types import GroundTruth
 from svains.errors import DatasetError
-from svains.evaluation.accuracy import align_states, ate_result_with_fallback
+from svains.evaluation.accuracy import align_states, ate_result_with_fallback, reference_at
 from svains.evaluation.alignment import align_posyaw_poses
+from svains.evaluation.reference_tilt import leveling_rotation
 from svains.geometry.rotation import quat_to_rotmat
-from svains.replay.groundtruth import interpolate_groundtruth, navigation_errors
+from svains.replay.groundtruth import navigation_errors
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -110,9 +111,15 @@ def run_errors(rec: RunRecord, gt: GroundTruth, up_W: F64 | None = None) -> RunE
 
     ``states.csv`` keeps standard deviations only, so the covariance is taken diagonal: the NEES
     here differs from ``report.json``'s ``nees_mean`` (full covariance) by the cross terms.
+    When the report removed the reference's tilt (``reference_tilt_deg``), the ground truth is
+    levelled the same way (``reference_gravity``'s ``g_Wr_mps2`` onto ``-up_W``).
     """
     up = np.array([0.0, 0.0, 1.0]) if up_W is None else np.asarray(up_W, float)
-    inside, p, v, q = interpolate_groundtruth(gt, rec.t_ns)
+    R_W_Wref = None
+    grav = rec.report.get("reference_gravity")
+    if rec.report.get("reference_tilt_deg") is not None and isinstance(grav, dict):
+        R_W_Wref = leveling_rotation(grav["g_Wr_mps2"], -up)
+    inside, p, v, q = reference_at(gt, rec.t_ns, R_W_Wref)
     if inside.sum() < 2:
         raise DatasetError(f"{rec.run_dir}: the run and the ground truth do not overlap in time")
     x, std = rec.x[inside], rec.std[inside, :9]

@@ -59,7 +59,11 @@ def iterated_update(
         dY = Y - y
         WdY = Wc[:, None] * dY
         Psi = dX.T @ WdY  # (ndx, nz)
-        H = scipy.linalg.solve(Pj, Psi, assume_a="pos", check_finite=False).T  # (nz, ndx)
+        try:
+            H = scipy.linalg.solve(Pj, Psi, assume_a="pos", check_finite=False).T  # (nz, ndx)
+        except np.linalg.LinAlgError:  # P_j PSD to round-off only (an exact clone): repaired
+            Lj = safe_cholesky(Pj, f"iterated covariance of {name}")
+            H = scipy.linalg.cho_solve((Lj, True), Psi, check_finite=False).T
         Omega = dY.T @ WdY - H @ Pj @ H.T
         e0 = manifold.local(x0[None, :], xj)[0]  # the prior mean in x_j's tangent space
         r = z - y - H @ e0

@@ -64,6 +64,12 @@ class CloneManifold:
         return (slice(self.nav.nx, self.nav.nx + self.n_calib),
                 slice(self.nav.ndx, self.nav.ndx + self.n_calib))
 
+    @staticmethod
+    def clone_jitter(variances: F64) -> F64:
+        """Variance to add (k,) to the diagonal entries ``variances`` (k,) of a clone that
+        copies them: ``max(CLONE_JITTER, CLONE_JITTER_REL·variance)`` (see ``CLONE_JITTER``)."""
+        return np.maximum(CLONE_JITTER, CLONE_JITTER_REL * np.asarray(variances, dtype=float))
+
     def with_clones(self, n_clones: int) -> CloneManifold:
         """The same layout with ``n_clones`` clones."""
         return CloneManifold(self.nav, n_clones, self.n_calib)
@@ -142,20 +148,27 @@ class CloneManifold:
         return out
 
 
-# Variance (m², rad²) added to a new clone's own block. An exact copy makes P singular, and the
-# sigma points need its Cholesky factor; 1e-12 (1 µm, 1 µrad) is far below any pose variance
-# the filter carries and far above the rounding error of the factorisation.
+# Variance added to each diagonal entry of a new clone's own block: ``CLONE_JITTER_REL`` times
+# that entry (the pose variance it copies), never less than ``CLONE_JITTER`` (m², rad²). An
+# exact copy makes P singular, and the sigma points need its Cholesky factor, whose rounding
+# error is relative to each entry's scale: about n·eps (1e-14) of it, so an absolute 1e-12 is
+# lost under a position variance of 1e4 m². 1e-9 of the entry stays 1e4 above that rounding
+# and costs nothing measurable (the clone-pose difference gets 3e-5 of the pose's deviation);
+# the floor (1 µm, 1 µrad) covers tiny variances.
 CLONE_JITTER = 1e-12
+CLONE_JITTER_REL = 1e-9
 
 
 def augment_clone(
-    x: F64, P: F64, manifold: CloneManifold, jitter: float = CLONE_JITTER
+    x: F64, P: F64, manifold: CloneManifold, jitter: float | None = None
 ) -> tuple[F64, F64, CloneManifold]:
     """Append a clone of the current body pose: ``x'`` (nx + 7,), ``P'`` (ndx + 6, ndx + 6).
 
     Exact: the clone's error is the navigation block's ``(δp, δθ_B)``, so ``P' = J P J^T`` with
     ``J`` the identity stacked on that selection (the new clone is fully correlated with now),
-    plus ``jitter`` on the clone's own diagonal (``CLONE_JITTER``: keeps P positive definite).
+    plus a jitter on the clone's own diagonal that keeps P positive definite: by default
+    ``CloneManifold.clone_jitter`` of each pose variance (``max(CLONE_JITTER,
+    CLONE_JITTER_REL·P_ii)``, scale-relative), or the absolute ``jitter`` given (0: exact copy).
     """
     x = np.asarray(x, dtype=float)
     P = np.asarray(P, dtype=float)
@@ -169,7 +182,8 @@ def augment_clone(
     rows = np.arange(n)
     J_rows = np.concatenate([rows, rows[DP], rows[DTH]])
     P_new = P[np.ix_(J_rows, J_rows)]
-    P_new[n:, n:] += jitter * np.eye(CLONE_NDX)
+    c = np.arange(n, n + CLONE_NDX)
+    P_new[c, c] += CloneManifold.clone_jitter(P_new[c, c]) if jitter is None else jitter
     x_new = np.concatenate([x, x[P_SLICE], x[Q_SLICE]])
     return x_new, 0.5 * (P_new + P_new.T), manifold.with_clones(manifold.n_clones + 1)
 

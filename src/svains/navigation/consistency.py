@@ -14,7 +14,10 @@ sensors are rejected together while the covariance is small, asks for a recovery
 
 "Lost" means: at least ``min_sensors`` sensors each with ``min_consecutive`` rejections in a row,
 the latest within ``window_s``; or an absolute-position sensor (``anchor_sensors``, GPS) alone
-rejected that often, since nothing else can contradict it. A filter whose anchor sensor was
+rejected that often, since nothing else can contradict it; or, in a run without an anchor
+sensor (``anchor_in_use`` false: GPS-denied), a vision sensor (``standalone_sensors``) alone,
+whose refused frames would otherwise leave the filter on the IMU for good; such a run has no
+GPS to reset from, so its escalation inflates again. A filter whose anchor sensor was
 fused within ``window_s`` (and not rejected since) is not lost. A large covariance is not lost:
 the gates then widen by themselves. Pure logic; the core applies the actions.
 """
@@ -42,6 +45,10 @@ class ConsistencyOptions:
     max_position_std_m: float = 10.0  # m, above it the covariance is not "small"
     inflate_factor: float = 100.0  # variance factor on position, velocity and attitude
     escalate_within_s: float = 5.0  # s, rejections this soon after an inflation: reset
+    # Sensors that may call for a recovery alone when the run has no anchor sensor (GPS-denied
+    # vision: nothing else can contradict it; refused frames would add IMU-only drift forever).
+    standalone_sensors: tuple[str, ...] = ("tc", "3d", "lc")
+    anchor_in_use: bool = True  # the run fuses an anchor sensor (GPS): resets are possible
 
 
 @dataclass(frozen=True)
@@ -124,7 +131,10 @@ class ConsistencyMonitor:
         o = self.options
         bad = self.rejecting(t_ns)
         anchors = [s for s in bad if s in o.anchor_sensors]
-        if not (len(bad) >= o.min_sensors or anchors) or not position_std_m < o.max_position_std_m:
+        alone = not o.anchor_in_use and any(s in o.standalone_sensors for s in bad)
+        if not (len(bad) >= o.min_sensors or anchors or alone):
+            return None
+        if not position_std_m < o.max_position_std_m:
             return None
         if self.anchored(t_ns):
             return None
@@ -138,7 +148,7 @@ class ConsistencyMonitor:
         )
         for name in bad:  # the evidence is used up: new rejections must build up again
             self._sensors[name].consecutive_rejections = 0
-        if escalate:
+        if escalate and o.anchor_in_use:
             self.resets += 1
             self._last_inflation_ns = None
             action = RecoveryAction("reset", why + " after an inflation", bad)

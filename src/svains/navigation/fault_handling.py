@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from svains.filter.ukf import UKF, UpdateStats
-from svains.models.clones import CLONE_JITTER, CloneManifold
+from svains.models.clones import CloneManifold
 from svains.models.gps import gps_position, gps_velocity
 from svains.models.state import DBA, DBG, DP, DTH, DV, P, V
 from svains.navigation.consistency import ConsistencyMonitor, ConsistencyOptions, RecoveryAction
@@ -207,8 +207,10 @@ class ImuFaults:
 class Recovery:
     """``ConsistencyMonitor`` fed by every gated update; applies its actions to ``ukf``."""
 
-    def __init__(self, options: FaultOptions, warn: RateLimitedLog) -> None:
-        self.monitor = ConsistencyMonitor(ConsistencyOptions(inflate_factor=options.inflate_factor))
+    def __init__(self, options: FaultOptions, warn: RateLimitedLog, gps_used: bool = True) -> None:
+        """``gps_used``: the run fuses GPS (else vision alone may call for an inflation)."""
+        self.monitor = ConsistencyMonitor(ConsistencyOptions(inflate_factor=options.inflate_factor,
+                                                             anchor_in_use=gps_used))  # fmt: skip
         self._warn = warn
         self.reset_pending = False
 
@@ -274,7 +276,7 @@ def shift_clones(x: F64, P_: F64, manifold: CloneManifold, dp_W: F64) -> tuple[F
         P_[r, :] = P_[dp, :]
         P_[:, r] = P_[:, dp]
     for r in rows:  # with the copies above, every pair of the group now holds P[δp, δp]
-        P_[r, r] += CLONE_JITTER
+        P_[r, r] += CloneManifold.clone_jitter(P_[r, r])
     return x, 0.5 * (P_ + P_.T)
 
 

@@ -19,6 +19,7 @@ from svains.models.imu import stencil_consistent_rate
 from svains.models.state import BA, BG, DBA, DBG, DP, DTH, DV, DW, P, Q, StateLayout, V, W
 from svains.navigation.heading import course_heading_or_none
 from svains.navigation.options import InitOptions
+from svains.navigation.platform_noise import measure_static_noise
 from svains.sensors.types import GpsCalib, GroundTruth, ImuCalib, MagCalib
 
 F64 = NDArray[np.float64]
@@ -173,6 +174,8 @@ def _from_static(dataset: InitData, layout: StateLayout, o: InitOptions) -> Init
         "static_samples": int(sel.sum()),
         "accel_block_dev": acc_dev,
         "gyro_block_dev": gyro_dev,
+        # The platform's white noise at rest (``navigation.platform_noise``).
+        "static_noise": measure_static_noise(gyro, acc, dt_s, o.block_s).as_dict(),
     }
     yaw_std = o.yaw_std_unknown
     mag_sel = None

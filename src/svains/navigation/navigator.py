@@ -35,6 +35,7 @@ from svains.navigation.ins import InsFilter
 from svains.navigation.navigator_core import Core
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import NavState, RunResult
+from svains.navigation.platform_noise import StaticNoise, platform_noise
 from svains.navigation.starter import Starter
 from svains.navigation.tracks import TrackOptions
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames, rig_from_calibrations
@@ -223,8 +224,14 @@ class Navigator:
             self._finish(self._end_ns)
 
     def _start(self, init: InitialState) -> None:
-        ins = InsFilter(self.history, self.rig, self.layout, init, self.config.filter,
-                        self.config.noise)  # fmt: skip
+        measured = init.info.get("static_noise")
+        noise, decided = platform_noise(
+            self.config.noise, self.rig.imu,
+            StaticNoise(**measured) if isinstance(measured, dict) else None,
+        )
+        if decided is not None:
+            init.info["imu_noise"] = decided
+        ins = InsFilter(self.history, self.rig, self.layout, init, self.config.filter, noise)
         self.core = Core(self.config, self.rig, ins, init.info, self._source, self._emit,
                          self.imu_faults, self._warn)  # fmt: skip
         if self.config.duration_s is not None:

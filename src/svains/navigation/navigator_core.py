@@ -30,6 +30,7 @@ from svains.navigation.vision import LcUpdater, PixelUpdater, make_vision_update
 from svains.navigation.vision_clones import next_reference_ns
 from svains.navigation.vision_gaps import vision_gap_report
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames
+from svains.navigation.zupt import StaticTest, zero_velocity_block
 from svains.sensors.types import Rig
 
 
@@ -70,10 +71,17 @@ class Core:
         self._log_P9: list[np.ndarray] = []
         self._warn = warn or RateLimitedLog(config.faults.warn_interval_s)
         self._imu_faults = imu_faults
-        self._recovery = Recovery(config.faults, self._warn) if config.faults.consistency else None
+        gps_used = bool(config.use_gps and rig.gps is not None)
+        self._recovery = (Recovery(config.faults, self._warn, gps_used)
+                          if config.faults.consistency else None)  # fmt: skip
         self._vision_fused_t: list[int] = []
         self._vision_warned_gap = False
         self._next_keep_ns = self.t0_ns  # when ``_keep_imu`` runs next
+        self._zupt = (
+            StaticTest(config.zupt, config.init, float(np.linalg.norm(rig.gravity_W)))
+            if config.zupt.enabled else None
+        )
+        self._next_zupt_ns = self.t0_ns
         self._log()
 
     # ---- the event loop -----------------------------------------------------------------
@@ -142,6 +150,8 @@ class Core:
     def _group(self, t: int, items: list[tuple[int, Any]]) -> None:
         ins, cfg = self.ins, self.config
         self._propagate(t)
+        if self._zupt is not None and t >= self._next_zupt_ns:
+            self._zero_velocity(t)
         blocks: list[MeasurementBlock] = []
         has_frame = has_tick = False
         for kind, payload in items:
@@ -183,6 +193,24 @@ class Core:
         if has_tick:
             self._log()
 
+    def _zero_velocity(self, t: int) -> None:
+        """A zero-velocity update when the IMU shows the platform at rest (``navigation.zupt``);
+        not while an IMU gap is bridged (its samples are not the platform's), and by default
+        only until the start's rest ends (``zupt.after_start``)."""
+        assert self._zupt is not None
+        self._next_zupt_ns = t + int(self.config.zupt.period_s * 1e9)
+        if self._imu_faults is not None and self._imu_faults.bridging(t):
+            return
+        rest = self._zupt.at_rest(self.ins.history, t)
+        if not rest:
+            if rest is not None and not self.config.zupt.after_start:
+                self._zupt = None  # the start's rest is over
+            return
+        b = zero_velocity_block(self.config.zupt.velocity_std_mps)
+        (stats,) = self.ins.ukf.update_blocks([(b.h, b.z, b.R, b.residual, b.name)],
+                                              self.config.filter.gate_probability)  # fmt: skip
+        self._record(stats, "zupt", t)
+
     def _frame(self, t: int, blocks: list[MeasurementBlock]) -> None:
         ins, cfg = self.ins, self.config
         updater = self._vision_updater()
@@ -207,13 +235,18 @@ class Core:
         ``faults.gap_vision_gate_probability``: the bridge's error is not Gaussian, and the
         frames are then the only evidence of the motion."""
         ins, cfg = self.ins, self.config
-        gate, n = cfg.filter.gate_probability, cfg.vision.update_iterations
+        n = cfg.vision.update_iterations
         if bridging:
             n = max(n, cfg.faults.gap_vision_iterations)
-            if gate is not None:
-                gate = max(gate, cfg.faults.gap_vision_gate_probability)
 
         def apply(blocks: list[MeasurementBlock]) -> UpdateStats:
+            # tc/3d gate their features one by one and test the frame on how many pass
+            # (``VisionOptions``); a stacked frame is tested whole only on request, or when
+            # other sensors' blocks ride along (``filter.stack_with_vision``).
+            alone = len(blocks) == 1 and cfg.method in ("tc", "3d")
+            gate = cfg.vision.frame_gate_probability if alone else cfg.filter.gate_probability
+            if bridging and gate is not None:
+                gate = max(gate, cfg.faults.gap_vision_gate_probability)
             custom = any(b.residual for b in blocks)  # iterated updates need plain residuals
             return ins.apply(blocks, gate, 1 if custom else n)
 
@@ -250,7 +283,8 @@ class Core:
         c["fused" if stats.accepted else "rejected"] += 1
         self.updates.append(stats)
         self.update_log.append(UpdateRecord(int(self.ins.t_ns), key, stats))  # filter is at t
-        if self._recovery is not None:
+        if self._recovery is not None and key != "zupt":
+            # A refused zero-velocity update means motion, not a lost filter.
             self._recovery.observe(stats, key, t)
         if key == self.config.method and stats.accepted:
             self._vision_fused_t.append(t)

@@ -54,7 +54,14 @@ class FilterOptions:
 @dataclass(frozen=True)
 class NoiseOptions:
     """IMU noise densities override the data set's ``sensor.yaml`` when not None; scales inflate
-    them (real IMUs are worse than their data sheets, and the paper model has no bias states)."""
+    them (real IMUs are worse than their data sheets, and the paper model has no bias states).
+
+    ``static_rule``: after a static start, a sensor whose white noise measured at rest (block
+    means of ``init.block_s``) exceeds its calibration beyond the estimate's
+    ``static_probability`` quantile takes the measured density, and its bias random walk grows
+    by the square root of the same ratio (``navigation.platform_noise``). Densities given here
+    explicitly are kept.
+    """
 
     gyro_noise_density: float | None = None
     gyro_random_walk: float | None = None
@@ -65,6 +72,14 @@ class NoiseOptions:
     # Paper model only: accelerometer bias is not a state, so its effect is absorbed as extra
     # white acceleration noise (m/s²/√Hz) on v and p.
     paper_extra_accel_density: float = 0.05
+    static_rule: bool = True
+    static_probability: float = 0.999
+
+    def __post_init__(self) -> None:
+        if not 0 < self.static_probability < 1:
+            raise ConfigError(
+                f"noise.static_probability must be in (0, 1), got {self.static_probability}"
+            )
 
 
 @dataclass(frozen=True)
@@ -176,6 +191,15 @@ class VisionOptions:
     default, i.e. the paper's models; across IMU gaps the Navigator uses it anyway
     (``FaultOptions.gap_vision_two_view``). On KITTI raw ``3d`` GPS-denied it gave 1.354 ->
     1.093 % final error but NEES 73.7 -> 92.1 and 60 % more wall time.
+
+    The frame test (``tc``/``3d``): each feature is gated on its own
+    (``feature_gate_probability``) and a frame is refused, and counted as a rejection, when
+    fewer than ``frame_min_inlier_fraction`` of its valid features pass (the prediction and the
+    frame disagree); otherwise the passing features are fused with no chi-square test of the
+    stacked frame unless ``frame_gate_probability`` is set. A whole-frame test over ~480 pixel
+    residuals at 0.999 refused a frame once its NIS per dof exceeded 1.21: after a 2 s gap on a
+    real MAV IMU the first refusals added IMU-only drift and every later frame was refused
+    (issue 22; OpenVINS and S-MSCKF gate features only, too).
     """
 
     source: SourceName = "auto"
@@ -200,6 +224,8 @@ class VisionOptions:
     extrinsics_std_deg: float = 1.0
     update_iterations: int = 1
     two_view: bool = False
+    frame_gate_probability: float | None = None
+    frame_min_inlier_fraction: float = 0.5
 
     def __post_init__(self) -> None:
         if self.update_iterations < 1:
@@ -227,6 +253,12 @@ class VisionOptions:
                 f"(it fuses the k-1 pixels themselves, which only then are unfused), got "
                 f"rotation {self.rotation!r}, single_use_pixels {self.single_use_pixels}"
             )
+        if not 0 <= self.frame_min_inlier_fraction <= 1:
+            raise ConfigError("vision.frame_min_inlier_fraction must be in [0, 1], got "
+                              f"{self.frame_min_inlier_fraction}")  # fmt: skip
+        if self.frame_gate_probability is not None and not 0 < self.frame_gate_probability < 1:
+            raise ConfigError("vision.frame_gate_probability must be in (0, 1) or null, got "
+                              f"{self.frame_gate_probability}")  # fmt: skip
         if not self.extrinsics_std_deg > 0:
             raise ConfigError(
                 f"vision.extrinsics_std_deg must be positive, got {self.extrinsics_std_deg}"
@@ -353,6 +385,33 @@ class FaultOptions:
 
 
 @dataclass(frozen=True)
+class ZuptOptions:
+    """Zero-velocity updates while the platform rests (``navigation.zupt``): every
+    ``period_s`` the IMU of the last ``window_s`` is tested (block means within the static
+    start's limits, ``InitOptions``); at rest ``v_W_B = 0`` is fused with ``velocity_std_mps``
+    per axis, gated like GPS (``filter.gate_probability``).
+
+    By default only at the start, until the IMU first shows motion (``after_start`` false): in
+    flight a smooth motion passes the IMU test too (EuRoC V1_01 at 0.3 m/s: block means as
+    steady as at rest) and the gate, with frames 2 s apart, let two such updates through and
+    the filter diverged. Stops need a second witness (the features' pixel motion) before this
+    can be on everywhere.
+    """
+
+    enabled: bool = True
+    after_start: bool = False
+    limit_factor: float = 2.0  # times the static start's block-mean limits (``InitOptions``)
+    window_s: float = 0.5
+    period_s: float = 0.1
+    velocity_std_mps: float = 0.01
+
+    def __post_init__(self) -> None:
+        for name in ("window_s", "period_s", "velocity_std_mps", "limit_factor"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"zupt.{name} must be positive, got {getattr(self, name)}")
+
+
+@dataclass(frozen=True)
 class RunConfig:
     """Everything a run needs besides the sensors' calibrations (``svains.sensors.types.Rig``)
     and their measurements.
@@ -384,6 +443,7 @@ class RunConfig:
     buffer: BufferOptions = field(default_factory=BufferOptions)
     replay: ReplayOptions = field(default_factory=ReplayOptions)
     faults: FaultOptions = field(default_factory=FaultOptions)
+    zupt: ZuptOptions = field(default_factory=ZuptOptions)
 
     def __post_init__(self) -> None:
         if self.method not in ("ins", "vo", "lc", "tc", "3d"):

@@ -25,8 +25,9 @@ MIN_BIAS_DISPARITY_SIGMAS = 6.0
 def feature_gate(
     Y: F64, Wm: F64, Wc: F64, z: F64, R_blocks: F64, probability: float | None,
     G: F64 | None = None,
-) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
-    """Per-feature innovation gate: (keep (M,), finite (M,)).
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_], F64]:
+    """Per-feature innovation gate: (keep (M,), finite (M,), NIS (M,): inf where not finite,
+    nan when ``probability`` is None and the gate is off).
 
     ``Y`` (S, dM) predictions of the sigma points, weights ``Wm``/``Wc`` (S,), ``z`` (dM,),
     ``R_blocks`` (M, d, d) each feature's measurement noise (d = 4 pixels, or 5 for the
@@ -41,7 +42,7 @@ def feature_gate(
     fin_rows = np.isfinite(Y)
     finite = fin_rows.all(axis=0).reshape(m, nb).all(axis=1)
     if probability is None:
-        return finite, finite
+        return finite, finite, np.full(m, np.nan)
     Yf = Y if finite.all() else np.where(fin_rows, Y, 0.0)
     y = Wm @ Yf
     dY = (Yf - y).reshape(S, m, nb)
@@ -65,7 +66,7 @@ def feature_gate(
         except np.linalg.LinAlgError:
             sol = (np.linalg.pinv(c) @ rk[:, :, None])[:, :, 0]
         d2[ok] = (rk * sol) @ np.ones(nb)
-    return ok & (d2 <= chi2_gate(probability, nb)), finite
+    return ok & (d2 <= chi2_gate(probability, nb)), finite, d2
 
 
 def increment_noise_factor(

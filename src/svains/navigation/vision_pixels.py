@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from svains.errors import ConfigError
-from svains.filter.ukf import UpdateStats
+from svains.filter.ukf import UpdateStats, chi2_gate
 from svains.frontend.types import StereoTracks
 from svains.models.vision_3d import pixels_from_motion
 from svains.models.vision_clone import clone_camera_motion
@@ -48,6 +48,10 @@ F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 MotionFn = Callable[[F64], tuple[F64, F64]]
 
+# ``PixelUpdater._near``: the k-1 disparity threshold of a feature with no k-2 pixels, in units
+# of ``min_disparity_px`` (2 x 12 σ: 12 px at 0.5 px noise).
+NEW_FEATURE_DISPARITY_FACTOR = 2.0
+
 
 @dataclass
 class VisionCounters:
@@ -57,6 +61,7 @@ class VisionCounters:
     frames_without_tracks: int = 0
     frames_fused: int = 0
     frames_rejected: int = 0
+    frames_gated: int = 0  # of the rejected: refused by the frame test (too few pass)
     features_fused: int = 0
     features_gated: int = 0
     features_invalid: int = 0
@@ -90,7 +95,7 @@ def _subsample(idx: I64, n_max: int | None) -> I64:
 class _Features:
     """One frame's candidate features: the sigma points' predictions ``Y`` (S, dM), ``z``
     (dM,), per-feature noise ``R_blocks`` (M, d, d), the IMU-increment factor ``G`` (dM, 6) or
-    None, ``keep``/``finite`` (M,) from the gate, and ``model(kept)``: ``h`` of the kept
+    None, ``keep``/``finite``/``nis`` (M,) from the gate, and ``model(kept)``: ``h`` of the kept
     features for any sigma points."""
 
     Y: F64
@@ -99,6 +104,7 @@ class _Features:
     G: F64 | None
     keep: NDArray[np.bool_]
     finite: NDArray[np.bool_]
+    nis: F64
     model: Callable[[I64], Callable[[F64], F64]]
 
 
@@ -158,22 +164,29 @@ class PixelUpdater:
         """Features (M,) whose disparity one frame earlier (k-2) is at least
         ``min_disparity_px``. Gating on the k-1 disparity itself would bias the triangulation
         that uses it (a far feature whose noise happened to enlarge its disparity passes, one
-        whose noise shrank it does not); the k-2 pixels carry independent noise."""
+        whose noise shrank it does not); the k-2 pixels carry independent noise.
+
+        A feature first seen at k-1 (or any feature when the k-2 frame is not the previous
+        tracks' reference: the first frames, a gap) is gated on its k-1 disparity at
+        ``NEW_FEATURE_DISPARITY_FACTOR`` times the threshold instead: so far from the noise
+        the selection barely biases, and frames seconds apart, which share few tracks with
+        the frame before, keep their features (issue 22: at 5 s spacing the k-2 gate alone
+        left a median of 11 features per frame)."""
         d_min = self._min_disparity_px
         if tr is None or d_min <= 0.0:
             return True
         ids, disp = self._disparity_before
-        self._disparity_before = (
-            tr.track_id, tr.uv_left_prev[:, 0] - tr.uv_right_prev[:, 0]
-        ) if tr is not None else (np.zeros(0, np.int64), np.zeros(0))
+        disp_prev = tr.uv_left_prev[:, 0] - tr.uv_right_prev[:, 0]
+        self._disparity_before = (tr.track_id, disp_prev)
+        new = disp_prev >= NEW_FEATURE_DISPARITY_FACTOR * d_min
         if ids.size == 0 or self._disparity_t_ns != tr.t_prev_ns:
             self._disparity_t_ns = tr.t_ns
-            return np.zeros(tr.track_id.size, bool)
+            return new
         self._disparity_t_ns = tr.t_ns
         order = np.argsort(ids)
         pos = np.clip(np.searchsorted(ids[order], tr.track_id), 0, ids.size - 1)
         found = ids[order][pos] == tr.track_id
-        return found & (disp[order][pos] >= d_min)
+        return np.where(found, disp[order][pos] >= d_min, new)
 
     def _motion(
         self, ctx: FrameContext, tr: StereoTracks, dt_s: float, inc: ImuIncrement | None
@@ -247,7 +260,7 @@ class PixelUpdater:
             R_c, r_c, uvl0, uvr0, self.rig, self.sigma_px, inc, dt_s, self._imu_noise, p_F
         )
         pts = ctx.ukf.points
-        keep, finite = feature_gate(
+        keep, finite, nis = feature_gate(
             Y, pts.Wm, pts.Wc, z, R_blocks, self.options.feature_gate_probability, G
         )
         # Near-zero disparity makes the prediction hypersensitive to the k-1 pixels (|J| > 100):
@@ -258,7 +271,7 @@ class PixelUpdater:
             h = self._model(uvl0[kept], uvr0[kept], motion, None if p_F is None else p_F[kept])
             return h if bias is None else _debiased(h, bias.reshape(-1, 4)[kept].reshape(-1))
 
-        return _Features(Y, z, R_blocks, G, keep & sane, finite & sane, model)
+        return _Features(Y, z, R_blocks, G, keep & sane, finite & sane, nis, model)
 
     def _two_view_features(
         self, ctx: FrameContext, X: F64, z: F64, uvl0: F64, uvr0: F64, motion: MotionFn
@@ -270,8 +283,8 @@ class PixelUpdater:
         z8 = np.concatenate([uvl0, uvr0, z.reshape(-1, 4)], axis=1)
         tv = TwoViewFeatures.build(R_all, r_all, z8, self.rig.triangulate(uvl0, uvr0), self.rig,
                                    self.sigma_px)  # fmt: skip
-        keep, finite = tv.gate(ctx.ukf.points, self.options.feature_gate_probability)
-        return _Features(tv.Y, tv.z, tv.R_blocks, None, keep, finite,
+        keep, finite, nis = tv.gate(ctx.ukf.points, self.options.feature_gate_probability)
+        return _Features(tv.Y, tv.z, tv.R_blocks, None, keep, finite, nis,
                          lambda kept: tv.model(kept, motion))  # fmt: skip
 
     def update(self, ctx: FrameContext) -> UpdateStats | None:
@@ -306,9 +319,17 @@ class PixelUpdater:
             f = self._paper_features(ctx, X, z, uvl0, uvr0, motion, inc, dt_s)
         c.features_invalid += int((~f.finite).sum())
         c.features_gated += int((f.finite & ~f.keep).sum())
-        if f.keep.sum() < self.options.min_features:
+        n_valid, n_kept = int(f.finite.sum()), int(f.keep.sum())
+        if n_valid < self.options.min_features:
             c.frames_without_tracks += 1
             return None
+        if n_kept < max(self.options.min_features,
+                        self.options.frame_min_inlier_fraction * n_valid):  # fmt: skip
+            # The prediction and the frame disagree: a rejection (the consistency monitor
+            # counts it, and a run of them inflates the covariance).
+            c.frames_rejected += 1
+            c.frames_gated += 1
+            return self._refused(f, n_valid)
         kept = np.flatnonzero(f.keep)
         block = _whitened_block(f"vision_{self.method}", kept, X, f.Y, f.z, f.R_blocks, f.G,
                                 f.model(kept))  # fmt: skip
@@ -320,6 +341,16 @@ class PixelUpdater:
         else:
             c.frames_rejected += 1
         return stats
+
+    def _refused(self, f: _Features, n_valid: int) -> UpdateStats:
+        """The stats of a frame refused by the frame test: the NIS of its valid features
+        against the chi-square quantile of ``feature_gate_probability`` for their dof."""
+        nb = f.R_blocks.shape[1]
+        dof = nb * n_valid
+        p = self.options.feature_gate_probability
+        gate = chi2_gate(p, dof) if p is not None else np.inf
+        return UpdateStats(f"vision_{self.method}", False, float(np.sum(f.nis[f.finite])), dof,
+                           float(gate))  # fmt: skip
 
     def after_frame(self, ctx: FrameContext) -> None:
         """Once per frame, after ``update``: keep the clone the next frame needs."""

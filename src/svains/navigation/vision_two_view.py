@@ -77,13 +77,13 @@ class TwoViewFeatures:
 
     def gate(
         self, points: MerweScaledSigmaPoints, probability: float | None
-    ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
-        """(keep (M,), finite (M,)): ``vision_noise.feature_gate`` on the 5 numbers, and only
-        features whose point refinement succeeded."""
-        keep, finite = feature_gate(self.Y, points.Wm, points.Wc, self.z, self.R_blocks,
-                                    probability)  # fmt: skip
+    ) -> tuple[NDArray[np.bool_], NDArray[np.bool_], F64]:
+        """(keep (M,), finite (M,), NIS (M,)): ``vision_noise.feature_gate`` on the 5 numbers,
+        and only features whose point refinement succeeded."""
+        keep, finite, nis = feature_gate(self.Y, points.Wm, points.Wc, self.z, self.R_blocks,
+                                         probability)  # fmt: skip
         finite &= self.valid
-        return keep & self.valid, finite
+        return keep & self.valid, finite, nis
 
     def model(self, kept: NDArray[np.int64], motion: MotionFn) -> Callable[[F64], F64]:
         """``h(X)`` (S, 5K) of the kept features for any sigma points ``X`` (S, nx) (iterated

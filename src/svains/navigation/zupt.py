@@ -1,0 +1,63 @@
+"""Zero-velocity updates while the platform rests (the static start, and stops).
+
+Without them a resting vehicle is dead-reckoned: its velocity and position drift with the IMU
+noise, and the first vision update after a long rest meets a wide, wrongly shaped prediction
+(issue 22: frames 5 s apart on a MAV that rests for 5 s). ``StaticTest`` reads the IMU of the
+last ``window_s``: the platform rests when the means of its ``block_s`` blocks stay within
+``limit_factor`` times the static start's limits (``InitOptions.max_accel_dev``,
+``max_gyro_dev``; vibrating rotors make single samples useless; the margin because the resting
+EuRoC MAV's 0.5 s windows reach 0.30 m/s², the start's whole limit, while taking off gives
+0.7 m/s² and more) and the specific force is gravity's magnitude. A constant-velocity
+motion passes that test too; the chi-square gate of the update then refuses it wherever the
+filter knows it moves (OpenVINS tests its zero-velocity hypothesis the same way).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from svains.models.zero_velocity import body_velocity
+from svains.navigation.base import MeasurementBlock
+from svains.navigation.imu_history import ImuHistory
+from svains.navigation.options import InitOptions, ZuptOptions
+
+
+class StaticTest:
+    """Whether the IMU history shows a resting platform at a time (see the module docstring)."""
+
+    def __init__(self, options: ZuptOptions, init: InitOptions, gravity_mps2: float) -> None:
+        self.options = options
+        self.init = init
+        self.gravity_mps2 = float(gravity_mps2)
+
+    def at_rest(self, history: ImuHistory, t_ns: int) -> bool | None:
+        """The samples in ``(t_ns - window_s, t_ns]``: block means (rotated to the body frame)
+        within the limits, and their mean specific force within the accelerometer limit of
+        gravity's magnitude. None (undecided) before ``window_s`` of samples or with fewer than two
+        blocks."""
+        o, i = self.options, self.init
+        acc_limit, gyro_limit = o.limit_factor * i.max_accel_dev, o.limit_factor * i.max_gyro_dev
+        t = history.t_ns
+        k1 = int(np.searchsorted(t, t_ns, "right"))
+        k0 = int(np.searchsorted(t, t_ns - int(o.window_s * 1e9), "right"))
+        if k1 - k0 < 4 or t[0] > t_ns - int(o.window_s * 1e9):
+            return None
+        dt_s = max(1e-9, float(np.median(np.diff(t[k0:k1]))) * 1e-9)
+        n_block = max(1, round(i.block_s / dt_s))
+        n_blocks = (k1 - k0) // n_block
+        if n_blocks < 2:
+            return None
+        k0 = k1 - n_blocks * n_block
+        acc = history.accel_B[k0:k1].reshape(n_blocks, n_block, 3).mean(axis=1)
+        gyro = history.gyro_B[k0:k1].reshape(n_blocks, n_block, 3).mean(axis=1)
+        acc_mean = acc.mean(axis=0)
+        return bool(
+            np.abs(acc - acc_mean).max() <= acc_limit
+            and np.abs(gyro - gyro.mean(axis=0)).max() <= gyro_limit
+            and abs(float(np.linalg.norm(acc_mean)) - self.gravity_mps2) <= acc_limit
+        )
+
+
+def zero_velocity_block(velocity_std_mps: float) -> MeasurementBlock:
+    """``v_W_B = 0`` with noise ``velocity_std_mps`` per axis."""
+    return MeasurementBlock("zupt", body_velocity, np.zeros(3), np.full(3, velocity_std_mps**2))
