@@ -90,3 +90,21 @@ def test_relative_sensors_rejecting_while_gps_is_fused_is_not_lost() -> None:
     assert not m.anchored(t)
     action = m.should_recover(t, 0.3)
     assert action is not None and action.kind == "inflate"
+
+
+def test_gps_denied_vision_alone_inflates_and_escalates_to_inflate_again() -> None:
+    # Without GPS nothing contradicts a vision method whose frames are refused: three refused
+    # frames in a row inflate; with GPS in the run the same rejections alone are not enough.
+    m = ConsistencyMonitor(ConsistencyOptions(anchor_in_use=False))
+    t = _feed(m, "3d", "arrr", 0.0, 0.5)
+    first = m.should_recover(t, position_std_m=0.3)
+    assert first is not None and first.kind == "inflate" and first.sensors == ("3d",)
+    t = _feed(m, "3d", "rrr", 2.0, 0.5)
+    second = m.should_recover(t, position_std_m=0.3)
+    assert second is not None and second.kind == "inflate"  # no GPS to reset from
+    with_gps = ConsistencyMonitor()
+    t = _feed(with_gps, "3d", "arrr", 0.0, 0.5)
+    assert with_gps.should_recover(t, position_std_m=0.3) is None
+    mag_only = ConsistencyMonitor(ConsistencyOptions(anchor_in_use=False))
+    t = _feed(mag_only, "mag", "rrrr", 0.0, 0.1)
+    assert mag_only.should_recover(t, position_std_m=0.3) is None  # not a standalone sensor

@@ -267,3 +267,31 @@ def test_an_indefinite_measurement_noise_still_raises() -> None:
         ukf.update(lambda X: X[:, :2], np.zeros(2), R, name="vision_lc")
     with pytest.raises(FilterError, match="innovation covariance of vision_lc"):
         ukf.update_blocks([(lambda X: X[:, :2], np.zeros(2), R, None, "vision_lc")])
+
+
+def test_nis_per_dof_limit_refuses_many_stacked_measurements_without_a_quantile() -> None:
+    # 400 measurements of one state, each 1.6 sigma off: NIS/dof ~2.6, refused by the
+    # quantile gate (1.2 nz at 0.999), accepted by a limit of 3 per dof, refused by 2.
+    n, nz = 2, 400
+    rng = np.random.default_rng(3)
+    z = 1.6 * np.sign(rng.standard_normal(nz))
+    H = np.zeros((nz, n))
+    H[:, 0] = 1.0
+
+    def fresh() -> UKF:
+        return UKF(Euclidean(n), MerweScaledSigmaPoints(n), np.zeros(n), np.eye(n) * 1e-6)
+
+    def h(X: np.ndarray) -> np.ndarray:
+        return X @ H.T
+
+    a = fresh()
+    assert not a.update(h, z, np.ones(nz), gate_probability=0.999).accepted
+    b = fresh()
+    stats = b.update(h, z, np.ones(nz), max_nis_per_dof=3.0)
+    assert stats.accepted and 2.0 < stats.nis / nz < 3.0 and stats.gate == 3.0 * nz
+    c = fresh()
+    x_before = c.x.copy()
+    assert not c.update(h, z, np.ones(nz), 0.999999, max_nis_per_dof=2.0).accepted
+    np.testing.assert_array_equal(c.x, x_before)
+    d = fresh()  # the iterated path takes the same threshold
+    assert not d.update(h, z, np.ones(nz), max_nis_per_dof=2.0, iterations=2).accepted

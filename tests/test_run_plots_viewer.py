@@ -67,9 +67,12 @@ def test_plot_writes_errors_nees_and_measurement_panels(
 
 
 def test_plot_uses_the_updates_log_the_run_wrote(run_dir: Path, tmp_path: Path) -> None:
-    c = read_run(run_dir).report["measurements"]["3d"]
+    counts = read_run(run_dir).report["measurements"]
     files = plot_run(run_dir, None, tmp_path)
-    assert files[0].panels == (f"3d: {c['fused']} fused, {c['rejected']} rejected",)
+    # One panel per sensor in the log: the vision method and the start's zero-velocity updates.
+    assert files[0].panels == tuple(f"{s}: {c['fused']} fused, {c['rejected']} rejected"
+                                    for s, c in sorted(counts.items()))  # fmt: skip
+    assert set(counts) == {"3d", "zupt"}
 
 
 def test_plot_without_updates_log_shows_report_totals(run_dir: Path, tmp_path: Path) -> None:

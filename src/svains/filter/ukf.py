@@ -191,6 +191,7 @@ class UKF:
         name: str = "",
         R_low_rank: F64 | None = None,
         iterations: int = 1,
+        max_nis_per_dof: float | None = None,
     ) -> UpdateStats:
         """Fuse ``z`` (nz,) with model ``h`` and noise ``R`` (nz, nz) or diagonal (nz,).
 
@@ -198,7 +199,10 @@ class UKF:
         measurement components, e.g. a shared input's error seen through ``h``); with a diagonal
         ``R`` the update then stays O(S² nz) (see ``kalman_correction``).
         With ``gate_probability`` the update is skipped (``accepted=False``) when the NIS exceeds
-        the chi-square quantile of that probability with nz degrees of freedom.
+        the chi-square quantile of that probability with nz degrees of freedom, or
+        ``max_nis_per_dof`` times nz when that is given and smaller (a test for many stacked
+        measurements that flags a bad linearisation without refusing every slightly
+        imperfect model: at 480 dof the 0.999 quantile is 1.21 nz).
         ``iterations`` > 1 re-linearises ``h`` over the posterior that many times
         (``filter.iterated``, plain residuals only; dense, O(nz³)); the gate then uses the last
         linearisation's NIS.
@@ -216,7 +220,8 @@ class UKF:
         if iterations > 1:
             if residual is not None:
                 raise ConfigError(f"{name or 'measurement'}: iterated updates need plain residuals")
-            return self._update_iterated(h, z, R, D, gate_probability, name, iterations)
+            return self._update_iterated(h, z, R, D, _gate(gate_probability, max_nis_per_dof, nz),
+                                         name, iterations)  # fmt: skip
         X, dX = self.sigma_points()
         Y = np.asarray(h(X), dtype=float).reshape(X.shape[0], nz)
         Wc = self.points.Wc
@@ -226,7 +231,7 @@ class UKF:
         # The matrix-inversion-lemma path pays off for many measurements (or a low-rank term).
         fast = R.ndim == 1 and (nz > 2 * X.shape[0] or D is not None)
         dx, nis, dP = kalman_correction(dX, dY, Wc, R, r, D, name, allow_woodbury=fast)
-        gate = chi2_gate(gate_probability, nz) if gate_probability is not None else np.inf
+        gate = _gate(gate_probability, max_nis_per_dof, nz)
         if not np.isfinite(nis):
             raise FilterError(f"{name or 'measurement'}: non-finite innovation")
         if nis > gate:
@@ -237,22 +242,28 @@ class UKF:
         return UpdateStats(name, True, float(nis), nz, float(gate))
 
     def _update_iterated(
-        self, h: MeasurementFn, z: F64, R: F64, D: F64 | None, gate_probability: float | None,
-        name: str, iterations: int,
+        self, h: MeasurementFn, z: F64, R: F64, D: F64 | None, gate: float, name: str,
+        iterations: int,
     ) -> UpdateStats:
-        """``update`` with ``iterations`` posterior linearisations (``filter.iterated``)."""
+        """``update`` with ``iterations`` posterior linearisations (``filter.iterated``) and the
+        NIS threshold ``gate`` (inf: none)."""
         Rm = np.diag(R) if R.ndim == 1 else R
         if D is not None:
             Rm = Rm + D.T @ D
         x, P, nis = iterated_update(self.manifold, self.points, self.x, self.P, h, z, Rm,
                                     iterations, name or "measurement")  # fmt: skip
-        gate = chi2_gate(gate_probability, z.size) if gate_probability is not None else np.inf
         if not np.isfinite(nis):
             raise FilterError(f"{name or 'measurement'}: non-finite innovation")
         if nis > gate:
             return UpdateStats(name, False, nis, z.size, float(gate))
         self.x, self.P = x, P
         return UpdateStats(name, True, nis, z.size, float(gate))
+
+
+def _gate(probability: float | None, max_nis_per_dof: float | None, nz: int) -> float:
+    """NIS threshold of an update (``UKF.update``); inf without a test."""
+    gate = chi2_gate(probability, nz) if probability is not None else np.inf
+    return gate if max_nis_per_dof is None else min(gate, max_nis_per_dof * nz)
 
 
 def kalman_correction(

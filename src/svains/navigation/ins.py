@@ -301,10 +301,10 @@ class InsFilter:
 
     def apply(
         self, blocks: Sequence[MeasurementBlock], gate_probability: float | None = None,
-        iterations: int = 1,
+        iterations: int = 1, max_nis_per_dof: float | None = None,
     ) -> UpdateStats:
         """One UKF update with the blocks stacked (one gate on the stacked innovation),
-        linearised ``iterations`` times (``UKF.update``)."""
+        linearised ``iterations`` times (``UKF.update``, also for ``max_nis_per_dof``)."""
         if len(blocks) == 0:
             raise ConfigError("apply() needs at least one measurement block")
         if len(blocks) == 1:
@@ -321,7 +321,7 @@ class InsFilter:
             self.remove_omega_white()
             D = self._omega_white_D(h, np.size(z))
         return self.ukf.update(h, z, R, gate_probability, *tail, R_low_rank=D,
-                               iterations=iterations)  # fmt: skip
+                               iterations=iterations, max_nis_per_dof=max_nis_per_dof)  # fmt: skip
 
 
 def stack_blocks(blocks: Sequence[MeasurementBlock]) -> tuple:

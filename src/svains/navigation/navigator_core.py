@@ -217,9 +217,13 @@ class Core:
         if updater is None:
             return
         bridging = self._imu_faults is not None and self._imu_faults.bridging(t)
+        long = (self._t_prev_frame is not None and cfg.vision.iterate_after_s is not None
+                and (t - self._t_prev_frame) * 1e-9 > cfg.vision.iterate_after_s)  # fmt: skip
         ctx = FrameContext(ins.ukf, self.layout, t, self._t_prev_frame,
-                           cfg.filter.gate_probability, blocks, self._vision_apply(bridging),
-                           bridging and cfg.faults.gap_vision_two_view)  # fmt: skip
+                           cfg.filter.gate_probability, blocks,
+                           self._vision_apply(bridging, long),
+                           (bridging and cfg.faults.gap_vision_two_view)
+                           or (long and cfg.vision.two_view_after_long))  # fmt: skip
         ins.add_omega_white()  # paper model: the vision models see ω's gyro white noise
         stats = updater.update(ctx)
         ins.remove_omega_white()
@@ -229,26 +233,31 @@ class Core:
             self._record(stats, cfg.method, t)
         self._t_prev_frame = t
 
-    def _vision_apply(self, bridging: bool) -> Callable[[list[MeasurementBlock]], UpdateStats]:
+    def _vision_apply(
+        self, bridging: bool, long: bool = False
+    ) -> Callable[[list[MeasurementBlock]], UpdateStats]:
         """How a vision update is applied. While the prediction rests on an IMU gap's bridge
         (``bridging``) it is linearised ``faults.gap_vision_iterations`` times and gated at
         ``faults.gap_vision_gate_probability``: the bridge's error is not Gaussian, and the
-        frames are then the only evidence of the motion."""
+        frames are then the only evidence of the motion. A frame more than
+        ``vision.iterate_after_s`` after the previous one (``long``) is linearised as many
+        times: its prior is wide against the pixels too."""
         ins, cfg = self.ins, self.config
         n = cfg.vision.update_iterations
-        if bridging:
+        if bridging or long:
             n = max(n, cfg.faults.gap_vision_iterations)
 
         def apply(blocks: list[MeasurementBlock]) -> UpdateStats:
             # tc/3d gate their features one by one and test the frame on how many pass
             # (``VisionOptions``); a stacked frame is tested whole only on request, or when
             # other sensors' blocks ride along (``filter.stack_with_vision``).
-            alone = len(blocks) == 1 and cfg.method in ("tc", "3d")
+            alone = len(blocks) == 1 and blocks[0].name in ("vision_tc", "vision_3d")
             gate = cfg.vision.frame_gate_probability if alone else cfg.filter.gate_probability
             if bridging and gate is not None:
                 gate = max(gate, cfg.faults.gap_vision_gate_probability)
             custom = any(b.residual for b in blocks)  # iterated updates need plain residuals
-            return ins.apply(blocks, gate, 1 if custom else n)
+            return ins.apply(blocks, gate, 1 if custom else n,
+                             cfg.vision.frame_max_nis_per_dof if alone else None)  # fmt: skip
 
         return apply
 

@@ -32,11 +32,12 @@ from svains.filter.ukf import UpdateStats
 from svains.frontend.types import StereoTracks
 from svains.models.vision_clone import predict_egomotion_clone
 from svains.models.vision_common import ImuIncrement
-from svains.models.vision_lc import egomotion_measurement, predict_egomotion_lc
+from svains.models.vision_lc import predict_egomotion_lc
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.options import RunConfig, VisionOptions
 from svains.navigation.vision_clones import clone_window, next_reference_ns
+from svains.navigation.vision_egomotion import egomotion_noise
 from svains.navigation.vision_pixels import (
     PixelUpdater,
     VisionCounters,
@@ -71,16 +72,14 @@ class LcUpdater:
         self._nis_per_dof: list[float] = []  # consistency check: should average ~1
         self.clones = clone_window(options)
 
-    def measurement(self, tr: StereoTracks) -> tuple[F64, F64]:
+    def measurement(self, tr: StereoTracks) -> tuple[F64, F64] | None:
         """``z`` (6,) (rotation vector rad, translation m) and its covariance (6, 6): the front
-        end's covariance times ``lc_cov_scale``, standard deviations floored at ``lc_min_std``.
+        end's covariance times ``lc_cov_scale``, standard deviations floored at ``lc_min_std``;
+        None when that covariance is not positive definite (``vision_egomotion``).
         ``tr.egomotion`` must not be None."""
         if tr.egomotion is None:
             raise DatasetError(f"tracks at t={tr.t_ns} ns carry no egomotion (lc needs one)")
-        z, cov = egomotion_measurement(tr.egomotion)
-        cov = cov * self.options.lc_scale()
-        floor = np.repeat(np.square(self.options.lc_min_std), 3)
-        return z, cov + np.diag(np.maximum(floor - np.diag(cov), 0.0))
+        return egomotion_noise(tr.egomotion, self.options)
 
     def update(self, ctx: FrameContext) -> UpdateStats | None:
         """Fuse the egomotion of the frame at ``ctx.t_ns`` (None if the front end gave none)."""
@@ -91,7 +90,11 @@ class LcUpdater:
             c.frames_without_tracks += 1
             return None
         dt_s = (tr.t_ns - tr.t_prev_ns) * 1e-9
-        z, cov = self.measurement(tr)
+        zc = self.measurement(tr)
+        if zc is None:
+            c.frames_bad_covariance += 1
+            return None
+        z, cov = zc
         h = self._model(ctx, tr, dt_s, inc)
         if h is None:  # no clone of the k-1 frame (e.g. the first frame)
             c.frames_without_tracks += 1

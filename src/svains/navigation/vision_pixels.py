@@ -18,12 +18,13 @@ from svains.errors import ConfigError
 from svains.filter.ukf import UpdateStats, chi2_gate
 from svains.frontend.types import StereoTracks
 from svains.models.vision_3d import pixels_from_motion
-from svains.models.vision_clone import clone_camera_motion
+from svains.models.vision_clone import clone_camera_motion, predict_egomotion_clone
 from svains.models.vision_common import ImuIncrement, camera_motion, stack_pixels
 from svains.models.vision_tc import pixels_tc_from_motion
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.vision_clones import clone_window, next_reference_ns
+from svains.navigation.vision_egomotion import egomotion_block, tracks_egomotion
 from svains.navigation.vision_motion import (
     CachedModel,
     ImuIncrements,
@@ -65,6 +66,8 @@ class VisionCounters:
     features_fused: int = 0
     features_gated: int = 0
     features_invalid: int = 0
+    frames_bad_covariance: int = 0  # lc: the egomotion's covariance was not positive definite
+    frames_egomotion: int = 0  # tc/3d: of the fused, through the frame's egomotion (fallback)
 
     def as_dict(self) -> dict[str, int]:
         return {f.name: int(getattr(self, f.name)) for f in fields(self)}
@@ -320,16 +323,26 @@ class PixelUpdater:
         c.features_invalid += int((~f.finite).sum())
         c.features_gated += int((f.finite & ~f.keep).sum())
         n_valid, n_kept = int(f.finite.sum()), int(f.keep.sum())
+        wide = n_valid < max(self.options.min_features, 0.5 * idx.size)
+        refused = n_kept < max(self.options.min_features,
+                               self.options.frame_min_inlier_fraction * n_valid)  # fmt: skip
+        if wide or refused:
+            # The prior cannot be linearised over (most features invalid) or disagrees with
+            # the frame: its egomotion instead (``vision_egomotion``), gated like any sensor.
+            stats = self._egomotion_update(ctx, tr)
+            if stats is not None and stats.accepted:
+                c.frames_fused += 1
+                c.frames_egomotion += 1
+                return stats
         if n_valid < self.options.min_features:
             c.frames_without_tracks += 1
-            return None
-        if n_kept < max(self.options.min_features,
-                        self.options.frame_min_inlier_fraction * n_valid):  # fmt: skip
-            # The prediction and the frame disagree: a rejection (the consistency monitor
-            # counts it, and a run of them inflates the covariance).
+            return stats
+        if refused:
+            # A rejection (the consistency monitor counts it, and a run of them inflates the
+            # covariance).
             c.frames_rejected += 1
             c.frames_gated += 1
-            return self._refused(f, n_valid)
+            return self._refused(f, n_valid) if stats is None else stats
         kept = np.flatnonzero(f.keep)
         block = _whitened_block(f"vision_{self.method}", kept, X, f.Y, f.z, f.R_blocks, f.G,
                                 f.model(kept))  # fmt: skip
@@ -338,9 +351,31 @@ class PixelUpdater:
             c.frames_fused += 1
             c.features_fused += kept.size
             self._fused = (tr.t_ns, np.sort(tr.track_id[idx[kept]]))
-        else:
-            c.frames_rejected += 1
+            return stats
+        if not ctx.extra:
+            ego = self._egomotion_update(ctx, tr)
+            if ego is not None and ego.accepted:
+                c.frames_fused += 1
+                c.frames_egomotion += 1
+                return ego
+        c.frames_rejected += 1
         return stats
+
+    def _egomotion_update(self, ctx: FrameContext, tr: StereoTracks) -> UpdateStats | None:
+        """Fuse the frame's egomotion against the clone of the k-1 frame (None: no clone, no
+        egomotion or an unusable covariance)."""
+        if self.clones is None or not self.options.egomotion_fallback:
+            return None
+        cols = self.clones.columns(ctx.ukf, tr.t_prev_ns)
+        if cols is None:
+            return None
+        ego = tracks_egomotion(tr, self.rig, seed=self.counters.frames)
+        if ego is None:
+            return None
+        calib, rig = self.clones.calib(ctx.ukf), self.rig
+        block = egomotion_block("vision_egomotion", ego, self.options,
+                                lambda X: predict_egomotion_clone(X, cols, rig, calib))  # fmt: skip
+        return None if block is None else apply_blocks(ctx, [block])
 
     def _refused(self, f: _Features, n_valid: int) -> UpdateStats:
         """The stats of a frame refused by the frame test: the NIS of its valid features

@@ -1,0 +1,70 @@
+"""Issue 22: the paper's regime on a real MAV IMU. EuRoC V1_01 (real 200 Hz IMU, 145 s) with
+features simulated along its ground truth at 5 Hz, GPS-denied, static start, the defaults and
+every S-th frame only (``bench/low_rate.py`` prints the whole table)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytestmark = [pytest.mark.realdata, pytest.mark.slow]
+
+
+def _run(euroc_micro: Path, out: Path, method: str, stride: int) -> dict[str, Any]:
+    svains = Path(sys.executable).with_name("svains")
+    cmd = [str(svains), "run", str(euroc_micro), "--method", method, "--synthetic-features", "5",
+           "--no-gps", "--no-mag", "--set", f"vision.frame_stride={stride}", "--out", str(out)]
+    subprocess.run(cmd, check=True, capture_output=True, text=True)
+    return dict(json.loads((out / "report.json").read_text(encoding="utf-8")))
+
+
+@pytest.fixture(scope="module")
+def euroc_run_report(euroc_micro: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    return _run(euroc_micro, tmp_path_factory.mktemp("s1") / "run", "3d", 1)
+
+
+def test_frames_02_s_apart_are_accurate_and_consistent(euroc_run_report: dict) -> None:
+    r = euroc_run_report
+    # Measured 2026-12-02: ATE 0.037 m, NEES 6.7 (limits 1.5x; the issue's targets 0.05 / 18).
+    assert r["ate_rmse_m"] < 0.05
+    assert r["nees_mean"] < 10.0
+    # Per block (3/3/2/1 dof when consistent): 0.1 / 3.0 / 3.1 / 0.1; the platform noise
+    # rule is what brought roll/pitch from 72 and velocity from 45 (issue 22).
+    b = r["nees_blocks"]
+    assert b["velocity"] < 4.5 and b["roll_pitch"] < 4.7
+    assert r["vision"]["frames_fused"] >= 720
+    assert r["measurements"]["zupt"]["fused"] > 30  # the 5 s rest before take-off
+
+
+def test_frames_2_s_apart_neither_cascade_nor_diverge(euroc_micro: Path, tmp_path: Path) -> None:
+    r = _run(euroc_micro, tmp_path / "run", "3d", 10)
+    # Measured 2026-12-02: ATE 0.098 m, NEES 8.8, 70 of 72 frames fused (before issue 22:
+    # 29 m, 17 frames, the whole-frame gate refusing every frame after the first refusals).
+    assert r["ate_rmse_m"] < 0.147
+    assert r["nees_mean"] < 13.2
+    assert r["vision"]["frames_fused"] >= 0.95 * r["vision"]["frames"]
+
+
+def test_frames_5_s_apart_run_to_the_end_without_diverging(
+    euroc_micro: Path, tmp_path: Path
+) -> None:
+    # Measured 2026-12-02: ATE 2.18 m (the issue's target, 1 m, is missed), NEES 22.1, 20 of 28
+    # frames fused, some through their egomotion; before: exit 1, covariance not PD.
+    r = _run(euroc_micro, tmp_path / "run", "3d", 25)
+    assert r["ate_rmse_m"] < 3.3
+    assert r["nees_mean"] < 33.0
+    assert r["vision"]["frames_egomotion"] >= 1
+    assert r["vision"]["frames_fused"] >= 18
+
+
+def test_lc_frames_5_s_apart_run_to_the_end(euroc_micro: Path, tmp_path: Path) -> None:
+    # Before: exit 1 (an indefinite egomotion covariance from the front end). Measured: 1.42 m.
+    r = _run(euroc_micro, tmp_path / "run", "lc", 25)
+    assert r["ate_rmse_m"] < 2.1
+    assert r["vision"]["frames_fused"] >= 15
+    assert r["vision"]["frames_bad_covariance"] >= 1

@@ -1,0 +1,87 @@
+"""The platform noise rule (``navigation.platform_noise``): the white noise measured at rest
+replaces the calibration only where it exceeds it beyond the estimate's own spread."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from svains.navigation.options import NoiseOptions
+from svains.navigation.platform_noise import measure_static_noise, platform_noise
+from svains.sensors.types import ImuCalib
+
+RATE_HZ = 200.0
+GYRO_D, ACCEL_D = 1.7e-4, 2.0e-3  # rad/s/sqrt(Hz), m/s²/sqrt(Hz) (EuRoC's Kalibr figures)
+
+
+def _calib() -> ImuCalib:
+    return ImuCalib(T_B_S=np.eye(4), rate_hz=RATE_HZ, gyro_noise_density=GYRO_D,
+                    gyro_random_walk=2e-5, accel_noise_density=ACCEL_D,
+                    accel_random_walk=3e-3)  # fmt: skip
+
+
+def _rest(rng: np.random.Generator, gyro_d: float, accel_d: float, seconds: float = 2.0):
+    n = int(seconds * RATE_HZ)
+    s = np.sqrt(RATE_HZ)  # per-sample std of white noise of density d: d sqrt(rate)
+    gyro = 0.01 + gyro_d * s * rng.standard_normal((n, 3))
+    accel = np.array([0.0, 0.0, 9.81]) + accel_d * s * rng.standard_normal((n, 3))
+    return gyro, accel
+
+
+def test_block_means_recover_the_density_of_white_noise() -> None:
+    rng = np.random.default_rng(0)
+    gyro, accel = _rest(rng, 5 * GYRO_D, 3 * ACCEL_D, seconds=20.0)
+    m = measure_static_noise(gyro, accel, 1.0 / RATE_HZ, 0.1)
+    assert m.gyro_density == pytest.approx(5 * GYRO_D, rel=0.1)
+    assert m.accel_density == pytest.approx(3 * ACCEL_D, rel=0.1)
+    assert m.dof == 3 * (200 - 1)
+
+
+def test_an_imu_with_its_calibrated_noise_keeps_the_calibration() -> None:
+    # The simulator's case: the rule must leave a consistent filter alone (0.999 quantile:
+    # at most a rare start is changed, and then by a few tens of percent).
+    applied = 0
+    for seed in range(200):
+        gyro, accel = _rest(np.random.default_rng(seed), GYRO_D, ACCEL_D)
+        m = measure_static_noise(gyro, accel, 1.0 / RATE_HZ, 0.1)
+        opts, info = platform_noise(NoiseOptions(), _calib(), m)
+        assert info is not None
+        applied += info["gyro"]["applied"] + info["accel"]["applied"]
+        if not (info["gyro"]["applied"] or info["accel"]["applied"]):
+            assert opts == NoiseOptions()
+    assert applied <= 2
+
+
+def test_a_vibrating_platform_takes_the_measured_density_and_a_wider_random_walk() -> None:
+    gyro, accel = _rest(np.random.default_rng(1), 5 * GYRO_D, 8 * ACCEL_D)
+    m = measure_static_noise(gyro, accel, 1.0 / RATE_HZ, 0.1)
+    opts, info = platform_noise(NoiseOptions(), _calib(), m)
+    assert info is not None and info["gyro"]["applied"] and info["accel"]["applied"]
+    assert opts.gyro_noise_density == pytest.approx(m.gyro_density)
+    assert opts.accel_noise_density == pytest.approx(m.accel_density)
+    r_g = m.gyro_density / GYRO_D
+    assert opts.gyro_random_walk == pytest.approx(2e-5 * np.sqrt(r_g))
+    assert 3.5 < r_g < 6.5
+    # Given explicitly, a density is the user's: kept, and the rule can be turned off.
+    mine = NoiseOptions(gyro_noise_density=1e-3)
+    opts, info = platform_noise(mine, _calib(), m)
+    assert opts.gyro_noise_density == 1e-3 and not info["gyro"]["applied"]
+    assert platform_noise(NoiseOptions(static_rule=False), _calib(), m) == (
+        NoiseOptions(static_rule=False), None)
+
+
+@pytest.mark.realdata
+def test_the_euroc_static_start_measures_its_rotor_vibration(euroc_micro) -> None:
+    from svains.datasets.loader import load_dataset
+
+    ds = load_dataset(euroc_micro)
+    assert ds.imu is not None and ds.imu_calib is not None
+    R_B_S = ds.imu_calib.T_B_S[:3, :3]
+    n = int(2.0 * ds.imu_calib.rate_hz)
+    m = measure_static_noise(ds.imu.gyro_B[:n] @ R_B_S.T, ds.imu.accel_B[:n] @ R_B_S.T,
+                             1.0 / ds.imu_calib.rate_hz, 0.1)  # fmt: skip
+    _, info = platform_noise(NoiseOptions(), ds.imu_calib, m)
+    # Rotors running: 5.5x the gyro and 7.9x the accelerometer calibration (0.1 s blocks).
+    assert info is not None and info["gyro"]["applied"] and info["accel"]["applied"]
+    assert 4.0 < info["gyro"]["ratio"] < 7.0
+    assert 6.0 < info["accel"]["ratio"] < 10.0

@@ -1,0 +1,46 @@
+"""Zero-velocity updates (``navigation.zupt``): the rest test and the pseudo-measurement."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from svains.navigation.imu_history import ImuHistory
+from svains.navigation.options import InitOptions, ZuptOptions
+from svains.navigation.zupt import StaticTest, zero_velocity_block
+
+RATE_HZ = 200.0
+G = 9.81
+
+
+def _history(accel_of_t, seconds: float, seed: int = 0) -> ImuHistory:
+    rng = np.random.default_rng(seed)
+    h = ImuHistory()
+    for k in range(int(seconds * RATE_HZ)):
+        t = k / RATE_HZ
+        # Rotor-like vibration: 0.3 m/s² and 0.05 rad/s per sample, white.
+        gyro = 0.05 * rng.standard_normal(3)
+        accel = np.array([0.0, 0.0, G]) + accel_of_t(t) + 0.3 * rng.standard_normal(3)
+        h.append(int(t * 1e9), gyro, accel)
+    return h
+
+
+def test_a_vibrating_platform_at_rest_is_at_rest_and_a_take_off_is_not() -> None:
+    test = StaticTest(ZuptOptions(), InitOptions(), G)
+    rest = _history(lambda t: np.zeros(3), 2.0)
+    assert test.at_rest(rest, int(0.2e9)) is None  # not yet a window of samples
+    assert all(test.at_rest(rest, int(s * 1e9)) for s in np.arange(0.6, 2.0, 0.1))
+    climb = _history(lambda t: np.array([0.0, 0.0, 2.0 * max(0.0, t - 1.0)]), 2.0)
+    assert test.at_rest(climb, int(0.9e9)) is True
+    assert test.at_rest(climb, int(1.9e9)) is False
+    # Free fall (or a constant 1 g climb) has steady block means, but not gravity's magnitude.
+    falling = _history(lambda t: np.array([0.0, 0.0, -G]), 1.0)
+    assert test.at_rest(falling, int(0.9e9)) is False
+
+
+def test_the_block_reads_the_velocity_of_every_sigma_point() -> None:
+    b = zero_velocity_block(0.002)
+    X = np.zeros((3, 16))
+    X[:, 3:6] = [[0.1, 0.2, 0.3], [0, 0, 0], [-1, 2, -3]]  # v_W_B after p_W_B (3)
+    np.testing.assert_array_equal(b.h(X), X[:, 3:6])
+    np.testing.assert_array_equal(b.z, np.zeros(3))
+    np.testing.assert_allclose(b.R, np.full(3, 0.002**2))
