@@ -240,12 +240,14 @@ class Core:
         (``bridging``) it is linearised ``faults.gap_vision_iterations`` times and gated at
         ``faults.gap_vision_gate_probability``: the bridge's error is not Gaussian, and the
         frames are then the only evidence of the motion. A frame more than
-        ``vision.iterate_after_s`` after the previous one (``long``) is linearised as many
-        times: its prior is wide against the pixels too."""
+        ``vision.iterate_after_s`` after the previous one (``long``) is linearised
+        ``vision.long_iterations`` times: its prior is wide against the pixels too."""
         ins, cfg = self.ins, self.config
         n = cfg.vision.update_iterations
-        if bridging or long:
+        if bridging:
             n = max(n, cfg.faults.gap_vision_iterations)
+        if long:
+            n = max(n, cfg.vision.long_iterations)
 
         def apply(blocks: list[MeasurementBlock]) -> UpdateStats:
             # tc/3d gate their features one by one and test the frame on how many pass

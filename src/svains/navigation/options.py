@@ -207,7 +207,7 @@ class VisionOptions:
     only): a frame refused so, or whose features are mostly invalid over a prior too wide for
     the pixel model, fuses the frame's egomotion instead, as ``lc`` does
     (``navigation.vision_egomotion``). A frame more than ``iterate_after_s`` after the previous
-    one is linearised ``faults.gap_vision_iterations`` times (``filter.iterated``): its prior is
+    one is linearised ``long_iterations`` times (``filter.iterated``): its prior is
     wide against the pixels (EuRoC, every 25th frame at 5 Hz: ATE 27 m with one linearisation,
     2.7 m with three; every 10th: 0.115 -> 0.101 m). Such a frame also takes the two-view
     model (``two_view_after_long``, clones and single-use pixels only): its k-1 stereo points
@@ -241,9 +241,12 @@ class VisionOptions:
     egomotion_fallback: bool = True
     frame_max_nis_per_dof: float | None = 3.0
     iterate_after_s: float | None = 0.3
+    long_iterations: int = 3
     two_view_after_long: bool = True
 
     def __post_init__(self) -> None:
+        if self.long_iterations < 1:
+            raise ConfigError(f"vision.long_iterations must be >= 1, got {self.long_iterations}")
         if self.update_iterations < 1:
             raise ConfigError(
                 f"vision.update_iterations must be >= 1, got {self.update_iterations}"
