@@ -312,3 +312,59 @@ def test_previous_pixel_bias_matches_the_mean_over_pixel_noise() -> None:
     np.testing.assert_allclose(previous_pixel_bias(h_rest, uvl, uvr, sigma), 0.0, atol=1e-9)
     # Below 6 sigma of disparity the expansion does not hold: no correction.
     assert not np.any(previous_pixel_bias(h_prev, uvl, uvr, 10.0))
+
+
+def test_features_new_at_k_minus_1_pass_the_disparity_gate_at_twice_the_threshold() -> None:
+    # No k-2 pixels (the first pair, or frames seconds apart): the k-1 disparity decides, at
+    # twice the threshold (0.3 px noise: 12 x 0.3 = 3.6 px, so 7.2 px); a track seen at k-2
+    # is gated on its k-2 disparity as before.
+    from svains.frontend.types import StereoTracks
+    from svains.navigation.vision_pixels import NEW_FEATURE_DISPARITY_FACTOR
+
+    tf = two_frames(RIG, DT_S, np.zeros(3), np.zeros(3), n_features=60)
+    upd = updater_for("3d", _dataset(tf), VisionOptions())
+    d_min = upd._min_disparity_px
+    assert d_min == pytest.approx(3.6) and NEW_FEATURE_DISPARITY_FACTOR == 2.0
+
+    def tracks(t_prev: int, t: int, ids: list[int], disp: list[float]) -> StereoTracks:
+        n = len(ids)
+        uvl = np.column_stack([np.full(n, 300.0), np.full(n, 200.0)])
+        uvr = uvl - np.column_stack([np.asarray(disp), np.zeros(n)])
+        return StereoTracks(t_prev, t, np.asarray(ids, np.int64), uvl, uvr, uvl, uvr,
+                            np.ones((n, 3)), np.ones(n, bool), None)  # fmt: skip
+
+    first = upd._near(tracks(0, 1, [1, 2, 3], [5.0, 8.0, 20.0]))
+    np.testing.assert_array_equal(first, [False, True, True])
+    # Next pair: tracks 1-3 were seen at k-2 (their disparities above); 4 is new at k-1.
+    nxt = upd._near(tracks(1, 2, [1, 2, 3, 4], [50.0, 50.0, 50.0, 5.0]))
+    np.testing.assert_array_equal(nxt, [True, True, True, False])
+    nxt = upd._near(tracks(2, 3, [1, 4, 5], [2.0, 2.0, 7.3]))
+    # 1 and 4 are judged on their k-2 disparities (50 and 5 px), 5 is new (7.3 >= 7.2)
+    np.testing.assert_array_equal(nxt, [True, True, True])
+
+
+def test_a_frame_the_prior_cannot_explain_fuses_its_egomotion_instead() -> None:
+    # A 0.5 m position error against a 1 cm prior: every feature fails its gate and the frame
+    # is refused, unless its egomotion is fused instead (``vision.egomotion_fallback``).
+    tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
+
+    def run(fallback: bool) -> tuple[object, UKF, object]:
+        upd = updater_for("3d", _dataset(tf), VisionOptions(egomotion_fallback=fallback))
+        ukf = _ukf(tf.x_km1, np.zeros(3))
+        upd.after_frame(FrameContext(ukf, PAPER, T0, None, None, [], None))  # type: ignore[arg-type]
+        x = ukf.x.copy()
+        x[:13] = tf.x_k
+        x[0:3] += [0.5, 0.0, 0.0]
+        P = ukf.P.copy()
+        P[0:3, 0:3] += 1e-4 * np.eye(3)  # the motion since the clone: known to 1 cm
+        ukf.resize(ukf.manifold, x, P)
+        return upd.update(_ctx(ukf)), ukf, upd
+
+    stats, ukf, upd = run(True)
+    assert stats is not None and stats.accepted and stats.name == "vision_egomotion"
+    assert upd.summary()["frames_egomotion"] == 1
+    # Pulled towards the truth (0.41 m left: the 1 cm prior against lc's inflated covariance).
+    assert np.linalg.norm(ukf.x[0:3] - tf.x_k[0:3]) < 0.45
+    stats, ukf, upd = run(False)
+    assert stats is not None and not stats.accepted
+    assert upd.summary()["frames_rejected"] == 1 and upd.summary()["frames_gated"] == 1

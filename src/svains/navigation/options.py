@@ -241,7 +241,7 @@ class VisionOptions:
     egomotion_fallback: bool = True
     frame_max_nis_per_dof: float | None = 3.0
     iterate_after_s: float | None = 0.3
-    long_iterations: int = 3
+    long_iterations: int = 6
     two_view_after_long: bool = True
 
     def __post_init__(self) -> None:
