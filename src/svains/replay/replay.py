@@ -186,13 +186,14 @@ def replay(
     """Run ``config`` over ``ds`` (``config`` as given: call ``resolve_config`` first to get the
     ``svains run`` behaviour). Returns the Navigator's ``RunResult`` with ``report["dataset"]``.
     """
-    if ds.imu is None or len(ds.imu.t_ns) == 0:
-        raise DatasetError(f"{ds.name}: no IMU stream")
-    if config.method == "vo":
+    if config.method == "vo":  # stereo only: no IMU needed (KITTI odometry, bare rigs)
         from svains.replay.vo import run as run_vo
 
         with limit_threads(None):
             return run_vo(ds, config, progress)
+    if ds.imu is None or len(ds.imu.t_ns) == 0:
+        raise DatasetError(f"{ds.name}: no IMU stream (method {config.method} needs one; "
+                           "vo and svains frontend run on stereo alone)")  # fmt: skip
     if config.method != "ins" and config.vision.source == "images":
         n_pairs = stereo_pairs(ds)[0].size if ds.left is not None and ds.right is not None else 0
         if n_pairs < 2:

@@ -105,6 +105,17 @@ def _frame_tracks(
         yield t, images.tracks_at(t)
 
 
+def _first_ns(ds: Dataset) -> int:
+    """The recording's origin: its first IMU sample, else its first stereo frame."""
+    if ds.imu is not None and len(ds.imu.t_ns):
+        return int(ds.imu.t_ns[0])
+    if ds.features is not None and len(ds.features.t_ns):
+        return int(np.min(ds.features.t_ns))
+    if ds.left is not None and len(ds.left.t_ns):
+        return int(np.min(ds.left.t_ns))
+    raise DatasetError(f"{ds.root}: vo needs features0 or cam0/cam1 images")
+
+
 def run(
     dataset: Dataset,
     config: RunConfig,
@@ -116,9 +127,9 @@ def run(
     egos: list[Egomotion | None] = []
     t_list: list[int] = []
     kind = config.vision.source
-    # ``--start``: the same origin as the filter methods' replay (the first IMU sample).
-    assert dataset.imu is not None  # ``replay`` refuses a data set without IMU first
-    t0 = int(dataset.imu.t_ns[0]) + int(config.replay.start_s * 1e9)
+    # ``--start``: the same origin as the filter methods' replay (the first IMU sample); a
+    # stereo-only data set (KITTI odometry) counts from its first frame.
+    t0 = _first_ns(dataset) + int(config.replay.start_s * 1e9)
     for i, (_, tr) in enumerate(_frame_tracks(dataset, config, t0)):
         if tr is None:
             continue
