@@ -36,6 +36,7 @@ from svains.navigation.navigator_core import Core
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import NavState, RunResult
 from svains.navigation.platform_noise import StaticNoise, platform_noise
+from svains.navigation.plausibility import SampleChecks
 from svains.navigation.starter import Starter
 from svains.navigation.tracks import TrackOptions
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames, rig_from_calibrations
@@ -70,6 +71,9 @@ class Navigator:
         R_B_S = None if rig.imu is None else rig.imu.T_B_S[:3, :3]
         self.history = ImuHistory(R_B_S)
         self.queue = EventQueue(config.buffer.max_pending)
+        self._checks = SampleChecks(
+            None if rig.mag is None else float(np.linalg.norm(rig.mag.m_W))
+        )
         self._window_ns = round(config.buffer.window_s * 1e9)
         if self._window_ns < 0:
             raise ConfigError(f"buffer.window_s must be >= 0, got {config.buffer.window_s}")
@@ -272,6 +276,10 @@ class Navigator:
             if not (cfg.use_gps and self.rig.gps is not None):
                 return
         elif kind == MAG:
+            why = None if self.rig.mag is None else self._checks.magnetometer(payload)
+            if why is not None:  # neither the start's heading nor the filter may use it
+                self.queue.drop("mag", t, why)
+                return
             self.starter.add_mag(t, payload)
             if not (cfg.use_mag and self.rig.mag is not None):
                 return
@@ -279,6 +287,10 @@ class Navigator:
                 return
         elif kind == SONAR:
             if not (cfg.use_sonar and self.rig.sonar is not None):
+                return
+            why = self._checks.sonar(payload)
+            if why is not None:
+                self.queue.drop("sonar", t, why)
                 return
             if not self._rate_ok(SONAR, t, cfg.max_sonar_rate_hz):
                 return

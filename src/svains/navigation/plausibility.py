@@ -1,0 +1,61 @@
+"""Plausibility of magnetometer and sonar samples before they reach the filter.
+
+A dead magnetometer reads zeros, a hung one repeats its last vector; a sonar without echo may
+report zero or a negative range. Fused, such samples pull the attitude or the height (issue 23:
+a dead magnetometer cost ``ins`` 2.7x its clean error, negative sonar ranges 5.2x, with no
+warning). Each check returns why a sample is implausible, or None; the Navigator drops it and
+counts it (``report.json`` ``dropped``), warning on the first few.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+F64 = NDArray[np.float64]
+
+# A magnetometer's field magnitude outside [1/5, 5] times the reference field's is not the
+# Earth's field (local disturbances stay within ~2x; a dead sensor reads 0).
+MAG_NORM_FACTOR = 5.0
+# Identical vectors in a row from a sensor with noise: the sensor (or its driver) is stuck.
+MAG_FROZEN_REPEATS = 5
+
+
+class SampleChecks:
+    """Per-stream plausibility state (the magnetometer's last vector and its repeats)."""
+
+    def __init__(self, mag_reference_norm: float | None) -> None:
+        """``mag_reference_norm``: the magnitude of the expected field (Gauss; None: unknown,
+        the magnitude is then not checked)."""
+        self._mag_ref = mag_reference_norm
+        self._mag_last: F64 | None = None
+        self._mag_repeats = 0
+
+    def magnetometer(self, m_S: F64) -> str | None:
+        """Why the field ``m_S`` (3,) Gauss is implausible, or None."""
+        m = np.asarray(m_S, dtype=float)
+        if not np.all(np.isfinite(m)):
+            return "non-finite magnetometer field"
+        same = self._mag_last is not None and np.array_equal(m, self._mag_last)
+        self._mag_repeats = self._mag_repeats + 1 if same else 0
+        self._mag_last = m.copy()
+        norm = float(np.linalg.norm(m))
+        ref = self._mag_ref
+        lo, hi = (0.0, np.inf) if not ref else (ref / MAG_NORM_FACTOR, ref * MAG_NORM_FACTOR)
+        if norm == 0.0 or not lo <= norm <= hi:
+            known = "unknown" if not ref else f"{ref:.3g} G"
+            return (f"magnetometer field |m| = {norm:.3g} G, the reference field is {known} "
+                    "(a dead or saturated sensor)")  # fmt: skip
+        if self._mag_repeats >= MAG_FROZEN_REPEATS - 1:
+            return f"magnetometer repeats the same vector {self._mag_repeats + 1} times (stuck)"
+        return None
+
+    @staticmethod
+    def sonar(range_m: float) -> str | None:
+        """Why the range ``range_m`` (m) is implausible, or None."""
+        r = float(np.asarray(range_m, dtype=float).reshape(-1)[0])
+        if not np.isfinite(r):
+            return "non-finite sonar range"
+        if r <= 0.0:
+            return f"sonar range {r:.3g} m is not positive (no echo)"
+        return None
