@@ -88,6 +88,23 @@ def _same_images(root: Path) -> None:
 
 
 # (name, edit of the data set, expected message fragment)
+def _rescale_stamps(path: Path, divisor: int) -> None:
+    lines = path.read_text().splitlines()
+    rows = [ln.split(",") for ln in lines[1:]]
+    for r in rows:
+        r[0] = str(int(r[0]) // divisor)
+    path.write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
+
+
+def _stray_imu_row(root: Path) -> None:
+    path = root / "mav0/imu0/data.csv"
+    last = path.read_text().splitlines()[-1].split(",")
+    last[0] = str(int(last[0]) + 100 * 365 * 86400 * 10**9)
+    with path.open("a") as f:
+        f.write(",".join(last) + "\n")
+
+
+
 DATA_CASES: list[tuple[str, Edit, str]] = [
     ("imu header only", _header_only("imu0/data.csv"), "imu0/data.csv: 0 data row"),
     ("gps header only", _header_only("gps0/data.csv"), "gps0/data.csv: 0 data row"),
@@ -113,7 +130,26 @@ DATA_CASES: list[tuple[str, Edit, str]] = [
     ("nan in imu", lambda r: (r / "mav0/imu0/data.csv").write_text(
         "#h\n1,0,0,0,0,0,nan\n2,0,0,0,0,0,9.8\n"), "imu0/data.csv:2: NaN or infinite"),
     ("not a data set", lambda r: shutil.rmtree(r / "mav0"), "unrecognised data set"),
+    ("imu stamped in microseconds", lambda r: _rescale_stamps(r / "mav0/imu0/data.csv", 1000),
+     "they look like microseconds"),
+    ("imu stamped in milliseconds",
+     lambda r: _rescale_stamps(r / "mav0/imu0/data.csv", 1_000_000),
+     "they look like milliseconds"),
+    ("imu row 100 years on", _stray_imu_row, "h after the row before"),
 ]
+
+
+def test_a_byte_order_mark_before_the_header_is_read(base: Path, tmp_path: Path) -> None:
+    from svains.datasets import load_dataset
+
+    def bom(root: Path) -> None:
+        p = root / "mav0/imu0/data.csv"
+        p.write_text("\ufeff" + p.read_text(), encoding="utf-8")
+
+    plain = load_dataset(base)
+    ds = load_dataset(_copy(base, tmp_path, bom))
+    assert ds.imu is not None and plain.imu is not None
+    np.testing.assert_array_equal(ds.imu.t_ns, plain.imu.t_ns)
 
 
 def _check(res: object, code: int, fragment: str) -> None:

@@ -74,7 +74,8 @@ def read_text(path: Path) -> str:
     if not path.is_file():
         raise DatasetError(f"missing file: {path}")
     try:
-        return path.read_text(encoding="utf-8")
+        # utf-8-sig: a byte-order mark (spreadsheet exports) is not part of the first field.
+        return path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as exc:
         raise DatasetError(f"{path}: not a text file ({exc.reason} at byte {exc.start})") from exc
 
@@ -216,7 +217,42 @@ def parse_timestamps(
             if strict
             else f"{path}:{line_no[i]}: decreasing timestamp {t[i]} after {t[i - 1]}"
         )
+    check_time_unit(path, t, line_no)
     return t
+
+
+# Timestamps must be integer nanoseconds: spacings below this (50 kHz) are no sensor's, so the
+# file was stamped in µs, ms or s; a step this many median spacings (and at least an hour) past
+# the previous row is a stray row (a corrupted or misplaced stamp), not a pause.
+MIN_MEDIAN_SPACING_NS = 20_000
+STRAY_ROW_SPACINGS = 10_000
+STRAY_ROW_MIN_NS = 3600 * 10**9
+
+
+def check_time_unit(path: Path, t: NDArray[np.int64], line_no: list[int]) -> None:
+    """DatasetError naming the file (and line) when the stamps ``t`` (N,) of a sorted stream are
+    not nanoseconds or one row lies far outside the others (see the constants)."""
+    u = np.unique(t)
+    if u.size < 3:
+        return
+    d = np.diff(u)
+    med = float(np.median(d))
+    if med < MIN_MEDIAN_SPACING_NS:
+        guess = next((unit for unit, scale in (("microseconds", 1e3), ("milliseconds", 1e6),
+                                               ("seconds", 1e9))
+                      if 1e-3 <= med * scale * 1e-9 <= 10.0), "another unit")  # fmt: skip
+        raise DatasetError(
+            f"{path}: timestamps advance by a median {med:g} per row, {1e9 / med:.3g} Hz if "
+            f"nanoseconds: they look like {guess} (the ASL layout stamps in integer "
+            "nanoseconds)"
+        )
+    far = np.flatnonzero((d > STRAY_ROW_SPACINGS * med) & (d > STRAY_ROW_MIN_NS))
+    if far.size:
+        k = int(np.searchsorted(t, u[far[0] + 1]))
+        raise DatasetError(
+            f"{path}:{line_no[k]}: timestamp {u[far[0] + 1]} is {d[far[0]] * 1e-9 / 3600:.3g} h "
+            f"after the row before (median spacing {med * 1e-6:.3g} ms): a stray row"
+        )
 
 
 def parse_floats(
