@@ -67,6 +67,23 @@ def positive_finite(value: float | None) -> float | None:
     return value
 
 
+def non_negative_finite(value: float | None) -> float | None:
+    """Typer callback: ``None`` or a finite number >= 0 (``--start``: seconds into the data)."""
+    if value is not None and not (math.isfinite(value) and value >= 0):
+        raise typer.BadParameter(f"must be a finite number >= 0, got {value}")
+    return value
+
+
+def rotation_choice(value: str | None) -> str | None:
+    """Typer callback: ``None`` or one of the vision motion models (a usage error otherwise,
+    like ``--method``)."""
+    from svains.navigation.options import MOTION_MODELS
+
+    if value is not None and value not in MOTION_MODELS:
+        raise typer.BadParameter(f"must be one of {', '.join(MOTION_MODELS)}, got {value!r}")
+    return value
+
+
 # --- outputs ---------------------------------------------------------------------------------
 
 

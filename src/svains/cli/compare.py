@@ -75,7 +75,7 @@ def compare(
     rotation: Annotated[
         str | None,
         typer.Option("--rotation", help="Vision motion model: clone (default), imu, linear "
-                     "(paper eq. 18) or exp."),
+                     "(paper eq. 18) or exp.", callback=_common.rotation_choice),
     ] = None,
     init: Annotated[
         str, typer.Option("--init", help="static, gps (in flight) or groundtruth.")

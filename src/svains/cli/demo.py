@@ -10,7 +10,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from svains.cli._common import check_out_dir, fail, positive_finite
+from svains.cli._common import check_out_dir, fail, positive_finite, rotation_choice
 from svains.cli.compare import build_options, run_compare
 from svains.errors import SvainsError
 
@@ -35,7 +35,7 @@ def demo(
     rotation: Annotated[
         str | None,
         typer.Option("--rotation", help="Vision motion model: clone (default), imu, linear "
-                     "(paper eq. 18) or exp."),
+                     "(paper eq. 18) or exp.", callback=rotation_choice),
     ] = None,
     methods: Annotated[
         str, typer.Option("--methods", help="Comma-separated methods.")

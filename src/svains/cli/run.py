@@ -17,7 +17,9 @@ from svains.cli._common import (
     SonarOption,
     check_out_dir,
     fail,
+    non_negative_finite,
     positive_finite,
+    rotation_choice,
 )
 from svains.errors import SvainsError
 
@@ -44,7 +46,9 @@ def run(
     mag: Annotated[bool | None, typer.Option("--mag/--no-mag", help="Fuse magnetometer.")] = None,
     sonar: SonarOption = None,
     start: Annotated[
-        float | None, typer.Option("--start", help="Skip the first S seconds of the data.")
+        float | None,
+        typer.Option("--start", help="Skip the first S seconds of the data.",
+                     callback=non_negative_finite),
     ] = None,
     duration: Annotated[
         float | None,
@@ -63,7 +67,7 @@ def run(
     rotation: Annotated[
         str | None,
         typer.Option("--rotation", help="Vision motion model: clone (default), imu, linear "
-                     "(paper eq. 18) or exp."),
+                     "(paper eq. 18) or exp.", callback=rotation_choice),
     ] = None,
     setting: Annotated[
         list[str] | None,
