@@ -40,3 +40,18 @@ def test_method_runs_or_refuses_in_one_line(data: str, method: str, tmp_path: Pa
     report = json.loads((tmp_path / "run" / "report.json").read_text(encoding="utf-8"))
     assert report["method"] == method
     assert report["ate_rmse_m"] is not None and report["ate_rmse_m"] < 5.0
+
+
+def test_compare_with_a_failing_method_writes_the_rest_and_exits_1(tmp_path: Path) -> None:
+    root = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_stereo_a"
+    if not root.is_dir():
+        pytest.skip(f"{root} not present")
+    out = tmp_path / "cmp"
+    res = CliRunner().invoke(app, ["compare", str(root), "--out", str(out), "--methods",
+                                   "ins,vo", "--no-figures"])  # fmt: skip
+    assert res.exit_code == 1, res.output
+    err = [ln for ln in res.stderr.splitlines() if ln.startswith("error: ")]
+    why = f"kitti_stereo_a: {NO_IMU.format(m='ins')}"
+    assert err == [f"error: 1 of 2 method(s) failed: ins ({why})"]
+    reports = json.loads((out / "compare.json").read_text(encoding="utf-8"))
+    assert "error" in reports["ins"] and reports["vo"]["ate_m"] < 1.0

@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.progress import Progress
 
 from svains.cli import _common
+from svains.cli._common import one_line
 from svains.errors import SvainsError
 
 
@@ -57,6 +58,11 @@ def run_compare(
         for p in comparison_figures(ds, results, out):
             console.print(f"figure: {p}")
     console.print((out / "compare.md").read_text(encoding="utf-8"), markup=False)
+    failed = [f"{m} ({one_line(r['error'])})" for m, r in reports.items()
+              if isinstance(r, dict) and r.get("error")]  # fmt: skip
+    if failed:
+        # The comparison of the others is written; the run as a whole did not succeed.
+        _common.fail(f"{len(failed)} of {len(reports)} method(s) failed: {'; '.join(failed)}")
     return reports
 
 
