@@ -125,7 +125,13 @@ def test_compare_takes_the_kalibr_files_for_a_bag(bag_and_kalibr, tmp_path: Path
     args = ["compare", str(bag), "--out", str(tmp_path), "--methods", "3d", "--images",
             "--no-figures", "--duration", "1", "--rotation", "imu"]  # fmt: skip
     res = runner.invoke(app, args)
-    assert res.exit_code == 0, res.output  # compare goes on past a failed method
+    # compare writes what it could and exits 1 naming the failed method (issue 23)
+    assert res.exit_code == 1, res.output
+    assert res.stderr.strip().splitlines()[-1] == (
+        "error: 1 of 1 method(s) failed: 3d (image-based vision needs the cam0 and cam1 "
+        "calibrations)"
+    )
+    assert (tmp_path / "compare.md").is_file()
     assert not (tmp_path / "3d" / "report.json").exists()  # a bag has no camera calibration
     res = runner.invoke(app, [*args, "--force", "--calib", str(chain), "--imu-calib", str(imu)])
     assert res.exit_code == 0, res.output
