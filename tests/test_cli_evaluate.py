@@ -97,3 +97,26 @@ def test_evaluate_bad_inputs(moved: dict, tmp_path: Path) -> None:
     (tmp_path / "empty/mav0/body.yaml").write_text("%YAML:1.0\ncomment: no streams\n")
     res = runner.invoke(app, ["evaluate", str(d / "se3.tum"), str(tmp_path / "empty")])
     assert res.exit_code == 1 and "data set has no ground truth" in res.output
+
+
+def test_se3_on_a_resting_vehicle_is_refused_in_one_line(tmp_path: Path) -> None:
+    # A vehicle at rest: millimetres of reference motion against millimetres of error leave the
+    # fitted rotation arbitrary (issue 23: 143° printed where the run's own report said 0.62°).
+    rng = np.random.default_rng(4)
+    t = np.arange(50, dtype=np.int64) * 100_000_000
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (50, 1))
+    ref = 1e-3 * rng.standard_normal((50, 3))
+    est = ref + 2e-3 * rng.standard_normal((50, 3))
+    write_tum(tmp_path / "ref.tum", t, ref, q)
+    write_tum(tmp_path / "est.tum", t, est, q)
+    args = ["evaluate", str(tmp_path / "est.tum"), str(tmp_path / "ref.tum")]
+    res = CliRunner().invoke(app, [*args, "--align", "se3"])
+    assert res.exit_code == 1, res.output
+    err = res.stderr.strip().splitlines()
+    assert len(err) == 1 and "se3 alignment is undetermined" in err[0] and "posyaw" in err[0]
+    assert CliRunner().invoke(app, [*args, "--align", "posyaw"]).exit_code == 0
+    # A moving reference (metres) with the same error aligns as before.
+    move = ref + np.column_stack([np.linspace(0, 5, 50), np.linspace(0, 2, 50), np.zeros(50)])
+    write_tum(tmp_path / "ref.tum", t, move, q)
+    write_tum(tmp_path / "est.tum", t, move + (est - ref), q)
+    assert CliRunner().invoke(app, [*args, "--align", "se3"]).exit_code == 0

@@ -118,6 +118,26 @@ def _stats(metric: evo_metrics.PE) -> dict[str, float]:
     return {k: float(v) for k, v in metric.get_all_statistics().items()}
 
 
+# A rotation fitted to N positions is determined to about residual / (extent sqrt(N)) rad;
+# above this the se3/sim3 fit turns the estimate by an arbitrary angle (a vehicle at rest: a
+# 143° rotation error was printed for the EuRoC static start, whose own report said 0.62°).
+MAX_ROTATION_UNCERTAINTY_RAD = 0.1
+
+
+def _check_extent(p_aligned: F64, p_ref: F64, align: str) -> None:
+    """AlignmentError when the reference positions (N, 3) barely move against the residual of
+    the aligned estimate (N, 3) (see ``MAX_ROTATION_UNCERTAINTY_RAD``)."""
+    a = p_ref - p_ref.mean(axis=0)
+    extent = float(np.sqrt(np.linalg.eigvalsh(a.T @ a / len(a))[-1]))
+    residual = float(np.sqrt(np.mean(np.sum((p_aligned - p_ref) ** 2, axis=1))))
+    if residual > MAX_ROTATION_UNCERTAINTY_RAD * extent * np.sqrt(len(a)):
+        raise AlignmentError(
+            f"{align} alignment is undetermined: the reference moves {extent:.3g} m (RMS along "
+            f"its main axis) against a {residual:.3g} m residual after the fit, so its rotation "
+            "is arbitrary: use posyaw or none"
+        )
+
+
 def ate(
     t_est_ns: ArrayLike,
     p_est: ArrayLike,
@@ -155,6 +175,7 @@ def ate(
                 "collinear or identical; use posyaw or none"
             ) from exc
         T[:3, :3], T[:3, 3], scale = R, t, float(s)
+        _check_extent(est_a.positions_xyz, ref_m.positions_xyz, align)
     elif align == "posyaw":
         T = align_posyaw(est_a.positions_xyz, ref_m.positions_xyz, up_W)
         est_a.transform(T)
