@@ -337,3 +337,14 @@ def test_installed_entry_point_reports_the_same_way(tmp_path: Path) -> None:
                           text=True, timeout=120, check=False)  # fmt: skip
     assert proc.returncode == 1 and proc.stdout == ""
     assert proc.stderr.splitlines() == [f"error: data set folder not found: {tmp_path}/missing"]
+
+
+@pytest.mark.realdata
+def test_a_duration_shorter_than_the_static_start_says_so(
+    euroc_micro: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    with caplog.at_level("WARNING", logger="svains.navigation.navigator"):
+        res = runner.invoke(app, ["run", str(euroc_micro), "--out", str(tmp_path / "r"),
+                                  "--method", "ins", "--duration", "0.3"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert any("shorter than the static start's 2 s" in r.getMessage() for r in caplog.records)

@@ -239,6 +239,11 @@ class Navigator:
         self.core = Core(self.config, self.rig, ins, init.info, self._source, self._emit,
                          self.imu_faults, self._warn)  # fmt: skip
         if self.config.duration_s is not None:
+            static_s = self.config.init.static_s
+            if init.info.get("mode") == "static" and self.config.duration_s < static_s:
+                log.warning("duration %.3g s is shorter than the static start's %.3g s: the "
+                            "initial state read %.3g s of IMU at rest", self.config.duration_s,
+                            static_s, static_s)  # fmt: skip
             end = int(init.t_ns) + int(self.config.duration_s * 1e9)
             self._end_ns = end if self._end_ns is None else min(end, self._end_ns)
         self.core.end_ns = self._end_ns
