@@ -62,6 +62,7 @@ from typing import Any
 
 import numpy as np
 import yaml
+from faults import parse_seeds  # bench/faults.py: "0-9", "0,1,5" or "3"
 from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
@@ -342,13 +343,6 @@ def part_sim(args: argparse.Namespace) -> None:
 # --- command line ----------------------------------------------------------------------------
 
 
-def parse_seeds(text: str) -> list[int]:
-    """``"0-9"``, ``"0,1,5"`` or ``"3"`` -> seeds."""
-    seeds: list[int] = []
-    for part in text.split(","):
-        lo, _, hi = part.partition("-")
-        seeds += list(range(int(lo), int(hi or lo) + 1))
-    return seeds
 
 
 def main() -> None:
