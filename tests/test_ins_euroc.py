@@ -67,7 +67,8 @@ def test_cli_run_writes_the_three_outputs(euroc_micro: Path, tmp_path: Path) -> 
     assert res.exit_code == 0, res.output
     rep = json.loads((out / "report.json").read_text())
     assert rep["method"] == "ins" and rep["model"] == "paper"
-    assert rep["ate_rmse_m"] < 2.0 and rep["realtime_factor"] > 1.0
+    # measured 0.0030 m (2026-12-02: the start's zero-velocity updates; 0.49 m before)
+    assert rep["ate_rmse_m"] < 0.0045 and rep["realtime_factor"] > 1.0
     assert (out / "trajectory.tum").read_text().count("\n") > 40
     bad = CliRunner().invoke(app, ["run", str(euroc_micro), "--out", str(tmp_path / "b"),
                                    "--init", "x"])

@@ -68,7 +68,7 @@ def test_compare_cli_writes_table_and_json(village_denied: Path, tmp_path: Path)
     assert result.exit_code == 0, result.output
     data = json.loads((out / "compare.json").read_text())
     assert list(data) == ["3d"] and data["3d"]["ate_alignment"] == "posyaw"
-    assert data["3d"]["ate_m"] < 1.0
+    assert data["3d"]["ate_m"] < 0.04  # measured 0.0269 m (2026-12-02), limit 1.5x
     bad = CliRunner().invoke(app, ["compare", str(village_denied), "--out", str(tmp_path / "b"),
                                    "--methods", "3d", "--set", "pixel_sigma=1"])
     assert bad.exit_code == 2 and "unknown configuration key 'pixel_sigma'" in bad.output  # usage

@@ -60,7 +60,7 @@ def test_run_vo_writes_outputs(village_short: Path, tmp_path: Path) -> None:
     assert set(rep) >= INS_KEYS
     assert rep["method"] == "vo" and rep["vo"]["frames"] >= 25  # 6 s at 5 Hz
     assert rep["nees_blocks"] is None and "nees_blocks_dof" not in rep  # no covariance
-    assert rep["position_rmse_m"] < 1.0
+    assert rep["position_rmse_m"] < 0.084  # measured 0.0558 m (2026-12-02), limit 1.5x
     # --start skips the first seconds for vo as for the filter methods.
     late = _run([str(village_short), "--method", "vo", "--out", str(tmp_path / "vo2"),
                  "--init", "groundtruth", "--start", "3"])
