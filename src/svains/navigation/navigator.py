@@ -277,6 +277,10 @@ class Navigator:
         """Input stages on every released measurement, before the initial state's gate."""
         cfg = self.config
         if kind == GPS:
+            why = self._checks.gps(payload[0])
+            if why is not None:
+                self.queue.drop("gps", t, why)
+                return
             self.starter.add_gps(t, *payload)
             if not (cfg.use_gps and self.rig.gps is not None):
                 return

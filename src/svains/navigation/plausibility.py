@@ -1,8 +1,9 @@
-"""Plausibility of magnetometer and sonar samples before they reach the filter.
+"""Plausibility of magnetometer, GPS and sonar samples before they reach the filter.
 
 A dead magnetometer reads zeros, a hung one repeats its last vector; a sonar without echo may
-report zero or a negative range. Fused, such samples pull the attitude or the height (issue 23:
-a dead magnetometer cost ``ins`` 2.7x its clean error, negative sonar ranges 5.2x, with no
+report zero or a negative range; a frozen GPS receiver repeats its last fix. Fused, such
+samples pull the attitude, the height or the position (issue 23: a dead magnetometer cost
+``ins`` 2.7x its clean error, negative sonar ranges 5.2x, a frozen GPS stopped ``3d``, with no
 warning). Each check returns why a sample is implausible, or None; the Navigator drops it and
 counts it (``report.json`` ``dropped``), warning on the first few.
 """
@@ -19,6 +20,10 @@ F64 = NDArray[np.float64]
 MAG_NORM_FACTOR = 5.0
 # Identical vectors in a row from a sensor with noise: the sensor (or its driver) is stuck.
 MAG_FROZEN_REPEATS = 5
+# A GPS fix whose position equals the previous one to the last digit: a receiver (or driver)
+# repeating its last solution, from the second identical fix in a row on (a real fix's noise
+# never repeats to the last digit; KITTI raw's 37 fixes hold no repeat).
+GPS_FROZEN_REPEATS = 2
 
 
 class SampleChecks:
@@ -30,6 +35,8 @@ class SampleChecks:
         self._mag_ref = mag_reference_norm
         self._mag_last: F64 | None = None
         self._mag_repeats = 0
+        self._gps_last: F64 | None = None
+        self._gps_repeats = 0
 
     def magnetometer(self, m_S: F64) -> str | None:
         """Why the field ``m_S`` (3,) Gauss is implausible, or None."""
@@ -48,6 +55,17 @@ class SampleChecks:
                     "(a dead or saturated sensor)")  # fmt: skip
         if self._mag_repeats >= MAG_FROZEN_REPEATS - 1:
             return f"magnetometer repeats the same vector {self._mag_repeats + 1} times (stuck)"
+        return None
+
+    def gps(self, p_W_G: F64) -> str | None:
+        """Why the fix at ``p_W_G`` (3,) m is implausible (the same position as the fixes
+        before it, ``GPS_FROZEN_REPEATS`` times), or None."""
+        p = np.asarray(p_W_G, dtype=float)
+        same = self._gps_last is not None and np.array_equal(p, self._gps_last)
+        self._gps_repeats = self._gps_repeats + 1 if same else 0
+        self._gps_last = p.copy()
+        if self._gps_repeats >= GPS_FROZEN_REPEATS - 1:
+            return f"GPS repeats the same position {self._gps_repeats + 1} times (frozen fix)"
         return None
 
     @staticmethod
