@@ -74,6 +74,16 @@ def non_negative_finite(value: float | None) -> float | None:
     return value
 
 
+def stereo_rate(value: float | None) -> float | None:
+    """Typer callback: ``None`` or a simulated stereo rate in (0, 20] Hz (a usage error, exit 2,
+    like ``--camera-rate 0``)."""
+    from svains.sim.config import MAX_CAMERA_RATE_HZ
+
+    if value is not None and not (math.isfinite(value) and 0 < value <= MAX_CAMERA_RATE_HZ):
+        raise typer.BadParameter(f"must be in (0, {MAX_CAMERA_RATE_HZ:g}] Hz, got {value}")
+    return value
+
+
 def rotation_choice(value: str | None) -> str | None:
     """Typer callback: ``None`` or one of the vision motion models (a usage error otherwise,
     like ``--method``)."""

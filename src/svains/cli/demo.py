@@ -10,7 +10,13 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from svains.cli._common import check_out_dir, fail, positive_finite, rotation_choice
+from svains.cli._common import (
+    check_out_dir,
+    fail,
+    positive_finite,
+    rotation_choice,
+    stereo_rate,
+)
 from svains.cli.compare import build_options, run_compare
 from svains.errors import SvainsError
 
@@ -22,7 +28,8 @@ def demo(
         float, typer.Option("--duration", help="Flight length [s].", callback=positive_finite)
     ] = 110.0,
     camera_rate: Annotated[
-        float, typer.Option("--camera-rate", help="Stereo rate [Hz].", callback=positive_finite)
+        float, typer.Option("--camera-rate", help="Stereo rate [Hz], up to 20.",
+                            callback=stereo_rate),
     ] = 2.0,
     images: Annotated[
         bool,

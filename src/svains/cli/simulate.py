@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from svains.cli._common import check_out_dir, fail, positive_finite
+from svains.cli._common import check_out_dir, fail, positive_finite, stereo_rate
 from svains.errors import SvainsError
 
 
@@ -30,7 +30,7 @@ def register(app: typer.Typer) -> None:
         )] = None,
         camera_rate: Annotated[float | None, typer.Option(
             "--camera-rate", help="Stereo frame rate in Hz, up to 20 (default 2, as the paper).",
-            callback=positive_finite,
+            callback=stereo_rate,
         )] = None,
         no_images: Annotated[bool, typer.Option(
             "--no-images", help="Skip rendering: write only features0 (true landmark "

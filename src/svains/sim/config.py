@@ -34,6 +34,7 @@ PAPER_ACCEL_STD = math.sqrt(0.5)  # m/s² per sample
 # and kinematics is ~100 MB of arrays; a typo such as 1e9 s must not ask for 150 GB).
 MAX_DURATION_S = 3600.0
 MAX_RATE_HZ = 1000.0
+MAX_CAMERA_RATE_HZ = 20.0  # stereo frames per second the simulator renders or projects
 
 # EuRoC ADIS16448 figures (continuous densities, from the EuRoC imu0/sensor.yaml).
 ADIS_GYRO_DENSITY = 1.6968e-4  # rad/s/√Hz
@@ -201,8 +202,9 @@ class SimConfig:
             raise ConfigError(
                 f"duration_s must be in (0, {MAX_DURATION_S:g}], got {self.duration_s}"
             )
-        if not 0 < self.camera.rate_hz <= 20.0:
-            raise ConfigError(f"camera.rate_hz must be in (0, 20], got {self.camera.rate_hz}")
+        if not 0 < self.camera.rate_hz <= MAX_CAMERA_RATE_HZ:
+            raise ConfigError(f"camera.rate_hz must be in (0, {MAX_CAMERA_RATE_HZ:g}], got "
+                              f"{self.camera.rate_hz}")  # fmt: skip
         for name in ("imu", "gps", "mag", "sonar"):
             if not 0 < getattr(self, name).rate_hz <= MAX_RATE_HZ:
                 raise ConfigError(f"{name}.rate_hz must be in (0, {MAX_RATE_HZ:g}]")
