@@ -19,7 +19,7 @@ from svains.models.imu import stencil_consistent_rate
 from svains.models.state import BA, BG, DBA, DBG, DP, DTH, DV, DW, P, Q, StateLayout, V, W
 from svains.navigation.heading import course_heading_or_none
 from svains.navigation.options import InitOptions
-from svains.navigation.platform_noise import measure_static_noise
+from svains.navigation.platform_noise import block_deviation, block_means, measure_static_noise
 from svains.sensors.types import GpsCalib, GroundTruth, ImuCalib, MagCalib
 
 F64 = NDArray[np.float64]
@@ -151,13 +151,10 @@ def _from_static(dataset: InitData, layout: StateLayout, o: InitOptions) -> Init
     acc = imu.accel_B[sel] @ R_B_S.T
     dt_s = max(1e-9, float(np.median(np.diff(imu.t_ns[sel]))) * 1e-9)
     n_block = max(1, round(o.block_s / dt_s))
-    n_use = (len(acc) // n_block) * n_block
-    if n_use < 2 * n_block:
+    if len(acc) // n_block < 2:
         raise InitialisationError(f"static interval of {o.static_s} s is shorter than two blocks")
-    acc_blocks = acc[:n_use].reshape(-1, n_block, 3).mean(axis=1)
-    gyro_blocks = gyro[:n_use].reshape(-1, n_block, 3).mean(axis=1)
-    acc_dev = float(np.abs(acc_blocks - acc_blocks.mean(axis=0)).max())
-    gyro_dev = float(np.abs(gyro_blocks - gyro_blocks.mean(axis=0)).max())
+    acc_dev = block_deviation(block_means(acc, n_block))
+    gyro_dev = block_deviation(block_means(gyro, n_block))
     if acc_dev > o.max_accel_dev or gyro_dev > o.max_gyro_dev:
         raise InitialisationError(
             f"IMU is not static during the first {o.static_s} s: {o.block_s} s block means "

@@ -57,17 +57,29 @@ class StaticNoise:
                 "tau_s": self.tau_s, "dof": self.dof}  # fmt: skip
 
 
+def block_means(samples: F64, n_block: int) -> F64:
+    """Means (B, k) of the B = N // ``n_block`` consecutive full blocks of ``samples`` (N, k)
+    (a trailing partial block is left out). The IMU at rest is judged on them: the static start
+    (``navigation.init``), the rest test (``navigation.zupt``) and the noise estimate here."""
+    n_blocks = len(samples) // n_block
+    return samples[: n_blocks * n_block].reshape(n_blocks, n_block, -1).mean(axis=1)
+
+
+def block_deviation(means: F64) -> float:
+    """Largest absolute deviation of block means (B, k) from their own mean."""
+    return float(np.abs(means - means.mean(axis=0)).max())
+
+
 def block_density(samples: F64, dt_s: float, tau_s: float) -> tuple[float, int]:
     """White-noise density of ``samples`` (N, 3), ``dt_s`` s apart, from the spread of their
     ``tau_s`` block means (averaged over the axes), and its degrees of freedom; (nan, 0) with
     fewer than two blocks."""
     n_block = max(1, round(tau_s / dt_s))
-    n_blocks = len(samples) // n_block
-    if n_blocks < 2:
+    means = block_means(samples, n_block)
+    if len(means) < 2:
         return float("nan"), 0
-    means = samples[: n_blocks * n_block].reshape(n_blocks, n_block, -1).mean(axis=1)
     var = float(means.var(axis=0, ddof=1).mean())
-    return float(np.sqrt(var * n_block * dt_s)), samples.shape[1] * (n_blocks - 1)
+    return float(np.sqrt(var * n_block * dt_s)), samples.shape[1] * (len(means) - 1)
 
 
 def measure_static_noise(gyro_B: F64, accel_B: F64, dt_s: float, tau_s: float) -> StaticNoise:

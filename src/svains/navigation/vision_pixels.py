@@ -326,23 +326,22 @@ class PixelUpdater:
         wide = n_valid < max(self.options.min_features, 0.5 * idx.size)
         refused = n_kept < max(self.options.min_features,
                                self.options.frame_min_inlier_fraction * n_valid)  # fmt: skip
+        ego = None
         if wide or refused:
             # The prior cannot be linearised over (most features invalid) or disagrees with
             # the frame: its egomotion instead (``vision_egomotion``), gated like any sensor.
-            stats = self._egomotion_update(ctx, tr)
-            if stats is not None and stats.accepted:
-                c.frames_fused += 1
-                c.frames_egomotion += 1
-                return stats
+            ego = self._egomotion_update(ctx, tr)
+            if ego is not None and ego.accepted:
+                return ego
         if n_valid < self.options.min_features:
             c.frames_without_tracks += 1
-            return stats
+            return ego
         if refused:
             # A rejection (the consistency monitor counts it, and a run of them inflates the
             # covariance).
             c.frames_rejected += 1
             c.frames_gated += 1
-            return self._refused(f, n_valid) if stats is None else stats
+            return self._refused(f, n_valid) if ego is None else ego
         kept = np.flatnonzero(f.keep)
         block = _whitened_block(f"vision_{self.method}", kept, X, f.Y, f.z, f.R_blocks, f.G,
                                 f.model(kept))  # fmt: skip
@@ -352,18 +351,16 @@ class PixelUpdater:
             c.features_fused += kept.size
             self._fused = (tr.t_ns, np.sort(tr.track_id[idx[kept]]))
             return stats
-        if not ctx.extra:
+        if not ctx.extra and not wide:  # a wide prior's fallback was tried above, same state
             ego = self._egomotion_update(ctx, tr)
             if ego is not None and ego.accepted:
-                c.frames_fused += 1
-                c.frames_egomotion += 1
                 return ego
         c.frames_rejected += 1
         return stats
 
     def _egomotion_update(self, ctx: FrameContext, tr: StereoTracks) -> UpdateStats | None:
-        """Fuse the frame's egomotion against the clone of the k-1 frame (None: no clone, no
-        egomotion or an unusable covariance)."""
+        """Fuse the frame's egomotion against the clone of the k-1 frame, counted as a fused
+        frame when accepted (None: no clone, no egomotion or an unusable covariance)."""
         if self.clones is None or not self.options.egomotion_fallback:
             return None
         cols = self.clones.columns(ctx.ukf, tr.t_prev_ns)
@@ -375,7 +372,13 @@ class PixelUpdater:
         calib, rig = self.clones.calib(ctx.ukf), self.rig
         block = egomotion_block("vision_egomotion", ego, self.options,
                                 lambda X: predict_egomotion_clone(X, cols, rig, calib))  # fmt: skip
-        return None if block is None else apply_blocks(ctx, [block])
+        if block is None:
+            return None
+        stats = apply_blocks(ctx, [block])
+        if stats.accepted:
+            self.counters.frames_fused += 1
+            self.counters.frames_egomotion += 1
+        return stats
 
     def _refused(self, f: _Features, n_valid: int) -> UpdateStats:
         """The stats of a frame refused by the frame test: the NIS of its valid features

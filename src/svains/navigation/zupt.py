@@ -20,6 +20,7 @@ from svains.models.zero_velocity import body_velocity
 from svains.navigation.base import MeasurementBlock
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.options import InitOptions, ZuptOptions
+from svains.navigation.platform_noise import block_deviation, block_means
 
 
 class StaticTest:
@@ -47,14 +48,13 @@ class StaticTest:
         n_blocks = (k1 - k0) // n_block
         if n_blocks < 2:
             return None
-        k0 = k1 - n_blocks * n_block
-        acc = history.accel_B[k0:k1].reshape(n_blocks, n_block, 3).mean(axis=1)
-        gyro = history.gyro_B[k0:k1].reshape(n_blocks, n_block, 3).mean(axis=1)
-        acc_mean = acc.mean(axis=0)
+        k0 = k1 - n_blocks * n_block  # whole blocks ending at the newest sample
+        acc = block_means(history.accel_B[k0:k1], n_block)
+        gyro = block_means(history.gyro_B[k0:k1], n_block)
         return bool(
-            np.abs(acc - acc_mean).max() <= acc_limit
-            and np.abs(gyro - gyro.mean(axis=0)).max() <= gyro_limit
-            and abs(float(np.linalg.norm(acc_mean)) - self.gravity_mps2) <= acc_limit
+            block_deviation(acc) <= acc_limit
+            and block_deviation(gyro) <= gyro_limit
+            and abs(float(np.linalg.norm(acc.mean(axis=0))) - self.gravity_mps2) <= acc_limit
         )
 
 
