@@ -147,15 +147,15 @@ def test_interrupted_run_leaves_no_report(
     res = runner.invoke(app, ["run", str(dataset), "--out", str(out), "--init", "groundtruth"])
     assert res.exit_code == 130 and not out.exists()
     monkeypatch.undo()
-    # Interrupted while writing (a replaced run): report.json, the completion mark of a run, is
-    # gone, and no temporary file is left.
+    # Interrupted while writing a replacing run: the previous run is left exactly as it was,
+    # and no temporary entry is left beside it or in it.
     res = runner.invoke(app, ["run", str(dataset), "--out", str(out), "--init", "groundtruth",
                               "--duration", "1"])  # fmt: skip
     assert res.exit_code == 0 and (out / "report.json").is_file()
+    before = _digest(out)
     monkeypatch.setattr(writers, "atomic_write_text", boom)
     res = runner.invoke(app, ["run", str(dataset), "--out", str(out), "--init", "groundtruth",
-                              "--duration", "1", "--force"])  # fmt: skip
+                              "--duration", "2", "--force"])  # fmt: skip
     assert res.exit_code == 130
-    assert sorted(p.name for p in out.iterdir()) == [  # the previous run's config.yaml stays
-        "config.yaml", "pose_covariance.csv", "states.csv", "trajectory.tum",
-        "trajectory_euroc.csv", "updates.csv"]
+    assert _digest(out) == before
+    assert not [p for p in (*out.iterdir(), *tmp_path.iterdir()) if p.name.startswith(TMP_PREFIX)]

@@ -1,10 +1,10 @@
 """A campaign's folder: one sub-folder per run, marked finished atomically.
 
 ``DIR/runs/<task_id>/`` holds what ``svains run`` writes (``trajectory.tum``, ``states.csv``,
-``report.json``), ``nees.csv`` (``t_ns,nees`` per logged state) and, written last by an atomic
-rename, ``result.json``: the task's parameters and its status (``ok``, or ``failed`` with the
-error and traceback). A run with an ``ok`` marker is finished and is skipped when the campaign is
-run again; a failed one is run again.
+``report.json``), ``nees.csv`` (``t_ns,nees`` per logged state) and ``result.json``: the task's
+parameters and its status (``ok``, or ``failed`` with the error and traceback). The folder is
+built beside its final place and renamed into it whole. A run with an ``ok`` marker is finished
+and is skipped when the campaign is run again; a failed one is run again.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from svains.batch.spec import Task
 from svains.batch.task import TaskResult
 from svains.navigation.outputs import RunResult
+from svains.outputs import replaced_dir
 from svains.replay.writers import write_outputs
 
 MARKER = "result.json"
@@ -54,23 +55,23 @@ def is_finished(out_dir: Path, task: Task) -> bool:
 
 
 def write_result(out_dir: Path, task: Task, result: TaskResult) -> None:
-    """Write a finished task's files, then its marker (last, atomically)."""
-    d = run_dir(out_dir, task)
-    d.mkdir(parents=True, exist_ok=True)
+    """Write a finished task's files and its marker into a staging folder that then replaces
+    the run's folder whole (a re-run task never mixes its files with the previous attempt's)."""
     marker: dict[str, Any] = {"task_id": task.task_id, "status": result.status,
                               "replicate": task.replicate, **task.params()}  # fmt: skip
-    if result.status == "ok":
-        assert result.report is not None and result.t_ns is not None  # set for status ok
-        assert result.x is not None and result.std is not None
-        run = RunResult(result.t_ns, result.x, result.std, np.zeros((0, 9, 9)), result.report)
-        write_outputs(d, run)
-        if result.nees is not None and result.nees_t_ns is not None:
-            rows = "".join(f"{int(t)},{v:.9g}\n" for t, v in zip(result.nees_t_ns, result.nees,
-                                                                 strict=True))  # fmt: skip
-            write_atomic(d / "nees.csv", "t_ns,nees\n" + rows)
-    else:
-        marker.update(error=result.error, traceback=result.traceback)
-    write_atomic(d / MARKER, json.dumps(marker, indent=2) + "\n")
+    with replaced_dir(run_dir(out_dir, task)) as d:
+        if result.status == "ok":
+            assert result.report is not None and result.t_ns is not None  # set for status ok
+            assert result.x is not None and result.std is not None
+            run = RunResult(result.t_ns, result.x, result.std, np.zeros((0, 9, 9)), result.report)
+            write_outputs(d, run)
+            if result.nees is not None and result.nees_t_ns is not None:
+                rows = "".join(f"{int(t)},{v:.9g}\n" for t, v in zip(
+                    result.nees_t_ns, result.nees, strict=True))  # fmt: skip
+                write_atomic(d / "nees.csv", "t_ns,nees\n" + rows)
+        else:
+            marker.update(error=result.error, traceback=result.traceback)
+        write_atomic(d / MARKER, json.dumps(marker, indent=2) + "\n")
 
 
 def read_report(out_dir: Path, task: Task) -> dict[str, Any]:

@@ -20,6 +20,7 @@ import logging
 import math
 import os
 import sys
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
@@ -28,6 +29,7 @@ import typer
 from typer.core import TyperGroup
 
 from svains.errors import SvainsError
+from svains.outputs import TMP_PREFIX, holds_working_dir
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 1
@@ -104,9 +106,24 @@ def _nearest_existing(path: Path) -> Path:
     return p
 
 
-def check_out_dir(out: Path, force: bool, option: str = "--out") -> None:
+def _probe_writable(folder: Path, out: Path, option: str) -> None:
+    """Create and remove a temporary entry in ``folder`` (creating it): the permission bits
+    alone do not tell (root, read-only mounts, /proc)."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        os.rmdir(tempfile.mkdtemp(prefix=TMP_PREFIX, dir=folder))
+    except OSError as exc:
+        usage_error(f"{out} cannot be written: {exc.strerror or exc} ({folder})", option)
+
+
+def check_out_dir(
+    out: Path, force: bool, option: str = "--out", inputs: Sequence[Path] = (),
+    replaced_whole: bool = True,
+) -> None:
     """Refuse an output folder before any computation: usage error (exit 2) when ``out`` is a
-    file, cannot be created or written, or is not empty without ``force``."""
+    file, cannot be created or written, or is not empty without ``force``; and, for an output
+    that replaces its folder whole (``replaced_whole``), when it is the working folder (or holds
+    it) or holds one of ``inputs``."""
     if out.exists() and not out.is_dir():
         usage_error(f"{out} exists and is not a folder", option)
     base = _nearest_existing(out)
@@ -115,7 +132,17 @@ def check_out_dir(out: Path, force: bool, option: str = "--out") -> None:
     if not os.access(base, os.W_OK | os.X_OK):
         usage_error(f"{out} is not writable ({base})", option)
     if out.is_dir() and any(out.iterdir()) and not force:
-        usage_error(f"{out} is not empty; use --force to write into it", option)
+        usage_error(f"{out} is not empty; use --force to replace it", option)
+    if replaced_whole and holds_working_dir(out):
+        usage_error(f"{out} is the current folder or holds it; the output replaces its folder "
+                    "whole, so choose a new one", option)  # fmt: skip
+    resolved = out.resolve()
+    for path in inputs if replaced_whole else ():
+        p = Path(path).resolve()
+        if p.exists() and (p == resolved or resolved in p.parents):
+            usage_error(f"{out} holds the input {path}; the output replaces its folder whole, "
+                        "so choose another one", option)  # fmt: skip
+    _probe_writable(out.absolute().parent, out, option)
 
 
 def check_out_file(out: Path | None, force: bool, option: str) -> None:
@@ -132,6 +159,7 @@ def check_out_file(out: Path | None, force: bool, option: str) -> None:
         usage_error(f"{out} is not writable ({base})", option)
     if out.exists() and not force:
         usage_error(f"{out} exists; use --force to replace it", option)
+    _probe_writable(out.absolute().parent, out, option)
 
 
 # --- the command group -----------------------------------------------------------------------

@@ -38,7 +38,8 @@ def run_compare(
 ) -> dict[str, Any]:
     """Load, run each method with a progress bar, write compare.json/.md and the figures."""
     from svains.datasets.loader import load_dataset
-    from svains.evaluation.compare import run_methods, write_comparison
+    from svains.evaluation.compare import compare_owned, run_methods, write_comparison
+    from svains.outputs import replaced_dir
 
     ds = load_dataset(dataset, calib=options.replay.calib, imu_calib=options.replay.imu_calib)
     if synthetic_features_hz is not None:
@@ -46,17 +47,22 @@ def run_compare(
 
         ds = with_synthetic_features(ds, rate_hz=synthetic_features_hz)
         console.print(f"simulated features0 at {synthetic_features_hz:g} Hz along the ground truth")
-    with Progress(console=console, transient=True) as bar:
-        tasks = {m: bar.add_task(m, total=1.0) for m in methods}
-        results = run_methods(
-            ds, methods, options, out, lambda m, f: bar.update(tasks[m], completed=f)
-        )
-    reports = write_comparison(out, results, f"svains compare: {ds.name}")
-    if figures:
-        from svains.evaluation.figures import comparison_figures
+    # Built in a staging folder that replaces OUT whole at the end: an interrupted comparison
+    # leaves the previous one untouched, never a mix of old and new method folders.
+    with replaced_dir(out, compare_owned) as stage:
+        with Progress(console=console, transient=True) as bar:
+            tasks = {m: bar.add_task(m, total=1.0) for m in methods}
+            results = run_methods(
+                ds, methods, options, stage, lambda m, f: bar.update(tasks[m], completed=f)
+            )
+        reports = write_comparison(stage, results, f"svains compare: {ds.name}")
+        figure_names = []
+        if figures:
+            from svains.evaluation.figures import comparison_figures
 
-        for p in comparison_figures(ds, results, out):
-            console.print(f"figure: {p}")
+            figure_names = [p.name for p in comparison_figures(ds, results, stage)]
+    for name in figure_names:
+        console.print(f"figure: {out / name}")
     console.print((out / "compare.md").read_text(encoding="utf-8"), markup=False)
     failed = [f"{m} ({one_line(r['error'])})" for m, r in reports.items()
               if isinstance(r, dict) and r.get("error")]  # fmt: skip
@@ -113,7 +119,8 @@ def compare(
     ] = None,
     imu_calib: Annotated[Path | None, typer.Option("--imu-calib", help="Kalibr imu.yaml.")] = None,
     force: Annotated[
-        bool, typer.Option("--force", help="Write into a non-empty --out (replacing files).")
+        bool, typer.Option("--force", help="Replace a non-empty --out whole (at the end, only "
+                           "if the comparison was written).")
     ] = False,
 ) -> None:
     """Run all methods on DATASET; write DIR/compare.md, DIR/compare.json and the figures."""
@@ -124,7 +131,7 @@ def compare(
     if unknown:
         raise typer.BadParameter(f"--methods: unknown {', '.join(map(repr, unknown))}; "
                                  f"known: {', '.join(METHODS)}")  # fmt: skip
-    _common.check_out_dir(out, force)
+    _common.check_out_dir(out, force, inputs=[dataset])
     try:
         source = {None: "auto", True: "features", False: "images"}[features]
         settings = [*([f"vision.rotation={rotation}"] if rotation else []), *(setting or [])]

@@ -55,7 +55,7 @@ def demo(
     simulated into OUT/dataset, then ``svains compare`` into OUT/compare."""
     from svains.sim import SimConfig, simulate
 
-    check_out_dir(out, force)
+    check_out_dir(out, force, replaced_whole=False)
     console = Console()
     try:
         cfg = SimConfig()

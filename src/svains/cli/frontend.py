@@ -27,7 +27,8 @@ def _frontend(
         int, typer.Option("--figure-frame", help="Frame index of fig. 8 (-1: middle).")
     ] = -1,
     force: Annotated[
-        bool, typer.Option("--force", help="Write into a non-empty --out (replacing files).")
+        bool, typer.Option("--force", help="Replace a non-empty --out whole (at the end, only "
+                           "if the run finished).")
     ] = False,
 ) -> None:
     """Track features, match stereo, estimate egomotion per frame; write frames.csv, report.json."""
@@ -35,9 +36,9 @@ def _frontend(
     from svains.frontend.pipeline import FrontendOptions
     from svains.frontend.run import frame_rows, run_frontend, summarize
     from svains.frontend.stereo import StereoMatchOptions
-    from svains.outputs import atomic_write_text
+    from svains.outputs import atomic_write_text, replaced_dir
 
-    check_out_dir(out, force)
+    check_out_dir(out, force, inputs=[dataset])
     console = Console()
     try:
         ds = load_dataset(dataset)
@@ -50,38 +51,40 @@ def _frontend(
         opts = FrontendOptions(
             stereo=StereoMatchOptions(method=dense_method if dense else "sparse")
         )
-        n = int(pairs[0].size)
-        pick = figure_frame if figure_frame >= 0 else n // 2
-        drawn: list[Path] = []
+        # Written in a staging folder that replaces OUT whole once the report is written.
+        owned = ("frames.csv", "report.json", "figure8_features_depth.png").__contains__
+        with replaced_dir(out, owned) as stage:
+            n = int(pairs[0].size)
+            pick = figure_frame if figure_frame >= 0 else n // 2
+            drawn: list[Path] = []
 
-        def on_frame(i: int, tracks, fe) -> None:  # type: ignore[no-untyped-def]
-            if figures and i == pick and tracks is not None and fe.last_rectified is not None:
-                from svains.evaluation.figure_frontend import figure_features_depth
+            def on_frame(i: int, tracks, fe) -> None:  # type: ignore[no-untyped-def]
+                if figures and i == pick and tracks is not None and fe.last_rectified is not None:
+                    from svains.evaluation.figure_frontend import figure_features_depth
 
-                drawn.append(figure_features_depth(
-                    fe.last_rectified[0], tracks, fe.rig, out / "figure8_features_depth.png",
-                    title=f"{ds.name} frame {i}: {int(tracks.inlier.sum())} inliers, "
-                    f"{int((~tracks.inlier).sum())} outliers (x)",
-                ))  # fmt: skip
+                    drawn.append(figure_features_depth(
+                        fe.last_rectified[0], tracks, fe.rig, stage / "figure8_features_depth.png",
+                        title=f"{ds.name} frame {i}: {int(tracks.inlier.sum())} inliers, "
+                        f"{int((~tracks.inlier).sum())} outliers (x)",
+                    ))  # fmt: skip
 
-        run = run_frontend(ds, pairs, opts, on_frame=on_frame)
-        out.mkdir(parents=True, exist_ok=True)
-        rows = frame_rows(run)
-        text = io.StringIO(newline="")
-        w = csv.DictWriter(text, fieldnames=list(rows[0].keys()) if rows else ["index"])
-        w.writeheader()
-        w.writerows(rows)
-        atomic_write_text(out / "frames.csv", text.getvalue())
-        report = summarize(run)
-        report["dataset"] = str(dataset)
-        report["stereo_method"] = opts.stereo.method
-        # report.json last: its presence says the output is complete
-        atomic_write_text(out / "report.json", json.dumps(report, indent=2) + "\n")
+            run = run_frontend(ds, pairs, opts, on_frame=on_frame)
+            rows = frame_rows(run)
+            text = io.StringIO(newline="")
+            w = csv.DictWriter(text, fieldnames=list(rows[0].keys()) if rows else ["index"])
+            w.writeheader()
+            w.writerows(rows)
+            atomic_write_text(stage / "frames.csv", text.getvalue())
+            report = summarize(run)
+            report["dataset"] = str(dataset)
+            report["stereo_method"] = opts.stereo.method
+            # report.json last: its presence says the output is complete
+            atomic_write_text(stage / "report.json", json.dumps(report, indent=2) + "\n")
     except SvainsError as exc:
         fail(exc)
     console.print(json.dumps(report, indent=2))
     for p in drawn:
-        console.print(f"figure: {p}")
+        console.print(f"figure: {out / p.name}")
 
 
 def register(app: typer.Typer) -> None:

@@ -101,7 +101,8 @@ def run(
         bool, typer.Option("--rerun-spawn", help="After the run, open the rerun viewer.")
     ] = False,
     force: Annotated[
-        bool, typer.Option("--force", help="Write into a non-empty --out (replacing files).")
+        bool, typer.Option("--force", help="Replace a non-empty --out whole (at the end, only "
+                           "if the run finished).")
     ] = False,
     allow_degraded: Annotated[
         bool,
@@ -122,7 +123,7 @@ def run(
     from svains.evaluation.run import run_method
     from svains.replay import resolve_config
 
-    check_out_dir(out, force)
+    check_out_dir(out, force, inputs=[dataset])
     console = Console()
     for name, value, known in (("--model", model, ("paper", "biased")),
                                ("--method", method, ("ins", "vo", "lc", "tc", "3d")),

@@ -63,7 +63,7 @@ def register(app: typer.Typer) -> None:
         from svains.sim.config import ImuConfig, SimConfig
         from svains.sim.simulate import simulate
 
-        check_out_dir(out, force)
+        check_out_dir(out, force, replaced_whole=False)
         try:
             cfg = SimConfig.from_yaml(config) if config is not None else SimConfig()
             if trajectory is not None:

@@ -27,10 +27,10 @@ from svains.datasets.types import Dataset, GroundTruth
 from svains.errors import AlignmentError, ConfigError
 from svains.evaluation.extrinsics import write_estimated_camchain
 from svains.evaluation.metrics import AteResult, ate
-from svains.evaluation.run import run_accuracy
+from svains.evaluation.run import run_accuracy, run_owned
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import RunResult
-from svains.outputs import atomic_write_text
+from svains.outputs import TMP_PREFIX, atomic_write_text, replaced_dir
 from svains.replay import replay, resolve_config
 from svains.replay.groundtruth import interpolate_groundtruth
 from svains.replay.writers import write_outputs
@@ -83,8 +83,9 @@ def ate_alignment(method: str, gps_used: bool, world_frame: str = "groundtruth")
 
 
 def align_to_groundtruth(result: RunResult, ds: Dataset, align: str) -> AteResult | None:
-    """ATE of a run (through evo, :func:`svains.evaluation.metrics.ate`) against the ground truth
-    interpolated at the run's own timestamps, so association is exact; ``None`` if < 3 poses."""
+    """ATE of a run (:func:`svains.evaluation.metrics.ate`, equal to evo's) against the ground
+    truth interpolated at the run's own timestamps, so association is exact; ``None`` if < 3
+    poses."""
     gt = ds.groundtruth
     if gt is None:
         return None
@@ -144,6 +145,13 @@ def trajectory_metrics(
     return out
 
 
+def compare_owned(name: str) -> bool:
+    """Whether a comparison folder's entry ``name`` is the comparison's (its tables, method
+    folders, figures, temporary files): a replacing comparison drops it, and keeps the rest."""
+    return (name in ("compare.md", "compare.json") or name in METHODS
+            or (name.startswith("fig") and name.endswith(".png")) or name.startswith(TMP_PREFIX))
+
+
 def run_methods(
     ds: Dataset,
     methods: Sequence[str] = METHODS,
@@ -178,8 +186,9 @@ def run_methods(
         res.report.update(trajectory_metrics(res, ds, m, options.use_gps))
         log.info("%s done in %.1f s", m, time.perf_counter() - t0)
         if sub is not None:
-            write_outputs(sub, res)
-            write_estimated_camchain(sub, ds, res.report)
+            with replaced_dir(sub, run_owned) as stage:  # each method's folder appears whole
+                write_outputs(stage, res)
+                write_estimated_camchain(stage, ds, res.report)
         results[m] = res
     return results
 

@@ -115,7 +115,6 @@ def plot_measurements(rec: RunRecord, path: Path) -> PlotFile:
     return PlotFile(_save(fig, path), tuple(titles))
 
 
-PLOT_NAMES = ("errors.png", "nees.png", "measurements.png")  # what ``plot_run`` may write
 
 
 def plot_run(run_dir: Path | str, dataset: Dataset | None, out_dir: Path | str) -> list[PlotFile]:

@@ -18,12 +18,14 @@ from numpy.typing import NDArray
 
 from svains.datasets.types import Dataset
 from svains.evaluation.accuracy import accuracy_report, gps_outage_report, state_errors
-from svains.evaluation.extrinsics import write_estimated_camchain
+from svains.evaluation.extrinsics import CAMCHAIN_NAME, write_estimated_camchain
 from svains.evaluation.reference_tilt import estimate_reference_gravity, leveling_rotation
+from svains.evaluation.run_record import PLOT_NAMES
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import RunResult
+from svains.outputs import TMP_PREFIX, replaced_dir
 from svains.replay import replay, resolve_config
-from svains.replay.writers import write_outputs
+from svains.replay.writers import RUN_FILES, write_outputs
 
 
 def errors_alignment_for(result: RunResult) -> str:
@@ -121,6 +123,14 @@ def nees_series(
     return None if errs is None else (errs.t_ns, errs.nees)
 
 
+def run_owned(name: str) -> bool:
+    """Whether a run folder's entry ``name`` belongs to the run (its outputs, its figures, an
+    interrupted write's temporary file), so that a replacing run drops it; anything else in
+    the folder (a user's notes) is kept."""
+    return name in RUN_FILES or name in PLOT_NAMES or name == CAMCHAIN_NAME or (
+        name.startswith(TMP_PREFIX))
+
+
 def run_method(
     dataset: Dataset,
     method: str | None = None,
@@ -130,11 +140,13 @@ def run_method(
     config_text: str | None = None,
 ) -> RunResult:
     """Replay ``dataset`` through the estimator with ``options`` (a ``RunConfig``; ``method``,
-    when given, replaces ``options.method``), add the accuracy keys to the report; write
-    ``trajectory.tum``, ``states.csv`` and ``report.json`` (and the other output files, and
-    ``camchain_estimated.yaml`` when the run estimated the camera rotation) into ``out_dir`` if
-    given, with ``config_text`` as ``config.yaml`` when given. The configuration
-    is first resolved against the data set (``svains.replay.resolve_config``)."""
+    when given, replaces ``options.method``), add the accuracy keys to the report.
+
+    With ``out_dir``, write ``trajectory.tum``, ``states.csv``, ``report.json``, the other output
+    files, ``config.yaml`` from ``config_text`` when given, and ``camchain_estimated.yaml`` when
+    the run estimated the camera rotation: the folder is replaced whole at the end, or left
+    untouched on a failure. The configuration is first resolved against the data set
+    (``svains.replay.resolve_config``)."""
     config = options or RunConfig()
     if method is not None and method != config.method:
         config = replace(config, method=method)  # type: ignore[arg-type]
@@ -142,6 +154,8 @@ def run_method(
     result = replay(dataset, config, progress)
     result.report.update(run_accuracy(result, dataset))
     if out_dir is not None:
-        write_outputs(Path(out_dir), result, config_text=config_text)
-        write_estimated_camchain(Path(out_dir), dataset, result.report)
+        # The folder is replaced whole at the end: a previous run's files never sit beside these.
+        with replaced_dir(out_dir, run_owned) as stage:
+            write_outputs(stage, result, config_text=config_text)
+            write_estimated_camchain(stage, dataset, result.report)
     return result

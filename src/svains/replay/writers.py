@@ -19,6 +19,10 @@ from svains.outputs import atomic_path, atomic_write_text
 if TYPE_CHECKING:
     from svains.navigation.outputs import RunResult
 
+# Every file ``write_outputs`` may write (a replaced run folder drops all of them).
+RUN_FILES = ("trajectory.tum", "trajectory_euroc.csv", "pose_covariance.csv", "states.csv",
+             "updates.csv", "tracks.csv", "config.yaml", "report.json")  # fmt: skip
+
 # EuRoC's state_groundtruth_estimate0/data.csv header (evo's euroc reader takes this layout).
 EUROC_HEADER = (
     "#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], "

@@ -1,0 +1,181 @@
+"""Outputs are replaced whole or not at all, a failure names the output path, and an output
+that cannot be written is refused before any work (issue 23)."""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from svains.cli.main import app
+from svains.errors import OutputError
+from svains.outputs import TMP_PREFIX, atomic_path, replaced_dir
+from svains.sim import SimConfig, simulate
+
+runner = CliRunner()
+ENOSPC = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    cfg = SimConfig(duration_s=2.0, seed=3)
+    cfg.camera.render_images = False
+    return simulate(cfg, tmp_path_factory.mktemp("whole") / "ds")
+
+
+def _digest(root: Path) -> str:
+    h = hashlib.sha256()
+    for p in sorted(root.rglob("*")):
+        if p.is_file():
+            h.update(p.relative_to(root).as_posix().encode() + p.read_bytes())
+    return h.hexdigest()
+
+
+def _no_temporaries(*folders: Path) -> bool:
+    return not [p for f in folders if f.is_dir() for p in f.rglob(f"{TMP_PREFIX}*")]
+
+
+def _run(dataset: Path, out: Path, *extra: str) -> list[str]:
+    return ["run", str(dataset), "--out", str(out), "--init", "groundtruth", "--duration", "1",
+            *extra]  # fmt: skip
+
+
+def _full_disk_in_euroc_writer(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The disk fills while the second file of a run is written (as a write() would fail)."""
+    import svains.replay.writers as writers
+
+    def full(path: Path, result: object) -> None:
+        with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+            fh.write("#timestamp\n")
+            raise ENOSPC
+
+    monkeypatch.setattr(writers, "write_euroc_csv", full)
+
+
+def test_replaced_dir_swaps_whole_and_keeps_what_the_output_does_not_own(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
+    for name in ("report.json", "stale.csv", "notes.txt"):
+        (out / name).write_text("old\n")
+    with replaced_dir(out, lambda n: n != "notes.txt") as stage:
+        (stage / "report.json").write_text("new\n")
+        assert (out / "report.json").read_text() == "old\n"  # nothing visible before the end
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt", "report.json"]
+    assert (out / "report.json").read_text() == "new\n" and _no_temporaries(tmp_path)
+
+
+def test_replaced_dir_failure_names_the_final_path_and_leaves_the_old_folder(
+    tmp_path: Path,
+) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "report.json").write_text("old\n")
+    with pytest.raises(OutputError) as info, replaced_dir(out) as stage:  # noqa: SIM117
+        with atomic_path(stage / "states.csv") as tmp:  # the staging folder is known only here
+            tmp.write_text("half")
+            raise ENOSPC
+    assert str(info.value) == f"cannot write {out / 'states.csv'}: No space left on device " \
+        "[Errno 28]"
+    assert TMP_PREFIX not in str(info.value)
+    assert [p.name for p in out.iterdir()] == ["report.json"] and _no_temporaries(tmp_path)
+
+
+def test_full_disk_with_force_leaves_the_previous_run_whole(
+    dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "run"
+    assert runner.invoke(app, _run(dataset, out)).exit_code == 0
+    rows_1s = len((out / "trajectory.tum").read_text().splitlines())
+    (out / "errors.png").write_bytes(b"a figure of this run")
+    before = _digest(out)
+    _full_disk_in_euroc_writer(monkeypatch)
+    res = runner.invoke(app, _run(dataset, out, "--duration", "2", "--force"))
+    assert res.exit_code == 1
+    assert res.stderr.strip() == (f"error: cannot write {out / 'trajectory_euroc.csv'}: "
+                                  "No space left on device [Errno 28]")  # fmt: skip
+    assert _digest(out) == before and _no_temporaries(tmp_path)
+    # With room again, the replacing run drops the old run's files, its figure included.
+    monkeypatch.undo()
+    res = runner.invoke(app, _run(dataset, out, "--duration", "2", "--force"))
+    assert res.exit_code == 0, res.stderr
+    assert not (out / "errors.png").exists()
+    assert len((out / "trajectory.tum").read_text().splitlines()) > 1.5 * rows_1s
+    assert json.loads((out / "report.json").read_text())["method"]
+
+
+def test_full_disk_without_force_leaves_no_folder(
+    dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "new" / "run"
+    _full_disk_in_euroc_writer(monkeypatch)
+    res = runner.invoke(app, _run(dataset, out))
+    assert res.exit_code == 1 and len(res.stderr.strip().splitlines()) == 1
+    assert f"cannot write {out / 'trajectory_euroc.csv'}" in res.stderr
+    assert not out.exists() and _no_temporaries(tmp_path)
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux /proc")
+def test_an_unwritable_out_is_refused_before_any_work(
+    dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def never(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the run started")
+
+    monkeypatch.setattr("svains.evaluation.run.replay", never)
+    res = runner.invoke(app, _run(dataset, Path("/proc/svains-out")))
+    assert res.exit_code == 2 and "/proc/svains-out cannot be written" in res.stderr
+    traj = tmp_path / "t.tum"
+    traj.write_text("0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n")
+    res = runner.invoke(app, ["evaluate", str(traj), str(traj), "--json", "/proc/svains.json"])
+    assert res.exit_code == 2 and "/proc/svains.json cannot be written" in res.stderr
+    assert TMP_PREFIX not in res.stderr
+
+
+def test_an_out_that_would_delete_the_input_or_the_working_folder_is_refused(
+    dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    res = runner.invoke(app, _run(dataset, dataset.parent, "--force"))
+    assert res.exit_code == 2 and f"holds the input {dataset}" in res.stderr
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    res = runner.invoke(app, _run(dataset, Path(".")))
+    assert res.exit_code == 2 and "is the current folder or holds it" in res.stderr
+    assert list(work.iterdir()) == []
+
+
+def test_interrupted_compare_leaves_the_previous_comparison_whole(
+    dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "cmp"
+    args = ["compare", str(dataset), "--out", str(out), "--methods", "ins,3d", "--duration", "1",
+            "--no-figures"]  # fmt: skip
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.stderr
+    (out / "notes.txt").write_text("mine\n")
+    before = _digest(out)
+    import svains.evaluation.compare as compare
+
+    real = compare.replay
+    calls: list[str] = []
+
+    def second_interrupted(ds: object, config: object, progress: object) -> object:
+        calls.append("x")
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(ds, config, progress)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(compare, "replay", second_interrupted)
+    res = runner.invoke(app, [*args, "--force", "--methods", "ins,lc"])
+    assert res.exit_code == 130 and calls == ["x", "x"]
+    assert _digest(out) == before and _no_temporaries(tmp_path)
+    monkeypatch.undo()
+    res = runner.invoke(app, [*args, "--force", "--methods", "ins,lc"])
+    assert res.exit_code == 0, res.stderr
+    assert sorted(p.name for p in out.iterdir()) == [
+        "compare.json", "compare.md", "ins", "lc", "notes.txt"]  # 3d of the old one is gone
