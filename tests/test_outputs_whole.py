@@ -67,6 +67,7 @@ def test_replaced_dir_swaps_whole_and_keeps_what_the_output_does_not_own(tmp_pat
         assert (out / "report.json").read_text() == "old\n"  # nothing visible before the end
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt", "report.json"]
     assert (out / "report.json").read_text() == "new\n" and _no_temporaries(tmp_path)
+    assert out.stat().st_mode & 0o777 == 0o755  # an ordinary folder, not mkdtemp's 0700
 
 
 def test_replaced_dir_failure_names_the_final_path_and_leaves_the_old_folder(

@@ -74,6 +74,7 @@ def staging_dir(parent: Path | str) -> Iterator[Path]:
     base = Path(parent)
     base.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(prefix=TMP_PREFIX, dir=base))
+    os.chmod(stage, 0o755)  # mkdtemp creates 0700; an output folder is an ordinary folder
     try:
         yield stage
     finally:
