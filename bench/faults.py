@@ -1,17 +1,27 @@
-"""IMU faults injected into a simulated 30 s GPS-aided flight: does the filter survive?
+"""Sensor faults injected into a simulated 30 s GPS-aided flight: does the filter survive?
 
 Plain script (not a timed test). It simulates a 30 s village flight (GPS at 1 Hz without
 outages, magnetometer, sonar, features0), writes one modified copy of the data set per fault
-class of issue 12 (and a frozen output: the sample at the fault repeated for 1 s; bias steps
-of +0.5 m/s² on the x accelerometer and +0.05 rad/s on the z gyro, for the rest of the run)
-into a temporary folder, runs ``ins`` and ``3d`` on each through the public library entry
+class into a temporary folder: the IMU classes of issue 12 (and a frozen output: the sample at
+the fault repeated for 1 s; bias steps of +0.5 m/s² on the x accelerometer and +0.05 rad/s on
+the z gyro, for the rest of the run); the classes of issue 23: a GPS step (every fix from the
+fault on offset by 50 m east, to the end), a frozen GPS (the fix at the fault repeated for
+10 s), a dead magnetometer (zeros from the fault on), a bad sonar (5 s of negative ranges,
+every third one a 40 m false echo instead), and all at once (each IMU class in turn, 1.5 s
+apart, the 5 s gap among them, with the frozen GPS, the dead magnetometer and the bad sonar;
+not the persistent GPS step, which has its own row). "GPS lost" (no fix from the fault on) is
+the reference the ``ins`` run under the GPS step is held to: with no other sensor to
+contradict a step, its error must be no worse than without GPS; "GPS lost 10 s" is the frozen
+GPS's (its repeated fixes carry nothing).
+
+It runs ``ins`` and ``3d`` on each through the public library entry
 (``svains.evaluation.run.run_method``, started from the ground truth) and prints:
 
 - the position RMSE against ground truth, and its ratio to the clean run's (targets: ins <= 2x,
   3d <= 1.5x);
 - the measurements rejected by the gates, and the filter's recoveries (``recovery.resets`` /
   ``recovery.inflations`` in ``report.json``, "-" when ``faults.consistency`` is off);
-- the mean NEES (9 dof) after the fault (target <= 10), and its position, velocity and attitude
+- the mean NEES (9 dof) after the fault (target <= 12), and its position, velocity and attitude
   blocks (3 dof each, each against its own 3x3 covariance: consistent blocks average 3);
 - how long after the fault's end GPS fixes are accepted again (target <= 5 s).
 
@@ -44,7 +54,7 @@ import numpy as np
 
 from svains.datasets import load_dataset
 from svains.datasets.asl_writer import AslWriter
-from svains.datasets.types import Dataset, ImuStream
+from svains.datasets.types import Dataset, GpsStream, ImuStream, MagStream, SonarStream
 from svains.evaluation.run import run_method
 from svains.navigation.config_io import parse_setting, with_settings
 from svains.navigation.imu_guard import ImuGuard
@@ -57,13 +67,42 @@ G0 = 9.80665
 S = 1_000_000_000
 
 
+@dataclass
+class Streams:
+    """The data set's streams a fault may edit in place: IMU (``keep`` marks the samples
+    written back), GPS fixes, magnetometer and sonar samples (empty arrays when absent)."""
+
+    t: np.ndarray
+    g: np.ndarray
+    a: np.ndarray
+    keep: np.ndarray
+    gps_t: np.ndarray
+    gps_p: np.ndarray
+    mag_t: np.ndarray
+    mag_m: np.ndarray
+    sonar_t: np.ndarray
+    sonar_r: np.ndarray
+
+
 @dataclass(frozen=True)
 class Fault:
-    """A fault class: its name, how long it lasts (s) and how it edits (t_ns, gyro, accel)."""
+    """A fault class: its name, how long it lasts (s; the figures "after" start at its end)
+    and how it edits the streams from the fault time ``at_ns``."""
 
     name: str
     duration_s: float
-    inject: Callable[[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray]  # -> kept mask
+    inject: Callable[[Streams, int], None]
+
+
+def _imu(edit: Callable[[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray]
+         ) -> Callable[[Streams, int], None]:  # fmt: skip
+    """An IMU edit of (t, gyro, accel, k) returning the kept mask, as a ``Fault.inject``."""
+
+    def inject(st: Streams, at_ns: int) -> None:
+        k = int(np.searchsorted(st.t, at_ns))
+        st.keep &= edit(st.t, st.g, st.a, k)
+
+    return inject
 
 
 def _spike_accel(t: np.ndarray, g: np.ndarray, a: np.ndarray, k: int) -> np.ndarray:
@@ -110,24 +149,82 @@ def _gap(gap_s: float) -> Callable[[np.ndarray, np.ndarray, np.ndarray, int], np
     return inject
 
 
-FAULTS = (
-    Fault("clean", 0.0, lambda t, g, a, k: np.ones(t.size, bool)),
-    Fault("accel 1000 m/s² x1", 0.0, _spike_accel),
-    Fault("accel 16 g x3", 0.03, _saturate),
-    Fault("gyro 35 rad/s x1", 0.0, _spike_gyro),
-    Fault("zeros 1 s", 1.0, _zeros),
-    Fault("frozen 1 s", 1.0, _frozen),
-    Fault("gap 5 s", 5.0, _gap(5.0)),
-    Fault("accel step +0.5 m/s²", 0.0, _accel_step),
-    Fault("gyro step +0.05 rad/s", 0.0, _gyro_step),
+def _gps_step(st: Streams, at_ns: int) -> None:
+    st.gps_p[st.gps_t >= at_ns, 0] += 50.0  # 50 m east from the fault to the end
+
+
+def _gps_lost(st: Streams, at_ns: int) -> None:
+    st.gps_t[st.gps_t >= at_ns] = -1  # marked for removal (``faulty_copy`` drops them)
+
+
+def _gps_lost_10s(st: Streams, at_ns: int) -> None:
+    st.gps_t[(st.gps_t >= at_ns) & (st.gps_t < at_ns + 10 * S)] = -1
+
+
+def _gps_frozen(st: Streams, at_ns: int) -> None:
+    sel = (st.gps_t >= at_ns) & (st.gps_t < at_ns + 10 * S)
+    if sel.any():
+        st.gps_p[sel] = st.gps_p[np.flatnonzero(sel)[0]]
+
+
+def _mag_dead(st: Streams, at_ns: int) -> None:
+    st.mag_m[st.mag_t >= at_ns] = 0.0
+
+
+def _sonar_bad(st: Streams, at_ns: int) -> None:
+    sel = np.flatnonzero((st.sonar_t >= at_ns) & (st.sonar_t < at_ns + 5 * S))
+    st.sonar_r[sel] = -1.0
+    st.sonar_r[sel[::3]] = 40.0  # a false echo far beyond the ground
+
+
+IMU_FAULTS = (
+    Fault("accel 1000 m/s² x1", 0.0, _imu(_spike_accel)),
+    Fault("accel 16 g x3", 0.03, _imu(_saturate)),
+    Fault("gyro 35 rad/s x1", 0.0, _imu(_spike_gyro)),
+    Fault("zeros 1 s", 1.0, _imu(_zeros)),
+    Fault("frozen 1 s", 1.0, _imu(_frozen)),
+    Fault("gap 5 s", 5.0, _imu(_gap(5.0))),
+    Fault("accel step +0.5 m/s²", 0.0, _imu(_accel_step)),
+    Fault("gyro step +0.05 rad/s", 0.0, _imu(_gyro_step)),
 )
+OTHER_FAULTS = (
+    Fault("GPS step 50 m", 0.0, _gps_step),
+    Fault("GPS lost (reference)", 0.0, _gps_lost),
+    Fault("GPS frozen 10 s", 10.0, _gps_frozen),
+    Fault("GPS lost 10 s (reference)", 10.0, _gps_lost_10s),
+    Fault("mag dead", 0.0, _mag_dead),
+    Fault("sonar bad 5 s", 5.0, _sonar_bad),
+)
+ALL_SPACING_S = 1.5  # s between the IMU classes of "all at once"
+
+
+def all_at_once(imu_faults: tuple[Fault, ...]) -> Fault:
+    """Every IMU class in turn, ``ALL_SPACING_S`` apart (a class starts when the one before
+    ended), with the frozen GPS, the dead magnetometer and the bad sonar from the fault on."""
+    starts, t = [], 0.0
+    for f in imu_faults:
+        starts.append(t)
+        t += max(f.duration_s, 0.0) + ALL_SPACING_S
+
+    def inject(st: Streams, at_ns: int) -> None:
+        for f, t0 in zip(imu_faults, starts, strict=True):
+            f.inject(st, at_ns + round(t0 * S))
+        for f in (_gps_frozen, _mag_dead, _sonar_bad):
+            f(st, at_ns)
+
+    return Fault("all at once", max(t - ALL_SPACING_S, 10.0), inject)
+
+
+FAULTS = (Fault("clean", 0.0, lambda st, at_ns: None), *IMU_FAULTS, *OTHER_FAULTS,
+          all_at_once(IMU_FAULTS))  # fmt: skip
 
 
 def selected(gap_s: float, names: str | None) -> tuple[Fault, ...]:
     """``FAULTS`` with the gap ``gap_s`` long (s); only the clean run and those whose name
     starts with one of the comma-separated ``names`` (None: all)."""
-    faults = tuple(Fault(f"gap {gap_s:g} s", gap_s, _gap(gap_s)) if f.name.startswith("gap ")
-                   else f for f in FAULTS)  # fmt: skip
+    imu = tuple(Fault(f"gap {gap_s:g} s", gap_s, _imu(_gap(gap_s))) if f.name.startswith("gap ")
+                else f for f in IMU_FAULTS)  # fmt: skip
+    faults = (FAULTS[0], *imu, *OTHER_FAULTS, all_at_once(imu))
     if names is None:
         return faults
     wanted = [n.strip() for n in names.split(",") if n.strip()]
@@ -136,35 +233,46 @@ def selected(gap_s: float, names: str | None) -> tuple[Fault, ...]:
 
 
 def faulty_copy(clean: Path, fault: Fault, at_s: float, out: Path, guard: bool) -> Path:
-    """Copy the data set at ``clean`` to ``out`` with ``fault`` injected into imu0 at ``at_s``;
-    with ``guard``, the samples :class:`ImuGuard` drops are left out of the copy (what the
-    wired guard will do, minus the covariance inflation over gaps)."""
+    """Copy the data set at ``clean`` to ``out`` with ``fault`` injected at ``at_s`` (s after
+    the first IMU sample); with ``guard``, the samples :class:`ImuGuard` drops are left out of
+    the copy (what the wired guard will do, minus the covariance inflation over gaps)."""
     shutil.copytree(clean, out)
     ds = load_dataset(clean)
     assert ds.imu is not None and ds.imu_calib is not None
-    t, g, a = ds.imu.t_ns.copy(), ds.imu.gyro_B.copy(), ds.imu.accel_B.copy()
-    k = int(np.searchsorted(t, int(at_s * S)))
-    keep = fault.inject(t, g, a, k)
+    empty3, empty = np.zeros((0, 3)), np.zeros(0)
+    st = Streams(
+        ds.imu.t_ns.copy(), ds.imu.gyro_B.copy(), ds.imu.accel_B.copy(),
+        np.ones(ds.imu.t_ns.size, bool),
+        ds.gps.t_ns.copy() if ds.gps else np.zeros(0, np.int64),
+        ds.gps.p_W_G.copy() if ds.gps else empty3,
+        ds.mag.t_ns.copy() if ds.mag else np.zeros(0, np.int64),
+        ds.mag.m_S.copy() if ds.mag else empty3,
+        ds.sonar.t_ns.copy() if ds.sonar else np.zeros(0, np.int64),
+        ds.sonar.range_m.copy() if ds.sonar else empty,
+    )  # fmt: skip
+    fault.inject(st, round(at_s * S))  # the simulator's clock starts at 0
+    keep = st.keep
     if guard:
         imu_guard = ImuGuard.from_calib(ds.imu_calib)
         keep &= np.array([imu_guard.check(int(ti), gi, ai).accepted
-                          for ti, gi, ai in zip(t, g, a, strict=True)])  # fmt: skip
-    AslWriter(out).write_imu(ImuStream(t[keep], g[keep], a[keep]), ds.imu_calib)
+                          for ti, gi, ai in zip(st.t, st.g, st.a, strict=True)])  # fmt: skip
+    w = AslWriter(out)
+    w.write_imu(ImuStream(st.t[keep], st.g[keep], st.a[keep]), ds.imu_calib)
+    if ds.gps is not None and ds.gps_calib is not None:
+        ok = st.gps_t >= 0
+        w.write_gps(GpsStream(st.gps_t[ok], st.gps_p[ok], ds.gps.v_W_G[ok]), ds.gps_calib)
+    if ds.mag is not None and ds.mag_calib is not None:
+        w.write_mag(MagStream(st.mag_t, st.mag_m), ds.mag_calib)
+    if ds.sonar is not None and ds.sonar_calib is not None:
+        w.write_sonar(SonarStream(st.sonar_t, st.sonar_r), ds.sonar_calib)
     return out
 
 
 def gps_back_after_s(ds: Dataset, res: RunResult, fault_end_ns: int) -> float | None:
-    """Seconds from ``fault_end_ns`` to the first accepted GPS fix at or after it (None: never).
-
-    The run's GPS updates come in the order of the fixes it fused (one per fix inside its
-    span), so the k-th ``gps`` update is the k-th fix after the start.
-    """
-    assert ds.gps is not None
-    stats = [u for u in res.updates if u.name == "gps"]
-    t_fix = ds.gps.t_ns[(ds.gps.t_ns > res.t_ns[0]) & (ds.gps.t_ns <= res.t_ns[-1])]
-    if len(stats) != t_fix.size:
-        return None
-    ok = [t for t, u in zip(t_fix, stats, strict=True) if u.accepted and t >= fault_end_ns]
+    """Seconds from ``fault_end_ns`` to the first accepted GPS update at or after it (None:
+    never), from the run's update log (a fix dropped as implausible has no update)."""
+    ok = [r.t_ns for r in res.update_log
+          if r.sensor == "gps" and r.stats.accepted and r.t_ns >= fault_end_ns]  # fmt: skip
     return (int(ok[0]) - fault_end_ns) / S if ok else None
 
 
@@ -213,19 +321,29 @@ def row(res: RunResult, out: Outcome, fault: Fault) -> str:
 
 
 def summary(results: dict[tuple[str, str], list[Outcome]], seeds: list[int]) -> None:
-    """The table over the seeds (one row per fault and method)."""
+    """The table over the seeds (one row per fault and method); the GPS step's and the frozen
+    GPS's rows also give the RMSE against the same seed's run without those fixes (what no
+    estimator can beat: a frozen fix carries nothing, a step that nothing contradicts neither)."""
     print(f"\nOver seeds {', '.join(map(str, seeds))}:\n")
-    print("| fault | method | NEES after: mean (max) | seeds > 10 | x clean: mean (max) | "
-          "GPS back, latest [s] |")  # fmt: skip
-    print("|---|---|---|---|---|---|")
+    print("| fault | method | NEES after: mean (max) | seeds > 12 | x clean: mean (max) | "
+          "x GPS lost: mean (max) | GPS back, latest [s] |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|")
     for (fault, method), outs in results.items():
         nees = np.array([o.nees_after[0] for o in outs])
         ratio = np.array([o.ratio for o in outs])
         back = [o.gps_back_s for o in outs]
         back_txt = "never" if None in back else f"{max(b for b in back if b is not None):.1f}"
+        reference = {"GPS step": "GPS lost (reference)",
+                     "GPS frozen": "GPS lost 10 s (reference)"}  # fmt: skip
+        ref_name = next((r for f, r in reference.items() if fault.startswith(f)), None)
+        lost = results.get((ref_name, method)) if ref_name else None
+        vs_lost = "-"
+        if lost is not None and len(lost) == len(outs):
+            r = np.array([o.rmse_m / ref.rmse_m for o, ref in zip(outs, lost, strict=True)])
+            vs_lost = f"{r.mean():.2f} ({r.max():.2f})"
         print(f"| {fault} | {method} | {nees.mean():.2f} ({nees.max():.2f}) | "
-              f"{int((nees > 10).sum())}/{nees.size} | {ratio.mean():.2f} ({ratio.max():.2f}) | "
-              f"{back_txt} |")
+              f"{int((nees > 12).sum())}/{nees.size} | {ratio.mean():.2f} ({ratio.max():.2f}) | "
+              f"{vs_lost} | {back_txt} |")
 
 
 def parse_seeds(text: str) -> list[int]:

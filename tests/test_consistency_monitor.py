@@ -108,3 +108,51 @@ def test_gps_denied_vision_alone_inflates_and_escalates_to_inflate_again() -> No
     mag_only = ConsistencyMonitor(ConsistencyOptions(anchor_in_use=False))
     t = _feed(mag_only, "mag", "rrrr", 0.0, 0.1)
     assert mag_only.should_recover(t, position_std_m=0.3) is None  # not a standalone sensor
+
+
+def _gps(m: ConsistencyMonitor, nis: list[float], t0_s: float, gate: float = 16.3) -> int:
+    """1 Hz GPS updates with these NIS values (accepted below ``gate``); the last time (ns)."""
+    t = int(t0_s * S)
+    for k, v in enumerate(nis):
+        t = int((t0_s + k) * S)
+        m.observe("gps", v <= gate, v, 3, t, gate)
+    return t
+
+
+def test_a_gps_jump_right_after_an_accepted_fix_is_distrusted_not_adopted() -> None:
+    # A 50 m step (NIS ~2500 against a 16.3 gate) one second after a normal fix, the offset
+    # constant since: the filter is not lost, GPS is; no inflation, no reset, ever.
+    m = ConsistencyMonitor()
+    t = _gps(m, [2.0, 3.0, 2500.0, 2450.0, 2400.0, 2380.0, 2300.0, 2200.0], 0.0)
+    for _ in range(3):
+        action = m.should_recover(t, position_std_m=0.5)
+        assert action is not None and action.kind == "distrust" and action.sensors == ("gps",)
+    assert m.inflations == 0 and m.resets == 0 and m.summary()["jumps"] == 1
+    # accepted again (the step ended): a later slow drift is handled as before
+    _gps(m, [3.0], 8.0)
+    t = _gps(m, [30.0, 60.0, 90.0], 9.0)
+    assert m.should_recover(t, 0.5).kind == "inflate"  # type: ignore[union-attr]
+
+
+def test_an_offset_that_grows_is_the_filter_drifting_not_a_jump() -> None:
+    # An undetected IMU fault: the error grows with time, so the NIS quadruples in a second.
+    m = ConsistencyMonitor()
+    t = _gps(m, [2.0, 3.0, 400.0, 1600.0, 3600.0], 0.0)
+    action = m.should_recover(t, 0.5)
+    assert action is not None and action.kind == "inflate"
+    assert [e["kind"] for e in m.summary()["events"]] == ["jump", "jump-withdrawn", "inflate"]  # type: ignore[index]
+
+
+def test_a_jump_after_an_imu_fault_or_with_another_sensor_rejecting_is_the_filters() -> None:
+    m = ConsistencyMonitor()
+    m.note_imu_fault(int(1.5 * S))  # a gap between the accepted fix and the jump
+    t = _gps(m, [2.0, 3.0, 2500.0, 2450.0, 2400.0], 0.0)
+    assert m.should_recover(t, 0.5).kind == "inflate"  # type: ignore[union-attr]
+    m = ConsistencyMonitor()
+    t = _gps(m, [2.0, 3.0, 2500.0, 2450.0, 2400.0], 0.0)
+    _feed(m, "3d", "rrrr", 3.5, 0.2)  # vision also refuses the state: lost
+    assert m.should_recover(t, 0.5).kind == "inflate"  # type: ignore[union-attr]
+    # a mild rejection (below jump_factor times the gate) is no jump either
+    m = ConsistencyMonitor()
+    t = _gps(m, [2.0, 3.0, 100.0, 100.0, 100.0], 0.0)
+    assert m.should_recover(t, 0.5).kind == "inflate"  # type: ignore[union-attr]

@@ -96,3 +96,54 @@ def test_the_first_end_point_is_a_line_fitted_through_noise_and_kept_under_vibra
     ratio = (np.array(errors) ** 2).mean(axis=0) / sigma**2
     np.testing.assert_allclose(ratio, 0.35, rtol=0.3)  # 400 draws: ~7 % on each ratio
     assert all(kept)
+
+
+def _long_gap(change: float) -> tuple[np.ndarray, np.ndarray, ImuHistory, list, np.ndarray]:
+    """A 2 s gap at 2 s in a 100 Hz IMU at level 0.1 (+ ``change`` after the gap) with 0.3
+    white noise: the gap noise (9, 9), the stamps, the history, ``hold_ns`` after each sample
+    and the raw samples (seeded: the same noise for every ``change``)."""
+    rng = np.random.default_rng(7)
+    sq = math.sqrt(RATE_HZ)
+    calib = ImuCalib(np.eye(4), RATE_HZ, PAPER_GYRO_STD / sq, 0.0, PAPER_ACCEL_STD / sq, 0.0)
+    faults = ImuFaults(Rig(imu_period_s=1 / RATE_HZ, imu=calib), FaultOptions(),
+                       RateLimitedLog(1e9))  # fmt: skip
+    history = ImuHistory()
+    t = np.round(np.arange(0.0, 6.0, 1 / RATE_HZ) * S).astype(np.int64)
+    t = t[(t < 2 * S) | (t >= 4 * S)]
+    level = np.where((t < 2 * S)[:, None], 0.1, 0.1 + change)
+    raw = level + 0.3 * rng.standard_normal((t.size, 6))
+    holds = []
+    for k in range(t.size):
+        if faults.accept(int(t[k]), raw[k, :3], raw[k, 3:], history):
+            history.append(int(t[k]), raw[k, :3], raw[k, 3:])
+        holds.append(faults.hold_ns)
+    Q = faults.take_noise(int(t[-1]))
+    assert Q is not None
+    return Q, t, history, holds, raw
+
+
+def test_a_long_gap_is_bridged_between_window_means_and_the_filter_waits_for_the_second() -> None:
+    # Held for seconds, one vibrating sample would be integrated as motion (EuRoC, rotors on,
+    # 5 s gap: 31 m after 10 s with the raw end samples). Both ends become the mean of the
+    # 0.09 s of samples beside the gap; the filter may not cross the gap before the second.
+    Q, t, history, holds, raw = _long_gap(0.4)
+    k1 = int(np.searchsorted(t, 4 * S))
+    assert holds[k1 - 1] is None and holds[k1] == t[k1 - 1]  # the gap starts at the last sample
+    n_wait = int(np.argmax(np.array([h is None for h in holds[k1:]])))
+    assert n_wait == 10  # released by the sample after the 0.09 s window (100 Hz)
+    pre = raw[(t >= t[k1 - 1] - int(0.09 * S)) & (t <= t[k1 - 1])].mean(axis=0)
+    post = raw[(t >= t[k1]) & (t <= t[k1] + int(0.09 * S))].mean(axis=0)
+    np.testing.assert_allclose(np.r_[history.gyro_B[k1 - 1], history.accel_B[k1 - 1]], pre)
+    np.testing.assert_allclose(np.r_[history.gyro_B[k1], history.accel_B[k1]], post)
+    # The change between the end means widens the gap's noise by |Δ|² / 12 (a switch at a
+    # uniform time inside the gap), RMS over the axes, on top of the same data without it.
+    Q0, *_ = _long_gap(0.0)
+    same = _long_gap(0.0)[4]
+    pre0 = same[(t >= t[k1 - 1] - int(0.09 * S)) & (t <= t[k1 - 1])].mean(axis=0)
+    post0 = same[(t >= t[k1]) & (t <= t[k1] + int(0.09 * S))].mean(axis=0)
+    T2 = ((t[k1] - t[k1 - 1]) * 1e-9) ** 2
+    for rows, ch in ((slice(3, 6), slice(3, 6)), (slice(6, 9), slice(0, 3))):
+        d, d0 = post[ch] - pre[ch], post0[ch] - pre0[ch]
+        expected = (np.mean(d**2) - np.mean(d0**2)) / 12.0 * T2
+        np.testing.assert_allclose(Q[rows, rows].diagonal() - Q0[rows, rows].diagonal(),
+                                   expected, rtol=1e-6)  # fmt: skip

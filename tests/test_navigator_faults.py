@@ -137,14 +137,15 @@ def test_run_exits_1_when_a_vision_method_fuses_no_vision(flight: Path, tmp_path
 
 def test_vision_is_linearised_again_only_across_a_gap(flight: Path) -> None:
     # Clean data never reaches the iterated update; across a 2 s gap it brings the 3d run
-    # closer (0.039 -> 0.031 m RMSE here; bench/faults.py measures it over seeds).
+    # closer (measured 0.0347 -> 0.0326 m RMSE here with the bridge between window means,
+    # 0.039 -> 0.031 with the single end samples; bench/faults.py measures it over seeds).
     ds = load_dataset(flight)
     clean3, clean1 = _run(ds, "3d"), _run(ds, "3d", gap_vision_iterations=1)
     np.testing.assert_array_equal(clean3.x, clean1.x)
     gap = _with_imu(ds, "gap")
     it3, it1 = _run(gap, "3d"), _run(gap, "3d", gap_vision_iterations=1)
     assert not np.array_equal(it3.x, it1.x)
-    assert it3.report["position_rmse_m"] < 0.9 * it1.report["position_rmse_m"]
+    assert it3.report["position_rmse_m"] < 0.97 * it1.report["position_rmse_m"]
     assert it3.report["vision_fused_frames"] >= it1.report["vision_fused_frames"]
     with pytest.raises(ConfigError, match="gap_vision_iterations must be >= 1"):
         FaultOptions(gap_vision_iterations=0)
@@ -198,3 +199,35 @@ def test_after_a_bias_step_the_recovery_frees_the_biases_and_gps_returns(
     assert all(gps[-9:])
     ba_x = run.x[-1, 16]  # accelerometer bias, body x (``models.state.BA``)
     assert 0.8 < ba_x < 1.2, ba_x
+
+
+def _with_gps(ds: Dataset, edit: str) -> Dataset:
+    """``ds`` with a GPS fault from ``FAULT_AT_S`` to the end: ``step`` (50 m east) or
+    ``lost`` (no fixes)."""
+    from svains.datasets.types import GpsStream
+
+    assert ds.gps is not None
+    t, p, v = ds.gps.t_ns.copy(), ds.gps.p_W_G.copy(), ds.gps.v_W_G.copy()
+    after = t >= t[0] + int(FAULT_AT_S * S)
+    if edit == "step":
+        p[after, 0] += 50.0
+        return replace(ds, gps=GpsStream(t, p, v))
+    return replace(ds, gps=GpsStream(t[~after], p[~after], v[~after]))
+
+
+def test_a_gps_step_that_imu_and_vision_contradict_is_rejected_and_warned(
+    flight: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    ds = load_dataset(flight)
+    step = _with_gps(ds, "step")
+    clean3, stepped3 = _run(ds, "3d"), _run(step, "3d")
+    rec = stepped3.report["recovery"]
+    assert rec["jumps"] == 1 and rec["inflations"] == rec["resets"] == 0
+    assert stepped3.report["measurements"]["gps"]["rejected"] >= 5
+    assert "gps jumped" in caplog.text
+    # measured: 3d 0.046 m clean, 0.053 m under the step (ins: 0.590 m, equal to no GPS)
+    assert stepped3.report["position_rmse_m"] < 1.5 * clean3.report["position_rmse_m"]
+    # ins: only its own inertial motion contradicts the step; no worse than without GPS
+    lost_ins, stepped_ins = _run(_with_gps(ds, "lost"), "ins"), _run(step, "ins")
+    assert stepped_ins.report["recovery"]["resets"] == 0
+    assert stepped_ins.report["position_rmse_m"] <= 1.01 * lost_ins.report["position_rmse_m"]

@@ -19,7 +19,18 @@ sensor (``anchor_in_use`` false: GPS-denied), a vision sensor (``standalone_sens
 whose refused frames would otherwise leave the filter on the IMU for good; such a run has no
 GPS to reset from, so its escalation inflates again. A filter whose anchor sensor was
 fused within ``window_s`` (and not rejected since) is not lost. A large covariance is not lost:
-the gates then widen by themselves. Pure logic; the core applies the actions.
+the gates then widen by themselves.
+
+An anchor sensor that *jumps* is not evidence that the filter is lost: its first rejected
+update came right after an accepted one (within ``jump_window_s``), its NIS at least
+``jump_factor`` times the gate's threshold (an abrupt step, not the growing innovations of a
+drifting filter), with no IMU fault since the accepted one (``note_imu_fault``), and its NIS
+not growing past ``jump_growth`` times the first since (a constant offset, not a velocity
+error that grows with time). While only such sensors reject, the monitor answers ``distrust``
+(the core warns and keeps rejecting them): IMU and vision contradict the jump, so the filter does
+not follow a GPS offset by a multipath or a datum change. Other sensors rejecting as well still
+make the filter lost. The jump is adopted only when the filter's own uncertainty has grown to
+pass the gate. Pure logic; the core applies the actions.
 """
 
 from __future__ import annotations
@@ -30,7 +41,7 @@ from typing import Literal
 
 import numpy as np
 
-RecoveryKind = Literal["inflate", "reset"]
+RecoveryKind = Literal["inflate", "reset", "distrust"]
 
 
 @dataclass(frozen=True)
@@ -49,12 +60,20 @@ class ConsistencyOptions:
     # vision: nothing else can contradict it; refused frames would add IMU-only drift forever).
     standalone_sensors: tuple[str, ...] = ("tc", "3d", "lc")
     anchor_in_use: bool = True  # the run fuses an anchor sensor (GPS): resets are possible
+    # An anchor's rejection at most this long after its last accepted update, with a NIS at
+    # least jump_factor times the gate's threshold, is a jump of the sensor (see the module).
+    jump_window_s: float = 3.0
+    jump_factor: float = 10.0
+    # A jump whose later NIS grows past jump_growth times its first is the filter drifting off
+    # (a velocity error: the offset grows with time), not a sensor's constant offset.
+    jump_growth: float = 2.0
 
 
 @dataclass(frozen=True)
 class RecoveryAction:
-    """What the core should do: ``inflate`` the covariance by ``inflate_factor`` or ``reset``
-    position and velocity from GPS; ``sensors`` are those found rejecting."""
+    """What the core should do: ``inflate`` the covariance by ``inflate_factor``, ``reset``
+    position and velocity from GPS, or ``distrust``: nothing but a warning (the only rejecting
+    sensors jumped, see the module); ``sensors`` are those found rejecting."""
 
     kind: RecoveryKind
     reason: str
@@ -70,6 +89,8 @@ class _SensorTrack:
     last_accepted_ns: int | None = None
     fused: int = 0
     rejected: int = 0
+    jump_ns: int | None = None  # the current rejections began with a jump of the sensor
+    jump_nis: float = 0.0
 
 
 @dataclass
@@ -80,24 +101,50 @@ class ConsistencyMonitor:
     inflations: int = 0
     resets: int = 0
     _sensors: dict[str, _SensorTrack] = field(default_factory=dict)
+    jumps: int = 0
     _last_inflation_ns: int | None = None
+    _last_imu_fault_ns: int | None = None
     _events: list[dict[str, object]] = field(default_factory=list)
 
-    def observe(self, sensor: str, accepted: bool, nis: float, dof: int, t_ns: int) -> None:
-        """Record one update of ``sensor`` at ``t_ns``: gate outcome and NIS with ``dof``."""
+    def observe(
+        self, sensor: str, accepted: bool, nis: float, dof: int, t_ns: int,
+        gate: float = float("inf"),
+    ) -> None:
+        """Record one update of ``sensor`` at ``t_ns``: gate outcome, NIS with ``dof`` and the
+        gate's NIS threshold ``gate`` (for the jump test of anchor sensors)."""
+        o = self.options
         s = self._sensors.get(sensor)
         if s is None:
-            s = self._sensors[sensor] = _SensorTrack(deque(maxlen=self.options.window))
+            s = self._sensors[sensor] = _SensorTrack(deque(maxlen=o.window))
         if np.isfinite(nis) and dof > 0:
             s.nis_per_dof.append(float(nis) / dof)
         if accepted:
             s.fused += 1
             s.consecutive_rejections = 0
             s.last_accepted_ns = int(t_ns)
-        else:
-            s.rejected += 1
-            s.consecutive_rejections += 1
-            s.last_rejection_ns = int(t_ns)
+            s.jump_ns = None
+            return
+        if (sensor in o.anchor_sensors and s.consecutive_rejections == 0
+                and s.last_accepted_ns is not None
+                and t_ns - s.last_accepted_ns <= int(o.jump_window_s * 1e9)
+                and np.isfinite(gate) and nis >= o.jump_factor * gate
+                and (self._last_imu_fault_ns is None
+                     or self._last_imu_fault_ns < s.last_accepted_ns)):  # fmt: skip
+            s.jump_ns, s.jump_nis = int(t_ns), float(nis)
+            self.jumps += 1
+            self._events.append({"t_ns": int(t_ns), "kind": "jump", "sensors": [sensor]})
+        elif s.jump_ns is not None and not nis <= o.jump_growth * s.jump_nis:
+            s.jump_ns = None  # the offset grows: the filter drifts, the sensor did not jump
+            self._events.append({"t_ns": int(t_ns), "kind": "jump-withdrawn",
+                                 "sensors": [sensor]})  # fmt: skip
+        s.rejected += 1
+        s.consecutive_rejections += 1
+        s.last_rejection_ns = int(t_ns)
+
+    def note_imu_fault(self, t_ns: int) -> None:
+        """An IMU fault (a dropped sample, a gap) at ``t_ns``: a jump of an anchor sensor right
+        after it may be the filter's own error, so it is not taken for the sensor's."""
+        self._last_imu_fault_ns = int(t_ns)
 
     def rejecting(self, t_ns: int) -> tuple[str, ...]:
         """Sensors with ``min_consecutive`` rejections in a row, the last within ``window_s``."""
@@ -138,6 +185,14 @@ class ConsistencyMonitor:
             return None
         if self.anchored(t_ns):
             return None
+        others = [s for s in bad if s not in o.anchor_sensors]
+        jumped = [s for s in anchors if self._sensors[s].jump_ns is not None]
+        if not others and anchors and jumped == anchors:
+            s = self._sensors[anchors[0]]
+            return RecoveryAction(
+                "distrust", f"{', '.join(anchors)} jumped (NIS {s.jump_nis:.3g} right after an "
+                "accepted update) and the other sensors agree with the IMU: its updates are "
+                "rejected until they agree again", tuple(anchors))
         why = (
             f"{', '.join(bad)} rejected {o.min_consecutive}+ times in a row with a position "
             f"std of {position_std_m:.3g} m"
@@ -169,6 +224,7 @@ class ConsistencyMonitor:
         return {
             "inflations": self.inflations,
             "resets": self.resets,
+            "jumps": self.jumps,
             "events": list(self._events),
             "nis_per_dof_window": {name: self.nis_mean(name) for name in sorted(self._sensors)},
         }

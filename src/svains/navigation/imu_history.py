@@ -118,6 +118,26 @@ class ImuHistory:
             self._done = min(self._done, n - 1)  # rotate again and redo α from this row
         return replaced, m
 
+    def raw(self, k: int) -> F64:
+        """Sample ``k`` as received (6,): gyro then accelerometer, sensor frame (a copy)."""
+        return np.array(self._raw[k], dtype=float)
+
+    def replace_by_mean(self, k: int, lo_ns: int, hi_ns: int) -> int:
+        """Replace sample ``k`` (sensor frame) by the mean of the samples stamped in
+        ``[lo_ns, hi_ns]``; returns how many were averaged (the sample stays when fewer than 2).
+
+        For the ends of a long gap's bridge: held for seconds, one sample's vibration and white
+        noise would be integrated as motion, while a mean over many vibration cycles is the
+        low-frequency signal the bridge needs. The estimator must not have propagated past
+        sample ``k - 1`` yet."""
+        t = self._t[: self.n]
+        k0, k1 = int(np.searchsorted(t, lo_ns)), int(np.searchsorted(t, hi_ns, side="right"))
+        if k1 - k0 < 2 or not 0 <= k < self.n:
+            return 0
+        self._raw[k] = self._raw[k0:k1].mean(axis=0)
+        self._done = min(self._done, k)  # rotate again and redo α from this row
+        return k1 - k0
+
     def _sync(self) -> None:
         """Rotate the new rows and compute their α (one pass over the rows since the last)."""
         a, n = self._done, self.n

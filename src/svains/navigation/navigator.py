@@ -40,6 +40,7 @@ from svains.navigation.plausibility import SampleChecks
 from svains.navigation.starter import Starter
 from svains.navigation.tracks import TrackOptions
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames, rig_from_calibrations
+from svains.navigation.zupt import StaticTest
 from svains.sensors.types import Rig
 
 F64 = NDArray[np.float64]
@@ -81,7 +82,8 @@ class Navigator:
                                gps_fused=config.use_gps and rig.gps is not None)
         self._warn = RateLimitedLog(config.faults.warn_interval_s)
         self.imu_faults = (
-            ImuFaults(rig, config.faults, self._warn)
+            ImuFaults(rig, config.faults, self._warn,
+                      StaticTest(config.zupt, config.init, float(np.linalg.norm(rig.gravity_W))))
             if config.faults.imu_guard and rig.imu is not None
             else None
         )
@@ -116,7 +118,9 @@ class Navigator:
         ):
             return  # dropped: propagation bridges it from its neighbours
         self.history.append(t_ns, gyro_S, accel_S)
-        self._advance(t_ns - self._window_ns)
+        horizon_ns = t_ns - self._window_ns
+        hold_ns = None if self.imu_faults is None else self.imu_faults.hold_ns
+        self._advance(horizon_ns if hold_ns is None else min(horizon_ns, hold_ns))
 
     def feed_stereo(
         self, t_ns: int, left: NDArray[np.uint8], right: NDArray[np.uint8], copy: bool = True
