@@ -180,3 +180,18 @@ def test_interrupted_compare_leaves_the_previous_comparison_whole(
     assert res.exit_code == 0, res.stderr
     assert sorted(p.name for p in out.iterdir()) == [
         "compare.json", "compare.md", "ins", "lc", "notes.txt"]  # 3d of the old one is gone
+
+
+def test_batch_errors_are_one_line_and_an_unwritable_campaign_folder_is_refused(
+    tmp_path: Path,
+) -> None:
+    spec = tmp_path / "spec.yaml"
+    spec.write_text("name: x\nruns:\n  - dataset: " + "/a" * 40 + "\n")
+    res = runner.invoke(app, ["batch", str(spec), "--out", str(tmp_path / "c")],
+                        env={"COLUMNS": "40"})  # fmt: skip
+    assert res.exit_code == 1
+    assert res.stderr.count("\n") == 1 and "unknown campaign spec key 'runs'" in res.stderr
+    assert not (tmp_path / "c").exists()  # nothing created for a spec that cannot run
+    if Path("/proc/self").is_dir():
+        res = runner.invoke(app, ["batch", str(spec), "--out", "/proc/svains-campaign"])
+        assert res.exit_code == 2 and "/proc/svains-campaign cannot be written" in res.stderr

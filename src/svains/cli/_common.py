@@ -106,6 +106,12 @@ def _nearest_existing(path: Path) -> Path:
     return p
 
 
+def probe_writable(out: Path, option: str) -> None:
+    """Refuse (usage error) an output folder ``out`` in which nothing can be created (tried in
+    its nearest existing ancestor: nothing is created on the way)."""
+    _probe_writable(_nearest_existing(out), out, option)
+
+
 def _probe_writable(folder: Path, out: Path, option: str) -> None:
     """Create and remove a temporary entry in ``folder`` (creating it): the permission bits
     alone do not tell (root, read-only mounts, /proc)."""

@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from svains.cli._common import fail, one_line, probe_writable
 from svains.errors import SvainsError
 
 
@@ -34,7 +35,8 @@ def batch(
     """Run every unfinished run of SPEC into OUT, then write OUT/summary.csv and summary.md."""
     from svains.batch import CampaignProgress, load_spec, run_campaign
 
-    console, err = Console(), Console(stderr=True)
+    console = Console()
+    probe_writable(out, "--out")  # before any run: a campaign folder that cannot be written
     try:
         campaign = load_spec(spec)
         total = len(campaign.tasks())
@@ -48,7 +50,7 @@ def batch(
                 bar.update(task, completed=p.skipped + p.done, failed=p.failed)
                 if p.last.error is not None:
                     bar.console.print(f"[red]failed[/red] {escape(p.last.task_id)}: "
-                                      f"{escape(p.last.error)}")  # fmt: skip
+                                      f"{escape(one_line(p.last.error))}", soft_wrap=True)
 
             summary = run_campaign(
                 campaign, out, scheduler=scheduler, n_workers=workers, sequential=sequential,
@@ -56,8 +58,7 @@ def batch(
             )
             bar.update(task, completed=total - summary.count("pending"))
     except SvainsError as exc:
-        err.print(f"[red]error:[/red] {escape(str(exc))}")
-        raise typer.Exit(1) from exc
+        fail(exc)
     console.print(f"{summary.count('ok')} of {len(summary.rows)} runs finished, "
                   f"{summary.count('failed')} failed; wrote {escape(str(out))}/summary.csv, "
                   "summary.md")  # fmt: skip
