@@ -1,0 +1,45 @@
+"""The KITTI raw figures the results page shows (docs/results/kitti.md), under test (issue 26):
+``3d`` from images GPS-denied from the reference start, and with an in-flight GPS start and two
+10 s GPS outages. Each limit is the measured figure with a stated margin."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytestmark = [pytest.mark.realdata]
+
+
+def _run(kitti_raw: Path, out: Path, *args: str) -> dict[str, Any]:
+    svains = Path(sys.executable).with_name("svains")
+    cmd = [str(svains), "run", str(kitti_raw), "--method", "3d", "--images", "--no-mag",
+           "--out", str(out), *args]  # fmt: skip
+    subprocess.run(cmd, check=True, capture_output=True, text=True)
+    return dict(json.loads((out / "report.json").read_text(encoding="utf-8")))
+
+
+def test_gps_denied_3d_ends_where_the_results_page_says(kitti_raw: Path, tmp_path: Path) -> None:
+    # svains run ../shared/data/kitti_raw_0926_41s --method 3d --images --init groundtruth
+    #   --no-gps --no-mag: measured 2026-12-02 final error 1.359 % of the path, ATE 0.296 m,
+    #   NEES 79.2 (the target 0.8 % is the known limitation). The page's figure to 0.01 %.
+    r = _run(kitti_raw, tmp_path / "gd", "--init", "groundtruth", "--no-gps")
+    assert r["final_error_pct"] == pytest.approx(1.359, abs=0.01)
+    assert r["ate_rmse_m"] < 0.296 * 1.05
+    assert r["nees_mean"] < 79.2 * 1.1
+
+
+def test_gps_outages_stay_within_the_measured_largest_errors(
+    kitti_raw: Path, tmp_path: Path
+) -> None:
+    # ... --init gps --no-mag --gps-outage 10:10 --gps-outage 25:10: measured 2026-12-02 largest
+    # error 0.660 / 0.511 m in the two outages, NEES 11.3 (limits 1.1x: one seeded front end).
+    r = _run(kitti_raw, tmp_path / "out", "--init", "gps", "--gps-outage", "10:10",
+             "--gps-outage", "25:10")  # fmt: skip
+    first, second = r["outage_max_error_m"]
+    assert first == pytest.approx(0.660, abs=0.066) and second == pytest.approx(0.511, abs=0.051)
+    assert r["nees_mean"] < 11.3 * 1.1
