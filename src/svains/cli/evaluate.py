@@ -1,4 +1,4 @@
-"""``svains evaluate EST GT``: ATE (se3/posyaw/none/sim3 alignment) and RPE through evo."""
+"""``svains evaluate EST GT``: ATE (se3/posyaw/none/sim3 alignment) and RPE, equal to evo's."""
 
 from __future__ import annotations
 

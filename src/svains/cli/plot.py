@@ -26,7 +26,8 @@ def plot(
 ) -> None:
     """Write errors.png, nees.png and measurements.png for a run."""
     from svains.datasets import load_dataset
-    from svains.evaluation.plots import PLOT_NAMES, plot_run
+    from svains.evaluation.plots import plot_run
+    from svains.evaluation.run_record import PLOT_NAMES
 
     for name in PLOT_NAMES:  # before any work: never replace a file without --force
         check_out_file((out if out is not None else run_dir) / name, force, "--out")

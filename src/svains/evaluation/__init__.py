@@ -1,1 +1,1 @@
-"""Trajectory metrics (through evo) and figures."""
+"""Trajectory metrics (figures equal to evo's, checked in the tests) and figures."""

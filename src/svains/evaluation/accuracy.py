@@ -1,6 +1,6 @@
 """Accuracy and consistency keys of ``report.json``: a run's estimates against ground truth.
 
-The ATE goes through evo (:func:`svains.evaluation.metrics.ate`, so it equals ``evo_ape``). The
+The ATE is :func:`svains.evaluation.metrics.ate` (its figures equal ``evo_ape``'s). The
 per-state errors (position, velocity, attitude RMSE, NEES) are taken after ``errors_alignment``:
 ``none`` when the run's world frame is the ground truth's (initialised from it, or GPS fixes it),
 otherwise the alignment of the degrees of freedom the run cannot observe (``posyaw`` for an
@@ -13,7 +13,7 @@ The NEES is also reported per block (:func:`nees_blocks`): position, velocity, a
 error about world axes split into tilt (roll/pitch, 2 dof) and yaw (1 dof). A reference frame
 tilted from gravity can be levelled first (``R_W_Wref``, from
 :mod:`svains.evaluation.reference_tilt`): the per-state errors and the NEES then compare with
-the levelled reference; the ATE keeps the reference as it is (it equals ``evo_ape``).
+the levelled reference; the ATE keeps the reference as it is (as ``evo_ape`` would).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ I64 = NDArray[np.int64]
 log = logging.getLogger(__name__)
 
 # Fallback order when an alignment is degenerate (a straight or too short trajectory leaves the
-# rotation about its own line undetermined and evo raises): drop to fewer degrees of freedom.
+# rotation about its own line undetermined and the fit raises): drop to fewer degrees of freedom.
 _FALLBACK: dict[str, tuple[str, ...]] = {
     "se3": ("se3", "posyaw", "none"),
     "sim3": ("sim3", "se3", "posyaw", "none"),
@@ -57,16 +57,14 @@ def ate_result_with_fallback(
     alignment: str = "se3",
     up_W: ArrayLike = (0.0, 0.0, 1.0),
 ) -> AteResult | None:
-    """evo ATE of an estimate against a reference sampled at the same ``t_ns`` (N,), with
-    ``alignment`` or, when that fit is degenerate (evo's ``GeometryException`` on a straight
-    trajectory, too few poses, a non-finite result), fewer degrees of freedom (``_FALLBACK``).
+    """ATE of an estimate against a reference sampled at the same ``t_ns`` (N,), with
+    ``alignment`` or, when that fit is degenerate (``AlignmentError`` on a straight trajectory,
+    too few poses, a non-finite result), fewer degrees of freedom (``_FALLBACK``).
     ``None`` when even ``none`` fails; never raises for a degenerate geometry."""
-    from evo import EvoException  # evo is loaded by ``ate`` anyway; kept out of module import
-
     for align in _FALLBACK.get(alignment, (alignment, "none")):
         try:
             res = ate(t_ns, p_est, q_est, t_ns, p_ref, q_ref, align=align, up_W=up_W)  # type: ignore[arg-type]
-        except (EvoException, SvainsError, np.linalg.LinAlgError) as exc:
+        except (SvainsError, np.linalg.LinAlgError) as exc:
             log.warning(
                 "ATE with %s alignment failed (%s); trying fewer degrees of freedom", align, exc
             )
@@ -91,7 +89,7 @@ def ate_rmse(
     t_ns: I64, p_est: F64, q_est: F64, p_ref: F64, q_ref: F64, alignment: str = "se3"
 ) -> float:
     """Absolute trajectory error RMSE (m) after ``alignment`` (with ``ate_with_fallback``'s
-    fallback when it is degenerate), reference sampled at ``t_ns``; equals ``evo_ape``."""
+    fallback when it is degenerate), reference sampled at ``t_ns``; equals ``evo_ape``'s."""
     return ate_with_fallback(t_ns, p_est, q_est, p_ref, q_ref, alignment)[0]
 
 

@@ -1,4 +1,5 @@
-"""Evaluate trajectories (TUM, EuRoC csv, KITTI, bag topic, data-set folder) with evo."""
+"""Evaluate trajectories (TUM, EuRoC csv, KITTI, bag topic, data-set folder): ATE and RPE whose
+figures equal evo's ``evo_ape`` / ``evo_rpe`` (checked in the tests, evo being test-only)."""
 
 from __future__ import annotations
 

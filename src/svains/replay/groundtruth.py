@@ -1,7 +1,7 @@
 """Ground-truth association of a run's logged states: truth at the state times, errors, NEES.
 
 Pure numpy, no alignment and no trajectory metrics: the accuracy keys of ``report.json`` (ATE
-through evo, alignment-aware RMSE) are computed in :mod:`svains.evaluation.accuracy`, above the
+equal to evo's, alignment-aware RMSE) are computed in :mod:`svains.evaluation.accuracy`, above the
 navigation layer.
 """
 
