@@ -148,8 +148,10 @@ class ImuFaults:
             start_ns = t_ns - round(verdict.gap_s * 1e9)
             motion = self._spread(start_ns, history)  # before the fit: from the raw samples
             sample_std = self._sample_std()
+            n_mean = 1
             if verdict.gap_s >= _LONG_GAP_S and history.n:
-                history.replace_by_mean(history.n - 1, start_ns - _FIT_NS, start_ns)
+                n_mean = max(1, history.replace_by_mean(history.n - 1, start_ns - _FIT_NS,
+                                                        start_ns))  # fmt: skip
                 held = self._rest is not None and bool(self._rest.at_rest(history, start_ns))
                 if held:
                     # At rest before the gap: the platform is taken to rest on until the gap's
@@ -163,7 +165,8 @@ class ImuFaults:
                 self._pending = (start_ns, t_ns, held)
             elif sample_std is not None:
                 history.fit_last(_FIT_S, np.repeat(sample_std[::-1], 3))  # gyro, then accel
-            self._gaps.append(_Gap(start_ns, t_ns, *self._bridge_noise(motion, sample_std)))
+            self._gaps.append(_Gap(start_ns, t_ns,
+                                   *self._bridge_noise(motion, sample_std, n_mean)))
             self._warn.warn("imu-gap", t_ns, f"IMU gap of {verdict.gap_s:.3f} s: covariance "
                             "inflated by the noise it skipped")  # fmt: skip
         return True
@@ -210,7 +213,7 @@ class ImuFaults:
 
     @staticmethod
     def _bridge_noise(
-        motion: tuple[float, float], sample_std: tuple[float, float] | None
+        motion: tuple[float, float], sample_std: tuple[float, float] | None, n_mean: int = 1
     ) -> tuple[float, float]:
         """Per-axis std (m/s², rad/s) of the bridge's error over a gap: the motion spread
         before it (``_spread``) and the white noise of the bridge's two end samples
@@ -226,11 +229,17 @@ class ImuFaults:
         before a gap underestimates (bench/faults.py seeds 0-23, ``3d`` after the 5 s gap: NEES
         9.76 so, 10.22 with the fitted point's ``(4n - 2) / (n (n + 1))`` of a sample's
         variance; the RMSE is the same either way).
+
+        A long gap's ends are means of ``n_mean`` samples each (``ImuFaults.accept``): their
+        white noise is ``σ² / n_mean``, so the term is ``σ² / (2 n_mean)`` (with one sample's
+        variance the model was 13 times the bridge's real error on a resting IMU with the
+        paper's noise, 2 s gap, ``tests/test_gap_noise.py``).
         """
         if sample_std is None:
             return motion
-        return (math.sqrt(motion[0] ** 2 + sample_std[0] ** 2 / 2.0),
-                math.sqrt(motion[1] ** 2 + sample_std[1] ** 2 / 2.0))  # fmt: skip
+        k = 2.0 * n_mean
+        return (math.sqrt(motion[0] ** 2 + sample_std[0] ** 2 / k),
+                math.sqrt(motion[1] ** 2 + sample_std[1] ** 2 / k))  # fmt: skip
 
     def _spread(self, start_ns: int, history: ImuHistory) -> tuple[float, float]:
         """Per-axis std (m/s², rad/s) of the accelerometer and gyro signal in the
