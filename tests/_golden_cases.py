@@ -56,6 +56,15 @@ CASES = [
 ]  # fmt: skip
 
 
+def case_params(cases: list[Case]) -> list[Any]:
+    """``cases`` as ``pytest.param``s named after the case; those on EuRoC micro (read from
+    ``../shared/data``) marked ``realdata``."""
+    import pytest
+
+    return [pytest.param(c, id=c.name, marks=[] if c.data == "village" else pytest.mark.realdata)
+            for c in cases]  # fmt: skip
+
+
 def village_root(tmp: Path) -> Path:
     """The 30 s village flight (seed 7, feature level, no images), simulated once into ``tmp``."""
     from svains.sim.config import SimConfig

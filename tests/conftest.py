@@ -1,5 +1,12 @@
 """Shared test fixtures: paths to the real data beside the project.
 
+Real data is found at ``../shared/data`` beside the project (``SHARED_DATA``; no variable moves
+it). Every test that needs it carries the ``realdata`` marker, so ``pytest -m "not realdata"``
+runs without it: the tests that take a real-data fixture (``REALDATA_FIXTURES``, directly or
+through another fixture) are marked here at collection, the few that open a shared path
+themselves are marked where they are defined. A missing data set fails such a test, never
+skips it.
+
 Every numerical library runs one thread in the tests, as svains runs them by default
 (``svains.threads``): two pytest-xdist workers on two cores would otherwise each start a
 second BLAS/OpenMP thread and oversubscribe the machine.
@@ -26,6 +33,19 @@ EUROC_MICRO = SHARED_DATA / "euroc_v101_micro"
 KITTI_A = SHARED_DATA / "kitti_stereo_a"
 KITTI_RAW = SHARED_DATA / "kitti_raw_0926_41s"
 TRAJECTORIES = SHARED_DATA / "trajectories"
+
+
+# Fixtures that hand out a data set of ../shared/data.
+REALDATA_FIXTURES = frozenset({"euroc_micro", "kitti_a", "kitti_raw"})
+
+
+@pytest.hookimpl(tryfirst=True)  # before ``-m`` selects by marker
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark ``realdata`` every test whose fixtures (their whole closure) include a real-data
+    fixture."""
+    for item in items:
+        if REALDATA_FIXTURES.intersection(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.realdata)
 
 
 @pytest.fixture(scope="session")

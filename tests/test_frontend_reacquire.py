@@ -3,14 +3,16 @@ KITTI raw at ~1 Hz and with random gaps up to 3 s (subsets of the shared set, no
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from svains.datasets import load_dataset, stereo_pairs
 from svains.datasets.types import Dataset
+from svains.frontend import pipeline
+from svains.frontend.egomotion import RansacOptions, estimate_egomotion
 from svains.frontend.options import FrontendOptions
 from svains.frontend.pipeline import StereoFrontend
 from svains.frontend.reacquire import (
@@ -23,6 +25,8 @@ from svains.frontend.run import groundtruth_camera_poses, run_frontend
 from svains.frontend.types import Egomotion
 from svains.geometry.camera import RectifiedStereo
 from svains.geometry.rotation import so3_exp, so3_log
+from test_frontend_pipeline import RIG as PLANE_RIG
+from test_frontend_pipeline import _pair, _texture
 
 RIG = RectifiedStereo(500.0, 320.0, 240.0, 0.5, np.eye(3), np.zeros(3), 640, 480)
 
@@ -148,8 +152,32 @@ def test_random_gaps_with_prior_yield_motion(kitti: tuple) -> None:  # type: ign
     assert e[:, 1].max() < 1.0
 
 
-def test_reacquire_options_reach_ransac() -> None:
-    """The long-gap RANSAC settings differ from the tracking ones (else the gate is moot)."""
+def test_reacquire_options_reach_ransac(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The long-gap RANSAC settings reach the RANSAC call of the re-acquired matches (and the
+    tracking ones the KLT calls): the synthetic plane's sudden reversal of
+    ``test_frontend_pipeline`` with the KLT retry off, so only descriptors find the motion."""
     o = FrontendOptions()
-    assert o.reacquire.ransac_inlier_px > o.ransac.inlier_px
-    assert replace(o.reacquire, enabled=False).enabled is False
+    assert o.reacquire.ransac_inlier_px > o.ransac.inlier_px  # else the setting is moot
+    seen: list[RansacOptions] = []
+
+    def recording(*args: Any, **kwargs: Any) -> Any:
+        seen.append(args[4])  # estimate_egomotion(p_prev, uv_left, uv_right, rig, opts, ...)
+        return estimate_egomotion(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "estimate_egomotion", recording)
+    # Values of their own (not the defaults) so a call with the wrong options cannot match.
+    opts = FrontendOptions(retry_levels=0, ransac=RansacOptions(iterations=47),
+                           reacquire=ReacquireOptions(ransac_inlier_px=3.25, min_inliers=11))
+    fe = StereoFrontend.from_rig(PLANE_RIG, opts)
+    tex = _texture(3, (240, 700))
+    tracks = [fe.process(k, *_pair(tex, s)) for k, s in enumerate([100, 140, 180, 140])]
+    assert fe.stats.status == "ok" and "reacquire" in fe.stats.timings_ms
+    assert tracks[3] is not None and tracks[3].egomotion is not None
+    assert tracks[3].egomotion.p_Ck_Ckm1 == pytest.approx([0.4, 0.0, 0.0], abs=0.01)
+    long_gap = [r for r in seen if r.inlier_px == 3.25]
+    assert long_gap, [(r.inlier_px, r.min_inliers) for r in seen]
+    assert all(r.min_inliers == 11 and r.iterations == 47 for r in long_gap)
+    tracking = [r for r in seen if r.inlier_px == o.ransac.inlier_px]
+    assert len(tracking) >= 3 and all(r.min_inliers == o.ransac.min_inliers for r in tracking)
+    assert all(r.iterations == 47 for r in seen)
+    assert len(tracking) + len(long_gap) == len(seen)

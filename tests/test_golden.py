@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from _golden_cases import CASES, GOLDEN_DIR, Case, run_case, summarise
+from _golden_cases import CASES, GOLDEN_DIR, Case, case_params, run_case, summarise
 from svains.models.state import P
 
 
@@ -29,7 +29,7 @@ def assert_matches_golden(case: Case, arrays: dict[str, np.ndarray]) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
+@pytest.mark.parametrize("case", case_params(CASES))
 def test_run_entry_reproduces_the_goldens(case: Case, golden_tmp: Path) -> None:
     res = run_case(case, golden_tmp)
     assert_matches_golden(case, summarise(res.t_ns, res.x, res.P9, res.report))

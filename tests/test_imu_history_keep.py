@@ -59,6 +59,7 @@ def _run(ds: Any, config: Any) -> tuple[Any, ImuHistory]:
     return nav.close(), nav.history
 
 
+@pytest.mark.realdata  # EuRoC micro
 def test_a_run_that_lets_samples_go_equals_the_full_run(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

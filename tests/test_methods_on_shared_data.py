@@ -28,7 +28,7 @@ NO_IMU = "no IMU stream (method {m} needs one; vo and svains frontend run on ste
 def test_method_runs_or_refuses_in_one_line(data: str, method: str, tmp_path: Path) -> None:
     root = Path(__file__).resolve().parents[1].parent / "shared" / "data" / data
     if not root.is_dir():
-        pytest.skip(f"{root} not present")
+        pytest.fail(f"real data missing: {root} (CI provides ../shared)")
     args = ["run", str(root), "--method", method, "--out", str(tmp_path / "run"), *EXTRA[data]]
     res = CliRunner().invoke(app, args)
     if data == "kitti_stereo_a" and method != "vo":
@@ -45,7 +45,7 @@ def test_method_runs_or_refuses_in_one_line(data: str, method: str, tmp_path: Pa
 def test_compare_with_a_failing_method_writes_the_rest_and_exits_1(tmp_path: Path) -> None:
     root = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_stereo_a"
     if not root.is_dir():
-        pytest.skip(f"{root} not present")
+        pytest.fail(f"real data missing: {root} (CI provides ../shared)")
     out = tmp_path / "cmp"
     res = CliRunner().invoke(app, ["compare", str(root), "--out", str(out), "--methods",
                                    "ins,vo", "--no-figures"])  # fmt: skip

@@ -57,15 +57,11 @@ def test_slow_vehicle_is_refused_with_its_speed() -> None:
                             0.05)
 
 
-KITTI = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "kitti_raw_0926_41s"
-
-
-@pytest.mark.skipif(not KITTI.exists(), reason="KITTI raw set not available")
-def test_kitti_gps_start_without_magnetometer_takes_the_course() -> None:
+def test_kitti_gps_start_without_magnetometer_takes_the_course(kitti_raw: Path) -> None:
     from svains.datasets import load_dataset
     from svains.replay.groundtruth import interpolate_groundtruth
 
-    ds = load_dataset(KITTI)
+    ds = load_dataset(kitti_raw)
     init = initialise(ds, BIASED, InitOptions(mode="gps"))
     assert init.info["heading"] == "gps course"
     _, _, _, q = interpolate_groundtruth(ds.groundtruth, np.array([init.t_ns], np.int64))

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from _golden_cases import CASES, EUROC_MICRO, Case, summarise, village_root
+from _golden_cases import CASES, EUROC_MICRO, Case, case_params, summarise, village_root
 from svains import Navigator
 from svains.datasets.asl_reader import (
     read_camera_calib,
@@ -136,7 +136,7 @@ HAND_CASES = [c for c in CASES if c.name in (
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("case", HAND_CASES, ids=lambda c: c.name)
+@pytest.mark.parametrize("case", case_params(HAND_CASES))
 def test_fed_by_hand_equals_svains_run(case: Case, tmp_path_factory: pytest.TempPathFactory
                                        ) -> None:
     res = feed_by_hand(case, tmp_path_factory.getbasetemp())

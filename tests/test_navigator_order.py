@@ -52,6 +52,7 @@ def golden_tmp(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.mark.slow
+@pytest.mark.realdata  # EuRoC micro's images
 def test_images_60_ms_late_give_the_in_order_result(tmp_path: Path) -> None:
     case = _case("euroc_images_3d")
     ds = load_case_dataset(case, tmp_path)

@@ -120,6 +120,7 @@ def test_cli_help_documents_every_option() -> None:
         assert opt in text, opt
 
 
+@pytest.mark.realdata  # a trajectory of ../shared/data/trajectories
 def test_cli_trajectory_scenario_and_info(tmp_path: Path) -> None:
     out = tmp_path / "traj"
     tum = TRAJECTORIES / "euroc_V2_02_medium_groundtruth.tum"

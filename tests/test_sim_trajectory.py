@@ -66,6 +66,7 @@ def test_village_strapdown_reproduces_truth_over_10s_with_a_corner() -> None:
     assert att_err < 1e-4
 
 
+@pytest.mark.realdata  # a trajectory of ../shared/data/trajectories
 def test_tum_strapdown_reproduces_truth(tmp_path) -> None:
     traj = tum_trajectory(TRAJECTORIES / "euroc_V1_02_medium_groundtruth.tum", 25.0)
     pos_err, att_err = _check_strapdown(traj, 10.0, 20.0)
@@ -132,6 +133,7 @@ def test_bad_inputs_are_rejected(tmp_path) -> None:
         SplineTrajectory(0.0, 0.1, np.zeros((3, 3)), np.tile(np.eye(3), (3, 1, 1)))
 
 
+@pytest.mark.realdata  # a trajectory of ../shared/data/trajectories
 def test_tum_spline_follows_the_file() -> None:
     path = TRAJECTORIES / "euroc_V1_02_medium_groundtruth.tum"
     t, p, q = read_tum(path)

@@ -44,6 +44,7 @@ def test_seconds_text_exact() -> None:
     assert ns_to_seconds_text(-5) == "-0.000000005"
 
 
+@pytest.mark.realdata  # a trajectory of ../shared/data/trajectories
 def test_read_real_euroc_tum() -> None:
     t, p, q = read_tum(TRAJ / "euroc_V1_02_medium_groundtruth.tum")
     assert t[0] == 1403715524907140000
