@@ -11,7 +11,7 @@ import pytest
 
 from svains.datasets.loader import load_dataset
 from svains.evaluation.compare import run_methods, write_comparison
-from svains.navigation.options import InitOptions, RunOptions, VisionOptions
+from svains.navigation.options import InitOptions, RunOptions
 from svains.sim import SimConfig, simulate
 
 
@@ -32,13 +32,18 @@ def test_all_methods_beat_pure_inertial_when_gps_denied(
     village_denied: Path, tmp_path: Path
 ) -> None:
     ds = load_dataset(village_denied)
-    opts = RunOptions(model="biased", init=InitOptions(mode="groundtruth"),
-                      vision=VisionOptions(rotation="imu"))
+    opts = RunOptions(model="biased", init=InitOptions(mode="groundtruth"))  # default vision
     res = run_methods(ds, ("ins", "vo", "lc", "tc", "3d"), opts, tmp_path)
     final = {m: r.report["final_position_error_m"] for m, r in res.items()}
-    # Measured (seed 3, 15 s): see the report; ins drifts tens of metres, vision stays < 1 m.
+    ate = {m: r.report["ate_m"] for m, r in res.items()}
+    # Measured 2026-12-02 (seed 3, 15 s, default clone model), final error / ATE [m]: ins
+    # 16.0 / 2.17, vo 0.274 / 0.082, lc 0.309 / 0.086, tc = 3d 0.120 / 0.027.
     for m in ("vo", "lc", "tc", "3d"):
-        assert final[m] < 0.5 * final["ins"], final
+        assert final[m] < 0.05 * final["ins"], final
+    # The paper's ordering where it must hold: the tightly coupled 3d well ahead of lc and vo
+    # (measured 3.1x; with --rotation imu it was not: 3d 0.140 against vo 0.082, unnoticed).
+    assert ate["3d"] < 0.5 * min(ate["lc"], ate["vo"]), ate
+    assert final["3d"] < 0.6 * min(final["lc"], final["vo"]), final
     assert res["3d"].report["final_error_pct_of_path"] < 5.0, final
     # For a rectified pair the trifocal transfer equals reprojecting the eq.-10 point: TC == 3D.
     np.testing.assert_allclose(res["tc"].x, res["3d"].x, atol=1e-6)
