@@ -120,3 +120,25 @@ def test_se3_on_a_resting_vehicle_is_refused_in_one_line(tmp_path: Path) -> None
     write_tum(tmp_path / "ref.tum", t, move, q)
     write_tum(tmp_path / "est.tum", t, move + (est - ref), q)
     assert CliRunner().invoke(app, [*args, "--align", "se3"]).exit_code == 0
+
+
+def test_a_fit_that_tilts_the_estimate_says_so(tmp_path: Path) -> None:
+    # A 200 m straight drive whose height drifts 0.07 m/m (4°): se3 removes the drift by
+    # tilting the whole estimate, so its rotation errors are the fit's, not the estimate's
+    # (KITTI raw 3d: 6.95° after se3, 0.64° after posyaw). posyaw leaves the tilt alone.
+    n = 400
+    t_ns = (np.arange(n) * 50_000_000).astype(np.int64)
+    x = np.linspace(0.0, 200.0, n)
+    p_ref = np.column_stack([x, 0.5 * np.sin(x / 20.0), np.zeros(n)])
+    p_est = p_ref + np.column_stack([np.zeros(n), np.zeros(n), 0.07 * x])
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+    write_tum(tmp_path / "ref.tum", t_ns, p_ref, q)
+    write_tum(tmp_path / "est.tum", t_ns, p_est, q)
+    args = ["evaluate", str(tmp_path / "est.tum"), str(tmp_path / "ref.tum")]
+    se3 = runner.invoke(app, [*args, "--align", "se3", "--json", str(tmp_path / "a.json")])
+    assert se3.exit_code == 0, se3.output
+    tilt = json.loads((tmp_path / "a.json").read_text())["ate"]["fit_tilt_deg"]
+    assert tilt == pytest.approx(np.degrees(np.arctan(0.07)), abs=0.05)
+    assert "note: the se3 fit tilted the estimate by 4.00°" in se3.output
+    posyaw = runner.invoke(app, [*args, "--align", "posyaw"])
+    assert posyaw.exit_code == 0 and "tilted" not in posyaw.output

@@ -55,10 +55,21 @@ class AteResult:
     p_ref: F64 = field(repr=False)
     errors_m: F64 = field(repr=False)
 
+    @property
+    def fit_tilt_deg(self) -> float:
+        """Angle (deg) by which the alignment turns the estimate's z axis (the tilt of a z-up
+        world): 0 for posyaw and none. A large one after se3/sim3 means the fit traded the
+        estimate's tilt for position error (drift along a long path), and the rotation errors
+        after it are the fit's, not the estimate's."""
+        z = np.asarray(self.T_align, dtype=float)[:3, 2]
+        return float(np.degrees(np.arccos(np.clip(z[2] / np.linalg.norm(z), -1.0, 1.0))))
+
     def summary(self) -> dict[str, float | int | str]:
         """Scalars only (JSON friendly)."""
         d = asdict(self)
-        return {k: v for k, v in d.items() if not isinstance(v, np.ndarray)}
+        out = {k: v for k, v in d.items() if not isinstance(v, np.ndarray)}
+        out["fit_tilt_deg"] = self.fit_tilt_deg
+        return out
 
 
 @dataclass
