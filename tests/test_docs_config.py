@@ -69,12 +69,18 @@ def test_the_documented_roots_are_the_option_trees(pages: ModuleType) -> None:
     assert [tree.root for tree in pages.option_trees()] == ROOTS
 
 
+def _value_at(values: dict[str, Any], key: str) -> Any:
+    """The value (or section dict) at dotted ``key`` of a ``to_dict`` configuration."""
+    value: Any = values
+    for part in key.split("."):
+        value = value[part]
+    return value
+
+
 def test_defaults_are_the_dataclasses_own(pages: ModuleType) -> None:
     values = to_dict(RunConfig())
     for row in pages.option_rows(RunConfig):
-        value: Any = values
-        for part in row.key.split("."):
-            value = value[part]
+        value = _value_at(values, row.key)
         if isinstance(value, dict):
             assert row.default == "(section)"
         else:
@@ -85,9 +91,7 @@ def test_every_listed_run_key_is_a_set_key(pages: ModuleType) -> None:
     """Each leaf key of the run configuration is accepted by ``--set`` (``with_settings``)."""
     values = to_dict(RunConfig())
     for row in pages.option_rows(RunConfig):
-        value: Any = values
-        for part in row.key.split("."):
-            value = value[part]
+        value = _value_at(values, row.key)
         if not isinstance(value, dict):
             assert with_settings(RunConfig(), {row.key: value}) == RunConfig(), row.key
 

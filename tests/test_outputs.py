@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import shutil
 from pathlib import Path
@@ -10,6 +9,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from _files import tree_digest
 from svains.cli.main import app
 from svains.datasets import load_dataset
 from svains.datasets.asl_writer import AslWriter
@@ -32,13 +32,6 @@ def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return simulate(_cfg(), tmp_path_factory.mktemp("out") / "ds")
 
 
-def _digest(root: Path) -> str:
-    h = hashlib.sha256()
-    for p in sorted(root.rglob("*")):
-        if p.is_file():
-            h.update(p.relative_to(root).as_posix().encode() + p.read_bytes())
-    return h.hexdigest()
-
 
 def test_atomic_path_leaves_the_old_file_on_failure(tmp_path: Path) -> None:
     target = atomic_write_text(tmp_path / "a.txt", "old\n")
@@ -56,17 +49,17 @@ def test_simulate_writes_a_marker_and_refuses_an_existing_data_set(
 ) -> None:
     assert (dataset / "mav0" / MARKER).is_file() and incomplete_reason(dataset / "mav0") is None
     root = shutil.copytree(dataset, tmp_path / "ds")
-    before = _digest(root)
+    before = tree_digest(root)
     with pytest.raises(OutputError, match="already holds a data set"):
         simulate(_cfg(seed=2), root)
     res = runner.invoke(app, ["simulate", "--out", str(root), "--duration", "2", "--no-images",
                               "--seed", "2"])  # fmt: skip
     assert res.exit_code == 2 and "use --force" in res.stderr
-    assert _digest(root) == before
+    assert tree_digest(root) == before
     res = runner.invoke(app, ["simulate", "--out", str(root), "--duration", "2", "--no-images",
                               "--seed", "2", "--force"])  # fmt: skip
     assert res.exit_code == 0, res.stderr
-    assert _digest(root) != before and (root / "mav0" / MARKER).is_file()
+    assert tree_digest(root) != before and (root / "mav0" / MARKER).is_file()
     assert not [p for p in root.iterdir() if p.name.startswith(TMP_PREFIX)]
 
 
@@ -85,10 +78,10 @@ def test_interrupted_simulate_leaves_nothing_a_reader_accepts(
         load_dataset(fresh)
     # Replacing a data set: the old one stays whole until the new one is complete.
     root = shutil.copytree(dataset, tmp_path / "ds")
-    before = _digest(root)
+    before = tree_digest(root)
     with pytest.raises(KeyboardInterrupt):
         simulate(_cfg(seed=3), root, overwrite=True)
-    assert _digest(root) == before
+    assert tree_digest(root) == before
 
 
 def test_reader_warns_on_a_simulated_set_without_marker(
@@ -152,10 +145,10 @@ def test_interrupted_run_leaves_no_report(
     res = runner.invoke(app, ["run", str(dataset), "--out", str(out), "--init", "groundtruth",
                               "--duration", "1"])  # fmt: skip
     assert res.exit_code == 0 and (out / "report.json").is_file()
-    before = _digest(out)
+    before = tree_digest(out)
     monkeypatch.setattr(writers, "atomic_write_text", boom)
     res = runner.invoke(app, ["run", str(dataset), "--out", str(out), "--init", "groundtruth",
                               "--duration", "2", "--force"])  # fmt: skip
     assert res.exit_code == 130
-    assert _digest(out) == before
+    assert tree_digest(out) == before
     assert not [p for p in (*out.iterdir(), *tmp_path.iterdir()) if p.name.startswith(TMP_PREFIX)]

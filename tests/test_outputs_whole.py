@@ -4,7 +4,6 @@ that cannot be written is refused before any work (issue 23)."""
 from __future__ import annotations
 
 import errno
-import hashlib
 import json
 import os
 from pathlib import Path
@@ -12,6 +11,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from _files import tree_digest
 from svains.cli.main import app
 from svains.errors import OutputError
 from svains.outputs import TMP_PREFIX, atomic_path, replaced_dir
@@ -27,13 +27,6 @@ def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     cfg.camera.render_images = False
     return simulate(cfg, tmp_path_factory.mktemp("whole") / "ds")
 
-
-def _digest(root: Path) -> str:
-    h = hashlib.sha256()
-    for p in sorted(root.rglob("*")):
-        if p.is_file():
-            h.update(p.relative_to(root).as_posix().encode() + p.read_bytes())
-    return h.hexdigest()
 
 
 def _no_temporaries(*folders: Path) -> bool:
@@ -93,13 +86,13 @@ def test_full_disk_with_force_leaves_the_previous_run_whole(
     assert runner.invoke(app, _run(dataset, out)).exit_code == 0
     rows_1s = len((out / "trajectory.tum").read_text().splitlines())
     (out / "errors.png").write_bytes(b"a figure of this run")
-    before = _digest(out)
+    before = tree_digest(out)
     _full_disk_in_euroc_writer(monkeypatch)
     res = runner.invoke(app, _run(dataset, out, "--duration", "2", "--force"))
     assert res.exit_code == 1
     assert res.stderr.strip() == (f"error: cannot write {out / 'trajectory_euroc.csv'}: "
                                   "No space left on device [Errno 28]")  # fmt: skip
-    assert _digest(out) == before and _no_temporaries(tmp_path)
+    assert tree_digest(out) == before and _no_temporaries(tmp_path)
     # With room again, the replacing run drops the old run's files, its figure included.
     monkeypatch.undo()
     res = runner.invoke(app, _run(dataset, out, "--duration", "2", "--force"))
@@ -159,7 +152,7 @@ def test_interrupted_compare_leaves_the_previous_comparison_whole(
     res = runner.invoke(app, args)
     assert res.exit_code == 0, res.stderr
     (out / "notes.txt").write_text("mine\n")
-    before = _digest(out)
+    before = tree_digest(out)
     import svains.evaluation.compare as compare
 
     real = compare.replay
@@ -174,7 +167,7 @@ def test_interrupted_compare_leaves_the_previous_comparison_whole(
     monkeypatch.setattr(compare, "replay", second_interrupted)
     res = runner.invoke(app, [*args, "--force", "--methods", "ins,lc"])
     assert res.exit_code == 130 and calls == ["x", "x"]
-    assert _digest(out) == before and _no_temporaries(tmp_path)
+    assert tree_digest(out) == before and _no_temporaries(tmp_path)
     monkeypatch.undo()
     res = runner.invoke(app, [*args, "--force", "--methods", "ins,lc"])
     assert res.exit_code == 0, res.stderr

@@ -49,6 +49,7 @@ _FIT_S = 0.09
 # post-gap sample, see ``ImuFaults.accept``)
 _LONG_GAP_S = 0.5
 _FIT_NS = round(_FIT_S * 1e9)
+_HOLD_END_NS = 1_000_000  # a held rest ends this long before the gap's first sample
 NAV9 = slice(0, 9)  # δp, δv, δθ in the tangent space (``models.state``)
 
 
@@ -123,8 +124,8 @@ class ImuFaults:
         self.guard = ImuGuard.from_calib(rig.imu, guard_options)
         # gaps not yet crossed in full by the filter, or crossed less than _AFTER_GAP_NS ago
         self._gaps: list[_Gap] = []
-        # a long gap (start, end, held at rest) whose first sample after it awaits its mean
-        self._pending: tuple[int, int, bool] | None = None
+        # a long gap (start, end) whose first sample after it awaits its mean
+        self._pending: tuple[int, int] | None = None
         self.last_fault_ns: int | None = None  # the latest dropped sample or gap end
 
     def accept(self, t_ns: int, gyro_S: ArrayLike, accel_S: ArrayLike, history: ImuHistory) -> bool:
@@ -139,11 +140,11 @@ class ImuFaults:
         if self._pending is not None and t_ns > self._pending[1] + _FIT_NS:
             # The first sample after a long gap becomes the mean of the samples that followed
             # it within _FIT_S (the Navigator holds the filter at the gap's start until then).
-            start, end, held = self._pending
+            start, end = self._pending
             self._pending = None
             k = int(np.searchsorted(history.t_ns, end))
             if history.replace_by_mean(k, end, end + _FIT_NS) and k >= 1:
-                self._widen_for_change(start, end, history, k, held)
+                self._widen_for_change(start, end, history, k)
         if verdict.kind == "gap":
             start_ns = t_ns - round(verdict.gap_s * 1e9)
             motion = self._spread(start_ns, history)  # before the fit: from the raw samples
@@ -152,17 +153,15 @@ class ImuFaults:
             if verdict.gap_s >= _LONG_GAP_S and history.n:
                 n_mean = max(1, history.replace_by_mean(history.n - 1, start_ns - _FIT_NS,
                                                         start_ns))  # fmt: skip
-                held = self._rest is not None and bool(self._rest.at_rest(history, start_ns))
-                if held:
+                if self._rest is not None and self._rest.at_rest(history, start_ns):
                     # At rest before the gap: the platform is taken to rest on until the gap's
-                    # end (a copy of the rest's mean one sample spacing before it), not to
-                    # turn towards the motion after it from the gap's start. On EuRoC (rotors
-                    # on, take-off inside a 5 s gap) the chord made 20 m of error, the hold 0.9.
-                    dt_ns = 1_000_000
+                    # end (a copy of the rest's mean 1 ms before it), not to turn towards the
+                    # motion after it from the gap's start. On EuRoC (rotors on, take-off
+                    # inside a 5 s gap) the chord made 20 m of error, the hold 0.9.
                     held_raw = history.raw(history.n - 1)
-                    history.append(t_ns - min(dt_ns, t_ns - start_ns - 1), held_raw[0:3],
+                    history.append(t_ns - min(_HOLD_END_NS, t_ns - start_ns - 1), held_raw[0:3],
                                    held_raw[3:6])  # fmt: skip
-                self._pending = (start_ns, t_ns, held)
+                self._pending = (start_ns, t_ns)
             elif sample_std is not None:
                 history.fit_last(_FIT_S, np.repeat(sample_std[::-1], 3))  # gyro, then accel
             self._gaps.append(_Gap(start_ns, t_ns,
@@ -171,28 +170,27 @@ class ImuFaults:
                             "inflated by the noise it skipped")  # fmt: skip
         return True
 
-    def _widen_for_change(
-        self, start_ns: int, end_ns: int, history: ImuHistory, k: int, held: bool
-    ) -> None:
+    def _widen_for_change(self, start_ns: int, end_ns: int, history: ImuHistory, k: int) -> None:
         """Widen the noise of the gap ``[start_ns, end_ns]`` by the change ``Δ`` between its two
         end means (the rows at ``start_ns`` and ``k`` of ``history``, sensor frame).
 
         Taken as a switch from one to the other at an unknown time, uniform over the gap: the
         chord between them is the mean of that motion, its integral's error has the standard
         deviation ``|Δ| T / √12``, a constant error of ``|Δ| / √12`` (per axis, RMS over the
-        axes) in the model's terms; holding the first (``held``: a rest) is off by ``Δ T / 2``
-        on average besides, ``|Δ| / √3`` in all. The motion spread before the gap does not see
-        a change that happened inside it (EuRoC: a take-off during a 5 s gap)."""
+        axes) in the model's terms. The same after a rest, where the bridge holds the first:
+        counting the hold's mean offset ``Δ T / 2`` too (``|Δ| / √3``) made the sigma points so
+        wide that the EuRoC gap at 2 s ended 1.57 m off instead of 1.01. The motion spread
+        before the gap does not see a change that happened inside it (EuRoC: a take-off during
+        a 5 s gap)."""
         t = history.t_ns
         k0 = int(np.searchsorted(t, start_ns))
         if k0 >= k or t[k0] != start_ns or t[k] < end_ns:
             return
         delta = history.raw(k) - history.raw(k0)
-        scale = math.sqrt(12.0)
         for gap in self._gaps:
             if gap.start_ns == start_ns and gap.end_ns == end_ns:
-                da = float(np.sqrt(np.mean(delta[3:6] ** 2))) / scale
-                dg = float(np.sqrt(np.mean(delta[0:3] ** 2))) / scale
+                da = float(np.sqrt(np.mean(delta[3:6] ** 2) / 12.0))
+                dg = float(np.sqrt(np.mean(delta[0:3] ** 2) / 12.0))
                 gap.accel_std = math.hypot(gap.accel_std, da)
                 gap.gyro_std = math.hypot(gap.gyro_std, dg)
 
