@@ -50,6 +50,7 @@ SUPPLEMENT: dict[str, str] = {
     "RunConfig.replay": "Section: how `svains run` replays a data set (`ReplayOptions`).",
     "RunConfig.faults": "Section: sensor-fault handling (`FaultOptions`).",
     "RunConfig.zupt": "Section: zero-velocity updates (`ZuptOptions`).",
+    "RunConfig.smoother": "Section: forward-backward smoothing (`SmootherOptions`).",
     # FilterOptions
     "FilterOptions.beta": "Unscented transform's beta (2: optimal for a Gaussian prior).",
     "FilterOptions.kappa": "Unscented transform's kappa (secondary spread parameter).",

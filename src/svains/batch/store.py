@@ -1,7 +1,8 @@
 """A campaign's folder: one sub-folder per run, marked finished atomically.
 
 ``DIR/runs/<task_id>/`` holds what ``svains run`` writes (``trajectory.tum``, ``states.csv``,
-``report.json``), ``nees.csv`` (``t_ns,nees`` per logged state) and ``result.json``: the task's
+``report.json``), ``nees.csv`` (``t_ns,nees`` per logged state; ``nees_smoothed.csv`` the
+same for a smoothed run) and ``result.json``: the task's
 parameters and its status (``ok``, or ``failed`` with the error and traceback). The folder is
 built beside its final place and renamed into it whole. A run with an ``ok`` marker is finished
 and is skipped when the campaign is run again; a failed one is run again.
@@ -65,10 +66,11 @@ def write_result(out_dir: Path, task: Task, result: TaskResult) -> None:
             assert result.x is not None and result.std is not None
             run = RunResult(result.t_ns, result.x, result.std, np.zeros((0, 9, 9)), result.report)
             write_outputs(d, run)
-            if result.nees is not None and result.nees_t_ns is not None:
-                rows = "".join(f"{int(t)},{v:.9g}\n" for t, v in zip(
-                    result.nees_t_ns, result.nees, strict=True))  # fmt: skip
-                write_atomic(d / "nees.csv", "t_ns,nees\n" + rows)
+            for name, series in (("nees.csv", result.nees_series()),
+                                 ("nees_smoothed.csv", result.smoothed_nees)):
+                if series is not None:
+                    rows = "".join(f"{int(t)},{v:.9g}\n" for t, v in zip(*series, strict=True))
+                    write_atomic(d / name, "t_ns,nees\n" + rows)
         else:
             marker.update(error=result.error, traceback=result.traceback)
         write_atomic(d / MARKER, json.dumps(marker, indent=2) + "\n")
@@ -81,9 +83,12 @@ def read_report(out_dir: Path, task: Task) -> dict[str, Any]:
     return report
 
 
-def read_nees(out_dir: Path, task: Task) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
-    """``t_ns`` (N,) and NEES (N,) of a finished run, ``None`` if it has none."""
-    path = run_dir(out_dir, task) / "nees.csv"
+def read_nees(
+    out_dir: Path, task: Task, smoothed: bool = False
+) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
+    """``t_ns`` (N,) and NEES (N,) of a finished run (its smoothed estimate's with
+    ``smoothed``), ``None`` if it has none."""
+    path = run_dir(out_dir, task) / ("nees_smoothed.csv" if smoothed else "nees.csv")
     if not path.is_file():
         return None
     data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)

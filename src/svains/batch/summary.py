@@ -93,9 +93,12 @@ def nees_tests(
     ok = {r["task_id"] for r in rows if r["status"] == "ok"}
     series: dict[GroupKey, list[Any]] = {}
     for task in tasks:
-        s = read_nees(out_dir, task) if task.task_id in ok else None
-        if s is not None:
-            series.setdefault((task.source, task.config, task.method), []).append(s)
+        for smoothed in (False, True):
+            s = read_nees(out_dir, task, smoothed) if task.task_id in ok else None
+            if s is not None:
+                # A smoothed run's own test, as a method "<method> smoothed".
+                method = f"{task.method} smoothed" if smoothed else task.method
+                series.setdefault((task.source, task.config, method), []).append(s)
     tests = {key: nees_test(s) for key, s in series.items()}
     return {k: t for k, t in tests.items() if t is not None}
 

@@ -52,6 +52,14 @@ class TaskResult:
     nees: NDArray[np.float64] | None = None
     error: str | None = None
     traceback: str | None = None
+    # ``(t_ns, nees)`` of the smoothed estimate (``smoother.enabled``), None without.
+    smoothed_nees: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None
+
+    def nees_series(self) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
+        """``(nees_t_ns, nees)``, None without."""
+        if self.nees is None or self.nees_t_ns is None:
+            return None
+        return self.nees_t_ns, self.nees
 
 
 def task_dataset(task: Task, tmp: Path) -> Dataset:
@@ -81,6 +89,7 @@ def _run(task: Task, ds: Dataset) -> TaskResult:
     return TaskResult(
         task.task_id, "ok", result.report, result.t_ns, result.x, result.std,
         None if nees is None else nees[0], None if nees is None else nees[1],
+        smoothed_nees=None if result.smoothed is None else nees_series(result.smoothed, ds),
     )  # fmt: skip
 
 

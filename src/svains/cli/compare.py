@@ -118,6 +118,10 @@ def compare(
         Path | None, typer.Option("--calib", help="Kalibr camchain-imucam.yaml.")
     ] = None,
     imu_calib: Annotated[Path | None, typer.Option("--imu-calib", help="Kalibr imu.yaml.")] = None,
+    smooth: Annotated[
+        bool, typer.Option("--smooth", help="Also smooth each filter run forward-backward (RTS): "
+                           "a 'smoothed' row per method and the *_smoothed files.")
+    ] = False,
     force: Annotated[
         bool, typer.Option("--force", help="Replace a non-empty --out whole (at the end, only "
                            "if the comparison was written).")
@@ -134,7 +138,8 @@ def compare(
     _common.check_out_dir(out, force, inputs=[dataset])
     try:
         source = {None: "auto", True: "features", False: "images"}[features]
-        settings = [*([f"vision.rotation={rotation}"] if rotation else []), *(setting or [])]
+        settings = [*([f"vision.rotation={rotation}"] if rotation else []),
+                    *(["smoother.enabled=true"] if smooth else []), *(setting or [])]
         opts = build_options(model, init, gps, mag, duration, source, settings,
                              calib=calib, imu_calib=imu_calib, sonar=sonar,
                              gps_outages=gps_outage, gps_until=gps_until)

@@ -92,6 +92,11 @@ def run(
         typer.Option("--imu-calib", help="Kalibr imu.yaml replacing the data set's IMU noise "
                      "(config key replay.imu_calib)."),
     ] = None,
+    smooth: Annotated[
+        bool | None,
+        typer.Option("--smooth/--no-smooth", help="Also smooth the run forward-backward (RTS) "
+                     "and write the *_smoothed files (config key smoother.enabled)."),
+    ] = None,
     rerun: Annotated[
         Path | None,
         typer.Option("--rerun", help="After the run, save a rerun recording (.rrd; needs "
@@ -112,7 +117,9 @@ def run(
 ) -> None:
     """Run METHOD over DATASET; write trajectory.tum, trajectory_euroc.csv, pose_covariance.csv,
     states.csv, updates.csv, tracks.csv (vision), report.json and the effective config.yaml into
-    OUT; with --rerun/--rerun-spawn, then a rerun recording of the run."""
+    OUT (with --smooth also trajectory_smoothed.tum, trajectory_smoothed_euroc.csv and
+    pose_covariance_smoothed.csv); with --rerun/--rerun-spawn, then a rerun recording of the
+    run."""
     from svains.cli.run_config import (
         build_config,
         effective_config_text,
@@ -135,7 +142,7 @@ def run(
         switches = {
             "method": method, "model": model, "init.mode": init, "use_gps": gps,
             "use_mag": mag, "use_sonar": sonar, "duration_s": duration, "replay.start_s": start,
-            "vision.rotation": rotation,
+            "vision.rotation": rotation, "smoother.enabled": smooth,
             "vision.source": {None: None, True: "features", False: "images"}[features],
             **gps_off_switches(gps_outage, gps_until),
             "replay.synthetic_features_hz": synthetic_features,
@@ -167,35 +174,50 @@ def run(
     except SvainsError as exc:
         fail(exc)
     rep = result.report
+    sm = rep.get("smoothed")
     table = Table(title=f"{rep['method']} on {rep.get('dataset', dataset)}")
     table.add_column("figure")
-    table.add_column("value", justify="right")
+    table.add_column("value" if sm is None else "forward", justify="right")
+    if sm is not None:
+        table.add_column("smoothed", justify="right")
+
+    def row(name: str, *values: str) -> None:
+        table.add_row(name, *values[: 1 if sm is None else 2])
+
+    def fmt(v: object) -> str:
+        return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.4g}"
+
+    def blocks(r: dict) -> str:
+        # Each block against its own marginal covariance; consistent: 3/3/2/1.
+        b = r.get("nees_blocks") or {}
+        keys = ("position", "velocity", "roll_pitch", "yaw")
+        return "/".join(f"{b[k]:.3g}" for k in keys) if b else "-"
+
     for key in _SHOWN:
-        v = rep.get(key)
-        table.add_row(
-            key, "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.4g}"
-        )
+        other = (sm or {}).get(key if key != "realtime_factor" else "_", None)
+        row(key, fmt(rep.get(key)), fmt(other))
         if key == "nees_mean" and rep.get("nees_blocks"):
-            # Each block against its own marginal covariance; consistent: 3/3/2/1.
-            b = rep["nees_blocks"]
-            table.add_row("nees_blocks p/v/rp/yaw", "/".join(
-                f"{b[k]:.3g}" for k in ("position", "velocity", "roll_pitch", "yaw")))  # fmt: skip
+            row("nees_blocks p/v/rp/yaw", blocks(rep), blocks(sm or {}))
     if rep.get("reference_tilt_deg") is not None:
         # The reference frame's tilt from gravity, removed before the errors and the NEES.
-        table.add_row("reference tilt removed [deg]", f"{rep['reference_tilt_deg']:.3f}")
+        row("reference tilt removed [deg]", f"{rep['reference_tilt_deg']:.3f}", "")
     if rep.get("errors_alignment") is not None:
         # Which degrees of freedom were aligned before the RMSE/NEES rows (none: raw errors).
-        table.add_row("errors alignment", str(rep["errors_alignment"]))
+        row("errors alignment", str(rep["errors_alignment"]), "")
     for name, c in rep.get("measurements", {}).items():
-        table.add_row(f"{name} fused/rejected", f"{c['fused']}/{c['rejected']}")
+        row(f"{name} fused/rejected", f"{c['fused']}/{c['rejected']}", "")
     for name, v in rep.get("vision", {}).items():
-        table.add_row(f"vision {name}", str(v))
+        row(f"vision {name}", str(v), "")
     if rep.get("outage_max_error_m"):
-        table.add_row(
-            "outage max error [m]", ", ".join(f"{e:.2f}" for e in rep["outage_max_error_m"])
-        )
+        row("outage max error [m]", ", ".join(f"{e:.2f}" for e in rep["outage_max_error_m"]),
+            ", ".join(f"{e:.2f}" for e in (sm or {}).get("outage_max_error_m") or []))
+    if sm is not None:
+        row("history kept [MB]", "-", f"{sm['history_mb']:.3g} "
+            f"({sm['history_mb_per_hour']:.3g} per hour of data)")
     console.print(table)
-    logs = "".join(f", {n}" for n in ("updates.csv", "tracks.csv") if (out / n).is_file())
+    logs = "".join(f", {n}" for n in ("updates.csv", "tracks.csv", "trajectory_smoothed.tum",
+                                      "trajectory_smoothed_euroc.csv",
+                                      "pose_covariance_smoothed.csv") if (out / n).is_file())
     console.print(f"wrote {out}/trajectory.tum, trajectory_euroc.csv, pose_covariance.csv, "
                   f"states.csv{logs}, report.json, config.yaml")
     if rerun is not None:

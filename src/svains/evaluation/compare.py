@@ -27,13 +27,13 @@ from svains.datasets.types import Dataset, GroundTruth
 from svains.errors import AlignmentError, ConfigError
 from svains.evaluation.extrinsics import write_estimated_camchain
 from svains.evaluation.metrics import AteResult, ate
-from svains.evaluation.run import run_accuracy, run_owned
+from svains.evaluation.run import add_smoothed, run_accuracy, run_owned
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import RunResult
 from svains.outputs import TMP_PREFIX, atomic_write_text, replaced_dir
 from svains.replay import replay, resolve_config
 from svains.replay.groundtruth import interpolate_groundtruth
-from svains.replay.writers import write_outputs
+from svains.replay.writers import write_outputs, write_smoothed_outputs
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -184,10 +184,14 @@ def run_methods(
             continue
         res.report.update(run_accuracy(res, ds))
         res.report.update(trajectory_metrics(res, ds, m, options.use_gps))
+        smoothed = add_smoothed(res, ds, lambda r, m=m: trajectory_metrics(r, ds, m,
+                                                                            options.use_gps))
         log.info("%s done in %.1f s", m, time.perf_counter() - t0)
         if sub is not None:
             with replaced_dir(sub, run_owned) as stage:  # each method's folder appears whole
                 write_outputs(stage, res)
+                if smoothed is not None:
+                    write_smoothed_outputs(stage, smoothed)
                 write_estimated_camchain(stage, ds, res.report)
         results[m] = res
     return results
@@ -234,6 +238,10 @@ def comparison_markdown(reports: dict[str, dict[str, Any]], title: str) -> str:
             continue
         rows.append("| " + " | ".join(_cell({**rep, "method": m}, k, f) for _, k, f in _COLUMNS)
                     + " |")
+        if isinstance(rep.get("smoothed"), dict):
+            # The forward-backward estimate of the same run (``--smooth``), on the next row.
+            sm = {**rep["smoothed"], "method": f"{m} smoothed", "realtime_factor": None}
+            rows.append("| " + " | ".join(_cell(sm, k, f) for _, k, f in _COLUMNS) + " |")
     return f"# {title}\n\n" + "\n".join([head, sep, *rows]) + "\n"
 
 

@@ -23,9 +23,10 @@ from svains.evaluation.reference_tilt import estimate_reference_gravity, levelin
 from svains.evaluation.run_record import PLOT_NAMES
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import RunResult
+from svains.navigation.smoothing import smoothed_result
 from svains.outputs import TMP_PREFIX, replaced_dir
 from svains.replay import replay, resolve_config
-from svains.replay.writers import RUN_FILES, write_outputs
+from svains.replay.writers import RUN_FILES, write_outputs, write_smoothed_outputs
 
 
 def errors_alignment_for(result: RunResult) -> str:
@@ -98,6 +99,24 @@ def run_accuracy(result: RunResult, dataset: Dataset) -> dict[str, Any]:
     return out
 
 
+def add_smoothed(
+    result: RunResult, dataset: Dataset,
+    extra: Callable[[RunResult], dict[str, Any]] | None = None,
+) -> RunResult | None:
+    """Smooth ``result`` when it kept a history (``smoother.enabled``): ``result.smoothed``
+    and ``report["smoothed"]`` (the accuracy keys of :func:`run_accuracy`, those of ``extra``,
+    and ``navigation.smoothing``'s cost keys); None without a history."""
+    if result.history is None:
+        return None
+    smoothed = smoothed_result(result)
+    result.smoothed = smoothed
+    keys = run_accuracy(smoothed, dataset)
+    if extra is not None:
+        keys.update(extra(smoothed))
+    result.report["smoothed"] = {**keys, **smoothed.report["smoothing"]}
+    return smoothed
+
+
 def fused_gps_times(result: RunResult, t_gps_ns: NDArray[np.int64]) -> NDArray[np.int64]:
     """GPS fix times (N,) ns that the run could fuse: those outside the configured GPS-off
     windows (``--gps-outage``, ``--gps-until``), so those windows count as outages."""
@@ -153,9 +172,12 @@ def run_method(
     config = resolve_config(dataset, config)
     result = replay(dataset, config, progress)
     result.report.update(run_accuracy(result, dataset))
+    smoothed = add_smoothed(result, dataset)
     if out_dir is not None:
         # The folder is replaced whole at the end: a previous run's files never sit beside these.
         with replaced_dir(out_dir, run_owned) as stage:
             write_outputs(stage, result, config_text=config_text)
+            if smoothed is not None:
+                write_smoothed_outputs(stage, smoothed)
             write_estimated_camchain(stage, dataset, result.report)
     return result

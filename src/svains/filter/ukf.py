@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from svains.errors import ConfigError, FilterError
 from svains.filter.iterated import iterated_update
 from svains.filter.manifold import Manifold
+from svains.filter.rts import RtsRecorder
 from svains.filter.sigma_points import MerweScaledSigmaPoints, safe_cholesky
 
 F64 = NDArray[np.float64]
@@ -77,6 +78,8 @@ class UKF:
         self.P = 0.5 * (P0 + P0.T)
         safe_cholesky(self.P, "initial covariance")
         self._sigma_cache: tuple[bytes, F64, F64] | None = None
+        # Sees every change of the state for a smoother (``filter.rts``); None: not recorded.
+        self.recorder: RtsRecorder | None = None
 
     def sigma_points(self) -> tuple[F64, F64]:
         """Sigma points ``X`` (S, nx) of the current state and their tangent offsets (S, ndx).
@@ -95,9 +98,12 @@ class UKF:
         self._sigma_cache = (key, X, dX)
         return X, dX
 
-    def resize(self, manifold: Manifold, x: F64, P: F64) -> None:
+    def resize(self, manifold: Manifold, x: F64, P: F64, transform: F64 | None = None) -> None:
         """Replace the state space (augmenting or marginalising states, e.g. pose clones) with
-        its mean ``x`` (nx,) and covariance ``P`` (ndx, ndx); the sigma-point parameters stay."""
+        its mean ``x`` (nx,) and covariance ``P`` (ndx, ndx); the sigma-point parameters stay.
+        ``transform`` (ndx, ndx_old): the linear tangent map the change applied (a copy, a
+        selection), for a smoother (``recorder``); without it the recorder cuts its chain."""
+        x_old, P_old = self.x, self.P
         p = self.points
         self.points = MerweScaledSigmaPoints(manifold.ndx, p.alpha, p.beta, p.kappa)
         self.manifold = manifold
@@ -109,6 +115,8 @@ class UKF:
                 f"x {self.x.shape} / P {self.P.shape} do not match nx={manifold.nx}, "
                 f"ndx={manifold.ndx}"
             )
+        if self.recorder is not None:
+            self.recorder.resized(x_old, P_old, transform, self.x, self.P)
 
     def predict(self, f: ProcessFn, u: Any, dt: float, Q: F64) -> None:
         """Propagate through ``f(X, u, dt)`` and add ``Q`` (n, n) or its diagonal (n,).
@@ -127,6 +135,11 @@ class UKF:
         if n > P.shape[0]:
             raise ConfigError(f"process noise of size {n} for a {P.shape[0]}-dim tangent")
         P[:n, :n] += np.diag(Q) if np.ndim(Q) == 1 else Q
+        if self.recorder is not None:
+            # The step's statistical linearisation A = P_xy^T P^-1 (the sigma points' own).
+            _, dX = self.sigma_points()
+            A = _regression(self.P, dX.T @ (self.points.Wc[:, None] * dY))
+            self.recorder.predicted(self.x, self.P, A, x)
         self.x = x
         self.P = 0.5 * (P + P.T)
 
@@ -176,9 +189,8 @@ class UKF:
                 R[i : i + len(Rk), i : i + len(Rk)] = Rk
                 i += len(Rk)
             dx, _, dP = _dense_gain(dX, dY, Wc, R, r, "+".join(s.name for s in stats if s.accepted))
-            self.x = self.manifold.retract(self.x[None, :], dx[None, :])[0]
-            P = self.P - dP
-            self.P = 0.5 * (P + P.T)
+            self._set_posterior(self.manifold.retract(self.x[None, :], dx[None, :])[0],
+                                self.P - dP)  # fmt: skip
         return stats
 
     def update(
@@ -236,10 +248,16 @@ class UKF:
             raise FilterError(f"{name or 'measurement'}: non-finite innovation")
         if nis > gate:
             return UpdateStats(name, False, float(nis), nz, float(gate))
-        self.x = self.manifold.retract(self.x[None, :], dx[None, :])[0]
-        P = self.P - dP
-        self.P = 0.5 * (P + P.T)
+        self._set_posterior(self.manifold.retract(self.x[None, :], dx[None, :])[0], self.P - dP)
         return UpdateStats(name, True, float(nis), nz, float(gate))
+
+    def _set_posterior(self, x: F64, P: F64) -> None:
+        """Take an accepted update's mean and covariance (symmetrised), telling the recorder."""
+        x_prior, P_prior = self.x, self.P
+        self.x = x
+        self.P = 0.5 * (P + P.T)
+        if self.recorder is not None:
+            self.recorder.updated(self.manifold, x_prior, P_prior, self.x, self.P)
 
     def _update_iterated(
         self, h: MeasurementFn, z: F64, R: F64, D: F64 | None, gate: float, name: str,
@@ -256,8 +274,18 @@ class UKF:
             raise FilterError(f"{name or 'measurement'}: non-finite innovation")
         if nis > gate:
             return UpdateStats(name, False, nis, z.size, float(gate))
-        self.x, self.P = x, P
+        self._set_posterior(x, P)
         return UpdateStats(name, True, nis, z.size, float(gate))
+
+
+def _regression(P: F64, Pxy: F64) -> F64:
+    """``A = Pxy^T P^-1`` (ndx', ndx): the linear map that best explains the propagated sigma
+    points from the prior ones (exact for a linear model)."""
+    try:
+        factor = scipy.linalg.cho_factor(P, lower=True, check_finite=False)
+        return scipy.linalg.cho_solve(factor, Pxy, check_finite=False).T
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(P, Pxy, rcond=None)[0].T
 
 
 def _gate(probability: float | None, max_nis_per_dof: float | None, nz: int) -> float:

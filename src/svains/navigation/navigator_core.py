@@ -26,6 +26,7 @@ from svains.navigation.fault_handling import (
 from svains.navigation.ins import InsFilter
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import NavState, RunResult, UpdateRecord, WorldFrame
+from svains.navigation.smoothing import history_recorder
 from svains.navigation.vision import LcUpdater, PixelUpdater, make_vision_updater
 from svains.navigation.vision_clones import next_reference_ns
 from svains.navigation.vision_gaps import vision_gap_report
@@ -82,6 +83,7 @@ class Core:
             if config.zupt.enabled else None
         )
         self._next_zupt_ns = self.t0_ns
+        self.history = history_recorder(config, ins) if config.smoother.enabled else None
         self._log()
 
     # ---- the event loop -----------------------------------------------------------------
@@ -137,7 +139,7 @@ class Core:
     def finish(self, end_ns: int) -> None:
         """The final state at ``end_ns`` (logged like a tick)."""
         self._propagate(end_ns)
-        self._log()
+        self._log(last=True)
 
     def _propagate(self, t: int) -> None:
         """The IMU to ``t``, with the noise of the IMU gaps crossed on the way."""
@@ -341,8 +343,10 @@ class Core:
         x, P = self.ins.ukf.x, self.ins.ukf.P
         return NavState.from_state(self.ins.t_ns, x[:nx], P[:ndx, :ndx], self.layout)
 
-    def _log(self) -> None:
+    def _log(self, last: bool = False) -> None:
         ins = self.ins
+        if self.history is not None:
+            self.history.mark(ins.t_ns, ins.ukf.x, ins.ukf.P, last=last)
         self._log_t.append(ins.t_ns)
         self._log_x.append(ins.ukf.x[: self.layout.nx].copy())
         self._log_std.append(ins.tangent_std())
@@ -364,7 +368,7 @@ class Core:
             t, np.array(self._log_x), np.array(self._log_std), np.array(self._log_P9), {},
             self.updates, self.update_log, getattr(self._source, "track_log", None),
             world_frame=self._world_frame(),
-            gps_used=bool(cfg.use_gps and self.rig.gps is not None),
+            gps_used=bool(cfg.use_gps and self.rig.gps is not None), history=self.history,
         )  # fmt: skip
         duration = (t[-1] - t[0]) * 1e-9
         t_imu = self.ins.t_imu

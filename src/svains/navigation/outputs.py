@@ -9,6 +9,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from svains.filter.rts import RtsRecorder
 from svains.filter.ukf import UpdateStats
 from svains.geometry.rotation import quat_to_rotmat
 from svains.models.state import BA, BG, P, Q, StateLayout, V, W
@@ -102,6 +103,7 @@ class RunResult:
     ``gps_used``: GPS was enabled and present; ``has_covariance``: False for filter-free methods.
     ``update_log``: every measurement update with its time and sensor (``updates.csv``);
     ``tracks``: the vision tracks of every frame (``tracks.csv``), None without vision.
+    ``history``: what a smoother needs (``smoother.enabled``; ``navigation.smoothing``).
     """
 
     t_ns: I64
@@ -115,3 +117,6 @@ class RunResult:
     world_frame: WorldFrame = "groundtruth"
     gps_used: bool = False
     has_covariance: bool = True
+    history: RtsRecorder | None = field(default=None, repr=False)
+    # The smoothed estimates (``navigation.smoothing.smoothed_result``), once computed.
+    smoothed: RunResult | None = field(default=None, repr=False)

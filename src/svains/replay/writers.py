@@ -21,7 +21,9 @@ if TYPE_CHECKING:
 
 # Every file ``write_outputs`` may write (a replaced run folder drops all of them).
 RUN_FILES = ("trajectory.tum", "trajectory_euroc.csv", "pose_covariance.csv", "states.csv",
-             "updates.csv", "tracks.csv", "config.yaml", "report.json")  # fmt: skip
+             "updates.csv", "tracks.csv", "config.yaml", "report.json",
+             "trajectory_smoothed.tum", "trajectory_smoothed_euroc.csv",
+             "pose_covariance_smoothed.csv")  # fmt: skip
 
 # EuRoC's state_groundtruth_estimate0/data.csv header (evo's euroc reader takes this layout).
 EUROC_HEADER = (
@@ -64,12 +66,7 @@ def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None =
     x = result.x
     # A replaced run: its old report.json goes first, so old and new files never pass as one run.
     (out_dir / "report.json").unlink(missing_ok=True)
-    with atomic_path(out_dir / "trajectory.tum") as tmp, open(tmp, "w", encoding="utf-8") as fh:
-        fh.write("# t x y z qx qy qz qw\n")
-        for t, xs in zip(result.t_ns, x, strict=True):
-            # Seconds written from the integer nanoseconds: no float64 rounding of the time.
-            vals = " ".join(f"{v:.9f}" for v in (*xs[0:3], *xs[7:10], xs[6]))
-            fh.write(f"{int(t) // 1_000_000_000}.{int(t) % 1_000_000_000:09d} {vals}\n")
+    write_tum(out_dir / "trajectory.tum", result)
     write_euroc_csv(out_dir / "trajectory_euroc.csv", result)
     if result.has_covariance and len(result.P9) == len(result.t_ns):  # (kept by the run)
         write_pose_covariance(out_dir / "pose_covariance.csv", result)
@@ -92,6 +89,25 @@ def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None =
     atomic_write_text(
         out_dir / "report.json", json.dumps(result.report, indent=2, default=_json_default) + "\n"
     )
+
+
+def write_smoothed_outputs(out_dir: Path, smoothed: RunResult) -> None:
+    """``trajectory_smoothed.tum``, ``trajectory_smoothed_euroc.csv`` and
+    ``pose_covariance_smoothed.csv`` of a smoothed run (``navigation.smoothing``), in the
+    layouts of the forward files."""
+    write_tum(Path(out_dir) / "trajectory_smoothed.tum", smoothed)
+    write_euroc_csv(Path(out_dir) / "trajectory_smoothed_euroc.csv", smoothed)
+    write_pose_covariance(Path(out_dir) / "pose_covariance_smoothed.csv", smoothed)
+
+
+def write_tum(path: Path, result: RunResult) -> None:
+    """TUM trajectory: ``t x y z qx qy qz qw`` (s, m, body-to-world quaternion)."""
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        fh.write("# t x y z qx qy qz qw\n")
+        for t, xs in zip(result.t_ns, result.x, strict=True):
+            # Seconds written from the integer nanoseconds: no float64 rounding of the time.
+            vals = " ".join(f"{v:.9f}" for v in (*xs[0:3], *xs[7:10], xs[6]))
+            fh.write(f"{int(t) // 1_000_000_000}.{int(t) % 1_000_000_000:09d} {vals}\n")
 
 
 def write_euroc_csv(path: Path, result: RunResult) -> None:

@@ -1,0 +1,83 @@
+"""Forward-backward smoothing of a navigation run (``smoother.enabled``, ``svains run --smooth``).
+
+The filter records its history as it runs (``filter.rts.RtsRecorder`` on the ``UKF``, created
+by :func:`history_recorder`); after the run, :func:`smoothed_result` runs the backward
+Rauch-Tung-Striebel pass and returns the smoothed estimates as a ``RunResult`` at the forward
+run's output times, so the same accuracy keys and writers apply.
+
+Kept per output state: the (δp, δv, δθ) rows (9), which give the pose, velocity and their
+covariance. The other rows (ω, the IMU biases) are kept on the whole-state epochs only, every
+``smoother.chain_interval_s``: the smoothed bias correction between two of them is interpolated
+(biases are random walks: over a second they barely move), ω keeps the forward value, and the
+standard deviations of ω and the biases are the forward ones.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from svains.errors import ConfigError
+from svains.filter.rts import RtsRecorder, smooth
+from svains.models.manifold import NavManifold
+from svains.models.state import DBA, DBG, DTH, StateLayout
+from svains.navigation.outputs import RunResult
+
+if TYPE_CHECKING:
+    from svains.navigation.ins import InsFilter
+    from svains.navigation.options import RunConfig
+
+OUTPUT_ROWS = np.arange(DTH.stop)  # δp, δv, δθ
+
+
+def history_recorder(config: RunConfig, ins: InsFilter) -> RtsRecorder:
+    """A recorder attached to ``ins``'s UKF from its current state on."""
+    # The forward means are in the run's own log: the recorder keeps none (``keep_x=0``).
+    rec = RtsRecorder(OUTPUT_ROWS, 0, int(config.smoother.chain_interval_s * 1e9))
+    rec.start(ins.ukf.x, ins.ukf.P)
+    ins.ukf.recorder = rec
+    return rec
+
+
+def smoothed_result(result: RunResult) -> RunResult:
+    """The smoothed estimates of ``result`` (a run made with ``smoother.enabled``): the same
+    times, ``x``, ``std``, ``P9``; its ``report`` holds the forward run's identification keys
+    (``method``, GPS-off windows) and ``smoothing`` (wall time, what was kept)."""
+    rec = result.history
+    if rec is None:
+        raise ConfigError("the run kept no history to smooth: run it with smoother.enabled "
+                          "(svains run --smooth)")  # fmt: skip
+    t0 = time.perf_counter()
+    s = smooth(rec)
+    layout = StateLayout(biased=result.x.shape[1] >= 19)
+    nav = NavManifold(layout)
+    if not np.array_equal(s.t_ns, result.t_ns):
+        raise ConfigError("the history's epochs are not the run's output times")
+    dX = np.zeros((len(s.t_ns), layout.ndx))
+    dX[:, OUTPUT_ROWS] = s.eps
+    std = np.array(result.std, dtype=float, copy=True)
+    std[:, OUTPUT_ROWS] = np.sqrt(np.maximum(np.diagonal(s.P, axis1=1, axis2=2), 0.0))
+    if layout.biased:
+        for rows in (DBG, DBA):
+            for j in range(rows.start, rows.stop):
+                dX[:, j] = np.interp(s.t_ns, s.chain_t_ns, [e[j] for e in s.chain_eps])
+    x = nav.retract(np.asarray(result.x, dtype=float), dX)
+    wall = time.perf_counter() - t0
+    duration_s = max((int(s.t_ns[-1]) - int(s.t_ns[0])) * 1e-9, 1e-9) if len(s.t_ns) else 0.0
+    mb = rec.nbytes / 1e6
+    keep = ("method", "model", "gps_off_windows_ns")
+    report = {k: result.report[k] for k in keep if k in result.report}
+    report["smoothing"] = {
+        "wall_s": wall,
+        "history_mb": mb,
+        "history_mb_per_hour": mb * 3600.0 / duration_s if duration_s else None,
+        "epochs_kept": len(s.t_ns),
+        "whole_state_epochs": len(s.chain_t_ns),
+        "updates_composed": rec.updates,
+        "chain_cuts": rec.cuts,
+    }
+    return replace(result, x=x, std=std, P9=np.array(s.P), report=report, history=None,
+                   updates=[], update_log=[], tracks=None)  # fmt: skip
