@@ -13,6 +13,7 @@ import pytest
 from svains.datasets.loader import load_dataset
 from svains.errors import ConfigError
 from svains.evaluation.compare import run_methods, write_comparison
+from svains.evaluation.plots import plot_run
 from svains.navigation.options import InitOptions, RunOptions, SmootherOptions
 from svains.navigation.smoothing import smoothed_result
 from svains.replay import replay, resolve_config
@@ -57,13 +58,17 @@ def test_smoothing_closes_the_outage(village_outage: Path, tmp_path: Path) -> No
         assert 0 < cost["history_mb"] and cost["whole_state_epochs"] >= 30
         assert cost["epochs_kept"] == len(fwd.t_ns) and cost["chain_cuts"] == 0
         for name in ("trajectory_smoothed.tum", "trajectory_smoothed_euroc.csv",
-                     "pose_covariance_smoothed.csv"):
+                     "pose_covariance_smoothed.csv", "states_smoothed.csv"):
             assert (tmp_path / m / name).is_file()
         rows = np.loadtxt(tmp_path / m / "trajectory_smoothed.tum", comments="#")
         np.testing.assert_allclose(rows[:, 1:4], sm.x[:, 0:3], atol=1e-8)
     # VO has no filter: nothing to smooth, nothing written, no error.
     assert res["vo"].smoothed is None and "smoothed" not in res["vo"].report
     assert not (tmp_path / "vo" / "trajectory_smoothed.tum").exists()
+    # svains plot draws both estimates with their bands.
+    files = plot_run(tmp_path / "3d", ds, tmp_path / "plots")
+    nees = next(f for f in files if f.path.name == "nees.png")
+    assert "smoothed" in nees.panels[0], nees.panels
     write_comparison(tmp_path, res, "test")
     md = (tmp_path / "compare.md").read_text()
     assert "| 3d smoothed |" in md and "| ins smoothed |" in md and "vo smoothed" not in md

@@ -1,9 +1,10 @@
 """``svains plot RUN_DIR``: a run's consistency figures as PNG (matplotlib object API).
 
 - ``errors.png``: position, velocity and attitude error per axis against time with the filter's
-  ±3σ bounds (after the run's ``errors_alignment``);
+  ±3σ bounds (after the run's ``errors_alignment``), and the smoothed estimate's with its own
+  bounds when the run was smoothed (``states_smoothed.csv``);
 - ``nees.png``: NEES over time (9 dof, diagonal covariance from ``states.csv``) with its 95 %
-  chi-square interval;
+  chi-square interval (and the smoothed estimate's);
 - ``measurements.png``: per sensor, updates fused and rejected (cumulative) over time, from
   ``updates.csv``; a run without that log gets the totals of ``report.json``.
 """
@@ -39,8 +40,9 @@ def _save(fig: Figure, path: Path) -> Path:
     return path
 
 
-def plot_errors(err: RunErrors, path: Path) -> PlotFile:
-    """3x3 panels: error per axis (x, y, z) of position, velocity, attitude with ±3σ."""
+def plot_errors(err: RunErrors, path: Path, smoothed: RunErrors | None = None) -> PlotFile:
+    """3x3 panels: error per axis (x, y, z) of position, velocity, attitude with ±3σ; the
+    ``smoothed`` estimate's errors and bounds over them when given."""
     t_s = (err.t_ns - err.t_ns[0]) * 1e-9
     fig = Figure(figsize=(12, 8))
     axes = fig.subplots(3, 3, sharex=True)
@@ -52,18 +54,29 @@ def plot_errors(err: RunErrors, path: Path) -> PlotFile:
             bound = 3.0 * err.std[:, k] * scale
             ax.fill_between(t_s, -bound, bound, color="tab:blue", alpha=0.2, label="±3 sigma")
             ax.plot(t_s, err.e[:, k] * scale, color="tab:red", lw=1.0, label="error")
+            if smoothed is not None:
+                ts = (smoothed.t_ns - err.t_ns[0]) * 1e-9
+                sb = 3.0 * smoothed.std[:, k] * scale
+                ax.fill_between(ts, -sb, sb, color="tab:orange", alpha=0.3,
+                                label="smoothed ±3 sigma")  # fmt: skip
+                ax.plot(ts, smoothed.e[:, k] * scale, color="tab:purple", lw=1.0,
+                        label="smoothed error")  # fmt: skip
             title = f"{name} {axis} [{unit}]"
             ax.set_title(title)
             titles.append(title)
             if r == 2:
                 ax.set_xlabel("time [s]")
     axes[0, 0].legend(loc="upper left")
-    fig.suptitle(f"errors after {err.alignment} alignment, with the filter's ±3 sigma")
+    fig.suptitle(f"errors after {err.alignment} alignment, with the filter's ±3 sigma"
+                 + (" (and the smoother's)" if smoothed is not None else ""))
     return PlotFile(_save(fig, path), tuple(titles))
 
 
-def plot_nees(err: RunErrors, path: Path, dof: int = 9) -> PlotFile:
-    """NEES against time with the 95 % interval of a chi-square with ``dof`` degrees."""
+def plot_nees(
+    err: RunErrors, path: Path, dof: int = 9, smoothed: RunErrors | None = None
+) -> PlotFile:
+    """NEES against time with the 95 % interval of a chi-square with ``dof`` degrees (and the
+    ``smoothed`` estimate's NEES when given)."""
     t_s = (err.t_ns - err.t_ns[0]) * 1e-9
     fig = Figure(figsize=(10, 4))
     ax = fig.subplots()
@@ -71,9 +84,14 @@ def plot_nees(err: RunErrors, path: Path, dof: int = 9) -> PlotFile:
     ax.axhspan(lo, hi, color="tab:green", alpha=0.15, label=f"95 % interval, {dof} dof")
     ax.axhline(dof, color="tab:green", lw=1.0)
     ax.plot(t_s, err.nees, color="tab:blue", lw=1.0, label="NEES (diagonal covariance)")
+    title = f"NEES over time (mean {np.nanmean(err.nees):.2f})"
+    if smoothed is not None:
+        ax.plot((smoothed.t_ns - err.t_ns[0]) * 1e-9, smoothed.nees, color="tab:purple", lw=1.0,
+                label="smoothed NEES")  # fmt: skip
+        title = (f"NEES over time (mean {np.nanmean(err.nees):.2f}, smoothed "
+                 f"{np.nanmean(smoothed.nees):.2f})")  # fmt: skip
     ax.set_yscale("log")
     ax.set_xlabel("time [s]")
-    title = f"NEES over time (mean {np.nanmean(err.nees):.2f})"
     ax.set_title(title)
     ax.legend(loc="upper right")
     return PlotFile(_save(fig, path), (title,))
@@ -126,10 +144,14 @@ def plot_run(run_dir: Path | str, dataset: Dataset | None, out_dir: Path | str) 
     files = []
     if dataset is not None and dataset.groundtruth is not None:
         g = np.asarray(dataset.gravity_W, float)
-        err = run_errors(rec, dataset.groundtruth, -g / np.linalg.norm(g))
-        files.append(plot_errors(err, out / "errors.png"))
+        up = -g / np.linalg.norm(g)
+        err = run_errors(rec, dataset.groundtruth, up)
+        sm = None
+        if (Path(run_dir) / "states_smoothed.csv").is_file():
+            sm = run_errors(read_run(run_dir, smoothed=True), dataset.groundtruth, up)
+        files.append(plot_errors(err, out / "errors.png", sm))
         if np.isfinite(err.nees).any():
-            files.append(plot_nees(err, out / "nees.png"))
+            files.append(plot_nees(err, out / "nees.png", smoothed=sm))
     elif dataset is not None:
         raise DatasetError(f"{dataset.root}: no ground truth, so no error or NEES plots")
     files.append(plot_measurements(rec, out / "measurements.png"))

@@ -74,13 +74,16 @@ def _csv_columns(path: Path, text_cols: tuple[str, ...] = ()) -> dict[str, NDArr
     return out
 
 
-def read_run(run_dir: Path | str) -> RunRecord:
-    """Read ``states.csv``, ``report.json`` and, when present, ``updates.csv``/``tracks.csv``."""
+def read_run(run_dir: Path | str, smoothed: bool = False) -> RunRecord:
+    """Read ``states.csv``, ``report.json`` and, when present, ``updates.csv``/``tracks.csv``;
+    with ``smoothed``, the smoothed states (``states_smoothed.csv``, ``svains run --smooth``)."""
     d = Path(run_dir)
-    for name in ("states.csv", "report.json"):
+    states = "states_smoothed.csv" if smoothed else "states.csv"
+    for name in (states, "report.json"):
         if not (d / name).is_file():
-            raise DatasetError(f"{d}: not a run folder (missing {name}; see svains run --out)")
-    cols = _csv_columns(d / "states.csv")
+            hint = "run it with --smooth" if smoothed else "see svains run --out"
+            raise DatasetError(f"{d}: not a run folder (missing {name}; {hint})")
+    cols = _csv_columns(d / states)
     names = list(cols)
     std_names = [n for n in names if n.startswith("std_")]
     x_names = [n for n in names if n != "t_ns" and not n.startswith("std_")]

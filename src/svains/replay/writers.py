@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 RUN_FILES = ("trajectory.tum", "trajectory_euroc.csv", "pose_covariance.csv", "states.csv",
              "updates.csv", "tracks.csv", "config.yaml", "report.json",
              "trajectory_smoothed.tum", "trajectory_smoothed_euroc.csv",
-             "pose_covariance_smoothed.csv")  # fmt: skip
+             "pose_covariance_smoothed.csv", "states_smoothed.csv")  # fmt: skip
 
 # EuRoC's state_groundtruth_estimate0/data.csv header (evo's euroc reader takes this layout).
 EUROC_HEADER = (
@@ -70,11 +70,7 @@ def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None =
     write_euroc_csv(out_dir / "trajectory_euroc.csv", result)
     if result.has_covariance and len(result.P9) == len(result.t_ns):  # (kept by the run)
         write_pose_covariance(out_dir / "pose_covariance.csv", result)
-    header = ",".join(["t_ns", *_STATE_NAMES[: layout.nx], *_STD_NAMES[: layout.ndx]])
-    with atomic_path(out_dir / "states.csv") as tmp, open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(header + "\n")
-        for t, xs, ss in zip(result.t_ns, x, result.std, strict=True):
-            fh.write(f"{int(t)}," + ",".join(f"{v:.9g}" for v in np.concatenate([xs, ss])) + "\n")
+    write_states(out_dir / "states.csv", result, layout)
     # A replaced run's logs go when this run has none (the viewer would take them for its own).
     if result.update_log:
         write_updates(out_dir / "updates.csv", result)
@@ -91,10 +87,22 @@ def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None =
     )
 
 
+def write_states(path: Path, result: RunResult, layout: StateLayout) -> None:
+    """``states.csv``: t ns, the state (``layout.nx``) and its tangent standard deviations."""
+    header = ",".join(["t_ns", *_STATE_NAMES[: layout.nx], *_STD_NAMES[: layout.ndx]])
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        fh.write(header + "\n")
+        for t, xs, ss in zip(result.t_ns, result.x, result.std, strict=True):
+            fh.write(f"{int(t)}," + ",".join(f"{v:.9g}" for v in np.concatenate([xs, ss])) + "\n")
+
+
 def write_smoothed_outputs(out_dir: Path, smoothed: RunResult) -> None:
-    """``trajectory_smoothed.tum``, ``trajectory_smoothed_euroc.csv`` and
-    ``pose_covariance_smoothed.csv`` of a smoothed run (``navigation.smoothing``), in the
+    """``trajectory_smoothed.tum``, ``trajectory_smoothed_euroc.csv``,
+    ``pose_covariance_smoothed.csv`` and ``states_smoothed.csv`` of a smoothed run
+    (``navigation.smoothing``: ω and the biases' deviations there are the forward ones), in the
     layouts of the forward files."""
+    layout = BIASED if smoothed.x.shape[-1] == BIASED.nx else PAPER
+    write_states(Path(out_dir) / "states_smoothed.csv", smoothed, layout)
     write_tum(Path(out_dir) / "trajectory_smoothed.tum", smoothed)
     write_euroc_csv(Path(out_dir) / "trajectory_smoothed_euroc.csv", smoothed)
     write_pose_covariance(Path(out_dir) / "pose_covariance_smoothed.csv", smoothed)
