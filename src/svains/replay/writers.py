@@ -63,7 +63,6 @@ def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None =
     out_dir.mkdir(parents=True, exist_ok=True)
     if layout is None:
         layout = BIASED if result.x.shape[-1] == BIASED.nx else PAPER
-    x = result.x
     # A replaced run: its old report.json goes first, so old and new files never pass as one run.
     (out_dir / "report.json").unlink(missing_ok=True)
     write_tum(out_dir / "trajectory.tum", result)
