@@ -32,11 +32,11 @@ chain epoch. Memory: one chain epoch (ndx² numbers twice) per interval and
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import NDArray
 
 from svains.errors import ConfigError, FilterError
@@ -48,15 +48,20 @@ F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 
+@functools.cache
+def _triu(n: int) -> tuple[I64, I64]:
+    return np.triu_indices(n)  # type: ignore[return-value]
+
+
 def _pack(M: F64) -> F64:
     """Upper triangle (row-major) of a symmetric matrix (n, n) -> (n(n+1)/2,)."""
-    return M[np.triu_indices(M.shape[0])].copy()
+    return M[_triu(M.shape[0])]
 
 
 def _unpack(v: F64, n: int) -> F64:
     """Inverse of ``_pack``."""
     M = np.zeros((n, n))
-    iu = np.triu_indices(n)
+    iu = _triu(n)
     M[iu] = v
     M.T[iu] = v
     return M
@@ -146,9 +151,7 @@ class RtsRecorder:
     # ---- hooks called by the UKF ------------------------------------------------------------
     def _check(self, x: F64, P: F64) -> None:
         """A mean changed behind the recorder's back (a reset) cuts the chain."""
-        if self._x_seen is not None and (
-            self._x_seen.shape != x.shape or not np.array_equal(self._x_seen, x)
-        ):
+        if self._x_seen is not None and self._x_seen.tobytes() != np.asarray(x).tobytes():
             self.cut(x, P)
 
     def predicted(self, x_prior: F64, P_prior: F64, A: F64, x_post: F64) -> None:
@@ -261,8 +264,8 @@ class RtsRecorder:
                 f"RTS: the map reaches {C.shape[1]} dims, the prior has {P_prior.shape[0]}"
             )
         try:
-            factor = scipy.linalg.cho_factor(P_prior, lower=True, check_finite=False)
-            GT = scipy.linalg.cho_solve(factor, C.T, check_finite=False)
+            # LU on a small matrix: cheaper here than scipy's Cholesky wrappers per epoch.
+            GT = np.linalg.solve(P_prior, C.T)
         except np.linalg.LinAlgError:
             GT = np.linalg.lstsq(P_prior, C.T, rcond=None)[0]
         G = GT.T  # (n_prev, n_now)

@@ -282,8 +282,7 @@ def _regression(P: F64, Pxy: F64) -> F64:
     """``A = Pxy^T P^-1`` (ndx', ndx): the linear map that best explains the propagated sigma
     points from the prior ones (exact for a linear model)."""
     try:
-        factor = scipy.linalg.cho_factor(P, lower=True, check_finite=False)
-        return scipy.linalg.cho_solve(factor, Pxy, check_finite=False).T
+        return np.linalg.solve(P, Pxy).T
     except np.linalg.LinAlgError:
         return np.linalg.lstsq(P, Pxy, rcond=None)[0].T
 
