@@ -145,3 +145,19 @@ def test_run_with_synthetic_features(village_short: Path, tmp_path: Path) -> Non
     assert rep["vision"]["source"] == "features"
     assert 6 <= rep["vision"]["frames"] <= 9
     assert rep["vision"]["frames_fused"] >= 5
+
+
+def test_run_smooth_writes_both_estimates(village_short: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    rep, printed = _invoke([str(village_short), "--method", "ins", "--init", "groundtruth",
+                            "--smooth", "--out", str(out)])  # fmt: skip
+    assert "smoothed" in printed and "history kept [MB]" in printed and "per hour" in printed
+    sm = rep["smoothed"]
+    assert sm["epochs_kept"] == rep["evaluated_states"] and sm["history_mb"] > 0
+    assert sm["nees_mean"] > 0 and sm["errors_alignment"] == rep["errors_alignment"]
+    for name in ("trajectory_smoothed.tum", "trajectory_smoothed_euroc.csv",
+                 "pose_covariance_smoothed.csv", "states_smoothed.csv"):
+        assert (out / name).is_file(), name
+    assert "trajectory_smoothed.tum" in printed
+    cfg = (out / "config.yaml").read_text()
+    assert "smoother:" in cfg and "enabled: true" in cfg
