@@ -81,28 +81,25 @@ class CloneWindow:
             manifold = CloneManifold(manifold, 0)
         x, P = ukf.x, ukf.P
         times = list(self.times)
-        # Old tangent row behind each new one (-1: a new, independent state), for the map a
-        # smoother chains through the resize (``UKF.resize``'s ``transform``).
-        src = np.arange(manifold.ndx)
+        # The linear map from the old tangent to the new one (rows of zeros: a new,
+        # independent state), for a smoother to chain through the resize (``UKF.resize``).
+        T = np.eye(manifold.ndx)
         if self.extrinsic_std_rad is not None and manifold.n_calib == 0:
             var = self.extrinsic_std_rad**2 * np.eye(3)
             n_nav = manifold.nav.ndx
             x, P, manifold = augment_calibration(x, P, manifold, np.zeros(3), var)
-            src = np.concatenate([src[:n_nav], np.full(3, -1), src[n_nav:]])
+            T = np.vstack([T[:n_nav], np.zeros((3, T.shape[1])), T[n_nav:]])
         if reference_ns is not None and int(reference_ns) == int(t_ns) and t_ns not in times:
             x, P, manifold = augment_clone(x, P, manifold)
-            src = np.concatenate([src, src[DP], src[DTH]])  # a copy of the pose's rows
+            T = np.vstack([T, T[DP], T[DTH]])  # a copy of the pose's rows
             times.append(int(t_ns))
         for i in reversed(range(len(times))):
             if reference_ns is None or times[i] != int(reference_ns):
-                src = np.delete(src, np.arange(manifold.ndx)[manifold.tangent(i)])
+                T = np.delete(T, np.arange(manifold.ndx)[manifold.tangent(i)], axis=0)
                 x, P, manifold = marginalize_clone(x, P, manifold, i)
                 del times[i]
         if times != self.times or manifold is not ukf.manifold:
-            transform = np.zeros((src.size, ukf.P.shape[0]))
-            kept = np.flatnonzero(src >= 0)
-            transform[kept, src[kept]] = 1.0
-            ukf.resize(manifold, x, np.asarray(P), transform)
+            ukf.resize(manifold, x, np.asarray(P), T)
         self.times = times
         if manifold.calib is not None:
             cx, cdx = manifold.calib
