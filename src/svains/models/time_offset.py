@@ -68,10 +68,11 @@ def _integrate(ts: F64, gyro: F64, accel: F64, a_s: float, b_s: float) -> tuple[
     dR, dv, dp = np.eye(3), np.zeros(3), np.zeros(3)
     for i in range(nodes.size - 1):
         h = nodes[i + 1] - nodes[i]
-        acc = dR @ (0.5 * (f[i] + f[i + 1]))
+        half = so3_exp(0.25 * (w[i] + w[i + 1]) * h)  # the attitude at the step's middle
+        acc = dR @ half @ (0.5 * (f[i] + f[i + 1]))
         dp = dp + dv * h + 0.5 * acc * h * h
         dv = dv + acc * h
-        dR = dR @ so3_exp(0.5 * (w[i] + w[i + 1]) * h)
+        dR = dR @ half @ half
     return dR, dv, dp
 
 
