@@ -201,3 +201,8 @@ def test_simulated_offset_is_recovered(offset_flight: Path, tmp_path: Path) -> N
     chain = read_camchain(tmp_path / "est" / "camchain_estimated.yaml")
     assert chain.timeshift_cam_imu_s == pytest.approx(v["time_offset_ms"] * 1e-3, abs=1e-6)
     assert abs(v["time_offset_ms"] - 30.0) < 3.0 * v["time_offset_std_ms"] + 0.5
+    from svains.evaluation.plots import plot_run
+
+    files = {f.path.name: f.panels for f in plot_run(tmp_path / "est", ds, tmp_path / "plots")}
+    assert "time_offset.png" in files, files
+    assert files["time_offset.png"][0].startswith("camera-IMU time offset: ")
