@@ -158,7 +158,10 @@ class CloneWindow:
         if reference_ns is not None and int(reference_ns) == int(t_ns) and t_ns not in times:
             if self.time_offset_std_s is None:
                 x, P, manifold = augment_clone(x, P, manifold)
-            else:  # the pose at the image's IMU time, t_k + t_d
+            else:
+                # The pose at the image's IMU time, t_k + t_d: not a copy of the pose's rows,
+                # so a tangent map of this resize (a smoother's) is [I; S], S from
+                # ``models.time_offset.shifted_pose_jacobian``.
                 assert manifold.calib is not None
                 col = manifold.calib[0].stop - 1
                 inc = self._increment(x, manifold.nav.nx, col, t_ns)
