@@ -189,7 +189,8 @@ def run(
     for name, c in rep.get("measurements", {}).items():
         table.add_row(f"{name} fused/rejected", f"{c['fused']}/{c['rejected']}")
     for name, v in rep.get("vision", {}).items():
-        table.add_row(f"vision {name}", str(v))
+        if name != "time_offset_history":  # per frame: report.json and time_offset.png
+            table.add_row(f"vision {name}", str(v))
     if rep.get("outage_max_error_m"):
         table.add_row(
             "outage max error [m]", ", ".join(f"{e:.2f}" for e in rep["outage_max_error_m"])

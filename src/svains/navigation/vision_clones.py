@@ -27,11 +27,12 @@ motion between frames. Adds 3 tangent dimensions (55 sigma points with one clone
 number after ``δφ_C`` (when both are on), ``t_d`` (s, Kalibr's ``t_imu = t_cam + t_d``), the
 residual of the offset the data's calibration already applied to the image stamps
 (``CameraCalib.timeshift_cam_imu_s``), with zero mean and ``time_offset_std_ms``. The clone of
-a frame is then the body pose at the image's IMU time ``t_k + t_d`` (``augment_shifted_clone``,
-first order through the state's velocity and rate, with its correlation to ``t_d``) and the
-models shift the current pose alike (``models.vision_clone.time_shifted_pose``): the relative
-motion between the two is shifted at both ends, and ``t_d`` becomes observable wherever the
-rig moves. Adds 1 tangent dimension; constant in the process model.
+a frame is then the body pose at the image's IMU time ``t_k + t_d`` (``augment_shifted_clone``:
+moved through the IMU samples over the current estimate and to first order beyond it,
+``models.time_offset``, with its correlation to ``t_d``) and the models move the current pose
+alike (``time_offset.shifted_pose``): the relative motion between the two is shifted at both
+ends, and ``t_d`` becomes observable wherever the rig's motion changes. Adds 1 tangent
+dimension (2 sigma points); constant in the process model.
 """
 
 from __future__ import annotations
