@@ -118,3 +118,57 @@ def test_smoothed_nees_is_consistent_over_seeds(tmp_path: Path) -> None:
     lo, hi = chi2_average_bounds(8)
     # Measured 2026-12-02: 8.99 (band 6.30-12.17); the forward runs 8.33.
     assert lo < np.mean(means) < hi, (np.mean(means), (lo, hi), means)
+
+
+@pytest.mark.parametrize("time_offset", [False, True])
+def test_clone_resizes_hand_the_smoother_their_exact_map(time_offset: bool) -> None:
+    """The tangent map ``after_frame`` gives ``UKF.resize`` is the one it applied to P:
+    ``P' = T P T^T`` plus the new calibration's prior and the clone jitter (a plain copy of the
+    pose, or with the time offset the pose shifted by it, ``[I; S]``)."""
+    from svains.filter import UKF, MerweScaledSigmaPoints
+    from svains.models.manifold import NavManifold
+    from svains.models.state import BIASED
+    from svains.navigation.vision_clones import CloneWindow
+
+    class Capture:
+        def resized(self, x0, P0, T, x1, P1):  # noqa: ANN001, ANN202 (the recorder's hook)
+            self.P0, self.T, self.P1 = P0, T, P1
+
+    rng = np.random.default_rng(7)
+    x = np.zeros(BIASED.nx)
+    x[6] = 1.0
+    x[3:6] = [1.5, -0.4, 0.2]  # a velocity and a rate, so a shift moves the pose
+    x[10:13] = [0.1, -0.2, 0.3]
+    A = rng.normal(size=(BIASED.ndx, BIASED.ndx)) * 0.1
+    ukf = UKF(NavManifold(BIASED), MerweScaledSigmaPoints(BIASED.ndx, 0.5176, 2.0, 0.0), x,
+              A @ A.T + 1e-3 * np.eye(BIASED.ndx))  # fmt: skip
+    cap = Capture()
+    ukf.recorder = cap  # type: ignore[assignment]
+    win = CloneWindow(np.radians(0.5), 0.02 if time_offset else None)
+    n_calib = 4 if time_offset else 3
+    for k, t in enumerate((1_000_000_000, 1_200_000_000)):
+        if k == 1:  # the filter moved on: the old clone is no longer a copy of the pose
+            xx = ukf.x.copy()
+            xx[0:3] += [0.3, 0.0, 0.1]
+            if time_offset:
+                xx[BIASED.nx + n_calib - 1] = 0.01  # an estimated offset of 10 ms
+            P = ukf.P.copy()
+            P[:BIASED.ndx, :BIASED.ndx] += 1e-3 * np.eye(BIASED.ndx)
+            ukf.x, ukf.P = xx, P
+        win.after_frame(ukf, t, t)
+        expected = cap.T @ cap.P0 @ cap.T.T
+        diff = cap.P1 - expected
+        off = diff - np.diag(np.diag(diff))
+        d = np.diag(diff)
+        if k == 0:
+            # The new calibration block is independent of the old state: its prior (and, with
+            # the offset, what it gives the shifted clone) is noise, outside the map. The
+            # navigation rows carry nothing of it.
+            assert np.abs(off[:BIASED.ndx]).max() < 1e-12
+            np.testing.assert_allclose(d[BIASED.ndx:BIASED.ndx + 3], np.radians(0.5) ** 2)
+            if time_offset:
+                assert d[BIASED.ndx + 3] == pytest.approx(0.02**2)
+            d = d[:BIASED.ndx]
+        else:  # nothing new: the map is the whole change, but for the clone's jitter
+            assert np.abs(off).max() < 1e-12, np.abs(off).max()
+        assert np.all(np.abs(d) <= 1e-8 * np.abs(np.diag(expected)).max())  # the jitter

@@ -207,7 +207,8 @@ def run(
     for name, c in rep.get("measurements", {}).items():
         row(f"{name} fused/rejected", f"{c['fused']}/{c['rejected']}", "")
     for name, v in rep.get("vision", {}).items():
-        row(f"vision {name}", str(v), "")
+        if name != "time_offset_history":  # per frame: report.json and time_offset.png
+            row(f"vision {name}", str(v), "")
     if rep.get("outage_max_error_m"):
         row("outage max error [m]", ", ".join(f"{e:.2f}" for e in rep["outage_max_error_m"]),
             ", ".join(f"{e:.2f}" for e in (sm or {}).get("outage_max_error_m") or []))

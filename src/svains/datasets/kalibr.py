@@ -260,12 +260,14 @@ def write_camchain(
     timeshift_cam_imu_s: float = 0.0,
     rostopics: list[str] | None = None,
     openvins: bool = False,
+    comments: list[str] | None = None,
 ) -> Path:
     """Write cameras (``T_B_C`` on body B) as a Kalibr camchain-imucam (``T_cam_imu``, with
-    ``T_cn_cnm1``), or with ``openvins`` as OpenVINS' ``T_imu_cam``; the IMU sits at ``T_B_I``."""
+    ``T_cn_cnm1``), or with ``openvins`` as OpenVINS' ``T_imu_cam``; the IMU sits at ``T_B_I``.
+    ``comments``: lines written first as YAML comments (readers ignore them)."""
     path = Path(path)
     T_I_B = np.linalg.inv(np.eye(4) if T_B_I is None else np.asarray(T_B_I, float))
-    lines: list[str] = []
+    lines: list[str] = [f"# {c}" for c in comments or []]
     prev: F64 | None = None
     for i, cam in enumerate(cameras):
         T_I_C = T_I_B @ np.asarray(cam.T_B_C, float)

@@ -6,13 +6,17 @@
 - ``nees.png``: NEES over time (9 dof, diagonal covariance from ``states.csv``) with its 95 %
   chi-square interval (and the smoothed estimate's);
 - ``measurements.png``: per sensor, updates fused and rejected (cumulative) over time, from
-  ``updates.csv``; a run without that log gets the totals of ``report.json``.
+  ``updates.csv``; a run without that log gets the totals of ``report.json``;
+- ``time_offset.png`` (runs that estimated the camera-IMU time offset): the estimate over time
+  with its ±3σ band, from ``report.json``'s ``vision.time_offset_history``; with the data set,
+  the simulator's true offset (``scenario.yaml``) as a line.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from matplotlib.axes import Axes
@@ -135,6 +139,41 @@ def plot_measurements(rec: RunRecord, path: Path) -> PlotFile:
 
 
 
+def plot_time_offset(report: dict[str, Any], path: Path, truth_ms: float | None = None) -> PlotFile:
+    """The online camera-IMU time offset (ms) against time with its ±3σ band (``report.json``
+    ``vision.time_offset_history``); ``truth_ms`` drawn when known."""
+    h = report["vision"]["time_offset_history"]
+    t_s = np.asarray(h["t_s"], float)
+    t_s = t_s - t_s[0]
+    v, s = np.asarray(h["value_ms"], float), np.asarray(h["std_ms"], float)
+    fig = Figure(figsize=(10, 4))
+    ax = fig.subplots()
+    ax.fill_between(t_s, v - 3 * s, v + 3 * s, color="tab:blue", alpha=0.2, label="±3 sigma")
+    ax.plot(t_s, v, color="tab:blue", lw=1.0, label="estimate")
+    if truth_ms is not None:
+        ax.axhline(truth_ms, color="tab:green", lw=1.0, label=f"truth {truth_ms:g} ms")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("timeshift_cam_imu [ms]")
+    title = f"camera-IMU time offset: {v[-1]:.2f} ± {s[-1]:.2f} ms at the end"
+    ax.set_title(title)
+    ax.legend(loc="upper right")
+    return PlotFile(_save(fig, path), (title,))
+
+
+def _true_offset_ms(dataset: Dataset | None) -> float | None:
+    """The simulator's injected camera-IMU offset (ms) from its ``scenario.yaml`` (None: not
+    a simulation)."""
+    if dataset is None:
+        return None
+    import yaml
+
+    path = (Path(dataset.root) / "mav0" / "state_groundtruth_estimate0" / "scenario.yaml")
+    if not path.is_file():
+        return None
+    cam = (yaml.safe_load(path.read_text()) or {}).get("camera") or {}
+    return float(cam.get("timeshift_cam_imu", 0.0)) * 1e3
+
+
 def plot_run(run_dir: Path | str, dataset: Dataset | None, out_dir: Path | str) -> list[PlotFile]:
     """Write the three figures of a run into ``out_dir``; the error and NEES figures need
     ``dataset`` with ground truth."""
@@ -155,4 +194,7 @@ def plot_run(run_dir: Path | str, dataset: Dataset | None, out_dir: Path | str) 
     elif dataset is not None:
         raise DatasetError(f"{dataset.root}: no ground truth, so no error or NEES plots")
     files.append(plot_measurements(rec, out / "measurements.png"))
+    if "time_offset_history" in (rec.report.get("vision") or {}):
+        files.append(plot_time_offset(rec.report, out / "time_offset.png",
+                                      _true_offset_ms(dataset)))  # fmt: skip
     return files

@@ -163,8 +163,8 @@ def run_method(
 
     With ``out_dir``, write ``trajectory.tum``, ``states.csv``, ``report.json``, the other output
     files, ``config.yaml`` from ``config_text`` when given, and ``camchain_estimated.yaml`` when
-    the run estimated the camera rotation: the folder is replaced whole at the end, or left
-    untouched on a failure. The configuration is first resolved against the data set
+    the run estimated the camera rotation or time offset: the folder is replaced whole at the
+    end, or left untouched on a failure. The configuration is first resolved against the data set
     (``svains.replay.resolve_config``)."""
     config = options or RunConfig()
     if method is not None and method != config.method:

@@ -28,7 +28,8 @@ from svains.evaluation.reference_tilt import leveling_rotation
 from svains.geometry.rotation import quat_to_rotmat
 from svains.replay.groundtruth import navigation_errors
 
-PLOT_NAMES = ("errors.png", "nees.png", "measurements.png")  # what ``plot_run`` may write
+# What ``plot_run`` may write (``time_offset.png`` for runs that estimated the offset).
+PLOT_NAMES = ("errors.png", "nees.png", "measurements.png", "time_offset.png")
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]

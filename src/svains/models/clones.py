@@ -32,6 +32,7 @@ from svains.models.manifold import NavManifold, quat_mean
 from svains.models.state import DP, DTH
 from svains.models.state import P as P_SLICE
 from svains.models.state import Q as Q_SLICE
+from svains.models.time_offset import ShiftIncrement, shifted_pose_jacobian
 
 F64 = NDArray[np.float64]
 
@@ -185,6 +186,36 @@ def augment_clone(
     c = np.arange(n, n + CLONE_NDX)
     P_new[c, c] += CloneManifold.clone_jitter(P_new[c, c]) if jitter is None else jitter
     x_new = np.concatenate([x, x[P_SLICE], x[Q_SLICE]])
+    return x_new, 0.5 * (P_new + P_new.T), manifold.with_clones(manifold.n_clones + 1)
+
+
+def augment_shifted_clone(
+    x: F64, P: F64, manifold: CloneManifold, td: int, inc: ShiftIncrement,
+    jitter: float | None = None,
+) -> tuple[F64, F64, CloneManifold]:
+    """Append a clone of the body pose at the image's IMU time ``t + t_d`` (``t_d = x[td]``,
+    s, in the state's calibration block, equal to ``inc.tau_s``; ``models.time_offset``):
+    ``x'`` (nx + 7,), ``P'`` (ndx + 6, ndx + 6). ``P' = J P J^T`` with ``J = [I; S]``
+    (``shifted_pose_jacobian``): the clone is correlated with the offset, so the relative
+    motion to a later shifted pose depends on ``t_d`` at both ends. Jitter as in
+    ``augment_clone``."""
+    x = np.asarray(x, dtype=float)
+    P = np.asarray(P, dtype=float)
+    if x.shape != (manifold.nx,) or P.shape != (manifold.ndx, manifold.ndx):
+        raise ConfigError(
+            f"x {x.shape} / P {P.shape} do not match nx={manifold.nx}, ndx={manifold.ndx}"
+        )
+    calib = manifold.calib
+    if calib is None or not calib[0].start <= td < calib[0].stop:
+        raise ConfigError(f"column {td} is not in the state's calibration block")
+    td_tangent = td - calib[0].start + calib[1].start
+    p_c, q_c, S = shifted_pose_jacobian(x, manifold.ndx, td, td_tangent, inc)
+    n = manifold.ndx
+    J = np.vstack([np.eye(n), S])
+    P_new = J @ P @ J.T
+    c = np.arange(n, n + CLONE_NDX)
+    P_new[c, c] += CloneManifold.clone_jitter(P_new[c, c]) if jitter is None else jitter
+    x_new = np.concatenate([x, p_c, q_c])
     return x_new, 0.5 * (P_new + P_new.T), manifold.with_clones(manifold.n_clones + 1)
 
 

@@ -12,6 +12,12 @@ rotation correction ``δφ_C`` (rad, left-camera axes) in the state, ``C = R_B_C
 sigma point (the whole stereo rig turns; ``navigation.vision_clones``). The ``3d``, ``tc`` and
 ``lc`` predictions follow from it as from the paper's ``camera_motion``; ``3d`` equals
 ``vision_3d.predict_pixels_3d_exact`` with the clone's pose (tests check it).
+
+**Camera-IMU time offset** ``t_d`` (s, Kalibr's ``t_imu = t_cam + t_d``; ``td`` a pair: its
+column in the state and the frame's ``ShiftIncrement``, ``models.time_offset``): the image
+stamped ``t_k`` was taken at IMU time ``t_k + t_d``, so the current pose is moved there per
+sigma point (``time_offset.shifted_pose``). The clone of the k-1 frame was made the same way
+(``models.clones.augment_shifted_clone``), so the relative motion is shifted at both ends.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ from svains.geometry.camera import RectifiedStereo
 from svains.geometry.rotation import so3_exp, so3_log
 from svains.models._quat import rotmat_rows
 from svains.models.state import P, Q
+from svains.models.time_offset import ShiftIncrement, shifted_pose
 from svains.models.vision_3d import pixels_from_motion
 from svains.models.vision_common import as_points, as_sigma_points
 from svains.models.vision_tc import pixels_tc_from_motion
@@ -31,22 +38,25 @@ F64 = NDArray[np.float64]
 
 
 def clone_camera_motion(
-    X: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo, calib: slice | None = None
+    X: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo, calib: slice | None = None,
+    td: tuple[int, ShiftIncrement] | None = None,
 ) -> tuple[F64, F64]:
     """Left-camera motion from the clone to the current pose: ``R_c`` (S, 3, 3), ``r_c`` (S, 3).
 
     ``X`` (S, nx) augmented sigma points (or one state (nx,)); ``clone`` the columns
     ``(p_W_B, q_W_B_wxyz)`` of the clone (``CloneManifold.columns``); ``calib`` the columns of
-    the camera rotation correction ``δφ_C`` (3, rad) when the state estimates it.
+    the camera rotation correction ``δφ_C`` (3, rad) when the state estimates it; ``td`` the
+    camera-IMU time offset's column and the frame's ``ShiftIncrement`` when the state estimates
+    it (the current pose is then ``time_offset.shifted_pose``; the clone already is).
     """
     x, _ = as_sigma_points(X)
     C = np.asarray(rig.R_B_C, dtype=float)
     c_B = np.asarray(rig.p_B_C, dtype=float)
     cp, cq = clone
-    R_k = rotmat_rows(x[:, Q])
+    R_k, p_k = (rotmat_rows(x[:, Q]), x[:, P]) if td is None else shifted_pose(x, *td)
     R_km1 = rotmat_rows(x[:, cq])
     dR = R_k.transpose(0, 2, 1) @ R_km1  # R_k^T R_km1 (S, 3, 3)
-    dp_B = ((x[:, P] - x[:, cp])[:, None, :] @ R_k)[:, 0]  # R_k^T (p_k - p_km1)
+    dp_B = ((p_k - x[:, cp])[:, None, :] @ R_k)[:, 0]  # R_k^T (p_k - p_km1)
     r_B = c_B + dp_B - dR @ c_B
     if calib is None:
         return C.T @ dR @ C, r_B @ C
@@ -56,32 +66,34 @@ def clone_camera_motion(
 
 def predict_pixels_3d_clone(
     X: ArrayLike, p_Ckm1_F: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo,
-    calib: slice | None = None,
+    calib: slice | None = None, td: tuple[int, ShiftIncrement] | None = None,
 ) -> F64:
     """``3d`` pixels at t_k (S, 4M) of points (M, 3) triangulated at the clone's frame."""
     _, single = as_sigma_points(X)
-    R_c, r_c = clone_camera_motion(X, clone, rig, calib)
+    R_c, r_c = clone_camera_motion(X, clone, rig, calib, td)
     out = pixels_from_motion(R_c, r_c, as_points(p_Ckm1_F), rig)
     return out[0] if single else out
 
 
 def predict_pixels_tc_clone(
     X: ArrayLike, uv_left_prev: ArrayLike, uv_right_prev: ArrayLike,
-    clone: tuple[slice, slice], rig: RectifiedStereo,
+    clone: tuple[slice, slice], rig: RectifiedStereo, calib: slice | None = None,
+    td: tuple[int, ShiftIncrement] | None = None,
 ) -> F64:
     """``tc`` pixels at t_k (S, 4M) transferred from the clone frame's pixels (M, 2)."""
     _, single = as_sigma_points(X)
-    R_c, r_c = clone_camera_motion(X, clone, rig)
+    R_c, r_c = clone_camera_motion(X, clone, rig, calib, td)
     out = pixels_tc_from_motion(R_c, r_c, uv_left_prev, uv_right_prev, rig)
     return out[0] if single else out
 
 
 def predict_egomotion_clone(
-    X: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo, calib: slice | None = None
+    X: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo, calib: slice | None = None,
+    td: tuple[int, ShiftIncrement] | None = None,
 ) -> F64:
     """``lc``'s ``(Log R_Ck_Ckm1, p_Ck_Ckm1)`` (S, 6) between the clone and now (eqs. 30-33
     with the exact motion: ``R_Ck_Ckm1 = R_c``, ``p_Ck_Ckm1 = -r_c``)."""
     _, single = as_sigma_points(X)
-    R_c, r_c = clone_camera_motion(X, clone, rig, calib)
+    R_c, r_c = clone_camera_motion(X, clone, rig, calib, td)
     out = np.concatenate([so3_log(R_c), -r_c], axis=1)
     return out[0] if single else out

@@ -41,6 +41,7 @@ from svains.navigation.vision_egomotion import egomotion_noise
 from svains.navigation.vision_pixels import (
     PixelUpdater,
     VisionCounters,
+    applied_offset_s,
     apply_blocks,
     imu_and_prior,
     tracks_with_prior,
@@ -70,7 +71,7 @@ class LcUpdater:
         self.counters = VisionCounters()
         self._imu, self._prior = imu_and_prior(history, rig, options, self.source)
         self._nis_per_dof: list[float] = []  # consistency check: should average ~1
-        self.clones = clone_window(options)
+        self.clones = clone_window(options, applied_offset_s(rig), history, rig.gravity_W)
 
     def measurement(self, tr: StereoTracks) -> tuple[F64, F64] | None:
         """``z`` (6,) (rotation vector rad, translation m) and its covariance (6, 6): the front
@@ -118,9 +119,9 @@ class LcUpdater:
         rig, rot = self.rig, self.options.rotation
         if self.clones is not None:
             cols = self.clones.columns(ctx.ukf, tr.t_prev_ns)
-            calib = self.clones.calib(ctx.ukf)
+            calib, td = self.clones.calib(ctx.ukf), self.clones.td(ctx.ukf, ctx.t_ns)
             return None if cols is None else (
-                lambda X: predict_egomotion_clone(X, cols, rig, calib))
+                lambda X: predict_egomotion_clone(X, cols, rig, calib, td))
         if self._imu is None or rot != "imu":
             inc = None
         elif inc is None:  # no prior, or it spanned another interval

@@ -22,11 +22,22 @@ error tilts every frame's translation direction, while a lever-arm error of a fe
 invisible at these step lengths). The exact relative-motion models then see it per sigma point
 (``models.vision_clone``) and the clones' correlation with it makes it observable from the IMU
 motion between frames. Adds 3 tangent dimensions (55 sigma points with one clone).
+
+**Online camera-IMU time offset** (``vision.estimate_time_offset``): one more calibration
+number after ``δφ_C`` (when both are on), ``t_d`` (s, Kalibr's ``t_imu = t_cam + t_d``), the
+residual of the offset the data's calibration already applied to the image stamps
+(``CameraCalib.timeshift_cam_imu_s``), with zero mean and ``time_offset_std_ms``. The clone of
+a frame is then the body pose at the image's IMU time ``t_k + t_d`` (``augment_shifted_clone``:
+moved through the IMU samples over the current estimate and to first order beyond it,
+``models.time_offset``, with its correlation to ``t_d``) and the models move the current pose
+alike (``time_offset.shifted_pose``): the relative motion between the two is shifted at both
+ends, and ``t_d`` becomes observable wherever the rig's motion changes. Adds 1 tangent
+dimension (2 sigma points); constant in the process model.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -36,10 +47,13 @@ from svains.models.clones import (
     CloneManifold,
     augment_calibration,
     augment_clone,
+    augment_shifted_clone,
     marginalize_clone,
 )
 from svains.models.manifold import NavManifold
-from svains.models.state import DP, DTH
+from svains.models.state import BA, BG, BIASED, DP, DTH, W
+from svains.models.time_offset import ShiftIncrement, shift_increment, shifted_pose_jacobian
+from svains.navigation.imu_history import ImuHistory
 
 if TYPE_CHECKING:
     from svains.navigation.options import VisionOptions
@@ -50,20 +64,68 @@ F64 = NDArray[np.float64]
 class CloneWindow:
     """Times (ns) of the clones in ``ukf``'s state, in state order."""
 
-    def __init__(self, extrinsic_std_rad: float | None = None) -> None:
+    def __init__(
+        self, extrinsic_std_rad: float | None = None, time_offset_std_s: float | None = None,
+        time_offset_applied_s: float = 0.0, history: ImuHistory | None = None,
+        g_W: tuple[float, float, float] = (0.0, 0.0, -9.81),
+    ) -> None:
         """``extrinsic_std_rad``: estimate the camera rotation correction with this prior
-        standard deviation per axis (None: the calibration is taken as exact)."""
+        standard deviation per axis (None: the calibration is taken as exact);
+        ``time_offset_std_s``: estimate the camera-IMU time offset's residual with this prior
+        standard deviation (s; None: the offset is taken as exact); ``time_offset_applied_s``
+        the offset the data's calibration already applied to the image stamps (s, reported
+        with the estimate); ``history`` the IMU samples that move a pose by the offset
+        (``models.time_offset``; None: first order only) and ``g_W`` (3,) m/s² gravity."""
+        self.history = history
+        self.g_W = np.asarray(g_W, dtype=float)
         self.times: list[int] = []
         self.extrinsic_std_rad = extrinsic_std_rad
+        self.time_offset_std_s = time_offset_std_s
+        self.time_offset_applied_s = float(time_offset_applied_s)
         # Last estimate of δφ_C (3,) rad and its standard deviations (3,) rad (``after_frame``).
         self.extrinsic: tuple[F64, F64] | None = None
+        # (t_ns, residual t_d s, its std s) after every frame while the offset is estimated.
+        self.time_offset: list[tuple[int, float, float]] = []
+
+    @property
+    def n_calib(self) -> int:
+        """Calibration numbers this window adds: ``δφ_C`` (3) then ``t_d`` (1), each if on."""
+        return 3 * (self.extrinsic_std_rad is not None) + (self.time_offset_std_s is not None)
 
     def calib(self, ukf: UKF) -> slice | None:
         """Columns of ``δφ_C`` in ``ukf.x`` (None: not estimated)."""
         manifold = ukf.manifold
-        if not isinstance(manifold, CloneManifold) or manifold.calib is None:
+        if (not isinstance(manifold, CloneManifold) or manifold.calib is None
+                or self.extrinsic_std_rad is None):
             return None
-        return manifold.calib[0]
+        a = manifold.calib[0].start
+        return slice(a, a + 3)
+
+    def td(self, ukf: UKF, t_ns: int) -> tuple[int, ShiftIncrement] | None:
+        """The time offset's column in ``ukf.x`` and the ``ShiftIncrement`` that moves the
+        pose at the frame ``t_ns`` by its current estimate (None: not estimated)."""
+        manifold = ukf.manifold
+        if (not isinstance(manifold, CloneManifold) or manifold.calib is None
+                or self.time_offset_std_s is None):
+            return None
+        col = manifold.calib[0].stop - 1
+        return col, self._increment(ukf.x, manifold.nav.nx, col, t_ns)
+
+    def _increment(self, x: F64, nav_nx: int, col: int, t_ns: int) -> ShiftIncrement:
+        """The IMU's motion from ``t_ns`` over the offset ``x[col]`` (s) with the biases of
+        ``x`` (``models.time_offset.shift_increment``); first order without an IMU history."""
+        tau = float(x[col])
+        bg, ba = (x[BG], x[BA]) if nav_nx == BIASED.nx else (np.zeros(3), np.zeros(3))
+        h = self.history
+        if h is None or h.n < 2:
+            return ShiftIncrement.first_order(x[W], self.g_W)
+        t = h.t_ns
+        # Only the samples around [t, t + τ] (plus one either side for the interpolation).
+        lo = int(np.searchsorted(t, int(t_ns) + min(round(tau * 1e9), 0), "left")) - 1
+        hi = int(np.searchsorted(t, int(t_ns) + max(round(tau * 1e9), 0), "right")) + 1
+        lo, hi = max(lo, 0), min(max(hi, lo + 2), h.n)
+        return shift_increment(t[lo:hi], h.gyro_B[lo:hi], h.accel_B[lo:hi], int(t_ns), tau,
+                               bg, ba, self.g_W)  # fmt: skip
 
     def columns(self, ukf: UKF, t_ns: int | None) -> tuple[slice, slice] | None:
         """Columns ``(p_W_B, q_W_B_wxyz)`` of the clone at ``t_ns`` in ``ukf.x`` (None: none)."""
@@ -72,6 +134,17 @@ class CloneWindow:
         manifold = ukf.manifold
         assert isinstance(manifold, CloneManifold)
         return manifold.columns(self.times.index(int(t_ns)))
+
+    def _with_calibration(
+        self, x: F64, P: F64, manifold: CloneManifold
+    ) -> tuple[F64, F64, CloneManifold]:
+        """The state with this window's calibration block added (zero mean, prior stds)."""
+        var = []
+        if self.extrinsic_std_rad is not None:
+            var += [self.extrinsic_std_rad**2] * 3
+        if self.time_offset_std_s is not None:
+            var.append(self.time_offset_std_s**2)
+        return augment_calibration(x, P, manifold, np.zeros(len(var)), np.diag(var))
 
     def after_frame(self, ukf: UKF, t_ns: int, reference_ns: int | None) -> None:
         """Clone the pose at ``t_ns`` when it is the next tracks' reference; drop the others."""
@@ -84,14 +157,24 @@ class CloneWindow:
         # The linear map from the old tangent to the new one (rows of zeros: a new,
         # independent state), for a smoother to chain through the resize (``UKF.resize``).
         T = np.eye(manifold.ndx)
-        if self.extrinsic_std_rad is not None and manifold.n_calib == 0:
-            var = self.extrinsic_std_rad**2 * np.eye(3)
+        if self.n_calib and manifold.n_calib == 0:
             n_nav = manifold.nav.ndx
-            x, P, manifold = augment_calibration(x, P, manifold, np.zeros(3), var)
-            T = np.vstack([T[:n_nav], np.zeros((3, T.shape[1])), T[n_nav:]])
+            x, P, manifold = self._with_calibration(x, P, manifold)
+            T = np.vstack([T[:n_nav], np.zeros((self.n_calib, T.shape[1])), T[n_nav:]])
         if reference_ns is not None and int(reference_ns) == int(t_ns) and t_ns not in times:
-            x, P, manifold = augment_clone(x, P, manifold)
-            T = np.vstack([T, T[DP], T[DTH]])  # a copy of the pose's rows
+            if self.time_offset_std_s is None:
+                x, P, manifold = augment_clone(x, P, manifold)
+                T = np.vstack([T, T[DP], T[DTH]])  # a copy of the pose's rows
+            else:
+                # The pose at the image's IMU time, t_k + t_d: not a copy of the pose's rows
+                # but ``J = [I; S]`` (``models.time_offset.shifted_pose_jacobian``).
+                assert manifold.calib is not None
+                col = manifold.calib[0].stop - 1
+                inc = self._increment(x, manifold.nav.nx, col, t_ns)
+                td_tangent = col - manifold.calib[0].start + manifold.calib[1].start
+                S = shifted_pose_jacobian(x, manifold.ndx, col, td_tangent, inc)[2]
+                x, P, manifold = augment_shifted_clone(x, P, manifold, col, inc)
+                T = np.vstack([T, S @ T])
             times.append(int(t_ns))
         for i in reversed(range(len(times))):
             if reference_ns is None or times[i] != int(reference_ns):
@@ -103,24 +186,67 @@ class CloneWindow:
         self.times = times
         if manifold.calib is not None:
             cx, cdx = manifold.calib
-            self.extrinsic = (ukf.x[cx].copy(), np.sqrt(np.diag(ukf.P)[cdx]))
+            value, std = ukf.x[cx].copy(), np.sqrt(np.diag(ukf.P)[cdx])
+            if self.extrinsic_std_rad is not None:
+                self.extrinsic = (value[:3], std[:3])
+            if self.time_offset_std_s is not None:
+                self.time_offset.append((int(t_ns), float(value[-1]), float(std[-1])))
 
-    def summary(self) -> dict[str, list[float]]:
-        """The estimated rotation correction for ``report.json`` (deg; empty when none)."""
-        if self.extrinsic is None:
-            return {}
-        value, std = self.extrinsic
-        return {"extrinsic_rotation_deg": np.degrees(value).tolist(),
-                "extrinsic_rotation_std_deg": np.degrees(std).tolist()}
+    def summary(self) -> dict[str, Any]:
+        """The estimated calibration for ``report.json`` (empty when none): the rotation
+        correction (deg) and the time offset (ms, total: the applied one plus the residual,
+        Kalibr's ``timeshift_cam_imu``), with their standard deviations, and the offset's
+        history (``time_offset_history``: ``t_s``, ``value_ms``, ``std_ms``, at most one entry
+        per ``HISTORY_PERIOD_S`` plus the last)."""
+        out: dict[str, Any] = {}
+        if self.extrinsic is not None:
+            value, std = self.extrinsic
+            out.update(extrinsic_rotation_deg=np.degrees(value).tolist(),
+                       extrinsic_rotation_std_deg=np.degrees(std).tolist())  # fmt: skip
+        if self.time_offset:
+            t, v, s = (np.asarray(c) for c in zip(*self.time_offset, strict=True))
+            v = (v + self.time_offset_applied_s) * 1e3
+            keep = _thinned(t, HISTORY_PERIOD_S)
+            out.update(
+                time_offset_ms=float(v[-1]), time_offset_std_ms=float(s[-1] * 1e3),
+                time_offset_applied_ms=self.time_offset_applied_s * 1e3,
+                time_offset_history={"t_s": (t[keep] * 1e-9).tolist(),
+                                     "value_ms": v[keep].tolist(),
+                                     "std_ms": (s[keep] * 1e3).tolist()},
+            )  # fmt: skip
+        return out
 
 
-def clone_window(options: VisionOptions) -> CloneWindow | None:
+# ``report.json``'s time-offset history: at most one entry per this period (s), so an hour of
+# 20 Hz frames stays a few hundred kB; enough for the plot and for the campaign's checks.
+HISTORY_PERIOD_S = 0.2
+
+
+def _thinned(t_ns: NDArray[np.int64], period_s: float) -> NDArray[np.int64]:
+    """Indices of ``t_ns`` (N,) at least ``period_s`` apart, the last always kept."""
+    keep, last = [], None
+    for i, t in enumerate(t_ns.tolist()):
+        if last is None or t - last >= period_s * 1e9:
+            keep.append(i)
+            last = t
+    if keep[-1] != len(t_ns) - 1:
+        keep.append(len(t_ns) - 1)
+    return np.asarray(keep, np.int64)
+
+
+def clone_window(
+    options: VisionOptions, time_offset_applied_s: float = 0.0,
+    history: ImuHistory | None = None, g_W: tuple[float, float, float] = (0.0, 0.0, -9.81),
+) -> CloneWindow | None:
     """The clone window of ``options`` (None unless ``rotation="clone"``), estimating the
-    camera rotation when ``estimate_extrinsics`` is set."""
+    camera rotation when ``estimate_extrinsics`` is set and the camera-IMU time offset when
+    ``estimate_time_offset`` is (its applied part ``time_offset_applied_s``, s, reported; the
+    IMU ``history`` and gravity ``g_W`` move the poses by it)."""
     if options.rotation != "clone":
         return None
     std = np.radians(options.extrinsics_std_deg) if options.estimate_extrinsics else None
-    return CloneWindow(std)
+    td_std = options.time_offset_std_ms * 1e-3 if options.estimate_time_offset else None
+    return CloneWindow(std, td_std, time_offset_applied_s, history, g_W)
 
 
 def next_reference_ns(source: object, t_ns: int) -> int | None:

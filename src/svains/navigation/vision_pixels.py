@@ -129,7 +129,7 @@ class PixelUpdater:
         std = self.source.pixel_noise_std if std is None else std
         self._pixel_std_px = max(float(std), 0.05)  # the pixels' own noise, unscaled
         self.sigma_px = self._pixel_std_px * options.noise_scale()
-        self.clones = clone_window(options)
+        self.clones = clone_window(options, applied_offset_s(rig), history, rig.gravity_W)
         known = options.pixel_noise_std is not None or self.source.kind == "features"
         self._min_disparity_px = options.min_disparity(self.sigma_px, known)
         # The k-1 pixel noise biases the prediction (``vision_noise.previous_pixel_bias``); the
@@ -200,8 +200,9 @@ class PixelUpdater:
         rig, rot = self.rig, self.options.rotation
         if self.clones is not None:
             cols = self.clones.columns(ctx.ukf, tr.t_prev_ns)
-            calib = self.clones.calib(ctx.ukf)
-            return None if cols is None else (lambda X: clone_camera_motion(X, cols, rig, calib))
+            calib, td = self.clones.calib(ctx.ukf), self.clones.td(ctx.ukf, ctx.t_ns)
+            return None if cols is None else (
+                lambda X: clone_camera_motion(X, cols, rig, calib, td))
         return lambda X: camera_motion(X, dt_s, rig, rot, inc)
 
     def _model(self, uvl0: F64, uvr0: F64, motion: MotionFn, p_F: F64 | None = None) -> Any:
@@ -370,8 +371,10 @@ class PixelUpdater:
         if ego is None:
             return None
         calib, rig = self.clones.calib(ctx.ukf), self.rig
-        block = egomotion_block("vision_egomotion", ego, self.options,
-                                lambda X: predict_egomotion_clone(X, cols, rig, calib))  # fmt: skip
+        td = self.clones.td(ctx.ukf, ctx.t_ns)
+        block = egomotion_block(
+            "vision_egomotion", ego, self.options,
+            lambda X: predict_egomotion_clone(X, cols, rig, calib, td))
         if block is None:
             return None
         stats = apply_blocks(ctx, [block])
@@ -403,6 +406,11 @@ class PixelUpdater:
         if self.clones is not None:
             out.update(self.clones.summary())
         return out
+
+
+def applied_offset_s(rig: Rig) -> float:
+    """The camera-IMU time offset (s) the data's calibration applied to the image stamps."""
+    return 0.0 if rig.cam0 is None else float(rig.cam0.timeshift_cam_imu_s)
 
 
 def _whitened_block(

@@ -35,6 +35,7 @@ PAPER_ACCEL_STD = math.sqrt(0.5)  # m/s² per sample
 MAX_DURATION_S = 3600.0
 MAX_RATE_HZ = 1000.0
 MAX_CAMERA_RATE_HZ = 20.0  # stereo frames per second the simulator renders or projects
+MAX_TIMESHIFT_S = 1.0  # |camera.timeshift_cam_imu| (s): real offsets are tens of ms
 
 # EuRoC ADIS16448 figures (continuous densities, from the EuRoC imu0/sensor.yaml).
 ADIS_GYRO_DENSITY = 1.6968e-4  # rad/s/√Hz
@@ -140,6 +141,9 @@ class CameraConfig:
     max_depth: float = 40.0  # landmarks farther than this are not reported in features0
     render_images: bool = True
     lens: str = "pinhole"
+    # True camera-IMU time offset (s, Kalibr's t_imu = t_cam + shift): images and features0
+    # are stamped t_capture - shift; sensor.yaml keeps 0 (the offset a filter must estimate).
+    timeshift_cam_imu: float = 0.0
     # A real wide-angle Kannala-Brandt lens (RealSense T265 class) on EuRoC-like intrinsics:
     # about 94° horizontal and 112° diagonal field of view at 752x480.
     fisheye_distortion: list[float] = field(
@@ -229,6 +233,9 @@ class SimConfig:
             raise ConfigError(
                 f"camera.lens must be 'pinhole' or 'equidistant', got {self.camera.lens!r}"
             )
+        if not abs(self.camera.timeshift_cam_imu) <= MAX_TIMESHIFT_S:
+            raise ConfigError(f"camera.timeshift_cam_imu must be within ±{MAX_TIMESHIFT_S:g} s, "
+                              f"got {self.camera.timeshift_cam_imu}")  # fmt: skip
         if len(self.camera.fisheye_distortion) != 4:
             raise ConfigError("camera.fisheye_distortion must have 4 numbers (k1, k2, k3, k4)")
 

@@ -289,18 +289,28 @@ def _write_dataset(scene: Scene, root: Path) -> list[str]:
             _T(R_B_S, np.asarray(cfg.sonar.p_B_S, float)), cfg.sonar.rate_hz,
             cfg.sonar.noise_std, scene.world.ground_height))
     if cfg.camera.enabled:
-        t_cam = sample_times_ns(cfg.camera.rate_hz, cfg.duration_s)
-        writer.write_features(simulate_features(scene, t_cam, rngs[4]))
+        t_cam = sample_times_ns(cfg.camera.rate_hz, cfg.duration_s)  # capture, IMU clock
+        features = simulate_features(scene, t_cam, rngs[4])
+        # An unsynchronised camera (``camera.timeshift_cam_imu``, t_imu = t_cam + shift): the
+        # same captures, stamped on the camera's clock; frames whose stamp falls outside the
+        # IMU's span are dropped. The calibration files keep 0 (the offset is unknown).
+        shift_ns = round(cfg.camera.timeshift_cam_imu * 1e9)
+        t_stamp = t_cam - shift_ns
+        inside = (t_stamp >= t_imu[0]) & (t_stamp <= t_imu[-1])
+        rows = np.isin(features.t_ns, t_cam[inside])
+        writer.write_features(FeatureStream(
+            features.t_ns[rows] - shift_ns, features.track_id[rows], features.uv_left[rows],
+            features.uv_right[rows], features.pixel_noise_std))  # fmt: skip
         cal0, cal1 = camera_calibs(scene.rig, cfg.camera.rate_hz, cfg.camera.lens,
                                    cfg.camera.fisheye_distortion)
         render = cfg.camera.render_images
-        t_img = t_cam if render else t_cam[:0]
+        t_img = t_cam[inside] if render else t_cam[:0]
         seed = int(rngs[5].integers(2**31))
         # the two cameras render and encode in two threads (OpenCV and numpy release the GIL);
         # each has its own renderer and noise stream, so the result does not depend on timing
         with ThreadPoolExecutor(max_workers=2) as pool:
             jobs = [
-                pool.submit(writer.write_camera, cal, t_img,
+                pool.submit(writer.write_camera, cal, t_img - shift_ns,
                             _images(scene, t_img, right, seed + right) if render else [])
                 for cal, right in ((cal0, False), (cal1, True))
             ]

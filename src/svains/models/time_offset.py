@@ -1,0 +1,138 @@
+"""The body pose at an image's IMU time: the camera-IMU time offset ``t_d`` in the state.
+
+Kalibr's convention: ``t_imu = t_cam + t_d``, so the image stamped ``t`` (after the offset the
+calibration already applied) was taken at IMU time ``t + t_d``. The filter is propagated to the
+stamp ``t``; the vision models need the pose at ``t + t_d``. Following Li & Mourikis (2014) and
+OpenVINS, the pose is moved by the IMU itself over the offset's current estimate ``τ`` and to
+first order over the rest ``δ = t_d - τ`` (per sigma point)::
+
+    R(t + t_d) = R ΔR Exp(ω_τ δ)
+    p(t + t_d) = p + v τ + ½ g τ² + R Δp + v_τ δ,     v_τ = v + g τ + R Δv
+
+``ΔR, Δv, Δp`` (``ShiftIncrement``) integrate the IMU samples between ``t`` and ``t + τ``
+(either side: the Navigator holds the IMU ``buffer.window_s`` past a frame before it processes
+the frame) with the mean biases; ``ω_τ`` is the bias-corrected gyro at ``t + τ``. Integrating
+the samples matters: a first-order move over the whole offset (``τ = 0``, ``ShiftIncrement
+.first_order``) misses the motion's curvature, and on the simulated village's 3 Hz vibration it
+found 42.5 ms for a 50 ms offset (``docs/results/time-offset.md``). The IMU's lever arm and the
+biases' uncertainty over ``τ`` (tens of ms) are neglected.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from svains.geometry.rotation import skew, so3_exp
+from svains.models._quat import rotmat_rows
+from svains.models.state import DP, DTH, DV, P, Q, V
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class ShiftIncrement:
+    """The IMU's motion from a frame's stamp ``t`` to ``t + tau_s``, in body axes at ``t``:
+    ``dR`` (3, 3), ``dv_B`` (3,) m/s, ``dp_B`` (3,) m (gravity excluded), the bias-corrected
+    rate ``omega_B`` (3,) rad/s at ``t + tau_s``, gravity ``g_W`` (3,) m/s²."""
+
+    tau_s: float
+    dR: F64
+    dv_B: F64
+    dp_B: F64
+    omega_B: F64
+    g_W: F64
+
+    @classmethod
+    def first_order(cls, omega_B: F64, g_W: F64) -> ShiftIncrement:
+        """No IMU samples: the whole offset moved to first order with the rate ``omega_B``."""
+        z = np.zeros(3)
+        return cls(0.0, np.eye(3), z, z, np.asarray(omega_B, float), np.asarray(g_W, float))
+
+
+def _interp(t_s: F64, ts: F64, y: F64) -> F64:
+    """``y`` (N, 3) sampled at ``ts`` (N,) linearly interpolated at ``t_s`` (K,) (held at the
+    ends): (K, 3)."""
+    return np.stack([np.interp(t_s, ts, y[:, i]) for i in range(3)], axis=1)
+
+
+def _integrate(ts: F64, gyro: F64, accel: F64, a_s: float, b_s: float) -> tuple[F64, F64, F64]:
+    """Preintegrate bias-corrected samples over ``[a_s, b_s]`` (s, a < b), body axes at ``a``:
+    ``ΔR`` (3, 3), ``Δv`` (3,), ``Δp`` (3,), midpoint rule between the samples and the ends."""
+    inner = ts[(ts > a_s) & (ts < b_s)]
+    nodes = np.concatenate([[a_s], inner, [b_s]])
+    w, f = _interp(nodes, ts, gyro), _interp(nodes, ts, accel)
+    dR, dv, dp = np.eye(3), np.zeros(3), np.zeros(3)
+    for i in range(nodes.size - 1):
+        h = nodes[i + 1] - nodes[i]
+        half = so3_exp(0.25 * (w[i] + w[i + 1]) * h)  # the attitude at the step's middle
+        acc = dR @ half @ (0.5 * (f[i] + f[i + 1]))
+        dp = dp + dv * h + 0.5 * acc * h * h
+        dv = dv + acc * h
+        dR = dR @ half @ half
+    return dR, dv, dp
+
+
+def shift_increment(
+    t_ns: I64, gyro_B: F64, accel_B: F64, frame_ns: int, tau_s: float, bg_B: F64, ba_B: F64,
+    g_W: F64,
+) -> ShiftIncrement:
+    """The ``ShiftIncrement`` from ``frame_ns`` to ``frame_ns + tau_s`` of the IMU samples
+    ``t_ns`` (N,), ``gyro_B``, ``accel_B`` (N, 3) (body axes) minus the biases ``bg_B``,
+    ``ba_B`` (3,). Samples are interpolated, and held beyond the recorded ones (the last frames
+    of a recording)."""
+    ts = (np.asarray(t_ns, np.int64) - int(frame_ns)) * 1e-9  # s from the frame
+    gyro = np.asarray(gyro_B, float) - bg_B
+    accel = np.asarray(accel_B, float) - ba_B
+    omega = _interp(np.array([tau_s]), ts, gyro)[0]
+    g = np.asarray(g_W, float)
+    if tau_s == 0.0:
+        return ShiftIncrement.first_order(omega, g)
+    if tau_s > 0:
+        dR, dv, dp = _integrate(ts, gyro, accel, 0.0, tau_s)
+        return ShiftIncrement(tau_s, dR, dv, dp, omega, g)
+    # Backwards: integrate forward from t + τ to t, then invert (see the module docstring).
+    dR1, dv1, dp1 = _integrate(ts, gyro, accel, tau_s, 0.0)
+    dR = dR1.T
+    dv = -dR @ dv1
+    return ShiftIncrement(tau_s, dR, dv, dv * tau_s - dR @ dp1, omega, g)
+
+
+def shifted_pose(x: F64, td: int, inc: ShiftIncrement) -> tuple[F64, F64]:
+    """Body pose at IMU time ``t + t_d`` of states ``x`` (S, nx) at ``t`` (``t_d = x[:, td]``,
+    s): ``R_W_B`` (S, 3, 3), ``p_W_B`` (S, 3), see the module docstring."""
+    R = rotmat_rows(x[:, Q])
+    tau = inc.tau_s
+    d = x[:, td : td + 1] - tau  # (S, 1) s beyond the integrated part
+    v_tau = x[:, V] + inc.g_W * tau + R @ inc.dv_B
+    p = x[:, P] + x[:, V] * tau + 0.5 * inc.g_W * tau * tau + R @ inc.dp_B + v_tau * d
+    return R @ inc.dR @ so3_exp(inc.omega_B * d), p
+
+
+def shifted_pose_jacobian(
+    x: F64, ndx: int, td: int, td_tangent: int, inc: ShiftIncrement
+) -> tuple[F64, F64, F64]:
+    """``shifted_pose`` of one state ``x`` (nx,) whose offset ``x[td]`` equals ``inc.tau_s``:
+    ``p_W_B`` (3,), ``q_W_B_wxyz`` (4,), and its Jacobian ``S`` (6, ndx) over the state's
+    tangent (``td_tangent`` the offset's column; rows ``(δp, δθ_B)``, attitude on the right)::
+
+        δp' = δp + τ δv - R [Δp]x δθ + v_τ δt_d
+        δθ' = ΔR^T δθ + ω_τ δt_d
+    """
+    from svains.geometry.rotation import rotmat_to_quat
+
+    R_s, p_s = shifted_pose(x[None, :], td, inc)
+    R = rotmat_rows(x[None, Q])[0]
+    tau = inc.tau_s
+    S = np.zeros((6, ndx))
+    S[0:3, DP] = np.eye(3)
+    S[0:3, DV] = tau * np.eye(3)
+    S[0:3, DTH] = -R @ skew(inc.dp_B)
+    S[0:3, td_tangent] = x[V] + inc.g_W * tau + R @ inc.dv_B
+    S[3:6, DTH] = inc.dR.T
+    S[3:6, td_tangent] = inc.omega_B
+    q = rotmat_to_quat(R_s[0])
+    return p_s[0], q / np.linalg.norm(q), S
