@@ -131,7 +131,8 @@ def test_clone_resizes_hand_the_smoother_their_exact_map(time_offset: bool) -> N
     from svains.navigation.vision_clones import CloneWindow
 
     class Capture:
-        def resized(self, x0, P0, T, x1, P1):  # noqa: ANN001, ANN202 (the recorder's hook)
+        def resized(self, x0: np.ndarray, P0: np.ndarray, T: np.ndarray, x1: np.ndarray,
+                    P1: np.ndarray) -> None:  # the recorder's hook
             self.P0, self.T, self.P1 = P0, T, P1
 
     rng = np.random.default_rng(7)
