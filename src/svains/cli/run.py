@@ -194,7 +194,8 @@ def run(
         return "/".join(f"{b[k]:.3g}" for k in keys) if b else "-"
 
     for key in _SHOWN:
-        other = (sm or {}).get(key if key != "realtime_factor" else "_", None)
+        # The smoothed column's wall_s is the backward pass's; it has no real-time factor.
+        other = None if key == "realtime_factor" else (sm or {}).get(key)
         row(key, fmt(rep.get(key)), fmt(other))
         if key == "nees_mean" and rep.get("nees_blocks"):
             row("nees_blocks p/v/rp/yaw", blocks(rep), blocks(sm or {}))

@@ -160,6 +160,30 @@ CLONE_JITTER = 1e-12
 CLONE_JITTER_REL = 1e-9
 
 
+def _checked(x: F64, P: F64, manifold: CloneManifold) -> tuple[F64, F64]:
+    """``x`` (nx,), ``P`` (ndx, ndx) as float arrays, refused when they do not fit ``manifold``."""
+    x = np.asarray(x, dtype=float)
+    P = np.asarray(P, dtype=float)
+    if x.shape != (manifold.nx,) or P.shape != (manifold.ndx, manifold.ndx):
+        raise ConfigError(
+            f"x {x.shape} / P {P.shape} do not match nx={manifold.nx}, ndx={manifold.ndx}"
+        )
+    return x, P
+
+
+def _appended(
+    x: F64, P_new: F64, manifold: CloneManifold, p_W_B: F64, q_W_B_wxyz: F64,
+    jitter: float | None,
+) -> tuple[F64, F64, CloneManifold]:
+    """The state with the clone ``(p_W_B, q_W_B_wxyz)`` appended, given its covariance
+    ``P_new`` (ndx + 6, ndx + 6) before the jitter (see ``augment_clone``)."""
+    n = manifold.ndx
+    c = np.arange(n, n + CLONE_NDX)
+    P_new[c, c] += CloneManifold.clone_jitter(P_new[c, c]) if jitter is None else jitter
+    x_new = np.concatenate([x, p_W_B, q_W_B_wxyz])
+    return x_new, 0.5 * (P_new + P_new.T), manifold.with_clones(manifold.n_clones + 1)
+
+
 def augment_clone(
     x: F64, P: F64, manifold: CloneManifold, jitter: float | None = None
 ) -> tuple[F64, F64, CloneManifold]:
@@ -171,52 +195,41 @@ def augment_clone(
     ``CloneManifold.clone_jitter`` of each pose variance (``max(CLONE_JITTER,
     CLONE_JITTER_REL·P_ii)``, scale-relative), or the absolute ``jitter`` given (0: exact copy).
     """
-    x = np.asarray(x, dtype=float)
-    P = np.asarray(P, dtype=float)
-    if x.shape != (manifold.nx,) or P.shape != (manifold.ndx, manifold.ndx):
-        raise ConfigError(
-            f"x {x.shape} / P {P.shape} do not match nx={manifold.nx}, ndx={manifold.ndx}"
-        )
-    n = manifold.ndx
+    x, P = _checked(x, P, manifold)
     # ``J P J^T`` with J the identity stacked on the pose's rows of the tangent: J only
     # selects rows, so indexing gives the same numbers without the two products.
-    rows = np.arange(n)
+    rows = np.arange(manifold.ndx)
     J_rows = np.concatenate([rows, rows[DP], rows[DTH]])
-    P_new = P[np.ix_(J_rows, J_rows)]
-    c = np.arange(n, n + CLONE_NDX)
-    P_new[c, c] += CloneManifold.clone_jitter(P_new[c, c]) if jitter is None else jitter
-    x_new = np.concatenate([x, x[P_SLICE], x[Q_SLICE]])
-    return x_new, 0.5 * (P_new + P_new.T), manifold.with_clones(manifold.n_clones + 1)
+    return _appended(x, P[np.ix_(J_rows, J_rows)], manifold, x[P_SLICE], x[Q_SLICE], jitter)
 
 
-def augment_shifted_clone(
-    x: F64, P: F64, manifold: CloneManifold, td: int, inc: ShiftIncrement,
-    jitter: float | None = None,
-) -> tuple[F64, F64, CloneManifold]:
-    """Append a clone of the body pose at the image's IMU time ``t + t_d`` (``t_d = x[td]``,
-    s, in the state's calibration block, equal to ``inc.tau_s``; ``models.time_offset``):
-    ``x'`` (nx + 7,), ``P'`` (ndx + 6, ndx + 6). ``P' = J P J^T`` with ``J = [I; S]``
-    (``shifted_pose_jacobian``): the clone is correlated with the offset, so the relative
-    motion to a later shifted pose depends on ``t_d`` at both ends. Jitter as in
-    ``augment_clone``."""
-    x = np.asarray(x, dtype=float)
-    P = np.asarray(P, dtype=float)
-    if x.shape != (manifold.nx,) or P.shape != (manifold.ndx, manifold.ndx):
-        raise ConfigError(
-            f"x {x.shape} / P {P.shape} do not match nx={manifold.nx}, ndx={manifold.ndx}"
-        )
+def shifted_clone(
+    x: F64, manifold: CloneManifold, td: int, inc: ShiftIncrement
+) -> tuple[F64, F64, F64]:
+    """The body pose at the image's IMU time ``t + t_d`` (``t_d = x[td]``, s, in the state's
+    calibration block, equal to ``inc.tau_s``; ``models.time_offset``): ``p_W_B`` (3,),
+    ``q_W_B_wxyz`` (4,) and its Jacobian ``S`` (6, ndx) over the state's tangent
+    (``shifted_pose_jacobian``)."""
     calib = manifold.calib
     if calib is None or not calib[0].start <= td < calib[0].stop:
         raise ConfigError(f"column {td} is not in the state's calibration block")
     td_tangent = td - calib[0].start + calib[1].start
-    p_c, q_c, S = shifted_pose_jacobian(x, manifold.ndx, td, td_tangent, inc)
-    n = manifold.ndx
-    J = np.vstack([np.eye(n), S])
-    P_new = J @ P @ J.T
-    c = np.arange(n, n + CLONE_NDX)
-    P_new[c, c] += CloneManifold.clone_jitter(P_new[c, c]) if jitter is None else jitter
-    x_new = np.concatenate([x, p_c, q_c])
-    return x_new, 0.5 * (P_new + P_new.T), manifold.with_clones(manifold.n_clones + 1)
+    return shifted_pose_jacobian(np.asarray(x, dtype=float), manifold.ndx, td, td_tangent, inc)
+
+
+def augment_shifted_clone(
+    x: F64, P: F64, manifold: CloneManifold, td: int, inc: ShiftIncrement,
+    jitter: float | None = None, pose: tuple[F64, F64, F64] | None = None,
+) -> tuple[F64, F64, CloneManifold]:
+    """Append a clone of the body pose at the image's IMU time ``t + t_d`` (``shifted_clone``;
+    ``pose``: its result when already at hand): ``x'`` (nx + 7,), ``P'`` (ndx + 6, ndx + 6).
+    ``P' = J P J^T`` with ``J = [I; S]``: the clone is correlated with the offset, so the
+    relative motion to a later shifted pose depends on ``t_d`` at both ends. Jitter as in
+    ``augment_clone``."""
+    x, P = _checked(x, P, manifold)
+    p_c, q_c, S = shifted_clone(x, manifold, td, inc) if pose is None else pose
+    J = np.vstack([np.eye(manifold.ndx), S])
+    return _appended(x, J @ P @ J.T, manifold, p_c, q_c, jitter)
 
 
 def marginalize_clone(

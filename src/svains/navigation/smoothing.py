@@ -61,9 +61,10 @@ def smoothed_result(result: RunResult) -> RunResult:
     std = np.array(result.std, dtype=float, copy=True)
     std[:, OUTPUT_ROWS] = np.sqrt(np.maximum(np.diagonal(s.P, axis1=1, axis2=2), 0.0))
     if layout.biased:
-        for rows in (DBG, DBA):
-            for j in range(rows.start, rows.stop):
-                dX[:, j] = np.interp(s.t_ns, s.chain_t_ns, [e[j] for e in s.chain_eps])
+        # The navigation block leads every whole-state epoch, whatever follows it.
+        nav_eps = np.array([e[: layout.ndx] for e in s.chain_eps])
+        for j in (*range(DBG.start, DBG.stop), *range(DBA.start, DBA.stop)):
+            dX[:, j] = np.interp(s.t_ns, s.chain_t_ns, nav_eps[:, j])
     x = nav.retract(np.asarray(result.x, dtype=float), dX)
     wall = time.perf_counter() - t0
     duration_s = max((int(s.t_ns[-1]) - int(s.t_ns[0])) * 1e-9, 1e-9) if len(s.t_ns) else 0.0

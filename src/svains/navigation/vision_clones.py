@@ -49,10 +49,11 @@ from svains.models.clones import (
     augment_clone,
     augment_shifted_clone,
     marginalize_clone,
+    shifted_clone,
 )
 from svains.models.manifold import NavManifold
 from svains.models.state import BA, BG, BIASED, DP, DTH, W
-from svains.models.time_offset import ShiftIncrement, shift_increment, shifted_pose_jacobian
+from svains.models.time_offset import ShiftIncrement, shift_increment
 from svains.navigation.imu_history import ImuHistory
 
 if TYPE_CHECKING:
@@ -171,10 +172,9 @@ class CloneWindow:
                 assert manifold.calib is not None
                 col = manifold.calib[0].stop - 1
                 inc = self._increment(x, manifold.nav.nx, col, t_ns)
-                td_tangent = col - manifold.calib[0].start + manifold.calib[1].start
-                S = shifted_pose_jacobian(x, manifold.ndx, col, td_tangent, inc)[2]
-                x, P, manifold = augment_shifted_clone(x, P, manifold, col, inc)
-                T = np.vstack([T, S @ T])
+                pose = shifted_clone(x, manifold, col, inc)
+                x, P, manifold = augment_shifted_clone(x, P, manifold, col, inc, pose=pose)
+                T = np.vstack([T, pose[2] @ T])
             times.append(int(t_ns))
         for i in reversed(range(len(times))):
             if reference_ns is None or times[i] != int(reference_ns):

@@ -62,7 +62,7 @@ def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None =
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     if layout is None:
-        layout = BIASED if result.x.shape[-1] == BIASED.nx else PAPER
+        layout = _layout_of(result)
     # A replaced run: its old report.json goes first, so old and new files never pass as one run.
     (out_dir / "report.json").unlink(missing_ok=True)
     write_tum(out_dir / "trajectory.tum", result)
@@ -86,6 +86,11 @@ def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None =
     )
 
 
+def _layout_of(result: RunResult) -> StateLayout:
+    """The state layout whose size matches ``result.x``."""
+    return BIASED if result.x.shape[-1] == BIASED.nx else PAPER
+
+
 def write_states(path: Path, result: RunResult, layout: StateLayout) -> None:
     """``states.csv``: t ns, the state (``layout.nx``) and its tangent standard deviations."""
     header = ",".join(["t_ns", *_STATE_NAMES[: layout.nx], *_STD_NAMES[: layout.ndx]])
@@ -100,8 +105,7 @@ def write_smoothed_outputs(out_dir: Path, smoothed: RunResult) -> None:
     ``pose_covariance_smoothed.csv`` and ``states_smoothed.csv`` of a smoothed run
     (``navigation.smoothing``: ω and the biases' deviations there are the forward ones), in the
     layouts of the forward files."""
-    layout = BIASED if smoothed.x.shape[-1] == BIASED.nx else PAPER
-    write_states(Path(out_dir) / "states_smoothed.csv", smoothed, layout)
+    write_states(Path(out_dir) / "states_smoothed.csv", smoothed, _layout_of(smoothed))
     write_tum(Path(out_dir) / "trajectory_smoothed.tum", smoothed)
     write_euroc_csv(Path(out_dir) / "trajectory_smoothed_euroc.csv", smoothed)
     write_pose_covariance(Path(out_dir) / "pose_covariance_smoothed.csv", smoothed)
