@@ -4,7 +4,10 @@ suite: the real data set it was tested on has no offset of its own).
 
 A small stereo data set written to disk whose cameras' sensor.yaml carry an offset: the reader
 moves the image stamps to the IMU clock by it, and a camchain with another offset replaces it
-(the stamps end on the camera clock plus the camchain's offset, not plus both).
+(the stamps end on the camera clock plus the camchain's offset, not plus both). The same for
+``features0``, whose frames are the cameras' frames on their clock (before 2026-12-03 neither the
+reader nor a camchain moved them: a feature-level run given its true offset ran on the camera
+clock).
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import numpy as np
 from svains.datasets import load_dataset
 from svains.datasets.asl_writer import AslWriter
 from svains.datasets.kalibr import apply_kalibr, write_camchain
+from svains.datasets.types import FeatureStream
 from test_vision_updater import _calibs
 
 T_CAM_NS = np.array([1_000_000_000, 1_050_000_000, 1_100_000_000], np.int64)  # camera clock
@@ -30,6 +34,9 @@ def _stereo_folder(root: Path) -> Path:
         folder = w.write_camera(cal, T_CAM_NS, (np.zeros(shape, np.uint8) for _ in T_CAM_NS))
         with (folder / "sensor.yaml").open("a") as f:
             f.write(f"timeshift_cam_imu: {OWN_S}\n")
+    t = np.repeat(T_CAM_NS, 2)
+    uv = np.tile([[10.0, 20.0], [30.0, 40.0]], (len(T_CAM_NS), 1))
+    w.write_features(FeatureStream(t, np.tile([1, 2], len(T_CAM_NS)), uv, uv - [5.0, 0.0], 0.5))
     return root
 
 
@@ -38,6 +45,7 @@ def test_sensor_yaml_offset_moves_the_stamps_once(tmp_path: Path) -> None:
     assert ds.cam0 is not None and ds.cam0.timeshift_cam_imu_s == OWN_S
     np.testing.assert_array_equal(ds.left.t_ns, T_CAM_NS + 4_000_000)
     np.testing.assert_array_equal(ds.right.t_ns, T_CAM_NS + 4_000_000)
+    np.testing.assert_array_equal(ds.features.frame_times(), T_CAM_NS + 4_000_000)
 
 
 def test_camchain_offset_replaces_the_one_applied_at_read_time(tmp_path: Path) -> None:
@@ -48,7 +56,9 @@ def test_camchain_offset_replaces_the_one_applied_at_read_time(tmp_path: Path) -
     out = apply_kalibr(ds, chain, None)
     np.testing.assert_array_equal(out.left.t_ns, T_CAM_NS - 2_500_000)
     np.testing.assert_array_equal(out.right.t_ns, T_CAM_NS - 2_500_000)
+    np.testing.assert_array_equal(out.features.frame_times(), T_CAM_NS - 2_500_000)
     assert out.cam0 is not None and out.cam0.timeshift_cam_imu_s == CHAIN_S
     assert out.extras["timeshift_cam_imu_ns"] == -6_500_000  # what was added to the stamps
     # The data set read again is unchanged (the copy carries the shift, not the files).
     np.testing.assert_array_equal(load_dataset(tmp_path / "ds").left.t_ns, T_CAM_NS + 4_000_000)
+

@@ -241,8 +241,12 @@ def read_sonar(folder: Path) -> tuple[SonarStream, SonarCalib]:
     return SonarStream(t_ns=t, range_m=a[:, 0]), calib
 
 
-def read_features(folder: Path) -> FeatureStream:
-    """``features0``: rows share a frame's timestamp, so times need only be non-decreasing."""
+def read_features(folder: Path, timeshift_cam_imu_s: float = 0.0) -> FeatureStream:
+    """``features0``: rows share a frame's timestamp, so times need only be non-decreasing.
+
+    Its frames are cam0/cam1 frames, stamped on the cameras' clock as their images are: the
+    stamps move to the IMU clock by cam0's ``timeshift_cam_imu_s`` (s) here, as the images'
+    do in ``read_camera``."""
     path = folder / "data.csv"
     rows, lines = read_csv_rows(path, 6)
     t = parse_timestamps(path, rows, lines, strict=False)
@@ -266,9 +270,16 @@ def read_features(folder: Path) -> FeatureStream:
     y = read_sensor_yaml(ypath) if ypath.is_file() else {}
     pixel_std = yaml_float(y, "pixel_noise_std", ypath, default=1.0)
     check_number(pixel_std, ypath, "pixel_noise_std", positive=True)
-    return FeatureStream(
-        t_ns=t, track_id=ids, uv_left=uv[:, 0:2], uv_right=uv[:, 2:4], pixel_noise_std=pixel_std
-    )
+    return shift_feature_stamps(
+        FeatureStream(t_ns=t, track_id=ids, uv_left=uv[:, 0:2], uv_right=uv[:, 2:4],
+                      pixel_noise_std=pixel_std),
+        round(timeshift_cam_imu_s * 1e9),
+    )  # fmt: skip
+
+
+def shift_feature_stamps(stream: FeatureStream, shift_ns: int) -> FeatureStream:
+    """``stream`` with its frame stamps moved by ``shift_ns`` (ns)."""
+    return stream if shift_ns == 0 else replace(stream, t_ns=stream.t_ns + np.int64(shift_ns))
 
 
 def _read_extras(folder: Path) -> dict[str, object]:
@@ -352,7 +363,8 @@ def read_asl(path: Path) -> Dataset:
     if (mav0 / "features0").is_dir():
         # Parsed on first access: a run from images never needs it (seconds for a long set).
         # A partial, not a lambda: the data set stays picklable.
-        ds.defer("features", partial(read_features, mav0 / "features0"))
+        shift = ds.cam0.timeshift_cam_imu_s if ds.cam0 is not None else 0.0
+        ds.defer("features", partial(read_features, mav0 / "features0", shift))
     _check_stereo(ds, mav0)
     warn_if_incomplete(mav0)
     ds.missing_images = missing

@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from svains.datasets._textio import format_float, read_sensor_yaml, yaml_float
+from svains.datasets.asl_reader import shift_feature_stamps
 from svains.datasets.types import CameraCalib, Dataset, ImageStream, ImuCalib
 from svains.errors import CalibrationError
 
@@ -192,6 +193,13 @@ def _shift_images(stream: ImageStream | None, shift_ns: int) -> ImageStream | No
     return dataclasses.replace(stream, t_ns=np.asarray(stream.t_ns, np.int64) + shift_ns)
 
 
+def _shift_features(ds: Dataset, out: Dataset, shift_ns: int) -> None:
+    """``out.features``: ``ds``'s feature frames (cam0/cam1 frames, on the cameras' clock as
+    their images) moved by ``shift_ns``."""
+    if shift_ns != 0 and ds.features is not None:
+        out.features = shift_feature_stamps(ds.features, shift_ns)
+
+
 def _with_rate(
     cal: CameraCalib, stream: ImageStream | None, old: CameraCalib | None
 ) -> CameraCalib:
@@ -232,6 +240,7 @@ def apply_kalibr(
     shift_ns = round((chain.timeshift_cam_imu_s - applied_s) * 1e9)
     out.left = _shift_images(ds.left, shift_ns)
     out.right = _shift_images(ds.right, shift_ns)
+    _shift_features(ds, out, shift_ns)
     cams = [
         dataclasses.replace(
             c, T_B_C=T_B_I @ c.T_B_C, timeshift_cam_imu_s=chain.timeshift_cam_imu_s
