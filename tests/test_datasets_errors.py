@@ -128,9 +128,9 @@ def test_features_are_read_on_first_access_only(
     calls: list[Path] = []
     real = reader.read_features
 
-    def counting(folder: Path) -> object:
+    def counting(folder: Path, timeshift_cam_imu_s: float = 0.0) -> object:
         calls.append(folder)
-        return real(folder)
+        return real(folder, timeshift_cam_imu_s)
 
     monkeypatch.setattr(reader, "read_features", counting)
     ds = load_dataset(ds_dir)

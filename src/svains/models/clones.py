@@ -32,7 +32,7 @@ from svains.models.manifold import NavManifold, quat_mean
 from svains.models.state import DP, DTH
 from svains.models.state import P as P_SLICE
 from svains.models.state import Q as Q_SLICE
-from svains.models.time_offset import ShiftIncrement, shifted_pose_jacobian
+from svains.models.time_offset import ShiftIncrement, ShiftTable, shifted_pose_jacobian
 
 F64 = NDArray[np.float64]
 
@@ -204,7 +204,7 @@ def augment_clone(
 
 
 def shifted_clone(
-    x: F64, manifold: CloneManifold, td: int, inc: ShiftIncrement
+    x: F64, manifold: CloneManifold, td: int, inc: ShiftIncrement | ShiftTable
 ) -> tuple[F64, F64, F64]:
     """The body pose at the image's IMU time ``t + t_d`` (``t_d = x[td]``, s, in the state's
     calibration block, equal to ``inc.tau_s``; ``models.time_offset``): ``p_W_B`` (3,),
@@ -218,7 +218,7 @@ def shifted_clone(
 
 
 def augment_shifted_clone(
-    x: F64, P: F64, manifold: CloneManifold, td: int, inc: ShiftIncrement,
+    x: F64, P: F64, manifold: CloneManifold, td: int, inc: ShiftIncrement | ShiftTable,
     jitter: float | None = None, pose: tuple[F64, F64, F64] | None = None,
 ) -> tuple[F64, F64, CloneManifold]:
     """Append a clone of the body pose at the image's IMU time ``t + t_d`` (``shifted_clone``;

@@ -29,7 +29,7 @@ from svains.geometry.camera import RectifiedStereo
 from svains.geometry.rotation import so3_exp, so3_log
 from svains.models._quat import rotmat_rows
 from svains.models.state import P, Q
-from svains.models.time_offset import ShiftIncrement, shifted_pose
+from svains.models.time_offset import ShiftIncrement, ShiftTable, shifted_pose
 from svains.models.vision_3d import pixels_from_motion
 from svains.models.vision_common import as_points, as_sigma_points
 from svains.models.vision_tc import pixels_tc_from_motion
@@ -39,7 +39,7 @@ F64 = NDArray[np.float64]
 
 def clone_camera_motion(
     X: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo, calib: slice | None = None,
-    td: tuple[int, ShiftIncrement] | None = None,
+    td: tuple[int, ShiftIncrement | ShiftTable] | None = None,
 ) -> tuple[F64, F64]:
     """Left-camera motion from the clone to the current pose: ``R_c`` (S, 3, 3), ``r_c`` (S, 3).
 
@@ -66,7 +66,7 @@ def clone_camera_motion(
 
 def predict_pixels_3d_clone(
     X: ArrayLike, p_Ckm1_F: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo,
-    calib: slice | None = None, td: tuple[int, ShiftIncrement] | None = None,
+    calib: slice | None = None, td: tuple[int, ShiftIncrement | ShiftTable] | None = None,
 ) -> F64:
     """``3d`` pixels at t_k (S, 4M) of points (M, 3) triangulated at the clone's frame."""
     _, single = as_sigma_points(X)
@@ -78,7 +78,7 @@ def predict_pixels_3d_clone(
 def predict_pixels_tc_clone(
     X: ArrayLike, uv_left_prev: ArrayLike, uv_right_prev: ArrayLike,
     clone: tuple[slice, slice], rig: RectifiedStereo, calib: slice | None = None,
-    td: tuple[int, ShiftIncrement] | None = None,
+    td: tuple[int, ShiftIncrement | ShiftTable] | None = None,
 ) -> F64:
     """``tc`` pixels at t_k (S, 4M) transferred from the clone frame's pixels (M, 2)."""
     _, single = as_sigma_points(X)
@@ -89,7 +89,7 @@ def predict_pixels_tc_clone(
 
 def predict_egomotion_clone(
     X: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo, calib: slice | None = None,
-    td: tuple[int, ShiftIncrement] | None = None,
+    td: tuple[int, ShiftIncrement | ShiftTable] | None = None,
 ) -> F64:
     """``lc``'s ``(Log R_Ck_Ckm1, p_Ck_Ckm1)`` (S, 6) between the clone and now (eqs. 30-33
     with the exact motion: ``R_Ck_Ckm1 = R_c``, ``p_Ck_Ckm1 = -r_c``)."""

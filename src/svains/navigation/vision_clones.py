@@ -53,8 +53,12 @@ from svains.models.clones import (
 )
 from svains.models.manifold import NavManifold
 from svains.models.state import BA, BG, BIASED, DP, DTH, W
-from svains.models.time_offset import ShiftIncrement, shift_increment
+from svains.models.time_offset import ShiftIncrement, ShiftTable, shift_increment, shift_table
 from svains.navigation.imu_history import ImuHistory
+
+# The reach of the offset's table (s) either side of its estimate: beyond it a sigma point moves
+# to first order from the last node (the IMU past ``buffer.window_s`` is held anyway).
+MAX_SHIFT_SPAN_S = 0.25
 
 if TYPE_CHECKING:
     from svains.navigation.options import VisionOptions
@@ -102,29 +106,43 @@ class CloneWindow:
         a = manifold.calib[0].start
         return slice(a, a + 3)
 
-    def td(self, ukf: UKF, t_ns: int) -> tuple[int, ShiftIncrement] | None:
-        """The time offset's column in ``ukf.x`` and the ``ShiftIncrement`` that moves the
-        pose at the frame ``t_ns`` by its current estimate (None: not estimated)."""
+    def td(self, ukf: UKF, t_ns: int) -> tuple[int, ShiftIncrement | ShiftTable] | None:
+        """The time offset's column in ``ukf.x`` and the ``ShiftTable`` that moves the pose at
+        the frame ``t_ns`` by the offset of each sigma point (None: not estimated): nodes at
+        the IMU samples within the sigma points' reach, ``scale · σ`` (at most
+        ``MAX_SHIFT_SPAN_S``) either side of the estimate."""
         manifold = ukf.manifold
         if (not isinstance(manifold, CloneManifold) or manifold.calib is None
                 or self.time_offset_std_s is None):
             return None
         col = manifold.calib[0].stop - 1
-        return col, self._increment(ukf.x, manifold.nav.nx, col, t_ns)
+        tangent = manifold.calib[1].stop - 1
+        span = min(ukf.points.scale * float(np.sqrt(max(ukf.P[tangent, tangent], 0.0))),
+                   MAX_SHIFT_SPAN_S)  # fmt: skip
+        return col, self._increment(ukf.x, manifold.nav.nx, col, t_ns, span)
 
-    def _increment(self, x: F64, nav_nx: int, col: int, t_ns: int) -> ShiftIncrement:
+    def _increment(
+        self, x: F64, nav_nx: int, col: int, t_ns: int, span_s: float = 0.0
+    ) -> ShiftIncrement | ShiftTable:
         """The IMU's motion from ``t_ns`` over the offset ``x[col]`` (s) with the biases of
-        ``x`` (``models.time_offset.shift_increment``); first order without an IMU history."""
+        ``x`` (``models.time_offset.shift_increment``), and with ``span_s`` > 0 the table of
+        them at the samples within ``span_s`` of it (``shift_table``); first order without an
+        IMU history."""
         tau = float(x[col])
         bg, ba = (x[BG], x[BA]) if nav_nx == BIASED.nx else (np.zeros(3), np.zeros(3))
         h = self.history
         if h is None or h.n < 2:
             return ShiftIncrement.first_order(x[W], self.g_W)
         t = h.t_ns
-        # Only the samples around [t, t + τ] (plus one either side for the interpolation).
-        lo = int(np.searchsorted(t, int(t_ns) + min(round(tau * 1e9), 0), "left")) - 1
-        hi = int(np.searchsorted(t, int(t_ns) + max(round(tau * 1e9), 0), "right")) + 1
+        # Only the samples around [t, t + τ ± span] (plus one either side for the interpolation).
+        a_ns = int(t_ns) + min(round((tau - span_s) * 1e9), 0)
+        b_ns = int(t_ns) + max(round((tau + span_s) * 1e9), 0)
+        lo = int(np.searchsorted(t, a_ns, "left")) - 1
+        hi = int(np.searchsorted(t, b_ns, "right")) + 1
         lo, hi = max(lo, 0), min(max(hi, lo + 2), h.n)
+        if span_s > 0.0:
+            return shift_table(t[lo:hi], h.gyro_B[lo:hi], h.accel_B[lo:hi], int(t_ns), tau,
+                               span_s, bg, ba, self.g_W)  # fmt: skip
         return shift_increment(t[lo:hi], h.gyro_B[lo:hi], h.accel_B[lo:hi], int(t_ns), tau,
                                bg, ba, self.g_W)  # fmt: skip
 
