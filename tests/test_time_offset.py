@@ -17,7 +17,13 @@ from svains.geometry.rotation import (
     so3_exp,
     so3_log,
 )
-from svains.models.clones import CloneManifold, augment_calibration, augment_shifted_clone
+from svains.models.clones import (
+    SHIFT_REACH_SIGMA,
+    CloneManifold,
+    augment_calibration,
+    augment_shifted_clone,
+    augment_shifted_clone_sigma,
+)
 from svains.models.manifold import NavManifold
 from svains.models.state import BIASED
 from svains.models.time_offset import (
@@ -156,6 +162,52 @@ def test_shifted_clone_carries_the_offset_correlation() -> None:
     np.linalg.cholesky(P1)  # positive definite (the jitter)
     with pytest.raises(ConfigError, match="not in the state's calibration block"):
         augment_shifted_clone(x, P, m, 5, inc)
+
+
+def _clone_pair(td_std_s: float, pose_var: float) -> tuple[
+    tuple[np.ndarray, np.ndarray, CloneManifold], tuple[np.ndarray, np.ndarray, CloneManifold],
+    np.ndarray,
+]:
+    """The shifted clone of ``_motion``'s biased state at 1 s, the offset 0 ± ``td_std_s``, by
+    quadrature over a ``shift_table`` and by the first-order ``J = [I; S]``; the quadrature
+    version's linear map ``S``."""
+    bg, ba = np.array([0.01, -0.02, 0.005]), np.array([0.1, 0.05, -0.08])
+    t_ns, gyro, accel = _imu(0.0, 2.0, 200.0, bg, ba)
+    x = _state(1.0, 0.0, bg, ba)[:19]
+    P = np.eye(18) * pose_var
+    x, P, m = augment_calibration(x, P, CloneManifold(NavManifold(BIASED), 0), np.zeros(1),
+                                  np.eye(1) * td_std_s**2)  # fmt: skip
+    table = shift_table(t_ns, gyro, accel, 10**9, 0.0, SHIFT_REACH_SIGMA * td_std_s + 0.005, bg,
+                        ba, G_W)  # fmt: skip
+    *sig, S = augment_shifted_clone_sigma(x, P, m, 19, table)
+    lin = augment_shifted_clone(x, P, m, 19, table.center)
+    return (sig[0], sig[1], sig[2]), lin, S
+
+
+def test_sigma_clone_equals_the_first_order_one_for_a_narrow_offset() -> None:
+    """With the offset known to 10 µs the motion is linear over its spread: the quadrature
+    clone has the first-order clone's mean, covariance and cross-covariance, and ``S`` its
+    Jacobian."""
+    (x1, P1, m1), (x2, P2, m2), S = _clone_pair(1e-5, 1e-6)
+    assert m1 == m2
+    np.testing.assert_allclose(x1, x2, atol=1e-9)
+    np.testing.assert_allclose(P1, P2, atol=1e-12, rtol=1e-6)
+    np.testing.assert_allclose(S, (P2[19:25, :19] @ np.linalg.inv(P2[:19, :19])), atol=1e-6)
+
+
+def test_sigma_clone_follows_the_motion_curvature_over_a_wide_offset() -> None:
+    """Offset 0 ± 20 ms under a constant 1 m/s² world acceleration: the clone's mean position
+    is ``E[p(t + t_d)] = p + ½ a σ²`` and its variance grows by ``var(½ a t_d²) = ½ a a^T σ⁴``
+    (Gauss-Hermite is exact on a quadratic), which the first-order clone misses; a constant
+    rate leaves the attitude as it was."""
+    sd = 0.02
+    (x1, P1, _), (x2, P2, _), _ = _clone_pair(sd, 1e-8)
+    np.testing.assert_allclose(x1[20:23] - x2[20:23], 0.5 * A_W * sd**2, rtol=0.02)
+    np.testing.assert_allclose(x1[23:27], x2[23:27], atol=1e-9)
+    extra = P1[19:22, 19:22] - P2[19:22, 19:22]
+    np.testing.assert_allclose(extra, 0.5 * np.outer(A_W, A_W) * sd**4, rtol=0.05, atol=1e-13)
+    np.testing.assert_allclose(P1[:19, :], P2[:19, :], rtol=1e-3, atol=1e-12)
+    np.linalg.cholesky(P1)
 
 
 def test_time_offset_options_are_checked() -> None:

@@ -27,12 +27,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from svains.errors import ConfigError
+from svains.geometry.rotation import quat_to_rotmat, so3_log
 from svains.models._quat import qexp, qlog, qmul
 from svains.models.manifold import NavManifold, quat_mean
 from svains.models.state import DP, DTH
 from svains.models.state import P as P_SLICE
 from svains.models.state import Q as Q_SLICE
-from svains.models.time_offset import ShiftIncrement, ShiftTable, shifted_pose_jacobian
+from svains.models.time_offset import (
+    ShiftIncrement,
+    ShiftTable,
+    shifted_pose,
+    shifted_pose_jacobian,
+)
 
 F64 = NDArray[np.float64]
 
@@ -230,6 +236,60 @@ def augment_shifted_clone(
     p_c, q_c, S = shifted_clone(x, manifold, td, inc) if pose is None else pose
     J = np.vstack([np.eye(manifold.ndx), S])
     return _appended(x, J @ P @ J.T, manifold, p_c, q_c, jitter)
+
+
+# Gauss-Hermite nodes (in σ) and weights over the offset for ``augment_shifted_clone_sigma``:
+# five nodes are exact for polynomials to degree 9, so a quadratic motion's mean and variance are.
+_GH_NODES, _GH_WEIGHTS = np.polynomial.hermite_e.hermegauss(5)
+_GH_WEIGHTS = _GH_WEIGHTS / _GH_WEIGHTS.sum()
+SHIFT_REACH_SIGMA = float(_GH_NODES.max())  # 2.86: the farthest node, in offset σ
+
+
+def augment_shifted_clone_sigma(
+    x: F64, P: F64, manifold: CloneManifold, td: int, table: ShiftIncrement | ShiftTable,
+    jitter: float | None = None,
+) -> tuple[F64, F64, CloneManifold, F64]:
+    """``augment_shifted_clone`` with the offset's spread taken through quadrature: ``x'``
+    (nx + 7,), ``P'`` (ndx + 6, ndx + 6), the manifold and the clone's linear map ``S`` (6, ndx)
+    over the state's tangent (``shifted_pose_jacobian``; a smoother's transform).
+
+    The pose at ``t + t_d`` is linear in the pose, velocity and attitude errors, not in ``t_d``:
+    the IMU's motion over tens of ms curves. While the offset is uncertain by that much the
+    first-order clone misses the curvature (about a pixel at the start of a run with a 50 ms
+    offset and a 20 ms prior) and keeps that error until it is replaced. Here the pose is also
+    evaluated at five Gauss-Hermite offsets ``τ + n_i σ`` through ``table`` (a ``ShiftTable``
+    reaching ``SHIFT_REACH_SIGMA σ``; a ``ShiftIncrement``: first order from one increment), as
+    the vision models move the current pose: the clone's mean is their weighted mean, and what
+    the first-order slope ``(v_τ, ω_τ)`` leaves unexplained over the spread is added to the
+    clone's own variance. The slope stays the IMU's at the estimate: on a vibrating platform the
+    regression slope over ±57 ms is a different draw of the vibration, and with it EuRoC's static
+    start drifted 32 mm in 4.6 s instead of 3 (``docs/results/time-offset.md``)."""
+    x, P = _checked(x, P, manifold)
+    calib = manifold.calib
+    if calib is None or not calib[0].start <= td < calib[0].stop:
+        raise ConfigError(f"column {td} is not in the state's calibration block")
+    k = td - calib[0].start + calib[1].start  # the offset's tangent column
+    center = table.center if isinstance(table, ShiftTable) else table
+    p_0, q_0, S = shifted_clone(x, manifold, td, center)
+    sd = float(np.sqrt(max(P[k, k], 0.0)))
+    u = _GH_NODES * sd  # (5,) s from the estimate
+    X = np.repeat(x[None, :], u.size, axis=0)
+    X[:, td] += u
+    R, p = shifted_pose(X, td, table)
+    R_0 = quat_to_rotmat(q_0)
+    g = np.concatenate([p - p_0, so3_log(R_0.T @ R)], axis=1)  # (5, 6)
+    w = _GH_WEIGHTS
+    g_mean = w @ g
+    dg = g - g_mean
+    rest = dg - np.outer(u, S[:, k])
+    P_new = np.zeros((P.shape[0] + CLONE_NDX,) * 2)
+    J = np.vstack([np.eye(manifold.ndx), S])
+    P_new[:] = J @ P @ J.T
+    P_new[-CLONE_NDX:, -CLONE_NDX:] += (rest * w[:, None]).T @ rest
+    q_mean = qmul(q_0, qexp(g_mean[3:]))
+    q_mean /= np.linalg.norm(q_mean)
+    x_new, P_new, m = _appended(x, P_new, manifold, p_0 + g_mean[:3], q_mean, jitter)
+    return x_new, P_new, m, S
 
 
 def marginalize_clone(

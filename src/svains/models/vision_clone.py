@@ -17,7 +17,8 @@ sigma point (the whole stereo rig turns; ``navigation.vision_clones``). The ``3d
 column in the state and the frame's ``ShiftIncrement``, ``models.time_offset``): the image
 stamped ``t_k`` was taken at IMU time ``t_k + t_d``, so the current pose is moved there per
 sigma point (``time_offset.shifted_pose``). The clone of the k-1 frame was made the same way
-(``models.clones.augment_shifted_clone``), so the relative motion is shifted at both ends.
+(``models.clones.augment_shifted_clone_sigma``), so the relative motion is shifted at both
+ends.
 """
 
 from __future__ import annotations

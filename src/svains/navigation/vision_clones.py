@@ -27,9 +27,10 @@ motion between frames. Adds 3 tangent dimensions (55 sigma points with one clone
 number after ``δφ_C`` (when both are on), ``t_d`` (s, Kalibr's ``t_imu = t_cam + t_d``), the
 residual of the offset the data's calibration already applied to the image stamps
 (``CameraCalib.timeshift_cam_imu_s``), with zero mean and ``time_offset_std_ms``. The clone of
-a frame is then the body pose at the image's IMU time ``t_k + t_d`` (``augment_shifted_clone``:
-moved through the IMU samples over the current estimate and to first order beyond it,
-``models.time_offset``, with its correlation to ``t_d``) and the models move the current pose
+a frame is then the body pose at the image's IMU time ``t_k + t_d``
+(``augment_shifted_clone_sigma``: moved through the IMU samples over the current estimate, the
+offset's spread taken by quadrature over the same samples, ``models.time_offset``, with its
+correlation to ``t_d``) and the models move the current pose
 alike (``time_offset.shifted_pose``): the relative motion between the two is shifted at both
 ends, and ``t_d`` becomes observable wherever the rig's motion changes. Adds 1 tangent
 dimension (2 sigma points); constant in the process model.
@@ -44,12 +45,12 @@ from numpy.typing import NDArray
 
 from svains.filter.ukf import UKF
 from svains.models.clones import (
+    SHIFT_REACH_SIGMA,
     CloneManifold,
     augment_calibration,
     augment_clone,
-    augment_shifted_clone,
+    augment_shifted_clone_sigma,
     marginalize_clone,
-    shifted_clone,
 )
 from svains.models.manifold import NavManifold
 from svains.models.state import BA, BG, BIASED, DP, DTH, W
@@ -186,13 +187,16 @@ class CloneWindow:
                 T = np.vstack([T, T[DP], T[DTH]])  # a copy of the pose's rows
             else:
                 # The pose at the image's IMU time, t_k + t_d: not a copy of the pose's rows
-                # but ``J = [I; S]`` (``models.time_offset.shifted_pose_jacobian``).
+                # but moved by the offset, through quadrature over its spread as the vision
+                # models move the current pose (``models.clones.augment_shifted_clone_sigma``).
                 assert manifold.calib is not None
                 col = manifold.calib[0].stop - 1
-                inc = self._increment(x, manifold.nav.nx, col, t_ns)
-                pose = shifted_clone(x, manifold, col, inc)
-                x, P, manifold = augment_shifted_clone(x, P, manifold, col, inc, pose=pose)
-                T = np.vstack([T, pose[2] @ T])
+                tangent = manifold.calib[1].stop - 1
+                span = min(SHIFT_REACH_SIGMA * float(np.sqrt(max(P[tangent, tangent], 0.0))),
+                           MAX_SHIFT_SPAN_S)  # fmt: skip
+                inc = self._increment(x, manifold.nav.nx, col, t_ns, span)
+                x, P, manifold, S = augment_shifted_clone_sigma(x, P, manifold, col, inc)
+                T = np.vstack([T, S @ T])
             times.append(int(t_ns))
         for i in reversed(range(len(times))):
             if reference_ns is None or times[i] != int(reference_ns):
