@@ -67,46 +67,15 @@ def _interp(t_s: F64, ts: F64, y: F64) -> F64:
     return np.stack([np.interp(t_s, ts, y[:, i]) for i in range(3)], axis=1)
 
 
-def _integrate(ts: F64, gyro: F64, accel: F64, a_s: float, b_s: float) -> tuple[F64, F64, F64]:
-    """Preintegrate bias-corrected samples over ``[a_s, b_s]`` (s, a < b), body axes at ``a``:
-    ``ΔR`` (3, 3), ``Δv`` (3,), ``Δp`` (3,), midpoint rule between the samples and the ends."""
-    inner = ts[(ts > a_s) & (ts < b_s)]
-    nodes = np.concatenate([[a_s], inner, [b_s]])
-    w, f = _interp(nodes, ts, gyro), _interp(nodes, ts, accel)
-    dR, dv, dp = np.eye(3), np.zeros(3), np.zeros(3)
-    for i in range(nodes.size - 1):
-        h = nodes[i + 1] - nodes[i]
-        half = so3_exp(0.25 * (w[i] + w[i + 1]) * h)  # the attitude at the step's middle
-        acc = dR @ half @ (0.5 * (f[i] + f[i + 1]))
-        dp = dp + dv * h + 0.5 * acc * h * h
-        dv = dv + acc * h
-        dR = dR @ half @ half
-    return dR, dv, dp
-
-
 def shift_increment(
     t_ns: I64, gyro_B: F64, accel_B: F64, frame_ns: int, tau_s: float, bg_B: F64, ba_B: F64,
     g_W: F64,
 ) -> ShiftIncrement:
     """The ``ShiftIncrement`` from ``frame_ns`` to ``frame_ns + tau_s`` of the IMU samples
     ``t_ns`` (N,), ``gyro_B``, ``accel_B`` (N, 3) (body axes) minus the biases ``bg_B``,
-    ``ba_B`` (3,). Samples are interpolated, and held beyond the recorded ones (the last frames
-    of a recording)."""
-    ts = (np.asarray(t_ns, np.int64) - int(frame_ns)) * 1e-9  # s from the frame
-    gyro = np.asarray(gyro_B, float) - bg_B
-    accel = np.asarray(accel_B, float) - ba_B
-    omega = _interp(np.array([tau_s]), ts, gyro)[0]
-    g = np.asarray(g_W, float)
-    if tau_s == 0.0:
-        return ShiftIncrement.first_order(omega, g)
-    if tau_s > 0:
-        dR, dv, dp = _integrate(ts, gyro, accel, 0.0, tau_s)
-        return ShiftIncrement(tau_s, dR, dv, dp, omega, g)
-    # Backwards: integrate forward from t + τ to t, then invert (see the module docstring).
-    dR1, dv1, dp1 = _integrate(ts, gyro, accel, tau_s, 0.0)
-    dR = dR1.T
-    dv = -dR @ dv1
-    return ShiftIncrement(tau_s, dR, dv, dv * tau_s - dR @ dp1, omega, g)
+    ``ba_B`` (3,): ``shift_table``'s entry at ``tau_s`` (one integrator for both). Samples are
+    interpolated, and held beyond the recorded ones (the last frames of a recording)."""
+    return shift_table(t_ns, gyro_B, accel_B, frame_ns, tau_s, 0.0, bg_B, ba_B, g_W).center
 
 
 @dataclass(frozen=True)
@@ -128,8 +97,10 @@ def shift_table(
     bg_B: F64, ba_B: F64, g_W: F64,
 ) -> ShiftTable:
     """The increments from ``frame_ns`` to every IMU sample time within ``tau_s ± span_s`` (s),
-    and to ``tau_s`` itself, in one forward pass (``shift_increment``'s nodes and rule: the
-    entry at ``tau_s`` equals ``shift_increment(..., tau_s, ...)``)."""
+    and to ``tau_s`` itself, in one forward pass over the bias-corrected samples, interpolated
+    at the nodes and held beyond the recorded ones: midpoint rule between nodes, integrated
+    from the earliest node in its body axes, then rebased on the frame (a negative ``tau_s``
+    is the inverse of the motion from ``t + tau_s`` to ``t``)."""
     ts = (np.asarray(t_ns, np.int64) - int(frame_ns)) * 1e-9
     gyro = np.asarray(gyro_B, float) - bg_B
     accel = np.asarray(accel_B, float) - ba_B
