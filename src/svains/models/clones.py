@@ -225,15 +225,16 @@ def shifted_clone(
 
 def augment_shifted_clone(
     x: F64, P: F64, manifold: CloneManifold, td: int, inc: ShiftIncrement | ShiftTable,
-    jitter: float | None = None, pose: tuple[F64, F64, F64] | None = None,
+    jitter: float | None = None,
 ) -> tuple[F64, F64, CloneManifold]:
-    """Append a clone of the body pose at the image's IMU time ``t + t_d`` (``shifted_clone``;
-    ``pose``: its result when already at hand): ``x'`` (nx + 7,), ``P'`` (ndx + 6, ndx + 6).
+    """Append a clone of the body pose at the image's IMU time ``t + t_d`` (``shifted_clone``),
+    first order in ``t_d`` (the filter uses ``augment_shifted_clone_sigma``, which reduces to
+    this for a narrow offset): ``x'`` (nx + 7,), ``P'`` (ndx + 6, ndx + 6).
     ``P' = J P J^T`` with ``J = [I; S]``: the clone is correlated with the offset, so the
     relative motion to a later shifted pose depends on ``t_d`` at both ends. Jitter as in
     ``augment_clone``."""
     x, P = _checked(x, P, manifold)
-    p_c, q_c, S = shifted_clone(x, manifold, td, inc) if pose is None else pose
+    p_c, q_c, S = shifted_clone(x, manifold, td, inc)
     J = np.vstack([np.eye(manifold.ndx), S])
     return _appended(x, J @ P @ J.T, manifold, p_c, q_c, jitter)
 
@@ -265,12 +266,10 @@ def augment_shifted_clone_sigma(
     regression slope over ±57 ms is a different draw of the vibration, and with it EuRoC's static
     start drifted 32 mm in 4.6 s instead of 3 (``docs/results/time-offset.md``)."""
     x, P = _checked(x, P, manifold)
-    calib = manifold.calib
-    if calib is None or not calib[0].start <= td < calib[0].stop:
-        raise ConfigError(f"column {td} is not in the state's calibration block")
-    k = td - calib[0].start + calib[1].start  # the offset's tangent column
     center = table.center if isinstance(table, ShiftTable) else table
-    p_0, q_0, S = shifted_clone(x, manifold, td, center)
+    p_0, q_0, S = shifted_clone(x, manifold, td, center)  # checks ``td``
+    assert manifold.calib is not None
+    k = td - manifold.calib[0].start + manifold.calib[1].start  # the offset's tangent column
     sd = float(np.sqrt(max(P[k, k], 0.0)))
     u = _GH_NODES * sd  # (5,) s from the estimate
     X = np.repeat(x[None, :], u.size, axis=0)
@@ -282,9 +281,8 @@ def augment_shifted_clone_sigma(
     g_mean = w @ g
     dg = g - g_mean
     rest = dg - np.outer(u, S[:, k])
-    P_new = np.zeros((P.shape[0] + CLONE_NDX,) * 2)
     J = np.vstack([np.eye(manifold.ndx), S])
-    P_new[:] = J @ P @ J.T
+    P_new = J @ P @ J.T
     P_new[-CLONE_NDX:, -CLONE_NDX:] += (rest * w[:, None]).T @ rest
     q_mean = qmul(q_0, qexp(g_mean[3:]))
     q_mean /= np.linalg.norm(q_mean)

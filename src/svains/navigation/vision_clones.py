@@ -54,7 +54,7 @@ from svains.models.clones import (
 )
 from svains.models.manifold import NavManifold
 from svains.models.state import BA, BG, BIASED, DP, DTH, W
-from svains.models.time_offset import ShiftIncrement, ShiftTable, shift_increment, shift_table
+from svains.models.time_offset import ShiftIncrement, ShiftTable, shift_table
 from svains.navigation.imu_history import ImuHistory
 
 # The reach of the offset's table (s) either side of its estimate: beyond it a sigma point moves
@@ -116,24 +116,25 @@ class CloneWindow:
         if (not isinstance(manifold, CloneManifold) or manifold.calib is None
                 or self.time_offset_std_s is None):
             return None
-        col = manifold.calib[0].stop - 1
-        tangent = manifold.calib[1].stop - 1
-        span = min(ukf.points.scale * float(np.sqrt(max(ukf.P[tangent, tangent], 0.0))),
-                   MAX_SHIFT_SPAN_S)  # fmt: skip
-        return col, self._increment(ukf.x, manifold.nav.nx, col, t_ns, span)
+        return self._increment(ukf.x, ukf.P, manifold, t_ns, ukf.points.scale)
 
     def _increment(
-        self, x: F64, nav_nx: int, col: int, t_ns: int, span_s: float = 0.0
-    ) -> ShiftIncrement | ShiftTable:
-        """The IMU's motion from ``t_ns`` over the offset ``x[col]`` (s) with the biases of
-        ``x`` (``models.time_offset.shift_increment``), and with ``span_s`` > 0 the table of
-        them at the samples within ``span_s`` of it (``shift_table``); first order without an
-        IMU history."""
+        self, x: F64, P: F64, manifold: CloneManifold, t_ns: int, reach: float
+    ) -> tuple[int, ShiftIncrement | ShiftTable]:
+        """The offset's column in ``x`` and the IMU's motion from ``t_ns`` over the offset
+        ``x[col]`` (s) with the biases of ``x``: the ``shift_table`` at the samples within
+        ``reach · σ`` (``P``'s, at most ``MAX_SHIFT_SPAN_S``) either side of it, its entry at
+        the estimate alone when σ is 0; first order without an IMU history."""
+        assert manifold.calib is not None
+        col = manifold.calib[0].stop - 1
+        tangent = manifold.calib[1].stop - 1
+        span_s = min(reach * float(np.sqrt(max(P[tangent, tangent], 0.0))), MAX_SHIFT_SPAN_S)
         tau = float(x[col])
+        nav_nx = manifold.nav.nx
         bg, ba = (x[BG], x[BA]) if nav_nx == BIASED.nx else (np.zeros(3), np.zeros(3))
         h = self.history
         if h is None or h.n < 2:
-            return ShiftIncrement.first_order(x[W], self.g_W)
+            return col, ShiftIncrement.first_order(x[W], self.g_W)
         t = h.t_ns
         # Only the samples around [t, t + τ ± span] (plus one either side for the interpolation).
         a_ns = int(t_ns) + min(round((tau - span_s) * 1e9), 0)
@@ -141,11 +142,9 @@ class CloneWindow:
         lo = int(np.searchsorted(t, a_ns, "left")) - 1
         hi = int(np.searchsorted(t, b_ns, "right")) + 1
         lo, hi = max(lo, 0), min(max(hi, lo + 2), h.n)
-        if span_s > 0.0:
-            return shift_table(t[lo:hi], h.gyro_B[lo:hi], h.accel_B[lo:hi], int(t_ns), tau,
-                               span_s, bg, ba, self.g_W)  # fmt: skip
-        return shift_increment(t[lo:hi], h.gyro_B[lo:hi], h.accel_B[lo:hi], int(t_ns), tau,
-                               bg, ba, self.g_W)  # fmt: skip
+        table = shift_table(t[lo:hi], h.gyro_B[lo:hi], h.accel_B[lo:hi], int(t_ns), tau, span_s,
+                            bg, ba, self.g_W)  # fmt: skip
+        return col, (table if span_s > 0.0 else table.center)
 
     def columns(self, ukf: UKF, t_ns: int | None) -> tuple[slice, slice] | None:
         """Columns ``(p_W_B, q_W_B_wxyz)`` of the clone at ``t_ns`` in ``ukf.x`` (None: none)."""
@@ -189,12 +188,7 @@ class CloneWindow:
                 # The pose at the image's IMU time, t_k + t_d: not a copy of the pose's rows
                 # but moved by the offset, through quadrature over its spread as the vision
                 # models move the current pose (``models.clones.augment_shifted_clone_sigma``).
-                assert manifold.calib is not None
-                col = manifold.calib[0].stop - 1
-                tangent = manifold.calib[1].stop - 1
-                span = min(SHIFT_REACH_SIGMA * float(np.sqrt(max(P[tangent, tangent], 0.0))),
-                           MAX_SHIFT_SPAN_S)  # fmt: skip
-                inc = self._increment(x, manifold.nav.nx, col, t_ns, span)
+                col, inc = self._increment(x, P, manifold, t_ns, SHIFT_REACH_SIGMA)
                 x, P, manifold, S = augment_shifted_clone_sigma(x, P, manifold, col, inc)
                 T = np.vstack([T, S @ T])
             times.append(int(t_ns))
