@@ -20,7 +20,8 @@ It runs ``ins`` and ``3d`` on each through the public library entry
 - the position RMSE against ground truth, and its ratio to the clean run's (targets: ins <= 2x,
   3d <= 1.5x);
 - the measurements rejected by the gates, and the filter's recoveries (``recovery.resets`` /
-  ``recovery.inflations`` in ``report.json``, "-" when ``faults.consistency`` is off);
+  ``recovery.inflations`` / ``recovery.bias_shifts``
+  in ``report.json``, "-" when ``faults.consistency`` is off);
 - the mean NEES (9 dof) after the fault (target <= 12), and its position, velocity and attitude
   blocks (3 dof each, each against its own 3x3 covariance: consistent blocks average 3);
 - how long after the fault's end GPS fixes are accepted again (target <= 5 s).
@@ -310,7 +311,8 @@ def row(res: RunResult, out: Outcome, fault: Fault) -> str:
     rejected = sum(c["rejected"] for c in rep.get("measurements", {}).values())
     recovery = rep.get("recovery")
     resets = (
-        f"{recovery.get('resets', 0)}/{recovery.get('inflations', 0)}" if recovery else "-"
+        f"{recovery.get('resets', 0)}/{recovery.get('inflations', 0)}/"
+        f"{recovery.get('bias_shifts', 0)}" if recovery else "-"
     )
     back_txt = "never" if out.gps_back_s is None else f"{out.gps_back_s:.1f}"
     n9, n_p, n_v, n_a = out.nees_after
@@ -321,9 +323,10 @@ def row(res: RunResult, out: Outcome, fault: Fault) -> str:
 
 
 def summary(results: dict[tuple[str, str], list[Outcome]], seeds: list[int]) -> None:
-    """The table over the seeds (one row per fault and method); the GPS step's and the frozen
-    GPS's rows also give the RMSE against the same seed's run without those fixes (what no
-    estimator can beat: a frozen fix carries nothing, a step that nothing contradicts neither)."""
+    """The table over the seeds (one row per fault and method); the GPS step's, the frozen
+    GPS's and all at once's rows also give the RMSE against the same seed's run without those
+    fixes (what no estimator can beat: a frozen fix carries nothing, a step that nothing
+    contradicts neither; all at once includes the frozen GPS)."""
     print(f"\nOver seeds {', '.join(map(str, seeds))}:\n")
     print("| fault | method | NEES after: mean (max) | seeds > 12 | x clean: mean (max) | "
           "x GPS lost: mean (max) | GPS back, latest [s] |")  # fmt: skip
@@ -334,7 +337,8 @@ def summary(results: dict[tuple[str, str], list[Outcome]], seeds: list[int]) -> 
         back = [o.gps_back_s for o in outs]
         back_txt = "never" if None in back else f"{max(b for b in back if b is not None):.1f}"
         reference = {"GPS step": "GPS lost (reference)",
-                     "GPS frozen": "GPS lost 10 s (reference)"}  # fmt: skip
+                     "GPS frozen": "GPS lost 10 s (reference)",
+                     "all at once": "GPS lost 10 s (reference)"}  # fmt: skip
         ref_name = next((r for f, r in reference.items() if fault.startswith(f)), None)
         lost = results.get((ref_name, method)) if ref_name else None
         vs_lost = "-"
@@ -394,7 +398,7 @@ def main() -> None:
     options = with_settings(RunOptions(init=InitOptions(mode="groundtruth")),
                             dict(parse_setting(item) for item in args.set))  # fmt: skip
     results: dict[tuple[str, str], list[Outcome]] = {}
-    print("| fault | method | pos RMSE [m] | x clean | rejected | resets/inflations | "
+    print("| fault | method | pos RMSE [m] | x clean | rejected | resets/inflations/bias | "
           "NEES after | p / v / θ | GPS back after [s] |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|")
     for seed in seeds:

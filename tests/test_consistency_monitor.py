@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from svains.navigation.consistency import ConsistencyMonitor, ConsistencyOptions
@@ -156,3 +157,66 @@ def test_a_jump_after_an_imu_fault_or_with_another_sensor_rejecting_is_the_filte
     m = ConsistencyMonitor()
     t = _gps(m, [2.0, 3.0, 100.0, 100.0, 100.0], 0.0)
     assert m.should_recover(t, 0.5).kind == "inflate"  # type: ignore[union-attr]
+
+
+def _feed_whitened(m: ConsistencyMonitor, w: list[list[float]], accepted: bool = True) -> int:
+    """Accepted (or rejected) GPS updates 1 s apart with whitened innovations ``w``."""
+    t = 0
+    for k, wk in enumerate(w):
+        t = (k + 1) * S
+        m.observe("gps", accepted, sum(x * x for x in wk), len(wk), t, 100.0, np.array(wk))
+    return t
+
+
+ON = ConsistencyOptions(bias_probability=0.99)
+
+
+def test_gps_innovations_that_lean_one_way_raise_a_bias_alarm_once() -> None:
+    m = ConsistencyMonitor(ON)
+    # 3 * |(2.5, 0, 0)|^2 = 18.75 > 11.34, the 0.99 quantile of chi-square(3)
+    t = _feed_whitened(m, [[2.5, 0.0, 0.0]] * 3)
+    action = m.biased(t)
+    assert action is not None and action.kind == "bias" and action.sensors == ("gps",)
+    assert "18.8 > 11.3, 3 dof" in action.reason
+    assert action.window_s == 2.0  # three fixes 1 s apart
+    assert m.biased(t) is None  # the evidence is used up
+    assert m.summary()["bias_shifts"] == 1
+    assert m.summary()["events"] == [{"t_ns": t, "kind": "bias", "sensors": ["gps"]}]
+
+
+def test_large_innovations_of_changing_sign_rejected_ones_and_short_windows_are_no_bias() -> None:
+    m = ConsistencyMonitor(ON)
+    t = _feed_whitened(m, [[2.5, 0.0, 0.0], [-2.5, 0.0, 0.0], [2.5, 0.0, 0.0]])
+    assert m.biased(t) is None  # mean 0.83: 3 * 0.69 = 2.1
+    m = ConsistencyMonitor(ON)
+    t = _feed_whitened(m, [[3.0, 0.0, 0.0]] * 3, accepted=False)  # a jump's or a lost filter's
+    assert m.biased(t) is None
+    m = ConsistencyMonitor(ON)
+    t = _feed_whitened(m, [[3.0, 0.0, 0.0]] * 2)
+    assert m.biased(t) is None
+    m = ConsistencyMonitor()  # off by default
+    t = _feed_whitened(m, [[3.0, 0.0, 0.0]] * 3)
+    assert m.biased(t) is None
+
+
+def test_a_change_of_dimension_restarts_the_window_and_a_recovery_clears_it() -> None:
+    m = ConsistencyMonitor(ON)
+    _feed_whitened(m, [[3.0, 0.0, 0.0, 0.0, 0.0, 0.0]] * 2)
+    t = _feed_whitened(m, [[3.0, 0.0, 0.0]])  # a fix without velocity
+    assert m.biased(t) is None
+    t = _feed_whitened(m, [[3.0, 0.0, 0.0]] * 3)
+    m.clear_bias_evidence()
+    assert m.biased(t) is None
+
+
+def test_white_innovations_raise_the_alarm_at_its_false_alarm_rate() -> None:
+    rng = np.random.default_rng(0)
+    alarms, windows = 0, 3000
+    m = ConsistencyMonitor(ON)
+    for k in range(windows):
+        for j in range(3):
+            w = rng.standard_normal(6)
+            m.observe("gps", True, float(w @ w), 6, (3 * k + j) * S, 100.0, w)
+        alarms += m.biased((3 * k + 2) * S) is not None
+        m.clear_bias_evidence()
+    assert 0.005 < alarms / windows < 0.016, alarms  # 1 % expected (30 +- 11 at 2 sigma)

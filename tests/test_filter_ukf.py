@@ -133,6 +133,12 @@ def test_update_blocks_gates_each_block_and_fuses_the_rest_together() -> None:
         0.999,
     )
     assert [s.accepted for s in stats] == [True, False] and stats[1].name == "two"
+    # Each block's whitened innovation: L^-1 r with S = H P H^T + R = L L^T (linear: exact).
+    for s, Hk, Rk, zk in ((stats[0], H, R, z1), (stats[1], H2, np.diag(R2), z2 + 50)):
+        L = np.linalg.cholesky(Hk @ P0 @ Hk.T + Rk)
+        assert s.whitened is not None
+        np.testing.assert_allclose(s.whitened, np.linalg.solve(L, zk - Hk @ x0), rtol=1e-9)
+        np.testing.assert_allclose(s.whitened @ s.whitened, s.nis, rtol=1e-12)
     d.update(lambda X: X @ H.T, z1, R)
     np.testing.assert_allclose(c.x, d.x, atol=1e-12)
     np.testing.assert_allclose(c.P, d.P, atol=1e-12)

@@ -202,6 +202,30 @@ def test_after_a_bias_step_the_recovery_frees_the_biases_and_gps_returns(
     assert 0.8 < ba_x < 1.2, ba_x
 
 
+def test_a_bias_step_is_caught_by_gps_innovations_that_lean_one_way(tmp_path: Path) -> None:
+    # 0.5 m/s² passes every gate for seconds: the filter takes it for a tilt. The last three
+    # fixes' innovations share an offset; widening the biases lets the next fixes learn the
+    # step before GPS is ever locked out (with the test off, the default: an inflation 13 s
+    # later and a position error several times larger).
+    from svains.sim import SimConfig, simulate
+
+    cfg = SimConfig(duration_s=20.0, seed=3)
+    cfg.camera.render_images = False
+    cfg.gps.outages = []
+    ds = load_dataset(simulate(cfg, tmp_path / "flight"))
+    assert ds.imu is not None
+    a = ds.imu.accel_B.copy()
+    a[ds.imu.t_ns >= ds.imu.t_ns[0] + int(FAULT_AT_S * S), 0] += 0.5
+    faulty = replace(ds, imu=replace(ds.imu, accel_B=a))
+    on, off = _run(faulty, bias_test_probability=0.99), _run(faulty)
+    events = on.report["recovery"]["events"]
+    assert [e["kind"] for e in events] == ["bias"], events
+    assert FAULT_AT_S * S < events[0]["t_ns"] - ds.imu.t_ns[0] <= (FAULT_AT_S + 4) * S
+    assert 0.4 < on.x[-1, 16] < 0.6  # accelerometer bias, body x (``models.state.BA``)
+    assert off.report["recovery"]["bias_shifts"] == 0 and off.report["recovery"]["inflations"]
+    assert on.report["position_rmse_m"] < 0.5 * off.report["position_rmse_m"]
+
+
 def _with_gps(ds: Dataset, edit: str) -> Dataset:
     """``ds`` with a GPS fault from ``FAULT_AT_S`` to the end: ``step`` (50 m east) or
     ``lost`` (no fixes)."""

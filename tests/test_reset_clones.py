@@ -10,9 +10,9 @@ from svains.filter.sigma_points import MerweScaledSigmaPoints
 from svains.filter.ukf import UKF
 from svains.models.clones import CLONE_JITTER, CLONE_JITTER_REL, CloneManifold, augment_clone
 from svains.models.manifold import NavManifold
-from svains.models.state import BIASED, DBA, DBG, DP, DW, PAPER, StateLayout
+from svains.models.state import BIASED, DBA, DBG, DP, DTH, DV, DW, PAPER, StateLayout
 from svains.navigation.consistency import RecoveryAction
-from svains.navigation.fault_handling import RateLimitedLog, Recovery, inflate
+from svains.navigation.fault_handling import RateLimitedLog, Recovery, inflate, widen_biases
 from svains.navigation.options import FaultOptions
 from svains.sensors.types import GpsCalib
 
@@ -103,3 +103,27 @@ def test_inflation_of_the_paper_state_scales_the_pose_only() -> None:
     np.testing.assert_allclose(ukf.P[:9, :9], 4.0 * P[:9, :9])
     np.testing.assert_allclose(ukf.P[DW, DW], P[DW, DW])  # no bias blocks: ω is left alone
     np.testing.assert_allclose(ukf.P[:9, DW], 2.0 * P[:9, DW])
+
+
+def test_a_bias_alarm_widens_the_biases_up_to_their_caps_and_the_motion_they_drove() -> None:
+    ukf = _ukf_with_two_clones()
+    P = ukf.P.copy()
+    sd = np.sqrt(np.diag(P))
+    # caps: the gyro's above sd * 100 on every axis, the accelerometer's below sd on x
+    cap_g, cap_a = 1e3, 0.5 * sd[DBA.start]
+    widen_biases(ukf, 1e4, cap_g, cap_a, elapsed_s=2.0)
+    d = np.ones(P.shape[0])
+    d[DBG] = 100.0
+    d[DBA] = np.maximum(np.minimum(100.0 * sd[DBA], cap_a) / sd[DBA], 1.0)
+    assert d[DBA.start] == 1.0  # capped below its own std: left alone, not shrunk
+    expected = P * np.outer(d, d)  # correlations kept
+    # what the added bias spread would have done over 2 s: on attitude and velocity only
+    i = np.arange(P.shape[0])
+    expected[i[DTH], i[DTH]] += (sd[DBG] * np.sqrt(100.0**2 - 1.0) * 2.0) ** 2
+    expected[i[DV], i[DV]] += (sd[DBA] * np.sqrt(d[DBA] ** 2 - 1.0) * 2.0) ** 2
+    np.testing.assert_allclose(ukf.P, expected)
+    assert np.linalg.eigvalsh(ukf.P).min() > 0.0
+    x, Pp = _random_state(PAPER, 8)
+    paper = UKF(NavManifold(PAPER), MerweScaledSigmaPoints(PAPER.ndx), x, Pp)
+    widen_biases(paper, 1e4, 1.0, 1.0)  # no bias states: nothing changes
+    np.testing.assert_array_equal(paper.P, Pp)

@@ -7,7 +7,7 @@ place that knows how they map onto :class:`~svains.navigation.options.RunConfig`
 |---|---|
 | ``model`` | ``model`` (``paper`` or ``biased``) |
 | ``filter.<f>``, ``noise.<f>``, ``init.<f>``, | field ``<f>`` of ``filter``, ``noise``, ``init``, |
-| ``smoother.<f>`` | ``smoother`` |
+| ``smoother.<f>``, ``faults.<f>``, ``zupt.<f>`` | ``smoother``, ``faults``, ``zupt`` |
 | ``fusion.<f>``: ``use_gps``, ``use_mag``, ``use_sonar``, ``use_gps_velocity``, | the top-level |
 | ``max_mag_rate_hz``, ``max_sonar_rate_hz`` | field ``<f>`` |
 | ``output.period_s`` | ``output_period_s`` |
@@ -25,7 +25,7 @@ from svains.errors import ConfigError
 from svains.navigation.config_io import build
 from svains.navigation.options import InitMode, ModelName, RunOptions, VisionOptions
 
-_SECTIONS = ("filter", "noise", "init", "smoother")
+_SECTIONS = ("filter", "noise", "init", "smoother", "faults", "zupt")
 _FUSION = ("use_gps", "use_mag", "use_sonar", "use_gps_velocity", "max_mag_rate_hz",
            "max_sonar_rate_hz")  # fmt: skip
 _RENAMED = {"output.period_s": "output_period_s", "replay.duration_s": "duration_s"}

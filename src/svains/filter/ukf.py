@@ -13,7 +13,7 @@ updates ``h(X (S, nx)) -> (S, nz)``, both vectorised over the S sigma points.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -49,13 +49,16 @@ def chi2_gate(probability: float, dof: int) -> float:
 
 @dataclass(frozen=True)
 class UpdateStats:
-    """Outcome of one update: ``nis`` = r^T S^-1 r, ``dof`` = nz, ``gate`` threshold (inf: none)."""
+    """Outcome of one update: ``nis`` = r^T S^-1 r, ``dof`` = nz, ``gate`` threshold (inf: none);
+    ``whitened`` (nz,) = L^-1 r with S = L L^T where the update forms S (``update_blocks``:
+    the low-dimensional sensors), else None. Its mean over a run of updates is a bias test."""
 
     name: str
     accepted: bool
     nis: float
     dof: int
     gate: float
+    whitened: F64 | None = field(default=None, compare=False, repr=False)
 
 
 class UKF:
@@ -177,7 +180,7 @@ class UKF:
             if not np.isfinite(nis):
                 raise FilterError(f"{name or 'measurement'}: non-finite innovation")
             ok = nis <= gate
-            stats.append(UpdateStats(name, ok, nis, nz, float(gate)))
+            stats.append(UpdateStats(name, ok, nis, nz, float(gate), w))
             if ok:
                 kept.append((dY, r, Rm))
         if kept:

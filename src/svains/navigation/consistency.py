@@ -31,6 +31,17 @@ error that grows with time). While only such sensors reject, the monitor answers
 not follow a GPS offset by a multipath or a datum change. Other sensors rejecting as well still
 make the filter lost. The jump is adopted only when the filter's own uncertainty has grown to
 pass the gate. Pure logic; the core applies the actions.
+
+An IMU bias that *steps* (a knocked or overheated IMU) leaves every gate passing for seconds:
+the filter, sure of the old bias, takes the step for a tilt or a velocity and its innovations
+stay small but lean one way. :meth:`ConsistencyMonitor.biased` tests the last ``bias_window``
+accepted whitened innovations of a low-dimensional absolute sensor (``bias_sensors``, GPS) for
+a common offset: with ``w_k = L_k^-1 r_k`` (``S_k = L_k L_k^T``) white and unit under a
+consistent filter, ``N |mean(w)|^2`` is chi-square with the sensor's dimension. Above its
+``bias_probability`` quantile the monitor answers ``bias``: the core widens the covariance of
+the IMU biases, so the next updates can move them, and that of attitude and velocity by what
+the widened biases would have done since the middle of the window (the step happened inside
+it). Rejected updates are left out: they are a jump's or a lost filter's, handled above.
 """
 
 from __future__ import annotations
@@ -41,7 +52,9 @@ from typing import Literal
 
 import numpy as np
 
-RecoveryKind = Literal["inflate", "reset", "distrust"]
+from svains.filter import chi2_gate
+
+RecoveryKind = Literal["inflate", "reset", "distrust", "bias"]
 
 
 @dataclass(frozen=True)
@@ -67,18 +80,25 @@ class ConsistencyOptions:
     # A jump whose later NIS grows past jump_growth times its first is the filter drifting off
     # (a velocity error: the offset grows with time), not a sensor's constant offset.
     jump_growth: float = 2.0
+    # The bias-step test (see the module): sensors, window (accepted updates) and the chi-square
+    # probability of its threshold (None: off, the default; see ``FaultOptions``).
+    bias_sensors: tuple[str, ...] = ("gps",)
+    bias_window: int = 3
+    bias_probability: float | None = None
 
 
 @dataclass(frozen=True)
 class RecoveryAction:
     """What the core should do: ``inflate`` the covariance by ``inflate_factor``, ``reset``
-    position and velocity from GPS, or ``distrust``: nothing but a warning (the only rejecting
-    sensors jumped, see the module); ``sensors`` are those found rejecting."""
+    position and velocity from GPS, ``distrust``: nothing but a warning (the only rejecting
+    sensors jumped, see the module), or ``bias``: widen the IMU biases' covariance (a sensor's
+    innovations lean one way); ``sensors`` are those found rejecting or leaning."""
 
     kind: RecoveryKind
     reason: str
     sensors: tuple[str, ...]
     inflate_factor: float = 1.0
+    window_s: float = 0.0  # ``bias``: the time spanned by the innovations that lean (s)
 
 
 @dataclass
@@ -91,6 +111,8 @@ class _SensorTrack:
     rejected: int = 0
     jump_ns: int | None = None  # the current rejections began with a jump of the sensor
     jump_nis: float = 0.0
+    # (t_ns, whitened innovation) of accepted updates, for the bias test
+    whitened: deque[tuple[int, np.ndarray]] = field(default_factory=deque)
 
 
 @dataclass
@@ -102,23 +124,31 @@ class ConsistencyMonitor:
     resets: int = 0
     _sensors: dict[str, _SensorTrack] = field(default_factory=dict)
     jumps: int = 0
+    bias_shifts: int = 0
     _last_inflation_ns: int | None = None
     _last_imu_fault_ns: int | None = None
     _events: list[dict[str, object]] = field(default_factory=list)
 
     def observe(
         self, sensor: str, accepted: bool, nis: float, dof: int, t_ns: int,
-        gate: float = float("inf"),
+        gate: float = float("inf"), whitened: np.ndarray | None = None,
     ) -> None:
-        """Record one update of ``sensor`` at ``t_ns``: gate outcome, NIS with ``dof`` and the
-        gate's NIS threshold ``gate`` (for the jump test of anchor sensors)."""
+        """Record one update of ``sensor`` at ``t_ns``: gate outcome, NIS with ``dof``, the
+        gate's NIS threshold ``gate`` (for the jump test of anchor sensors) and the whitened
+        innovation ``whitened`` (dof,) when the update gives it (for the bias test)."""
         o = self.options
         s = self._sensors.get(sensor)
         if s is None:
-            s = self._sensors[sensor] = _SensorTrack(deque(maxlen=o.window))
+            s = _SensorTrack(deque(maxlen=o.window), whitened=deque(maxlen=o.bias_window))
+            self._sensors[sensor] = s
         if np.isfinite(nis) and dof > 0:
             s.nis_per_dof.append(float(nis) / dof)
         if accepted:
+            if whitened is not None and sensor in o.bias_sensors:
+                w = np.asarray(whitened, dtype=float)
+                if s.whitened and s.whitened[-1][1].shape != w.shape:
+                    s.whitened.clear()  # the sensor's dimension changed (a fix without velocity)
+                s.whitened.append((int(t_ns), w))
             s.fused += 1
             s.consecutive_rejections = 0
             s.last_accepted_ns = int(t_ns)
@@ -212,7 +242,38 @@ class ConsistencyMonitor:
             self._last_inflation_ns = int(t_ns)
             action = RecoveryAction("inflate", why, bad, o.inflate_factor)
         self._events.append({"t_ns": int(t_ns), "kind": action.kind, "sensors": list(bad)})
+        self.clear_bias_evidence()
         return action
+
+    def biased(self, t_ns: int) -> RecoveryAction | None:
+        """``bias`` when a bias sensor's last ``bias_window`` accepted whitened innovations
+        share an offset beyond the ``bias_probability`` quantile (see the module), else None.
+        The evidence is used up: a new alarm needs a fresh window. Counts the action."""
+        o = self.options
+        if o.bias_probability is None:
+            return None
+        for name in o.bias_sensors:
+            s = self._sensors.get(name)
+            if s is None or len(s.whitened) < o.bias_window:
+                continue
+            W = np.stack([w for _, w in s.whitened])
+            span_s = (s.whitened[-1][0] - s.whitened[0][0]) / 1e9
+            stat = float(W.shape[0] * np.sum(W.mean(axis=0) ** 2))
+            threshold = chi2_gate(o.bias_probability, W.shape[1])
+            if stat > threshold:
+                s.whitened.clear()
+                self.bias_shifts += 1
+                self._events.append({"t_ns": int(t_ns), "kind": "bias", "sensors": [name]})
+                return RecoveryAction(
+                    "bias", f"the last {W.shape[0]} {name} innovations share an offset (chi-square "
+                    f"{stat:.3g} > {threshold:.3g}, {W.shape[1]} dof): an IMU bias step?", (name,),
+                    window_s=span_s)
+        return None
+
+    def clear_bias_evidence(self) -> None:
+        """Forget the bias test's window (after any recovery: the innovations start anew)."""
+        for s in self._sensors.values():
+            s.whitened.clear()
 
     def nis_mean(self, sensor: str) -> float | None:
         """Mean NIS per degree of freedom of ``sensor`` over the window (1 when consistent)."""
@@ -225,6 +286,7 @@ class ConsistencyMonitor:
             "inflations": self.inflations,
             "resets": self.resets,
             "jumps": self.jumps,
+            "bias_shifts": self.bias_shifts,
             "events": list(self._events),
             "nis_per_dof_window": {name: self.nis_mean(name) for name in sorted(self._sensors)},
         }
