@@ -20,6 +20,7 @@ import numpy as np
 
 from svains.datasets import load_dataset
 from svains.datasets.trajectory import read_tum
+from svains.replay.groundtruth import interpolate_groundtruth
 
 
 def main() -> None:
@@ -43,10 +44,8 @@ def main() -> None:
             if not (run / name).is_file():
                 continue
             t_ns, p, _ = read_tum(run / name)
-            inside = (t_ns >= gt.t_ns[0]) & (t_ns <= gt.t_ns[-1])
-            t_ns, p = t_ns[inside], p[inside]
-            ref = np.stack([np.interp(t_ns, gt.t_ns, gt.p_W_B[:, k]) for k in range(3)], axis=1)
-            e = p - ref
+            inside, ref, _, _ = interpolate_groundtruth(gt, t_ns)
+            t_ns, e = t_ns[inside], p[inside] - ref
             t_s = (t_ns - t0) / 1e9
             cells, outside = [], np.ones(t_s.size, bool)
             for a, d in windows:

@@ -178,23 +178,33 @@ def test_3d_marginalises_its_points_only_across_a_gap(flight: Path) -> None:
     assert on.report["position_rmse_m"] < 0.05
 
 
-def test_after_a_bias_step_the_recovery_frees_the_biases_and_gps_returns(
-    tmp_path: Path,
-) -> None:
-    # No sample is implausible, so the guard passes them all; the filter, sure of the old
-    # bias, drifts off and rejects GPS. An inflation that frees the biases too lets the fixes
-    # pull the state back and the accelerometer bias learn the step (without it GPS stays
-    # locked out: fixes among the last 9 are rejected).
+@pytest.fixture(scope="module")
+def flight20(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 20 s simulated flight (seed 3) with GPS at 1 Hz, features, no images."""
     from svains.sim import SimConfig, simulate
 
     cfg = SimConfig(duration_s=20.0, seed=3)
     cfg.camera.render_images = False
     cfg.gps.outages = []
-    ds = load_dataset(simulate(cfg, tmp_path / "flight"))
+    return simulate(cfg, tmp_path_factory.mktemp("bias") / "flight")
+
+
+def _accel_step(ds: Dataset, step_mps2: float) -> Dataset:
+    """``ds`` with ``step_mps2`` added to the body-x accelerometer from ``FAULT_AT_S`` on."""
     assert ds.imu is not None
     a = ds.imu.accel_B.copy()
-    a[ds.imu.t_ns >= ds.imu.t_ns[0] + int(FAULT_AT_S * S), 0] += 1.0  # m/s², from then on
-    run = _run(replace(ds, imu=replace(ds.imu, accel_B=a)))
+    a[ds.imu.t_ns >= ds.imu.t_ns[0] + int(FAULT_AT_S * S), 0] += step_mps2
+    return replace(ds, imu=replace(ds.imu, accel_B=a))
+
+
+def test_after_a_bias_step_the_recovery_frees_the_biases_and_gps_returns(
+    flight20: Path,
+) -> None:
+    # No sample is implausible, so the guard passes them all; the filter, sure of the old
+    # bias, drifts off and rejects GPS. An inflation that frees the biases too lets the fixes
+    # pull the state back and the accelerometer bias learn the step (without it GPS stays
+    # locked out: fixes among the last 9 are rejected).
+    run = _run(_accel_step(load_dataset(flight20), 1.0))
     gps = [u.accepted for u in run.updates if u.name == "gps"]
     assert run.report["recovery"]["inflations"] >= 1
     assert all(gps[-9:])
@@ -202,25 +212,17 @@ def test_after_a_bias_step_the_recovery_frees_the_biases_and_gps_returns(
     assert 0.8 < ba_x < 1.2, ba_x
 
 
-def test_a_bias_step_is_caught_by_gps_innovations_that_lean_one_way(tmp_path: Path) -> None:
+def test_a_bias_step_is_caught_by_gps_innovations_that_lean_one_way(flight20: Path) -> None:
     # 0.5 m/s² passes every gate for seconds: the filter takes it for a tilt. The last three
     # fixes' innovations share an offset; widening the biases lets the next fixes learn the
     # step before GPS is ever locked out (with the test off, the default: an inflation 13 s
     # later and a position error several times larger).
-    from svains.sim import SimConfig, simulate
-
-    cfg = SimConfig(duration_s=20.0, seed=3)
-    cfg.camera.render_images = False
-    cfg.gps.outages = []
-    ds = load_dataset(simulate(cfg, tmp_path / "flight"))
-    assert ds.imu is not None
-    a = ds.imu.accel_B.copy()
-    a[ds.imu.t_ns >= ds.imu.t_ns[0] + int(FAULT_AT_S * S), 0] += 0.5
-    faulty = replace(ds, imu=replace(ds.imu, accel_B=a))
+    faulty = _accel_step(load_dataset(flight20), 0.5)
+    assert faulty.imu is not None
     on, off = _run(faulty, bias_test_probability=0.99), _run(faulty)
     events = on.report["recovery"]["events"]
     assert [e["kind"] for e in events] == ["bias"], events
-    assert FAULT_AT_S * S < events[0]["t_ns"] - ds.imu.t_ns[0] <= (FAULT_AT_S + 4) * S
+    assert FAULT_AT_S * S < events[0]["t_ns"] - faulty.imu.t_ns[0] <= (FAULT_AT_S + 4) * S
     assert 0.4 < on.x[-1, 16] < 0.6  # accelerometer bias, body x (``models.state.BA``)
     assert off.report["recovery"]["bias_shifts"] == 0 and off.report["recovery"]["inflations"]
     assert on.report["position_rmse_m"] < 0.5 * off.report["position_rmse_m"]

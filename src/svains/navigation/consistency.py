@@ -144,7 +144,7 @@ class ConsistencyMonitor:
         if np.isfinite(nis) and dof > 0:
             s.nis_per_dof.append(float(nis) / dof)
         if accepted:
-            if whitened is not None and sensor in o.bias_sensors:
+            if whitened is not None and o.bias_probability is not None and sensor in o.bias_sensors:
                 w = np.asarray(whitened, dtype=float)
                 if s.whitened and s.whitened[-1][1].shape != w.shape:
                     s.whitened.clear()  # the sensor's dimension changed (a fix without velocity)

@@ -373,6 +373,13 @@ def shift_clones(x: F64, P_: F64, manifold: CloneManifold, dp_W: F64) -> tuple[F
     return x, 0.5 * (P_ + P_.T)
 
 
+def _has_biases(ukf: UKF) -> bool:
+    """Whether the filter's navigation block has the biased layout (gyro and accelerometer
+    biases, ``DBG``/``DBA``), clones and calibration aside."""
+    nav_ndx = ukf.manifold.nav.ndx if isinstance(ukf.manifold, CloneManifold) else ukf.P.shape[0]
+    return nav_ndx >= DBA.stop
+
+
 def inflate(ukf: UKF, action: RecoveryAction) -> None:
     """P ← D P D with D = sqrt(factor) on δp, δv, δθ, on the IMU biases (biased model) and on
     every pose clone's (δp, δθ), 1 elsewhere.
@@ -388,12 +395,10 @@ def inflate(ukf: UKF, action: RecoveryAction) -> None:
     root = math.sqrt(action.inflate_factor)
     d[NAV9] = root
     assert DTH.stop == NAV9.stop
-    nav_ndx = ukf.P.shape[0]
     if isinstance(ukf.manifold, CloneManifold):
-        nav_ndx = ukf.manifold.nav.ndx
         for i in range(ukf.manifold.n_clones):
             d[ukf.manifold.tangent(i)] = root
-    if nav_ndx >= DBA.stop:  # biased layout: gyro and accelerometer biases
+    if _has_biases(ukf):
         d[DBG] = root
         d[DBA] = root
     ukf.P = ukf.P * np.outer(d, d)
@@ -409,8 +414,7 @@ def widen_biases(ukf: UKF, factor: float, max_gyro_std: float, max_accel_std: fl
     already carries the step's effect since it happened, which the covariance did not. Not
     (σ_a τ² / 2)² to δp: GPS measures the position itself, and on the fault bench that term
     cost a clean run with a false alarm 22 % of its RMSE for no gain after a step."""
-    n = ukf.manifold.nav.ndx if isinstance(ukf.manifold, CloneManifold) else ukf.P.shape[0]
-    if n < DBA.stop:
+    if not _has_biases(ukf):
         return
     d = np.ones(ukf.P.shape[0])
     added: dict[str, F64] = {}
