@@ -36,14 +36,21 @@ def test_all_methods_beat_pure_inertial_when_gps_denied(
     res = run_methods(ds, ("ins", "vo", "lc", "tc", "3d"), opts, tmp_path)
     final = {m: r.report["final_position_error_m"] for m, r in res.items()}
     ate = {m: r.report["ate_m"] for m, r in res.items()}
-    # Measured 2026-12-02 (seed 3, 15 s, default clone model), final error / ATE [m]: ins
-    # 16.0 / 2.17, vo 0.274 / 0.082, lc 0.309 / 0.086, tc = 3d 0.120 / 0.027.
+    # Measured 2026-12-03 (seed 3, 15 s, default clone model), final error / ATE [m]: ins
+    # 16.0 / 2.17, vo 0.274 / 0.082 with RANSAC's egomotion and 0.017 ATE with the two-frame
+    # bundle adjustment (vo's default since), lc 0.309 / 0.086, tc = 3d 0.120 / 0.027.
     for m in ("vo", "lc", "tc", "3d"):
         assert final[m] < 0.05 * final["ins"], final
-    # The paper's ordering where it must hold: the tightly coupled 3d well ahead of lc and vo
-    # (measured 3.1x; with --rotation imu it was not: 3d 0.140 against vo 0.082, unnoticed).
-    assert ate["3d"] < 0.5 * min(ate["lc"], ate["vo"]), ate
-    assert final["3d"] < 0.6 * min(final["lc"], final["vo"]), final
+    # The paper's ordering where it must hold: the tightly coupled 3d well ahead of lc (measured
+    # 3.2x; with --rotation imu it was not: 3d 0.140 against vo 0.082, unnoticed). The paper's
+    # vo is RANSAC's; ours is bundle-adjusted and, on features0's exact white pixel noise,
+    # beats 3d (see docs/results/low-rate.md "The two-frame bundle adjustment").
+    assert ate["3d"] < 0.5 * ate["lc"], ate
+    assert final["3d"] < 0.6 * final["lc"], final
+    ransac_vo = replace(opts, vision=replace(opts.vision, egomotion_bundle=False))
+    vo_plain = run_methods(ds, ("vo",), ransac_vo, tmp_path / "plain")["vo"].report["ate_m"]
+    assert ate["3d"] < 0.5 * vo_plain, (ate, vo_plain)
+    assert ate["vo"] < 0.4 * vo_plain, (ate, vo_plain)
     assert res["3d"].report["final_error_pct_of_path"] < 5.0, final
     # For a rectified pair the trifocal transfer equals reprojecting the eq.-10 point: TC == 3D.
     np.testing.assert_allclose(res["tc"].x, res["3d"].x, atol=1e-6)

@@ -20,11 +20,15 @@ class Egomotion:
 
     ``cov`` (6, 6) over (rotation vector of ``R_Ck_Ckm1`` [rad], ``p_Ck_Ckm1`` [m]).
     The rotation error is local, ``R_Ck_Ckm1 = R̂ Exp(δθ)`` (docs/conventions.md).
+    ``estimator``: ``"forward"`` (RANSAC on the points triangulated at k-1, taken as exact) or
+    ``"bundle"`` (fitted with the points to all four pixels, ``frontend.egomotion_bundle``);
+    the fusion scales a forward estimate's covariance (``VisionOptions.lc_scale``).
     """
 
     R_Ck_Ckm1: F64
     p_Ck_Ckm1: F64
     cov: F64
+    estimator: str = "forward"
 
 
 @dataclass(frozen=True)

@@ -347,7 +347,8 @@ class Navigator:
             return ImageFrames(self.rig.cam0, self.rig.cam1)
         rig = rig_from_calibrations(self.rig.cam0, self.rig.cam1)
         track_opts = TrackOptions(max_row_diff_px=v.max_row_diff_px,
-                                  egomotion=self.config.method == "lc")  # fmt: skip
+                                  egomotion=self.config.method == "lc",
+                                  bundle=v.bundle_for(self.config.method))  # fmt: skip
         return FeatureFrames(rig, track_opts)
 
 

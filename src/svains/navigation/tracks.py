@@ -31,12 +31,15 @@ class TrackOptions:
     ``max_row_diff_px``: stereo epipolar gate ``|v_left - v_right|`` at both frames (``None`` = no
     gate); ``min_disparity_px``: smallest disparity at k-1 (eq. 10 depth must be finite);
     ``egomotion``: run the front end's RANSAC + Gauss-Newton egomotion on each frame pair (needed
-    by ``lc``/``vo``; its inlier mask then replaces the all-true default).
+    by ``lc``/``vo``; its inlier mask then replaces the all-true default); ``bundle``: refine it
+    with the points on all four pixels of every feature that passed the gates
+    (``frontend.egomotion_bundle``; its inliers replace RANSAC's; off, the RANSAC estimate).
     """
 
     max_row_diff_px: float | None = 2.0
     min_disparity_px: float = 0.5
     egomotion: bool = False
+    bundle: bool = False
 
 
 def frame_slices(fs: Any) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -50,14 +53,38 @@ def frame_slices(fs: Any) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
 
 def _estimate(
     p_prev: F64, uv_left: F64, uv_right: F64, rig: RectifiedStereo, p_cur: F64, seed: int,
-    prior: Egomotion | None,
+    prior: Egomotion | None, prev_pixels: tuple[F64, F64, NDArray[np.bool_]] | None = None,
 ) -> tuple[Egomotion | None, NDArray[np.bool_]]:
+    """The front end's egomotion and inliers; with ``prev_pixels`` (the k-1 left and right
+    pixels and which features passed the gates), refined by the two-frame bundle adjustment
+    (``frontend.egomotion_bundle``), which keeps the RANSAC result when it fails."""
     # Imported lazily: the front end's egomotion is only needed by lc/vo.
     from svains.frontend.egomotion import RansacOptions, estimate_egomotion
 
     res = estimate_egomotion(
         p_prev, uv_left, uv_right, rig, RansacOptions(seed=seed), p_cur=p_cur, prior=prior
     )
+    if res.egomotion is None or prev_pixels is None:
+        return res.egomotion, res.inlier
+    return bundle_refine(res.egomotion, res.inlier, *prev_pixels, uv_left, uv_right, rig)
+
+
+def bundle_refine(
+    ego: Egomotion, inlier: NDArray[np.bool_], uv_left_prev: F64, uv_right_prev: F64,
+    candidate: NDArray[np.bool_], uv_left: F64, uv_right: F64, rig: RectifiedStereo,
+) -> tuple[Egomotion, NDArray[np.bool_]]:
+    """``ego`` (RANSAC's, with ``inlier`` (N,)) refined with the points on all four pixels of
+    the ``candidate`` features (``frontend.egomotion_bundle.refine_two_frame``); ``ego`` and
+    ``inlier`` unchanged when the refinement fails."""
+    from svains.frontend.egomotion_bundle import refine_two_frame
+
+    res = refine_two_frame(
+        ego.R_Ck_Ckm1, ego.p_Ck_Ckm1, np.where(candidate[:, None], uv_left_prev, np.nan),
+        uv_right_prev, uv_left, uv_right, rig, inlier & candidate,
+    )
+    if res.egomotion is None:
+        log.debug("two-frame bundle adjustment failed; the RANSAC egomotion is kept")
+        return ego, inlier
     return res.egomotion, res.inlier
 
 
@@ -103,7 +130,8 @@ class TrackBuilder:
         ego: Egomotion | None = None
         if opts.egomotion and ok.sum() >= 3:
             p_cur = rig.triangulate(uvl1, uvr1)
-            ego, inl = _estimate(p_prev, uvl1, uvr1, rig, p_cur, seed=k, prior=self._prior)
+            ego, inl = _estimate(p_prev, uvl1, uvr1, rig, p_cur, seed=k, prior=self._prior,
+                                 prev_pixels=(uvl0, uvr0, ok) if opts.bundle else None)
             ok &= inl
             self._prior = ego
         return StereoTracks(

@@ -71,15 +71,18 @@ class LcUpdater:
         self.counters = VisionCounters()
         self._imu, self._prior = imu_and_prior(history, rig, options, self.source)
         self._nis_per_dof: list[float] = []  # consistency check: should average ~1
+        self._estimators: dict[str, int] = {}  # egomotions fused per estimator
         self.clones = clone_window(options, applied_offset_s(rig), history, rig.gravity_W)
 
     def measurement(self, tr: StereoTracks) -> tuple[F64, F64] | None:
         """``z`` (6,) (rotation vector rad, translation m) and its covariance (6, 6): the front
-        end's covariance times ``lc_cov_scale``, standard deviations floored at ``lc_min_std``;
-        None when that covariance is not positive definite (``vision_egomotion``).
-        ``tr.egomotion`` must not be None."""
+        end's covariance times ``lc_cov_scale`` (its default depends on the estimator), standard
+        deviations floored at ``lc_min_std``; None when that covariance is not positive definite
+        (``vision_egomotion``). ``tr.egomotion`` must not be None."""
         if tr.egomotion is None:
             raise DatasetError(f"tracks at t={tr.t_ns} ns carry no egomotion (lc needs one)")
+        kind = tr.egomotion.estimator
+        self._estimators[kind] = self._estimators.get(kind, 0) + 1
         return egomotion_noise(tr.egomotion, self.options)
 
     def update(self, ctx: FrameContext) -> UpdateStats | None:
@@ -137,7 +140,9 @@ class LcUpdater:
         out: dict[str, Any] = self.counters.as_dict()
         nis = np.asarray(self._nis_per_dof)
         out.update(
-            source=self.source.kind, lc_cov_scale=self.options.lc_scale(),
+            source=self.source.kind,
+            lc_cov_scale={k: self.options.lc_scale(k) for k in sorted(self._estimators)},
+            egomotion_estimators=dict(sorted(self._estimators.items())),
             frontend_status=dict(getattr(self.source, "status_counts", {})),
             nis_per_dof_mean=float(nis.mean()) if nis.size else None,
             nis_per_dof_median=float(np.median(nis)) if nis.size else None,

@@ -20,17 +20,18 @@ from svains.geometry.camera import RectifiedStereo
 from svains.models.vision_lc import egomotion_measurement
 from svains.navigation.base import MeasurementBlock
 from svains.navigation.options import VisionOptions
+from svains.navigation.tracks import bundle_refine
 
 F64 = NDArray[np.float64]
 
 
 def egomotion_noise(ego: Egomotion, options: VisionOptions) -> tuple[F64, F64] | None:
     """``z`` (6,) rad, m and its covariance (6, 6): the front end's covariance times
-    ``lc_cov_scale``, standard deviations floored at ``lc_min_std``; None when the covariance is
-    not finite and positive definite (a poorly conditioned egomotion from a few features can
-    give an indefinite one: no weight can be given to that motion)."""
+    ``options.lc_scale(ego.estimator)``, standard deviations floored at ``lc_min_std``; None
+    when the covariance is not finite and positive definite (a poorly conditioned egomotion
+    from a few features can give an indefinite one: no weight can be given to that motion)."""
     z, cov = egomotion_measurement(ego)
-    cov = cov * options.lc_scale()
+    cov = cov * options.lc_scale(ego.estimator)
     floor = np.repeat(np.square(options.lc_min_std), 3)
     cov = cov + np.diag(np.maximum(floor - np.diag(cov), 0.0))
     if not (np.isfinite(cov).all() and np.linalg.eigvalsh(cov)[0] > 0):
@@ -46,9 +47,12 @@ def egomotion_noise(ego: Egomotion, options: VisionOptions) -> tuple[F64, F64] |
 WIDE_BASELINE_INLIER_PX = 5.0
 
 
-def tracks_egomotion(tr: StereoTracks, rig: RectifiedStereo, seed: int) -> Egomotion | None:
+def tracks_egomotion(
+    tr: StereoTracks, rig: RectifiedStereo, seed: int, bundle: bool = False
+) -> Egomotion | None:
     """The egomotion the tracks carry, or that of their inliers (the front end's RANSAC +
-    refinement; again at ``WIDE_BASELINE_INLIER_PX`` when that finds none)."""
+    refinement; again at ``WIDE_BASELINE_INLIER_PX`` when that finds none), with ``bundle``
+    refined by the two-frame bundle adjustment (``navigation.tracks.bundle_refine``)."""
     if tr.egomotion is not None:
         return tr.egomotion
     ok = tr.inlier & np.isfinite(tr.p_Ckm1_F).all(axis=1)
@@ -63,7 +67,11 @@ def tracks_egomotion(tr: StereoTracks, rig: RectifiedStereo, seed: int) -> Egomo
         opts = RansacOptions(seed=seed, inlier_px=inlier_px)
         res = estimate_egomotion(tr.p_Ckm1_F[ok], uvl, uvr, rig, opts, p_cur=p_cur)
         if res.egomotion is not None:
-            return res.egomotion
+            if not bundle:
+                return res.egomotion
+            everyone = np.ones(int(ok.sum()), dtype=bool)
+            return bundle_refine(res.egomotion, res.inlier, tr.uv_left_prev[ok],
+                                 tr.uv_right_prev[ok], everyone, uvl, uvr, rig)[0]  # fmt: skip
     return None
 
 

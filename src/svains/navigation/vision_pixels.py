@@ -367,7 +367,8 @@ class PixelUpdater:
         cols = self.clones.columns(ctx.ukf, tr.t_prev_ns)
         if cols is None:
             return None
-        ego = tracks_egomotion(tr, self.rig, seed=self.counters.frames)
+        ego = tracks_egomotion(tr, self.rig, seed=self.counters.frames,
+                               bundle=self.options.bundle_for(self.method))
         if ego is None:
             return None
         calib, rig = self.clones.calib(ctx.ukf), self.rig

@@ -69,7 +69,8 @@ def _frame_tracks(
     ``frame_stride`` and ``duration_s`` (counted from the first such frame)."""
     v = config.vision
     stride = max(1, v.frame_stride)
-    opts = TrackOptions(max_row_diff_px=v.max_row_diff_px, egomotion=True)
+    opts = TrackOptions(max_row_diff_px=v.max_row_diff_px, egomotion=True,
+                        bundle=v.bundle_for("vo"))
     end: int | None = None
     if v.source == "features" and ds.features is not None:
         feats = FeatureFrames(rig_from_calibrations(ds.cam0, ds.cam1), opts)
