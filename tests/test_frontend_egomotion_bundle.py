@@ -4,6 +4,9 @@ RANSAC estimate is biased, outliers, degenerate input."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -143,3 +146,27 @@ def test_degenerate_input_gives_no_motion_or_skips_the_feature(case: str) -> Non
     res = refine_two_frame(R_TRUE, T_TRUE, l0, r0, l1, r1, RIG, inlier)
     assert res.egomotion is not None
     assert not res.inlier[:3].any() and res.inlier[3:].mean() > 0.9
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_image_vo_on_kitti_odometry_gains_from_the_bundle(kitti_a: Path, tmp_path: Path) -> None:
+    """The image front end's egomotion, bundle-adjusted (``vo``'s default) against RANSAC's
+    alone, chained over the 51 real KITTI odometry frames.
+
+    Measured 2026-12-03: ATE 0.090 m against 0.113 m, final error 0.561 m against 0.682 m."""
+    from typer.testing import CliRunner
+
+    from svains.cli.main import app
+
+    def run(bundle: bool) -> dict:
+        out = tmp_path / f"b{int(bundle)}"
+        args = ["run", str(kitti_a), "--method", "vo", "--out", str(out),
+                "--set", f"vision.egomotion_bundle={str(bundle).lower()}"]  # fmt: skip
+        res = CliRunner().invoke(app, args)
+        assert res.exit_code == 0, res.output
+        return json.loads((out / "report.json").read_text(encoding="utf-8"))
+
+    with_bundle, ransac = run(True), run(False)
+    assert with_bundle["ate_rmse_m"] < 0.9 * ransac["ate_rmse_m"], (with_bundle, ransac)
+    assert with_bundle["final_error_m"] < 0.9 * ransac["final_error_m"]

@@ -33,7 +33,9 @@ class FrontendOptions:
     unpredicted temporal KLT pass when the predicted tracks gave no consensus (at the onset of a
     sharp turn the constant-velocity prediction is far off: 2 Hz village flight, t = 35 s);
     ``reacquire``: descriptor matching when KLT still gave no consensus (long gaps, low frame
-    rates; ``frontend.reacquire``)."""
+    rates; ``frontend.reacquire``); ``bundle``: refine the RANSAC egomotion by the two-frame
+    bundle adjustment (``frontend.egomotion_bundle``) on the features that pass the epipolar
+    check."""
 
     detector: DetectorOptions = field(default_factory=DetectorOptions)
     klt: KltOptions = field(default_factory=KltOptions)
@@ -53,6 +55,7 @@ class FrontendOptions:
     redetect_every: int = 5
     min_inlier_fraction: float = 0.3
     retry_levels: int = 4
+    bundle: bool = False
 
 
 HOLD_STATUSES = ("contradicts_prior", "implausible")

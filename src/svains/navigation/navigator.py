@@ -344,7 +344,8 @@ class Navigator:
     def _make_source(self, kind: str) -> FeatureFrames | ImageFrames:
         v = self.config.vision
         if kind == "images":
-            return ImageFrames(self.rig.cam0, self.rig.cam1)
+            return ImageFrames(self.rig.cam0, self.rig.cam1,
+                               bundle=v.bundle_for(self.config.method))  # fmt: skip
         rig = rig_from_calibrations(self.rig.cam0, self.rig.cam1)
         track_opts = TrackOptions(max_row_diff_px=v.max_row_diff_px,
                                   egomotion=self.config.method == "lc",

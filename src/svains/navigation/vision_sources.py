@@ -79,12 +79,16 @@ class ImageFrames:
 
     kind = "images"
 
-    def __init__(self, cam0: CameraCalib | None, cam1: CameraCalib | None) -> None:
+    def __init__(
+        self, cam0: CameraCalib | None, cam1: CameraCalib | None, bundle: bool = False
+    ) -> None:
+        from svains.frontend.options import FrontendOptions
         from svains.frontend.pipeline import StereoFrontend
 
         if cam0 is None or cam1 is None:
             raise ConfigError("image-based vision needs the cam0 and cam1 calibrations")
-        self.frontend = StereoFrontend.from_calibration(cam0, cam1)
+        opts = FrontendOptions(bundle=bundle)
+        self.frontend = StereoFrontend.from_calibration(cam0, cam1, opts)
         self.rig = self.frontend.rig
         self.pixel_noise_std = 1.0
         self._images: dict[int, tuple[U8, U8]] = {}

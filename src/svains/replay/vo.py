@@ -90,7 +90,7 @@ def _frame_tracks(
         return
     if ds.left is None or ds.right is None:
         raise DatasetError(f"{ds.root}: vo needs features0 or cam0/cam1 images")
-    images = ImageFrames(ds.cam0, ds.cam1)
+    images = ImageFrames(ds.cam0, ds.cam1, bundle=v.bundle_for("vo"))
     reader = PairReader(ds)
     t_all, il, ir = stereo_pairs(ds)
     for k in range(int(np.searchsorted(t_all, t0_ns)), len(t_all), stride):
