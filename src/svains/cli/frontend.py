@@ -20,6 +20,10 @@ def _frontend(
     out: Annotated[Path, typer.Option("--out", help="Output folder.")],
     figures: Annotated[bool, typer.Option("--figures", help="Write paper fig. 8 (PNG).")] = False,
     dense: Annotated[bool, typer.Option("--dense", help="Dense disparity instead of KLT.")] = False,
+    bundle: Annotated[
+        bool, typer.Option("--bundle/--no-bundle", help="Refine each egomotion by the two-frame "
+                           "bundle adjustment (vo's default); --no-bundle: RANSAC's alone.")
+    ] = True,
     dense_method: Annotated[
         str, typer.Option("--dense-method", help="sgbm or elas (needs pyelas).")
     ] = "sgbm",
@@ -49,7 +53,7 @@ def _frontend(
                 "needs at least 2 (cam0/cam1 images within the stereo tolerance)"
             )
         opts = FrontendOptions(
-            stereo=StereoMatchOptions(method=dense_method if dense else "sparse")
+            stereo=StereoMatchOptions(method=dense_method if dense else "sparse"), bundle=bundle
         )
         # Written in a staging folder that replaces OUT whole once the report is written.
         owned = ("frames.csv", "report.json", "figure8_features_depth.png").__contains__
