@@ -28,7 +28,6 @@ of freedom per feature: 8 pixels, 3 point coordinates), floored at ``BundleOptio
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,8 +41,6 @@ from svains.geometry.rotation import so3_exp
 
 F64 = NDArray[np.float64]
 Bool = NDArray[np.bool_]
-
-log = logging.getLogger(__name__)
 
 _DOF = 5  # per feature: 8 pixel residuals minus 3 point coordinates
 _CHI2_MEDIAN = float(chi2.ppf(0.5, _DOF))
@@ -67,10 +64,10 @@ class BundleOptions:
     flight                      NEES (6 dof)     NEES of 10 summed   rms pan [mrad] / side
                                 fwd / bundle     fwd / bundle        [mm], fwd / bundle
     ==========================  ===============  ==================  ========================
-    village 60 s, 5 Hz          5.01 / 6.04      18.2 / 4.60         0.247 / 0.081, 4.66/1.09
-    V1_02 trajectory, 2 Hz      3.66 / 6.06      5.69 / 4.74         1.90 / 0.30, 35.8 / 3.49
-    MH_03 trajectory, 2 Hz      5.53 / 6.27      3.60 / 5.94         3.85 / 0.59, 59.8 / 5.75
-    V1_02 trajectory, 0.5 Hz    18.5 / 6.39      4.23 / 5.14         24.2 / 1.94, 647 / 20.9
+    village 60 s, 5 Hz          5.01 / 5.84      18.2 / 2.82         0.247 / 0.077, 4.66/1.06
+    V1_02 trajectory, 2 Hz      3.66 / 6.21      5.69 / 4.73         1.90 / 0.29, 35.8 / 3.52
+    MH_03 trajectory, 2 Hz      5.53 / 6.36      3.60 / 5.69         3.85 / 0.60, 59.8 / 5.68
+    V1_02 trajectory, 0.5 Hz    18.5 / 8.19      4.23 / 4.97         24.2 / 1.86, 647 / 21.2
     ==========================  ===============  ==================  ========================
     """
 

@@ -142,8 +142,8 @@ LC_COV_SCALE = 30.0
 # The same factor for an egomotion from the two-frame bundle adjustment
 # (``frontend.egomotion_bundle``: the points fitted with the motion to all four pixels, features
 # gated on their joint residual). Its covariance is honest and its per-frame bias gone, so its
-# errors no longer drift together (features0, NEES of 10 summed frames 2.8-5.7 against 18 for
-# RANSAC's, see ``BundleOptions``).
+# errors no longer drift together (features0, NEES of 10 summed frames 2.8-5.7 against 18.2
+# for RANSAC's on the village, see ``BundleOptions``).
 LC_COV_SCALE_BUNDLE = 1.0
 
 # Vision motion models: the state-at-k ones of ``models.vision_common`` and ``clone`` (the pose
