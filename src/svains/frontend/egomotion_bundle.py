@@ -28,6 +28,7 @@ of freedom per feature: 8 pixels, 3 point coordinates), floored at ``BundleOptio
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,6 +42,8 @@ from svains.geometry.rotation import so3_exp
 
 F64 = NDArray[np.float64]
 Bool = NDArray[np.bool_]
+
+log = logging.getLogger(__name__)
 
 _DOF = 5  # per feature: 8 pixel residuals minus 3 point coordinates
 _CHI2_MEDIAN = float(chi2.ppf(0.5, _DOF))
@@ -93,13 +96,15 @@ class BundleResult:
 def refine_two_frame(
     R_Ck_Ckm1: F64, p_Ck_Ckm1: F64, uv_left_prev: F64, uv_right_prev: F64, uv_left: F64,
     uv_right: F64, rig: RectifiedStereo, inlier: Bool, options: BundleOptions | None = None,
+    candidate: Bool | None = None,
 ) -> BundleResult:
     """The egomotion ``T_Ck_Ckm1`` fitted jointly with the features' points to their four pixels.
 
     ``R_Ck_Ckm1`` (3, 3), ``p_Ck_Ckm1`` (3,) m: the starting motion (the RANSAC estimate);
     ``uv_*_prev`` (N, 2) rectified px at k-1, ``uv_*`` (N, 2) at k; ``inlier`` (N,) the starting
-    inlier set (RANSAC's). Features with non-finite pixels or no positive disparity at k-1 are
-    never inliers. Never raises on degenerate input: the result's ``egomotion`` is then None.
+    inlier set (RANSAC's); ``candidate`` (N,) the features that may be inliers (None: all).
+    Features with non-finite pixels or no positive disparity at k-1 are never inliers. Never
+    raises on degenerate input: the result's ``egomotion`` is then None.
     """
     o = options or BundleOptions()
     n = len(inlier)
@@ -107,6 +112,8 @@ def refine_two_frame(
     z_cur = np.ascontiguousarray(np.concatenate([uv_left, uv_right], axis=1), float)
     usable = np.isfinite(z_prev).all(1) & np.isfinite(z_cur).all(1)
     usable &= z_prev[:, 0] - z_prev[:, 2] > 0
+    if candidate is not None:
+        usable &= np.asarray(candidate, dtype=bool)
     act = np.asarray(inlier, dtype=bool) & usable
     nothing = BundleResult(None, np.zeros(n, dtype=bool), float("nan"), 0)
     if act.sum() < o.min_features:
@@ -143,13 +150,8 @@ def refine_two_frame(
             # here, at ~0.2 per step: a fixed 1e-8 rad/m took 8 steps every round).
             if float(dx @ S @ dx) < o.step_tol * sigma2:
                 break
-        e2[:] = np.inf
-        ok_idx = np.flatnonzero(usable)
-        sub = a[ok_idx]
-        kern.refine_points(R, t, sub, z_prev[ok_idx], z_cur[ok_idx], f, b, cu, cv, 3,
-                           e2_sub := np.empty(ok_idx.size))  # fmt: skip
-        a[ok_idx] = sub
-        e2[ok_idx] = e2_sub
+        kern.refine_points(R, t, a, z_prev, z_cur, f, b, cu, cv, 3, e2)
+        e2[~usable] = np.inf
         # Robust: the median of the inliers' chi-square with 5 degrees of freedom.
         sigma2 = max(float(np.median(e2[act])) / _CHI2_MEDIAN, o.min_sigma_px**2)
         if not np.isfinite(sigma2):
@@ -177,6 +179,20 @@ def refine_two_frame(
         return nothing
     ego = Egomotion(R_Ck_Ckm1=R, p_Ck_Ckm1=t, cov=cov, estimator="bundle")
     return BundleResult(ego, act.copy(), float(np.sqrt(sigma2)), rounds)
+
+
+def refine_or_keep(
+    ego: Egomotion, inlier: Bool, uv_left_prev: F64, uv_right_prev: F64, uv_left: F64,
+    uv_right: F64, rig: RectifiedStereo, candidate: Bool | None = None,
+) -> tuple[Egomotion, Bool]:
+    """``ego`` (RANSAC's) and its ``inlier`` mask (N,) refined by ``refine_two_frame`` on the
+    ``candidate`` features (None: all); both unchanged when the refinement fails."""
+    res = refine_two_frame(ego.R_Ck_Ckm1, ego.p_Ck_Ckm1, uv_left_prev, uv_right_prev, uv_left,
+                           uv_right, rig, inlier, candidate=candidate)  # fmt: skip
+    if res.egomotion is None:
+        log.debug("two-frame bundle adjustment failed; the RANSAC egomotion is kept")
+        return ego, inlier
+    return res.egomotion, res.inlier
 
 
 def _blocks(m: int) -> tuple[F64, F64, F64]:

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from svains.frontend.egomotion import RansacOptions, estimate_egomotion, warm_up
-from svains.frontend.egomotion_bundle import refine_two_frame
+from svains.frontend.egomotion_bundle import refine_or_keep
 from svains.frontend.features import detect_corners
 from svains.frontend.images import as_grey, texture_std
 from svains.frontend.motion_checks import agrees_with_prior, plausible
@@ -372,19 +372,6 @@ class StereoFrontend:
         st.status, st.tracked, st.inliers, st.outliers, self._last_motion = saved
         return klt
 
-    def _bundle(
-        self, ego: Egomotion, inlier: NDArray[np.bool_], epi: NDArray[np.bool_], uvl0: F64,
-        uvr0: F64, uvl: F64, uvr: F64,
-    ) -> tuple[Egomotion, NDArray[np.bool_]]:
-        """``ego`` refined by the two-frame bundle adjustment on the features that pass the
-        epipolar check (``frontend.egomotion_bundle``); unchanged when that fails."""
-        cand = epi[:, None]
-        res = refine_two_frame(ego.R_Ck_Ckm1, ego.p_Ck_Ckm1, np.where(cand, uvl0, np.nan), uvr0,
-                               uvl, uvr, self.rig, inlier)  # fmt: skip
-        if res.egomotion is None:
-            return ego, inlier
-        return res.egomotion, res.inlier & epi
-
     def _egomotion(
         self, t_ns: int, ref: _Reference, uv_l: F64, uv_r: F64, sel: NDArray[np.bool_],
         motion_prior: Egomotion | None, tm: dict[str, float],
@@ -410,8 +397,8 @@ class StereoFrontend:
         inlier = res.inlier & epi
         ego = res.egomotion
         if o.bundle and ego is not None:
-            ego, inlier = self._bundle(ego, inlier, epi, ref.uv_left[sel], ref.uv_right[sel],
-                                       uvl, uvr)  # fmt: skip
+            ego, inlier = refine_or_keep(ego, inlier, ref.uv_left[sel], ref.uv_right[sel], uvl,
+                                         uvr, self.rig, candidate=epi)  # fmt: skip
         status = "ok"
         n_inl = int(inlier.sum())
         if ego is None or n_inl < max(ransac.min_inliers, o.min_inlier_fraction * inlier.size):

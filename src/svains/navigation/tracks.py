@@ -66,26 +66,11 @@ def _estimate(
     )
     if res.egomotion is None or prev_pixels is None:
         return res.egomotion, res.inlier
-    return bundle_refine(res.egomotion, res.inlier, *prev_pixels, uv_left, uv_right, rig)
+    from svains.frontend.egomotion_bundle import refine_or_keep
 
-
-def bundle_refine(
-    ego: Egomotion, inlier: NDArray[np.bool_], uv_left_prev: F64, uv_right_prev: F64,
-    candidate: NDArray[np.bool_], uv_left: F64, uv_right: F64, rig: RectifiedStereo,
-) -> tuple[Egomotion, NDArray[np.bool_]]:
-    """``ego`` (RANSAC's, with ``inlier`` (N,)) refined with the points on all four pixels of
-    the ``candidate`` features (``frontend.egomotion_bundle.refine_two_frame``); ``ego`` and
-    ``inlier`` unchanged when the refinement fails."""
-    from svains.frontend.egomotion_bundle import refine_two_frame
-
-    res = refine_two_frame(
-        ego.R_Ck_Ckm1, ego.p_Ck_Ckm1, np.where(candidate[:, None], uv_left_prev, np.nan),
-        uv_right_prev, uv_left, uv_right, rig, inlier & candidate,
-    )
-    if res.egomotion is None:
-        log.debug("two-frame bundle adjustment failed; the RANSAC egomotion is kept")
-        return ego, inlier
-    return res.egomotion, res.inlier
+    uvl0, uvr0, candidate = prev_pixels
+    return refine_or_keep(res.egomotion, res.inlier, uvl0, uvr0, uv_left, uv_right, rig,
+                          candidate=candidate)  # fmt: skip
 
 
 class TrackBuilder:

@@ -20,7 +20,6 @@ from svains.geometry.camera import RectifiedStereo
 from svains.models.vision_lc import egomotion_measurement
 from svains.navigation.base import MeasurementBlock
 from svains.navigation.options import VisionOptions
-from svains.navigation.tracks import bundle_refine
 
 F64 = NDArray[np.float64]
 
@@ -52,7 +51,7 @@ def tracks_egomotion(
 ) -> Egomotion | None:
     """The egomotion the tracks carry, or that of their inliers (the front end's RANSAC +
     refinement; again at ``WIDE_BASELINE_INLIER_PX`` when that finds none), with ``bundle``
-    refined by the two-frame bundle adjustment (``navigation.tracks.bundle_refine``)."""
+    refined by the two-frame bundle adjustment (``frontend.egomotion_bundle.refine_or_keep``)."""
     if tr.egomotion is not None:
         return tr.egomotion
     ok = tr.inlier & np.isfinite(tr.p_Ckm1_F).all(axis=1)
@@ -69,9 +68,10 @@ def tracks_egomotion(
         if res.egomotion is not None:
             if not bundle:
                 return res.egomotion
-            everyone = np.ones(int(ok.sum()), dtype=bool)
-            return bundle_refine(res.egomotion, res.inlier, tr.uv_left_prev[ok],
-                                 tr.uv_right_prev[ok], everyone, uvl, uvr, rig)[0]  # fmt: skip
+            from svains.frontend.egomotion_bundle import refine_or_keep
+
+            return refine_or_keep(res.egomotion, res.inlier, tr.uv_left_prev[ok],
+                                  tr.uv_right_prev[ok], uvl, uvr, rig)[0]  # fmt: skip
     return None
 
 
