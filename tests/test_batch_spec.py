@@ -123,9 +123,9 @@ def test_settings_map_onto_the_run_options() -> None:
     assert opts.vision.pixel_noise_scale == 1.0 and opts.vision == VisionOptions(
         pixel_noise_scale=1.0)
     assert opts.use_mag is True  # untouched fields keep their defaults
-    faults = run_options_from_settings({"faults.bias_test_probability": 0.99,
+    faults = run_options_from_settings({"faults.bias_test_probability": 0.95,
                                         "zupt.enabled": False, "smoother.enabled": True})
-    assert faults.faults.bias_test_probability == 0.99 and faults.zupt.enabled is False
+    assert faults.faults.bias_test_probability == 0.95 and faults.zupt.enabled is False
     assert faults.smoother.enabled is True
     with pytest.raises(ConfigError, match=r"setting 'faults\.inflate_factor' must be a float"):
         run_options_from_settings({"faults.inflate_factor": "big"})

@@ -215,17 +215,20 @@ def test_after_a_bias_step_the_recovery_frees_the_biases_and_gps_returns(
 def test_a_bias_step_is_caught_by_gps_innovations_that_lean_one_way(flight20: Path) -> None:
     # 0.5 m/s² passes every gate for seconds: the filter takes it for a tilt. The last three
     # fixes' innovations share an offset; widening the biases lets the next fixes learn the
-    # step before GPS is ever locked out (with the test off, the default: an inflation 13 s
+    # step before GPS is ever locked out (with the test off: an inflation 13 s
     # later and a position error several times larger).
     faulty = _accel_step(load_dataset(flight20), 0.5)
     assert faulty.imu is not None
-    on, off = _run(faulty, bias_test_probability=0.99), _run(faulty)
+    on, off = _run(faulty), _run(faulty, bias_test_probability=None)
     events = on.report["recovery"]["events"]
     assert [e["kind"] for e in events] == ["bias"], events
     assert FAULT_AT_S * S < events[0]["t_ns"] - faulty.imu.t_ns[0] <= (FAULT_AT_S + 4) * S
     assert 0.4 < on.x[-1, 16] < 0.6  # accelerometer bias, body x (``models.state.BA``)
     assert off.report["recovery"]["bias_shifts"] == 0 and off.report["recovery"]["inflations"]
     assert on.report["position_rmse_m"] < 0.5 * off.report["position_rmse_m"]
+    # 4 s later the biases from before the alarm are recalled: they no longer pass its gate
+    assert on.report["recovery"]["bias_confirmed"] == 1
+    assert on.report["recovery"]["bias_restored"] == 0
 
 
 def _with_gps(ds: Dataset, edit: str) -> Dataset:
@@ -258,3 +261,50 @@ def test_a_gps_step_that_imu_and_vision_contradict_is_rejected_and_warned(
     lost_ins, stepped_ins = _run(_with_gps(ds, "lost"), "ins"), _run(step, "ins")
     assert stepped_ins.report["recovery"]["resets"] == 0
     assert stepped_ins.report["position_rmse_m"] <= 1.01 * lost_ins.report["position_rmse_m"]
+
+
+def _forced_alarm(monkeypatch: pytest.MonkeyPatch, at_s: float) -> None:
+    """Make the bias test raise one alarm at the first check ``at_s`` after the start, whatever
+    the innovations say: a false alarm (1 % of windows raise one on white innovations)."""
+    from svains.navigation.consistency import ConsistencyMonitor, RecoveryAction
+
+    first: list[int] = []  # the first check's time, then a marker once the alarm is raised
+
+    def biased(self: ConsistencyMonitor, t_ns: int) -> RecoveryAction | None:
+        first.append(t_ns) if not first else None
+        if len(first) > 1 or t_ns - first[0] < at_s * S:
+            return None
+        first.append(t_ns)
+        self.bias_shifts += 1
+        return RecoveryAction("bias", "forced by the test", ("gps",), window_s=2.0)
+
+    monkeypatch.setattr(ConsistencyMonitor, "biased", biased)
+
+
+def test_a_false_bias_alarm_is_not_confirmed_and_the_biases_come_back(
+    flight20: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # The alarm widens the biases; 4 s later (``faults.bias_confirm_s``) the biases from before
+    # it are recalled as a measurement: nothing stepped, so they pass its gate and the filter
+    # knows them as well as a run without the alarm. A GPS outage from 1 s after the alarm to
+    # the end is crossed on them, not on biases learnt from the one fix in between.
+    ds = _with_gps(load_dataset(flight20), "lost")  # no GPS from FAULT_AT_S = 6 s on
+    clean = _run(ds)
+    assert clean.report["recovery"]["bias_shifts"] == 0
+    _forced_alarm(monkeypatch, FAULT_AT_S - 1.0)
+    kept = _run(ds)
+    _forced_alarm(monkeypatch, FAULT_AT_S - 1.0)
+    forgot = _run(ds, bias_confirm_s=None)
+    assert forgot.report["recovery"]["bias_shifts"] == 1
+    rec = kept.report["recovery"]
+    assert rec["bias_shifts"] == 1 and rec["bias_restored"] == 1 and rec["bias_confirmed"] == 0
+    assert "not confirmed" in caplog.text and "restored" in caplog.text
+    accel_std = slice(15, 18)  # δba in the tangent std (``models.state.DBA``)
+    ratio_kept = kept.std[-1, accel_std] / clean.std[-1, accel_std]
+    ratio_forgot = forgot.std[-1, accel_std] / clean.std[-1, accel_std]
+    assert np.all(ratio_kept < 1.5), ratio_kept
+    assert np.all(ratio_forgot > 4.0), ratio_forgot  # measured 32, 35, 4.8
+    err = {k: r.report["position_rmse_m"] for k, r in
+           (("clean", clean), ("kept", kept), ("forgot", forgot))}  # fmt: skip
+    # measured: 18.6 m without the alarm (14 s without GPS), 11.1 m recalled, 34.1 m forgotten
+    assert err["kept"] < 1.2 * err["clean"] < 0.8 * err["forgot"], err

@@ -18,15 +18,18 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from svains.filter import chi2_gate
 from svains.filter.ukf import UKF, UpdateStats
 from svains.models.clones import CloneManifold
 from svains.models.gps import gps_position, gps_velocity
 from svains.models.state import DBA, DBG, DP, DTH, DV, P, V
+from svains.navigation.bias_recall import BiasAlarm, bias_change_nis, recall_biases
 from svains.navigation.consistency import ConsistencyMonitor, ConsistencyOptions, RecoveryAction
 from svains.navigation.imu_guard import ImuGuard, ImuGuardOptions
 from svains.navigation.imu_history import ImuHistory
@@ -50,6 +53,9 @@ _FIT_S = 0.09
 _LONG_GAP_S = 0.5
 _FIT_NS = round(_FIT_S * 1e9)
 _HOLD_END_NS = 1_000_000  # a held rest ends this long before the gap's first sample
+# A pending bias alarm is decided when the GPS has been silent this long (an outage: nothing
+# can confirm a step there, and the INS should cross it on the biases known before the alarm)
+_ANCHOR_SILENT_NS = 2_000_000_000
 NAV9 = slice(0, 9)  # δp, δv, δθ in the tangent space (``models.state``)
 
 
@@ -282,28 +288,42 @@ class ImuFaults:
 class Recovery:
     """``ConsistencyMonitor`` fed by every gated update; applies its actions to ``ukf``."""
 
-    def __init__(self, options: FaultOptions, warn: RateLimitedLog, gps_used: bool = True) -> None:
-        """``gps_used``: the run fuses GPS (else vision alone may call for an inflation)."""
+    def __init__(self, options: FaultOptions, warn: RateLimitedLog, gps_used: bool = True,
+                 bias_random_walk_var: Callable[[], F64] | None = None) -> None:  # fmt: skip
+        """``gps_used``: the run fuses GPS (else vision alone may call for an inflation).
+        ``bias_random_walk_var() -> (6,)``: the filter's bias random-walk variances per second
+        (gyro then accelerometer), for recalling the biases after a bias alarm
+        (``navigation.bias_recall``); None: zero."""
         self.monitor = ConsistencyMonitor(ConsistencyOptions(
             inflate_factor=options.inflate_factor, anchor_in_use=gps_used,
             bias_window=options.bias_test_window,
             bias_probability=options.bias_test_probability))
         self._options = options
         self._warn = warn
+        self._bias_rw = bias_random_walk_var
+        self._alarm: BiasAlarm | None = None  # a bias alarm waiting for its confirmation
+        self._last_anchor_ns: int | None = None  # the last accepted GPS update
+        self.bias_confirmed = 0
+        self.bias_restored = 0
         self.reset_pending = False
 
     def observe(self, stats: UpdateStats, key: str, t_ns: int) -> None:
+        if key in self.monitor.options.bias_sensors and stats.accepted:
+            self._last_anchor_ns = int(t_ns)
         if math.isfinite(stats.gate):  # ungated updates say nothing about the filter's health
             self.monitor.observe(key, stats.accepted, stats.nis, stats.dof, t_ns, stats.gate,
                                  stats.whitened)  # fmt: skip
 
     def check(self, ukf: UKF, t_ns: int) -> None:
         """Ask the monitor after a group of updates and apply its action."""
+        if self._alarm is not None:
+            self._confirm_bias(ukf, t_ns)
         position_std_m = math.sqrt(float(np.trace(ukf.P[DP, DP])) / 3.0)
         action = self.monitor.should_recover(t_ns, position_std_m)
         if action is None:
             self._check_bias(ukf, t_ns)
             return
+        self._alarm = None  # the filter is lost: what it knew before the alarm is no anchor
         if action.kind == "distrust":
             self._warn.warn("recovery-distrust", t_ns, action.reason)
             return
@@ -321,8 +341,46 @@ class Recovery:
             return
         self._warn.warn("recovery-bias", t_ns, f"{action.reason} The IMU biases are widened")
         o = self._options
+        if o.bias_confirm_s is not None and _has_biases(ukf):
+            if self._alarm is None:
+                self._alarm = BiasAlarm.before_widening(ukf, t_ns, o.bias_confirm_s)
+            else:  # a second alarm before the first is confirmed: the older biases stay
+                self._alarm.confirm_ns = int(t_ns + o.bias_confirm_s * 1e9)
         widen_biases(ukf, o.bias_widen_factor, o.bias_max_gyro_std, o.bias_max_accel_std,
                      0.5 * action.window_s)  # fmt: skip
+
+    def _confirm_bias(self, ukf: UKF, t_ns: int) -> None:
+        """The pending bias alarm (``navigation.bias_recall``): confirmed once the biases have
+        left those from before it; recalled when the GPS falls silent or at its deadline."""
+        alarm = self._alarm
+        assert alarm is not None
+        rw = np.zeros(6) if self._bias_rw is None else self._bias_rw()
+        o = self._options
+        nis = bias_change_nis(ukf, alarm, t_ns, rw)
+        dt_s = (t_ns - alarm.t_ns) * 1e-9
+        gate = chi2_gate(o.bias_confirm_probability, 6)
+        if nis > gate:
+            self._alarm = None
+            self.bias_confirmed += 1
+            self._warn.warn("recovery-bias-confirmed", t_ns, f"the IMU bias step of {dt_s:.1f} s "
+                            f"ago is confirmed (chi-square {nis:.3g} > {gate:.3g}, 6 dof): the "
+                            "widened biases stay")  # fmt: skip
+            return
+        silent = (self._last_anchor_ns is None
+                  or t_ns - self._last_anchor_ns > _ANCHOR_SILENT_NS)  # fmt: skip
+        if t_ns < alarm.confirm_ns and not silent:
+            return
+        self._alarm = None
+        stats = recall_biases(ukf, alarm, t_ns, rw, o.bias_confirm_probability)
+        if stats.accepted:
+            self.bias_restored += 1
+            why = "the GPS fell silent" if silent and t_ns < alarm.confirm_ns else "no step"
+            self._warn.warn("recovery-bias-restored", t_ns, f"the bias alarm of {dt_s:.1f} s ago "
+                            f"is not confirmed ({why}; chi-square {stats.nis:.3g} <= "
+                            f"{stats.gate:.3g}, 6 dof): the biases from before it are "
+                            "restored")  # fmt: skip
+        else:  # the sigma-point NIS passed the gate where the linear one did not
+            self.bias_confirmed += 1
 
     def reset_from_gps(self, ukf: UKF, cal: GpsCalib, p_W_G: F64, v_W_G: F64 | None) -> None:
         """Position (and velocity, when the fix has one) from the GPS fix; their covariance
@@ -354,7 +412,10 @@ class Recovery:
         self.reset_pending = False
 
     def summary(self) -> dict[str, object]:
-        return self.monitor.summary()
+        out = self.monitor.summary()
+        out["bias_confirmed"] = self.bias_confirmed
+        out["bias_restored"] = self.bias_restored
+        return out
 
 
 def shift_clones(x: F64, P_: F64, manifold: CloneManifold, dp_W: F64) -> tuple[F64, F64]:

@@ -73,7 +73,7 @@ class Core:
         self._warn = warn or RateLimitedLog(config.faults.warn_interval_s)
         self._imu_faults = imu_faults
         gps_used = bool(config.use_gps and rig.gps is not None)
-        self._recovery = (Recovery(config.faults, self._warn, gps_used)
+        self._recovery = (Recovery(config.faults, self._warn, gps_used, self._bias_random_walk)
                           if config.faults.consistency else None)  # fmt: skip
         self._vision_fused_t: list[int] = []
         self._vision_warned_gap = False
@@ -85,6 +85,12 @@ class Core:
         self._next_zupt_ns = self.t0_ns
         self.history = history_recorder(config, ins) if config.smoother.enabled else None
         self._log()
+
+    def _bias_random_walk(self) -> np.ndarray:
+        """The filter's bias random-walk variances per second (6,): gyro, then accelerometer
+        (read when needed: the platform noise rule may have changed them since the start)."""
+        n = self.ins.noise
+        return np.repeat([n.gyro_random_walk**2, n.accel_random_walk**2], 3)
 
     # ---- the event loop -----------------------------------------------------------------
     def _next_tick(self, horizon_ns: int) -> int | None:
