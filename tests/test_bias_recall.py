@@ -9,7 +9,7 @@ from svains.filter.sigma_points import MerweScaledSigmaPoints
 from svains.filter.ukf import UKF
 from svains.models.manifold import NavManifold
 from svains.models.state import BA, BIASED, DBA, DBG
-from svains.navigation.bias_recall import BiasAlarm, recall_biases
+from svains.navigation.bias_recall import BiasAlarm, bias_change_nis, recall_biases
 from svains.navigation.fault_handling import widen_biases
 
 S = 1_000_000_000
@@ -89,3 +89,16 @@ def test_the_random_walk_since_the_alarm_widens_what_is_recalled() -> None:
     assert recall_biases(ukf, alarm, 4 * S, rw, 0.999).accepted
     ukf, alarm = moved()
     assert not recall_biases(ukf, alarm, 4 * S, np.zeros(6), 0.999).accepted
+
+
+def test_biases_known_exactly_test_nothing_and_raise_nothing() -> None:
+    # A configuration with zero bias prior and random walk: S is singular on the biases.
+    ukf = _ukf()
+    alarm = BiasAlarm.before_widening(ukf, 0, confirm_s=4.0)
+    alarm.P[:] = 0.0
+    P = ukf.P.copy()
+    P[np.ix_(BIAS_ROWS, BIAS_ROWS)] = 0.0
+    P[np.ix_(BIAS_ROWS, np.arange(P.shape[0]))] = 0.0
+    P[np.ix_(np.arange(P.shape[0]), BIAS_ROWS)] = 0.0
+    ukf.P = P
+    assert bias_change_nis(ukf, alarm, 1 * S, np.zeros(6)) == 0.0
