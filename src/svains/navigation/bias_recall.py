@@ -74,10 +74,12 @@ def bias_change_nis(ukf: UKF, alarm: BiasAlarm, t_ns: int, random_walk_var: F64)
 
 
 def recall_biases(ukf: UKF, alarm: BiasAlarm, t_ns: int, random_walk_var: F64,
-                  probability: float) -> UpdateStats:  # fmt: skip
+                  probability: float | None = None) -> UpdateStats:  # fmt: skip
     """Fuse ``alarm``'s biases as a measurement of the state's (see the module), gated at the
-    ``probability`` chi-square quantile (6 dof). ``random_walk_var`` (6,): the biases' random
-    walk variance per second ((rad/s)² s⁻¹ for the gyro, (m/s²)² s⁻¹ for the accelerometer).
+    ``probability`` chi-square quantile (6 dof; None: ungated, when :func:`bias_change_nis`
+    has already decided: ``h`` is linear, so the two tests are the same). ``random_walk_var``
+    (6,): the biases' random walk variance per second ((rad/s)² s⁻¹ for the gyro, (m/s²)² s⁻¹
+    for the accelerometer).
     Accepted: no step (the biases are restored); rejected: the step is confirmed."""
     _, R = _innovation(ukf, alarm, t_ns, random_walk_var)
 

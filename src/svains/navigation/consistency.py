@@ -270,6 +270,12 @@ class ConsistencyMonitor:
                     window_s=span_s)
         return None
 
+    def last_accepted_ns(self, sensors: tuple[str, ...]) -> int | None:
+        """The latest accepted (gated) update of any of ``sensors`` (None: none yet)."""
+        times = [s.last_accepted_ns for name in sensors
+                 if (s := self._sensors.get(name)) is not None and s.last_accepted_ns is not None]
+        return max(times, default=None)
+
     def clear_bias_evidence(self) -> None:
         """Forget the bias test's window (after any recovery: the innovations start anew)."""
         for s in self._sensors.values():

@@ -302,14 +302,11 @@ class Recovery:
         self._warn = warn
         self._bias_rw = bias_random_walk_var
         self._alarm: BiasAlarm | None = None  # a bias alarm waiting for its confirmation
-        self._last_anchor_ns: int | None = None  # the last accepted GPS update
         self.bias_confirmed = 0
         self.bias_restored = 0
         self.reset_pending = False
 
     def observe(self, stats: UpdateStats, key: str, t_ns: int) -> None:
-        if key in self.monitor.options.bias_sensors and stats.accepted:
-            self._last_anchor_ns = int(t_ns)
         if math.isfinite(stats.gate):  # ungated updates say nothing about the filter's health
             self.monitor.observe(key, stats.accepted, stats.nis, stats.dof, t_ns, stats.gate,
                                  stats.whitened)  # fmt: skip
@@ -366,21 +363,17 @@ class Recovery:
                             f"ago is confirmed (chi-square {nis:.3g} > {gate:.3g}, 6 dof): the "
                             "widened biases stay")  # fmt: skip
             return
-        silent = (self._last_anchor_ns is None
-                  or t_ns - self._last_anchor_ns > _ANCHOR_SILENT_NS)  # fmt: skip
+        last = self.monitor.last_accepted_ns(self.monitor.options.bias_sensors)
+        silent = last is None or t_ns - last > _ANCHOR_SILENT_NS
         if t_ns < alarm.confirm_ns and not silent:
             return
         self._alarm = None
-        stats = recall_biases(ukf, alarm, t_ns, rw, o.bias_confirm_probability)
-        if stats.accepted:
-            self.bias_restored += 1
-            why = "the GPS fell silent" if silent and t_ns < alarm.confirm_ns else "no step"
-            self._warn.warn("recovery-bias-restored", t_ns, f"the bias alarm of {dt_s:.1f} s ago "
-                            f"is not confirmed ({why}; chi-square {stats.nis:.3g} <= "
-                            f"{stats.gate:.3g}, 6 dof): the biases from before it are "
-                            "restored")  # fmt: skip
-        else:  # the sigma-point NIS passed the gate where the linear one did not
-            self.bias_confirmed += 1
+        recall_biases(ukf, alarm, t_ns, rw)  # decided above: fused ungated
+        self.bias_restored += 1
+        why = "the GPS fell silent" if silent and t_ns < alarm.confirm_ns else "no step"
+        self._warn.warn("recovery-bias-restored", t_ns, f"the bias alarm of {dt_s:.1f} s ago is "
+                        f"not confirmed ({why}; chi-square {nis:.3g} <= {gate:.3g}, 6 dof): the "
+                        "biases from before it are restored")  # fmt: skip
 
     def reset_from_gps(self, ukf: UKF, cal: GpsCalib, p_W_G: F64, v_W_G: F64 | None) -> None:
         """Position (and velocity, when the fix has one) from the GPS fix; their covariance

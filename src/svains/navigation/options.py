@@ -438,7 +438,7 @@ class FaultOptions:
     measurement when the GPS falls silent for 2 s or ``bias_confirm_s`` after the alarm
     (``navigation.bias_recall``; None: never recalled). Without the recall, a false alarm 2 s
     before a 10 s GPS outage took a simulated ``ins`` run's outage error from 2.36 to 22.5 m;
-    with it, 2.24 m (docs/results/faults.md).
+    with it, 1.62 m (docs/results/faults.md).
     """
 
     imu_guard: bool = True
