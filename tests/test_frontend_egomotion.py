@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from svains.frontend.egomotion import RansacOptions, estimate_egomotion, gauss_newton, kabsch
+from svains.frontend.egomotion import (
+    RansacOptions,
+    estimate_egomotion,
+    estimate_egomotion_widening,
+    gauss_newton,
+    kabsch,
+)
 from svains.frontend.types import Egomotion
 from svains.frontend.vo_chain import chain_egomotion, relative_motion
 from svains.geometry.camera import RectifiedStereo
@@ -181,3 +187,56 @@ def test_distinct_triples_are_distinct_and_uniform() -> None:
     _, counts = np.unique(s[:, 0] * 36 + s[:, 1] * 6 + s[:, 2], return_counts=True)
     assert counts.size == 20  # every unordered triple of 6 occurs, about equally often
     assert counts.min() > 0.9 * 3000 and counts.max() < 1.1 * 3000
+
+
+# A MAV-sized rig (EuRoC: 458 px, 11 cm) turning 40 deg and moving 1 m between two frames seconds
+# apart, points 1.8-3.2 m away, 0.5 px noise: the k-1 depth noise alone moves the true
+# motion's reprojections by several pixels.
+MAV = RectifiedStereo(458.0, 367.0, 248.0, 0.11, np.eye(3), np.zeros(3), 752, 480)
+R_WIDE = so3_exp([0.0, np.radians(40.0), 0.0])
+T_WIDE = np.array([0.8, 0.1, -0.6])
+
+
+def _wide_scene(seed: int, n: int = 300) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    q = np.c_[rng.uniform(-1.2, 1.2, n), rng.uniform(-0.8, 0.8, n), rng.uniform(1.8, 3.2, n)]
+    p = (q - T_WIDE) @ R_WIDE  # the same points in C_k-1 (q = R p + t)
+    uvl0 = MAV.project(p) + rng.normal(0, 0.5, (n, 2))
+    uvr0 = MAV.project_right(p) + rng.normal(0, 0.5, (n, 2))
+    uvr0[:, 1] = uvl0[:, 1]
+    uvl = MAV.project(q) + rng.normal(0, 0.5, (n, 2))
+    uvr = MAV.project_right(q) + rng.normal(0, 0.5, (n, 2))
+    seen = (p[:, 2] > 0.5) & (uvl0[:, 0] > 0) & (uvl0[:, 0] < 752) & (uvl[:, 0] > 0)
+    seen &= uvl[:, 0] < 752
+    return MAV.triangulate(uvl0[seen], uvr0[seen]), uvl[seen], uvr[seen]
+
+
+def test_widening_finds_a_wide_baseline_motion_and_skips_a_minority_consensus() -> None:
+    p_prev, uvl, uvr = _wide_scene(5)
+    p_cur = MAV.triangulate(uvl, uvr)
+    assert estimate_egomotion(p_prev, uvl, uvr, MAV, RansacOptions(), p_cur=p_cur).egomotion is None
+    # At 5 px a consensus exists, but of a minority (22 of 45): not taken.
+    five = estimate_egomotion(p_prev, uvl, uvr, MAV, RansacOptions(inlier_px=5.0), p_cur=p_cur)
+    assert five.egomotion is not None and five.inlier.sum() < 0.5 * len(p_prev)
+    res = estimate_egomotion_widening(p_prev, uvl, uvr, MAV, RansacOptions(), p_cur=p_cur)
+    ego = res.egomotion
+    assert ego is not None and res.inlier.sum() >= 0.5 * len(p_prev)
+    assert np.linalg.norm(ego.p_Ck_Ckm1 - T_WIDE) < 0.02  # 7 mm (5 px: 22 mm)
+    assert np.degrees(np.linalg.norm(so3_log(ego.R_Ck_Ckm1 @ R_WIDE.T))) < 0.5
+
+
+def test_widening_keeps_a_narrow_consensus_and_gives_up_on_noise() -> None:
+    p_prev, uvl, uvr = _wide_scene(2)  # 1.5 px finds a motion here: no retry
+    p_cur = MAV.triangulate(uvl, uvr)
+    plain = estimate_egomotion(p_prev, uvl, uvr, MAV, RansacOptions(), p_cur=p_cur)
+    wide = estimate_egomotion_widening(p_prev, uvl, uvr, MAV, RansacOptions(), p_cur=p_cur)
+    assert plain.egomotion is not None and wide.egomotion is not None
+    np.testing.assert_array_equal(wide.egomotion.p_Ck_Ckm1, plain.egomotion.p_Ck_Ckm1)
+    np.testing.assert_array_equal(wide.inlier, plain.inlier)
+    # Pixels unrelated to the points: no threshold finds a majority.
+    rng = np.random.default_rng(0)
+    noise_l = np.c_[rng.uniform(0, 752, len(p_prev)), rng.uniform(0, 480, len(p_prev))]
+    noise_r = noise_l - np.c_[rng.uniform(5, 40, len(p_prev)), np.zeros(len(p_prev))]
+    res = estimate_egomotion_widening(p_prev, noise_l, noise_r, MAV, RansacOptions(),
+                                      p_cur=MAV.triangulate(noise_l, noise_r))
+    assert res.egomotion is None and not res.inlier.any()

@@ -368,3 +368,32 @@ def test_a_frame_the_prior_cannot_explain_fuses_its_egomotion_instead() -> None:
     stats, ukf, upd = run(False)
     assert stats is not None and not stats.accepted
     assert upd.summary()["frames_rejected"] == 1 and upd.summary()["frames_gated"] == 1
+
+
+def test_a_frame_with_too_few_features_for_the_pixels_fuses_its_egomotion() -> None:
+    # Every feature below the disparity gate (min_disparity_px far above the scene's): too few
+    # for the pixel model, yet the frame still links to k-1 through its egomotion, which uses
+    # every tracked feature (issue 22: simulated V1_02 flight at 0.5 Hz, 3d 4.80 -> 2.56 m).
+    tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
+
+    def run(fallback: bool) -> tuple[object, UKF, object]:
+        opts = VisionOptions(egomotion_fallback=fallback, min_disparity_px=1e4)
+        upd = updater_for("3d", _dataset(tf), opts)
+        ukf = _ukf(tf.x_km1, np.zeros(3))
+        upd.after_frame(FrameContext(ukf, PAPER, T0, None, None, [], None))  # type: ignore[arg-type]
+        x = ukf.x.copy()
+        x[:13] = tf.x_k
+        x[0:3] += [0.3, 0.0, 0.0]
+        P = ukf.P.copy()
+        P[0:3, 0:3] += 0.09 * np.eye(3)  # the motion since the clone: known to 30 cm
+        ukf.resize(ukf.manifold, x, P)
+        return upd.update(_ctx(ukf)), ukf, upd
+
+    stats, ukf, upd = run(True)
+    assert stats is not None and stats.accepted and stats.name == "vision_egomotion"
+    summary = upd.summary()
+    assert summary["frames_egomotion"] == 1 and summary["frames_without_tracks"] == 0
+    assert np.linalg.norm(ukf.x[0:3] - tf.x_k[0:3]) < 0.1
+    stats, ukf, upd = run(False)
+    assert stats is None and upd.summary()["frames_without_tracks"] == 1
+    assert np.linalg.norm(ukf.x[0:3] - tf.x_k[0:3]) > 0.29

@@ -59,9 +59,9 @@ def _estimate(
     pixels and which features passed the gates), refined by the two-frame bundle adjustment
     (``frontend.egomotion_bundle``), which keeps the RANSAC result when it fails."""
     # Imported lazily: the front end's egomotion is only needed by lc/vo.
-    from svains.frontend.egomotion import RansacOptions, estimate_egomotion
+    from svains.frontend.egomotion import RansacOptions, estimate_egomotion_widening
 
-    res = estimate_egomotion(
+    res = estimate_egomotion_widening(
         p_prev, uv_left, uv_right, rig, RansacOptions(seed=seed), p_cur=p_cur, prior=prior
     )
     if res.egomotion is None or prev_pixels is None:

@@ -38,19 +38,12 @@ def egomotion_noise(ego: Egomotion, options: VisionOptions) -> tuple[F64, F64] |
     return z, cov
 
 
-# The RANSAC inlier threshold (px) of a second try when the front end's own (1.5 px, made for
-# frames 50-200 ms apart) finds no motion: across a baseline of metres, the k-1 depth noise
-# alone reprojects to several pixels, so even the true motion has few inliers at 1.5 px. EuRoC,
-# every 25th frame at 5 Hz: no second try 1.93 m ATE (NEES 13.0, 20/28 frames fused); 5 px
-# 0.861 m (14.3, 24/28); 10 px 0.861 m (14.8); 20 px 0.867 m (18.3).
-WIDE_BASELINE_INLIER_PX = 5.0
-
-
 def tracks_egomotion(
     tr: StereoTracks, rig: RectifiedStereo, seed: int, bundle: bool = False
 ) -> Egomotion | None:
     """The egomotion the tracks carry, or that of their inliers (the front end's RANSAC +
-    refinement; again at ``WIDE_BASELINE_INLIER_PX`` when that finds none), with ``bundle``
+    refinement, at wider inlier thresholds while that finds none:
+    ``frontend.egomotion.estimate_egomotion_widening``), with ``bundle``
     refined by the two-frame bundle adjustment (``frontend.egomotion_bundle.refine_or_keep``)."""
     if tr.egomotion is not None:
         return tr.egomotion
@@ -58,21 +51,17 @@ def tracks_egomotion(
     if ok.sum() < 3:
         return None
     # Imported here: only frames that fall back need the front end's estimator.
-    from svains.frontend.egomotion import RansacOptions, estimate_egomotion
+    from svains.frontend.egomotion import RansacOptions, estimate_egomotion_widening
 
     uvl, uvr = tr.uv_left[ok], tr.uv_right[ok]
-    p_cur = rig.triangulate(uvl, uvr)
-    for inlier_px in (RansacOptions().inlier_px, WIDE_BASELINE_INLIER_PX):
-        opts = RansacOptions(seed=seed, inlier_px=inlier_px)
-        res = estimate_egomotion(tr.p_Ckm1_F[ok], uvl, uvr, rig, opts, p_cur=p_cur)
-        if res.egomotion is not None:
-            if not bundle:
-                return res.egomotion
-            from svains.frontend.egomotion_bundle import refine_or_keep
+    res = estimate_egomotion_widening(tr.p_Ckm1_F[ok], uvl, uvr, rig, RansacOptions(seed=seed),
+                                      p_cur=rig.triangulate(uvl, uvr))  # fmt: skip
+    if res.egomotion is None or not bundle:
+        return res.egomotion
+    from svains.frontend.egomotion_bundle import refine_or_keep
 
-            return refine_or_keep(res.egomotion, res.inlier, tr.uv_left_prev[ok],
-                                  tr.uv_right_prev[ok], uvl, uvr, rig)[0]  # fmt: skip
-    return None
+    return refine_or_keep(res.egomotion, res.inlier, tr.uv_left_prev[ok], tr.uv_right_prev[ok],
+                          uvl, uvr, rig)[0]  # fmt: skip
 
 
 def egomotion_block(

@@ -301,9 +301,21 @@ class PixelUpdater:
             else tr.inlier & np.isfinite(tr.p_Ckm1_F).all(axis=1) & (tr.p_Ckm1_F[:, 2] > 0)
         )
         usable &= self._fresh(tr) & self._near(tr)
-        if tr is None or usable.sum() < self.options.min_features or tr.t_ns <= tr.t_prev_ns:
+        if tr is None or tr.t_ns <= tr.t_prev_ns:
             c.frames_without_tracks += 1
             return None
+        if usable.sum() < self.options.min_features:
+            # Too few features for the pixel model (the k-1 pixels of the others were fused at
+            # the last update, or their disparity is too small to triangulate), yet a frame
+            # with enough tracked features may still link to k-1 through its egomotion, which
+            # uses every one of them.
+            ego = None
+            if int(tr.inlier.sum()) >= self.options.min_features:
+                ego = self._egomotion_update(ctx, tr)
+            if ego is not None and ego.accepted:
+                return ego
+            c.frames_without_tracks += 1
+            return ego
         dt_s = (tr.t_ns - tr.t_prev_ns) * 1e-9
         idx = _subsample(np.flatnonzero(usable), self.options.max_features)
         z = stack_pixels(tr.uv_left[idx], tr.uv_right[idx])
