@@ -74,3 +74,34 @@ def test_unsorted_stream_is_rejected() -> None:
     bad = FeatureStream(fs.t_ns[::-1].copy(), fs.track_id, fs.uv_left, fs.uv_right, 0.0)
     with pytest.raises(DatasetError, match="not sorted"):
         tracks_from_features(bad, RIG)
+
+
+def test_widen_option_links_frames_far_apart_for_lc_only() -> None:
+    # Two frames seconds apart on a MAV-sized rig (40 deg turn, 1 m, points at 1.8-3.2 m,
+    # 0.5 px noise): RANSAC at 1.5 px finds no motion; ``widen`` (lc's tracks) retries wider,
+    # the default (vo's) leaves the frame without one.
+    from svains.geometry.camera import RectifiedStereo
+    from svains.geometry.rotation import so3_exp, so3_log
+
+    rig = RectifiedStereo(458.0, 367.0, 248.0, 0.11, np.eye(3), np.zeros(3), 752, 480)
+    R, t = so3_exp([0.0, np.radians(40.0), 0.0]), np.array([0.8, 0.1, -0.6])
+    rng = np.random.default_rng(5)
+    q = np.c_[rng.uniform(-1.2, 1.2, 300), rng.uniform(-0.8, 0.8, 300), rng.uniform(1.8, 3.2, 300)]
+    p = (q - t) @ R  # the points in C_k-1 (q = R p + t)
+    px = [rig.project(p), rig.project_right(p), rig.project(q), rig.project_right(q)]
+    uvl0, uvr0, uvl1, uvr1 = (a + rng.normal(0, 0.5, a.shape) for a in px)
+    uvr0[:, 1], uvr1[:, 1] = uvl0[:, 1], uvl1[:, 1]
+    seen = (p[:, 2] > 0.5) & (uvl0[:, 0] > 0) & (uvl0[:, 0] < 752) & (uvl1[:, 0] > 0)
+    seen &= uvl1[:, 0] < 752
+    n = int(seen.sum())
+    ids = np.arange(n, dtype=np.int64)
+    fs = FeatureStream(np.repeat(np.array([0, 5_000_000_000], np.int64), n), np.r_[ids, ids],
+                       np.vstack([uvl0[seen], uvl1[seen]]), np.vstack([uvr0[seen], uvr1[seen]]),
+                       0.5)  # fmt: skip
+    (plain,) = tracks_from_features(fs, rig, TrackOptions(egomotion=True))
+    assert plain.egomotion is None and not plain.inlier.any()
+    (wide,) = tracks_from_features(fs, rig, TrackOptions(egomotion=True, widen=True))
+    ego = wide.egomotion
+    assert ego is not None and wide.inlier.sum() >= n / 2
+    assert np.linalg.norm(ego.p_Ck_Ckm1 - t) < 0.02
+    assert np.degrees(np.linalg.norm(so3_log(ego.R_Ck_Ckm1 @ R.T))) < 0.5

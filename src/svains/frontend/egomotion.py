@@ -343,6 +343,7 @@ WIDENING_MIN_INLIER_FRACTION = 0.5
 def estimate_egomotion_widening(
     p_prev: F64, uv_left: F64, uv_right: F64, rig: RectifiedStereo, opts: RansacOptions,
     p_cur: F64 | Callable[[], F64] | None = None, prior: Egomotion | None = None,
+    rng: np.random.Generator | None = None,
     wider_px: tuple[float, ...] = WIDENING_INLIER_PX,
     min_fraction: float = WIDENING_MIN_INLIER_FRACTION,
 ) -> EgomotionResult:
@@ -351,7 +352,7 @@ def estimate_egomotion_widening(
     least ``min_fraction`` of the usable features (finite k-1 point) are its inliers. For
     frames far apart, whose k-1 depth noise moves even the true motion's reprojections by more
     than the threshold. Returns the first motion that counts, else the first try's result."""
-    first = estimate_egomotion(p_prev, uv_left, uv_right, rig, opts, p_cur=p_cur, prior=prior)
+    first = estimate_egomotion(p_prev, uv_left, uv_right, rig, opts, p_cur, prior, rng)
     if first.egomotion is not None:
         return first
     usable = int(np.isfinite(np.asarray(p_prev, float).reshape(-1, 3)).all(axis=1).sum())
@@ -359,7 +360,7 @@ def estimate_egomotion_widening(
         if px <= opts.inlier_px:
             continue
         res = estimate_egomotion(p_prev, uv_left, uv_right, rig, replace(opts, inlier_px=px),
-                                 p_cur=p_cur, prior=prior)  # fmt: skip
+                                 p_cur, prior, rng)  # fmt: skip
         if res.egomotion is not None and res.inlier.sum() >= min_fraction * usable:
             return res
     return first

@@ -349,7 +349,8 @@ class Navigator:
         rig = rig_from_calibrations(self.rig.cam0, self.rig.cam1)
         track_opts = TrackOptions(max_row_diff_px=v.max_row_diff_px,
                                   egomotion=self.config.method == "lc",
-                                  bundle=v.bundle_for(self.config.method))  # fmt: skip
+                                  bundle=v.bundle_for(self.config.method),
+                                  widen=True)  # fmt: skip
         return FeatureFrames(rig, track_opts)
 
 

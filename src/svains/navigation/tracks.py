@@ -33,13 +33,20 @@ class TrackOptions:
     ``egomotion``: run the front end's RANSAC + Gauss-Newton egomotion on each frame pair (needed
     by ``lc``/``vo``; its inlier mask then replaces the all-true default); ``bundle``: refine it
     with the points on all four pixels of every feature that passed the gates
-    (``frontend.egomotion_bundle``; its inliers replace RANSAC's; off, the RANSAC estimate).
+    (``frontend.egomotion_bundle``; its inliers replace RANSAC's; off, the RANSAC estimate);
+    ``widen``: where RANSAC finds no motion, retry at wider inlier thresholds
+    (``frontend.egomotion.estimate_egomotion_widening``: frames seconds apart). For ``lc``,
+    whose filter gates the motion against the IMU's prediction; not for ``vo``, which would
+    chain a wrong wide consensus unchecked (tracks gone wrong can agree on a wrong motion
+    within 20 px: KLT tracks of a synthetic textured plane moved 80 px between two frames
+    gave a majority on a wrong motion in 2 of 4 seeds).
     """
 
     max_row_diff_px: float | None = 2.0
     min_disparity_px: float = 0.5
     egomotion: bool = False
     bundle: bool = False
+    widen: bool = False
 
 
 def frame_slices(fs: Any) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -54,14 +61,21 @@ def frame_slices(fs: Any) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
 def _estimate(
     p_prev: F64, uv_left: F64, uv_right: F64, rig: RectifiedStereo, p_cur: F64, seed: int,
     prior: Egomotion | None, prev_pixels: tuple[F64, F64, NDArray[np.bool_]] | None = None,
+    widen: bool = False,
 ) -> tuple[Egomotion | None, NDArray[np.bool_]]:
-    """The front end's egomotion and inliers; with ``prev_pixels`` (the k-1 left and right
-    pixels and which features passed the gates), refined by the two-frame bundle adjustment
+    """The front end's egomotion and inliers (``widen``: retried at wider inlier thresholds
+    where it finds none); with ``prev_pixels`` (the k-1 left and right pixels and which
+    features passed the gates), refined by the two-frame bundle adjustment
     (``frontend.egomotion_bundle``), which keeps the RANSAC result when it fails."""
     # Imported lazily: the front end's egomotion is only needed by lc/vo.
-    from svains.frontend.egomotion import RansacOptions, estimate_egomotion_widening
+    from svains.frontend.egomotion import (
+        RansacOptions,
+        estimate_egomotion,
+        estimate_egomotion_widening,
+    )
 
-    res = estimate_egomotion_widening(
+    estimate = estimate_egomotion_widening if widen else estimate_egomotion
+    res = estimate(
         p_prev, uv_left, uv_right, rig, RansacOptions(seed=seed), p_cur=p_cur, prior=prior
     )
     if res.egomotion is None or prev_pixels is None:
@@ -116,7 +130,8 @@ class TrackBuilder:
         if opts.egomotion and ok.sum() >= 3:
             p_cur = rig.triangulate(uvl1, uvr1)
             ego, inl = _estimate(p_prev, uvl1, uvr1, rig, p_cur, seed=k, prior=self._prior,
-                                 prev_pixels=(uvl0, uvr0, ok) if opts.bundle else None)
+                                 prev_pixels=(uvl0, uvr0, ok) if opts.bundle else None,
+                                 widen=opts.widen)
             ok &= inl
             self._prior = ego
         return StereoTracks(
