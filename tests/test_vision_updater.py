@@ -343,22 +343,33 @@ def test_features_new_at_k_minus_1_pass_the_disparity_gate_at_twice_the_threshol
     np.testing.assert_array_equal(nxt, [True, True, True])
 
 
+def _clone_update_with_position_error(
+    tf: TwoFrames, opts: VisionOptions, error_m: float, motion_std_m: float
+) -> tuple[object, UKF, object]:
+    """A ``3d`` clone update of ``tf``'s frame k: the k-1 pose cloned at the truth, the state at
+    k true but for ``error_m`` along x with ``motion_std_m`` more position std per axis. Returns
+    the update's stats, the filter and the updater."""
+    upd = updater_for("3d", _dataset(tf), opts)
+    ukf = _ukf(tf.x_km1, np.zeros(3))
+    upd.after_frame(FrameContext(ukf, PAPER, T0, None, None, [], None))  # type: ignore[arg-type]
+    x = ukf.x.copy()
+    x[:13] = tf.x_k
+    x[0] += error_m
+    P = ukf.P.copy()
+    P[0:3, 0:3] += motion_std_m**2 * np.eye(3)
+    ukf.resize(ukf.manifold, x, P)
+    return upd.update(_ctx(ukf)), ukf, upd
+
+
 def test_a_frame_the_prior_cannot_explain_fuses_its_egomotion_instead() -> None:
     # A 0.5 m position error against a 1 cm prior: every feature fails its gate and the frame
     # is refused, unless its egomotion is fused instead (``vision.egomotion_fallback``).
     tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
 
     def run(fallback: bool) -> tuple[object, UKF, object]:
-        upd = updater_for("3d", _dataset(tf), VisionOptions(egomotion_fallback=fallback))
-        ukf = _ukf(tf.x_km1, np.zeros(3))
-        upd.after_frame(FrameContext(ukf, PAPER, T0, None, None, [], None))  # type: ignore[arg-type]
-        x = ukf.x.copy()
-        x[:13] = tf.x_k
-        x[0:3] += [0.5, 0.0, 0.0]
-        P = ukf.P.copy()
-        P[0:3, 0:3] += 1e-4 * np.eye(3)  # the motion since the clone: known to 1 cm
-        ukf.resize(ukf.manifold, x, P)
-        return upd.update(_ctx(ukf)), ukf, upd
+        # the motion since the clone: known to 1 cm
+        opts = VisionOptions(egomotion_fallback=fallback)
+        return _clone_update_with_position_error(tf, opts, 0.5, 0.01)
 
     stats, ukf, upd = run(True)
     assert stats is not None and stats.accepted and stats.name == "vision_egomotion"
@@ -377,17 +388,9 @@ def test_a_frame_with_too_few_features_for_the_pixels_fuses_its_egomotion() -> N
     tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
 
     def run(fallback: bool) -> tuple[object, UKF, object]:
+        # the motion since the clone: known to 30 cm
         opts = VisionOptions(egomotion_fallback=fallback, min_disparity_px=1e4)
-        upd = updater_for("3d", _dataset(tf), opts)
-        ukf = _ukf(tf.x_km1, np.zeros(3))
-        upd.after_frame(FrameContext(ukf, PAPER, T0, None, None, [], None))  # type: ignore[arg-type]
-        x = ukf.x.copy()
-        x[:13] = tf.x_k
-        x[0:3] += [0.3, 0.0, 0.0]
-        P = ukf.P.copy()
-        P[0:3, 0:3] += 0.09 * np.eye(3)  # the motion since the clone: known to 30 cm
-        ukf.resize(ukf.manifold, x, P)
-        return upd.update(_ctx(ukf)), ukf, upd
+        return _clone_update_with_position_error(tf, opts, 0.3, 0.3)
 
     stats, ukf, upd = run(True)
     assert stats is not None and stats.accepted and stats.name == "vision_egomotion"

@@ -356,6 +356,8 @@ def estimate_egomotion_widening(
     if first.egomotion is not None:
         return first
     usable = int(np.isfinite(np.asarray(p_prev, float).reshape(-1, 3)).all(axis=1).sum())
+    if callable(p_cur):  # triangulated once for every retry
+        p_cur = p_cur()
     for px in wider_px:
         if px <= opts.inlier_px:
             continue
