@@ -220,3 +220,31 @@ def test_white_innovations_raise_the_alarm_at_its_false_alarm_rate() -> None:
         alarms += m.biased((3 * k + 2) * S) is not None
         m.clear_bias_evidence()
     assert 0.005 < alarms / windows < 0.016, alarms  # 1 % expected (30 +- 11 at 2 sigma)
+
+
+def _observe_at(m: ConsistencyMonitor, times_s: list[float], w: list[float]) -> int:
+    """Accepted GPS updates at ``times_s`` with the same whitened innovation ``w``."""
+    for t_s in times_s:
+        m.observe("gps", True, sum(x * x for x in w), len(w), int(t_s * S), 100.0, np.array(w))
+    return int(times_s[-1] * S)
+
+
+def test_a_bias_window_never_spans_an_outage_but_a_slow_sensor_keeps_its_windows() -> None:
+    lean = [2.5, 0.0, 0.0]  # 3 * 6.25 = 18.75 > 11.34: an alarm over any 3 of them
+    m = ConsistencyMonitor(ON)
+    # 1 Hz fixes, then a 10 s outage: the two fixes after it are no window with the one before
+    t = _observe_at(m, [1.0, 2.0, 13.0, 14.0], lean)
+    assert m.biased(t) is None
+    t = _observe_at(m, [15.0], lean)  # the third fix after the outage completes a window
+    action = m.biased(t)
+    assert action is not None and action.window_s == 2.0
+    # a sensor at 0.2 Hz: once its spacing is known, 5 s is its rhythm, not an outage
+    m = ConsistencyMonitor(ON)
+    t = _observe_at(m, [5.0, 10.0, 15.0], lean)
+    assert m.biased(t) is None  # the first spacing, unknown before, broke the window once
+    t = _observe_at(m, [20.0], lean)
+    action = m.biased(t)
+    assert action is not None and action.window_s == 10.0
+    # ... but a 20 s silence in it is one
+    t = _observe_at(m, [25.0, 30.0, 50.0, 55.0], lean)
+    assert m.biased(t) is None

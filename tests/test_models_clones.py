@@ -255,6 +255,39 @@ def test_calibration_block_sits_between_navigation_and_clones() -> None:
         augment_calibration(xc, Pc, mc, phi, np.eye(3))
 
 
+def test_auxiliary_block_sits_between_calibration_and_clones() -> None:
+    """An auxiliary block (a bias alarm's step) goes after the calibration and before the
+    clones; calibration added later is inserted before it; the manifold operations hold."""
+    rng = np.random.default_rng(5)
+    x, P = _random_state(rng)
+    m = CloneManifold(NavManifold(BIASED), 0)
+    x, P, m = augment_clone(x, P, m)
+    n_aux = 4
+    ma = m.with_aux(n_aux)
+    aux = np.array([0.1, -0.2, 0.3, 0.4])
+    a = BIASED.nx
+    xa = np.concatenate([x[:a], aux, x[a:]])
+    assert (ma.nx, ma.ndx, ma.n_euclid) == (m.nx + n_aux, m.ndx + n_aux, n_aux)
+    assert ma.calib is None
+    assert ma.aux == (slice(a, a + n_aux), slice(BIASED.ndx, BIASED.ndx + n_aux))
+    np.testing.assert_array_equal(xa[ma.columns(0)[0]], x[m.columns(0)[0]])
+    np.testing.assert_array_equal(xa[ma.columns(0)[1]], x[m.columns(0)[1]])
+    assert ma.tangent(0) == slice(BIASED.ndx + n_aux, BIASED.ndx + n_aux + 6)
+    Pa = np.eye(ma.ndx)
+    xc, _, mc = augment_calibration(xa, Pa, ma, np.full(3, 0.01), 1e-4 * np.eye(3))
+    assert (mc.n_calib, mc.n_aux) == (3, n_aux) and mc.calib[0] == slice(a, a + 3)  # type: ignore[index]
+    np.testing.assert_array_equal(xc[mc.aux[0]], aux)  # type: ignore[index]
+    xd, _, md = augment_clone(xc, np.eye(mc.ndx), mc)
+    assert md.n_aux == n_aux and md.n_clones == 2
+    np.testing.assert_array_equal(xd[md.columns(0)[0]], x[m.columns(0)[0]])
+    dX = rng.normal(scale=0.1, size=(5, md.ndx))
+    X = md.retract(np.broadcast_to(xd, (5, md.nx)), dX)
+    np.testing.assert_allclose(md.local(X, xd), dX, atol=1e-12)
+    np.testing.assert_allclose(X[:, md.aux[0]], aux + dX[:, md.aux[1]], atol=1e-15)  # type: ignore[index]
+    np.testing.assert_allclose(md.mean(X, np.full(5, 0.2))[md.aux[0]],  # type: ignore[index]
+                               aux + dX[:, md.aux[1]].mean(axis=0), atol=1e-15)  # type: ignore[index]
+
+
 def test_clone_motion_with_rotation_correction_equals_the_turned_rig() -> None:
     tf = two_frames(RIG, 0.5, OMEGA_B, A_W)
     x, cols = _augmented(tf)

@@ -2,12 +2,13 @@
 
 State ``x`` = navigation block (nx numbers, ``models.state``), then ``n_calib`` calibration
 numbers (optional; Euclidean, equal in ``x`` and the tangent: e.g. the camera-IMU rotation
-correction ``δφ_C`` (3, rad) of ``navigation.vision_clones``), then K clones, each
-``(p_W_B (3, m), q_W_B_wxyz (4))`` at a past frame time: nx + n_calib + 7K numbers. Tangent
-``dx`` = navigation tangent (ndx), the calibration numbers, then each clone's
-``(δp (3, m), δθ_B (3, rad))``, the attitude error on the right as everywhere else
-(``q = q̂ ⊗ Exp(δθ_B)``): ndx + n_calib + 6K numbers. The process model leaves the calibration
-constant, like the clones.
+correction ``δφ_C`` (3, rad) of ``navigation.vision_clones``), then ``n_aux`` auxiliary numbers
+(optional, Euclidean: e.g. the step a bias alarm injected, ``navigation.bias_recall``), then K
+clones, each ``(p_W_B (3, m), q_W_B_wxyz (4))`` at a past frame time: nx + n_calib + n_aux + 7K
+numbers. Tangent ``dx`` = navigation tangent (ndx), the calibration and auxiliary numbers, then
+each clone's ``(δp (3, m), δθ_B (3, rad))``, the attitude error on the right as everywhere else
+(``q = q̂ ⊗ Exp(δθ_B)``): ndx + n_calib + n_aux + 6K numbers. The process model leaves the
+calibration and auxiliary numbers constant, like the clones.
 
 A clone is an exact copy of the current pose, so its tangent error equals the navigation
 block's ``(δp, δθ_B)``: augmenting is ``x' = (x, p, q)`` and ``P' = J P J^T`` with the
@@ -53,15 +54,21 @@ class CloneManifold:
     nav: NavManifold
     n_clones: int = 0
     n_calib: int = 0
+    n_aux: int = 0
+
+    @cached_property
+    def n_euclid(self) -> int:
+        """Euclidean numbers between the navigation block and the clones: calibration, aux."""
+        return self.n_calib + self.n_aux
 
     # Cached (the dataclass is frozen): read several times per sigma-point operation.
     @cached_property
     def nx(self) -> int:
-        return self.nav.nx + self.n_calib + CLONE_NX * self.n_clones
+        return self.nav.nx + self.n_euclid + CLONE_NX * self.n_clones
 
     @cached_property
     def ndx(self) -> int:
-        return self.nav.ndx + self.n_calib + CLONE_NDX * self.n_clones
+        return self.nav.ndx + self.n_euclid + CLONE_NDX * self.n_clones
 
     @property
     def calib(self) -> tuple[slice, slice] | None:
@@ -77,27 +84,39 @@ class CloneManifold:
         copies them: ``max(CLONE_JITTER, CLONE_JITTER_REL·variance)`` (see ``CLONE_JITTER``)."""
         return np.maximum(CLONE_JITTER, CLONE_JITTER_REL * np.asarray(variances, dtype=float))
 
+    @property
+    def aux(self) -> tuple[slice, slice] | None:
+        """Columns of the auxiliary block in ``x`` and in the tangent (None: no block)."""
+        if self.n_aux == 0:
+            return None
+        a, b = self.nav.nx + self.n_calib, self.nav.ndx + self.n_calib
+        return slice(a, a + self.n_aux), slice(b, b + self.n_aux)
+
     def with_clones(self, n_clones: int) -> CloneManifold:
         """The same layout with ``n_clones`` clones."""
-        return CloneManifold(self.nav, n_clones, self.n_calib)
+        return CloneManifold(self.nav, n_clones, self.n_calib, self.n_aux)
+
+    def with_aux(self, n_aux: int) -> CloneManifold:
+        """The same layout with an auxiliary block of ``n_aux`` numbers."""
+        return CloneManifold(self.nav, self.n_clones, self.n_calib, n_aux)
 
     def columns(self, i: int) -> tuple[slice, slice]:
         """Columns of clone ``i`` in ``x``: ``(p_W_B, q_W_B_wxyz)`` slices."""
         if not 0 <= i < self.n_clones:
             raise ConfigError(f"clone index {i} out of range (the state has {self.n_clones})")
-        a = self.nav.nx + self.n_calib + CLONE_NX * i
+        a = self.nav.nx + self.n_euclid + CLONE_NX * i
         return slice(a, a + 3), slice(a + 3, a + 7)
 
     def tangent(self, i: int) -> slice:
         """Columns of clone ``i``'s ``(δp, δθ_B)`` in the tangent vector."""
         if not 0 <= i < self.n_clones:
             raise ConfigError(f"clone index {i} out of range (the state has {self.n_clones})")
-        a = self.nav.ndx + self.n_calib + CLONE_NDX * i
+        a = self.nav.ndx + self.n_euclid + CLONE_NDX * i
         return slice(a, a + CLONE_NDX)
 
     def _split(self, X: F64) -> tuple[F64, F64]:
         """Clone positions (S, K, 3) and quaternions as (4, S, K) from (S, nx)."""
-        C = X[:, self.nav.nx + self.n_calib :].reshape(X.shape[0], self.n_clones, CLONE_NX)
+        C = X[:, self.nav.nx + self.n_euclid :].reshape(X.shape[0], self.n_clones, CLONE_NX)
         # ``transpose`` is the view ``np.moveaxis`` returns, without its argument checks
         # (measurable at 4 calls per frame).
         return C[..., :3], C[..., 3:].transpose(2, 0, 1)
@@ -107,7 +126,7 @@ class CloneManifold:
         nav = self.nav
         out = np.empty((X.shape[0], self.nx))
         out[:, : nav.nx] = nav.retract(X[:, : nav.nx], dX[:, : nav.ndx])
-        nc = self.n_calib
+        nc = self.n_euclid
         if nc:
             cx, cdx = slice(nav.nx, nav.nx + nc), slice(nav.ndx, nav.ndx + nc)
             out[:, cx] = X[:, cx] + dX[:, cdx]
@@ -127,7 +146,7 @@ class CloneManifold:
         nav = self.nav
         out = np.empty((X.shape[0], self.ndx))
         out[:, : nav.ndx] = nav.local(X[:, : nav.nx], x_ref[: nav.nx])
-        nc = self.n_calib
+        nc = self.n_euclid
         if nc:
             cx, cdx = slice(nav.nx, nav.nx + nc), slice(nav.ndx, nav.ndx + nc)
             out[:, cdx] = X[:, cx] - x_ref[cx]
@@ -142,12 +161,13 @@ class CloneManifold:
         return out
 
     def mean(self, X: F64, w: F64) -> F64:
-        """Weighted mean: the navigation block's, calibration and clone positions summed, clone
-        attitudes by the same intrinsic quaternion mean as the navigation attitude."""
+        """Weighted mean: the navigation block's, calibration, auxiliary numbers and clone
+        positions summed, clone attitudes by the same intrinsic quaternion mean as the navigation
+        attitude."""
         nav = self.nav
         out = np.empty(self.nx)
         out[: nav.nx] = nav.mean(X[:, : nav.nx], w)
-        out[nav.nx : nav.nx + self.n_calib] = w @ X[:, nav.nx : nav.nx + self.n_calib]
+        out[nav.nx : nav.nx + self.n_euclid] = w @ X[:, nav.nx : nav.nx + self.n_euclid]
         for i in range(self.n_clones):
             cp, cq = self.columns(i)
             out[cp] = w @ X[:, cp]
@@ -321,4 +341,4 @@ def augment_calibration(
     keep = np.r_[0:b, b + n : manifold.ndx + n]
     P_new[np.ix_(keep, keep)] = P
     P_new[b : b + n, b : b + n] = cov
-    return x_new, P_new, CloneManifold(manifold.nav, manifold.n_clones, n)
+    return x_new, P_new, CloneManifold(manifold.nav, manifold.n_clones, n, manifold.n_aux)

@@ -1,25 +1,27 @@
-"""Confirming a bias alarm: the biases from before it, recalled as a measurement.
+"""Confirming a bias alarm: the step it injected kept as states, undone exactly on a false alarm.
 
 A bias alarm (``ConsistencyMonitor.biased``) widens the IMU biases so that the next fixes can
-move them (``fault_handling.widen_biases``): the filter forgets what it knew of them. On a
-false alarm (1 % of windows at the 0.99 quantile on white innovations) that knowledge was
-right, and without it a GPS outage soon after is crossed on biases learnt from two or three
-fixes (a simulated ``ins`` outage: 2.36 m → 22.5 m).
+move them. On a false alarm (1 % of windows at the 0.99 quantile on white innovations) what the
+filter knew of them was right, and without it a GPS outage soon after is crossed on biases
+learnt from two or three fixes (a simulated ``ins`` outage: 2.36 m → 22.5 m).
 
-So the alarm keeps the biases' mean ``b₀`` (6,) and covariance ``P₀`` (6, 6) from just before
-the widening (:class:`BiasAlarm`) and tests, after every group of updates, whether the biases
-learnt since have left them: ``r = b − b₀`` against ``S = P_b + P₀ + Q_rw τ`` (the random walk
-over the τ since the alarm), :func:`bias_change_nis`.
+So the widening is a step ``n`` (12,) ~ N(0, diag(q)) added to the gyro and accelerometer
+biases, the attitude and the velocity (:func:`inject_step`), and ``n`` itself stays in the
+state as auxiliary numbers (``CloneManifold.aux``, constant in the process model, like a
+clone): every later update learns the step and keeps its correlation with the rest of the state.
+The alarm also keeps the biases' mean ``b₀`` (6,) and covariance ``P₀`` (6, 6) from just before
+it (:class:`BiasAlarm`) and tests, after every group of updates, whether the biases learnt since
+have left them: ``r = b − b₀`` against ``S = P_b + P₀ + Q_rw τ`` (the random walk over the τ
+since the alarm), :func:`bias_change_nis`.
 
-- Beyond the ``probability`` quantile (6 dof): the step is confirmed; the widened filter goes
-  on.
+- Beyond the ``probability`` quantile (6 dof): the step is confirmed; ``n`` is marginalised
+  (:func:`drop_step`) and the widened filter goes on.
 - Still inside it when the GPS falls silent (an outage, where nothing can confirm a step) or
-  ``confirm_s`` after the alarm: no step happened. ``b₀`` is given back to the filter as a
-  measurement of its own biases, ``z = b₀``, ``R = P₀ + Q_rw τ`` (:func:`recall_biases`); the
-  update also pulls velocity and attitude back through their correlation with the biases.
-
-Treating ``b₀`` as independent of the current state counts the pre-alarm data twice where the
-widening kept the biases' correlations; the measured effect is in ``FaultOptions``' docstring.
+  ``confirm_s`` after the alarm: no step happened. The filter is conditioned on ``n = 0``
+  (:func:`undo_step`): for a linear-Gaussian model that is exactly the filter that was never
+  widened, since the step enters additively and everything fused since is kept; nothing is
+  counted twice. (Before, ``b₀`` was fused as an independent measurement of the biases, which
+  counted the data before the alarm a second time.)
 """
 
 from __future__ import annotations
@@ -29,12 +31,110 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from svains.errors import ConfigError
 from svains.filter.ukf import UKF, UpdateStats
-from svains.models.state import BA, BG, DBA, DBG
+from svains.models.clones import CloneManifold
+from svains.models.manifold import NavManifold
+from svains.models.state import BA, BG, DBA, DBG, DTH, DV
 
 F64 = NDArray[np.float64]
 _X_BIAS = np.r_[np.arange(BG.start, BG.stop), np.arange(BA.start, BA.stop)]  # x columns
 _DX_BIAS = np.r_[np.arange(DBG.start, DBG.stop), np.arange(DBA.start, DBA.stop)]  # tangent rows
+# Tangent rows a step moves, in the order of its 12 numbers: gyro bias, accelerometer bias,
+# attitude δθ_B, velocity.
+STEP_ROWS = np.r_[_DX_BIAS, np.arange(DTH.start, DTH.stop), np.arange(DV.start, DV.stop)]
+STEP_SIZE = STEP_ROWS.size
+# Floor of each step variance, relative to the variance of the row it moves: a zero entry (a
+# bias already at its cap, no elapsed time) would leave an auxiliary number known exactly and P
+# singular; 1e-6 of the row's variance is far below anything the filter resolves.
+STEP_FLOOR_REL = 1e-6
+# Noise of the n = 0 pseudo-measurement relative to the step's own variance: the conditioning
+# is exact to this fraction.
+UNDO_NOISE_REL = 1e-9
+
+
+def _clone_manifold(ukf: UKF) -> CloneManifold:
+    m = ukf.manifold
+    if isinstance(m, CloneManifold):
+        return m
+    if not isinstance(m, NavManifold):
+        raise ConfigError(f"a bias step needs the navigation manifold, got {type(m).__name__}")
+    return CloneManifold(m, 0)
+
+
+def inject_step(ukf: UKF, var: F64) -> None:
+    """Add a step ``n`` ~ N(0, diag(``var``)) (12,: gyro bias (rad/s)², accelerometer bias
+    (m/s²)², attitude rad², velocity (m/s)²) to those rows of the state, and keep ``n`` as the
+    auxiliary block (appended at zero mean when the state has none; a second step adds to the
+    first). The mean does not move; ``P`` gains ``G diag(var) Gᵀ`` with ``G`` the identity on
+    the moved rows and on the block."""
+    var = np.asarray(var, dtype=float)
+    if var.shape != (STEP_SIZE,) or not np.all(np.isfinite(var)) or np.any(var < 0):
+        raise ConfigError(f"a bias step needs {STEP_SIZE} finite variances >= 0, got {var}")
+    m = _clone_manifold(ukf)
+    x, P = ukf.x, ukf.P
+    n = m.ndx
+    if m.n_aux == 0:
+        a, b = m.nav.nx + m.n_calib, m.nav.ndx + m.n_calib
+        x = np.concatenate([x[:a], np.zeros(STEP_SIZE), x[a:]])
+        keep = np.r_[0:b, b + STEP_SIZE : n + STEP_SIZE]
+        T = np.zeros((n + STEP_SIZE, n))
+        T[keep, np.arange(n)] = 1.0
+        P = T @ P @ T.T
+        m = m.with_aux(STEP_SIZE)
+    elif m.n_aux == STEP_SIZE:
+        T = np.eye(n)
+        P = P.copy()
+    else:
+        raise ConfigError(f"the state's auxiliary block has {m.n_aux} numbers, not a step's")
+    assert m.aux is not None
+    rows = np.arange(m.ndx)[m.aux[1]]
+    var = np.maximum(var, STEP_FLOOR_REL * np.diag(P)[STEP_ROWS])
+    G = np.zeros((m.ndx, STEP_SIZE))
+    G[rows, np.arange(STEP_SIZE)] = 1.0
+    G[STEP_ROWS, np.arange(STEP_SIZE)] = 1.0
+    P += (G * var) @ G.T
+    ukf.resize(m, x, P, T)
+
+
+def step_rows(ukf: UKF) -> slice | None:
+    """The step's columns in ``ukf.x`` (None: no step pending)."""
+    m = ukf.manifold
+    if isinstance(m, CloneManifold) and m.aux is not None:
+        return m.aux[0]
+    return None
+
+
+def drop_step(ukf: UKF) -> None:
+    """Marginalise the step (a confirmed step, or a filter declared lost): delete its rows."""
+    m = ukf.manifold
+    if not isinstance(m, CloneManifold) or m.aux is None:
+        return
+    ax, adx = m.aux
+    keep_x = np.r_[0 : ax.start, ax.stop : m.nx]
+    keep_dx = np.r_[0 : adx.start, adx.stop : m.ndx]
+    T = np.eye(m.ndx)[keep_dx]
+    new = m.with_aux(0)
+    manifold = new.nav if new.n_clones == 0 and new.n_calib == 0 else new
+    ukf.resize(manifold, ukf.x[keep_x], ukf.P[np.ix_(keep_dx, keep_dx)], T)
+
+
+def undo_step(ukf: UKF) -> UpdateStats | None:
+    """A false alarm: condition the filter on ``n = 0`` (ungated; the decision is made), then
+    drop the step. None when no step is pending."""
+    cols = step_rows(ukf)
+    if cols is None:
+        return None
+    m = ukf.manifold
+    assert isinstance(m, CloneManifold) and m.aux is not None
+    R = np.maximum(UNDO_NOISE_REL * np.diag(ukf.P)[m.aux[1]], 1e-300)
+
+    def h(X: F64) -> F64:
+        return X[:, cols]
+
+    (stats,) = ukf.update_blocks([(h, np.zeros(STEP_SIZE), R, None, "bias_undo")], None)
+    drop_step(ukf)
+    return stats
 
 
 @dataclass
@@ -57,7 +157,7 @@ class BiasAlarm:
 
 
 def _innovation(ukf: UKF, alarm: BiasAlarm, t_ns: int, random_walk_var: F64) -> tuple[F64, F64]:
-    """``b₀`` against the state's biases: the residual (6,) and ``R = P₀ + Q_rw τ`` (6, 6)."""
+    """``b₀`` against the state's biases: the residual (6,) and ``P₀ + Q_rw τ`` (6, 6)."""
     tau_s = max(0.0, (t_ns - alarm.t_ns) * 1e-9)
     R = alarm.P + np.diag(np.asarray(random_walk_var, dtype=float) * tau_s)
     return alarm.b - ukf.x[_X_BIAS], R
@@ -65,26 +165,11 @@ def _innovation(ukf: UKF, alarm: BiasAlarm, t_ns: int, random_walk_var: F64) -> 
 
 def bias_change_nis(ukf: UKF, alarm: BiasAlarm, t_ns: int, random_walk_var: F64) -> float:
     """How far the state's biases have moved from ``alarm``'s: ``rᵀ S⁻¹ r`` (chi-square,
-    6 dof, when nothing stepped), with ``S`` the state's bias covariance plus ``R`` (see
-    :func:`recall_biases`). Reads the filter, changes nothing."""
+    6 dof, when nothing stepped), with ``S`` the state's bias covariance plus the snapshot's
+    ``P₀`` and the random walk ``Q_rw τ`` since the alarm (``random_walk_var`` (6,) per second:
+    (rad/s)² s⁻¹ for the gyro, (m/s²)² s⁻¹ for the accelerometer). Reads the filter, changes
+    nothing."""
     r, R = _innovation(ukf, alarm, t_ns, random_walk_var)
     S = ukf.P[np.ix_(_DX_BIAS, _DX_BIAS)] + R
     # pseudo-inverse: a bias known exactly (zero prior and random walk) tests nothing
     return float(r @ np.linalg.pinv(0.5 * (S + S.T), hermitian=True) @ r)
-
-
-def recall_biases(ukf: UKF, alarm: BiasAlarm, t_ns: int, random_walk_var: F64,
-                  probability: float | None = None) -> UpdateStats:  # fmt: skip
-    """Fuse ``alarm``'s biases as a measurement of the state's (see the module), gated at the
-    ``probability`` chi-square quantile (6 dof; None: ungated, when :func:`bias_change_nis`
-    has already decided: ``h`` is linear, so the two tests are the same). ``random_walk_var``
-    (6,): the biases' random walk variance per second ((rad/s)² s⁻¹ for the gyro, (m/s²)² s⁻¹
-    for the accelerometer).
-    Accepted: no step (the biases are restored); rejected: the step is confirmed."""
-    _, R = _innovation(ukf, alarm, t_ns, random_walk_var)
-
-    def h(X: F64) -> F64:
-        return X[:, _X_BIAS]
-
-    (stats,) = ukf.update_blocks([(h, alarm.b, R, None, "bias_recall")], probability)
-    return stats

@@ -29,7 +29,13 @@ from svains.filter.ukf import UKF, UpdateStats
 from svains.models.clones import CloneManifold
 from svains.models.gps import gps_position, gps_velocity
 from svains.models.state import DBA, DBG, DP, DTH, DV, P, V
-from svains.navigation.bias_recall import BiasAlarm, bias_change_nis, recall_biases
+from svains.navigation.bias_recall import (
+    BiasAlarm,
+    bias_change_nis,
+    drop_step,
+    inject_step,
+    undo_step,
+)
 from svains.navigation.consistency import ConsistencyMonitor, ConsistencyOptions, RecoveryAction
 from svains.navigation.imu_guard import ImuGuard, ImuGuardOptions
 from svains.navigation.imu_history import ImuHistory
@@ -306,6 +312,11 @@ class Recovery:
         self.bias_restored = 0
         self.reset_pending = False
 
+    @property
+    def bias_pending(self) -> bool:
+        """A bias alarm's step is in the state, neither confirmed nor undone."""
+        return self._alarm is not None
+
     def observe(self, stats: UpdateStats, key: str, t_ns: int) -> None:
         if math.isfinite(stats.gate):  # ungated updates say nothing about the filter's health
             self.monitor.observe(key, stats.accepted, stats.nis, stats.dof, t_ns, stats.gate,
@@ -320,7 +331,9 @@ class Recovery:
         if action is None:
             self._check_bias(ukf, t_ns)
             return
-        self._alarm = None  # the filter is lost: what it knew before the alarm is no anchor
+        if self._alarm is not None:  # the filter is lost: what it knew before is no anchor
+            self._alarm = None
+            drop_step(ukf)
         if action.kind == "distrust":
             self._warn.warn("recovery-distrust", t_ns, action.reason)
             return
@@ -332,19 +345,25 @@ class Recovery:
             self.reset_pending = True
 
     def _check_bias(self, ukf: UKF, t_ns: int) -> None:
-        """The monitor's bias test (``ConsistencyMonitor.biased``): widen the IMU biases."""
+        """The monitor's bias test (``ConsistencyMonitor.biased``): widen the IMU biases (a
+        state without biases, the paper's, takes no test)."""
+        if not _has_biases(ukf):
+            return
         action = self.monitor.biased(t_ns)
         if action is None:
             return
         self._warn.warn("recovery-bias", t_ns, f"{action.reason} The IMU biases are widened")
         o = self._options
-        if o.bias_confirm_s is not None and _has_biases(ukf):
-            if self._alarm is None:
-                self._alarm = BiasAlarm.before_widening(ukf, t_ns, o.bias_confirm_s)
-            else:  # a second alarm before the first is confirmed: the older biases stay
-                self._alarm.confirm_ns = int(t_ns + o.bias_confirm_s * 1e9)
-        widen_biases(ukf, o.bias_widen_factor, o.bias_max_gyro_std, o.bias_max_accel_std,
-                     0.5 * action.window_s)  # fmt: skip
+        if o.bias_confirm_s is None:
+            widen_biases(ukf, o.bias_widen_factor, o.bias_max_gyro_std, o.bias_max_accel_std,
+                         0.5 * action.window_s)  # fmt: skip
+            return
+        if self._alarm is None:
+            self._alarm = BiasAlarm.before_widening(ukf, t_ns, o.bias_confirm_s)
+        else:  # a second alarm before the first is confirmed: the older biases stay
+            self._alarm.confirm_ns = int(t_ns + o.bias_confirm_s * 1e9)
+        inject_step(ukf, step_variances(ukf, o.bias_widen_factor, o.bias_max_gyro_std,
+                                        o.bias_max_accel_std, 0.5 * action.window_s))
 
     def _confirm_bias(self, ukf: UKF, t_ns: int) -> None:
         """The pending bias alarm (``navigation.bias_recall``): confirmed once the biases have
@@ -358,6 +377,7 @@ class Recovery:
         gate = chi2_gate(o.bias_confirm_probability, 6)
         if nis > gate:
             self._alarm = None
+            drop_step(ukf)
             self.bias_confirmed += 1
             self._warn.warn("recovery-bias-confirmed", t_ns, f"the IMU bias step of {dt_s:.1f} s "
                             f"ago is confirmed (chi-square {nis:.3g} > {gate:.3g}, 6 dof): the "
@@ -368,7 +388,7 @@ class Recovery:
         if t_ns < alarm.confirm_ns and not silent:
             return
         self._alarm = None
-        recall_biases(ukf, alarm, t_ns, rw)  # decided above: fused ungated
+        undo_step(ukf)  # decided above: fused ungated
         self.bias_restored += 1
         why = "the GPS fell silent" if silent and t_ns < alarm.confirm_ns else "no step"
         self._warn.warn("recovery-bias-restored", t_ns, f"the bias alarm of {dt_s:.1f} s ago is "
@@ -458,29 +478,42 @@ def inflate(ukf: UKF, action: RecoveryAction) -> None:
     ukf.P = ukf.P * np.outer(d, d)
 
 
+def step_variances(ukf: UKF, factor: float, max_gyro_std: float, max_accel_std: float,
+                   elapsed_s: float = 0.0) -> F64:  # fmt: skip
+    """The step a bias alarm injects (``navigation.bias_recall.inject_step``), variances (12,):
+    gyro bias, accelerometer bias, attitude, velocity. Each bias standard deviation grows by
+    ``sqrt(factor)``, capped at ``max_gyro_std`` (rad/s) or ``max_accel_std`` (m/s²) and never
+    shrinking: the added standard deviations σ_g, σ_a. Attitude and velocity get the spread such
+    a step would have caused over τ = ``elapsed_s`` (s), (σ_g τ)² and (σ_a τ)²: the state already
+    carries the step's effect since it happened, which the covariance did not. Not
+    (σ_a τ² / 2)² on δp: GPS measures the position itself, and on the fault bench that term
+    cost a clean run with a false alarm 22 % of its RMSE for no gain after a step."""
+    diag = np.diag(ukf.P)
+    added = []
+    for block, cap in ((DBG, max_gyro_std), (DBA, max_accel_std)):
+        std = np.sqrt(np.maximum(diag[block], 1e-300))
+        new = np.maximum(np.minimum(std * math.sqrt(factor), cap), std)
+        added.append(new * new - std * std)
+    tau = float(elapsed_s)
+    return np.concatenate([added[0], added[1], added[0] * tau * tau, added[1] * tau * tau])
+
+
 def widen_biases(ukf: UKF, factor: float, max_gyro_std: float, max_accel_std: float,
                  elapsed_s: float = 0.0) -> None:  # fmt: skip
-    """After a bias alarm: P ← D P D with D = sqrt(factor) on the IMU biases' tangent entries
-    (biased layout), each capped so that its standard deviation stays at most ``max_gyro_std``
-    (rad/s) or ``max_accel_std`` (m/s²) and never shrinks; 1 elsewhere (correlations kept).
-    Then the spread a step of the added standard deviations σ_g, σ_a would have caused over
-    τ = ``elapsed_s`` (s) is added, uncorrelated: (σ_g τ)² to δθ and (σ_a τ)² to δv: the state
-    already carries the step's effect since it happened, which the covariance did not. Not
-    (σ_a τ² / 2)² to δp: GPS measures the position itself, and on the fault bench that term
-    cost a clean run with a false alarm 22 % of its RMSE for no gain after a step."""
+    """After a bias alarm with no confirmation (``faults.bias_confirm_s`` None): P ← D P D
+    with D = sqrt(factor) on the IMU biases' tangent entries (biased layout), each capped as
+    in :func:`step_variances` (correlations kept); 1 elsewhere. Then the spread of
+    :func:`step_variances` on attitude and velocity, uncorrelated."""
     if not _has_biases(ukf):
         return
-    d = np.ones(ukf.P.shape[0])
-    added: dict[str, F64] = {}
-    for key, block, cap in (("g", DBG, max_gyro_std), ("a", DBA, max_accel_std)):
-        std = np.sqrt(np.maximum(np.diag(ukf.P)[block], 1e-300))
-        d[block] = np.maximum(np.minimum(std * math.sqrt(factor), cap) / std, 1.0)
-        added[key] = std * np.sqrt(d[block] ** 2 - 1.0)
+    var = step_variances(ukf, factor, max_gyro_std, max_accel_std, elapsed_s)
+    i = np.arange(ukf.P.shape[0])
+    bias_rows = np.r_[i[DBG], i[DBA]]
+    d = np.ones(i.size)
+    d[bias_rows] = np.sqrt(1.0 + var[:6] / np.maximum(np.diag(ukf.P)[bias_rows], 1e-300))
     P_ = ukf.P * np.outer(d, d)
-    tau = float(elapsed_s)
-    i = np.arange(P_.shape[0])
-    P_[i[DTH], i[DTH]] += (added["g"] * tau) ** 2
-    P_[i[DV], i[DV]] += (added["a"] * tau) ** 2
+    P_[i[DTH], i[DTH]] += var[6:9]
+    P_[i[DV], i[DV]] += var[9:12]
     ukf.P = P_
 
 

@@ -219,6 +219,11 @@ class Core:
                 # rest test passes and a wide post-gap gate let in: velocity NEES 4e3).
                 self._zupt = None
             return
+        if self._recovery is not None and self._recovery.bias_pending:
+            # The alarm's step widened the velocity: a constant-velocity motion, which passes
+            # the rest test, would pass the update's gate too (an analytic 3 m/s flight: v set
+            # to 0 and the accelerometer bias to 1 m/s², the run lost).
+            return
         rest = self._zupt.at_rest(self.ins.history, t)
         if not rest:
             if rest is not None and not self.config.zupt.after_start:
