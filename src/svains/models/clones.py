@@ -326,6 +326,29 @@ def marginalize_clone(
     )
 
 
+def as_clone_manifold(manifold: object) -> CloneManifold:
+    """``manifold`` as a ``CloneManifold`` (a bare ``NavManifold`` wrapped with no clones)."""
+    if isinstance(manifold, CloneManifold):
+        return manifold
+    if not isinstance(manifold, NavManifold):
+        raise ConfigError(f"expected the navigation manifold, got {type(manifold).__name__}")
+    return CloneManifold(manifold, 0)
+
+
+def _insert_block(x: F64, P: F64, manifold: CloneManifold, offset: int, value: F64,
+                  cov: F64) -> tuple[F64, F64]:  # fmt: skip
+    """``x``, ``P`` with a Euclidean block (``value`` (n,), covariance ``cov`` (n, n),
+    uncorrelated with the rest) inserted ``offset`` numbers after the navigation block."""
+    n = value.size
+    a, b = manifold.nav.nx + offset, manifold.nav.ndx + offset
+    x_new = np.concatenate([x[:a], value, x[a:]])
+    P_new = np.zeros((manifold.ndx + n, manifold.ndx + n))
+    keep = np.r_[0:b, b + n : manifold.ndx + n]
+    P_new[np.ix_(keep, keep)] = P
+    P_new[b : b + n, b : b + n] = cov
+    return x_new, P_new
+
+
 def augment_calibration(
     x: F64, P: F64, manifold: CloneManifold, value: F64, cov: F64
 ) -> tuple[F64, F64, CloneManifold]:
@@ -334,11 +357,25 @@ def augment_calibration(
     if manifold.n_calib:
         raise ConfigError(f"the state already has a calibration block of {manifold.n_calib}")
     value = np.asarray(value, dtype=float)
-    n = value.size
-    a, b = manifold.nav.nx, manifold.nav.ndx
-    x_new = np.concatenate([x[:a], value, x[a:]])
-    P_new = np.zeros((manifold.ndx + n, manifold.ndx + n))
-    keep = np.r_[0:b, b + n : manifold.ndx + n]
-    P_new[np.ix_(keep, keep)] = P
-    P_new[b : b + n, b : b + n] = cov
-    return x_new, P_new, CloneManifold(manifold.nav, manifold.n_clones, n, manifold.n_aux)
+    x_new, P_new = _insert_block(x, P, manifold, 0, value, cov)
+    return x_new, P_new, CloneManifold(manifold.nav, manifold.n_clones, value.size,
+                                       manifold.n_aux)  # fmt: skip
+
+
+def augment_aux(x: F64, P: F64, manifold: CloneManifold, n: int) -> tuple[F64, F64, CloneManifold]:
+    """Insert an auxiliary block of ``n`` zeros with zero covariance after the calibration block
+    of a state that has none (the caller gives it its covariance): ``x'``, ``P'``, manifold."""
+    if manifold.n_aux:
+        raise ConfigError(f"the state already has an auxiliary block of {manifold.n_aux}")
+    x_new, P_new = _insert_block(x, P, manifold, manifold.n_calib, np.zeros(n), np.zeros((n, n)))
+    return x_new, P_new, manifold.with_aux(n)
+
+
+def marginalize_aux(x: F64, P: F64, manifold: CloneManifold) -> tuple[F64, F64, CloneManifold]:
+    """Drop the auxiliary block: its numbers from ``x`` and its rows/columns from ``P``."""
+    if manifold.aux is None:
+        return x, P, manifold
+    ax, adx = manifold.aux
+    keep_x = np.r_[0 : ax.start, ax.stop : manifold.nx]
+    keep_dx = np.r_[0 : adx.start, adx.stop : manifold.ndx]
+    return x[keep_x], P[np.ix_(keep_dx, keep_dx)], manifold.with_aux(0)

@@ -33,8 +33,7 @@ from numpy.typing import NDArray
 
 from svains.errors import ConfigError
 from svains.filter.ukf import UKF, UpdateStats
-from svains.models.clones import CloneManifold
-from svains.models.manifold import NavManifold
+from svains.models.clones import CloneManifold, as_clone_manifold, augment_aux, marginalize_aux
 from svains.models.state import BA, BG, DBA, DBG, DTH, DV
 
 F64 = NDArray[np.float64]
@@ -53,15 +52,6 @@ STEP_FLOOR_REL = 1e-6
 UNDO_NOISE_REL = 1e-9
 
 
-def _clone_manifold(ukf: UKF) -> CloneManifold:
-    m = ukf.manifold
-    if isinstance(m, CloneManifold):
-        return m
-    if not isinstance(m, NavManifold):
-        raise ConfigError(f"a bias step needs the navigation manifold, got {type(m).__name__}")
-    return CloneManifold(m, 0)
-
-
 def inject_step(ukf: UKF, var: F64) -> None:
     """Add a step ``n`` ~ N(0, diag(``var``)) (12,: gyro bias (rad/s)², accelerometer bias
     (m/s²)², attitude rad², velocity (m/s)²) to those rows of the state, and keep ``n`` as the
@@ -71,30 +61,21 @@ def inject_step(ukf: UKF, var: F64) -> None:
     var = np.asarray(var, dtype=float)
     if var.shape != (STEP_SIZE,) or not np.all(np.isfinite(var)) or np.any(var < 0):
         raise ConfigError(f"a bias step needs {STEP_SIZE} finite variances >= 0, got {var}")
-    m = _clone_manifold(ukf)
+    m = as_clone_manifold(ukf.manifold)
     x, P = ukf.x, ukf.P
-    n = m.ndx
+    T = np.eye(m.ndx)  # the old tangent in the new one, for a smoother (``UKF.resize``)
     if m.n_aux == 0:
-        a, b = m.nav.nx + m.n_calib, m.nav.ndx + m.n_calib
-        x = np.concatenate([x[:a], np.zeros(STEP_SIZE), x[a:]])
-        keep = np.r_[0:b, b + STEP_SIZE : n + STEP_SIZE]
-        T = np.zeros((n + STEP_SIZE, n))
-        T[keep, np.arange(n)] = 1.0
-        P = T @ P @ T.T
-        m = m.with_aux(STEP_SIZE)
-    elif m.n_aux == STEP_SIZE:
-        T = np.eye(n)
-        P = P.copy()
-    else:
+        x, P, m = augment_aux(x, P, m, STEP_SIZE)
+        assert m.aux is not None
+        T = np.delete(np.eye(m.ndx), np.arange(m.ndx)[m.aux[1]], axis=1)
+    elif m.n_aux != STEP_SIZE:
         raise ConfigError(f"the state's auxiliary block has {m.n_aux} numbers, not a step's")
     assert m.aux is not None
-    rows = np.arange(m.ndx)[m.aux[1]]
     var = np.maximum(var, STEP_FLOOR_REL * np.diag(P)[STEP_ROWS])
     G = np.zeros((m.ndx, STEP_SIZE))
-    G[rows, np.arange(STEP_SIZE)] = 1.0
+    G[np.arange(m.ndx)[m.aux[1]], np.arange(STEP_SIZE)] = 1.0
     G[STEP_ROWS, np.arange(STEP_SIZE)] = 1.0
-    P += (G * var) @ G.T
-    ukf.resize(m, x, P, T)
+    ukf.resize(m, x, P + (G * var) @ G.T, T)
 
 
 def step_rows(ukf: UKF) -> slice | None:
@@ -110,24 +91,19 @@ def drop_step(ukf: UKF) -> None:
     m = ukf.manifold
     if not isinstance(m, CloneManifold) or m.aux is None:
         return
-    ax, adx = m.aux
-    keep_x = np.r_[0 : ax.start, ax.stop : m.nx]
-    keep_dx = np.r_[0 : adx.start, adx.stop : m.ndx]
-    T = np.eye(m.ndx)[keep_dx]
-    new = m.with_aux(0)
-    manifold = new.nav if new.n_clones == 0 and new.n_calib == 0 else new
-    ukf.resize(manifold, ukf.x[keep_x], ukf.P[np.ix_(keep_dx, keep_dx)], T)
+    T = np.delete(np.eye(m.ndx), np.arange(m.ndx)[m.aux[1]], axis=0)
+    x, P, new = marginalize_aux(ukf.x, ukf.P, m)
+    ukf.resize(new.nav if new.n_clones == 0 and new.n_calib == 0 else new, x, P, T)
 
 
 def undo_step(ukf: UKF) -> UpdateStats | None:
     """A false alarm: condition the filter on ``n = 0`` (ungated; the decision is made), then
     drop the step. None when no step is pending."""
-    cols = step_rows(ukf)
-    if cols is None:
-        return None
     m = ukf.manifold
-    assert isinstance(m, CloneManifold) and m.aux is not None
-    R = np.maximum(UNDO_NOISE_REL * np.diag(ukf.P)[m.aux[1]], 1e-300)
+    if not isinstance(m, CloneManifold) or m.aux is None:
+        return None
+    cols, rows = m.aux
+    R = np.maximum(UNDO_NOISE_REL * np.diag(ukf.P)[rows], 1e-300)
 
     def h(X: F64) -> F64:
         return X[:, cols]

@@ -47,12 +47,12 @@ from svains.filter.ukf import UKF
 from svains.models.clones import (
     SHIFT_REACH_SIGMA,
     CloneManifold,
+    as_clone_manifold,
     augment_calibration,
     augment_clone,
     augment_shifted_clone_sigma,
     marginalize_clone,
 )
-from svains.models.manifold import NavManifold
 from svains.models.state import BA, BG, BIASED, DP, DTH, W
 from svains.models.time_offset import ShiftIncrement, ShiftTable, shift_table
 from svains.navigation.imu_history import ImuHistory
@@ -167,10 +167,7 @@ class CloneWindow:
 
     def after_frame(self, ukf: UKF, t_ns: int, reference_ns: int | None) -> None:
         """Clone the pose at ``t_ns`` when it is the next tracks' reference; drop the others."""
-        manifold = ukf.manifold
-        if not isinstance(manifold, CloneManifold):
-            assert isinstance(manifold, NavManifold)
-            manifold = CloneManifold(manifold, 0)
+        manifold = as_clone_manifold(ukf.manifold)
         x, P = ukf.x, ukf.P
         times = list(self.times)
         # The linear map from the old tangent to the new one (rows of zeros: a new,
