@@ -41,7 +41,7 @@ ordering 3d <= lc <= vo holds by mean ATE (and by median: one diverged run moves
         [--sim-seeds 0-2] [--rates 2 0.5] [--duration 60] [--jobs 2] [--verbose]
         [--set KEY=VALUE ...] [DATA]
 
-``--set`` overrides run settings as ``svains run --set`` does (part 1 only). The defaults take
+``--set`` overrides run settings as ``svains run --set`` does (both parts). The defaults take
 about 5 minutes on 2 busy cores (part 1 ~1.5 min for 40 runs, part 2 ~3 min for 72 runs). The
 Dask workers of part 2 log the runs' warnings ("no vision fused for 2.1 s") on stderr.
 """
@@ -294,6 +294,9 @@ def sim_spec(seeds: list[int], duration_s: float, rates: list[float],
 def part_sim(args: argparse.Namespace) -> None:
     methods = [m for m in ("vo", "lc", "tc", "3d") if m in args.methods]
     raw = sim_spec(args.sim_seeds, args.duration, args.rates, methods)
+    for kv in args.sets:  # ``--set KEY=VALUE``: the campaign's settings, as ``svains run --set``
+        key, _, value = kv.partition("=")
+        raw["settings"][key.strip()] = yaml.safe_load(value)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         summary = run_campaign(parse_spec(raw, HERE / "specs"), Path(tmp), n_workers=args.jobs,
@@ -368,7 +371,7 @@ def main() -> None:
     ap.add_argument("--verbose", action="store_true", help="per-seed (part 1) and per-flight "
                     "(part 2) rows")
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
-                    help="part 1 run setting override (repeatable)")
+                    help="run setting override, both parts (repeatable)")
     args = ap.parse_args()
     if "ins" in args.methods:
         args.ins = True

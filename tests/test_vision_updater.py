@@ -333,14 +333,47 @@ def test_features_new_at_k_minus_1_pass_the_disparity_gate_at_twice_the_threshol
         return StereoTracks(t_prev, t, np.asarray(ids, np.int64), uvl, uvr, uvl, uvr,
                             np.ones((n, 3)), np.ones(n, bool), None)  # fmt: skip
 
-    first = upd._near(tracks(0, 1, [1, 2, 3], [5.0, 8.0, 20.0]))
+    first = upd._near(tracks(0, 1, [1, 2, 3], [5.0, 8.0, 20.0]), d_min)
     np.testing.assert_array_equal(first, [False, True, True])
     # Next pair: tracks 1-3 were seen at k-2 (their disparities above); 4 is new at k-1.
-    nxt = upd._near(tracks(1, 2, [1, 2, 3, 4], [50.0, 50.0, 50.0, 5.0]))
+    nxt = upd._near(tracks(1, 2, [1, 2, 3, 4], [50.0, 50.0, 50.0, 5.0]), d_min)
     np.testing.assert_array_equal(nxt, [True, True, True, False])
-    nxt = upd._near(tracks(2, 3, [1, 4, 5], [2.0, 2.0, 7.3]))
+    nxt = upd._near(tracks(2, 3, [1, 4, 5], [2.0, 2.0, 7.3]), d_min)
     # 1 and 4 are judged on their k-2 disparities (50 and 5 px), 5 is new (7.3 >= 7.2)
     np.testing.assert_array_equal(nxt, [True, True, True])
+
+
+@pytest.mark.parametrize(("two_view", "fill", "n_fused"),
+                         [(True, True, 40), (True, False, 30), (False, True, 30)])
+def test_two_view_frames_fill_up_with_features_below_the_disparity_gate(
+    two_view: bool, fill: bool, n_fused: int
+) -> None:
+    # All 60 features are new at k-1, so the gate is twice min_disparity_px: set at their median
+    # disparity, 30 pass it. A two-view frame (the point estimated in inverse depth from its 8
+    # pixels) fills up to max_features (40) with the 10 far ones evenly spread, the near ones
+    # first (``two_view_fill_far``, off by default); the paper's one-view model keeps the gate.
+    tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
+    disp = tf.uv_left_prev[:, 0] - tf.uv_right_prev[:, 0]
+    gate = float(np.median(disp))
+    opts = VisionOptions(min_disparity_px=gate / 2, max_features=40, two_view_fill_far=fill,
+                         egomotion_fallback=False)  # fmt: skip
+    upd = updater_for("3d", _dataset(tf), opts)
+    ukf = _ukf(tf.x_km1, np.zeros(3))
+    upd.after_frame(FrameContext(ukf, PAPER, T0, None, None, [], None))  # type: ignore[arg-type]
+    x = ukf.x.copy()
+    x[:13] = tf.x_k
+    P = ukf.P.copy()
+    P[0:3, 0:3] += 1e-4 * np.eye(3)
+    ukf.resize(ukf.manifold, x, P)
+    ctx = FrameContext(ukf, PAPER, T0 + int(DT_S * 1e9), T0, None, [], None,  # type: ignore[arg-type]
+                       two_view=two_view)  # fmt: skip
+    stats = upd.update(ctx)
+    assert stats is not None and stats.accepted
+    assert upd._fused is not None
+    fused = upd._fused[1]
+    assert fused.size == n_fused
+    near = np.flatnonzero(disp >= gate)
+    assert near.size == 30 and np.isin(near, fused).all()
 
 
 def _clone_update_with_position_error(

@@ -163,9 +163,9 @@ class PixelUpdater:
             return True
         return ~_member(tr.track_id, last[1])
 
-    def _near(self, tr: StereoTracks | None) -> NDArray[np.bool_] | bool:
-        """Features (M,) whose disparity one frame earlier (k-2) is at least
-        ``min_disparity_px``. Gating on the k-1 disparity itself would bias the triangulation
+    def _near(self, tr: StereoTracks | None, d_min: float) -> NDArray[np.bool_] | bool:
+        """Features (M,) whose disparity one frame earlier (k-2) is at least ``d_min`` px
+        (``min_disparity_px``). Gating on the k-1 disparity itself would bias the triangulation
         that uses it (a far feature whose noise happened to enlarge its disparity passes, one
         whose noise shrank it does not); the k-2 pixels carry independent noise.
 
@@ -175,17 +175,18 @@ class PixelUpdater:
         the selection barely biases, and frames seconds apart, which share few tracks with
         the frame before, keep their features (issue 22: at 5 s spacing the k-2 gate alone
         left a median of 11 features per frame)."""
-        d_min = self._min_disparity_px
-        if tr is None or d_min <= 0.0:
+        if tr is None:
             return True
         ids, disp = self._disparity_before
         disp_prev = tr.uv_left_prev[:, 0] - tr.uv_right_prev[:, 0]
         self._disparity_before = (tr.track_id, disp_prev)
-        new = disp_prev >= NEW_FEATURE_DISPARITY_FACTOR * d_min
-        if ids.size == 0 or self._disparity_t_ns != tr.t_prev_ns:
-            self._disparity_t_ns = tr.t_ns
-            return new
+        continued = ids.size > 0 and self._disparity_t_ns == tr.t_prev_ns
         self._disparity_t_ns = tr.t_ns
+        if d_min <= 0.0:
+            return True
+        new = disp_prev >= NEW_FEATURE_DISPARITY_FACTOR * d_min
+        if not continued:
+            return new
         order = np.argsort(ids)
         pos = np.clip(np.searchsorted(ids[order], tr.track_id), 0, ids.size - 1)
         found = ids[order][pos] == tr.track_id
@@ -300,11 +301,20 @@ class PixelUpdater:
             np.zeros(0, bool) if tr is None
             else tr.inlier & np.isfinite(tr.p_Ckm1_F).all(axis=1) & (tr.p_Ckm1_F[:, 2] > 0)
         )
-        usable &= self._fresh(tr) & self._near(tr)
+        two_view = self.two_view or (ctx.two_view and self._two_view_in_gaps)
+        near = self._near(tr, self._min_disparity_px)
+        usable &= self._fresh(tr)
+        # The two-view model estimates each point in inverse depth from all 8 pixels, so a
+        # far feature neither biases it nor leaves the linear range (the reasons for the gate):
+        # features below the disparity gate fill the frame up to ``max_features`` when too few
+        # pass it (``two_view_fill_far``).
+        far = (usable & np.logical_not(near) if two_view and self.options.two_view_fill_far
+               else np.zeros_like(usable))
+        usable &= near
         if tr is None or tr.t_ns <= tr.t_prev_ns:
             c.frames_without_tracks += 1
             return None
-        if usable.sum() < self.options.min_features:
+        if usable.sum() + far.sum() < self.options.min_features:
             # Too few features for the pixel model (the k-1 pixels of the others were fused at
             # the last update, or their disparity is too small to triangulate), yet a frame
             # with enough tracked features may still link to k-1 through its egomotion, which
@@ -317,7 +327,11 @@ class PixelUpdater:
             c.frames_without_tracks += 1
             return ego
         dt_s = (tr.t_ns - tr.t_prev_ns) * 1e-9
-        idx = _subsample(np.flatnonzero(usable), self.options.max_features)
+        n_max = self.options.max_features
+        idx = _subsample(np.flatnonzero(usable), n_max)
+        if far.any() and (n_max is None or idx.size < n_max):
+            room = None if n_max is None else n_max - idx.size
+            idx = np.sort(np.concatenate([idx, _subsample(np.flatnonzero(far), room)]))
         z = stack_pixels(tr.uv_left[idx], tr.uv_right[idx])
         uvl0, uvr0 = tr.uv_left_prev[idx], tr.uv_right_prev[idx]
         if self._imu is None or self.options.rotation != "imu":
@@ -329,7 +343,7 @@ class PixelUpdater:
             c.frames_without_tracks += 1
             return None
         X, _ = ctx.ukf.sigma_points()  # reused by the update below (same state)
-        if self.two_view or (ctx.two_view and self._two_view_in_gaps):
+        if two_view:
             f = self._two_view_features(ctx, X, z, uvl0, uvr0, motion)
         else:
             f = self._paper_features(ctx, X, z, uvl0, uvr0, motion, inc, dt_s)
