@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from svains.datasets.types import Dataset, GpsStream, GroundTruth
+from svains.evaluation.accuracy import gps_outage_report
 from svains.evaluation.compare import (
     align_to_groundtruth,
     comparison_markdown,
@@ -55,8 +56,16 @@ def test_gps_outage_detected_and_max_error_inside() -> None:
     bump = (gt.t_ns >= 6e9) & (gt.t_ns <= 7e9)
     x[bump, 0] += 0.7
     x[gt.t_ns > 15e9, 1] += 3.0  # outside the outage: must not count
+    # The state logged at the first fix after the outage is the one that fix corrected: its
+    # error (here a noisy fix's 2 m) is not the outage's, for compare as for run's report.
+    x[gt.t_ns == 10_000_000_000, 2] += 2.0
+    assert (gt.t_ns == 10_000_000_000).sum() == 1
     (err,) = outage_max_errors(gt.t_ns, x, gt, gps_outages(ds))
     assert err == pytest.approx(0.7)
+    xs = np.zeros((len(gt.t_ns), 13))
+    xs[:, 0:3] = x
+    report = gps_outage_report(gt.t_ns, xs, np.full((len(gt.t_ns), 12), 0.1), ds.gps.t_ns, gt)
+    assert [o["error_max_m"] for o in report["gps_outages"]] == [pytest.approx(err)]
 
 
 def _run_at(gt: GroundTruth, p_W_B: np.ndarray, method: str) -> RunResult:

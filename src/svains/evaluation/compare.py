@@ -62,11 +62,14 @@ def _position_errors(t_ns: I64, p_W_B: F64, gt: GroundTruth) -> tuple[I64, F64]:
 def outage_max_errors(
     t_ns: I64, p_W_B: F64, gt: GroundTruth, outages: Sequence[tuple[int, int]]
 ) -> list[float | None]:
-    """Max position error (m, no alignment) of the estimate inside each outage."""
+    """Max position error (m, no alignment) of the estimate inside each outage, from the last
+    fix before it up to, not including, the first fix after it: the state logged at that fix
+    is already corrected by it, and its error is the fix's noise, not the outage's drift (the
+    window of ``svains run``'s report, ``evaluation.accuracy.gps_outage_report``)."""
     t, err = _position_errors(t_ns, p_W_B, gt)
     out: list[float | None] = []
     for a, b in outages:
-        sel = (t >= a) & (t <= b)
+        sel = (t >= a) & (t < b)
         out.append(float(err[sel].max()) if sel.any() else None)
     return out
 
