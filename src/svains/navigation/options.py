@@ -210,7 +210,9 @@ class VisionOptions:
     transferring the k-1 pixels (``tc``, the same prediction in a rectified pair). Off by
     default, i.e. the paper's models; across IMU gaps the Navigator uses it anyway
     (``FaultOptions.gap_vision_two_view``). On KITTI raw ``3d`` GPS-denied it gave 1.354 ->
-    1.093 % final error but NEES 73.7 -> 92.1 and 60 % more wall time.
+    1.093 % final error but NEES 73.7 -> 92.1 and 60 % more wall time; re-measured 2026-12-04:
+    1.353 -> 1.093 %, NEES 73.7 -> 92.0, wall time within 3 % (3 runs each: 3.79-3.97 s
+    against 3.91-3.96 s).
 
     The frame test (``tc``/``3d``): each feature is gated on its own
     (``feature_gate_probability``) and a frame is refused, and counted as a rejection, when
