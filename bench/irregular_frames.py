@@ -72,6 +72,7 @@ from svains.datasets import load_dataset
 from svains.datasets.types import Dataset, FeatureStream
 from svains.evaluation.accuracy import state_errors
 from svains.evaluation.run import errors_alignment_for, run_method
+from svains.navigation.config_io import parse_setting
 from svains.replay import resolve_config
 from svains.replay.groundtruth import nees_of
 from svains.replay.synthetic import with_synthetic_features
@@ -294,9 +295,7 @@ def sim_spec(seeds: list[int], duration_s: float, rates: list[float],
 def part_sim(args: argparse.Namespace) -> None:
     methods = [m for m in ("vo", "lc", "tc", "3d") if m in args.methods]
     raw = sim_spec(args.sim_seeds, args.duration, args.rates, methods)
-    for kv in args.sets:  # ``--set KEY=VALUE``: the campaign's settings, as ``svains run --set``
-        key, _, value = kv.partition("=")
-        raw["settings"][key.strip()] = yaml.safe_load(value)
+    raw["settings"].update(parse_setting(kv) for kv in args.sets)  # as ``svains run --set``
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         summary = run_campaign(parse_spec(raw, HERE / "specs"), Path(tmp), n_workers=args.jobs,

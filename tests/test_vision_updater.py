@@ -333,12 +333,12 @@ def test_features_new_at_k_minus_1_pass_the_disparity_gate_at_twice_the_threshol
         return StereoTracks(t_prev, t, np.asarray(ids, np.int64), uvl, uvr, uvl, uvr,
                             np.ones((n, 3)), np.ones(n, bool), None)  # fmt: skip
 
-    first = upd._near(tracks(0, 1, [1, 2, 3], [5.0, 8.0, 20.0]), d_min)
+    first = upd._near(tracks(0, 1, [1, 2, 3], [5.0, 8.0, 20.0]))
     np.testing.assert_array_equal(first, [False, True, True])
     # Next pair: tracks 1-3 were seen at k-2 (their disparities above); 4 is new at k-1.
-    nxt = upd._near(tracks(1, 2, [1, 2, 3, 4], [50.0, 50.0, 50.0, 5.0]), d_min)
+    nxt = upd._near(tracks(1, 2, [1, 2, 3, 4], [50.0, 50.0, 50.0, 5.0]))
     np.testing.assert_array_equal(nxt, [True, True, True, False])
-    nxt = upd._near(tracks(2, 3, [1, 4, 5], [2.0, 2.0, 7.3]), d_min)
+    nxt = upd._near(tracks(2, 3, [1, 4, 5], [2.0, 2.0, 7.3]))
     # 1 and 4 are judged on their k-2 disparities (50 and 5 px), 5 is new (7.3 >= 7.2)
     np.testing.assert_array_equal(nxt, [True, True, True])
 

@@ -163,9 +163,9 @@ class PixelUpdater:
             return True
         return ~_member(tr.track_id, last[1])
 
-    def _near(self, tr: StereoTracks | None, d_min: float) -> NDArray[np.bool_] | bool:
-        """Features (M,) whose disparity one frame earlier (k-2) is at least ``d_min`` px
-        (``min_disparity_px``). Gating on the k-1 disparity itself would bias the triangulation
+    def _near(self, tr: StereoTracks | None) -> NDArray[np.bool_] | bool:
+        """Features (M,) whose disparity one frame earlier (k-2) is at least
+        ``min_disparity_px``. Gating on the k-1 disparity itself would bias the triangulation
         that uses it (a far feature whose noise happened to enlarge its disparity passes, one
         whose noise shrank it does not); the k-2 pixels carry independent noise.
 
@@ -175,18 +175,17 @@ class PixelUpdater:
         the selection barely biases, and frames seconds apart, which share few tracks with
         the frame before, keep their features (issue 22: at 5 s spacing the k-2 gate alone
         left a median of 11 features per frame)."""
-        if tr is None:
+        d_min = self._min_disparity_px
+        if tr is None or d_min <= 0.0:
             return True
         ids, disp = self._disparity_before
         disp_prev = tr.uv_left_prev[:, 0] - tr.uv_right_prev[:, 0]
         self._disparity_before = (tr.track_id, disp_prev)
-        continued = ids.size > 0 and self._disparity_t_ns == tr.t_prev_ns
-        self._disparity_t_ns = tr.t_ns
-        if d_min <= 0.0:
-            return True
         new = disp_prev >= NEW_FEATURE_DISPARITY_FACTOR * d_min
-        if not continued:
+        if ids.size == 0 or self._disparity_t_ns != tr.t_prev_ns:
+            self._disparity_t_ns = tr.t_ns
             return new
+        self._disparity_t_ns = tr.t_ns
         order = np.argsort(ids)
         pos = np.clip(np.searchsorted(ids[order], tr.track_id), 0, ids.size - 1)
         found = ids[order][pos] == tr.track_id
@@ -302,7 +301,7 @@ class PixelUpdater:
             else tr.inlier & np.isfinite(tr.p_Ckm1_F).all(axis=1) & (tr.p_Ckm1_F[:, 2] > 0)
         )
         two_view = self.two_view or (ctx.two_view and self._two_view_in_gaps)
-        near = self._near(tr, self._min_disparity_px)
+        near = self._near(tr)
         usable &= self._fresh(tr)
         # The two-view model estimates each point in inverse depth from all 8 pixels, so a
         # far feature neither biases it nor leaves the linear range (the reasons for the gate):
