@@ -248,3 +248,23 @@ def test_a_bias_window_never_spans_an_outage_but_a_slow_sensor_keeps_its_windows
     # ... but a 20 s silence in it is one
     t = _observe_at(m, [25.0, 30.0, 50.0, 55.0], lean)
     assert m.biased(t) is None
+
+
+def test_vision_corrections_take_their_own_window_and_quantile() -> None:
+    o = ConsistencyOptions(bias_probability=0.975, bias_sensors=("gps", "3d"),
+                           vision_bias_window=4, vision_bias_probability=0.999)  # fmt: skip
+
+    def frames(n: int, lean: float) -> ConsistencyMonitor:
+        m = ConsistencyMonitor(o)
+        w = np.array([lean, 0.0, 0.0, 0.0, 0.0, 0.0])
+        for k in range(n):  # 5 Hz
+            m.observe("3d", True, 1.0, 6, (k + 1) * S // 5, whitened=w)
+        return m
+
+    # 3 * 2.25^2 = 15.2, beyond GPS's 0.975 quantile (14.4, 6 dof): a vision window holds 4
+    assert frames(3, 2.25).biased(3 * S // 5) is None
+    assert frames(4, 2.25).biased(4 * S // 5) is None  # 4 * 2.25^2 = 20.3 < 22.5 (0.999)
+    action = frames(4, 2.5).biased(4 * S // 5)  # 4 * 2.5^2 = 25
+    assert action is not None and action.sensors == ("3d",)
+    assert "the last 4 3d corrections share an offset (chi-square 25 > 22.5, 6" in action.reason
+    assert action.window_s == pytest.approx(0.6)

@@ -118,6 +118,11 @@ def test_fault_options_are_checked_and_set_by_dotted_key() -> None:
         FaultOptions(vision_max_gap_s=0.0)
     with pytest.raises(ConfigError, match=r"faults\.imu_gap_factor"):
         FaultOptions(imu_gap_factor=1.0)
+    with pytest.raises(ConfigError, match=r"faults\.bias_test_vision_probability must be in "
+                       r"\(0, 1\) or null, got 1\.0"):  # fmt: skip
+        FaultOptions(bias_test_vision_probability=1.0)
+    with pytest.raises(ConfigError, match=r"faults\.bias_test_vision_window must be >= 2, got 1"):
+        FaultOptions(bias_test_vision_window=1)
     config = with_settings(RunConfig(), {"faults.consistency": False, "faults.inflate_factor": 10})
     assert config.faults.consistency is False and config.faults.inflate_factor == 10.0
 
@@ -229,6 +234,34 @@ def test_a_bias_step_is_caught_by_gps_innovations_that_lean_one_way(flight20: Pa
     # 4 s later the biases from before the alarm are recalled: they no longer pass its gate
     assert on.report["recovery"]["bias_confirmed"] == 1
     assert on.report["recovery"]["bias_restored"] == 0
+
+
+def test_a_gyro_bias_step_is_caught_by_vision_corrections_that_lean_one_way(
+    flight20: Path,
+) -> None:
+    # +0.05 rad/s on the z gyro: each 3d frame corrects the heading the step turned, always the
+    # same way; three corrections that lean raise the alarm from vision (1.5 s after the step),
+    # and the gyro bias is learnt 4 s after it. GPS alone (the vision test off) raises its alarm
+    # 8 s after the step, until which the bias stays where it was.
+    ds = load_dataset(flight20)
+    assert ds.imu is not None
+    g = ds.imu.gyro_B.copy()
+    g[ds.imu.t_ns >= ds.imu.t_ns[0] + int(FAULT_AT_S * S), 2] += 0.05
+    faulty = replace(ds, imu=replace(ds.imu, gyro_B=g))
+    on, off = _run(faulty, "3d"), _run(faulty, "3d", bias_test_vision_probability=None)
+    first = on.report["recovery"]["events"][0]
+    assert first["kind"] == "bias" and first["sensors"] == ["3d"], first
+    assert 0 < first["t_ns"] - ds.imu.t_ns[0] - FAULT_AT_S * S <= 2 * S
+    assert on.report["recovery"]["bias_confirmed"] >= 1
+    assert all(e["sensors"] == ["gps"] for e in off.report["recovery"]["events"])
+    k = int(np.searchsorted(on.t_ns, ds.imu.t_ns[0] + 10 * S))  # 4 s after the step
+    bg_z = 15  # gyro bias, body z (``models.state.BG``)
+    assert 0.035 < on.x[k, bg_z] < 0.065, on.x[k, bg_z]  # measured 0.052
+    assert abs(off.x[k, bg_z]) < 0.01, off.x[k, bg_z]  # measured 0.0009
+    # GPS-denied, the test is off (nothing would confirm or undo an alarm): no bias event
+    denied = run_method(faulty, "3d", RunConfig(init=InitOptions(mode="groundtruth"),
+                                                 use_gps=False))  # fmt: skip
+    assert denied.report["recovery"]["bias_shifts"] == 0
 
 
 def _with_gps(ds: Dataset, edit: str) -> Dataset:

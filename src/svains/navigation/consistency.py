@@ -47,6 +47,15 @@ the one before, :func:`_window_broken`): the first fixes after an outage correct
 drifted there, and a window stretched over the outage would size the attitude and velocity
 spread of the widening by the whole outage (a simulated village flight, seed 5: 6 m/s and 17°
 from a window of 12 s, which the next vision update could not linearise).
+
+Vision updates feed the same test in a run with an anchor sensor (``standalone_sensors`` among
+``bias_sensors``), through their corrections rather than their innovations (hundreds of
+pixels): the correction of velocity and attitude ``K r`` whitened by the covariance the update
+removed (``fault_handling.whitened_correction``), white and unit under a consistent filter.
+A gyro bias step turns the heading between frames the same way every time, which each frame
+then corrects, so the corrections lean long before any GPS innovation does (a +0.05 rad/s
+step: an alarm 1.5 s after it from vision, 8 s from GPS). Frames come faster than fixes, so
+they have their own window and quantile (``vision_bias_window``, ``vision_bias_probability``).
 """
 
 from __future__ import annotations
@@ -90,6 +99,10 @@ class ConsistencyOptions:
     bias_sensors: tuple[str, ...] = ("gps",)
     bias_window: int = 3
     bias_probability: float | None = None
+    # The same test on vision updates' whitened corrections (``standalone_sensors`` among
+    # ``bias_sensors``): its own window (accepted frames) and quantile (frames come faster).
+    vision_bias_window: int = 3
+    vision_bias_probability: float = 0.99
 
 
 @dataclass(frozen=True)
@@ -162,7 +175,8 @@ class ConsistencyMonitor:
         o = self.options
         s = self._sensors.get(sensor)
         if s is None:
-            s = _SensorTrack(deque(maxlen=o.window), whitened=deque(maxlen=o.bias_window))
+            n = o.vision_bias_window if sensor in o.standalone_sensors else o.bias_window
+            s = _SensorTrack(deque(maxlen=o.window), whitened=deque(maxlen=n))
             self._sensors[sensor] = s
         if np.isfinite(nis) and dof > 0:
             s.nis_per_dof.append(float(nis) / dof)
@@ -280,18 +294,21 @@ class ConsistencyMonitor:
             return None
         for name in o.bias_sensors:
             s = self._sensors.get(name)
-            if s is None or len(s.whitened) < o.bias_window:
+            if s is None or s.whitened.maxlen is None or len(s.whitened) < s.whitened.maxlen:
                 continue
             W = np.stack([w for _, w in s.whitened])
             span_s = (s.whitened[-1][0] - s.whitened[0][0]) / 1e9
             stat = float(W.shape[0] * np.sum(W.mean(axis=0) ** 2))
-            threshold = chi2_gate(o.bias_probability, W.shape[1])
+            vision = name in o.standalone_sensors
+            p = o.vision_bias_probability if vision else o.bias_probability
+            what = "corrections" if vision else "innovations"
+            threshold = chi2_gate(p, W.shape[1])
             if stat > threshold:
                 s.whitened.clear()
                 self.bias_shifts += 1
                 self._events.append({"t_ns": int(t_ns), "kind": "bias", "sensors": [name]})
                 return RecoveryAction(
-                    "bias", f"the last {W.shape[0]} {name} innovations share an offset (chi-square "
+                    "bias", f"the last {W.shape[0]} {name} {what} share an offset (chi-square "
                     f"{stat:.3g} > {threshold:.3g}, {W.shape[1]} dof): an IMU bias step?", (name,),
                     window_s=span_s)
         return None

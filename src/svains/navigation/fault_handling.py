@@ -22,6 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from svains.filter import chi2_gate
@@ -59,9 +60,13 @@ _FIT_S = 0.09
 _LONG_GAP_S = 0.5
 _FIT_NS = round(_FIT_S * 1e9)
 _HOLD_END_NS = 1_000_000  # a held rest ends this long before the gap's first sample
-# A pending bias alarm is decided when the GPS has been silent this long (an outage: nothing
-# can confirm a step there, and the INS should cross it on the biases known before the alarm)
+# A pending bias alarm is decided when the test's sensors (GPS, and the vision updates where
+# they feed the test) have been silent this long (an outage: nothing can confirm a step there,
+# and the INS should cross it on the biases known before the alarm)
 _ANCHOR_SILENT_NS = 2_000_000_000
+_VISION_SENSORS = ("tc", "3d", "lc")
+# δv and δθ: the rows whose corrections a bias step makes lean (``whitened_correction``)
+LEAN_ROWS = np.arange(DV.start, DTH.stop)
 NAV9 = slice(0, 9)  # δp, δv, δθ in the tangent space (``models.state``)
 
 
@@ -303,7 +308,11 @@ class Recovery:
         self.monitor = ConsistencyMonitor(ConsistencyOptions(
             inflate_factor=options.inflate_factor, anchor_in_use=gps_used,
             bias_window=options.bias_test_window,
-            bias_probability=options.bias_test_probability))
+            bias_probability=options.bias_test_probability,
+            bias_sensors=("gps", *_VISION_SENSORS) if self._vision_lean(options, gps_used)
+            else ("gps",),
+            vision_bias_window=options.bias_test_vision_window,
+            vision_bias_probability=options.bias_test_vision_probability or 0.5))  # fmt: skip
         self._options = options
         self._warn = warn
         self._bias_rw = bias_random_walk_var
@@ -311,6 +320,16 @@ class Recovery:
         self.bias_confirmed = 0
         self.bias_restored = 0
         self.reset_pending = False
+
+    @staticmethod
+    def _vision_lean(options: FaultOptions, gps_used: bool) -> bool:
+        return bool(options.bias_test_vision_probability is not None and gps_used
+                    and options.bias_test_probability is not None)  # fmt: skip
+
+    def tests_vision(self, method: str) -> bool:
+        """Whether the updates of the vision ``method`` feed the bias test (their corrections
+        whitened, :func:`whitened_correction`)."""
+        return method in self.monitor.options.bias_sensors
 
     @property
     def bias_pending(self) -> bool:
@@ -367,7 +386,8 @@ class Recovery:
 
     def _confirm_bias(self, ukf: UKF, t_ns: int) -> None:
         """The pending bias alarm (``navigation.bias_recall``): confirmed once the biases have
-        left those from before it; recalled when the GPS falls silent or at its deadline."""
+        left those from before it; recalled when the test's sensors fall silent (GPS, and in a
+        GPS-aided vision run the vision updates too) or at its deadline."""
         alarm = self._alarm
         assert alarm is not None
         rw = np.zeros(6) if self._bias_rw is None else self._bias_rw()
@@ -522,3 +542,23 @@ def add_gap_covariance(ukf: UKF, Q9: F64) -> None:
     Pm = ukf.P.copy()
     Pm[NAV9, NAV9] += Q9
     ukf.P = Pm
+
+
+def whitened_correction(ukf: UKF, x_prior: F64, P_prior: F64,
+                        rows: NDArray[np.int64]) -> F64 | None:  # fmt: skip
+    """An update's correction of the tangent ``rows`` of ``ukf``'s state, whitened by the
+    covariance the update removed from them: ``w = L^-1 (x ⊖ x_prior)[rows]`` with ``L L^T =
+    P_prior - P`` over the rows. For a consistent linear filter the correction ``K r`` has
+    exactly that covariance, so ``w`` is white and unit, and a run of them that lean one way is
+    the same bias test as the GPS innovations' (``ConsistencyMonitor.biased``). None when the
+    state changed size or the update removed too little to whiten (not positive definite)."""
+    if ukf.P.shape != P_prior.shape:
+        return None
+    d = ukf.manifold.local(ukf.x[None], x_prior)[0][rows]
+    ix = np.ix_(rows, rows)
+    C = P_prior[ix] - ukf.P[ix]
+    try:
+        L = np.linalg.cholesky(0.5 * (C + C.T))
+    except np.linalg.LinAlgError:
+        return None
+    return np.asarray(scipy.linalg.solve_triangular(L, d, lower=True))

@@ -9,6 +9,7 @@ measurement update is known.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import Any
 
@@ -18,10 +19,12 @@ from svains.filter.ukf import UpdateStats
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.event_queue import FRAME, GPS, MAG, SONAR, TICK
 from svains.navigation.fault_handling import (
+    LEAN_ROWS,
     ImuFaults,
     RateLimitedLog,
     Recovery,
     add_gap_covariance,
+    whitened_correction,
 )
 from svains.navigation.ins import InsFilter
 from svains.navigation.options import RunConfig
@@ -247,9 +250,17 @@ class Core:
                            self._vision_apply(bridging, long),
                            (bridging and cfg.faults.gap_vision_two_view)
                            or (long and cfg.vision.two_view_after_long))  # fmt: skip
+        lean = self._recovery is not None and self._recovery.tests_vision(cfg.method)
+        prior = (ins.ukf.x.copy(), ins.ukf.P.copy()) if lean else None
         ins.add_omega_white()  # paper model: the vision models see ω's gyro white noise
         stats = updater.update(ctx)
         ins.remove_omega_white()
+        if prior is not None and stats is not None and stats.accepted:
+            # The bias test of vision updates (``faults.bias_test_vision``): their corrections,
+            # whitened, lean one way after an IMU bias step.
+            w = whitened_correction(ins.ukf, *prior, LEAN_ROWS)
+            if w is not None:
+                stats = dataclasses.replace(stats, whitened=w)
         if hasattr(updater, "after_frame"):
             updater.after_frame(ctx)  # pose clones (rotation="clone")
         if stats is not None:
