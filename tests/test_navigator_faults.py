@@ -258,10 +258,14 @@ def test_a_gyro_bias_step_is_caught_by_vision_corrections_that_lean_one_way(
     bg_z = 15  # gyro bias, body z (``models.state.BG``)
     assert 0.035 < on.x[k, bg_z] < 0.065, on.x[k, bg_z]  # measured 0.052
     assert abs(off.x[k, bg_z]) < 0.01, off.x[k, bg_z]  # measured 0.0009
-    # GPS-denied, the test is off (nothing would confirm or undo an alarm): no bias event
-    denied = run_method(faulty, "3d", RunConfig(init=InitOptions(mode="groundtruth"),
-                                                 use_gps=False))  # fmt: skip
-    assert denied.report["recovery"]["bias_shifts"] == 0
+    # GPS-denied, the vision test is opt-in: vision alone then raises the alarm at the same time
+    # and learns the bias as well
+    denied = {on: run_method(faulty, "3d", RunConfig(
+        init=InitOptions(mode="groundtruth"), use_gps=False,
+        faults=FaultOptions(bias_test_vision_gps_denied=on))) for on in (False, True)}  # fmt: skip
+    assert denied[False].report["recovery"]["bias_shifts"] == 0
+    assert denied[True].report["recovery"]["events"][0] == first
+    assert 0.035 < denied[True].x[k, bg_z] < 0.065, denied[True].x[k, bg_z]  # measured 0.052
 
 
 def _with_gps(ds: Dataset, edit: str) -> Dataset:

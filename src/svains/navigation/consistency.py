@@ -48,14 +48,15 @@ drifted there, and a window stretched over the outage would size the attitude an
 spread of the widening by the whole outage (a simulated village flight, seed 5: 6 m/s and 17°
 from a window of 12 s, which the next vision update could not linearise).
 
-Vision updates feed the same test in a run with an anchor sensor (``standalone_sensors`` among
-``bias_sensors``), through their corrections rather than their innovations (hundreds of
-pixels): the correction of velocity and attitude ``K r`` whitened by the covariance the update
-removed (``fault_handling.whitened_correction``), white and unit under a consistent filter.
-A gyro bias step turns the heading between frames the same way every time, which each frame
-then corrects, so the corrections lean long before any GPS innovation does (a +0.05 rad/s
-step: an alarm 1.5 s after it from vision, 8 s from GPS). Frames come faster than fixes, so
-they have their own window and quantile (``vision_bias_window``, ``vision_bias_probability``).
+Vision updates feed the same test when the core puts them among ``bias_sensors`` (GPS-aided
+runs; GPS-denied ones on request, ``FaultOptions.bias_test_vision_gps_denied``), through their
+corrections rather than their innovations (hundreds of pixels): the correction of velocity and
+attitude ``K r`` whitened by the covariance the update removed
+(``fault_handling.whitened_correction``), white and unit under a consistent filter. A gyro bias
+step turns the heading between frames the same way every time, which each frame then corrects,
+so the corrections lean long before any GPS innovation does (a +0.05 rad/s step: an alarm 1.5 s
+after it from vision, 8 s from GPS). Frames come faster than fixes, so they have their own
+window and quantile (``vision_bias_window``, ``vision_bias_probability``).
 """
 
 from __future__ import annotations

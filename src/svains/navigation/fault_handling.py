@@ -323,8 +323,9 @@ class Recovery:
 
     @staticmethod
     def _vision_lean(options: FaultOptions, gps_used: bool) -> bool:
-        return bool(options.bias_test_vision_probability is not None and gps_used
-                    and options.bias_test_probability is not None)  # fmt: skip
+        return (options.bias_test_vision_probability is not None
+                and options.bias_test_probability is not None
+                and (gps_used or options.bias_test_vision_gps_denied))  # fmt: skip
 
     def tests_vision(self, method: str) -> bool:
         """Whether the updates of the vision ``method`` feed the bias test (their corrections
