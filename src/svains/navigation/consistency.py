@@ -103,7 +103,7 @@ class ConsistencyOptions:
     # The same test on vision updates' whitened corrections (``standalone_sensors`` among
     # ``bias_sensors``): its own window (accepted frames) and quantile (frames come faster).
     vision_bias_window: int = 3
-    vision_bias_probability: float = 0.99
+    vision_bias_probability: float | None = None  # None: vision sensors take no test
 
 
 @dataclass(frozen=True)
@@ -302,6 +302,8 @@ class ConsistencyMonitor:
             stat = float(W.shape[0] * np.sum(W.mean(axis=0) ** 2))
             vision = name in o.standalone_sensors
             p = o.vision_bias_probability if vision else o.bias_probability
+            if p is None:
+                continue
             what = "corrections" if vision else "innovations"
             threshold = chi2_gate(p, W.shape[1])
             if stat > threshold:

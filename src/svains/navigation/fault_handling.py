@@ -312,7 +312,7 @@ class Recovery:
             bias_sensors=("gps", *_VISION_SENSORS) if self._vision_lean(options, gps_used)
             else ("gps",),
             vision_bias_window=options.bias_test_vision_window,
-            vision_bias_probability=options.bias_test_vision_probability or 0.5))  # fmt: skip
+            vision_bias_probability=options.bias_test_vision_probability))  # fmt: skip
         self._options = options
         self._warn = warn
         self._bias_rw = bias_random_walk_var
@@ -387,8 +387,8 @@ class Recovery:
 
     def _confirm_bias(self, ukf: UKF, t_ns: int) -> None:
         """The pending bias alarm (``navigation.bias_recall``): confirmed once the biases have
-        left those from before it; recalled when the test's sensors fall silent (GPS, and in a
-        GPS-aided vision run the vision updates too) or at its deadline."""
+        left those from before it; recalled when the test's sensors fall silent (GPS, and the
+        vision updates where they feed the test) or at its deadline."""
         alarm = self._alarm
         assert alarm is not None
         rw = np.zeros(6) if self._bias_rw is None else self._bias_rw()

@@ -256,8 +256,8 @@ class Core:
         stats = updater.update(ctx)
         ins.remove_omega_white()
         if prior is not None and stats is not None and stats.accepted:
-            # The bias test of vision updates (``faults.bias_test_vision``): their corrections,
-            # whitened, lean one way after an IMU bias step.
+            # The bias test of vision updates (``faults.bias_test_vision_probability``): their
+            # corrections, whitened, lean one way after an IMU bias step.
             w = whitened_correction(ins.ukf, *prior, LEAN_ROWS)
             if w is not None:
                 stats = dataclasses.replace(stats, whitened=w)
