@@ -51,7 +51,9 @@ def chi2_gate(probability: float, dof: int) -> float:
 class UpdateStats:
     """Outcome of one update: ``nis`` = r^T S^-1 r, ``dof`` = nz, ``gate`` threshold (inf: none);
     ``whitened`` (nz,) = L^-1 r with S = L L^T where the update forms S (``update_blocks``:
-    the low-dimensional sensors), else None. Its mean over a run of updates is a bias test."""
+    the low-dimensional sensors), else None. Its mean over a run of updates is a bias test;
+    a caller may set another white quantity of the update there (``navigation`` puts a vision
+    update's whitened state correction, ``fault_handling.whitened_correction``)."""
 
     name: str
     accepted: bool
