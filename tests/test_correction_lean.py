@@ -28,7 +28,7 @@ def test_the_whitened_correction_is_white_and_unit_and_equals_its_formula() -> N
         z = H @ x_true + rng.multivariate_normal(np.zeros(H.shape[0]), R)
         ukf = UKF(Euclidean(n), MerweScaledSigmaPoints(n), np.zeros(n), P0.copy())
         ukf.update(lambda X: X @ H.T, z, R)
-        w = whitened_correction(ukf, np.zeros(n), P0, LEAN_ROWS)
+        w = whitened_correction(ukf, np.zeros(n), P0[np.ix_(LEAN_ROWS, LEAN_ROWS)], LEAN_ROWS)
         assert w is not None and w.shape == (6,)
         if k == 0:  # the Kalman filter's own correction K r, whitened by K S K^T
             S = H @ P0 @ H.T + R
@@ -49,6 +49,7 @@ def test_no_whitened_correction_for_unobserved_rows_or_a_state_that_changed_size
     H[:, :9] = 0.0
     ukf = UKF(Euclidean(n), MerweScaledSigmaPoints(n), np.zeros(n), P0.copy())
     ukf.update(lambda X: X @ H.T, rng.normal(size=H.shape[0]), R)
-    assert whitened_correction(ukf, np.zeros(n), P0, LEAN_ROWS) is None
+    assert whitened_correction(ukf, np.zeros(n), P0[np.ix_(LEAN_ROWS, LEAN_ROWS)],
+                               LEAN_ROWS) is None  # fmt: skip
     ukf = UKF(Euclidean(n), MerweScaledSigmaPoints(n), np.zeros(n), P0.copy())
-    assert whitened_correction(ukf, np.zeros(n + 1), np.eye(n + 1), LEAN_ROWS) is None
+    assert whitened_correction(ukf, np.zeros(n + 1), np.eye(6), LEAN_ROWS) is None

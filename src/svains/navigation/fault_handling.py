@@ -64,7 +64,6 @@ _HOLD_END_NS = 1_000_000  # a held rest ends this long before the gap's first sa
 # they feed the test) have been silent this long (an outage: nothing can confirm a step there,
 # and the INS should cross it on the biases known before the alarm)
 _ANCHOR_SILENT_NS = 2_000_000_000
-_VISION_SENSORS = ("tc", "3d", "lc")
 # δv and δθ: the rows whose corrections a bias step makes lean (``whitened_correction``)
 LEAN_ROWS = np.arange(DV.start, DTH.stop)
 NAV9 = slice(0, 9)  # δp, δv, δθ in the tangent space (``models.state``)
@@ -309,8 +308,8 @@ class Recovery:
             inflate_factor=options.inflate_factor, anchor_in_use=gps_used,
             bias_window=options.bias_test_window,
             bias_probability=options.bias_test_probability,
-            bias_sensors=("gps", *_VISION_SENSORS) if self._vision_lean(options, gps_used)
-            else ("gps",),
+            bias_sensors=("gps", *ConsistencyOptions.standalone_sensors)
+            if self._vision_lean(options, gps_used) else ("gps",),
             vision_bias_window=options.bias_test_vision_window,
             vision_bias_probability=options.bias_test_vision_probability))  # fmt: skip
         self._options = options
@@ -545,19 +544,19 @@ def add_gap_covariance(ukf: UKF, Q9: F64) -> None:
     ukf.P = Pm
 
 
-def whitened_correction(ukf: UKF, x_prior: F64, P_prior: F64,
+def whitened_correction(ukf: UKF, x_prior: F64, P_rows_prior: F64,
                         rows: NDArray[np.int64]) -> F64 | None:  # fmt: skip
     """An update's correction of the tangent ``rows`` of ``ukf``'s state, whitened by the
     covariance the update removed from them: ``w = L^-1 (x ⊖ x_prior)[rows]`` with ``L L^T =
-    P_prior - P`` over the rows. For a consistent linear filter the correction ``K r`` has
-    exactly that covariance, so ``w`` is white and unit, and a run of them that lean one way is
-    the same bias test as the GPS innovations' (``ConsistencyMonitor.biased``). None when the
-    state changed size or the update removed too little to whiten (not positive definite)."""
-    if ukf.P.shape != P_prior.shape:
+    P_prior - P`` over the rows (``P_rows_prior``: the prior's block over ``rows`` only). For a
+    consistent linear filter the correction ``K r`` has exactly that covariance, so ``w`` is
+    white and unit, and a run of them that lean one way is the same bias test as the GPS
+    innovations' (``ConsistencyMonitor.biased``). None when the state changed size or the
+    update removed too little to whiten (not positive definite)."""
+    if ukf.x.shape != x_prior.shape:
         return None
     d = ukf.manifold.local(ukf.x[None], x_prior)[0][rows]
-    ix = np.ix_(rows, rows)
-    C = P_prior[ix] - ukf.P[ix]
+    C = P_rows_prior - ukf.P[np.ix_(rows, rows)]
     try:
         L = np.linalg.cholesky(0.5 * (C + C.T))
     except np.linalg.LinAlgError:

@@ -251,7 +251,7 @@ class Core:
                            (bridging and cfg.faults.gap_vision_two_view)
                            or (long and cfg.vision.two_view_after_long))  # fmt: skip
         lean = self._recovery is not None and self._recovery.tests_vision(cfg.method)
-        prior = (ins.ukf.x.copy(), ins.ukf.P.copy()) if lean else None
+        prior = (ins.ukf.x.copy(), ins.ukf.P[np.ix_(LEAN_ROWS, LEAN_ROWS)]) if lean else None
         ins.add_omega_white()  # paper model: the vision models see ω's gyro white noise
         stats = updater.update(ctx)
         ins.remove_omega_white()
