@@ -131,12 +131,23 @@ def _dataset_and_tracks() -> tuple[Dataset, StereoTracks, TwoFrames]:
     return ds, tracks, tf
 
 
-@pytest.mark.parametrize(("enabled", "t_ref"), [(True, T0), (False, T0), (True, None)])
+@pytest.mark.parametrize(
+    ("enabled", "after_s", "t_ref", "given"),
+    [
+        (True, 1.0, T0, True),  # on every frame
+        (False, 1.0, T0, False),  # the default: frames 0.1 s apart get none
+        (False, DT_S, T0, True),  # frames that far apart get it
+        (False, 0.15, T0, False),
+        (False, None, T0, False),  # never
+        (True, 1.0, None, False),  # no reference frame yet
+    ],
+)
 def test_pixel_updater_passes_the_prior_over_the_reference_interval(
-    enabled: bool, t_ref: int | None
+    enabled: bool, after_s: float | None, t_ref: int | None, given: bool
 ) -> None:
     ds, tracks, tf = _dataset_and_tracks()
-    opts = VisionOptions(source="features", rotation="imu", motion_prior=enabled)
+    opts = VisionOptions(source="features", rotation="imu", motion_prior=enabled,
+                         motion_prior_after_s=after_s)  # fmt: skip
     src = _StubImages(tracks, t_ref)
     upd = PixelUpdater("3d", opts, src, history_from_dataset(ds), rig_from_dataset(ds))
     x0 = tf.x_k.copy()
@@ -147,7 +158,7 @@ def test_pixel_updater_passes_the_prior_over_the_reference_interval(
     assert stats is not None and stats.accepted
     assert np.linalg.norm(ukf.x[V] - tf.x_k[V]) < 0.1  # prior error 0.245 m/s
     prior = src.priors[0]
-    if not enabled or t_ref is None:
+    if not given:
         assert prior is None
         return
     assert isinstance(prior, Egomotion)

@@ -180,6 +180,13 @@ class VisionOptions:
     (off by default: on the simulated village sets, whose gyro is noisy, ``3d`` with the prior
     was better on the 20 Hz bench set, 0.041 m against 0.045 m RMSE, see
     ``bench/bench_methods.py``, and worse on the 2 Hz demo flight, 0.358 m against 0.259 m);
+    ``motion_prior_after_s`` (s; None: never) hands it over, with ``motion_prior`` off, only
+    for frames at least that long after the front end's reference frame, where KLT cannot
+    bridge the motion unaided and a few tracks gone wrong can agree on a wrong motion: on
+    rendered keyframes 0.05-7 s apart (``bench/rendered_keyframes.py``, 6 runs) ``3d`` 0.795
+    -> 0.237 m mean ATE (no run above 1 m instead of one at 3.2 m, NEES 82.9 -> 3.5) with an
+    IMU as quiet as its data sheet, 0.529 -> 0.508 m with one 5.5x / 7.9x noisier; frames
+    closer together (the 2 Hz demo, KITTI raw at 5 Hz) are unchanged;
     ``estimate_extrinsics`` (clones only) adds the camera-IMU rotation correction to the state
     with prior standard deviation ``extrinsics_std_deg`` per axis
     (``navigation.vision_clones``; the run writes ``camchain_estimated.yaml``). Off by default:
@@ -265,6 +272,7 @@ class VisionOptions:
     single_use_pixels: bool = True
     min_disparity_px: float | None = None
     motion_prior: bool = False
+    motion_prior_after_s: float | None = 1.0
     motion_prior_inflation: float = 4.0
     motion_prior_min_std: tuple[float, float] = (2e-3, 5e-3)
     estimate_extrinsics: bool = False

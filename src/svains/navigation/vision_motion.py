@@ -64,11 +64,14 @@ class MotionPriorOptions:
     predicted rotation angle / translation length. A too-tight prior makes the front end reject
     good frames (``contradicts_prior``), and the front end's own covariance, the other term of
     its gate, is optimistic. Defaults measured on the simulated village (20 Hz and 2 Hz): NEES
-    of the true motion about 1 for 6 degrees of freedom, i.e. ~6x generous in variance."""
+    of the true motion about 1 for 6 degrees of freedom, i.e. ~6x generous in variance.
+    ``after_s``: the prior is handed over only for frames at least this long (s) after the
+    front end's reference frame (None: for every frame)."""
 
     inflation: float = 4.0
     min_std: tuple[float, float] = (2e-3, 5e-3)
     rel_std: float = 0.05
+    after_s: float | None = None
 
 
 def imu_motion_prior(
@@ -109,6 +112,11 @@ class MotionPrior:
         self.increments = increments
         self.rig = rig
         self.options = options
+
+    def wanted(self, t_ns: int, t_ref_ns: int | None) -> bool:
+        """Whether the frame at ``t_ns`` gets the prior (``MotionPriorOptions.after_s``)."""
+        after_s = self.options.after_s
+        return after_s is None or (t_ref_ns is not None and (t_ns - t_ref_ns) * 1e-9 >= after_s)
 
     def for_frame(
         self, ctx: FrameContext, t_ref_ns: int | None

@@ -470,13 +470,16 @@ def imu_and_prior(
 ) -> tuple[ImuIncrements | None, MotionPrior | None]:
     """IMU samples when the ``imu`` rotation or the motion prior needs them; a prior only for the
     image front end (recorded tracks need none) with an IMU."""
-    use_prior = options.motion_prior and isinstance(source, ImageFrames) and history is not None
+    wanted = options.motion_prior or options.motion_prior_after_s is not None
+    use_prior = wanted and isinstance(source, ImageFrames) and history is not None
     if (options.rotation != "imu" and not use_prior) or history is None:
         return None, None
     imu = ImuIncrements(history, np.asarray(rig.gravity_W, float), rig.imu, options.imu_noise)
     if not use_prior:
         return imu, None
-    prior_opts = MotionPriorOptions(options.motion_prior_inflation, options.motion_prior_min_std)
+    after_s = None if options.motion_prior else options.motion_prior_after_s
+    prior_opts = MotionPriorOptions(options.motion_prior_inflation, options.motion_prior_min_std,
+                                    after_s=after_s)  # fmt: skip
     return imu, MotionPrior(imu, source.rig, prior_opts)
 
 
@@ -488,6 +491,8 @@ def tracks_with_prior(
     if prior is None or not isinstance(source, ImageFrames):
         return source.tracks_at(ctx.t_ns), None
     t_ref = source.reference_time_ns()
+    if not prior.wanted(ctx.t_ns, t_ref):
+        return source.tracks_at(ctx.t_ns), None
     ego, inc = prior.for_frame(ctx, t_ref)
     tr = source.tracks_at(ctx.t_ns, ego)
     if tr is None or inc is None or tr.t_prev_ns != t_ref:
