@@ -181,3 +181,38 @@ def test_reacquire_options_reach_ransac(monkeypatch: pytest.MonkeyPatch) -> None
     assert len(tracking) >= 3 and all(r.min_inliers == o.ransac.min_inliers for r in tracking)
     assert all(r.iterations == 47 for r in seen)
     assert len(tracking) + len(long_gap) == len(seen)
+
+
+@pytest.mark.parametrize("with_prior", [True, False])
+def test_windowed_matches_take_their_own_inlier_fraction(
+    monkeypatch: pytest.MonkeyPatch, with_prior: bool
+) -> None:
+    """Matches made inside a motion prior's windows are held to
+    ``min_inlier_fraction_with_prior`` (repeated textures fill the windows with wrong
+    candidates, and the motion is checked against the prior); whole-image matches and KLT
+    tracks keep the front end's ``min_inlier_fraction``. The plane's reversal as above; every
+    KLT motion is checked against re-acquisition (``klt_min_inliers``)."""
+    seen: list[float | None] = []
+    original = StereoFrontend._egomotion
+
+    def recording(self: StereoFrontend, *args: Any, **kwargs: Any) -> Any:
+        seen.append(args[8] if len(args) > 8 else kwargs.get("min_fraction"))
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(StereoFrontend, "_egomotion", recording)
+    opts = FrontendOptions(retry_levels=0, min_inlier_fraction=0.31, reacquire=ReacquireOptions(
+        min_inlier_fraction_with_prior=0.123, klt_min_inliers=100_000))
+    fe = StereoFrontend.from_rig(PLANE_RIG, opts)
+    tex = _texture(3, (240, 700))
+    for k, s in enumerate([100, 140, 180]):
+        fe.process(k, *_pair(tex, s))
+    prior = Egomotion(np.eye(3), np.array([0.4, 0.0, 0.0]),
+                      np.diag([1e-4] * 3 + [1e-2] * 3)) if with_prior else None  # fmt: skip
+    seen.clear()
+    tracks = fe.process(3, *_pair(tex, 140), motion_prior=prior)
+    assert "reacquire" in fe.stats.timings_ms
+    assert tracks is not None and tracks.egomotion is not None
+    assert tracks.egomotion.p_Ck_Ckm1 == pytest.approx([0.4, 0.0, 0.0], abs=0.01)
+    assert seen[0] is None  # the KLT tracks: the front end's own fraction
+    reacquired = seen[1:]
+    assert reacquired and all(f == (0.123 if with_prior else None) for f in reacquired), seen

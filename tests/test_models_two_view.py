@@ -13,6 +13,7 @@ from svains.geometry.rotation import so3_exp
 from svains.models.vision_3d import move_points
 from svains.models.vision_common import project_stereo
 from svains.models.vision_two_view import (
+    _solve_normal,
     inverse_depth,
     null_space,
     point_jacobian,
@@ -82,6 +83,21 @@ def test_gauss_newton_recovers_the_point_from_a_noisy_start() -> None:
     start = inverse_depth(p + rng.normal(0.0, 0.3, p.shape))
     refined = refine_points(start, _xyz_pixels(p), R_C, R_CAM, RIG)
     np.testing.assert_allclose(refined, inverse_depth(p), atol=1e-10)
+
+
+def test_a_singular_feature_gets_a_least_squares_step_and_the_others_their_own() -> None:
+    # Rendered keyframes 0.05-7 s apart (bench/rendered_keyframes.py, V1_02 seed 2) stopped a
+    # run with "Singular matrix" here: one feature's normal equations lost their rank.
+    rng = np.random.default_rng(5)
+    J = rng.normal(size=(4, 8, 3))
+    A = np.swapaxes(J, 1, 2) @ J
+    g = rng.normal(size=(4, 3))
+    exact = np.linalg.solve(A, g[:, :, None])[:, :, 0]
+    A[2] = np.diag([4.0, 0.0, 0.0])  # rank 1: only the first coordinate is pulled
+    g[2] = [2.0, 0.0, 0.0]
+    step = _solve_normal(A, g)
+    np.testing.assert_allclose(step[2], [0.5, 0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(step[[0, 1, 3]], exact[[0, 1, 3]], rtol=1e-6)
 
 
 def test_two_view_features_vanish_at_the_true_motion_and_reject_points_behind() -> None:

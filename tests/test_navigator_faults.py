@@ -345,3 +345,43 @@ def test_a_false_bias_alarm_is_not_confirmed_and_the_biases_come_back(
            (("clean", clean), ("kept", kept), ("forgot", forgot))}  # fmt: skip
     # measured: 18.6 m without the alarm (14 s without GPS), 18.4 m undone, 34.1 m forgotten
     assert abs(err["kept"] - err["clean"]) < 0.05 * err["clean"] < 0.05 * err["forgot"], err
+
+
+@pytest.mark.parametrize("filter_changed", [False, True])
+def test_a_frame_whose_update_fails_numerically_is_skipped_and_warned(
+    flight: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture,
+    filter_changed: bool,
+) -> None:
+    """numpy's solver raising inside one frame's model (a degenerate feature; rendered keyframes
+    once stopped a run with "Singular matrix") loses that frame, warned and counted, not the
+    run; if the filter had already changed, the error is not hidden."""
+    from svains.navigation import vision_pixels
+
+    ds = load_dataset(flight)
+    clean = _run(ds, "3d")
+    original = vision_pixels.PixelUpdater.update
+    calls = {"n": 0}
+
+    def failing(self: vision_pixels.PixelUpdater, ctx: object) -> object:
+        calls["n"] += 1
+        if calls["n"] == 5:
+            if filter_changed:
+                ctx.ukf.x = ctx.ukf.x + 0.0  # type: ignore[attr-defined]
+                ctx.ukf.P = ctx.ukf.P * 1.01  # type: ignore[attr-defined]
+            raise np.linalg.LinAlgError("Singular matrix")
+        return original(self, ctx)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(vision_pixels.PixelUpdater, "update", failing)
+    if filter_changed:
+        with pytest.raises(np.linalg.LinAlgError):
+            _run(ds, "3d")
+        return
+    with caplog.at_level("WARNING"):
+        res = _run(ds, "3d")
+    vis = res.report["vision"]
+    assert vis["frames_failed_numerics"] == 1
+    assert clean.report["vision"]["frames_failed_numerics"] == 0
+    assert vis["frames_fused"] == clean.report["vision"]["frames_fused"] - 1
+    assert any("frame skipped, its update failed numerically (Singular matrix)" in r.message
+               for r in caplog.records)  # fmt: skip
+    assert np.all(np.isfinite(res.x)) and res.report["ate_rmse_m"] < 0.5

@@ -348,6 +348,9 @@ class StereoFrontend:
             return klt
         ransac = replace(self.options.ransac, inlier_px=o.ransac_inlier_px,
                          min_inliers=o.min_inliers)  # fmt: skip
+        # Matches inside the windows of the filter's predicted motion: repeated textures fill
+        # the windows with wrong candidates, and the motion is checked against that prediction.
+        fraction = o.min_inlier_fraction_with_prior if motion_prior is not None else None
 
         def attempt(m: Reacquired) -> tuple[tuple, Egomotion | None, int]:  # type: ignore[type-arg]
             ids = np.arange(self._next_id, self._next_id + m.uv_cur.shape[0], dtype=np.int64)
@@ -355,7 +358,8 @@ class StereoFrontend:
             new = replace(ref, track_id=ids, uv_left=m.uv_ref_left, uv_right=m.uv_ref_right,
                           p_C_F=m.p_Ckm1_F)  # fmt: skip
             uv_r, ok = self._stereo(pl, pr, m.uv_cur, None, disparity)
-            got = self._egomotion(t_ns, new, m.uv_cur, uv_r, ok, motion_prior, tm, ransac)
+            got = self._egomotion(t_ns, new, m.uv_cur, uv_r, ok, motion_prior, tm, ransac,
+                                  fraction)  # fmt: skip
             return (got, st.inliers, st.outliers, st.tracked), got[0].egomotion, st.inliers
 
         t7 = time.perf_counter()
@@ -375,12 +379,14 @@ class StereoFrontend:
     def _egomotion(
         self, t_ns: int, ref: _Reference, uv_l: F64, uv_r: F64, sel: NDArray[np.bool_],
         motion_prior: Egomotion | None, tm: dict[str, float],
-        ransac: RansacOptions | None = None,
+        ransac: RansacOptions | None = None, min_fraction: float | None = None,
     ) -> tuple[StereoTracks, NDArray[np.int64], F64, F64]:
         """Egomotion from the reference features matched now (``sel``, (N,)), then the checks;
-        ``ransac`` replaces the options' RANSAC settings."""
+        ``ransac`` replaces the options' RANSAC settings, ``min_fraction`` their
+        ``min_inlier_fraction``."""
         o = self.options
         ransac = ransac or o.ransac
+        min_fraction = o.min_inlier_fraction if min_fraction is None else min_fraction
         self.stats.tracked = int(sel.sum())
         p_prev = ref.p_C_F[sel]
         uvl, uvr = uv_l[sel], uv_r[sel]
@@ -401,7 +407,7 @@ class StereoFrontend:
                                          uvr, self.rig, candidate=epi)  # fmt: skip
         status = "ok"
         n_inl = int(inlier.sum())
-        if ego is None or n_inl < max(ransac.min_inliers, o.min_inlier_fraction * inlier.size):
+        if ego is None or n_inl < max(ransac.min_inliers, min_fraction * inlier.size):
             ego, status = None, "no_consensus"
         elif not plausible(ego, o):
             ego, status = None, "implausible"

@@ -113,9 +113,22 @@ def refine_points(
         if not ok.any():
             break
         step = np.zeros_like(a)
-        step[ok] = np.linalg.solve(A[ok], g[ok][:, :, None])[:, :, 0]
+        step[ok] = _solve_normal(A[ok], g[ok])
         a += step
     return a
+
+
+def _solve_normal(A: F64, g: F64) -> F64:
+    """Steps (M, 3) of the normal equations ``A`` (M, 3, 3) ``g`` (M, 3). A feature whose ``A``
+    is singular (a point along the baseline or at infinity, a pixel with no pull on one
+    coordinate) gets a Levenberg-damped step instead of stopping the run: ``g`` lies in the
+    range of ``A = JᵀJ``, so the damped step is the least-squares one."""
+    try:
+        return np.linalg.solve(A, g[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:
+        scale = np.trace(A, axis1=1, axis2=2) / 3.0
+        damp = 1e-9 * scale + np.finfo(float).tiny
+        return np.linalg.solve(A + damp[:, None, None] * np.eye(3), g[:, :, None])[:, :, 0]
 
 
 def null_space(J: F64) -> F64:

@@ -253,8 +253,20 @@ class Core:
         lean = self._recovery is not None and self._recovery.tests_vision(cfg.method)
         prior = (ins.ukf.x.copy(), ins.ukf.P[np.ix_(LEAN_ROWS, LEAN_ROWS)]) if lean else None
         ins.add_omega_white()  # paper model: the vision models see ω's gyro white noise
-        stats = updater.update(ctx)
-        ins.remove_omega_white()
+        x_before, P_before = ins.ukf.x.copy(), ins.ukf.P.copy()
+        try:
+            stats = updater.update(ctx)
+        except np.linalg.LinAlgError as exc:
+            # A geometry the frame's model did not foresee (numpy's solver on a degenerate
+            # feature) loses that frame, not the run; a filter already changed cannot be.
+            if not (np.array_equal(ins.ukf.x, x_before) and np.array_equal(ins.ukf.P, P_before)):
+                raise
+            updater.counters.frames_failed_numerics += 1
+            self._warn.warn("vision-numerics", t, f"{cfg.method}: frame skipped, its update "
+                            f"failed numerically ({exc})")  # fmt: skip
+            stats = None
+        finally:
+            ins.remove_omega_white()
         if prior is not None and stats is not None and stats.accepted:
             # The bias test of vision updates (``faults.bias_test_vision_probability``): their
             # corrections, whitened, lean one way after an IMU bias step.

@@ -185,8 +185,10 @@ class VisionOptions:
     bridge the motion unaided and a few tracks gone wrong can agree on a wrong motion: on
     rendered keyframes 0.05-7 s apart (``bench/rendered_keyframes.py``, 6 runs) ``3d`` 0.795
     -> 0.237 m mean ATE (no run above 1 m instead of one at 3.2 m, NEES 82.9 -> 3.5) with an
-    IMU as quiet as its data sheet, 0.529 -> 0.508 m with one 5.5x / 7.9x noisier; frames
-    closer together (the 2 Hz demo, KITTI raw at 5 Hz) are unchanged;
+    IMU as quiet as its data sheet, 0.529 -> 0.508 m with one 5.5x / 7.9x noisier (and 0.214 /
+    0.432 m with the re-acquisition's own inlier floor inside the prior's windows,
+    ``ReacquireOptions.min_inlier_fraction_with_prior``); frames closer together (the 2 Hz
+    demo, KITTI raw at 5 Hz) are unchanged; KITTI raw thinned to 0.5 Hz 2.45 -> 2.83 m;
     ``estimate_extrinsics`` (clones only) adds the camera-IMU rotation correction to the state
     with prior standard deviation ``extrinsics_std_deg`` per axis
     (``navigation.vision_clones``; the run writes ``camchain_estimated.yaml``). Off by default:

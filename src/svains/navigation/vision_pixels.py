@@ -68,6 +68,7 @@ class VisionCounters:
     features_invalid: int = 0
     frames_bad_covariance: int = 0  # lc: the egomotion's covariance was not positive definite
     frames_egomotion: int = 0  # tc/3d: of the fused, through the frame's egomotion (fallback)
+    frames_failed_numerics: int = 0  # skipped: the update raised a numerical error
 
     def as_dict(self) -> dict[str, int]:
         return {f.name: int(getattr(self, f.name)) for f in fields(self)}
