@@ -30,16 +30,11 @@ from threadpoolctl import threadpool_limits
 
 from svains.cli.run_config import build_config
 from svains.datasets import load_dataset
-from svains.datasets.types import Dataset, ImageStream
+from svains.datasets.types import Dataset
 from svains.evaluation.run import run_method
 from svains.replay import resolve_config
 
 S = 1_000_000_000
-
-
-def _keep(stream: ImageStream, rows: np.ndarray) -> ImageStream:
-    idx = np.flatnonzero(rows)
-    return replace(stream, t_ns=stream.t_ns[idx], paths=tuple(stream.paths[i] for i in idx))
 
 
 def with_gaps(ds: Dataset, seed: int, n: int, lo_s: float, hi_s: float,
@@ -56,7 +51,7 @@ def with_gaps(ds: Dataset, seed: int, n: int, lo_s: float, hi_s: float,
         b = a + round(rng.uniform(lo_s, hi_s) * S)
         keep_l &= ~((ds.left.t_ns >= a) & (ds.left.t_ns < b))
         keep_r &= ~((ds.right.t_ns >= a) & (ds.right.t_ns < b))
-    return replace(ds, left=_keep(ds.left, keep_l), right=_keep(ds.right, keep_r))
+    return replace(ds, left=ds.left.rows(keep_l), right=ds.right.rows(keep_r))
 
 
 def main() -> None:

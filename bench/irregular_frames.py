@@ -168,6 +168,16 @@ def number(row: dict[str, Any], key: str) -> float:
     return float(v) if isinstance(v, int | float) and not isinstance(v, bool) else math.nan
 
 
+def report_figures(result: Any, ds: Dataset) -> tuple[float, float, dict[str, float], str]:
+    """A run's ATE (``ate_rmse_m``), NEES (``nees_mean``), NEES blocks and frames fused
+    ("fused/frames", "-" without vision) from its report."""
+    rep = result.report
+    vis = rep.get("vision") or {}
+    fused = f"{vis.get('frames_fused')}/{vis['frames']}" if "frames" in vis else "-"
+    return (number(rep, "ate_rmse_m"), number(rep, "nees_mean"), nees_blocks(rep, result, ds),
+            fused)  # fmt: skip
+
+
 def one_line(exc: BaseException) -> str:
     lines = [s.strip() for s in str(exc).splitlines() if s.strip()]
     return f"{type(exc).__name__}: {lines[0] if lines else ''}"[:160]
@@ -191,13 +201,8 @@ def run_real(job: tuple[str, str, int | None, float, float, float, tuple[str, ..
                         "replay.synthetic_features_hz": None if seed is None else rate_hz}
             config = build_config(None, list(sets), switches)
             result = run_method(ds, None, resolve_config(ds, config))
-            rep = result.report
-            row.ate, row.nees = number(rep, "ate_rmse_m"), number(rep, "nees_mean")
-            row.blocks = nees_blocks(rep, result, ds)
-            vis = rep.get("vision") or {}
-            if "frames" in vis:
-                row.fused = f"{vis.get('frames_fused')}/{vis['frames']}"
-            row.recoveries = len((rep.get("recovery") or {}).get("events", []))
+            row.ate, row.nees, row.blocks, row.fused = report_figures(result, ds)
+            row.recoveries = len((result.report.get("recovery") or {}).get("events", []))
     except Exception as exc:  # a stopped run is a result of this bench
         row.error = one_line(exc)
     row.wall_s = time.perf_counter() - t0

@@ -47,12 +47,19 @@ from typing import Any
 
 import numpy as np
 from faults import parse_seeds
-from irregular_frames import FRAME_STREAM, draw_frames, keep_frames, nees_blocks, number, one_line
+from irregular_frames import (
+    FRAME_STREAM,
+    draw_frames,
+    fmt_blocks,
+    keep_frames,
+    one_line,
+    report_figures,
+)
 from threadpoolctl import threadpool_limits
 
 from svains.cli.run_config import build_config
 from svains.datasets import load_dataset
-from svains.datasets.types import Dataset, ImageStream
+from svains.datasets.types import Dataset
 from svains.evaluation.run import run_method
 from svains.replay import resolve_config
 from svains.sim.config import ImuConfig, SimConfig
@@ -111,11 +118,6 @@ def rendered_flight(job: tuple[str, int, float, tuple[float, float], str]) -> Pa
     return root
 
 
-def keep_images(stream: ImageStream, t_ns: np.ndarray) -> ImageStream:
-    rows = np.flatnonzero(np.isin(stream.t_ns, t_ns))
-    return replace(stream, t_ns=stream.t_ns[rows], paths=tuple(stream.paths[i] for i in rows))
-
-
 def keyframes(root: Path, seed: int, lo_s: float, hi_s: float) -> tuple[Dataset, np.ndarray]:
     """The data set with its images and features thinned to the seed's keyframes."""
     ds = load_dataset(root)
@@ -123,7 +125,8 @@ def keyframes(root: Path, seed: int, lo_s: float, hi_s: float) -> tuple[Dataset,
     times = np.intersect1d(ds.left.t_ns, ds.right.t_ns)
     kept = times[draw_frames(times, np.random.default_rng([FRAME_STREAM, seed]), lo_s, hi_s)]
     features = ds.features
-    return replace(ds, left=keep_images(ds.left, kept), right=keep_images(ds.right, kept),
+    return replace(ds, left=ds.left.rows(np.isin(ds.left.t_ns, kept)),
+                   right=ds.right.rows(np.isin(ds.right.t_ns, kept)),
                    features=None if features is None else keep_frames(features, kept)), kept
 
 
@@ -158,21 +161,11 @@ def run_one(job: tuple[str, str, int, str, str, float, float, tuple[str, ...]]) 
                         "use_sonar": False, "vision.source": source}  # fmt: skip
             config = resolve_config(ds, build_config(None, list(sets), switches))
             result = run_method(ds, None, config)
-            rep = result.report
-            row.ate, row.nees = number(rep, "ate_rmse_m"), number(rep, "nees_mean")
-            row.blocks = nees_blocks(rep, result, ds)
-            vis = rep.get("vision") or {}
-            if "frames" in vis:
-                row.fused = f"{vis.get('frames_fused')}/{vis['frames']}"
+            row.ate, row.nees, row.blocks, row.fused = report_figures(result, ds)
     except Exception as exc:  # a stopped run is a result of this bench
         row.error = one_line(exc)
     row.wall_s = time.perf_counter() - t0
     return row
-
-
-def blocks_text(b: dict[str, float]) -> str:
-    short = {"position": "p", "velocity": "v", "roll_pitch": "rp", "yaw": "yaw", "attitude": "θ"}
-    return " / ".join(f"{short.get(k, k)} {v:.3g}" for k, v in b.items()) or "-"
 
 
 def table(rows: list[Run], fail_ate: float, verbose: bool) -> None:
@@ -183,7 +176,7 @@ def table(rows: list[Run], fail_ate: float, verbose: bool) -> None:
         for r in rows:
             status = r.error or ("ATE > limit" if r.failed(fail_ate) else "ok")
             print(f"| {r.flight} | {r.seed} | {r.method} | {r.source} | {r.frames} | "
-                  f"{r.max_gap_s:.2f} | {r.ate:.3f} | {r.nees:.3g} | {blocks_text(r.blocks)} | "
+                  f"{r.max_gap_s:.2f} | {r.ate:.3f} | {r.nees:.3g} | {fmt_blocks(r.blocks)} | "
                   f"{r.fused} | {r.wall_s:.1f} | {status} |")
         print()
     print("| method | source | runs | mean ATE [m] | median | max | stopped | ATE > "

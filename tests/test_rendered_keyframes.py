@@ -12,7 +12,7 @@ import pytest
 
 from conftest import TRAJECTORIES
 from svains.datasets import load_dataset
-from svains.datasets.types import Dataset, ImageStream
+from svains.datasets.types import Dataset
 from svains.evaluation.run import run_method
 from svains.navigation.options import RunConfig, VisionOptions
 from svains.sim.config import ImuConfig, SimConfig
@@ -35,11 +35,6 @@ def _walk(times: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         chosen.append(max(j, chosen[-1] + 1))
 
 
-def _keep(stream: ImageStream, t_ns: np.ndarray) -> ImageStream:
-    rows = np.flatnonzero(np.isin(stream.t_ns, t_ns))
-    return replace(stream, t_ns=stream.t_ns[rows], paths=tuple(stream.paths[i] for i in rows))
-
-
 @pytest.fixture(scope="module")
 def keyframes(tmp_path_factory: pytest.TempPathFactory) -> Dataset:
     cfg = SimConfig(scenario="trajectory", duration_s=60.0, seed=SEED)
@@ -51,7 +46,8 @@ def keyframes(tmp_path_factory: pytest.TempPathFactory) -> Dataset:
     assert ds.left is not None and ds.right is not None
     kept = ds.left.t_ns[_walk(ds.left.t_ns, np.random.default_rng([7, SEED]))]
     assert 45 <= kept.size <= 50 and np.diff(kept).max() > 6 * S
-    return replace(ds, left=_keep(ds.left, kept), right=_keep(ds.right, kept), features=None)
+    return replace(ds, left=ds.left.rows(np.isin(ds.left.t_ns, kept)),
+                   right=ds.right.rows(np.isin(ds.right.t_ns, kept)), features=None)
 
 
 @pytest.mark.slow

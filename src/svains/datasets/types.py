@@ -7,7 +7,7 @@ Frames follow ``docs/conventions.md``: ``T_B_S`` is sensor-to-body (EuRoC's ``T_
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -59,6 +59,11 @@ class ImageStream:
 
     def load(self, i: int) -> NDArray[np.uint8]:
         return self.loader(self.paths[i])
+
+    def rows(self, keep: NDArray[np.bool_]) -> ImageStream:
+        """The images where ``keep`` (N,) is True, decoded by the same loader."""
+        idx = np.flatnonzero(keep)
+        return replace(self, t_ns=self.t_ns[idx], paths=tuple(self.paths[i] for i in idx))
 
 
 @dataclass(frozen=True)
