@@ -167,7 +167,8 @@ def test_reacquire_options_reach_ransac(monkeypatch: pytest.MonkeyPatch) -> None
     monkeypatch.setattr(pipeline, "estimate_egomotion", recording)
     # Values of their own (not the defaults) so a call with the wrong options cannot match.
     opts = FrontendOptions(retry_levels=0, ransac=RansacOptions(iterations=47),
-                           reacquire=ReacquireOptions(ransac_inlier_px=3.25, min_inliers=11))
+                           reacquire=ReacquireOptions(ransac_inlier_px=3.25, min_inliers=11,
+                                                      ransac_iterations=93))
     fe = StereoFrontend.from_rig(PLANE_RIG, opts)
     tex = _texture(3, (240, 700))
     tracks = [fe.process(k, *_pair(tex, s)) for k, s in enumerate([100, 140, 180, 140])]
@@ -176,10 +177,10 @@ def test_reacquire_options_reach_ransac(monkeypatch: pytest.MonkeyPatch) -> None
     assert tracks[3].egomotion.p_Ck_Ckm1 == pytest.approx([0.4, 0.0, 0.0], abs=0.01)
     long_gap = [r for r in seen if r.inlier_px == 3.25]
     assert long_gap, [(r.inlier_px, r.min_inliers) for r in seen]
-    assert all(r.min_inliers == 11 and r.iterations == 47 for r in long_gap)
+    assert all(r.min_inliers == 11 and r.iterations == 93 for r in long_gap)
     tracking = [r for r in seen if r.inlier_px == o.ransac.inlier_px]
     assert len(tracking) >= 3 and all(r.min_inliers == o.ransac.min_inliers for r in tracking)
-    assert all(r.iterations == 47 for r in seen)
+    assert all(r.iterations == 47 for r in tracking)
     assert len(tracking) + len(long_gap) == len(seen)
 
 
@@ -216,3 +217,27 @@ def test_windowed_matches_take_their_own_inlier_fraction(
     assert seen[0] is None  # the KLT tracks: the front end's own fraction
     reacquired = seen[1:]
     assert reacquired and all(f == (0.123 if with_prior else None) for f in reacquired), seen
+
+
+def test_refused_klt_motion_is_reacquired(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A KLT motion the front end refuses (here made to contradict the prior) leaves the frame
+    as unlinked as no consensus does: descriptors are tried and give the motion (rendered
+    keyframes, V1_02 seed 2: 30 KLT tracks across 1.9 s agreed on a motion the prior refused,
+    and the frame fused nothing)."""
+    checks: list[bool] = []
+
+    def first_refused(ego: Egomotion, prior: Egomotion, gate_chi2: float) -> bool:
+        checks.append(bool(checks))  # the first check (the KLT motion) fails, later ones pass
+        return checks[-1]
+
+    monkeypatch.setattr(pipeline, "agrees_with_prior", first_refused)
+    fe = StereoFrontend.from_rig(PLANE_RIG, FrontendOptions(retry_levels=0))
+    tex = _texture(3, (240, 700))
+    for k, s in enumerate([100, 140, 180]):
+        fe.process(k, *_pair(tex, s))
+    prior = Egomotion(np.eye(3), np.array([0.4, 0.0, 0.0]), np.diag([1e-4] * 3 + [1e-2] * 3))
+    tracks = fe.process(3, *_pair(tex, 140), motion_prior=prior)
+    assert checks[0] is False and len(checks) > 1, checks
+    assert "reacquire" in fe.stats.timings_ms and fe.stats.status == "ok"
+    assert tracks is not None and tracks.egomotion is not None
+    assert tracks.egomotion.p_Ck_Ckm1 == pytest.approx([0.4, 0.0, 0.0], abs=0.01)

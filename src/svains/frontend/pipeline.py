@@ -344,10 +344,12 @@ class StereoFrontend:
         matched, give a motion with more (``Reacquirer.two_pass``, the same RANSAC)."""
         o, st = self.options.reacquire, self.stats
         saved = (st.status, st.tracked, st.inliers, st.outliers, self._last_motion)
-        if st.status != "no_consensus" and (st.status != "ok" or st.inliers >= o.klt_min_inliers):
+        # A KLT motion refused (implausible, contradicting the prior) leaves the frame as
+        # unlinked as no consensus does.
+        if st.status == "ok" and st.inliers >= o.klt_min_inliers:
             return klt
         ransac = replace(self.options.ransac, inlier_px=o.ransac_inlier_px,
-                         min_inliers=o.min_inliers)  # fmt: skip
+                         min_inliers=o.min_inliers, iterations=o.ransac_iterations)  # fmt: skip
         # Matches inside the windows of the filter's predicted motion: repeated textures fill
         # the windows with wrong candidates, and the motion is checked against that prediction.
         fraction = o.min_inlier_fraction_with_prior if motion_prior is not None else None

@@ -47,10 +47,15 @@ class ReacquireOptions:
     gap through a swerve gave a motion 6° off from 8 matches of distant background); the first
     motion found guides a second pass (windows, ``guided_prior``); ``klt_min_inliers``: a KLT
     motion with fewer inliers is checked against re-acquisition too (over long gaps a few KLT
-    tracks can agree on a wrong motion); ``min_inlier_fraction_with_prior`` replaces the front
+    tracks can agree on a wrong motion; a refused KLT motion is re-acquired like no consensus);
+    ``min_inlier_fraction_with_prior`` replaces the front
     end's ``min_inlier_fraction`` for matches made inside a motion prior's windows (rendered
     keyframes 2.3 s and 37° apart, the village's repeated bricks and tiles: 38 of 216 windowed
-    matches agree on the motion within 0.7° and 0.11 m of 2.96 m, refused at 0.3)."""
+    matches agree on the motion within 0.7° and 0.11 m of 2.96 m, refused at 0.3);
+    ``ransac_iterations`` the RANSAC hypotheses on those matches (at a quarter of inliers 50
+    draws miss every all-inlier triple one time in three; 500 find more true motions across
+    gaps of seconds and more wrong ones on repeated texture: measured, not the default, see
+    the low-rate results page)."""
 
     enabled: bool = True
     n_features: int = 2000
@@ -68,6 +73,7 @@ class ReacquireOptions:
     guided_min_std: tuple[float, float] = (5e-3, 0.1)
     klt_min_inliers: int = 30
     min_inlier_fraction_with_prior: float = 0.15
+    ransac_iterations: int = 50
 
 
 @dataclass(frozen=True)
