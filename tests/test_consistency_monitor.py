@@ -268,3 +268,26 @@ def test_vision_corrections_take_their_own_window_and_quantile() -> None:
     assert action is not None and action.sensors == ("3d",)
     assert "the last 4 3d corrections share an offset (chi-square 25 > 22.5, 6" in action.reason
     assert action.window_s == pytest.approx(0.6)
+
+
+def test_a_jump_offset_is_held_until_an_accepted_fix_or_the_hold_ends() -> None:
+    """``jump_offsets``: the innovation of a GPS jump's first update, while the jump lasts and
+    for at most ``jump_hold_s``; gone once a fix is accepted, and with the hold off."""
+    d = np.array([50.0, 0.0, 0.0])
+    m = ConsistencyMonitor(ConsistencyOptions(jump_hold_s=20.0))
+    m.observe("gps", True, 2.0, 3, 0, 16.3, residual=np.zeros(3))
+    m.observe("gps", False, 2500.0, 3, 1 * S, 16.3, residual=d)
+    m.observe("gps", False, 2400.0, 3, 2 * S, 16.3, residual=d)
+    assert set(m.jump_offsets(2 * S)) == {"gps"}
+    np.testing.assert_array_equal(m.jump_offsets(2 * S)["gps"], d)
+    assert m.jump_offsets(21 * S + 1) == {}  # past the hold: the gate alone decides
+    m.observe("gps", True, 3.0, 3, 5 * S, 16.3, residual=np.ones(3))
+    assert m.jump_offsets(6 * S) == {}  # the sensor agrees again
+    off = ConsistencyMonitor(ConsistencyOptions(jump_hold_s=None))
+    off.observe("gps", True, 2.0, 3, 0, 16.3, residual=np.zeros(3))
+    off.observe("gps", False, 2500.0, 3, 1 * S, 16.3, residual=d)
+    assert off.jump_offsets(2 * S) == {} and off.summary()["jumps"] == 1
+    # a rejection that is no jump (a drifting filter) holds no offset
+    drift = ConsistencyMonitor()
+    _gps(drift, [2.0, 3.0, 400.0, 1600.0], 0.0)
+    assert drift.jump_offsets(4 * S) == {}

@@ -301,3 +301,35 @@ def test_nis_per_dof_limit_refuses_many_stacked_measurements_without_a_quantile(
     np.testing.assert_array_equal(c.x, x_before)
     d = fresh()  # the iterated path takes the same threshold
     assert not d.update(h, z, np.ones(nz), max_nis_per_dof=2.0, iterations=2).accepted
+
+
+def test_update_blocks_refuses_a_block_nearer_its_suspected_offset() -> None:
+    """``offsets``: a block inside its gate is still refused when its innovation fits the
+    offset its sensor is suspected of better than zero (a GPS jump, with the filter's spread
+    grown until the gate passes it); nearer zero it is fused as without the offset; other
+    blocks and other layouts are untouched."""
+    n = 3
+    P0 = np.eye(n) * 400.0  # 20 m per axis: a 30 m offset passes the 0.999 gate (NIS 2.25)
+    R = np.full(n, 1.0)
+    d = np.array([30.0, 0.0, 0.0])
+
+    def block(z: np.ndarray, name: str = "gps") -> tuple:  # type: ignore[type-arg]
+        return (lambda X: X, z, R, None, name)
+
+    def fresh() -> UKF:
+        return UKF(Euclidean(n), MerweScaledSigmaPoints(n), np.zeros(n), P0)
+
+    a = fresh()
+    (s,) = a.update_blocks([block(np.array([25.0, 0.0, 0.0]))], 0.999, {"gps": d})
+    assert s.nis < s.gate and not s.accepted and s.offset_refused
+    np.testing.assert_array_equal(a.x, np.zeros(n))  # nothing fused
+    np.testing.assert_allclose(s.residual, [25.0, 0.0, 0.0], atol=1e-9)
+    b, c = fresh(), fresh()
+    (s,) = b.update_blocks([block(np.array([12.0, 0.0, 0.0]))], 0.999, {"gps": d})
+    assert s.accepted and not s.offset_refused
+    c.update_blocks([block(np.array([12.0, 0.0, 0.0]))], 0.999)
+    np.testing.assert_allclose(b.x, c.x)
+    # another block's name, or an offset of another size: no test
+    for offsets in ({"other": d}, {"gps": np.zeros(6)}):
+        (s,) = fresh().update_blocks([block(np.array([25.0, 0.0, 0.0]))], 0.999, offsets)
+        assert s.accepted and not s.offset_refused

@@ -12,7 +12,7 @@ updates ``h(X (S, nx)) -> (S, nz)``, both vectorised over the S sigma points.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -53,7 +53,10 @@ class UpdateStats:
     ``whitened`` (nz,) = L^-1 r with S = L L^T where the update forms S (``update_blocks``:
     the low-dimensional sensors), else None. Its mean over a run of updates is a bias test;
     a caller may set another white quantity of the update there (``navigation`` puts a vision
-    update's whitened state correction, ``fault_handling.whitened_correction``)."""
+    update's whitened state correction, ``fault_handling.whitened_correction``). ``residual``
+    (nz,) the innovation ``r`` where ``update_blocks`` forms it; ``offset_refused``: the block
+    passed the gate but its innovation was closer to the offset given for it (see
+    ``update_blocks``)."""
 
     name: str
     accepted: bool
@@ -61,6 +64,8 @@ class UpdateStats:
     dof: int
     gate: float
     whitened: F64 | None = field(default=None, compare=False, repr=False)
+    residual: F64 | None = field(default=None, compare=False, repr=False)
+    offset_refused: bool = False
 
 
 class UKF:
@@ -152,10 +157,15 @@ class UKF:
         self,
         blocks: list[tuple[MeasurementFn, F64, F64, ResidualFn | None, str]],
         gate_probability: float | None = None,
+        offsets: Mapping[str, F64] | None = None,
     ) -> list[UpdateStats]:
         """Fuse several independent measurements ``(h, z, R, residual, name)`` taken at the same
         time with ONE sigma-point draw: each block is gated on its own marginal innovation
         covariance, the accepted ones are fused together in one update (R block-diagonal).
+        ``offsets`` maps a block's name to an offset ``d`` (nz,) its sensor is suspected of:
+        the block is also refused when its innovation is nearer ``d`` than zero in the metric
+        of its innovation covariance (``(r - d)' S⁻¹ (r - d) < r' S⁻¹ r``), i.e. when the
+        measurement fits "offset by ``d``" better than "right".
         """
         if not blocks:
             return []
@@ -182,7 +192,14 @@ class UKF:
             if not np.isfinite(nis):
                 raise FilterError(f"{name or 'measurement'}: non-finite innovation")
             ok = nis <= gate
-            stats.append(UpdateStats(name, ok, nis, nz, float(gate), w))
+            refused = False
+            d = None if offsets is None else offsets.get(name)
+            if ok and d is not None and np.size(d) == nz:  # another layout: no test
+                w_d = scipy.linalg.solve_triangular(L, r - np.asarray(d, dtype=float).ravel(),
+                                                    lower=True, check_finite=False)  # fmt: skip
+                refused = bool(w_d @ w_d < nis)
+                ok = not refused
+            stats.append(UpdateStats(name, ok, nis, nz, float(gate), w, r.copy(), refused))
             if ok:
                 kept.append((dY, r, Rm))
         if kept:

@@ -311,7 +311,8 @@ class Recovery:
             bias_sensors=("gps", *ConsistencyOptions.standalone_sensors)
             if self._vision_lean(options, gps_used) else ("gps",),
             vision_bias_window=options.bias_test_vision_window,
-            vision_bias_probability=options.bias_test_vision_probability))  # fmt: skip
+            vision_bias_probability=options.bias_test_vision_probability,
+            jump_hold_s=options.gps_jump_hold_s))  # fmt: skip
         self._options = options
         self._warn = warn
         self._bias_rw = bias_random_walk_var
@@ -339,7 +340,7 @@ class Recovery:
     def observe(self, stats: UpdateStats, key: str, t_ns: int) -> None:
         if math.isfinite(stats.gate):  # ungated updates say nothing about the filter's health
             self.monitor.observe(key, stats.accepted, stats.nis, stats.dof, t_ns, stats.gate,
-                                 stats.whitened)  # fmt: skip
+                                 stats.whitened, stats.residual)  # fmt: skip
 
     def check(self, ukf: UKF, t_ns: int) -> None:
         """Ask the monitor after a group of updates and apply its action."""

@@ -193,8 +193,9 @@ class Core:
         gate = cfg.filter.gate_probability
         if blocks and not (has_frame and cfg.filter.stack_with_vision):
             # Simultaneous measurements: one sigma-point draw, each gated on its own.
+            offsets = self._recovery.monitor.jump_offsets(t) if self._recovery else None
             for stats in ins.ukf.update_blocks(
-                [(b.h, b.z, b.R, b.residual, b.name) for b in blocks], gate
+                [(b.h, b.z, b.R, b.residual, b.name) for b in blocks], gate, offsets
             ):
                 self._record(stats, stats.name, t)
             blocks = []

@@ -1,0 +1,134 @@
+"""The fault classes of ``bench/faults.py`` injected into a real data set, run as a user runs it.
+
+Plain script (not a timed test). For each class (IMU spikes, saturation, zeros, frozen output,
+a gap, bias steps; GPS step, GPS lost, frozen GPS, GPS lost 10 s when the data set has GPS;
+all at once; the magnetometer and sonar classes are left out: the shared real data sets have
+neither) it writes a copy of the data set into a temporary folder (``imu0`` and ``gps0``
+rewritten, every other entry a symbolic link to the original: nothing of it is copied or
+changed), injects the fault ``--at`` seconds after the first IMU sample and runs ``svains run
+COPY --method M ARGS...`` in a subprocess. It prints the exit code, the position RMSE and its
+ratio to the clean run's, the ATE, the NEES, the final error and the run's last line when it
+failed. "x lost" holds the GPS step to the run with the fixes removed from the fault on, and
+the frozen GPS to the run with those 10 s removed (nothing else can do better when nothing
+contradicts them).
+
+    python bench/real_faults.py ../shared/data/kitti_raw_0926_41s --method ins -- \
+        --init gps --no-mag
+    python bench/real_faults.py ../shared/data/kitti_raw_0926_41s --method 3d -- \
+        --images --init gps --no-mag
+    python bench/real_faults.py ../shared/data/euroc_v101_micro --method 3d --at 20 -- \
+        --synthetic-features 5 --no-gps --no-mag
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from faults import FAULTS, Fault, S, Streams  # bench/faults.py: the fault classes
+
+from svains.datasets import load_dataset
+from svains.datasets.asl_writer import AslWriter
+from svains.datasets.types import Dataset, GpsStream, ImuStream
+
+# What each GPS fault is held to (the same fixes removed): nothing does better without them.
+REFERENCE = {"GPS step 50 m": "GPS lost (reference)",
+             "GPS frozen 10 s": "GPS lost 10 s (reference)"}
+
+
+def applies(fault: Fault, ds: Dataset) -> bool:
+    """Whether ``fault`` has a stream to act on in ``ds`` (no magnetometer or sonar classes;
+    GPS classes only with GPS)."""
+    if fault.name.startswith(("mag", "sonar")):
+        return False
+    return ds.gps is not None or not fault.name.startswith("GPS")
+
+
+def faulty_copy(data: Path, ds: Dataset, fault: Fault, at_s: float, out: Path) -> Path:
+    """``out``: ``data`` with ``fault`` injected ``at_s`` after its first IMU sample; ``imu0``
+    and ``gps0`` rewritten, the rest linked."""
+    assert ds.imu is not None and ds.imu_calib is not None
+    (out / "mav0").mkdir(parents=True)
+    for entry in (data / "mav0").iterdir():
+        if entry.name in ("imu0", "gps0"):
+            shutil.copytree(entry, out / "mav0" / entry.name)  # rewritten below, never linked
+        else:
+            os.symlink(entry, out / "mav0" / entry.name)
+    gps = ds.gps
+    st = Streams(ds.imu.t_ns.copy(), ds.imu.gyro_B.copy(), ds.imu.accel_B.copy(),
+                 np.ones(ds.imu.t_ns.size, bool),
+                 gps.t_ns.copy() if gps else np.zeros(0, np.int64),
+                 gps.p_W_G.copy() if gps else np.zeros((0, 3)),
+                 np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, np.int64),
+                 np.zeros(0))  # fmt: skip
+    fault.inject(st, int(ds.imu.t_ns[0]) + round(at_s * S))
+    w = AslWriter(out)
+    w.write_imu(ImuStream(st.t[st.keep], st.g[st.keep], st.a[st.keep]), ds.imu_calib)
+    if gps is not None and ds.gps_calib is not None:
+        ok = st.gps_t >= 0  # the lost classes mark the fixes they remove
+        w.write_gps(GpsStream(st.gps_t[ok], st.gps_p[ok], gps.v_W_G[ok]), ds.gps_calib)
+    return out
+
+
+def run(root: Path, method: str, args: list[str], out: Path) -> tuple[int, dict[str, Any], str]:
+    """``svains run`` on ``root``: exit code, report (empty without one), last stderr line."""
+    svains = Path(sys.executable).with_name("svains")
+    cmd = [str(svains), "run", str(root), "--method", method, "--out", str(out), *args]
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    lines = [line for line in p.stderr.splitlines() if line.strip()]
+    report = out / "report.json"
+    rep = json.loads(report.read_text(encoding="utf-8")) if report.exists() else {}
+    return p.returncode, rep, lines[-1] if lines else ""
+
+
+def figure(rep: dict[str, Any], key: str) -> float:
+    v = rep.get(key)
+    return float(v) if isinstance(v, int | float) else math.nan
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("data", type=Path)
+    ap.add_argument("--method", default="ins")
+    ap.add_argument("--at", type=float, default=10.0,
+                    help="fault time (s after the first IMU sample)")
+    argv = sys.argv[1:]
+    cut = argv.index("--") if "--" in argv else len(argv)
+    args = ap.parse_args(argv[:cut])
+    args.run_args = argv[cut + 1 :]  # after --: the arguments of svains run
+    data = args.data.resolve()
+    ds = load_dataset(data)
+    print(f"## {data.name}, `{args.method}` {' '.join(args.run_args)}, faults at {args.at:g} s\n")
+    print("| fault | exit | pos RMSE [m] | x clean | x lost | ATE [m] | NEES | final [%] | "
+          "last line |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    rmse: dict[str, float] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        # The references first: the rows of the faults held to them can then give "x lost".
+        faults = sorted((f for f in FAULTS if applies(f, ds)),
+                        key=lambda f: (f.name != "clean", f.name not in REFERENCE.values()))
+        for i, fault in enumerate(faults):
+            root = faulty_copy(data, ds, fault, args.at, Path(tmp) / f"data{i}")
+            code, rep, last = run(root, args.method, args.run_args, Path(tmp) / f"out{i}")
+            shutil.rmtree(root)
+            rmse[fault.name] = r = figure(rep, "position_rmse_m")
+            clean = rmse.get("clean", math.nan)
+            ref = rmse.get(REFERENCE.get(fault.name, ""), math.nan)
+            lost = f"{r / ref:.2f}" if math.isfinite(ref) else "-"
+            print(f"| {fault.name} | {code} | {r:.3f} | {r / clean:.2f} | {lost} | "
+                  f"{figure(rep, 'ate_rmse_m'):.3f} | {figure(rep, 'nees_mean'):.2f} | "
+                  f"{figure(rep, 'final_error_pct'):.2f} | {last[:120] if code else ''} |",
+                  flush=True)  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
