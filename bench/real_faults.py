@@ -3,7 +3,8 @@
 Plain script (not a timed test). For each class (IMU spikes, saturation, zeros, frozen output,
 a gap, bias steps; GPS step, GPS lost, frozen GPS, GPS lost 10 s when the data set has GPS;
 all at once; the magnetometer and sonar classes are left out: the shared real data sets have
-neither) it writes a copy of the data set into a temporary folder (``imu0`` and ``gps0``
+neither; with ``--images`` among the run's arguments, camera classes too: ``CAMERA_FAULTS``) it
+writes a copy of the data set into a temporary folder (``imu0`` and ``gps0``
 rewritten, every other entry a symbolic link to the original: nothing of it is copied or
 changed), injects the fault ``--at`` seconds after the first IMU sample and runs ``svains run
 COPY --method M ARGS...`` in a subprocess. It prints the exit code, the position RMSE and its
@@ -33,6 +34,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 from faults import FAULTS, Fault, S, Streams  # bench/faults.py: the fault classes
 
@@ -79,6 +81,51 @@ def faulty_copy(data: Path, ds: Dataset, fault: Fault, at_s: float, out: Path) -
     return out
 
 
+# Camera classes (runs on images, ``--images`` among the run's arguments): both cameras for
+# CAMERA_S from the fault time show black, repeat the pair before the fault byte for byte
+# (a frozen driver), show that scene with new noise (stuck: blocked, or a replayed frame
+# re-encoded), or show noise alone.
+CAMERA_FAULTS = ("camera black", "camera frozen", "camera stuck", "camera noise")
+CAMERA_S = 3.0
+
+
+def camera_copy(data: Path, kind: str, at_s: float, out: Path) -> Path:
+    """``out``: ``data`` with the camera fault ``kind`` for ``CAMERA_S`` from ``at_s`` after
+    the first image; the untouched images linked."""
+    (out / "mav0").mkdir(parents=True)
+    for entry in (data / "mav0").iterdir():
+        if entry.name not in ("cam0", "cam1"):
+            os.symlink(entry, out / "mav0" / entry.name)
+            continue
+        cam = out / "mav0" / entry.name
+        (cam / "data").mkdir(parents=True)
+        for name in ("data.csv", "sensor.yaml"):
+            shutil.copy(entry / name, cam / name)
+        files = sorted((entry / "data").iterdir())
+        t = np.array([int(f.stem) for f in files])
+        t0 = t[0] + round(at_s * S)
+        first = None
+        rng = np.random.default_rng(0)
+        for f, ti in zip(files, t, strict=True):
+            dst = cam / "data" / f.name
+            if not t0 <= ti < t0 + round(CAMERA_S * S):
+                os.symlink(f, dst)
+                continue
+            first = first or f
+            img = cv2.imread(str(first if kind != "camera black" else f), cv2.IMREAD_UNCHANGED)
+            if kind == "camera frozen":
+                os.symlink(first, dst)
+                continue
+            if kind == "camera black":
+                img = np.zeros_like(img)
+            elif kind == "camera stuck":
+                img = np.clip(img + rng.normal(0.0, 2.0, img.shape), 0, 255).astype(np.uint8)
+            else:
+                img = rng.integers(0, 256, img.shape, dtype=np.uint8)
+            cv2.imwrite(str(dst), img)
+    return out
+
+
 def run(root: Path, method: str, args: list[str], out: Path) -> tuple[int, dict[str, Any], str]:
     """``svains run`` on ``root``: exit code, report (empty without one), last stderr line."""
     svains = Path(sys.executable).with_name("svains")
@@ -114,17 +161,25 @@ def main() -> None:
     rmse: dict[str, float] = {}
     with tempfile.TemporaryDirectory() as tmp:
         # The references first: the rows of the faults held to them can then give "x lost".
-        faults = sorted((f for f in FAULTS if applies(f, ds)),
+        gps_used = "--no-gps" not in args.run_args
+        faults = sorted((f for f in FAULTS if applies(f, ds)
+                         and (gps_used or not f.name.startswith("GPS"))),
                         key=lambda f: (f.name != "clean", f.name not in REFERENCE.values()))
-        for i, fault in enumerate(faults):
-            root = faulty_copy(data, ds, fault, args.at, Path(tmp) / f"data{i}")
+        names = [f.name for f in faults]
+        if "--images" in args.run_args:
+            names += list(CAMERA_FAULTS)
+        for i, name in enumerate(names):
+            out = Path(tmp) / f"data{i}"
+            root = (camera_copy(data, name, args.at, out) if name in CAMERA_FAULTS else
+                    faulty_copy(data, ds, next(f for f in faults if f.name == name), args.at,
+                                out))  # fmt: skip
             code, rep, last = run(root, args.method, args.run_args, Path(tmp) / f"out{i}")
             shutil.rmtree(root)
-            rmse[fault.name] = r = figure(rep, "position_rmse_m")
+            rmse[name] = r = figure(rep, "position_rmse_m")
             clean = rmse.get("clean", math.nan)
-            ref = rmse.get(REFERENCE.get(fault.name, ""), math.nan)
+            ref = rmse.get(REFERENCE.get(name, ""), math.nan)
             lost = f"{r / ref:.2f}" if math.isfinite(ref) else "-"
-            print(f"| {fault.name} | {code} | {r:.3f} | {r / clean:.2f} | {lost} | "
+            print(f"| {name} | {code} | {r:.3f} | {r / clean:.2f} | {lost} | "
                   f"{figure(rep, 'ate_rmse_m'):.3f} | {figure(rep, 'nees_mean'):.2f} | "
                   f"{figure(rep, 'final_error_pct'):.2f} | {last[:120] if code else ''} |",
                   flush=True)  # fmt: skip

@@ -291,3 +291,35 @@ def test_a_jump_offset_is_held_until_an_accepted_fix_or_the_hold_ends() -> None:
     drift = ConsistencyMonitor()
     _gps(drift, [2.0, 3.0, 400.0, 1600.0], 0.0)
     assert drift.jump_offsets(4 * S) == {}
+
+
+def test_gps_denied_a_camera_that_jumps_is_distrusted_not_adopted() -> None:
+    """GPS-denied, a vision sensor's rejection right after an accepted frame with a NIS far
+    beyond its gate and no IMU fault is a jump of the camera (frozen, blocked: KITTI raw with
+    3 s of one scene repeated, 12 m instead of 0.30 m when the inflation let it in): distrust,
+    no inflation. After an IMU fault, or with GPS in the run, the rejections are the filter's."""
+    def frames(m: ConsistencyMonitor, nis: list[float], gate: float = 600.0) -> int:
+        t = 0
+        for k, v in enumerate(nis):
+            t = int(k * 0.1 * S)
+            m.observe("3d", v <= gate, v, 400, t, gate)
+        return t
+
+    jumps = [400.0, 420.0, 1.8e4, 1.8e4, 1.8e4, 1.7e4]
+    m = ConsistencyMonitor(ConsistencyOptions(anchor_in_use=False))
+    action = m.should_recover(frames(m, jumps), position_std_m=0.3)
+    assert action is not None and action.kind == "distrust" and action.sensors == ("3d",)
+    assert m.inflations == 0 and m.summary()["jumps"] == 1
+    # a modest cascade (a filter slightly off after a gap) still inflates
+    cascade = ConsistencyMonitor(ConsistencyOptions(anchor_in_use=False))
+    action = cascade.should_recover(frames(cascade, [400.0, 420.0, 700.0, 750.0, 800.0]), 0.3)
+    assert action is not None and action.kind == "inflate"
+    # after an IMU fault the same rejections are the filter's
+    faulted = ConsistencyMonitor(ConsistencyOptions(anchor_in_use=False))
+    faulted.note_imu_fault(int(0.15 * S))
+    action = faulted.should_recover(frames(faulted, jumps), 0.3)
+    assert action is not None and action.kind == "inflate"
+    # with GPS in the run vision is not tested for jumps (nor does it inflate alone)
+    aided = ConsistencyMonitor()
+    assert aided.should_recover(frames(aided, jumps), 0.3) is None
+    assert aided.summary()["jumps"] == 0

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+import logging
 from pathlib import Path
 
 import cv2
@@ -28,12 +30,18 @@ def _texture(seed: int, shape: tuple[int, int] = (240, 360)) -> np.ndarray:
     return np.clip(40 + 180 * big, 0, 255).astype(np.uint8)
 
 
+_EXPOSURES = itertools.count()
+
+
 def _pair(tex: np.ndarray, shift_px: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Left/right views of the plane; ``shift_px`` moves the plane (object) sideways."""
+    """Left/right views of the plane; ``shift_px`` moves the plane (object) sideways. Each call
+    is a new exposure: the lowest bit of one corner pixel alternates, as a real sensor's noise
+    makes every frame differ (an exact repeat is a frozen camera, dropped)."""
     x0 = 20 + shift_px
-    left = tex[:, x0 : x0 + 320]
+    left = np.ascontiguousarray(tex[:, x0 : x0 + 320])
     right = tex[:, x0 + DISP : x0 + DISP + 320]  # right image sees the plane DISP px further left
-    return np.ascontiguousarray(left), np.ascontiguousarray(right)
+    left[0, 0] = (int(left[0, 0]) & 0xFE) | (next(_EXPOSURES) & 1)
+    return left, np.ascontiguousarray(right)
 
 
 def _frontend(**kw: object) -> StereoFrontend:
@@ -172,16 +180,17 @@ def test_blocked_corners_are_not_proposed_again_and_keep_no_quota() -> None:
 
 def test_still_camera_searches_new_corners_only_when_tracks_are_lost() -> None:
     fe = _frontend(redetect_every=4)
-    left, right = _pair(_texture(0))
+    tex = _texture(0)
+    left, right = _pair(tex)
     fe.process(0, left, right)
     assert "detect" in fe.stats.timings_ms and fe.stats.new > 100
     n0 = fe.stats.new
     for k in range(1, 4):  # nothing lost: no corner search, the same tracks go on
-        tr = fe.process(k, left, right)
+        tr = fe.process(k, *_pair(tex))
         assert tr is not None and tr.egomotion is not None
         assert "detect" not in fe.stats.timings_ms and fe.stats.new == 0
         assert fe.stats.inliers >= 0.95 * n0
-    fe.process(4, left, right)  # every 4th frame regardless
+    fe.process(4, *_pair(tex))  # every 4th frame regardless
     assert "detect" in fe.stats.timings_ms
     # Half of the view goes blank: many tracks are lost, so corners are sought. A track that
     # KLT loses counts at once; one that KLT lets drift over the blank half (with the few
@@ -194,6 +203,7 @@ def test_still_camera_searches_new_corners_only_when_tracks_are_lost() -> None:
     assert fe.stats.status == "ok" and fe.stats.inliers < 0.7 * n0
     assert tr is not None and np.all(tr.uv_left[tr.inlier, 0] < 160 + 6)  # half a KLT window
     searched = "detect" in fe.stats.timings_ms
+    blank_l[0, 0] ^= 1  # the next exposure
     fe.process(6, blank_l, blank_r)
     assert searched or "detect" in fe.stats.timings_ms
 
@@ -298,3 +308,34 @@ def test_klt_levels_follow_the_last_prediction_residual() -> None:
     # prediction is exact again; 5: 0 levels, the plane reverses (80 px off): retry (4); 6: 3.
     assert used == [3, 3, 0, 4, 3, 0, 4, 3]
     assert fe.stats.status == "ok"
+
+
+def test_a_repeated_pair_is_dropped_as_frozen(caplog: pytest.LogCaptureFixture) -> None:
+    """A stereo pair equal to the one before to the last grey level (a frozen driver) gives no
+    motion and keeps the reference, warned once per run of repeats; a pair that differs by a
+    single grey level is a new exposure (a static scene with the sensor's noise)."""
+    fe = _frontend()
+    tex = _texture(4)
+    assert fe.process(0, *_pair(tex, 0)) is None
+    moved_left, moved_right = _pair(tex, 3)
+    moved = fe.process(1, moved_left, moved_right)
+    assert moved is not None and moved.egomotion is not None and fe.stats.status == "ok"
+    with caplog.at_level(logging.WARNING, logger="svains.frontend.pipeline"):
+        for k in (2, 3, 4):
+            frozen = fe.process(k, moved_left, moved_right)  # frame 1's pair, byte for byte
+            assert frozen is not None and frozen.egomotion is None and frozen.track_id.size == 0
+            assert fe.stats.status == "frozen" and fe.reference_t_ns == 1
+    assert caplog.text.count("frozen camera") == 1
+    left, right = _pair(tex, 6)
+    after = fe.process(5, left, right)  # tracked against frame 1, the last good one
+    assert after is not None and after.t_prev_ns == 1 and after.egomotion is not None
+    noisy = left.copy()
+    noisy[0, 0] ^= 1  # one grey level at one pixel: another exposure
+    again = fe.process(6, noisy, right)
+    assert fe.stats.status == "ok" and again is not None and again.egomotion is not None
+    # a driver that refills one buffer for every frame: each refill is a new frame
+    buf_l, buf_r = _pair(tex, 8)
+    fe.process(7, buf_l, buf_r)
+    buf_l[:], buf_r[:] = _pair(tex, 10)
+    refilled = fe.process(8, buf_l, buf_r)
+    assert fe.stats.status == "ok" and refilled is not None and refilled.egomotion is not None

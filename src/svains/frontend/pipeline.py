@@ -9,9 +9,10 @@ Rigs that need rectification are tracked on the raw images: only feature pixels 
 (and row-search patches resampled), which saves two whole-image remaps per frame; all pixels
 handed out (``StereoTracks``) are rectified. The dense disparity methods rectify whole images.
 
-Degenerate frames (missing/dropped, black, saturated, textureless) give a ``StereoTracks`` with no
-features and ``egomotion=None`` and do *not* replace the reference frame, so the next good frame is
-tracked against the last good one.
+Degenerate frames (missing/dropped, black, saturated, textureless, or frozen: both images equal
+to the pair before, to the last grey level) give a ``StereoTracks`` with no features and
+``egomotion=None`` and do *not* replace the reference frame, so the next good frame is tracked
+against the last good one.
 """
 
 from __future__ import annotations
@@ -82,6 +83,9 @@ class StereoFrontend:
         raw = not rectifier.identity and self.options.stereo.method == "sparse"
         self._geo: StereoRectifier | None = rectifier if raw else None
         self._last_images: tuple[U8, U8] | None = None
+        # The raw grey pair before (a frozen camera repeats it) and how many repeats in a row.
+        self._raw_before: tuple[U8, U8] | None = None
+        self._frozen = 0
         self._reacquirer = Reacquirer(self.rig, self.options.reacquire)
         warm_up(self.rig)  # compiled RANSAC kernels loaded now, not on the first frame
 
@@ -163,6 +167,19 @@ class StereoFrontend:
             log.info("frame %d: missing or malformed image", t_ns)
             self.stats.status = "dropped"
             return None if self._ref is None else self._empty(t_ns, "dropped")
+        # Copies: a caller may refill one buffer for every frame (a camera driver's).
+        before, self._raw_before = self._raw_before, (gl.copy(), gr.copy())
+        if before is not None and np.array_equal(gl, before[0]) and np.array_equal(gr, before[1]):
+            # Two real exposures always differ by the sensor's noise: an exact repeat is a
+            # frozen driver or a duplicated frame, whose "no motion" would contradict the IMU
+            # (KITTI raw with 3 s of one pair repeated: 12 m instead of 0.28 m GPS-denied).
+            self._frozen += 1
+            if self._frozen == 1:
+                log.warning("frame %d: the stereo pair repeats the one before to the last grey "
+                            "level (a frozen camera?): dropped while it repeats", t_ns)  # fmt: skip
+            self.stats.status = "frozen"
+            return None if self._ref is None else self._empty(t_ns, "frozen")
+        self._frozen = 0
         left, right = (gl, gr) if self._geo is not None else self.rectifier.rectify_pair(gl, gr)
         self._last_images = (left, right)
         tm["rectify"] = (time.perf_counter() - t0) * 1e3
