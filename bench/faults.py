@@ -6,13 +6,14 @@ class into a temporary folder: the IMU classes of issue 12 (and a frozen output:
 the fault repeated for 1 s; bias steps of +0.5 m/s² on the x accelerometer and +0.05 rad/s on
 the z gyro, for the rest of the run); the classes of issue 23: a GPS step (every fix from the
 fault on offset by 50 m east, to the end), a frozen GPS (the fix at the fault repeated for
-10 s), a dead magnetometer (zeros from the fault on), a bad sonar (5 s of negative ranges,
-every third one a 40 m false echo instead), and all at once (each IMU class in turn, 1.5 s
-apart, the 5 s gap among them, with the frozen GPS, the dead magnetometer and the bad sonar;
+10 s), GPS multipath (for 10 s each fix off by its own 10 m, 1 sigma per axis), a dead
+magnetometer (zeros from the fault on), a bad sonar (5 s of negative ranges, every third one a
+40 m false echo instead), and all at once (each IMU class in turn, 1.5 s apart, the 5 s gap
+among them, with the frozen GPS, the dead magnetometer and the bad sonar;
 not the persistent GPS step, which has its own row). "GPS lost" (no fix from the fault on) is
 the reference the ``ins`` run under the GPS step is held to: with no other sensor to
 contradict a step, its error must be no worse than without GPS; "GPS lost 10 s" is the frozen
-GPS's (its repeated fixes carry nothing).
+GPS's and the multipath's (their fixes carry next to nothing).
 
 It runs ``ins`` and ``3d`` on each through the public library entry
 (``svains.evaluation.run.run_method``, started from the ground truth) and prints:
@@ -168,6 +169,14 @@ def _gps_frozen(st: Streams, at_ns: int) -> None:
         st.gps_p[sel] = st.gps_p[np.flatnonzero(sel)[0]]
 
 
+def _gps_multipath(st: Streams, at_ns: int) -> None:
+    # Reflected signals: each fix off by its own 10 m (1 sigma per axis), about no trend; one
+    # fixed draw (tests/test_navigator_faults.py injects the same into KITTI raw).
+    sel = (st.gps_t >= at_ns) & (st.gps_t < at_ns + 10 * S)
+    rng = np.random.default_rng(0)
+    st.gps_p[sel] += rng.normal(0.0, 10.0, (int(sel.sum()), 3))
+
+
 def _mag_dead(st: Streams, at_ns: int) -> None:
     st.mag_m[st.mag_t >= at_ns] = 0.0
 
@@ -193,6 +202,7 @@ OTHER_FAULTS = (
     Fault("GPS lost (reference)", 0.0, _gps_lost),
     Fault("GPS frozen 10 s", 10.0, _gps_frozen),
     Fault("GPS lost 10 s (reference)", 10.0, _gps_lost_10s),
+    Fault("GPS multipath 10 s", 10.0, _gps_multipath),
     Fault("mag dead", 0.0, _mag_dead),
     Fault("sonar bad 5 s", 5.0, _sonar_bad),
 )
@@ -338,6 +348,7 @@ def summary(results: dict[tuple[str, str], list[Outcome]], seeds: list[int]) -> 
         back_txt = "never" if None in back else f"{max(b for b in back if b is not None):.1f}"
         reference = {"GPS step": "GPS lost (reference)",
                      "GPS frozen": "GPS lost 10 s (reference)",
+                     "GPS multipath": "GPS lost 10 s (reference)",
                      "all at once": "GPS lost 10 s (reference)"}  # fmt: skip
         ref_name = next((r for f, r in reference.items() if fault.startswith(f)), None)
         lost = results.get((ref_name, method)) if ref_name else None

@@ -323,3 +323,52 @@ def test_gps_denied_a_camera_that_jumps_is_distrusted_not_adopted() -> None:
     aided = ConsistencyMonitor()
     assert aided.should_recover(frames(aided, jumps), 0.3) is None
     assert aided.summary()["jumps"] == 0
+
+
+def test_gps_that_scatters_is_distrusted_a_trend_is_a_lost_filter() -> None:
+    """Anchor rejections alone make the filter lost only when their innovations, from the
+    last accepted one on, follow a trend in time (a drifting filter) once there are
+    ``TREND_TERMS + 1`` of them; scattered about no trend (multipath) the sensor is
+    distrusted, with or without a jump first; a jump whose innovations grow is withdrawn only
+    along a trend. With the test off, three rejections inflate as before."""
+    rng = np.random.default_rng(3)
+    S_cov = np.eye(3)
+
+    def run(residuals: list[np.ndarray], nis: list[float],
+            options: ConsistencyOptions | None = None,
+            accepted_residual: np.ndarray | None = np.zeros(3)) -> ConsistencyMonitor:  # noqa: B008  # fmt: skip
+        m = ConsistencyMonitor(options or ConsistencyOptions())
+        m.observe("gps", True, 2.0, 3, 0, 16.3, accepted_residual, accepted_residual, S_cov)
+        for k, (r, v) in enumerate(zip(residuals, nis, strict=True), start=1):
+            m.observe("gps", False, v, 3, k * S, 16.3, r, r, S_cov)
+        return m
+
+    scattered = [rng.normal(0.0, 25.0, 3) for _ in range(4)]
+    trend = [np.array([20.0, 0.0, 0.0]) * k + rng.normal(0.0, 1.0, 3) for k in range(1, 5)]
+    # a jump (NIS 400 > 10 x 16.3) whose scattered innovations grow: still the sensor's
+    m = run(scattered, [400.0, 1500.0, 300.0, 2500.0])
+    action = m.should_recover(4 * S, position_std_m=0.5)
+    assert action is not None and action.kind == "distrust" and m.inflations == 0
+    # the same growth along a trend: the filter drifts, lost
+    m = run(trend, [400.0, 1600.0, 3600.0, 6400.0])
+    action = m.should_recover(4 * S, position_std_m=0.5)
+    assert action is not None and action.kind == "inflate"
+    assert "jump-withdrawn" in [e["kind"] for e in m.summary()["events"]]  # type: ignore[index]
+    # no jump (NIS under 10 x the gate): the last accepted innovation and three rejected
+    # ones tell (the fewest a lost filter waits for); without the accepted one's, a fourth
+    modest = [60.0, 170.0, 50.0, 90.0]
+    m = run(scattered[:3], modest[:3])
+    action = m.should_recover(3 * S, position_std_m=0.5)
+    assert action is not None and action.kind == "distrust" and "scatter" in action.reason
+    m = run(trend[:3], modest[:3])
+    assert m.should_recover(3 * S, position_std_m=0.5).kind == "inflate"  # type: ignore[union-attr]
+    m = run(scattered[:3], modest[:3], accepted_residual=None)
+    assert m.should_recover(3 * S, position_std_m=0.5) is None
+    m = run(scattered, modest, accepted_residual=None)
+    action = m.should_recover(4 * S, position_std_m=0.5)
+    assert action is not None and action.kind == "distrust" and "scatter" in action.reason
+    m = run(trend, modest, accepted_residual=None)
+    assert m.should_recover(4 * S, position_std_m=0.5).kind == "inflate"  # type: ignore[union-attr]
+    # the test off: three rejections inflate
+    off = run(scattered[:3], modest[:3], ConsistencyOptions(jump_erratic_probability=None))
+    assert off.should_recover(3 * S, position_std_m=0.5).kind == "inflate"  # type: ignore[union-attr]

@@ -54,7 +54,8 @@ class UpdateStats:
     the low-dimensional sensors), else None. Its mean over a run of updates is a bias test;
     a caller may set another white quantity of the update there (``navigation`` puts a vision
     update's whitened state correction, ``fault_handling.whitened_correction``). ``residual``
-    (nz,) the innovation ``r`` where ``update_blocks`` forms it; ``offset_refused``: the block
+    (nz,) the innovation ``r`` and ``innovation_cov`` (nz, nz) its covariance ``S`` where
+    ``update_blocks`` forms them; ``offset_refused``: the block
     passed the gate but its innovation was closer to the offset given for it (see
     ``update_blocks``)."""
 
@@ -66,6 +67,7 @@ class UpdateStats:
     whitened: F64 | None = field(default=None, compare=False, repr=False)
     residual: F64 | None = field(default=None, compare=False, repr=False)
     offset_refused: bool = False
+    innovation_cov: F64 | None = field(default=None, compare=False, repr=False)
 
 
 class UKF:
@@ -199,7 +201,7 @@ class UKF:
                                                     lower=True, check_finite=False)  # fmt: skip
                 refused = bool(w_d @ w_d < nis)
                 ok = not refused
-            stats.append(UpdateStats(name, ok, nis, nz, float(gate), w, r.copy(), refused))
+            stats.append(UpdateStats(name, ok, nis, nz, float(gate), w, r.copy(), refused, S))
             if ok:
                 kept.append((dY, r, Rm))
         if kept:

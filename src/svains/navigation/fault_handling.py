@@ -312,7 +312,8 @@ class Recovery:
             if self._vision_lean(options, gps_used) else ("gps",),
             vision_bias_window=options.bias_test_vision_window,
             vision_bias_probability=options.bias_test_vision_probability,
-            jump_hold_s=options.gps_jump_hold_s))  # fmt: skip
+            jump_hold_s=options.gps_jump_hold_s,
+            jump_erratic_probability=options.gps_scatter_probability))  # fmt: skip
         self._options = options
         self._warn = warn
         self._bias_rw = bias_random_walk_var
@@ -340,7 +341,8 @@ class Recovery:
     def observe(self, stats: UpdateStats, key: str, t_ns: int) -> None:
         if math.isfinite(stats.gate):  # ungated updates say nothing about the filter's health
             self.monitor.observe(key, stats.accepted, stats.nis, stats.dof, t_ns, stats.gate,
-                                 stats.whitened, stats.residual)  # fmt: skip
+                                 stats.whitened, stats.residual,
+                                 stats.innovation_cov)  # fmt: skip
 
     def check(self, ukf: UKF, t_ns: int) -> None:
         """Ask the monitor after a group of updates and apply its action."""

@@ -487,6 +487,13 @@ class FaultOptions:
     every fix 50 m off from 10 s: adopted 24 s later, position RMSE 15.8 m against 11.6 m with
     those fixes removed; now 11.6 m). After the hold the gate decides again: a datum change
     that lasts is taken, warned, once nothing else can hold the filter.
+    ``gps_scatter_probability``: GPS rejected alone counts as a lost filter only when its
+    innovations since the last accepted fix follow a trend in time (a drifting filter);
+    scattered about a quadratic beyond this chi-square quantile (multipath) GPS is distrusted
+    instead (``ConsistencyMonitor``, ``_erratic``; None: any three rejections make the filter
+    lost, as before): inflated, the filter fused the noise (KITTI raw, `ins`, 10 s of fixes
+    with 10 m of noise per axis: 6.99 m position RMSE against 0.51 m with them removed; now
+    0.51 m).
     """
 
     imu_guard: bool = True
@@ -510,6 +517,7 @@ class FaultOptions:
     bias_test_vision_window: int = 3  # accepted vision updates
     bias_test_vision_gps_denied: bool = False  # the vision test in GPS-denied runs too
     gps_jump_hold_s: float | None = 60.0  # s a GPS jump's offset refuses fixes nearer it
+    gps_scatter_probability: float | None = 1 - 1e-6  # None: no multipath test
 
     def __post_init__(self) -> None:
         if not self.imu_gap_factor > 1:
@@ -553,6 +561,11 @@ class FaultOptions:
         h = self.gps_jump_hold_s
         if h is not None and not (math.isfinite(h) and h > 0):
             raise ConfigError(f"faults.gps_jump_hold_s must be positive or null, got {h}")
+        p = self.gps_scatter_probability
+        if p is not None and not 0 < p < 1:
+            raise ConfigError(
+                f"faults.gps_scatter_probability must be in (0, 1) or null, got {p}"
+            )
 
 
 @dataclass(frozen=True)
