@@ -372,3 +372,40 @@ def test_gps_that_scatters_is_distrusted_a_trend_is_a_lost_filter() -> None:
     # the test off: three rejections inflate
     off = run(scattered[:3], modest[:3], ConsistencyOptions(jump_erratic_probability=None))
     assert off.should_recover(3 * S, position_std_m=0.5).kind == "inflate"  # type: ignore[union-attr]
+
+
+def test_gps_whose_velocity_agrees_gets_one_more_fix_before_the_filter_is_lost() -> None:
+    """A drifting filter is off in velocity too; multipath moves GPS position only. While the
+    velocity part of every rejected fix is inside its own gate, three rejections are too few
+    (one degree of freedom per axis about the quadratic): a fourth decides, by scatter or by
+    trend. A velocity that disagrees decides at the third as before."""
+    rng = np.random.default_rng(5)
+    S_cov = np.eye(6)
+    gate = 22.5  # chi-square(6) at 0.999
+
+    def run(position: list[np.ndarray], velocity: list[np.ndarray]) -> ConsistencyMonitor:
+        m = ConsistencyMonitor(ConsistencyOptions())
+        m.observe("gps", True, 2.0, 6, 0, gate, np.zeros(6), np.zeros(6), S_cov)
+        for k, (p, v) in enumerate(zip(position, velocity, strict=True), start=1):
+            r = np.r_[p, v]
+            m.observe("gps", False, float(r @ r), 6, k * S, gate, r, r, S_cov)
+        return m
+
+    scattered = [rng.normal(0.0, 8.0, 3) for _ in range(4)]
+    trend = [np.array([6.0, 0.0, 0.0]) * k for k in range(1, 5)]
+    calm = [rng.normal(0.0, 1.0, 3) for _ in range(4)]  # inside chi-square(3) at 0.999
+    off = [np.array([0.0, 6.0, 0.0]) * k for k in range(1, 5)]
+    assert run(scattered[:3], calm[:3]).should_recover(3 * S, position_std_m=0.5) is None
+    action = run(scattered, calm).should_recover(4 * S, position_std_m=0.5)
+    assert action is not None and action.kind == "distrust" and "scatter" in action.reason
+    action = run(trend, calm).should_recover(4 * S, position_std_m=0.5)
+    assert action is not None and action.kind == "inflate"
+    action = run(trend[:3], off[:3]).should_recover(3 * S, position_std_m=0.5)
+    assert action is not None and action.kind == "inflate"
+    # no patience: the third rejection decides whatever the velocity says
+    m = ConsistencyMonitor(ConsistencyOptions(rate_channels=()))
+    m.observe("gps", True, 2.0, 6, 0, gate, np.zeros(6), np.zeros(6), S_cov)
+    for k, p in enumerate(scattered[:3], start=1):
+        r = np.r_[p, calm[k - 1]]
+        m.observe("gps", False, float(r @ r), 6, k * S, gate, r, r, S_cov)
+    assert m.should_recover(3 * S, position_std_m=0.5) is not None

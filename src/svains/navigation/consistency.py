@@ -47,7 +47,10 @@ in time (a velocity error, a tilt integrating into position), multipath scatters
 accepted update on, whitened by the latest innovation covariance, and compares the scatter
 about it with the chi-square quantile ``jump_erratic_probability``. A jump is withdrawn only
 when its innovations grew and follow a trend; an anchor rejected alone is lost only along a
-trend, and scattered it is distrusted (warned: ``multipath?``). KITTI raw, `ins`, 10 s of
+trend, and scattered it is distrusted (warned: ``multipath?``). Three rejected fixes and the
+accepted one before them leave one degree of freedom per axis about the quadratic; while the
+fixes' velocity (``rate_channels``) agrees with the filter, which a drifting filter's would
+not, the monitor waits ``rate_patience`` fixes more. KITTI raw, `ins`, 10 s of
 fixes with 10 m of noise per axis: position RMSE 6.99 m (the filter inflated and fused the
 noise) against 0.51 m with those fixes removed; now 0.51 m.
 
@@ -117,6 +120,15 @@ class ConsistencyOptions:
     # ...unless its innovations since the jump scatter about a quadratic in time beyond
     # this chi-square quantile (``_erratic``: a sensor gone erratic, multipath; None: no test).
     jump_erratic_probability: float | None = 1 - 1e-6
+    # Components [start, stop) of an anchor's innovation that are its rate channel (GPS
+    # velocity, when the update has it: dof == stop). A drifting filter is off in its rate
+    # too; while that channel agrees (inside its own gate at ``rate_probability``) in every
+    # rejected update, the anchor's rejections wait for ``rate_patience`` more fixes before
+    # the filter is taken for lost, so the scatter test has the points to tell multipath.
+    # (``InsFilter.gps_block`` stacks position, then velocity)
+    rate_channels: tuple[tuple[str, int, int], ...] = (("gps", 3, 6),)
+    rate_probability: float = 0.999
+    rate_patience: int = 1
     # While a jump lasts, at most this long (s), the anchor's updates are refused even inside
     # the gate when their innovation is nearer the jump's than zero (``jump_offsets``): the
     # filter's own spread, growing without the sensor, would otherwise let the offset in.
@@ -212,6 +224,7 @@ class _SensorTrack:
     # and the latest one's covariance
     streak: list[tuple[int, np.ndarray]] = field(default_factory=list)
     streak_cov: np.ndarray | None = None
+    streak_rate_agrees: bool = True  # the rate channel agreed in every rejection of the run
     # (t_ns, whitened innovation) of accepted updates, for the bias test
     whitened: deque[tuple[int, np.ndarray]] = field(default_factory=deque)
     fix_spacing_ns: int | None = None  # between the last two accepted updates
@@ -261,6 +274,7 @@ class ConsistencyMonitor:
             s.fused += 1
             s.consecutive_rejections = 0
             s.streak.clear()
+            s.streak_rate_agrees = True
             if residual is not None:  # the run of rejections to come starts from it
                 s.streak.append((int(t_ns), np.array(residual, float)))
             s.last_accepted_ns = int(t_ns)
@@ -301,6 +315,22 @@ class ConsistencyMonitor:
         if residual is not None and innovation_cov is not None:
             s.streak.append((int(t_ns), np.array(residual, float)))
             s.streak_cov = np.array(innovation_cov, float)
+            s.streak_rate_agrees &= self._rate_agrees(sensor, s.streak[-1][1], s.streak_cov)
+        else:
+            s.streak_rate_agrees = False
+
+    def _rate_agrees(self, sensor: str, residual: np.ndarray, cov: np.ndarray) -> bool:
+        """Whether the rate channel of ``sensor`` (``rate_channels``) is inside its own gate
+        in the innovation ``residual`` with covariance ``cov``; False without such a channel."""
+        for name, a, b in self.options.rate_channels:
+            if name == sensor and residual.shape == (b,) and 0 <= a < b:
+                r, C = residual[a:b], cov[a:b, a:b]
+                try:
+                    nis = float(r @ np.linalg.solve(C, r))
+                except np.linalg.LinAlgError:
+                    return False
+                return nis <= chi2_gate(self.options.rate_probability, b - a)
+        return False
 
     def _erratic_anchor(self, anchors: list[str]) -> bool | None:
         """For anchors rejected alone: whether the innovations of their runs of rejections,
@@ -310,13 +340,15 @@ class ConsistencyMonitor:
         a trend. False while a run is too short to tell (three rejections and the accepted
         innovation before them are enough; without that one a lost filter waits one fix
         more)."""
-        p = self.options.jump_erratic_probability
+        o = self.options
+        p = o.jump_erratic_probability
         if p is None:
             return None
         tracks = [self._sensors[n] for n in anchors]
         if any(not t.streak or t.streak_cov is None for t in tracks):
             return None
-        if any(len(t.streak) <= TREND_TERMS for t in tracks):
+        if any(len(t.streak) <= TREND_TERMS + o.rate_patience * t.streak_rate_agrees
+               for t in tracks):  # fmt: skip
             return False
         if any(_erratic(t.streak, t.streak_cov, p) for t in tracks):  # type: ignore[arg-type]
             return True
