@@ -6,7 +6,8 @@ class into a temporary folder: the IMU classes of issue 12 (and a frozen output:
 the fault repeated for 1 s; bias steps of +0.5 m/s² on the x accelerometer and +0.05 rad/s on
 the z gyro, for the rest of the run); the classes of issue 23: a GPS step (every fix from the
 fault on offset by 50 m east, to the end), a frozen GPS (the fix at the fault repeated for
-10 s), GPS multipath (for 10 s each fix off by its own 10 m, 1 sigma per axis), a dead
+10 s), GPS multipath (for 10 s each fix off by its own 10 m, 1 sigma per axis), a GPS
+velocity 5 m/s off east (to the end; positions right), a dead
 magnetometer (zeros from the fault on), a bad sonar (5 s of negative ranges, every third one a
 40 m false echo instead), and all at once (each IMU class in turn, 1.5 s apart, the 5 s gap
 among them, with the frozen GPS, the dead magnetometer and the bad sonar;
@@ -49,7 +50,7 @@ import argparse
 import shutil
 import tempfile
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -84,6 +85,7 @@ class Streams:
     mag_m: np.ndarray
     sonar_t: np.ndarray
     sonar_r: np.ndarray
+    gps_v: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # per fix, if given
 
 
 @dataclass(frozen=True)
@@ -177,6 +179,12 @@ def _gps_multipath(st: Streams, at_ns: int) -> None:
     st.gps_p[sel] += rng.normal(0.0, 10.0, (int(sel.sum()), 3))
 
 
+def _gps_velocity_off(st: Streams, at_ns: int) -> None:
+    # The receiver's velocity 5 m/s off east from the fault to the end (a failed Doppler
+    # solution, a velocity in another frame); its positions stay right.
+    st.gps_v[st.gps_t >= at_ns, 0] += 5.0
+
+
 def _mag_dead(st: Streams, at_ns: int) -> None:
     st.mag_m[st.mag_t >= at_ns] = 0.0
 
@@ -203,6 +211,7 @@ OTHER_FAULTS = (
     Fault("GPS frozen 10 s", 10.0, _gps_frozen),
     Fault("GPS lost 10 s (reference)", 10.0, _gps_lost_10s),
     Fault("GPS multipath 10 s", 10.0, _gps_multipath),
+    Fault("GPS velocity +5 m/s", 0.0, _gps_velocity_off),
     Fault("mag dead", 0.0, _mag_dead),
     Fault("sonar bad 5 s", 5.0, _sonar_bad),
 )
@@ -260,6 +269,7 @@ def faulty_copy(clean: Path, fault: Fault, at_s: float, out: Path, guard: bool) 
         ds.mag.m_S.copy() if ds.mag else empty3,
         ds.sonar.t_ns.copy() if ds.sonar else np.zeros(0, np.int64),
         ds.sonar.range_m.copy() if ds.sonar else empty,
+        ds.gps.v_W_G.copy() if ds.gps else empty3,
     )  # fmt: skip
     fault.inject(st, round(at_s * S))  # the simulator's clock starts at 0
     keep = st.keep
@@ -271,7 +281,7 @@ def faulty_copy(clean: Path, fault: Fault, at_s: float, out: Path, guard: bool) 
     w.write_imu(ImuStream(st.t[keep], st.g[keep], st.a[keep]), ds.imu_calib)
     if ds.gps is not None and ds.gps_calib is not None:
         ok = st.gps_t >= 0
-        w.write_gps(GpsStream(st.gps_t[ok], st.gps_p[ok], ds.gps.v_W_G[ok]), ds.gps_calib)
+        w.write_gps(GpsStream(st.gps_t[ok], st.gps_p[ok], st.gps_v[ok]), ds.gps_calib)
     if ds.mag is not None and ds.mag_calib is not None:
         w.write_mag(MagStream(st.mag_t, st.mag_m), ds.mag_calib)
     if ds.sonar is not None and ds.sonar_calib is not None:

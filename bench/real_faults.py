@@ -1,17 +1,17 @@
 """The fault classes of ``bench/faults.py`` injected into a real data set, run as a user runs it.
 
 Plain script (not a timed test). For each class (IMU spikes, saturation, zeros, frozen output,
-a gap, bias steps; GPS step, GPS lost, frozen GPS, GPS lost 10 s, GPS multipath when the data
-set has GPS; all at once; the magnetometer and sonar classes are left out: the shared real data
-sets have neither; with ``--images`` among the run's arguments, camera classes too:
-``CAMERA_FAULTS``) it writes a copy of the data set into a temporary folder (``imu0`` and
-``gps0`` rewritten, every other entry a symbolic link to the original: nothing of it is copied
-or changed), injects the fault ``--at`` seconds after the first IMU sample and runs ``svains
-run COPY --method M ARGS...`` in a subprocess. It prints the exit code, the position RMSE and
-its ratio to the clean run's, the ATE, the NEES, the final error and the run's last line when
-it failed. "x lost" holds the GPS step to the run with the fixes removed from the fault on,
-and the frozen GPS and the multipath to the run with those 10 s removed (nothing else can do
-better when nothing contradicts them).
+a gap, bias steps; GPS step, GPS lost, frozen GPS, GPS lost 10 s, GPS multipath, GPS velocity
+off when the data set has GPS; all at once; the magnetometer and sonar classes are left out:
+the shared real data sets have neither; with ``--images`` among the run's arguments, camera
+classes too: ``CAMERA_FAULTS``) it writes a copy of the data set into a temporary folder
+(``imu0`` and ``gps0`` rewritten, every other entry a symbolic link to the original: nothing
+of it is copied or changed), injects the fault ``--at`` seconds after the first IMU sample and
+runs ``svains run COPY --method M ARGS...`` in a subprocess. It prints the exit code, the
+position RMSE and its ratio to the clean run's, the ATE, the NEES, the final error and the
+run's last line when it failed. "x lost" holds the GPS step to the run with the fixes removed
+from the fault on, and the frozen GPS and the multipath to the run with those 10 s removed
+(nothing else can do better when nothing contradicts them).
 
     python bench/real_faults.py ../shared/data/kitti_raw_0926_41s --method ins -- \
         --init gps --no-mag
@@ -72,13 +72,13 @@ def faulty_copy(data: Path, ds: Dataset, fault: Fault, at_s: float, out: Path) -
                  gps.t_ns.copy() if gps else np.zeros(0, np.int64),
                  gps.p_W_G.copy() if gps else np.zeros((0, 3)),
                  np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, np.int64),
-                 np.zeros(0))  # fmt: skip
+                 np.zeros(0), gps.v_W_G.copy() if gps else np.zeros((0, 3)))  # fmt: skip
     fault.inject(st, int(ds.imu.t_ns[0]) + round(at_s * S))
     w = AslWriter(out)
     w.write_imu(ImuStream(st.t[st.keep], st.g[st.keep], st.a[st.keep]), ds.imu_calib)
     if gps is not None and ds.gps_calib is not None:
         ok = st.gps_t >= 0  # the lost classes mark the fixes they remove
-        w.write_gps(GpsStream(st.gps_t[ok], st.gps_p[ok], gps.v_W_G[ok]), ds.gps_calib)
+        w.write_gps(GpsStream(st.gps_t[ok], st.gps_p[ok], st.gps_v[ok]), ds.gps_calib)
     return out
 
 

@@ -409,3 +409,37 @@ def test_gps_whose_velocity_agrees_gets_one_more_fix_before_the_filter_is_lost()
         r = np.r_[p, calm[k - 1]]
         m.observe("gps", False, float(r @ r), 6, k * S, gate, r, r, S_cov)
     assert m.should_recover(3 * S, position_std_m=0.5) is not None
+
+
+def test_gps_whose_velocity_alone_jumps_is_fused_without_it() -> None:
+    """GPS velocity far off from one fix on while its position agrees: after three
+    rejected fixes the monitor answers ``drop_rate`` (counted, its evidence used up); with
+    ``rate_drop`` off it is a jump to distrust. A velocity disagreement that grows from small
+    (a drifting filter, a bias step) is no jump: no ``drop_rate``."""
+    S_cov = np.eye(6)
+    gate = 22.5
+
+    def run(velocity: list[np.ndarray], options: ConsistencyOptions | None = None,
+            position: float = 0.5) -> ConsistencyMonitor:  # fmt: skip
+        m = ConsistencyMonitor(options or ConsistencyOptions())
+        m.observe("gps", True, 2.0, 6, 0, gate, np.zeros(6), np.zeros(6), S_cov)
+        for k, v in enumerate(velocity, start=1):
+            r = np.r_[np.full(3, position), v]
+            m.observe("gps", False, float(r @ r), 6, k * S, gate, r, r, S_cov)
+        return m
+
+    jumped = [np.array([50.0, 0.0, 0.0])] * 3
+    m = run(jumped)
+    action = m.should_recover(3 * S, position_std_m=0.5)
+    assert action is not None and action.kind == "drop_rate" and action.sensors == ("gps",)
+    assert "velocity alone" in action.reason and m.summary()["rate_drops"] == 1
+    assert m.should_recover(3 * S, position_std_m=0.5) is None  # the evidence is used up
+    action = run(jumped, ConsistencyOptions(rate_drop=False)).should_recover(
+        3 * S, position_std_m=0.5)
+    assert action is not None and action.kind == "distrust"
+    # the position disagreeing too: no drop (a jump of the whole fix)
+    action = run(jumped, position=20.0).should_recover(3 * S, position_std_m=0.5)
+    assert action is not None and action.kind == "distrust"
+    growing = [np.array([4.0, 0.0, 0.0]) * k for k in range(1, 4)]  # NIS 16 → 144: no jump
+    action = run(growing).should_recover(3 * S, position_std_m=0.5)
+    assert action is None or action.kind != "drop_rate"

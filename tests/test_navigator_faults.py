@@ -126,6 +126,9 @@ def test_fault_options_are_checked_and_set_by_dotted_key() -> None:
     with pytest.raises(ConfigError, match=r"faults\.gps_scatter_probability must be in "
                        r"\(0, 1\) or null, got 0\.0"):  # fmt: skip
         FaultOptions(gps_scatter_probability=0.0)
+    with pytest.raises(ConfigError, match=r"faults\.gps_velocity_drop_s must be positive or "
+                       r"null, got 0\.0"):  # fmt: skip
+        FaultOptions(gps_velocity_drop_s=0.0)
     config = with_settings(RunConfig(), {"faults.consistency": False, "faults.inflate_factor": 10})
     assert config.faults.consistency is False and config.faults.inflate_factor == 10.0
 
@@ -437,3 +440,26 @@ def test_real_gps_multipath_is_not_taken_for_a_lost_filter(kitti_raw: Path) -> N
     before = run_method(replace(ds, gps=GpsStream(t, p, v)), "ins", off)
     assert before.report["recovery"]["inflations"] >= 1
     assert before.report["position_rmse_m"] > 5 * removed.report["position_rmse_m"]
+
+
+def test_real_gps_velocity_that_alone_jumps_is_dropped_not_the_fixes(kitti_raw: Path) -> None:
+    """KITTI raw, `ins`: every GPS velocity 5 m/s off east from 10 s, positions right (a failed
+    Doppler solution). The whole fixes used to be refused as a jump for the rest of the run
+    (11.6 m position RMSE, as without GPS); now GPS is fused without its velocity
+    (``faults.gps_velocity_drop_s``): no worse than a run that never used GPS velocity."""
+    from svains.datasets.types import GpsStream
+
+    ds = load_dataset(kitti_raw)
+    assert ds.gps is not None and ds.imu is not None
+    t, p, v = ds.gps.t_ns, ds.gps.p_W_G, ds.gps.v_W_G.copy()
+    v[t >= ds.imu.t_ns[0] + 10 * S, 0] += 5.0
+    faulty = replace(ds, gps=GpsStream(t, p, v))
+    config = RunConfig(init=InitOptions(mode="gps"), use_mag=False)
+    dropped = run_method(faulty, "ins", config)
+    never = run_method(ds, "ins", replace(config, use_gps_velocity=False))
+    rec = dropped.report["recovery"]
+    assert rec["rate_drops"] >= 1 and rec["inflations"] == rec["resets"] == 0
+    assert dropped.report["position_rmse_m"] <= 1.1 * never.report["position_rmse_m"]
+    off = replace(config, faults=FaultOptions(gps_velocity_drop_s=None))
+    refused = run_method(faulty, "ins", off)
+    assert refused.report["position_rmse_m"] > 10 * never.report["position_rmse_m"]

@@ -54,6 +54,13 @@ not, the monitor waits ``rate_patience`` fixes more. KITTI raw, `ins`, 10 s of
 fixes with 10 m of noise per axis: position RMSE 6.99 m (the filter inflated and fused the
 noise) against 0.51 m with those fixes removed; now 0.51 m.
 
+The rate channel also tells a receiver whose velocity alone is wrong (a failed Doppler
+solution, a velocity in another frame): when an anchor jumped and, in every rejected update
+since, its rate channel is outside its own gate while the rest is inside its own, the monitor
+answers ``drop_rate`` and the core fuses the sensor without that channel for a while
+(``FaultOptions.gps_velocity_drop_s``) instead of refusing whole fixes whose position is
+right. Only after a jump: a drifting filter shows in its velocity first too, but growing.
+
 An IMU bias that *steps* (a knocked or overheated IMU) leaves every gate passing for seconds:
 the filter, sure of the old bias, takes the step for a tilt or a velocity and its innovations
 stay small but lean one way. :meth:`ConsistencyMonitor.biased` tests the last ``bias_window``
@@ -91,7 +98,7 @@ import numpy as np
 
 from svains.filter import chi2_gate
 
-RecoveryKind = Literal["inflate", "reset", "distrust", "bias"]
+RecoveryKind = Literal["inflate", "reset", "distrust", "bias", "drop_rate"]
 
 
 @dataclass(frozen=True)
@@ -129,6 +136,9 @@ class ConsistencyOptions:
     rate_channels: tuple[tuple[str, int, int], ...] = (("gps", 3, 6),)
     rate_probability: float = 0.999
     rate_patience: int = 1
+    # When the rate channel alone disagrees in every rejected update of an anchor rejected
+    # alone (the rest inside its gate), answer ``drop_rate`` (False: handled as any rejection)
+    rate_drop: bool = True
     # While a jump lasts, at most this long (s), the anchor's updates are refused even inside
     # the gate when their innovation is nearer the jump's than zero (``jump_offsets``): the
     # filter's own spread, growing without the sensor, would otherwise let the offset in.
@@ -148,8 +158,10 @@ class ConsistencyOptions:
 class RecoveryAction:
     """What the core should do: ``inflate`` the covariance by ``inflate_factor``, ``reset``
     position and velocity from GPS, ``distrust``: nothing but a warning (the only rejecting
-    sensors jumped, see the module), or ``bias``: widen the IMU biases' covariance (a sensor's
-    innovations lean one way); ``sensors`` are those found rejecting or leaning."""
+    sensors jumped, see the module), ``bias``: widen the IMU biases' covariance (a sensor's
+    innovations lean one way), or ``drop_rate``: fuse the ``sensors`` without their rate
+    channel for a while (``rate_channels``: it alone disagrees); ``sensors`` are those found
+    rejecting or leaning."""
 
     kind: RecoveryKind
     reason: str
@@ -225,6 +237,7 @@ class _SensorTrack:
     streak: list[tuple[int, np.ndarray]] = field(default_factory=list)
     streak_cov: np.ndarray | None = None
     streak_rate_agrees: bool = True  # the rate channel agreed in every rejection of the run
+    streak_rate_alone: bool = True  # ...or it alone disagreed in every one (the rest agreed)
     # (t_ns, whitened innovation) of accepted updates, for the bias test
     whitened: deque[tuple[int, np.ndarray]] = field(default_factory=deque)
     fix_spacing_ns: int | None = None  # between the last two accepted updates
@@ -240,6 +253,7 @@ class ConsistencyMonitor:
     _sensors: dict[str, _SensorTrack] = field(default_factory=dict)
     jumps: int = 0
     bias_shifts: int = 0
+    rate_drops: int = 0
     _last_inflation_ns: int | None = None
     _last_imu_fault_ns: int | None = None
     _events: list[dict[str, object]] = field(default_factory=list)
@@ -274,7 +288,7 @@ class ConsistencyMonitor:
             s.fused += 1
             s.consecutive_rejections = 0
             s.streak.clear()
-            s.streak_rate_agrees = True
+            s.streak_rate_agrees = s.streak_rate_alone = True
             if residual is not None:  # the run of rejections to come starts from it
                 s.streak.append((int(t_ns), np.array(residual, float)))
             s.last_accepted_ns = int(t_ns)
@@ -315,22 +329,34 @@ class ConsistencyMonitor:
         if residual is not None and innovation_cov is not None:
             s.streak.append((int(t_ns), np.array(residual, float)))
             s.streak_cov = np.array(innovation_cov, float)
-            s.streak_rate_agrees &= self._rate_agrees(sensor, s.streak[-1][1], s.streak_cov)
+            rate_ok, rest_ok = self._channels(sensor, s.streak[-1][1], s.streak_cov)
+            s.streak_rate_agrees &= rate_ok is True
+            s.streak_rate_alone &= rate_ok is False and rest_ok is True
         else:
-            s.streak_rate_agrees = False
+            s.streak_rate_agrees = s.streak_rate_alone = False
 
-    def _rate_agrees(self, sensor: str, residual: np.ndarray, cov: np.ndarray) -> bool:
-        """Whether the rate channel of ``sensor`` (``rate_channels``) is inside its own gate
-        in the innovation ``residual`` with covariance ``cov``; False without such a channel."""
+    def _channels(self, sensor: str, residual: np.ndarray,
+                  cov: np.ndarray) -> tuple[bool | None, bool | None]:  # fmt: skip
+        """Whether the rate channel of ``sensor`` (``rate_channels``) and the rest of its
+        innovation ``residual`` (covariance ``cov``) are each inside their own gate (at
+        ``rate_probability``); (None, None) without such a channel in this update."""
         for name, a, b in self.options.rate_channels:
             if name == sensor and residual.shape == (b,) and 0 <= a < b:
-                r, C = residual[a:b], cov[a:b, a:b]
-                try:
-                    nis = float(r @ np.linalg.solve(C, r))
-                except np.linalg.LinAlgError:
-                    return False
-                return nis <= chi2_gate(self.options.rate_probability, b - a)
-        return False
+                rest = np.r_[0:a]
+                out: list[bool | None] = []
+                for idx in (np.r_[a:b], rest):
+                    if idx.size == 0:
+                        out.append(None)
+                        continue
+                    r, C = residual[idx], cov[np.ix_(idx, idx)]
+                    try:
+                        nis = float(r @ np.linalg.solve(C, r))
+                    except np.linalg.LinAlgError:
+                        out.append(None)
+                        continue
+                    out.append(nis <= chi2_gate(self.options.rate_probability, idx.size))
+                return out[0], out[1]
+        return None, None
 
     def _erratic_anchor(self, anchors: list[str]) -> bool | None:
         """For anchors rejected alone: whether the innovations of their runs of rejections,
@@ -419,6 +445,23 @@ class ConsistencyMonitor:
         if self.anchored(t_ns):
             return None
         others = [s for s in bad if s not in o.anchor_sensors]
+        if (not others and anchors and o.rate_drop
+                and all(self._sensors[n].streak_rate_alone and self._sensors[n].jump_ns
+                        is not None for n in anchors)):  # fmt: skip
+            # Only the rate (GPS velocity) disagrees, in every rejected fix, since it jumped
+            # right after an accepted fix: the receiver's velocity is wrong. (A drifting
+            # filter shows in its velocity first too, but growing, not as a jump.)
+            for name in anchors:
+                t = self._sensors[name]
+                t.consecutive_rejections, t.jump_ns = 0, None
+                t.streak.clear()
+            self.rate_drops += 1
+            self._events.append({"t_ns": int(t_ns), "kind": "drop_rate",
+                                 "sensors": list(anchors)})  # fmt: skip
+            return RecoveryAction(
+                "drop_rate", f"{', '.join(anchors)} rejected {o.min_consecutive}+ times in a "
+                "row for its velocity alone while its position agrees: fused without its "
+                "velocity for a while", tuple(anchors))
         jumped = [s for s in anchors if self._sensors[s].jump_ns is not None]
         if not others and anchors and jumped == anchors:
             s = self._sensors[anchors[0]]
@@ -516,6 +559,7 @@ class ConsistencyMonitor:
             "resets": self.resets,
             "jumps": self.jumps,
             "bias_shifts": self.bias_shifts,
+            "rate_drops": self.rate_drops,
             "events": list(self._events),
             "nis_per_dof_window": {name: self.nis_mean(name) for name in sorted(self._sensors)},
         }

@@ -313,7 +313,8 @@ class Recovery:
             vision_bias_window=options.bias_test_vision_window,
             vision_bias_probability=options.bias_test_vision_probability,
             jump_hold_s=options.gps_jump_hold_s,
-            jump_erratic_probability=options.gps_scatter_probability))  # fmt: skip
+            jump_erratic_probability=options.gps_scatter_probability,
+            rate_drop=options.gps_velocity_drop_s is not None))  # fmt: skip
         self._options = options
         self._warn = warn
         self._bias_rw = bias_random_walk_var
@@ -321,6 +322,7 @@ class Recovery:
         self.bias_confirmed = 0
         self.bias_restored = 0
         self.reset_pending = False
+        self._rate_off_until_ns: dict[str, int] = {}  # sensor -> fused without its rate until
 
     @staticmethod
     def _vision_lean(options: FaultOptions, gps_used: bool) -> bool:
@@ -332,6 +334,12 @@ class Recovery:
         """Whether the updates of the vision ``method`` feed the bias test (their corrections
         whitened, :func:`whitened_correction`)."""
         return method in self.monitor.options.bias_sensors
+
+    def rate_off(self, sensor: str, t_ns: int) -> bool:
+        """Whether ``sensor`` (GPS) is fused without its rate channel (velocity) at ``t_ns``:
+        the monitor found it alone disagreeing (``drop_rate``) less than
+        ``FaultOptions.gps_velocity_drop_s`` ago."""
+        return t_ns < self._rate_off_until_ns.get(sensor, -1)
 
     @property
     def bias_pending(self) -> bool:
@@ -358,6 +366,13 @@ class Recovery:
             drop_step(ukf)
         if action.kind == "distrust":
             self._warn.warn("recovery-distrust", t_ns, action.reason)
+            return
+        if action.kind == "drop_rate":
+            hold_s = self._options.gps_velocity_drop_s
+            assert hold_s is not None  # the monitor answers drop_rate only with a hold
+            for name in action.sensors:
+                self._rate_off_until_ns[name] = int(t_ns) + round(hold_s * 1e9)
+            self._warn.warn("recovery-drop-rate", t_ns, f"{action.reason} ({hold_s:g} s)")
             return
         self._warn.warn(f"recovery-{action.kind}", t_ns,
                         f"filter inconsistent ({action.reason}): {action.kind}")  # fmt: skip

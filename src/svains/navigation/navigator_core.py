@@ -175,11 +175,12 @@ class Core:
                     self.gps_outage_skipped += 1
                     continue
                 assert self.rig.gps is not None
+                use_v = cfg.use_gps_velocity and not (
+                    self._recovery is not None and self._recovery.rate_off("gps", t))
                 if self._recovery is not None and self._recovery.reset_pending:
-                    v = payload[1] if cfg.use_gps_velocity else None
+                    v = payload[1] if use_v else None
                     self._recovery.reset_from_gps(ins.ukf, self.rig.gps, payload[0], v)
-                blocks.append(ins.gps_block(self.rig.gps, payload[0], payload[1],
-                                            cfg.use_gps_velocity))  # fmt: skip
+                blocks.append(ins.gps_block(self.rig.gps, payload[0], payload[1], use_v))
             elif kind == MAG:
                 assert self.rig.mag is not None
                 blocks.append(ins.mag_block(self.rig.mag, payload))
