@@ -22,6 +22,7 @@ from svains.datasets.types import (
     SonarCalib,
     SonarStream,
 )
+from svains.errors import CalibrationError
 
 
 def _T(rng: np.random.Generator) -> np.ndarray:
@@ -209,3 +210,25 @@ def test_png_images_are_stored_without_deflate(tmp_path: Path) -> None:
     assert idat[2] & 0b110 == 0
     assert len(zlib.decompress(idat)) == img.shape[0] * (img.shape[1] + 1)
     np.testing.assert_array_equal(read_grey(tmp_path / "a.png"), img)
+
+
+def test_gps_timeshift_moves_fixes_to_the_imu_clock_and_round_trips(tmp_path: Path) -> None:
+    """``timeshift_gps_imu`` in ``gps0/sensor.yaml``: t_imu = t_gps + shift, applied once on
+    reading; the writer puts the stamps back on the receiver's clock with the key, so a
+    round trip gives the same fixes and calibration. A non-finite shift names file and key."""
+    t_imu = np.arange(1, 6, dtype=np.int64) * 1_000_000_000
+    p = np.arange(15.0).reshape(5, 3)
+    cal = GpsCalib(np.zeros(3), 1.0, 0.5, 0.1, timeshift_gps_imu_s=-0.1)
+    AslWriter(tmp_path / "a").write_gps(GpsStream(t_imu, p, -p), cal)
+    raw = np.loadtxt(tmp_path / "a" / "mav0" / "gps0" / "data.csv", delimiter=",",
+                     dtype=np.int64, usecols=0)  # fmt: skip
+    np.testing.assert_array_equal(raw, t_imu + 100_000_000)  # stamped 0.1 s late
+    ds = load_dataset(tmp_path / "a")
+    assert ds.gps is not None and ds.gps_calib is not None
+    np.testing.assert_array_equal(ds.gps.t_ns, t_imu)
+    assert ds.gps_calib.timeshift_gps_imu_s == -0.1
+    yaml_path = tmp_path / "a" / "mav0" / "gps0" / "sensor.yaml"
+    yaml_path.write_text(yaml_path.read_text().replace("-0.1", ".nan"))
+    with pytest.raises(CalibrationError, match=r"gps0/sensor\.yaml: field 'timeshift_gps_imu' "
+                       r"must be finite, is nan"):  # fmt: skip
+        load_dataset(tmp_path / "a")

@@ -200,17 +200,24 @@ def read_groundtruth(folder: Path) -> GroundTruth:
 
 
 def read_gps(folder: Path) -> tuple[GpsStream, GpsCalib]:
+    """GPS folder: fixes on the IMU clock (``t_imu = t_gps + timeshift_gps_imu``, an optional
+    key, s) and calibration."""
     t, a = _table(folder, 7)
     ypath = folder / "sensor.yaml"
     y = read_sensor_yaml(ypath)
+    shift = yaml_float(y, "timeshift_gps_imu", ypath, default=0.0)
+    if not np.isfinite(shift):
+        raise CalibrationError(f"{ypath}: field 'timeshift_gps_imu' must be finite, is {shift}")
     calib = GpsCalib(
         p_B_G=yaml_T_BS(y, ypath)[:3, 3].copy(),
         rate_hz=_rate(y, ypath, t),
         position_noise_std=yaml_float(y, "position_noise_std", ypath),
         velocity_noise_std=yaml_float(y, "velocity_noise_std", ypath),
+        timeshift_gps_imu_s=shift,
     )
     check_gps_calib(calib, ypath)
-    return GpsStream(t_ns=t, p_W_G=a[:, 0:3], v_W_G=a[:, 3:6]), calib
+    t_imu = t + np.int64(round(shift * 1e9))
+    return GpsStream(t_ns=t_imu, p_W_G=a[:, 0:3], v_W_G=a[:, 3:6]), calib
 
 
 def read_mag(folder: Path) -> tuple[MagStream, MagCalib]:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -157,9 +158,15 @@ class AslWriter:
     def write_gps(self, stream: GpsStream, calib: GpsCalib, name: str = "gps0") -> Path:
         """``gps0``: antenna position/velocity in W; ``T_BS`` translation = lever arm ``p_B_G``."""
         d = self._folder(name)
-        write_csv(d / "data.csv", GPS_HEADER, [stream.t_ns, stream.p_W_G, stream.v_W_G])
+        shift_ns = np.int64(round(calib.timeshift_gps_imu_s * 1e9))
+        # back on the receiver's clock: reading the folder applies the shift again
+        t_gps = np.asarray(stream.t_ns, dtype=np.int64) - shift_ns
+        write_csv(d / "data.csv", GPS_HEADER, [t_gps, stream.p_W_G, stream.v_W_G])
         T = np.eye(4)
         T[:3, 3] = np.asarray(calib.p_B_G, dtype=float)
+        shift: list[tuple[str, Any]] = (
+            [("timeshift_gps_imu", calib.timeshift_gps_imu_s)] if shift_ns else []
+        )
         write_sensor_yaml(
             d / "sensor.yaml",
             [
@@ -168,6 +175,7 @@ class AslWriter:
                 ("rate_hz", calib.rate_hz),
                 ("position_noise_std", calib.position_noise_std),
                 ("velocity_noise_std", calib.velocity_noise_std),
+                *shift,
             ],
             comment="svains GPS (local world frame)",
         )

@@ -81,7 +81,8 @@ def dataset_summary(ds: Dataset) -> dict[str, Any]:
     if ds.gps_calib is not None:
         calib["gps"] = {"p_B_G": ds.gps_calib.p_B_G.tolist(),
                         "position_noise_std": ds.gps_calib.position_noise_std,
-                        "velocity_noise_std": ds.gps_calib.velocity_noise_std}  # fmt: skip
+                        "velocity_noise_std": ds.gps_calib.velocity_noise_std,
+                        "timeshift_gps_imu_s": ds.gps_calib.timeshift_gps_imu_s}  # fmt: skip
     if ds.mag_calib is not None:
         calib["mag"] = {"m_W": ds.mag_calib.m_W.tolist(), "noise_std": ds.mag_calib.noise_std}
     if ds.sonar_calib is not None:

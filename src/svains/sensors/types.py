@@ -75,12 +75,15 @@ class GroundTruth:
 
 @dataclass(frozen=True)
 class GpsCalib:
-    """GPS antenna lever arm ``p_B_G`` (3,) m and noise standard deviations."""
+    """GPS antenna lever arm ``p_B_G`` (3,) m and noise standard deviations;
+    ``timeshift_gps_imu_s`` (s): ``t_imu = t_gps + timeshift`` (a receiver that stamps its
+    fixes 0.1 s after they hold: -0.1), applied once when the stamps are read."""
 
     p_B_G: F64
     rate_hz: float
     position_noise_std: float  # m
     velocity_noise_std: float  # m/s
+    timeshift_gps_imu_s: float = 0.0
 
 
 @dataclass(frozen=True)
