@@ -185,6 +185,13 @@ def _gps_velocity_off(st: Streams, at_ns: int) -> None:
     st.gps_v[st.gps_t >= at_ns, 0] += 5.0
 
 
+def _gps_ramp(st: Streams, at_ns: int) -> None:
+    # A position solution that drifts off at 1 m/s east for 10 s, then recovers (a float
+    # solution wandering until it fixes again); the velocity stays right.
+    sel = (st.gps_t >= at_ns) & (st.gps_t < at_ns + 10 * S)
+    st.gps_p[sel, 0] += 1.0 * (st.gps_t[sel] - at_ns) / S
+
+
 def _mag_dead(st: Streams, at_ns: int) -> None:
     st.mag_m[st.mag_t >= at_ns] = 0.0
 
@@ -212,6 +219,7 @@ OTHER_FAULTS = (
     Fault("GPS lost 10 s (reference)", 10.0, _gps_lost_10s),
     Fault("GPS multipath 10 s", 10.0, _gps_multipath),
     Fault("GPS velocity +5 m/s", 0.0, _gps_velocity_off),
+    Fault("GPS ramp 1 m/s 10 s", 10.0, _gps_ramp),
     Fault("mag dead", 0.0, _mag_dead),
     Fault("sonar bad 5 s", 5.0, _sonar_bad),
 )
@@ -359,6 +367,7 @@ def summary(results: dict[tuple[str, str], list[Outcome]], seeds: list[int]) -> 
         reference = {"GPS step": "GPS lost (reference)",
                      "GPS frozen": "GPS lost 10 s (reference)",
                      "GPS multipath": "GPS lost 10 s (reference)",
+                     "GPS ramp": "GPS lost 10 s (reference)",
                      "all at once": "GPS lost 10 s (reference)"}  # fmt: skip
         ref_name = next((r for f, r in reference.items() if fault.startswith(f)), None)
         lost = results.get((ref_name, method)) if ref_name else None

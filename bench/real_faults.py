@@ -45,7 +45,8 @@ from svains.datasets.types import Dataset, GpsStream, ImuStream
 # What each GPS fault is held to (the same fixes removed): nothing does better without them.
 REFERENCE = {"GPS step 50 m": "GPS lost (reference)",
              "GPS frozen 10 s": "GPS lost 10 s (reference)",
-             "GPS multipath 10 s": "GPS lost 10 s (reference)"}
+             "GPS multipath 10 s": "GPS lost 10 s (reference)",
+             "GPS ramp 1 m/s 10 s": "GPS lost 10 s (reference)"}
 
 
 def applies(fault: Fault, ds: Dataset) -> bool:

@@ -398,7 +398,10 @@ def test_gps_whose_velocity_agrees_gets_one_more_fix_before_the_filter_is_lost()
     assert run(scattered[:3], calm[:3]).should_recover(3 * S, position_std_m=0.5) is None
     action = run(scattered, calm).should_recover(4 * S, position_std_m=0.5)
     assert action is not None and action.kind == "distrust" and "scatter" in action.reason
-    action = run(trend, calm).should_recover(4 * S, position_std_m=0.5)
+    # a filter whose position error grows at the rate its (agreeing) velocity error shows
+    drifting = [np.array([3.0, 0.0, 0.0]) * k for k in range(1, 5)]
+    following = [np.array([3.0, 0.0, 0.0]) + 0.3 * c for c in calm]
+    action = run(drifting, following).should_recover(4 * S, position_std_m=0.5)
     assert action is not None and action.kind == "inflate"
     action = run(trend[:3], off[:3]).should_recover(3 * S, position_std_m=0.5)
     assert action is not None and action.kind == "inflate"
@@ -443,3 +446,27 @@ def test_gps_whose_velocity_alone_jumps_is_fused_without_it() -> None:
     growing = [np.array([4.0, 0.0, 0.0]) * k for k in range(1, 4)]  # NIS 16 → 144: no jump
     action = run(growing).should_recover(3 * S, position_std_m=0.5)
     assert action is None or action.kind != "drop_rate"
+
+
+def test_gps_position_running_off_against_its_own_velocity_is_distrusted() -> None:
+    """A filter error obeys kinematics: its position innovation grows at the rate its
+    velocity innovation shows. GPS positions that run off at 6 per second while GPS velocity
+    agrees (a wandering float solution) are the receiver's: distrusted, with the speed in the
+    reason, not taken for a lost filter; with the multipath test off, inflated as before."""
+    rng = np.random.default_rng(11)
+    S_cov = np.eye(6)
+
+    def run(options: ConsistencyOptions | None = None) -> ConsistencyMonitor:
+        m = ConsistencyMonitor(options or ConsistencyOptions())
+        m.observe("gps", True, 2.0, 6, 0, 22.5, np.zeros(6), np.zeros(6), S_cov)
+        for k in range(1, 5):
+            r = np.r_[np.array([6.0, 0.0, 0.0]) * k + rng.normal(0.0, 0.3, 3),
+                      rng.normal(0.0, 1.0, 3)]  # fmt: skip
+            m.observe("gps", False, float(r @ r), 6, k * S, 22.5, r, r, S_cov)
+        return m
+
+    action = run().should_recover(4 * S, position_std_m=0.5)
+    assert action is not None and action.kind == "distrust", action
+    assert "running off at 6" in action.reason and "against its own velocity" in action.reason
+    off = run(ConsistencyOptions(jump_erratic_probability=None))
+    assert off.should_recover(4 * S, position_std_m=0.5).kind == "inflate"  # type: ignore[union-attr]

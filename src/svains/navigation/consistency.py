@@ -50,7 +50,10 @@ when its innovations grew and follow a trend; an anchor rejected alone is lost o
 trend, and scattered it is distrusted (warned: ``multipath?``). Three rejected fixes and the
 accepted one before them leave one degree of freedom per axis about the quadratic; while the
 fixes' velocity (``rate_channels``) agrees with the filter, which a drifting filter's would
-not, the monitor waits ``rate_patience`` fixes more. KITTI raw, `ins`, 10 s of
+not, the monitor waits ``rate_patience`` fixes more. A trend is still not always the
+filter's: a filter error obeys kinematics (its position innovation grows at the rate its
+velocity innovation shows), so positions that run off while the velocity agrees are a
+wandering receiver solution, distrusted (``_drifting_anchor``). KITTI raw, `ins`, 10 s of
 fixes with 10 m of noise per axis: position RMSE 6.99 m (the filter inflated and fused the
 noise) against 0.51 m with those fixes removed; now 0.51 m.
 
@@ -236,6 +239,7 @@ class _SensorTrack:
     # and the latest one's covariance
     streak: list[tuple[int, np.ndarray]] = field(default_factory=list)
     streak_cov: np.ndarray | None = None
+    streak_covs: list[np.ndarray] = field(default_factory=list)  # each one's, where known
     streak_rate_agrees: bool = True  # the rate channel agreed in every rejection of the run
     streak_rate_alone: bool = True  # ...or it alone disagreed in every one (the rest agreed)
     # (t_ns, whitened innovation) of accepted updates, for the bias test
@@ -288,9 +292,12 @@ class ConsistencyMonitor:
             s.fused += 1
             s.consecutive_rejections = 0
             s.streak.clear()
+            s.streak_covs.clear()
             s.streak_rate_agrees = s.streak_rate_alone = True
             if residual is not None:  # the run of rejections to come starts from it
                 s.streak.append((int(t_ns), np.array(residual, float)))
+                if innovation_cov is not None:
+                    s.streak_covs.append(np.array(innovation_cov, float))
             s.last_accepted_ns = int(t_ns)
             s.jump_ns = None
             return
@@ -329,6 +336,7 @@ class ConsistencyMonitor:
         if residual is not None and innovation_cov is not None:
             s.streak.append((int(t_ns), np.array(residual, float)))
             s.streak_cov = np.array(innovation_cov, float)
+            s.streak_covs.append(s.streak_cov)
             rate_ok, rest_ok = self._channels(sensor, s.streak[-1][1], s.streak_cov)
             s.streak_rate_agrees &= rate_ok is True
             s.streak_rate_alone &= rate_ok is False and rest_ok is True
@@ -379,6 +387,50 @@ class ConsistencyMonitor:
         if any(_erratic(t.streak, t.streak_cov, p) for t in tracks):  # type: ignore[arg-type]
             return True
         return None
+
+    def _drifting_anchor(self, anchors: list[str]) -> float | None:
+        """For anchors rejected alone along a trend while their rate channel agrees in every
+        rejected update (``streak_rate_agrees``): the largest speed (m/s, per second of the
+        innovation) at which the rest of an anchor's innovation (GPS position) moves against
+        its own rate channel (GPS velocity), when that is beyond the ``rate_probability``
+        quantile of chi-square with the channel's dimension; else None. A filter error obeys
+        kinematics: its position innovation grows at the rate its velocity innovation shows,
+        so a position that runs off while the velocity agrees is the receiver's (a wandering
+        float solution), not the filter's. The slope of the position innovations (least
+        squares in time) against the mean velocity innovation, their covariance from the
+        run's first innovation covariance (see the code)."""
+        o = self.options
+        worst: float | None = None
+        for name in anchors:
+            t = self._sensors[name]
+            channel = next(((a, b) for n, a, b in o.rate_channels if n == name), None)
+            n = len(t.streak)
+            if (channel is None or not t.streak_rate_agrees or n <= TREND_TERMS
+                    or len(t.streak_covs) != n):  # fmt: skip
+                return None
+            a, b = channel
+            if a != b - a or any(r.shape != (b,) for _, r in t.streak):
+                return None  # the rest must be the rate's integral: as many components
+            ts = np.array([ti for ti, _ in t.streak], float) * 1e-9
+            ts -= ts.mean()
+            stt = float(ts @ ts)
+            if not stt > 0:
+                return None
+            R = np.stack([r for _, r in t.streak])
+            # The filter's own error obeys kinematics and cancels from d: what is left is the
+            # receiver's white noise, bounded by the run's first (smallest) covariance.
+            C = t.streak_covs[0]
+            d = ts @ R[:, :a] / stt - R[:, a:b].mean(axis=0)
+            cov_d = C[:a, :a] / stt + C[a:b, a:b] / n
+            try:
+                stat = float(d @ np.linalg.solve(cov_d, d))
+            except np.linalg.LinAlgError:
+                return None
+            if not stat > chi2_gate(o.rate_probability, a):
+                return None
+            speed = float(np.linalg.norm(d))
+            worst = speed if worst is None else max(worst, speed)
+        return worst
 
     def _may_jump(self, sensor: str) -> bool:
         """Whether a rejection of ``sensor`` is tested for a jump of the sensor: an anchor
@@ -455,6 +507,7 @@ class ConsistencyMonitor:
                 t = self._sensors[name]
                 t.consecutive_rejections, t.jump_ns = 0, None
                 t.streak.clear()
+                t.streak_covs.clear()
             self.rate_drops += 1
             self._events.append({"t_ns": int(t_ns), "kind": "drop_rate",
                                  "sensors": list(anchors)})  # fmt: skip
@@ -476,6 +529,13 @@ class ConsistencyMonitor:
                 "distrust", f"{', '.join(anchors)} rejected {o.min_consecutive}+ times in a "
                 "row with innovations that scatter about no trend (multipath?): its updates "
                 "are rejected until they agree again", tuple(anchors))
+        if (not others and anchors and o.jump_erratic_probability is not None
+                and (speed := self._drifting_anchor(anchors)) is not None):  # fmt: skip
+            return RecoveryAction(
+                "distrust", f"{', '.join(anchors)} rejected {o.min_consecutive}+ times in a "
+                f"row, its position running off at {speed:.2g} m/s against its own velocity "
+                "(a wandering solution?): its updates are rejected until they agree again",
+                tuple(anchors))
         if alone and all(self._may_jump(n) and self._sensors[n].jump_ns is not None
                          for n in bad):  # fmt: skip
             # GPS-denied: a camera that jumps (frozen, blocked, replayed) is no lost filter.
