@@ -168,7 +168,10 @@ def _gps_lost_10s(st: Streams, at_ns: int) -> None:
 def _gps_frozen(st: Streams, at_ns: int) -> None:
     sel = (st.gps_t >= at_ns) & (st.gps_t < at_ns + 10 * S)
     if sel.any():
-        st.gps_p[sel] = st.gps_p[np.flatnonzero(sel)[0]]
+        first = np.flatnonzero(sel)[0]
+        st.gps_p[sel] = st.gps_p[first]
+        if len(st.gps_v) == len(st.gps_t):  # a hung receiver repeats its velocity too
+            st.gps_v[sel] = st.gps_v[first]
 
 
 def _gps_multipath(st: Streams, at_ns: int) -> None:
