@@ -7,7 +7,9 @@ the fault repeated for 1 s; bias steps of +0.5 m/s² on the x accelerometer and 
 the z gyro, for the rest of the run); the classes of issue 23: a GPS step (every fix from the
 fault on offset by 50 m east, to the end), a frozen GPS (the fix at the fault repeated for
 10 s), GPS multipath (for 10 s each fix off by its own 10 m, 1 sigma per axis), a GPS
-velocity 5 m/s off east (to the end; positions right), a dead
+velocity 5 m/s off east (to the end; positions right), a GPS position ramp (1 m/s east for
+10 s, velocities right), a magnetometer turned 8° about its z axis for 10 s (steel nearby),
+a dead
 magnetometer (zeros from the fault on), a bad sonar (5 s of negative ranges, every third one a
 40 m false echo instead), and all at once (each IMU class in turn, 1.5 s apart, the 5 s gap
 among them, with the frozen GPS, the dead magnetometer and the bad sonar;
@@ -199,6 +201,15 @@ def _mag_dead(st: Streams, at_ns: int) -> None:
     st.mag_m[st.mag_t >= at_ns] = 0.0
 
 
+def _mag_disturbed(st: Streams, at_ns: int) -> None:
+    # Steel nearby (a car, rebar): for 10 s the field the sensor sees is turned 8 degrees
+    # about its z axis, its magnitude kept: each sample passes its gate, all lean one way.
+    sel = (st.mag_t >= at_ns) & (st.mag_t < at_ns + 10 * S)
+    c, s_ = np.cos(np.radians(8.0)), np.sin(np.radians(8.0))
+    Rz = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+    st.mag_m[sel] = st.mag_m[sel] @ Rz.T
+
+
 def _sonar_bad(st: Streams, at_ns: int) -> None:
     sel = np.flatnonzero((st.sonar_t >= at_ns) & (st.sonar_t < at_ns + 5 * S))
     st.sonar_r[sel] = -1.0
@@ -224,6 +235,7 @@ OTHER_FAULTS = (
     Fault("GPS velocity +5 m/s", 0.0, _gps_velocity_off),
     Fault("GPS ramp 1 m/s 10 s", 10.0, _gps_ramp),
     Fault("mag dead", 0.0, _mag_dead),
+    Fault("mag turned 8° 10 s", 10.0, _mag_disturbed),
     Fault("sonar bad 5 s", 5.0, _sonar_bad),
 )
 ALL_SPACING_S = 1.5  # s between the IMU classes of "all at once"

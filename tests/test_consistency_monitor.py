@@ -470,3 +470,27 @@ def test_gps_position_running_off_against_its_own_velocity_is_distrusted() -> No
     assert "running off at 6" in action.reason and "against its own velocity" in action.reason
     off = run(ConsistencyOptions(jump_erratic_probability=None))
     assert off.should_recover(4 * S, position_std_m=0.5).kind == "inflate"  # type: ignore[union-attr]
+
+
+def test_a_magnetometer_whose_accepted_innovations_lean_is_held() -> None:
+    """Each sample inside its gate, five in a row leaning one way (a field turned by steel
+    nearby): ``hold`` for the magnetometer, counted, its window used up; white innovations
+    give none, nor does the test switched off."""
+    rng = np.random.default_rng(2)
+
+    def feed(m: ConsistencyMonitor, offset: np.ndarray) -> None:
+        for k in range(5):
+            w = offset + rng.normal(0.0, 1.0, 3)
+            m.observe("mag", True, float(w @ w), 3, k * S // 10, 16.3, w)
+
+    m = ConsistencyMonitor()
+    feed(m, np.zeros(3))
+    assert m.leaning(S) is None
+    feed(m, np.array([3.0, 0.0, 0.0]))  # NIS about 10 each, under the gate of 16.3
+    action = m.leaning(S)
+    assert action is not None and action.kind == "hold" and action.sensors == ("mag",)
+    assert "mag innovations share an offset" in action.reason and m.summary()["holds"] == 1
+    assert m.leaning(S) is None  # used up
+    off = ConsistencyMonitor(ConsistencyOptions(lean_probability=None))
+    feed(off, np.array([3.0, 0.0, 0.0]))
+    assert off.leaning(S) is None

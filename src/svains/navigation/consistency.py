@@ -64,6 +64,12 @@ answers ``drop_rate`` and the core fuses the sensor without that channel for a w
 (``FaultOptions.gps_velocity_drop_s``) instead of refusing whole fixes whose position is
 right. Only after a jump: a drifting filter shows in its velocity first too, but growing.
 
+A sensor can also mislead from inside its gate: a magnetometer near steel, turned by a few
+degrees, passes sample by sample and the heading follows. :meth:`ConsistencyMonitor.leaning`
+tests the last ``lean_window`` accepted whitened innovations of ``lean_sensors`` for a common
+offset (as the bias test does GPS's) and answers ``hold``: the core stops fusing the sensor
+for a while (``FaultOptions.lean_hold_s``).
+
 An IMU bias that *steps* (a knocked or overheated IMU) leaves every gate passing for seconds:
 the filter, sure of the old bias, takes the step for a tilt or a velocity and its innovations
 stay small but lean one way. :meth:`ConsistencyMonitor.biased` tests the last ``bias_window``
@@ -101,7 +107,7 @@ import numpy as np
 
 from svains.filter import chi2_gate
 
-RecoveryKind = Literal["inflate", "reset", "distrust", "bias", "drop_rate"]
+RecoveryKind = Literal["inflate", "reset", "distrust", "bias", "drop_rate", "hold"]
 
 
 @dataclass(frozen=True)
@@ -142,6 +148,13 @@ class ConsistencyOptions:
     # When the rate channel alone disagrees in every rejected update of an anchor rejected
     # alone (the rest inside its gate), answer ``drop_rate`` (False: handled as any rejection)
     rate_drop: bool = True
+    # A heading sensor disturbed by nearby steel (magnetometer) passes its gate sample by
+    # sample but leans: the last ``lean_window`` accepted whitened innovations of a
+    # ``lean_sensors`` share an offset beyond the ``lean_probability`` quantile -> ``hold``:
+    # the core stops fusing it for a while (None: no test).
+    lean_sensors: tuple[str, ...] = ("mag",)
+    lean_window: int = 5
+    lean_probability: float | None = 0.9999
     # While a jump lasts, at most this long (s), the anchor's updates are refused even inside
     # the gate when their innovation is nearer the jump's than zero (``jump_offsets``): the
     # filter's own spread, growing without the sensor, would otherwise let the offset in.
@@ -245,6 +258,7 @@ class _SensorTrack:
     # (t_ns, whitened innovation) of accepted updates, for the bias test
     whitened: deque[tuple[int, np.ndarray]] = field(default_factory=deque)
     fix_spacing_ns: int | None = None  # between the last two accepted updates
+    lean: deque[np.ndarray] = field(default_factory=deque)  # lean test's whitened innovations
 
 
 @dataclass
@@ -258,6 +272,7 @@ class ConsistencyMonitor:
     jumps: int = 0
     bias_shifts: int = 0
     rate_drops: int = 0
+    holds: int = 0
     _last_inflation_ns: int | None = None
     _last_imu_fault_ns: int | None = None
     _events: list[dict[str, object]] = field(default_factory=list)
@@ -281,6 +296,14 @@ class ConsistencyMonitor:
         if np.isfinite(nis) and dof > 0:
             s.nis_per_dof.append(float(nis) / dof)
         if accepted:
+            if (whitened is not None and o.lean_probability is not None
+                    and sensor in o.lean_sensors):  # fmt: skip
+                w = np.asarray(whitened, dtype=float)
+                if s.lean and s.lean[-1].shape != w.shape:
+                    s.lean.clear()
+                s.lean.append(w)
+                while len(s.lean) > o.lean_window:
+                    s.lean.popleft()
             if whitened is not None and o.bias_probability is not None and sensor in o.bias_sensors:
                 w = np.asarray(whitened, dtype=float)
                 if s.whitened and (s.whitened[-1][1].shape != w.shape or _window_broken(
@@ -602,6 +625,32 @@ class ConsistencyMonitor:
                  if (s := self._sensors.get(name)) is not None and s.last_accepted_ns is not None]
         return max(times, default=None)
 
+    def leaning(self, t_ns: int) -> RecoveryAction | None:
+        """``hold`` for the ``lean_sensors`` whose last ``lean_window`` accepted whitened
+        innovations share an offset beyond the ``lean_probability`` quantile of chi-square
+        with their dimension (``N |mean(w)|^2``, as the bias test): a magnetometer near
+        steel, turned by a few degrees, passes its gate sample by sample and pulls the
+        heading it is meant to hold. Its window is used up; counted in ``holds``."""
+        o = self.options
+        if o.lean_probability is None:
+            return None
+        for name in o.lean_sensors:
+            s = self._sensors.get(name)
+            if s is None or len(s.lean) < o.lean_window:
+                continue
+            W = np.stack(list(s.lean))
+            stat = float(W.shape[0] * np.sum(W.mean(axis=0) ** 2))
+            threshold = chi2_gate(o.lean_probability, W.shape[1])
+            if stat > threshold:
+                s.lean.clear()
+                self.holds += 1
+                self._events.append({"t_ns": int(t_ns), "kind": "hold", "sensors": [name]})
+                return RecoveryAction(
+                    "hold", f"the last {W.shape[0]} {name} innovations share an offset "
+                    f"(chi-square {stat:.3g} > {threshold:.3g}, {W.shape[1]} dof): a disturbed "
+                    f"{name}? It is not fused for a while", (name,))
+        return None
+
     def clear_bias_evidence(self) -> None:
         """Forget the bias test's window (after any recovery: the innovations start anew)."""
         for s in self._sensors.values():
@@ -620,6 +669,7 @@ class ConsistencyMonitor:
             "jumps": self.jumps,
             "bias_shifts": self.bias_shifts,
             "rate_drops": self.rate_drops,
+            "holds": self.holds,
             "events": list(self._events),
             "nis_per_dof_window": {name: self.nis_mean(name) for name in sorted(self._sensors)},
         }

@@ -314,7 +314,8 @@ class Recovery:
             vision_bias_probability=options.bias_test_vision_probability,
             jump_hold_s=options.gps_jump_hold_s,
             jump_erratic_probability=options.gps_scatter_probability,
-            rate_drop=options.gps_velocity_drop_s is not None))  # fmt: skip
+            rate_drop=options.gps_velocity_drop_s is not None,
+            lean_probability=options.lean_test_probability))  # fmt: skip
         self._options = options
         self._warn = warn
         self._bias_rw = bias_random_walk_var
@@ -323,6 +324,7 @@ class Recovery:
         self.bias_restored = 0
         self.reset_pending = False
         self._rate_off_until_ns: dict[str, int] = {}  # sensor -> fused without its rate until
+        self._off_until_ns: dict[str, int] = {}  # sensor -> not fused until (a lean, ``hold``)
 
     @staticmethod
     def _vision_lean(options: FaultOptions, gps_used: bool) -> bool:
@@ -334,6 +336,11 @@ class Recovery:
         """Whether the updates of the vision ``method`` feed the bias test (their corrections
         whitened, :func:`whitened_correction`)."""
         return method in self.monitor.options.bias_sensors
+
+    def held(self, sensor: str, t_ns: int) -> bool:
+        """Whether ``sensor`` is not fused at ``t_ns``: its innovations leaned
+        (``ConsistencyMonitor.leaning``) less than ``FaultOptions.lean_hold_s`` ago."""
+        return t_ns < self._off_until_ns.get(sensor, -1)
 
     def rate_off(self, sensor: str, t_ns: int) -> bool:
         """Whether ``sensor`` (GPS) is fused without its rate channel (velocity) at ``t_ns``:
@@ -356,6 +363,12 @@ class Recovery:
         """Ask the monitor after a group of updates and apply its action."""
         if self._alarm is not None:
             self._confirm_bias(ukf, t_ns)
+        held = self.monitor.leaning(t_ns)
+        if held is not None:
+            hold_s = self._options.lean_hold_s
+            for name in held.sensors:
+                self._off_until_ns[name] = int(t_ns) + round(hold_s * 1e9)
+            self._warn.warn("recovery-hold", t_ns, f"{held.reason} ({hold_s:g} s)")
         position_std_m = math.sqrt(float(np.trace(ukf.P[DP, DP])) / 3.0)
         action = self.monitor.should_recover(t_ns, position_std_m)
         if action is None:

@@ -69,6 +69,7 @@ class Core:
         self.updates: list[UpdateStats] = []
         self.update_log: list[UpdateRecord] = []
         self.gps_outage_skipped = 0
+        self.held_skipped = 0  # magnetometer samples not fused while it leaned (``hold``)
         self._log_t: list[int] = []
         self._log_x: list[np.ndarray] = []
         self._log_std: list[np.ndarray] = []
@@ -183,6 +184,9 @@ class Core:
                 blocks.append(ins.gps_block(self.rig.gps, payload[0], payload[1], use_v))
             elif kind == MAG:
                 assert self.rig.mag is not None
+                if self._recovery is not None and self._recovery.held("mag", t):
+                    self.held_skipped += 1
+                    continue
                 blocks.append(ins.mag_block(self.rig.mag, payload))
             elif kind == SONAR:
                 assert self.rig.sonar is not None
@@ -424,6 +428,8 @@ class Core:
             report["dropped"] = dict(dropped)
         if self.gps_outage_skipped:
             report["gps_outage_fixes_skipped"] = self.gps_outage_skipped
+        if self.held_skipped:
+            report["mag_held_skipped"] = self.held_skipped
         if self._gps_off:
             # Configured windows without GPS (int64 ns, [start, end)): the accuracy step reports
             # the error inside them as it does for gaps in the GPS stream.
