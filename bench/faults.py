@@ -16,7 +16,7 @@ among them, with the frozen GPS, the dead magnetometer and the bad sonar;
 not the persistent GPS step, which has its own row). "GPS lost" (no fix from the fault on) is
 the reference the ``ins`` run under the GPS step is held to: with no other sensor to
 contradict a step, its error must be no worse than without GPS; "GPS lost 10 s" is the frozen
-GPS's and the multipath's (their fixes carry next to nothing).
+GPS's, the multipath's and the ramp's (their fixes carry next to nothing).
 
 It runs ``ins`` and ``3d`` on each through the public library entry
 (``svains.evaluation.run.run_method``, started from the ground truth) and prints:

@@ -2,16 +2,16 @@
 
 Plain script (not a timed test). For each class (IMU spikes, saturation, zeros, frozen output,
 a gap, bias steps; GPS step, GPS lost, frozen GPS, GPS lost 10 s, GPS multipath, GPS velocity
-off when the data set has GPS; all at once; the magnetometer and sonar classes are left out:
-the shared real data sets have neither; with ``--images`` among the run's arguments, camera
-classes too: ``CAMERA_FAULTS``) it writes a copy of the data set into a temporary folder
-(``imu0`` and ``gps0`` rewritten, every other entry a symbolic link to the original: nothing
-of it is copied or changed), injects the fault ``--at`` seconds after the first IMU sample and
+off, GPS ramp when the data set has GPS; all at once; the magnetometer and sonar classes are
+left out: the shared real data sets have neither; with ``--images`` among the run's arguments,
+camera classes too: ``CAMERA_FAULTS``) it writes a copy of the data set into a temporary folder
+(``imu0`` and ``gps0`` rewritten, every other entry a symbolic link to the original: nothing of
+it is copied or changed), injects the fault ``--at`` seconds after the first IMU sample and
 runs ``svains run COPY --method M ARGS...`` in a subprocess. It prints the exit code, the
 position RMSE and its ratio to the clean run's, the ATE, the NEES, the final error and the
 run's last line when it failed. "x lost" holds the GPS step to the run with the fixes removed
-from the fault on, and the frozen GPS and the multipath to the run with those 10 s removed
-(nothing else can do better when nothing contradicts them).
+from the fault on, and the frozen GPS, the multipath and the ramp to the run with those 10 s
+removed (nothing else can do better when nothing contradicts them).
 
     python bench/real_faults.py ../shared/data/kitti_raw_0926_41s --method ins -- \
         --init gps --no-mag
