@@ -233,6 +233,24 @@ def _erratic(track: list[tuple[int, np.ndarray]], cov: np.ndarray,
     return ssr > chi2_gate(probability, (len(track) - TREND_TERMS) * W.shape[1])
 
 
+def _common_offset(W: np.ndarray) -> float:
+    """``N |mean(w)|^2`` of N whitened innovations ``W`` (N, d): chi-square with d degrees of
+    freedom when they are white and unit, larger when they share an offset."""
+    return float(W.shape[0] * np.sum(W.mean(axis=0) ** 2))
+
+
+def _inside(r: np.ndarray, C: np.ndarray, probability: float) -> bool | None:
+    """Whether ``r`` (d,) with covariance ``C`` (d, d) is inside the chi-square(d) gate at
+    ``probability``; None when ``r`` is empty or ``C`` singular."""
+    if r.size == 0:
+        return None
+    try:
+        nis = float(r @ np.linalg.solve(C, r))
+    except np.linalg.LinAlgError:
+        return None
+    return nis <= chi2_gate(probability, r.size)
+
+
 @dataclass
 class _SensorTrack:
     nis_per_dof: deque[float]
@@ -249,10 +267,9 @@ class _SensorTrack:
     jump_track: list[tuple[int, np.ndarray]] = field(default_factory=list)
     jump_grew: bool = False  # an innovation since the jump passed jump_growth times its NIS
     # (t_ns, innovation) of the last accepted update and the run of rejections after it,
-    # and the latest one's covariance
+    # and their innovation covariances where known (the latest last)
     streak: list[tuple[int, np.ndarray]] = field(default_factory=list)
-    streak_cov: np.ndarray | None = None
-    streak_covs: list[np.ndarray] = field(default_factory=list)  # each one's, where known
+    streak_covs: list[np.ndarray] = field(default_factory=list)
     streak_rate_agrees: bool = True  # the rate channel agreed in every rejection of the run
     streak_rate_alone: bool = True  # ...or it alone disagreed in every one (the rest agreed)
     # (t_ns, whitened innovation) of accepted updates, for the bias test
@@ -291,7 +308,8 @@ class ConsistencyMonitor:
         s = self._sensors.get(sensor)
         if s is None:
             n = o.vision_bias_window if sensor in o.standalone_sensors else o.bias_window
-            s = _SensorTrack(deque(maxlen=o.window), whitened=deque(maxlen=n))
+            s = _SensorTrack(deque(maxlen=o.window), whitened=deque(maxlen=n),
+                             lean=deque(maxlen=o.lean_window))  # fmt: skip
             self._sensors[sensor] = s
         if np.isfinite(nis) and dof > 0:
             s.nis_per_dof.append(float(nis) / dof)
@@ -302,8 +320,6 @@ class ConsistencyMonitor:
                 if s.lean and s.lean[-1].shape != w.shape:
                     s.lean.clear()
                 s.lean.append(w)
-                while len(s.lean) > o.lean_window:
-                    s.lean.popleft()
             if whitened is not None and o.bias_probability is not None and sensor in o.bias_sensors:
                 w = np.asarray(whitened, dtype=float)
                 if s.whitened and (s.whitened[-1][1].shape != w.shape or _window_broken(
@@ -358,9 +374,8 @@ class ConsistencyMonitor:
         s.last_rejection_ns = int(t_ns)
         if residual is not None and innovation_cov is not None:
             s.streak.append((int(t_ns), np.array(residual, float)))
-            s.streak_cov = np.array(innovation_cov, float)
-            s.streak_covs.append(s.streak_cov)
-            rate_ok, rest_ok = self._channels(sensor, s.streak[-1][1], s.streak_cov)
+            s.streak_covs.append(np.array(innovation_cov, float))
+            rate_ok, rest_ok = self._channels(sensor, s.streak[-1][1], s.streak_covs[-1])
             s.streak_rate_agrees &= rate_ok is True
             s.streak_rate_alone &= rate_ok is False and rest_ok is True
         else:
@@ -371,23 +386,16 @@ class ConsistencyMonitor:
         """Whether the rate channel of ``sensor`` (``rate_channels``) and the rest of its
         innovation ``residual`` (covariance ``cov``) are each inside their own gate (at
         ``rate_probability``); (None, None) without such a channel in this update."""
-        for name, a, b in self.options.rate_channels:
-            if name == sensor and residual.shape == (b,) and 0 <= a < b:
-                rest = np.r_[0:a]
-                out: list[bool | None] = []
-                for idx in (np.r_[a:b], rest):
-                    if idx.size == 0:
-                        out.append(None)
-                        continue
-                    r, C = residual[idx], cov[np.ix_(idx, idx)]
-                    try:
-                        nis = float(r @ np.linalg.solve(C, r))
-                    except np.linalg.LinAlgError:
-                        out.append(None)
-                        continue
-                    out.append(nis <= chi2_gate(self.options.rate_probability, idx.size))
-                return out[0], out[1]
-        return None, None
+        channel = self._rate_channel(sensor)
+        if channel is None or residual.shape != (channel[1],):
+            return None, None
+        a, b, p = *channel, self.options.rate_probability
+        return _inside(residual[a:b], cov[a:b, a:b], p), _inside(residual[:a], cov[:a, :a], p)
+
+    def _rate_channel(self, sensor: str) -> tuple[int, int] | None:
+        """``sensor``'s rate channel [start, stop) (``rate_channels``), or None."""
+        return next(((a, b) for n, a, b in self.options.rate_channels
+                     if n == sensor and 0 <= a < b), None)  # fmt: skip
 
     def _erratic_anchor(self, anchors: list[str]) -> bool | None:
         """For anchors rejected alone: whether the innovations of their runs of rejections,
@@ -402,12 +410,12 @@ class ConsistencyMonitor:
         if p is None:
             return None
         tracks = [self._sensors[n] for n in anchors]
-        if any(not t.streak or t.streak_cov is None for t in tracks):
+        if any(not t.streak or not t.streak_covs for t in tracks):
             return None
         if any(len(t.streak) <= TREND_TERMS + o.rate_patience * t.streak_rate_agrees
                for t in tracks):  # fmt: skip
             return False
-        if any(_erratic(t.streak, t.streak_cov, p) for t in tracks):  # type: ignore[arg-type]
+        if any(_erratic(t.streak, t.streak_covs[-1], p) for t in tracks):
             return True
         return None
 
@@ -426,7 +434,7 @@ class ConsistencyMonitor:
         worst: float | None = None
         for name in anchors:
             t = self._sensors[name]
-            channel = next(((a, b) for n, a, b in o.rate_channels if n == name), None)
+            channel = self._rate_channel(name)
             n = len(t.streak)
             if (channel is None or not t.streak_rate_agrees or n <= TREND_TERMS
                     or len(t.streak_covs) != n):  # fmt: skip
@@ -602,7 +610,7 @@ class ConsistencyMonitor:
                 continue
             W = np.stack([w for _, w in s.whitened])
             span_s = (s.whitened[-1][0] - s.whitened[0][0]) / 1e9
-            stat = float(W.shape[0] * np.sum(W.mean(axis=0) ** 2))
+            stat = _common_offset(W)
             vision = name in o.standalone_sensors
             p = o.vision_bias_probability if vision else o.bias_probability
             if p is None:
@@ -639,7 +647,7 @@ class ConsistencyMonitor:
             if s is None or len(s.lean) < o.lean_window:
                 continue
             W = np.stack(list(s.lean))
-            stat = float(W.shape[0] * np.sum(W.mean(axis=0) ** 2))
+            stat = _common_offset(W)
             threshold = chi2_gate(o.lean_probability, W.shape[1])
             if stat > threshold:
                 s.lean.clear()

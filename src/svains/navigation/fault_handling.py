@@ -323,8 +323,8 @@ class Recovery:
         self.bias_confirmed = 0
         self.bias_restored = 0
         self.reset_pending = False
-        self._rate_off_until_ns: dict[str, int] = {}  # sensor -> fused without its rate until
-        self._off_until_ns: dict[str, int] = {}  # sensor -> not fused until (a lean, ``hold``)
+        # (sensor, "rate" | "all") -> t_ns until which that part of it is not fused
+        self._off_until_ns: dict[tuple[str, str], int] = {}
 
     @staticmethod
     def _vision_lean(options: FaultOptions, gps_used: bool) -> bool:
@@ -340,13 +340,19 @@ class Recovery:
     def held(self, sensor: str, t_ns: int) -> bool:
         """Whether ``sensor`` is not fused at ``t_ns``: its innovations leaned
         (``ConsistencyMonitor.leaning``) less than ``FaultOptions.lean_hold_s`` ago."""
-        return t_ns < self._off_until_ns.get(sensor, -1)
+        return t_ns < self._off_until_ns.get((sensor, "all"), -1)
 
     def rate_off(self, sensor: str, t_ns: int) -> bool:
         """Whether ``sensor`` (GPS) is fused without its rate channel (velocity) at ``t_ns``:
         the monitor found it alone disagreeing (``drop_rate``) less than
         ``FaultOptions.gps_velocity_drop_s`` ago."""
-        return t_ns < self._rate_off_until_ns.get(sensor, -1)
+        return t_ns < self._off_until_ns.get((sensor, "rate"), -1)
+
+    def _switch_off(self, action: RecoveryAction, part: str, hold_s: float, t_ns: int) -> None:
+        """Stop fusing ``part`` of ``action``'s sensors for ``hold_s`` from ``t_ns``, warned."""
+        for name in action.sensors:
+            self._off_until_ns[(name, part)] = int(t_ns) + round(hold_s * 1e9)
+        self._warn.warn(f"recovery-{action.kind}", t_ns, f"{action.reason} ({hold_s:g} s)")
 
     @property
     def bias_pending(self) -> bool:
@@ -365,10 +371,7 @@ class Recovery:
             self._confirm_bias(ukf, t_ns)
         held = self.monitor.leaning(t_ns)
         if held is not None:
-            hold_s = self._options.lean_hold_s
-            for name in held.sensors:
-                self._off_until_ns[name] = int(t_ns) + round(hold_s * 1e9)
-            self._warn.warn("recovery-hold", t_ns, f"{held.reason} ({hold_s:g} s)")
+            self._switch_off(held, "all", self._options.lean_hold_s, t_ns)
         position_std_m = math.sqrt(float(np.trace(ukf.P[DP, DP])) / 3.0)
         action = self.monitor.should_recover(t_ns, position_std_m)
         if action is None:
@@ -383,9 +386,7 @@ class Recovery:
         if action.kind == "drop_rate":
             hold_s = self._options.gps_velocity_drop_s
             assert hold_s is not None  # the monitor answers drop_rate only with a hold
-            for name in action.sensors:
-                self._rate_off_until_ns[name] = int(t_ns) + round(hold_s * 1e9)
-            self._warn.warn("recovery-drop-rate", t_ns, f"{action.reason} ({hold_s:g} s)")
+            self._switch_off(action, "rate", hold_s, t_ns)
             return
         self._warn.warn(f"recovery-{action.kind}", t_ns,
                         f"filter inconsistent ({action.reason}): {action.kind}")  # fmt: skip
