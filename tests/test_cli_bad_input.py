@@ -105,6 +105,42 @@ def _stray_imu_row(root: Path) -> None:
 
 
 
+def _scale_columns(rel: str, cols: slice, scale: float, offset: float = 0.0) -> Edit:
+    """Columns ``cols`` of ``mav0/rel`` times ``scale`` plus ``offset`` (a unit mistake)."""
+
+    def edit(root: Path) -> None:
+        p = root / "mav0" / rel
+        lines = p.read_text().splitlines()
+        rows = [ln.split(",") for ln in lines[1:]]
+        for r in rows:
+            r[cols] = [repr(float(v) * scale + offset) for v in r[cols]]
+        p.write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
+
+    return edit
+
+
+def _gravity_removed(root: Path) -> None:
+    p = root / "mav0/imu0/data.csv"
+    lines = p.read_text().splitlines()
+    rows = [ln.split(",") for ln in lines[1:]]
+    a = np.array([[float(v) for v in r[4:7]] for r in rows])
+    a -= np.median(a, axis=0)  # the simulated flight is near level: the median is gravity
+    for r, ai in zip(rows, a, strict=True):
+        r[4:7] = [repr(float(v)) for v in ai]
+    p.write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
+
+
+def _baseline_in_mm(root: Path) -> None:
+    p = root / "mav0/cam1/sensor.yaml"
+    text = p.read_text()
+    start = text.index("data: [") + len("data: [")
+    end = text.index("]", start)
+    T = [float(v) for v in text[start:end].split(",")]
+    for i in (3, 7, 11):
+        T[i] *= 1000.0
+    p.write_text(text[:start] + ", ".join(repr(v) for v in T) + text[end:])
+
+
 DATA_CASES: list[tuple[str, Edit, str]] = [
     ("imu header only", _header_only("imu0/data.csv"), "imu0/data.csv: 0 data row"),
     ("gps header only", _header_only("gps0/data.csv"), "gps0/data.csv: 0 data row"),
@@ -136,6 +172,12 @@ DATA_CASES: list[tuple[str, Edit, str]] = [
      lambda r: _rescale_stamps(r / "mav0/imu0/data.csv", 1_000_000),
      "they look like milliseconds"),
     ("imu row 100 years on", _stray_imu_row, "h after the row before"),
+    ("accelerometer in g", _scale_columns("imu0/data.csv", slice(4, 7), 1 / 9.80665),
+     "looks like g (multiply by 9.81)"),
+    ("accelerometer without gravity", _gravity_removed, "gravity removed"),
+    ("gps in degrees", _scale_columns("gps0/data.csv", slice(1, 3), 1e-5, 49.0),
+     "positions in degrees or km?"),
+    ("stereo baseline in mm", _baseline_in_mm, "translations in millimetres?"),
 ]
 
 

@@ -256,3 +256,22 @@ def test_malformed_extra_is_skipped_with_warning(
         "simulator extra skipped" in r.getMessage() and "kinematics.csv:3" in r.getMessage()
         for r in caplog.records
     )
+
+
+def test_an_image_of_another_size_drops_its_pair_with_a_warning(
+    ds_dir: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from svains.datasets import stereo_pairs
+    from svains.datasets._image_io import write_grey
+    from svains.datasets.loader import PairReader
+
+    ds = load_dataset(ds_dir)  # the load checks the first image's size only
+    t, il, ir = stereo_pairs(ds)
+    write_grey(ds.right.paths[int(ir[1])], np.zeros((12, 16), np.uint8))
+    reader = PairReader(ds)
+    with caplog.at_level("WARNING", logger="svains.datasets.loader"):
+        got = [reader.read(a, b, ti) for ti, a, b in zip(t, il, ir, strict=True)]
+    assert got[1] is None and all(g is not None for i, g in enumerate(got) if i != 1)
+    assert reader.dropped == 1
+    assert re.search(r"stereo pair dropped \(1 so far\): image is 16x12 px, the calibration's "
+                     r"resolution is 32x24: .*cam1", caplog.text)  # fmt: skip

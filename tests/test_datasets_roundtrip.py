@@ -39,7 +39,9 @@ def write_full(root: Path, seed: int = 0) -> dict[str, object]:
     w = AslWriter(root)
     t0 = 1_403_715_273_262_142_976  # beyond float64's exact integers on purpose
     t_imu = t0 + np.arange(40, dtype=np.int64) * 5_000_000
-    imu = ImuStream(t_imu, rng.normal(size=(40, 3)) * 1e-7, rng.normal(size=(40, 3)) * 1e3)
+    # specific force about 1 g: the reader refuses an accelerometer in another unit
+    accel = rng.normal(size=(40, 3)) + np.array([0.0, 0.0, 9.81])
+    imu = ImuStream(t_imu, rng.normal(size=(40, 3)) * 1e-7, accel)
     imu_cal = ImuCalib(_T(rng), 200.0, 1.6968e-4, 1.9393e-05, 2e-3, 3e-3, 17.45, 176.5)
     t_cam = t_imu[::10]
     cams = []

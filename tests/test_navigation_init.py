@@ -138,3 +138,42 @@ def test_gps_start_without_gps_is_refused() -> None:
     ds, _ = static_dataset()
     with pytest.raises(InitialisationError, match="needs a GPS stream"):
         initialise(ds, BIASED, InitOptions(mode="gps"))
+
+
+@pytest.mark.parametrize(
+    ("scale", "offset", "fragment"),
+    [(1 / 9.81, 0.0, r"reads 0\.99\d+ m/s² against gravity 9\.81 m/s²: is it in g"),
+     (1.0, -1.0, r"reads 0\.0\d+ m/s² against gravity 9\.81 m/s²: is it in g, or with gravity r")],
+    ids=["g", "gravity removed"],
+)
+def test_static_start_refuses_an_accelerometer_in_another_unit(
+    scale: float, offset: float, fragment: str
+) -> None:
+    ds, q = static_dataset()
+    R = quat_to_rotmat(q)
+    # offset -1: the at-rest specific force minus gravity (a driver's "linear acceleration")
+    acc = ds.imu.accel_B * scale + offset * (R.T @ -G_W)
+    ds.imu = ImuStream(ds.imu.t_ns, ds.imu.gyro_B, acc)
+    with pytest.raises(InitialisationError, match=fragment):
+        initialise(ds, BIASED, InitOptions())
+
+
+def test_a_wandering_gyro_under_a_steady_accelerometer_asks_for_rad_s() -> None:
+    ds, _ = static_dataset()
+    deg = ImuStream(ds.imu.t_ns, np.degrees(ds.imu.gyro_B), ds.imu.accel_B)
+    ds.imu = deg
+    with pytest.raises(InitialisationError, match=r"not static.*is the gyro in deg/s\?"):
+        initialise(ds, BIASED, InitOptions())
+    # a real motion moves the accelerometer too: no such hint
+    with pytest.raises(InitialisationError, match="not static") as exc:
+        initialise(make_dataset(5.0), BIASED, InitOptions())
+    assert "deg/s" not in str(exc.value)
+
+
+def test_in_flight_gps_start_refuses_an_accelerometer_in_g(village_flight) -> None:
+    from dataclasses import replace
+
+    ds = replace(village_flight, imu=ImuStream(village_flight.imu.t_ns, village_flight.imu.gyro_B,
+                                               village_flight.imu.accel_B / 9.81))  # fmt: skip
+    with pytest.raises(InitialisationError, match=r"looks like g \(multiply by 9\.81\)"):
+        initialise(ds, BIASED, InitOptions(mode="gps"))

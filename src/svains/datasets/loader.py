@@ -12,7 +12,8 @@ from numpy.typing import NDArray
 from svains.datasets.asl_reader import find_mav0, read_asl
 from svains.datasets.kitti import is_kitti, read_kitti
 from svains.datasets.stereo_sync import match_stereo
-from svains.datasets.types import Dataset
+from svains.datasets.types import Dataset, ImageStream
+from svains.datasets.validate import check_stream_units
 from svains.errors import DatasetError
 
 log = logging.getLogger(__name__)
@@ -60,9 +61,10 @@ def load_dataset(
             f"{p}: unrecognised data set (expected an ASL mav0/ folder, KITTI calib.txt + "
             "image_0/, or a ROS bag)"
         )
-    if calib is None and imu_calib is None:
-        return ds
-    return apply_kalibr(ds, calib, imu_calib)
+    if calib is not None or imu_calib is not None:
+        ds = apply_kalibr(ds, calib, imu_calib)
+    check_stream_units(ds)
+    return ds
 
 
 def stream_times(ds: Dataset) -> dict[str, np.ndarray]:
@@ -109,12 +111,25 @@ class PairReader:
         if ds.left is None or ds.right is None:
             raise DatasetError(f"{ds.root}: no cam0/cam1 images")
         self._left, self._right = ds.left, ds.right
+        # (width, height) each camera's calibration holds; None: not checked
+        self._sizes = tuple(None if c is None else tuple(int(v) for v in c.resolution)
+                            for c in (ds.cam0, ds.cam1))  # fmt: skip
         self.dropped = 0
+
+    def _load(self, stream: ImageStream, i: int, size: tuple[int, ...] | None) -> U8:
+        img = stream.load(i)
+        if size is not None and (img.shape[1], img.shape[0]) != size:
+            # the load checks only the first image; a rectifier given another size would
+            # raise deep in OpenCV or track on a wrong geometry
+            raise DatasetError(f"image is {img.shape[1]}x{img.shape[0]} px, the calibration's "
+                               f"resolution is {size[0]}x{size[1]}: {stream.paths[i]}")  # fmt: skip
+        return img
 
     def read(self, i_left: int, i_right: int, t_ns: int) -> tuple[U8, U8] | None:
         """Images ``i_left``/``i_right`` of the pair at ``t_ns`` (8-bit grey), or None."""
         try:
-            return self._left.load(int(i_left)), self._right.load(int(i_right))
+            return (self._load(self._left, int(i_left), self._sizes[0]),
+                    self._load(self._right, int(i_right), self._sizes[1]))  # fmt: skip
         except DatasetError as exc:
             self.dropped += 1
             if self.dropped <= _WARN_FIRST or self.dropped % _WARN_EVERY == 0:

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from svains.datasets.stereo_sync import match_stereo, nearest_offsets_ns
 from svains.datasets.types import (
     CameraCalib,
+    Dataset,
     GpsCalib,
     ImageStream,
     ImuCalib,
@@ -25,6 +26,7 @@ from svains.datasets.types import (
     SonarCalib,
 )
 from svains.errors import CalibrationError, DatasetError
+from svains.sensors.units import accel_units_problem
 
 log = logging.getLogger(__name__)
 
@@ -35,6 +37,15 @@ GRAVITY_RANGE_M_S2 = (9.7, 9.9)
 # hand-written matrices 1e-4).
 ROTATION_TOL = 1e-3
 MIN_BASELINE_M = 1e-3  # any real stereo rig has centimetres
+# Wide-baseline rigs reach metres; tens of metres is a calibration written in millimetres.
+MAX_BASELINE_M = 20.0
+# A GPS whose positions cover less than this fraction of the path its velocities integrate to
+# while it moves (GPS_MOVING_M_S or faster; at least GPS_MIN_PATH_M of it) has positions in
+# another unit (degrees, km). Standing still is left out: there a precise (RTK) position can
+# wander less than a noisy velocity integrates to.
+GPS_PATH_MIN_RATIO = 0.1
+GPS_MOVING_M_S = 0.5
+GPS_MIN_PATH_M = 5.0
 # Ground-truth quaternions are unit; a norm off by more than this is a broken file.
 QUATERNION_NORM_TOL = 1e-2
 # A stereo stream whose left frames find a right partner less often than this is warned about.
@@ -158,6 +169,58 @@ def check_stereo_rig(cam0: CameraCalib, cam1: CameraCalib, path0: Path, path1: P
             f"{path0}, {path1}: 'T_BS' of cam0 and cam1 give a baseline of {b:.3g} m, "
             f"expected > {MIN_BASELINE_M:g} m"
         )
+    if b > MAX_BASELINE_M:
+        raise CalibrationError(
+            f"{path0}, {path1}: 'T_BS' of cam0 and cam1 give a baseline of {b:.4g} m, "
+            f"expected < {MAX_BASELINE_M:g} m: translations in millimetres? (svains reads metres)"
+        )
+
+
+def check_accel_units(accel_S: NDArray[np.float64], g_W: NDArray[np.float64], path: Path) -> None:
+    """DatasetError naming ``path`` when ``accel_S`` (N, 3) is not specific force in m/s²
+    (``sensors.units.accel_units_problem``)."""
+    problem = accel_units_problem(accel_S, g_W)
+    if problem is not None:
+        raise DatasetError(f"{path}: {problem}")
+
+
+def check_gps_units(t_ns: NDArray[np.int64], p_W_G: NDArray[np.float64],
+                    v_W_G: NDArray[np.float64], path: Path) -> None:  # fmt: skip
+    """On each axis, GPS positions move as far as their velocities say while moving
+    (``GPS_PATH_MIN_RATIO``); positions in degrees or km stand still against them. Per axis,
+    since a receiver gives latitude and longitude in degrees but the height in metres. Noise
+    only lengthens the position path, so only a path too short is refused."""
+    if len(t_ns) < 2:
+        return
+    dt_s = np.diff(t_ns) * 1e-9
+    speed = np.abs(v_W_G)
+    mean_speed = 0.5 * (speed[1:] + speed[:-1])  # (N-1, 3)
+    moving = mean_speed >= GPS_MOVING_M_S
+    v_path = np.sum(np.where(moving, mean_speed * dt_s[:, None], 0.0), axis=0)
+    p_path = np.sum(np.where(moving, np.abs(np.diff(p_W_G, axis=0)), 0.0), axis=0)
+    bad = np.flatnonzero((v_path >= GPS_MIN_PATH_M) & (p_path < GPS_PATH_MIN_RATIO * v_path))
+    if bad.size:
+        k = int(bad[0])
+        raise DatasetError(
+            f"{path}: while moving along axis {'xyz'[k]}, the positions cover {p_path[k]:.3g} m "
+            f"and the velocities {v_path[k]:.4g} m: positions in degrees or km? svains reads a "
+            "local metric frame (e.g. ENU metres, docs/formats.md)"
+        )
+
+
+def check_stream_units(ds: Dataset) -> None:
+    """The units a reader cannot see in a file's syntax, for every format: the IMU's specific
+    force (``check_accel_units``) and GPS positions against its velocities
+    (``check_gps_units``). The error names the stream's ASL file where there is one."""
+
+    def where(folder: str) -> Path:
+        csv = ds.root / "mav0" / folder / "data.csv"
+        return csv if csv.is_file() else ds.root / folder
+
+    if ds.imu is not None:
+        check_accel_units(ds.imu.accel_B, ds.gravity_W, where("imu0"))
+    if ds.gps is not None:
+        check_gps_units(ds.gps.t_ns, ds.gps.p_W_G, ds.gps.v_W_G, where("gps0"))
 
 
 def png_size(path: Path) -> tuple[int, int] | None:

@@ -21,9 +21,14 @@ from svains.navigation.heading import course_heading_or_none
 from svains.navigation.options import InitOptions
 from svains.navigation.platform_noise import block_deviation, block_means, measure_static_noise
 from svains.sensors.types import GpsCalib, GroundTruth, ImuCalib, MagCalib
+from svains.sensors.units import accel_units_problem
 
 F64 = NDArray[np.float64]
 log = logging.getLogger(__name__)
+
+# At rest the specific force is gravity plus the accelerometer's bias and scale error; a
+# consumer MEMS part stays within a few percent, a unit mistake (g, gravity removed) does not.
+STATIC_GRAVITY_TOL = 0.25
 
 
 @dataclass
@@ -128,6 +133,11 @@ def initialise(
     if options.mode == "static":
         return _from_static(dataset, layout, options)
     if options.mode == "gps":
+        # In flight nothing rests to compare with gravity; the samples so far still show a
+        # unit mistake (a static start compares its mean, ``STATIC_GRAVITY_TOL``).
+        problem = accel_units_problem(dataset.imu.accel_B, np.asarray(dataset.gravity_W))
+        if problem is not None:
+            raise InitialisationError(f"{dataset.name}: {problem}")
         return _from_gps(dataset, layout, options)
     raise InitialisationError(f"unknown init mode {options.mode!r} (static|gps|groundtruth)")
 
@@ -156,15 +166,26 @@ def _from_static(dataset: InitData, layout: StateLayout, o: InitOptions) -> Init
     acc_dev = block_deviation(block_means(acc, n_block))
     gyro_dev = block_deviation(block_means(gyro, n_block))
     if acc_dev > o.max_accel_dev or gyro_dev > o.max_gyro_dev:
+        # A turn tilts gravity in the accelerometer unless it is about the vertical; a gyro
+        # that wanders under a steady accelerometer is more often one read in deg/s.
+        hint = ("; the accelerometer is steady: if the vehicle did not turn, is the gyro in "
+                "deg/s? (svains reads rad/s)" if acc_dev <= o.max_accel_dev else "")  # fmt: skip
         raise InitialisationError(
             f"IMU is not static during the first {o.static_s} s: {o.block_s} s block means "
             f"deviate by up to {acc_dev:.3f} m/s² (max {o.max_accel_dev}) and {gyro_dev:.4f} "
             f"rad/s (max {o.max_gyro_dev}); use --init groundtruth or a data set with a "
-            "static start"
+            f"static start{hint}"
         )
     f_B = acc.mean(axis=0)
     bg = gyro.mean(axis=0)
     g_W = np.asarray(dataset.gravity_W, dtype=float)
+    f_norm, g_norm = float(np.linalg.norm(f_B)), float(np.linalg.norm(g_W))
+    if abs(f_norm / g_norm - 1.0) > STATIC_GRAVITY_TOL:
+        raise InitialisationError(
+            f"at rest the accelerometer reads {f_norm:.4g} m/s² against gravity {g_norm:.4g} "
+            "m/s²: is it in g, or with gravity removed? (svains reads specific force in m/s², "
+            "gravity included)"
+        )
     up_W = -g_W / np.linalg.norm(g_W)
     info: dict[str, object] = {
         "mode": "static",
