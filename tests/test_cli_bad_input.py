@@ -119,6 +119,20 @@ def _scale_columns(rel: str, cols: slice, scale: float, offset: float = 0.0) -> 
     return edit
 
 
+def _shift_stamps(rel: str, shift_s: int) -> Edit:
+    """The stamps of ``mav0/rel`` moved by ``shift_s`` (a stream on another clock)."""
+
+    def edit(root: Path) -> None:
+        p = root / "mav0" / rel
+        lines = p.read_text().splitlines()
+        rows = [ln.split(",") for ln in lines[1:]]
+        for r in rows:
+            r[0] = str(int(r[0]) + shift_s * 10**9)
+        p.write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
+
+    return edit
+
+
 def _gravity_removed(root: Path) -> None:
     p = root / "mav0/imu0/data.csv"
     lines = p.read_text().splitlines()
@@ -178,6 +192,10 @@ DATA_CASES: list[tuple[str, Edit, str]] = [
     ("gps in degrees", _scale_columns("gps0/data.csv", slice(1, 3), 1e-5, 49.0),
      "positions in degrees or km?"),
     ("stereo baseline in mm", _baseline_in_mm, "translations in millimetres?"),
+    ("gps on another clock", _shift_stamps("gps0/data.csv", 315_964_800),
+     "gps0/data.csv: its stamps (315964800."),
+    ("magnetometer on another clock", _shift_stamps("mag0/data.csv", -3600),
+     "s) lie 3600.000 s before the IMU's ("),
 ]
 
 
@@ -228,6 +246,19 @@ def test_bad_data_is_one_error_line_with_exit_1(
     for args in commands:
         _check(runner.invoke(app, args), 1, fragment)
     assert not (tmp_path / "run").exists() and not (tmp_path / "fe").exists()
+
+
+def test_a_reference_on_another_clock_is_dropped_with_a_warning(
+    base: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from svains.datasets import load_dataset
+
+    root = _copy(base, tmp_path, _shift_stamps("state_groundtruth_estimate0/data.csv", 7200))
+    with caplog.at_level("WARNING", logger="svains.datasets.validate"):
+        ds = load_dataset(root)
+    assert ds.groundtruth is None and ds.imu is not None and ds.gps is not None
+    assert "lie 7200.000 s after the IMU's" in caplog.text
+    assert "the reference is not used" in caplog.text
 
 
 def test_stereo_pairs_a_millisecond_apart_are_paired(base: Path, tmp_path: Path) -> None:

@@ -37,6 +37,9 @@ GRAVITY_RANGE_M_S2 = (9.7, 9.9)
 # hand-written matrices 1e-4).
 ROTATION_TOL = 1e-3
 MIN_BASELINE_M = 1e-3  # any real stereo rig has centimetres
+# Lenses sit near the sensor's middle; a principal point outside this fraction of the image
+# is more often a calibration in another order than a cropped image (warned, not refused).
+PRINCIPAL_POINT_BAND = (0.1, 0.9)
 # Wide-baseline rigs reach metres; tens of metres is a calibration written in millimetres.
 MAX_BASELINE_M = 20.0
 # A GPS whose positions cover less than this fraction of the path its velocities integrate to
@@ -117,6 +120,11 @@ def check_camera_calib(c: CameraCalib, path: Path) -> None:
     check_number(cv, path, "intrinsics[3] (cv)")
     if not np.all(np.isfinite(c.distortion)):
         raise CalibrationError(f"{path}: field 'distortion_coefficients' has non-finite entries")
+    lo, hi = PRINCIPAL_POINT_BAND
+    if not (lo * w < cu < hi * w and lo * h < cv < hi * h):
+        log.warning("%s: the principal point (%.1f, %.1f) px lies near the edge of the %dx%d "
+                    "image: intrinsics in another order? (svains reads [fu, fv, cu, cv])",
+                    path, cu, cv, w, h)  # fmt: skip
 
 
 def check_gps_calib(c: GpsCalib, path: Path) -> None:
@@ -208,10 +216,91 @@ def check_gps_units(t_ns: NDArray[np.int64], p_W_G: NDArray[np.float64],
         )
 
 
+# The GPS course against the IMU's turn about the vertical (``check_gps_handedness``): over
+# steps of at least GPS_TURN_STEP_S, moving faster than GPS_TURN_MIN_SPEED_M_S and turning at
+# least GPS_TURN_MIN_DEG by the gyro, a cosine below GPS_MIRROR_COSINE over GPS_MIRROR_MIN_STEPS
+# or more such steps, GPS_MIRROR_MIN_TURN_DEG in all, says the GPS frame is mirrored. A car's
+# course follows its heading (cosine +0.99 on KITTI raw, the simulator's village +0.99); a
+# multirotor may fly sideways (+0.5 on the MH_03 trajectory), so only a strong opposite
+# agreement is refused.
+GPS_TURN_STEP_S = 1.0
+GPS_TURN_MIN_SPEED_M_S = 2.0
+GPS_TURN_MIN_DEG = 3.0
+GPS_MIRROR_COSINE = -0.7
+GPS_MIRROR_MIN_STEPS = 4
+GPS_MIRROR_MIN_TURN_DEG = 45.0
+
+
+def gps_course_vs_imu_turn(
+    imu_t_ns: NDArray[np.int64], gyro_S: NDArray[np.float64], accel_S: NDArray[np.float64],
+    gps_t_ns: NDArray[np.int64], v_W_G: NDArray[np.float64], g_W: NDArray[np.float64],
+) -> tuple[float, int, float] | None:
+    """How the GPS course turns against the IMU's turn about the vertical: (cosine of the two
+    series of per-step turns, steps used, total IMU turn in deg), or None without a usable
+    step. The vertical in the IMU frame is its specific force averaged over 1 s, so no
+    mounting calibration is needed (gyro and accelerometer share a frame)."""
+    if len(imu_t_ns) < 3 or len(gps_t_ns) < 2:
+        return None
+    t = (imu_t_ns - imu_t_ns[0]) * 1e-9
+    # 1 s boxcar of the specific force by time (irregular IMU streams too)
+    csum = np.vstack([np.zeros(3), np.cumsum(accel_S, axis=0)])
+    lo = np.searchsorted(t, t - 0.5)
+    hi = np.searchsorted(t, t + 0.5, side="right")
+    up_S = (csum[hi] - csum[lo]) / (hi - lo)[:, None]
+    norm = np.linalg.norm(up_S, axis=1)
+    rate = np.sum(gyro_S * up_S, axis=1) / np.where(norm > 0, norm, np.inf)
+    turn = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t))])
+    tg = (gps_t_ns - imu_t_ns[0]) * 1e-9
+    tg_in = tg[(tg >= t[0]) & (tg <= t[-1])]
+    if tg_in.size < 2:
+        return None
+    steps = np.unique(np.searchsorted(tg, np.arange(tg_in[0], tg_in[-1], GPS_TURN_STEP_S)))
+    if steps.size < 2:
+        return None
+    up_W = -g_W / np.linalg.norm(g_W)
+    e1 = np.cross(up_W, (1.0, 0.0, 0.0) if abs(up_W[0]) < 0.9 else (0.0, 1.0, 0.0))
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up_W, e1)  # (e1, e2, up) right-handed
+    v = v_W_G[steps]
+    course = np.arctan2(v @ e2, v @ e1)
+    speed = np.hypot(v @ e1, v @ e2)
+    d_course = np.angle(np.exp(1j * np.diff(course)))
+    d_turn = np.diff(np.interp(tg[steps], t, turn))
+    ok = ((speed[1:] > GPS_TURN_MIN_SPEED_M_S) & (speed[:-1] > GPS_TURN_MIN_SPEED_M_S)
+          & (np.abs(d_turn) > np.radians(GPS_TURN_MIN_DEG)))  # fmt: skip
+    if not ok.any():
+        return None
+    a, b = d_course[ok], d_turn[ok]
+    cosine = float(a @ b / np.sqrt((a @ a) * (b @ b)))
+    return cosine, int(ok.sum()), float(np.degrees(np.sum(np.abs(b))))
+
+
+def check_gps_handedness(ds: Dataset, path: Path) -> None:
+    """DatasetError when the GPS course turns against the IMU (``gps_course_vs_imu_turn``):
+    a GPS in a mirrored frame (NED or a swapped axis against ``gravity_W``'s z-up)."""
+    if ds.imu is None or ds.gps is None:
+        return
+    got = gps_course_vs_imu_turn(ds.imu.t_ns, ds.imu.gyro_B, ds.imu.accel_B, ds.gps.t_ns,
+                                 ds.gps.v_W_G, np.asarray(ds.gravity_W, float))  # fmt: skip
+    if got is None:
+        return
+    cosine, n, turn_deg = got
+    if (cosine < GPS_MIRROR_COSINE and n >= GPS_MIRROR_MIN_STEPS
+            and turn_deg >= GPS_MIRROR_MIN_TURN_DEG):  # fmt: skip
+        raise DatasetError(
+            f"{path}: the GPS course turns against the IMU (cosine {cosine:.2f} over {n} "
+            f"turns, {turn_deg:.0f}° by the gyro): its frame is mirrored against gravity_W "
+            f"{np.round(ds.gravity_W, 3).tolist()} (NED, or two axes swapped?); svains reads "
+            "a right-handed local frame with gravity_W's up (e.g. ENU)"
+        )
+
+
 def check_stream_units(ds: Dataset) -> None:
-    """The units a reader cannot see in a file's syntax, for every format: the IMU's specific
-    force (``check_accel_units``) and GPS positions against its velocities
-    (``check_gps_units``). The error names the stream's ASL file where there is one."""
+    """The units and clocks a reader cannot see in a file's syntax, for every format: the IMU's
+    specific force (``check_accel_units``), GPS positions against its velocities
+    (``check_gps_units``), and every stream's span against the IMU's (a sensor stream that
+    never meets it is refused, a reference that never does is dropped with a warning). The
+    error names the stream's ASL file where there is one."""
 
     def where(folder: str) -> Path:
         csv = ds.root / "mav0" / folder / "data.csv"
@@ -221,6 +310,33 @@ def check_stream_units(ds: Dataset) -> None:
         check_accel_units(ds.imu.accel_B, ds.gravity_W, where("imu0"))
     if ds.gps is not None:
         check_gps_units(ds.gps.t_ns, ds.gps.p_W_G, ds.gps.v_W_G, where("gps0"))
+    if ds.imu is None or len(ds.imu.t_ns) == 0:
+        return
+    t0, t1 = int(ds.imu.t_ns[0]), int(ds.imu.t_ns[-1])
+    streams = (("cam0", ds.left, "timeshift_cam_imu in cam0/sensor.yaml"),
+               ("cam1", ds.right, "timeshift_cam_imu in cam1/sensor.yaml"),
+               ("gps0", ds.gps, "timeshift_gps_imu in gps0/sensor.yaml"),
+               ("mag0", ds.mag, None), ("sonar0", ds.sonar, None),
+               ("state_groundtruth_estimate0", ds.groundtruth, None))  # fmt: skip
+    for folder, stream, key in streams:
+        if stream is None or len(stream.t_ns) == 0:
+            continue
+        s0, s1 = int(stream.t_ns[0]), int(stream.t_ns[-1])
+        if s1 >= t0 and s0 <= t1:
+            continue
+        off = (s0 - t0) * 1e-9
+        msg = (f"{where(folder)}: its stamps ({s0 * 1e-9:.3f}-{s1 * 1e-9:.3f} s) lie "
+               f"{abs(off):.3f} s {'after' if off > 0 else 'before'} the IMU's "
+               f"({t0 * 1e-9:.3f}-{t1 * 1e-9:.3f} s) and never meet them: another clock? "
+               "Every stream is stamped on the IMU's clock (integer ns)"
+               + (f"; a known offset goes in {key}" if key else ""))  # fmt: skip
+        if folder.startswith("state_"):
+            # the reference only scores a run: it is left out, not the run refused
+            log.warning("%s; the reference is not used", msg)
+            ds.groundtruth = None
+            continue
+        raise DatasetError(msg)
+    check_gps_handedness(ds, where("gps0"))
 
 
 def png_size(path: Path) -> tuple[int, int] | None:

@@ -1,0 +1,119 @@
+"""Unit, clock and frame mistakes a file's syntax cannot show, told from the values on load:
+the GPS frame's handedness against the IMU's turns (``datasets.validate``), the accelerometer's
+unit (``sensors.units``). The corpus of one-line CLI errors is in ``test_cli_bad_input.py``."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from svains.datasets import load_dataset
+from svains.datasets.validate import gps_course_vs_imu_turn
+from svains.errors import DatasetError
+from svains.sensors.units import accel_units_problem
+
+G_W = np.array([0.0, 0.0, -9.81])
+
+
+def _drive(rate_z: np.ndarray, t: np.ndarray, speed: float = 8.0, sideways: bool = False):
+    """A level vehicle yawing at ``rate_z`` (rad/s, about up) over ``t`` (s); IMU at 100 Hz and
+    1 Hz GPS velocities in ENU. ``sideways``: the course turns while the body does not (the
+    velocity follows ``rate_z``, the gyro reads nothing), as a multirotor can fly."""
+    yaw = np.concatenate([[0.0], np.cumsum(0.5 * (rate_z[1:] + rate_z[:-1]) * np.diff(t))])
+    rng = np.random.default_rng(0)
+    gyro = np.zeros((t.size, 3))
+    gyro[:, 2] = 0.0 if sideways else rate_z
+    gyro += rng.normal(0.0, 1e-3, gyro.shape)
+    accel = np.tile([0.0, 0.0, 9.81], (t.size, 1)) + rng.normal(0.0, 0.05, (t.size, 3))
+    t_ns = (t * 1e9).astype(np.int64)
+    idx = np.arange(0, t.size, 100)
+    v = speed * np.stack([np.cos(yaw[idx]), np.sin(yaw[idx]), np.zeros(idx.size)], axis=1)
+    return t_ns, gyro, accel, t_ns[idx], v
+
+
+def test_the_gps_course_follows_the_gyro_and_a_mirror_turns_it_against() -> None:
+    t = np.arange(0.0, 40.0, 0.01)
+    rate = 0.3 * np.sin(2 * np.pi * t / 12.0)  # weaving left and right
+    t_ns, gyro, accel, tg, v = _drive(rate, t)
+    cosine, n, turn = gps_course_vs_imu_turn(t_ns, gyro, accel, tg, v, G_W)
+    assert cosine > 0.99 and n >= 20 and turn > 200
+    ned = v[:, [1, 0, 2]] * [1, 1, -1]  # north, east, down
+    assert gps_course_vs_imu_turn(t_ns, gyro, accel, tg, ned, G_W)[0] < -0.99
+    # the same mirror against a gravity that says z is down is consistent
+    assert gps_course_vs_imu_turn(t_ns, gyro, accel, tg, ned, -G_W)[0] > 0.99
+
+
+def test_a_vehicle_flying_sideways_gives_no_turn_to_compare() -> None:
+    t = np.arange(0.0, 40.0, 0.01)
+    t_ns, gyro, accel, tg, v = _drive(0.3 * np.sin(2 * np.pi * t / 12.0), t, sideways=True)
+    assert gps_course_vs_imu_turn(t_ns, gyro, accel, tg, v, G_W) is None
+
+
+@pytest.fixture
+def kitti_copy(kitti_raw: Path, tmp_path: Path) -> Path:
+    """KITTI raw with its gps0 copied (to be edited) and every other entry linked."""
+    root = tmp_path / "kitti"
+    (root / "mav0").mkdir(parents=True)
+    for entry in (kitti_raw / "mav0").iterdir():
+        if entry.name == "gps0":
+            shutil.copytree(entry, root / "mav0" / "gps0")
+        else:
+            os.symlink(entry, root / "mav0" / entry.name)
+    return root
+
+
+def test_a_gps_in_ned_on_real_data_is_refused_naming_the_frame(kitti_copy: Path) -> None:
+    load_dataset(kitti_copy)  # as shipped: ENU, read without complaint
+    path = kitti_copy / "mav0/gps0/data.csv"
+    lines = path.read_text().splitlines()
+    rows = [[float(v) for v in ln.split(",")[1:]] for ln in lines[1:]]
+    out = [lines[0]]
+    for ln, (x, y, z, vx, vy, vz) in zip(lines[1:], rows, strict=True):
+        ned = (y, x, -z, vy, vx, -vz)
+        out.append(",".join([ln.split(",")[0], *(repr(c) for c in ned)]))
+    path.write_text("\n".join(out) + "\n")
+    with pytest.raises(DatasetError, match=r"gps0/data\.csv: the GPS course turns against the "
+                       r"IMU \(cosine -0\.99 over 8 turns.*mirrored.*\(NED, or two axes"):
+        load_dataset(kitti_copy)
+
+
+@pytest.mark.parametrize(
+    ("scale", "remove_gravity", "guess"),
+    [(1.0, False, None), (1 / 9.81, False, "looks like g "), (1000 / 9.81, False, "like mg"),
+     (1 / 0.3048, False, "like ft/s²"), (1.0, True, "gravity removed"),
+     (30.0, False, "another unit")],
+)
+def test_the_accelerometer_unit_is_named(scale: float, remove_gravity: bool,
+                                         guess: str | None) -> None:  # fmt: skip
+    rng = np.random.default_rng(1)
+    # a vehicle's specific force: gravity along a wandering up plus manoeuvres of ~2 m/s²
+    tilt = rng.normal(0.0, 0.1, (2000, 2))
+    up = np.column_stack([tilt, np.ones(2000)])
+    up /= np.linalg.norm(up, axis=1, keepdims=True)
+    f = 9.81 * up * (0.0 if remove_gravity else 1.0) + rng.normal(0.0, 2.0, (2000, 3))
+    problem = accel_units_problem(f * scale, G_W)
+    if guess is None:
+        assert problem is None
+    else:
+        assert problem is not None and guess in problem, problem
+
+
+def test_a_principal_point_near_the_edge_warns_of_the_intrinsics_order(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    from svains.datasets.validate import check_camera_calib
+    from svains.sensors.types import CameraCalib
+
+    def calib(intrinsics: list[float]) -> CameraCalib:
+        return CameraCalib("cam0", np.eye(4), 20.0, (752, 480), np.array(intrinsics),
+                           "radtan", np.zeros(4))  # fmt: skip
+
+    with caplog.at_level("WARNING", logger="svains.datasets.validate"):
+        check_camera_calib(calib([458.7, 457.3, 367.2, 248.4]), Path("cam0/sensor.yaml"))
+        assert caplog.text == ""  # EuRoC's own
+        check_camera_calib(calib([367.2, 248.4, 458.7, 457.3]), Path("cam0/sensor.yaml"))
+    assert "principal point (458.7, 457.3) px lies near the edge of the 752x480" in caplog.text
