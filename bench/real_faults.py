@@ -86,8 +86,13 @@ def faulty_copy(data: Path, ds: Dataset, fault: Fault, at_s: float, out: Path) -
 # Camera classes (runs on images, ``--images`` among the run's arguments): both cameras for
 # CAMERA_S from the fault time show black, repeat the pair before the fault byte for byte
 # (a frozen driver), show that scene with new noise (stuck: blocked, or a replayed frame
-# re-encoded), or show noise alone.
-CAMERA_FAULTS = ("camera black", "camera frozen", "camera stuck", "camera noise")
+# re-encoded), or show noise alone; the right camera alone black (a loose cable); the left
+# image's left half black (a finger or a prop over the lens); both a quarter as bright (an
+# exposure drop); every other pair half as bright (flicker under mains light); both blurred
+# (Gaussian, sigma 4 px: a fast pan in low light).
+CAMERA_FAULTS = ("camera black", "camera frozen", "camera stuck", "camera noise",
+                 "camera right black", "camera half covered", "camera dark", "camera flicker",
+                 "camera blur")  # fmt: skip
 CAMERA_S = 3.0
 
 
@@ -108,10 +113,25 @@ def camera_copy(data: Path, kind: str, at_s: float, out: Path) -> Path:
         t0 = t[0] + round(at_s * S)
         first = None
         rng = np.random.default_rng(0)
-        for f, ti in zip(files, t, strict=True):
+        touched = {"camera right black": "cam1", "camera half covered": "cam0"}.get(kind)
+        for k, (f, ti) in enumerate(zip(files, t, strict=True)):
             dst = cam / "data" / f.name
-            if not t0 <= ti < t0 + round(CAMERA_S * S):
+            if not t0 <= ti < t0 + round(CAMERA_S * S) or touched not in (None, entry.name):
                 os.symlink(f, dst)
+                continue
+            if kind in ("camera right black", "camera half covered", "camera dark",
+                        "camera flicker", "camera blur"):  # fmt: skip
+                img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+                if kind == "camera right black":
+                    img = np.zeros_like(img)
+                elif kind == "camera half covered":
+                    img[:, : img.shape[1] // 2] = 0
+                elif kind == "camera dark" or (kind == "camera flicker" and k % 2):
+                    img = (img.astype(np.float64) * (0.25 if kind == "camera dark" else 0.5)
+                           ).astype(img.dtype)  # fmt: skip
+                elif kind == "camera blur":
+                    img = cv2.GaussianBlur(img, (0, 0), 4.0)
+                cv2.imwrite(str(dst), img)
                 continue
             first = first or f
             img = cv2.imread(str(first if kind != "camera black" else f), cv2.IMREAD_UNCHANGED)

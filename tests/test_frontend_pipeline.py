@@ -96,6 +96,24 @@ def test_degenerate_frame_gives_no_motion_and_recovers(bad: np.ndarray | None) -
     assert nxt.inlier.sum() > 100 and _static(nxt) < 1e-3
 
 
+def test_a_pair_of_another_size_is_dropped_with_a_warning_naming_both_sizes(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    fe = _frontend()
+    tex = _texture(1)
+    fe.process(0, *_pair(tex))
+    small = np.zeros((120, 160), np.uint8)  # a driver that switched to 2x2 binning
+    with caplog.at_level("INFO", logger="svains.frontend.pipeline"):
+        for k in range(1, 6):
+            fe.process(k, small, small)
+        fe.process(6, None, None)  # a frame the caller lost: no warning
+    warned = [r for r in caplog.records if r.levelname == "WARNING"]
+    # the first three, then one per hundred
+    assert len(warned) == 3 and "stereo pair dropped (3 so far)" in warned[-1].getMessage()
+    assert "image is 160x120 px, the calibration's 320x240" in warned[0].getMessage()
+    assert fe.stats.status == "dropped"
+
+
 def test_degenerate_first_frames_never_raise() -> None:
     fe = _frontend()
     assert fe.process(0, None, None) is None

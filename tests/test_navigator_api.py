@@ -75,3 +75,15 @@ def test_fed_images_are_copied() -> None:
     left[:] = 0  # the driver reuses its buffer
     (_, kind, _, payload), = nav.queue._heap
     assert kind == FRAME and payload[1].max() == 7 and payload[2].max() == 7
+
+
+@pytest.mark.parametrize(("dtype", "hint"), [(np.uint16, "for 16-bit"), (np.float32, "floats")])
+def test_a_pair_that_is_not_8_bit_is_refused_naming_a_conversion(dtype: type,
+                                                                 hint: str) -> None:  # fmt: skip
+    # a cast would wrap 16-bit grey levels modulo 256 and floats in 0-1 to black
+    nav = Navigator(RunConfig(method="3d"), Rig())
+    img = np.zeros((4, 6), dtype)
+    want = rf"the right image is {np.dtype(dtype)}, not uint8.*{hint}"
+    with pytest.raises(TypeError, match=want):
+        nav.feed_stereo(5, np.zeros((4, 6), np.uint8), img)
+    assert not nav.queue._heap

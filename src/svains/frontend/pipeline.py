@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from svains.frontend.egomotion import RansacOptions, estimate_egomotion, warm_up
 from svains.frontend.egomotion_bundle import refine_or_keep
 from svains.frontend.features import detect_corners
-from svains.frontend.images import as_grey, texture_std
+from svains.frontend.images import as_grey, image_problem, texture_std
 from svains.frontend.motion_checks import agrees_with_prior, plausible
 from svains.frontend.options import HOLD_STATUSES, FrameStats, FrontendOptions
 from svains.frontend.reacquire import Reacquired, Reacquirer
@@ -42,6 +42,9 @@ F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]
 
 log = logging.getLogger(__name__)
+
+_WARN_FIRST = 3  # malformed pairs warned one by one; after them, one warning per _WARN_EVERY
+_WARN_EVERY = 100
 
 
 @dataclass
@@ -86,6 +89,7 @@ class StereoFrontend:
         # The raw grey pair before (a frozen camera repeats it) and how many repeats in a row.
         self._raw_before: tuple[U8, U8] | None = None
         self._frozen = 0
+        self._malformed = 0  # pairs dropped as no image or of another size
         self._reacquirer = Reacquirer(self.rig, self.options.reacquire)
         warm_up(self.rig)  # compiled RANSAC kernels loaded now, not on the first frame
 
@@ -164,7 +168,15 @@ class StereoFrontend:
         shape = (self.rig.height, self.rig.width)
         gl, gr = as_grey(img_left_raw, shape), as_grey(img_right_raw, shape)
         if gl is None or gr is None:
-            log.info("frame %d: missing or malformed image", t_ns)
+            why = image_problem(img_left_raw, shape) or image_problem(img_right_raw, shape)
+            if why in (None, "missing"):  # non-finite grey levels, or a frame the caller lost
+                log.info("frame %d: %s image", t_ns, why or "malformed")
+            else:
+                # a wrong-size frame is a driver's or a calibration's mistake: say it
+                self._malformed += 1
+                if self._malformed <= _WARN_FIRST or self._malformed % _WARN_EVERY == 0:
+                    log.warning("frame %d: stereo pair dropped (%d so far): %s", t_ns,
+                                self._malformed, why)  # fmt: skip
             self.stats.status = "dropped"
             return None if self._ref is None else self._empty(t_ns, "dropped")
         # Copies: a caller may refill one buffer for every frame (a camera driver's).

@@ -125,11 +125,21 @@ class Navigator:
     def feed_stereo(
         self, t_ns: int, left: NDArray[np.uint8], right: NDArray[np.uint8], copy: bool = True
     ) -> None:
-        """A stereo pair (8-bit grey, raw cam0/cam1 images): the front end runs on it when the
-        estimator reaches ``t_ns`` (camera clock = IMU clock). The arrays are copied unless
-        ``copy=False``, which hands them over: the caller must not change them afterwards.
-        Ignored by ``ins``."""
+        """A stereo pair (raw cam0/cam1 images, uint8: grey (H, W), or BGR/BGRA (H, W, 3|4)
+        turned grey): the front end runs on it when the estimator reaches ``t_ns`` (camera
+        clock = IMU clock); a pair of another size than the calibration's is dropped with a
+        warning. The arrays are copied unless ``copy=False``, which hands them over: the caller
+        must not change them afterwards. Ignored by ``ins``. ``TypeError`` for another dtype:
+        a 12- or 16-bit or float image has no one right conversion, so the caller makes it."""
         if self.config.method != "ins":
+            for name, img in (("left", left), ("right", right)):
+                dtype = getattr(img, "dtype", None)
+                if dtype is not None and dtype != np.uint8:
+                    raise TypeError(
+                        f"feed_stereo: the {name} image is {dtype}, not uint8: scale it to 8 "
+                        "bits first (e.g. (img >> 4).astype(np.uint8) for 12-bit data, "
+                        "(img >> 8) for 16-bit, (img * 255).astype(np.uint8) for floats in 0-1)"
+                    )
             # Copied by default: drivers reuse their image buffers while the pair waits.
             pair = (np.array(left, np.uint8, copy=True), np.array(right, np.uint8, copy=True)) \
                 if copy else (np.asarray(left, np.uint8), np.asarray(right, np.uint8))
