@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -207,6 +209,32 @@ def test_a_change_of_dimension_restarts_the_window_and_a_recovery_clears_it() ->
     t = _feed_whitened(m, [[3.0, 0.0, 0.0]] * 3)
     m.clear_bias_evidence()
     assert m.biased(t) is None
+
+
+def test_a_gps_window_leaning_in_position_alone_is_no_imu_bias() -> None:
+    # An IMU bias step moves the GPS velocity innovation at once; a position that leans while
+    # the velocity agrees is the receiver running off (a slow ramp), not the IMU.
+    cov = np.diag([4.0, 4.0, 4.0, 0.01, 0.01, 0.01])  # 2 m and 0.1 m/s
+
+    def window(velocity_mps: float) -> ConsistencyMonitor:
+        m = ConsistencyMonitor(replace(ON, bias_rate_probability=0.9))
+        for k in range(3):
+            r = np.array([5.0, 0.0, 0.0, velocity_mps, 0.0, 0.0])  # 2.5 sigma in x
+            w = r / np.sqrt(np.diag(cov))
+            m.observe("gps", True, float(w @ w), 6, (k + 1) * S, 100.0, w, r, cov)
+        return m
+
+    # position 3 * 2.5^2 = 18.75 > 16.8 (0.99, 6 dof); velocity 0.05 m/s: 3 * 0.25 = 0.75
+    assert window(0.05).biased(3 * S) is None
+    # velocity 0.15 m/s: 3 * 2.25 = 6.75 > 6.25 (0.9, 3 dof): both lean, the IMU
+    assert window(0.15).biased(3 * S) is not None
+    # the condition off (the default): the position alone alarms
+    m = ConsistencyMonitor(ON)
+    for k in range(3):
+        r = np.array([5.0, 0.0, 0.0, 0.05, 0.0, 0.0])
+        w = r / np.sqrt(np.diag(cov))
+        m.observe("gps", True, float(w @ w), 6, (k + 1) * S, 100.0, w, r, cov)
+    assert m.biased(3 * S) is not None
 
 
 def test_white_innovations_raise_the_alarm_at_its_false_alarm_rate() -> None:

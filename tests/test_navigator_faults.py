@@ -126,6 +126,9 @@ def test_fault_options_are_checked_and_set_by_dotted_key() -> None:
     with pytest.raises(ConfigError, match=r"faults\.gps_scatter_probability must be in "
                        r"\(0, 1\) or null, got 0\.0"):  # fmt: skip
         FaultOptions(gps_scatter_probability=0.0)
+    with pytest.raises(ConfigError, match=r"faults\.bias_test_rate_probability must be in "
+                       r"\(0, 1\) or null, got 1\.5"):  # fmt: skip
+        FaultOptions(bias_test_rate_probability=1.5)
     with pytest.raises(ConfigError, match=r"faults\.gps_velocity_drop_s must be positive or "
                        r"null, got 0\.0"):  # fmt: skip
         FaultOptions(gps_velocity_drop_s=0.0)

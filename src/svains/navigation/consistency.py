@@ -164,6 +164,11 @@ class ConsistencyOptions:
     bias_sensors: tuple[str, ...] = ("gps",)
     bias_window: int = 3
     bias_probability: float | None = None
+    # An IMU bias step moves a sensor's rate channel too (GPS velocity: the step's velocity
+    # error grows at once); a window whose rate channel, whitened on its own, shares no offset
+    # beyond this quantile leans in position only, a fault of the sensor (a slow GPS ramp),
+    # and raises no alarm (None: no such condition; ``FaultOptions``).
+    bias_rate_probability: float | None = None
     # The same test on vision updates' whitened corrections (``standalone_sensors`` among
     # ``bias_sensors``): its own window (accepted frames) and quantile (frames come faster).
     vision_bias_window: int = 3
@@ -272,8 +277,9 @@ class _SensorTrack:
     streak_covs: list[np.ndarray] = field(default_factory=list)
     streak_rate_agrees: bool = True  # the rate channel agreed in every rejection of the run
     streak_rate_alone: bool = True  # ...or it alone disagreed in every one (the rest agreed)
-    # (t_ns, whitened innovation) of accepted updates, for the bias test
-    whitened: deque[tuple[int, np.ndarray]] = field(default_factory=deque)
+    # (t_ns, whitened innovation, its rate channel whitened on its own or None) of accepted
+    # updates, for the bias test
+    whitened: deque[tuple[int, np.ndarray, np.ndarray | None]] = field(default_factory=deque)
     fix_spacing_ns: int | None = None  # between the last two accepted updates
     lean: deque[np.ndarray] = field(default_factory=deque)  # lean test's whitened innovations
 
@@ -325,7 +331,8 @@ class ConsistencyMonitor:
                 if s.whitened and (s.whitened[-1][1].shape != w.shape or _window_broken(
                         s.last_accepted_ns, s.fix_spacing_ns, int(t_ns))):
                     s.whitened.clear()  # a fix without velocity, or after an outage
-                s.whitened.append((int(t_ns), w))
+                s.whitened.append((int(t_ns), w, self._rate_whitened(sensor, residual,
+                                                                     innovation_cov)))
             if s.last_accepted_ns is not None:
                 s.fix_spacing_ns = int(t_ns) - s.last_accepted_ns
             s.fused += 1
@@ -391,6 +398,22 @@ class ConsistencyMonitor:
             return None, None
         a, b, p = *channel, self.options.rate_probability
         return _inside(residual[a:b], cov[a:b, a:b], p), _inside(residual[:a], cov[:a, :a], p)
+
+    def _rate_whitened(self, sensor: str, residual: np.ndarray | None,
+                       cov: np.ndarray | None) -> np.ndarray | None:  # fmt: skip
+        """The rate channel of ``residual`` whitened by its own block of ``cov`` (marginal, not
+        conditioned on the rest as the joint whitening's later rows are), or None."""
+        channel = self._rate_channel(sensor)
+        if channel is None or residual is None or cov is None:
+            return None
+        a, b = channel
+        if np.shape(residual) != (b,):
+            return None
+        try:
+            L = np.linalg.cholesky(np.asarray(cov, float)[a:b, a:b])
+        except np.linalg.LinAlgError:
+            return None
+        return np.linalg.solve(L, np.asarray(residual, float)[a:b])
 
     def _rate_channel(self, sensor: str) -> tuple[int, int] | None:
         """``sensor``'s rate channel [start, stop) (``rate_channels``), or None."""
@@ -608,9 +631,14 @@ class ConsistencyMonitor:
             s = self._sensors.get(name)
             if s is None or s.whitened.maxlen is None or len(s.whitened) < s.whitened.maxlen:
                 continue
-            W = np.stack([w for _, w in s.whitened])
+            W = np.stack([w for _, w, _ in s.whitened])
             span_s = (s.whitened[-1][0] - s.whitened[0][0]) / 1e9
             stat = _common_offset(W)
+            rates = [r for _, _, r in s.whitened]
+            if (o.bias_rate_probability is not None and all(r is not None for r in rates)
+                    and _common_offset(np.stack(rates)) <= chi2_gate(  # type: ignore[arg-type]
+                        o.bias_rate_probability, rates[0].size)):  # type: ignore[union-attr]
+                continue  # leans in position only: not the IMU
             vision = name in o.standalone_sensors
             p = o.vision_bias_probability if vision else o.bias_probability
             if p is None:

@@ -308,6 +308,7 @@ class Recovery:
             inflate_factor=options.inflate_factor, anchor_in_use=gps_used,
             bias_window=options.bias_test_window,
             bias_probability=options.bias_test_probability,
+            bias_rate_probability=options.bias_test_rate_probability,
             bias_sensors=("gps", *ConsistencyOptions.standalone_sensors)
             if self._vision_lean(options, gps_used) else ("gps",),
             vision_bias_window=options.bias_test_vision_window,
