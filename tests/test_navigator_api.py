@@ -10,7 +10,7 @@ from svains import Navigator, NavState, RunConfig
 from svains.errors import ConfigError, InitialisationError
 from svains.navigation.event_queue import FRAME
 from svains.navigation.options import InitOptions
-from svains.sensors.types import Rig
+from svains.sensors.types import GpsCalib, Rig
 
 G = 9.81
 
@@ -87,3 +87,34 @@ def test_a_pair_that_is_not_8_bit_is_refused_naming_a_conversion(dtype: type,
     with pytest.raises(TypeError, match=want):
         nav.feed_stereo(5, np.zeros((4, 6), np.uint8), img)
     assert not nav.queue._heap
+
+
+def test_a_non_finite_sample_is_dropped_even_without_an_imu_calibration() -> None:
+    # Rig() has no IMU calibration: the guard runs with the filter's default densities
+    nav = Navigator(RunConfig(), Rig())
+    rng = np.random.default_rng(3)
+    _feed_static(nav, 3.0, rng)
+    t = 1_000_000_000 + 600 * 5_000_000
+    nav.feed_imu(t, [np.nan, 0.0, 0.0], [0.0, 0.0, G])
+    for k in range(1, 200):
+        nav.feed_imu(t + k * 5_000_000, 1e-3 * rng.standard_normal(3), [0.0, 0.0, G])
+    res = nav.close()  # before: "process model returned non-finite sigma points"
+    assert res.report["imu_faults"]["dropped"]["nonfinite"] == 1
+    assert np.all(np.isfinite(res.x)) and np.linalg.norm(res.x[-1, 3:6]) < 0.05
+
+
+def test_inputs_of_the_wrong_shape_are_refused_naming_the_argument() -> None:
+    rig = Rig(gps=GpsCalib(np.zeros(3), 1.0, 1.0, 0.1))
+    nav = Navigator(RunConfig(method="3d"), rig)
+    with pytest.raises(ValueError, match=r"feed_imu: gyro_S must hold 3 values, got shape \(2,\)"):
+        nav.feed_imu(1, [0.0, 0.0], [0.0, 0.0, G])
+    with pytest.raises(ValueError, match=r"feed_gps: p_W_G must hold 3 values, got shape \(2,\)"):
+        nav.feed_gps(1, [49.0, 8.3], None)
+    with pytest.raises(ValueError, match=r"feed_gps: v_W_G must hold 3 values"):
+        nav.feed_gps(1, [0.0, 0.0, 0.0], [1.0])
+    with pytest.raises(ValueError, match=r"feed_mag: m_S must hold 3 values, got shape \(4,\)"):
+        nav.feed_mag(1, np.zeros(4))
+    with pytest.raises(ValueError, match=r"feed_tracks: track_id \(M,\), uv_left and uv_right "
+                       r"\(M, 2\) expected, got \(2,\), \(1, 2\), \(2, 2\)"):  # fmt: skip
+        nav.feed_tracks(1, [1, 2], [[0.0, 0.0]], [[0.0, 0.0], [1.0, 1.0]])
+    assert not nav.queue._heap and nav.history.n == 0

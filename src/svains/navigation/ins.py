@@ -44,6 +44,14 @@ F64 = NDArray[np.float64]
 _DEFAULT_NOISE = ImuNoise(1.6968e-4, 1.9393e-5, 2.0e-3, 3.0e-3)
 
 
+def default_imu_calib() -> ImuCalib:
+    """The IMU a rig without one is run with: mounted at the body, rate unknown, the default
+    noise densities (EuRoC's ADIS16448, as the filter's ``imu_noise``)."""
+    n = _DEFAULT_NOISE
+    return ImuCalib(np.eye(4), 0.0, n.gyro_noise_density, n.gyro_random_walk,
+                    n.accel_noise_density, n.accel_random_walk)  # fmt: skip
+
+
 def imu_noise(c: ImuCalib | None, layout: StateLayout, options: NoiseOptions) -> ImuNoise:
     """Noise densities: the IMU calibration, overridden and scaled by ``options``."""
     base = (

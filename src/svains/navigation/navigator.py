@@ -20,6 +20,7 @@ import logging
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -31,7 +32,7 @@ from svains.navigation.event_queue import FRAME, GPS, MAG, SONAR, EventQueue
 from svains.navigation.fault_handling import ImuFaults, RateLimitedLog
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.init import InitialState
-from svains.navigation.ins import InsFilter
+from svains.navigation.ins import InsFilter, default_imu_calib
 from svains.navigation.navigator_core import Core
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import NavState, RunResult
@@ -81,10 +82,13 @@ class Navigator:
         self.starter = Starter(config.init, rig, self.layout, initial_state,
                                gps_fused=config.use_gps and rig.gps is not None)
         self._warn = RateLimitedLog(config.faults.warn_interval_s)
+        # A rig without an IMU calibration is guarded with the default one the filter uses: a
+        # non-finite sample fed online would otherwise reach the filter and end the run.
+        guarded = rig if rig.imu is not None else replace(rig, imu=default_imu_calib())
         self.imu_faults = (
-            ImuFaults(rig, config.faults, self._warn,
+            ImuFaults(guarded, config.faults, self._warn,
                       StaticTest(config.zupt, config.init, float(np.linalg.norm(rig.gravity_W))))
-            if config.faults.imu_guard and rig.imu is not None
+            if config.faults.imu_guard
             else None
         )
         self._on_output = on_output
@@ -103,7 +107,8 @@ class Navigator:
         """One IMU sample: ``gyro_S`` rad/s and ``accel_S`` specific force m/s² in the IMU frame
         S (``rig.imu.T_B_S`` rotates them to the body). Stamps must increase (duplicates and
         backward stamps are dropped, counted and warned about)."""
-        self._on_imu(int(t_ns), gyro_S, accel_S)
+        self._on_imu(int(t_ns), _vector("feed_imu", "gyro_S", gyro_S),
+                     _vector("feed_imu", "accel_S", accel_S))
 
     def _on_imu(self, t_ns: int, gyro_S: ArrayLike, accel_S: ArrayLike) -> None:
         # The one place IMU samples enter the estimator.
@@ -152,19 +157,25 @@ class Navigator:
         ``uv_right`` (M, 2) px in the rectified pair ``cam0``/``cam1`` define. Ignored by
         ``ins``."""
         if self.config.method != "ins":
-            payload = ("features", np.asarray(track_id, np.int64),
-                       np.asarray(uv_left, float), np.asarray(uv_right, float))  # fmt: skip
-            self._push(int(t_ns), FRAME, payload)
+            ids = np.asarray(track_id, np.int64)
+            uv_l, uv_r = np.asarray(uv_left, float), np.asarray(uv_right, float)
+            m = ids.shape[0] if ids.ndim == 1 else -1
+            if m < 0 or uv_l.shape != (m, 2) or uv_r.shape != (m, 2):
+                raise ValueError(
+                    f"feed_tracks: track_id (M,), uv_left and uv_right (M, 2) expected, got "
+                    f"{ids.shape}, {uv_l.shape}, {uv_r.shape}"
+                )
+            self._push(int(t_ns), FRAME, ("features", ids, uv_l, uv_r))
 
     def feed_gps(self, t_ns: int, p_W_G: ArrayLike, v_W_G: ArrayLike | None = None) -> None:
         """A GPS fix: antenna position ``p_W_G`` (3,) m and velocity ``v_W_G`` (3,) m/s (None:
         position only) in the world frame."""
-        v = None if v_W_G is None else np.asarray(v_W_G, float)
-        self._push(int(t_ns), GPS, (np.asarray(p_W_G, float), v))
+        v = None if v_W_G is None else _vector("feed_gps", "v_W_G", v_W_G)
+        self._push(int(t_ns), GPS, (_vector("feed_gps", "p_W_G", p_W_G), v))
 
     def feed_mag(self, t_ns: int, m_S: ArrayLike) -> None:
         """A magnetometer sample ``m_S`` (3,) Gauss in its sensor frame."""
-        self._push(int(t_ns), MAG, np.asarray(m_S, float))
+        self._push(int(t_ns), MAG, _vector("feed_mag", "m_S", m_S))
 
     def feed_sonar(self, t_ns: int, range_m: float) -> None:
         """A sonar range (m) along the sensor's +z axis to flat ground."""
@@ -365,3 +376,14 @@ class Navigator:
 
 
 __all__ = ["NavState", "Navigator", "RunResult"]
+
+
+def _vector(method: str, name: str, value: ArrayLike) -> NDArray[np.float64]:
+    """``value`` as a float (3,) array; ``ValueError`` naming ``method`` and ``name`` when it is
+    another shape (a numpy broadcast error names neither). Non-finite values pass: the sample
+    checks drop them, counted."""
+    a = np.asarray(value, dtype=float)
+    if a.shape != (3,):
+        raise ValueError(f"{method}: {name} must hold 3 values, got shape {a.shape}")
+    return a
+
