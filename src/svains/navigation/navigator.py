@@ -382,6 +382,8 @@ def _vector(method: str, name: str, value: ArrayLike) -> NDArray[np.float64]:
     """``value`` as a float (3,) array; ``ValueError`` naming ``method`` and ``name`` when it is
     another shape (a numpy broadcast error names neither). Non-finite values pass: the sample
     checks drop them, counted."""
+    if type(value) is np.ndarray and value.shape == (3,) and value.dtype == np.float64:
+        return value  # the replay's rows: once per IMU sample, so the short way
     a = np.asarray(value, dtype=float)
     if a.shape != (3,):
         raise ValueError(f"{method}: {name} must hold 3 values, got shape {a.shape}")
