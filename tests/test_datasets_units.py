@@ -39,8 +39,8 @@ def test_the_gps_course_follows_the_gyro_and_a_mirror_turns_it_against() -> None
     t = np.arange(0.0, 40.0, 0.01)
     rate = 0.3 * np.sin(2 * np.pi * t / 12.0)  # weaving left and right
     t_ns, gyro, accel, tg, v = _drive(rate, t)
-    cosine, n, turn = gps_course_vs_imu_turn(t_ns, gyro, accel, tg, v, G_W)
-    assert cosine > 0.99 and n >= 20 and turn > 200
+    cosine, n, turn, ratio = gps_course_vs_imu_turn(t_ns, gyro, accel, tg, v, G_W)
+    assert cosine > 0.99 and n >= 20 and turn > 200 and abs(ratio - 1.0) < 0.05
     ned = v[:, [1, 0, 2]] * [1, 1, -1]  # north, east, down
     assert gps_course_vs_imu_turn(t_ns, gyro, accel, tg, ned, G_W)[0] < -0.99
     # the same mirror against a gravity that says z is down is consistent
@@ -55,12 +55,12 @@ def test_a_vehicle_flying_sideways_gives_no_turn_to_compare() -> None:
 
 @pytest.fixture
 def kitti_copy(kitti_raw: Path, tmp_path: Path) -> Path:
-    """KITTI raw with its gps0 copied (to be edited) and every other entry linked."""
+    """KITTI raw with its gps0 and imu0 copied (to be edited) and every other entry linked."""
     root = tmp_path / "kitti"
     (root / "mav0").mkdir(parents=True)
     for entry in (kitti_raw / "mav0").iterdir():
-        if entry.name == "gps0":
-            shutil.copytree(entry, root / "mav0" / "gps0")
+        if entry.name in ("gps0", "imu0"):
+            shutil.copytree(entry, root / "mav0" / entry.name)
         else:
             os.symlink(entry, root / "mav0" / entry.name)
     return root
@@ -78,6 +78,19 @@ def test_a_gps_in_ned_on_real_data_is_refused_naming_the_frame(kitti_copy: Path)
     path.write_text("\n".join(out) + "\n")
     with pytest.raises(DatasetError, match=r"gps0/data\.csv: the GPS course turns against the "
                        r"IMU \(cosine -0\.99 over 8 turns.*mirrored.*\(NED, or two axes"):
+        load_dataset(kitti_copy)
+
+
+def test_a_gyro_in_deg_s_on_real_data_is_refused(kitti_copy: Path) -> None:
+    path = kitti_copy / "mav0/imu0/data.csv"
+    lines = path.read_text().splitlines()
+    out = [lines[0]]
+    for ln in lines[1:]:
+        t, *v = ln.split(",")
+        out.append(",".join([t, *(repr(float(np.degrees(float(x)))) for x in v[:3]), *v[3:]]))
+    path.write_text("\n".join(out) + "\n")
+    with pytest.raises(DatasetError, match=r"imu0/data\.csv: the gyro turns 5\d\.\d times as far "
+                       r"as the GPS course \(cosine 0\.99 over \d+ turns\): is it in deg/s\?"):
         load_dataset(kitti_copy)
 
 

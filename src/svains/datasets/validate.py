@@ -229,16 +229,22 @@ GPS_TURN_MIN_DEG = 3.0
 GPS_MIRROR_COSINE = -0.7
 GPS_MIRROR_MIN_STEPS = 4
 GPS_MIRROR_MIN_TURN_DEG = 45.0
+# The same steps, agreeing (cosine above GPS_SCALE_COSINE): the course turns per gyro turn
+# (1 for a car: 0.99 on KITTI raw) outside this band says the gyro is in another unit (deg/s:
+# 1/57).
+GPS_SCALE_COSINE = 0.9
+GPS_TURN_RATIO_BAND = (0.2, 5.0)
 
 
 def gps_course_vs_imu_turn(
     imu_t_ns: NDArray[np.int64], gyro_S: NDArray[np.float64], accel_S: NDArray[np.float64],
     gps_t_ns: NDArray[np.int64], v_W_G: NDArray[np.float64], g_W: NDArray[np.float64],
-) -> tuple[float, int, float] | None:
+) -> tuple[float, int, float, float] | None:
     """How the GPS course turns against the IMU's turn about the vertical: (cosine of the two
-    series of per-step turns, steps used, total IMU turn in deg), or None without a usable
-    step. The vertical in the IMU frame is its specific force averaged over 1 s, so no
-    mounting calibration is needed (gyro and accelerometer share a frame)."""
+    series of per-step turns, steps used, total IMU turn in deg, course turn per gyro turn by
+    least squares), or None without a usable step. The vertical in the IMU frame is its
+    specific force averaged over 1 s, so no mounting calibration is needed (gyro and
+    accelerometer share a frame)."""
     if len(imu_t_ns) < 3 or len(gps_t_ns) < 2:
         return None
     t = (imu_t_ns - imu_t_ns[0]) * 1e-9
@@ -272,19 +278,29 @@ def gps_course_vs_imu_turn(
         return None
     a, b = d_course[ok], d_turn[ok]
     cosine = float(a @ b / np.sqrt((a @ a) * (b @ b)))
-    return cosine, int(ok.sum()), float(np.degrees(np.sum(np.abs(b))))
+    return cosine, int(ok.sum()), float(np.degrees(np.sum(np.abs(b)))), float(a @ b / (b @ b))
 
 
-def check_gps_handedness(ds: Dataset, path: Path) -> None:
+def check_gps_handedness(ds: Dataset, path: Path, imu_path: Path) -> None:
     """DatasetError when the GPS course turns against the IMU (``gps_course_vs_imu_turn``):
-    a GPS in a mirrored frame (NED or a swapped axis against ``gravity_W``'s z-up)."""
+    a GPS in a mirrored frame (NED or a swapped axis against ``gravity_W``'s z-up); or with it
+    but by another amount: a gyro in deg/s."""
     if ds.imu is None or ds.gps is None:
         return
     got = gps_course_vs_imu_turn(ds.imu.t_ns, ds.imu.gyro_B, ds.imu.accel_B, ds.gps.t_ns,
                                  ds.gps.v_W_G, np.asarray(ds.gravity_W, float))  # fmt: skip
     if got is None:
         return
-    cosine, n, turn_deg = got
+    cosine, n, turn_deg, ratio = got
+    lo, hi = GPS_TURN_RATIO_BAND
+    if (cosine > GPS_SCALE_COSINE and n >= GPS_MIRROR_MIN_STEPS
+            and not lo <= ratio <= hi):  # fmt: skip
+        raise DatasetError(
+            f"{imu_path}: the gyro turns {1.0 / ratio:.3g} times as far as the GPS course (cosine "
+            f"{cosine:.2f} over {n} turns): "
+            + ("is it in deg/s? " if abs(ratio * 180.0 / np.pi - 1.0) < 0.2 else "")
+            + "svains reads the gyro in rad/s"
+        )
     if (cosine < GPS_MIRROR_COSINE and n >= GPS_MIRROR_MIN_STEPS
             and turn_deg >= GPS_MIRROR_MIN_TURN_DEG):  # fmt: skip
         raise DatasetError(
@@ -336,7 +352,7 @@ def check_stream_units(ds: Dataset) -> None:
             ds.groundtruth = None
             continue
         raise DatasetError(msg)
-    check_gps_handedness(ds, where("gps0"))
+    check_gps_handedness(ds, where("gps0"), where("imu0"))
 
 
 def png_size(path: Path) -> tuple[int, int] | None:
