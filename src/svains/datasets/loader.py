@@ -13,7 +13,7 @@ from svains.datasets.asl_reader import find_mav0, read_asl
 from svains.datasets.kitti import is_kitti, read_kitti
 from svains.datasets.stereo_sync import match_stereo
 from svains.datasets.types import Dataset, ImageStream
-from svains.datasets.validate import check_stream_units
+from svains.datasets.validate import vet_streams
 from svains.errors import DatasetError
 
 log = logging.getLogger(__name__)
@@ -63,7 +63,7 @@ def load_dataset(
         )
     if calib is not None or imu_calib is not None:
         ds = apply_kalibr(ds, calib, imu_calib)
-    check_stream_units(ds)
+    vet_streams(ds)
     return ds
 
 

@@ -216,7 +216,7 @@ def check_gps_units(t_ns: NDArray[np.int64], p_W_G: NDArray[np.float64],
         )
 
 
-# The GPS course against the IMU's turn about the vertical (``check_gps_handedness``): over
+# The GPS course against the IMU's turn about the vertical (``check_gps_against_gyro``): over
 # steps of at least GPS_TURN_STEP_S, moving faster than GPS_TURN_MIN_SPEED_M_S and turning at
 # least GPS_TURN_MIN_DEG by the gyro, a cosine below GPS_MIRROR_COSINE over GPS_MIRROR_MIN_STEPS
 # or more such steps, GPS_MIRROR_MIN_TURN_DEG in all, says the GPS frame is mirrored. A car's
@@ -281,7 +281,7 @@ def gps_course_vs_imu_turn(
     return cosine, int(ok.sum()), float(np.degrees(np.sum(np.abs(b)))), float(a @ b / (b @ b))
 
 
-def check_gps_handedness(ds: Dataset, path: Path, imu_path: Path) -> None:
+def check_gps_against_gyro(ds: Dataset, path: Path, imu_path: Path) -> None:
     """DatasetError when the GPS course turns against the IMU (``gps_course_vs_imu_turn``):
     a GPS in a mirrored frame (NED or a swapped axis against ``gravity_W``'s z-up); or with it
     but by another amount: a gyro in deg/s."""
@@ -311,12 +311,13 @@ def check_gps_handedness(ds: Dataset, path: Path, imu_path: Path) -> None:
         )
 
 
-def check_stream_units(ds: Dataset) -> None:
-    """The units and clocks a reader cannot see in a file's syntax, for every format: the IMU's
-    specific force (``check_accel_units``), GPS positions against its velocities
-    (``check_gps_units``), and every stream's span against the IMU's (a sensor stream that
-    never meets it is refused, a reference that never does is dropped with a warning). The
-    error names the stream's ASL file where there is one."""
+def vet_streams(ds: Dataset) -> None:
+    """The units, clocks and frames a reader cannot see in a file's syntax, for every format:
+    the IMU's specific force (``check_accel_units``), GPS positions against its velocities
+    (``check_gps_units``), every stream's span against the IMU's (a sensor stream that never
+    meets it is refused; a reference that never does is dropped from ``ds`` with a warning),
+    and the GPS course against the gyro (``check_gps_against_gyro``). The error names the
+    stream's ASL file where there is one."""
 
     def where(folder: str) -> Path:
         csv = ds.root / "mav0" / folder / "data.csv"
@@ -352,7 +353,7 @@ def check_stream_units(ds: Dataset) -> None:
             ds.groundtruth = None
             continue
         raise DatasetError(msg)
-    check_gps_handedness(ds, where("gps0"), where("imu0"))
+    check_gps_against_gyro(ds, where("gps0"), where("imu0"))
 
 
 def png_size(path: Path) -> tuple[int, int] | None:
