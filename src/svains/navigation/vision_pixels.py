@@ -23,6 +23,7 @@ from svains.models.vision_common import ImuIncrement, camera_motion, stack_pixel
 from svains.models.vision_tc import pixels_tc_from_motion
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.imu_history import ImuHistory
+from svains.navigation.rotation_check import rotation_check
 from svains.navigation.vision_clones import clone_window, next_reference_ns
 from svains.navigation.vision_egomotion import egomotion_block, tracks_egomotion
 from svains.navigation.vision_motion import (
@@ -131,6 +132,7 @@ class PixelUpdater:
         self._pixel_std_px = max(float(std), 0.05)  # the pixels' own noise, unscaled
         self.sigma_px = self._pixel_std_px * options.noise_scale()
         self.clones = clone_window(options, applied_offset_s(rig), history, rig.gravity_W)
+        self.rotation_check = rotation_check(history, self.rig.R_B_C, rig.imu)
         known = options.pixel_noise_std is not None or self.source.kind == "features"
         self._min_disparity_px = options.min_disparity(self.sigma_px, known)
         # The k-1 pixel noise biases the prediction (``vision_noise.previous_pixel_bias``); the
@@ -297,6 +299,8 @@ class PixelUpdater:
         c = self.counters
         c.frames += 1
         tr, inc = tracks_with_prior(self.source, self._prior, ctx)
+        if self.rotation_check is not None:
+            self.rotation_check.observe_frame(tr, ctx)
         usable = (
             np.zeros(0, bool) if tr is None
             else tr.inlier & np.isfinite(tr.p_Ckm1_F).all(axis=1) & (tr.p_Ckm1_F[:, 2] > 0)
@@ -430,6 +434,8 @@ class PixelUpdater:
         out: dict[str, Any] = self.counters.as_dict()
         out.update(source=self.source.kind, sigma_px=self.sigma_px, rotation=self.options.rotation,
                    frontend_status=dict(getattr(self.source, "status_counts", {})))
+        if self.rotation_check is not None:
+            out["rotation_check"] = self.rotation_check.summary()
         if self.clones is not None:
             out.update(self.clones.summary())
         return out

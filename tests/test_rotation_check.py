@@ -1,0 +1,77 @@
+"""The calibration's camera-IMU rotation checked against the gyro and the egomotion
+(``navigation.rotation_check``) on seeded synthetic frames: a right mount gives small axis
+angles and no warning, a camera turned 90° on the body is warned about, turns inside the noise
+are not counted."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from svains.frontend.types import Egomotion, StereoTracks
+from svains.geometry.rotation import so3_exp
+from svains.navigation.imu_history import ImuHistory
+from svains.navigation.rotation_check import RotationCheck, RotationCheckOptions
+
+# KITTI's left camera on the body: x right, y down, z forward for a body x forward, z up
+R_B_C = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+DENSITY = 1.7e-4  # rad/s/√Hz
+FRAME_NS = 200_000_000
+
+
+def _flight(R_B_C_true: np.ndarray, seed: int = 0, rate_scale: float = 1.0):
+    """Body rates that change every frame (turns about every axis), 200 Hz gyro with white
+    noise, and per frame the camera's egomotion from the true mount with 0.02° of noise."""
+    rng = np.random.default_rng(seed)
+    h = ImuHistory(capacity=8192)
+    frames = []
+    t = 0
+    for _ in range(30):
+        w = rng.normal(0.0, 0.3, 3) * rate_scale  # rad/s for this frame
+        for j in range(40):  # 5 ms samples over 0.2 s
+            noise = rng.normal(0.0, DENSITY / np.sqrt(0.005), 3)
+            h.append(t + j * 5_000_000, w + noise, np.array([0.0, 0.0, 9.81]))
+        t0, t = t, t + FRAME_NS
+        R_Ckm1_Ck = R_B_C_true.T @ so3_exp(w * FRAME_NS * 1e-9) @ R_B_C_true
+        R_Ck_Ckm1 = R_Ckm1_Ck.T @ so3_exp(rng.normal(0.0, np.radians(0.02), 3))
+        ego = Egomotion(R_Ck_Ckm1, np.zeros(3), np.eye(6) * np.radians(0.02) ** 2)
+        e = np.zeros((0, 2))
+        frames.append(StereoTracks(t0, t, np.zeros(0, np.int64), e, e, e, e, np.zeros((0, 3)),
+                                   np.zeros(0, bool), ego))  # fmt: skip
+    h.append(t, np.zeros(3), np.array([0.0, 0.0, 9.81]))
+    return h, frames
+
+
+def test_a_right_mount_gives_small_axis_angles_and_no_warning(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    h, frames = _flight(R_B_C)
+    check = RotationCheck(h, R_B_C, DENSITY)
+    with caplog.at_level("WARNING", logger="svains.navigation.rotation_check"):
+        for tr in frames:
+            check.observe(tr, None)
+    s = check.summary()
+    assert s["frames"] >= 25 and s["median_axis_deg"] < 2.0 and not s["warned"]
+    assert caplog.text == ""
+
+
+def test_a_camera_turned_on_the_body_is_warned_once(caplog: pytest.LogCaptureFixture) -> None:
+    turned = so3_exp(np.array([np.pi / 2, 0.0, 0.0])) @ R_B_C  # 90° about the body x axis
+    h, frames = _flight(turned)
+    check = RotationCheck(h, R_B_C, DENSITY)  # the calibration still says R_B_C
+    with caplog.at_level("WARNING", logger="svains.navigation.rotation_check"):
+        for tr in frames:
+            check.observe(tr, None)
+    s = check.summary()
+    assert s["warned"] and s["median_axis_deg"] > 45.0
+    assert caplog.text.count("the camera turns about an axis") == 1
+    assert "median of 10 turning frames" in caplog.text
+
+
+def test_turns_inside_the_noise_are_not_counted() -> None:
+    # 0.3 mrad/s rates: turns of 0.003° per frame, far below 1° and the noise
+    h, frames = _flight(R_B_C, rate_scale=1e-3)
+    check = RotationCheck(h, R_B_C, DENSITY, RotationCheckOptions(min_frames=3))
+    for tr in frames:
+        check.observe(tr, None)
+    assert check.summary() == {"frames": 0, "median_axis_deg": None, "warned": False}
