@@ -64,7 +64,9 @@ def test_bad_calibrations_raise() -> None:
         bad0 = replace(cam0, distortion_model="equidistant", distortion=np.zeros(5))
         StereoRectifier.from_calibration(bad0, cam1)
     # Right camera on the left: swapped pair.
-    with pytest.raises(CalibrationError, match="baseline"):
+    with pytest.raises(CalibrationError, match=r"cam1 must be right of cam0 \(along cam0's x "
+                       r"axis\), but sits at \[-0\.\d+, -?0\.0, -?0\.0\] m in cam0's frame; "
+                       r"cameras swapped"):  # fmt: skip
         bad1 = replace(cam1, distortion=np.array([1e-3, 0, 0, 0]))
         StereoRectifier.from_calibration(bad1, cam0)
 

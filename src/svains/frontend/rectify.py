@@ -180,8 +180,12 @@ class StereoRectifier:
         f = float(P1[0, 0])
         baseline = float(-P2[0, 3] / P2[0, 0])
         if not np.isfinite(baseline) or baseline <= 0.0:
+            p_C0_C1 = -_relative_pose(cam0, cam1)[0].T @ p_C1_C0
             raise CalibrationError(
-                f"stereo rectification gave baseline {baseline}: cam1 must be right of cam0"
+                "stereo rectification: cam1 must be right of cam0 (along cam0's x axis), but "
+                f"sits at {np.round(p_C0_C1, 4).tolist()} m in "
+                "cam0's frame; cameras swapped, or T_BS given body-to-camera instead of "
+                "camera-to-body?"
             )
         rig = RectifiedStereo(
             f=f, cu=float(P1[0, 2]), cv=float(P1[1, 2]), baseline=baseline,
