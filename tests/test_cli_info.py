@@ -47,6 +47,21 @@ def test_info_kitti(kitti_a: Path) -> None:
     assert "Missing files: none" in res.output
 
 
+def test_info_shows_how_far_kitti_raw_sits_from_the_unit_and_frame_checks(
+    kitti_raw: Path, tmp_path: Path
+) -> None:
+    res = runner.invoke(app, ["info", str(kitti_raw), "--json", str(tmp_path / "i.json")],
+                        env={"COLUMNS": "200"})  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert ("imu0 accelerometer: median magnitude 9.823 m/s² against gravity 9.809"
+            in res.output)  # fmt: skip
+    assert ("GPS course against the gyro: cosine 0.99 over 8 turns (77° by the gyro), the "
+            "course turning 1.05 times as far" in res.output)  # fmt: skip
+    checks = json.loads((tmp_path / "i.json").read_text())["checks"]
+    assert checks["gps_course_vs_gyro"]["turns"] == 8
+    assert checks["gps_course_vs_gyro"]["course_per_gyro_turn"] == pytest.approx(1.047, abs=1e-3)
+
+
 def test_info_missing_folder(tmp_path: Path) -> None:
     res = runner.invoke(app, ["info", str(tmp_path / "nope")])
     assert res.exit_code == 1

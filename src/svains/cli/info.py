@@ -69,6 +69,18 @@ def _print(summary: dict[str, Any], console: Console) -> None:
     for key in ("gps", "mag", "sonar", "features"):
         if key in cal:
             console.print(escape(f"{key}: " + ", ".join(f"{k}={v}" for k, v in cal[key].items())))
+    checks = summary.get("checks", {})
+    if "accel_median_mps2" in checks:
+        console.print(f"imu0 accelerometer: median magnitude {checks['accel_median_mps2']:.4g} "
+                      f"m/s² against gravity {checks['gravity_mps2']:.4g} (m/s², gravity "
+                      "included)")  # fmt: skip
+    if "gps_course_vs_gyro" in checks:
+        c = checks["gps_course_vs_gyro"]
+        console.print(
+            f"GPS course against the gyro: cosine {c['cosine']:.2f} over {c['turns']} turns "
+            f"({c['gyro_turn_deg']:.0f}° by the gyro), the course turning "
+            f"{c['course_per_gyro_turn']:.3g} times as far (1: ENU-like frame, gyro in rad/s)"
+        )
 
 
 def _print_bag(path: Path, console: Console) -> dict[str, Any]:

@@ -8,6 +8,7 @@ import numpy as np
 
 from svains.datasets.loader import stream_times
 from svains.datasets.types import Dataset
+from svains.datasets.validate import gps_course_vs_imu_turn
 
 STREAM_LABELS = {
     "imu": "imu0",
@@ -98,4 +99,22 @@ def dataset_summary(ds: Dataset) -> dict[str, Any]:
         "streams": streams,
         "missing_images": dict(ds.missing_images),
         "calibration": calib,
+        "checks": _checks(ds),
     }
+
+
+def _checks(ds: Dataset) -> dict[str, Any]:
+    """The figures the load's unit and frame checks judged (``validate.vet_streams``), so a
+    user sees how far from refusal a recording sits."""
+    out: dict[str, Any] = {}
+    if ds.imu is not None and len(ds.imu.t_ns):
+        out["accel_median_mps2"] = float(np.median(np.linalg.norm(ds.imu.accel_B, axis=1)))
+        out["gravity_mps2"] = float(np.linalg.norm(ds.gravity_W))
+    if ds.imu is not None and ds.gps is not None:
+        got = gps_course_vs_imu_turn(ds.imu.t_ns, ds.imu.gyro_B, ds.imu.accel_B, ds.gps.t_ns,
+                                     ds.gps.v_W_G, np.asarray(ds.gravity_W, float))  # fmt: skip
+        if got is not None:
+            cosine, n, turn_deg, ratio = got
+            out["gps_course_vs_gyro"] = {"cosine": cosine, "turns": n, "gyro_turn_deg": turn_deg,
+                                         "course_per_gyro_turn": ratio}  # fmt: skip
+    return out
