@@ -118,3 +118,21 @@ def test_inputs_of_the_wrong_shape_are_refused_naming_the_argument() -> None:
                        r"\(M, 2\) expected, got \(2,\), \(1, 2\), \(2, 2\)"):  # fmt: skip
         nav.feed_tracks(1, [1, 2], [[0.0, 0.0]], [[0.0, 0.0], [1.0, 1.0]])
     assert not nav.queue._heap and nav.history.n == 0
+
+
+@pytest.mark.parametrize(("scale", "warned"), [(1.0, False), (1 / G, True)])
+def test_a_start_from_a_given_state_warns_of_an_accelerometer_in_g(
+    scale: float, warned: bool, caplog: pytest.LogCaptureFixture
+) -> None:
+    from svains.models.state import BIASED
+    from svains.navigation.init import InitialState
+
+    x = np.zeros(BIASED.nx)
+    x[6] = 1.0  # identity attitude, w first
+    init = InitialState(1_000_000_000, x, np.eye(BIASED.ndx) * 1e-4)
+    nav = Navigator(RunConfig(init=InitOptions(mode="groundtruth")), Rig(), initial_state=init)
+    with caplog.at_level("WARNING", logger="svains.navigation.navigator"):
+        _feed_static(nav, 3.0, np.random.default_rng(4), accel=np.array([0.0, 0.0, G * scale]))
+    text = "over the first 2 s of IMU samples the accelerometer's median magnitude is 1"
+    assert (text in caplog.text) is warned
+    assert caplog.text.count("accelerometer's median magnitude") == int(warned)  # once

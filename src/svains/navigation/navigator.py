@@ -43,9 +43,12 @@ from svains.navigation.tracks import TrackOptions
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames, rig_from_calibrations
 from svains.navigation.zupt import StaticTest
 from svains.sensors.types import Rig
+from svains.sensors.units import accel_units_problem
 
 F64 = NDArray[np.float64]
 log = logging.getLogger(__name__)
+
+_UNITS_SPAN_NS = 2_000_000_000  # IMU samples judged for the accelerometer's unit
 
 OutputCallback = Callable[[NavState], None]
 
@@ -72,6 +75,9 @@ class Navigator:
         self._wall0 = time.perf_counter()
         R_B_S = None if rig.imu is None else rig.imu.T_B_S[:3, :3]
         self.history = ImuHistory(R_B_S)
+        # The accelerometer's unit, judged once 2 s of samples are in, for a start from a given
+        # state: the static and in-flight starts refuse a wrong unit themselves.
+        self._units_checked = config.init.mode != "groundtruth"
         self.queue = EventQueue(config.buffer.max_pending)
         self._checks = SampleChecks(
             None if rig.mag is None else float(np.linalg.norm(rig.mag.m_W))
@@ -123,9 +129,23 @@ class Navigator:
         ):
             return  # dropped: propagation bridges it from its neighbours
         self.history.append(t_ns, gyro_S, accel_S)
+        if not self._units_checked:
+            self._check_units()
         horizon_ns = t_ns - self._window_ns
         hold_ns = None if self.imu_faults is None else self.imu_faults.hold_ns
         self._advance(horizon_ns if hold_ns is None else min(horizon_ns, hold_ns))
+
+    def _check_units(self) -> None:
+        # Online input never passes the readers' unit checks: an accelerometer in g or without
+        # gravity is warned about once.
+        t = self.history.t_ns
+        if t.size < 2 or t[-1] - t[0] < _UNITS_SPAN_NS:
+            return
+        self._units_checked = True
+        problem = accel_units_problem(self.history.accel_B, np.asarray(self.rig.gravity_W))
+        if problem is not None:
+            log.warning("over the first %.0f s of IMU samples %s", _UNITS_SPAN_NS * 1e-9,
+                        problem)  # fmt: skip
 
     def feed_stereo(
         self, t_ns: int, left: NDArray[np.uint8], right: NDArray[np.uint8], copy: bool = True
