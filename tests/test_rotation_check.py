@@ -5,6 +5,8 @@ are not counted."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -19,7 +21,8 @@ DENSITY = 1.7e-4  # rad/s/√Hz
 FRAME_NS = 200_000_000
 
 
-def _flight(R_B_C_true: np.ndarray, seed: int = 0, rate_scale: float = 1.0):
+def _flight(R_B_C_true: np.ndarray, seed: int = 0, rate_scale: float = 1.0,
+            gyro_scale: float = 1.0):
     """Body rates that change every frame (turns about every axis), 200 Hz gyro with white
     noise, and per frame the camera's egomotion from the true mount with 0.02° of noise."""
     rng = np.random.default_rng(seed)
@@ -30,7 +33,7 @@ def _flight(R_B_C_true: np.ndarray, seed: int = 0, rate_scale: float = 1.0):
         w = rng.normal(0.0, 0.3, 3) * rate_scale  # rad/s for this frame
         for j in range(40):  # 5 ms samples over 0.2 s
             noise = rng.normal(0.0, DENSITY / np.sqrt(0.005), 3)
-            h.append(t + j * 5_000_000, w + noise, np.array([0.0, 0.0, 9.81]))
+            h.append(t + j * 5_000_000, (w + noise) * gyro_scale, np.array([0.0, 0.0, 9.81]))
         t0, t = t, t + FRAME_NS
         R_Ckm1_Ck = R_B_C_true.T @ so3_exp(w * FRAME_NS * 1e-9) @ R_B_C_true
         R_Ck_Ckm1 = R_Ckm1_Ck.T @ so3_exp(rng.normal(0.0, np.radians(0.02), 3))
@@ -52,6 +55,7 @@ def test_a_right_mount_gives_small_axis_angles_and_no_warning(
             check.observe(tr, None)
     s = check.summary()
     assert s["frames"] >= 25 and s["median_axis_deg"] < 2.0 and not s["warned"]
+    assert abs(s["median_turn_ratio"] - 1.0) < 0.02 and not s["warned_turn_ratio"]
     assert caplog.text == ""
 
 
@@ -74,4 +78,20 @@ def test_turns_inside_the_noise_are_not_counted() -> None:
     check = RotationCheck(h, R_B_C, DENSITY, RotationCheckOptions(min_frames=3))
     for tr in frames:
         check.observe(tr, None)
-    assert check.summary() == {"frames": 0, "median_axis_deg": None, "warned": False}
+    assert check.summary() == {"frames": 0, "median_axis_deg": None, "median_turn_ratio": None,
+                               "warned": False, "warned_turn_ratio": False}
+
+
+def test_a_gyro_in_deg_s_turns_57_times_as_far_as_the_camera(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    h, frames = _flight(R_B_C, gyro_scale=np.degrees(1.0))
+    check = RotationCheck(h, R_B_C, DENSITY)
+    with caplog.at_level("WARNING", logger="svains.navigation.rotation_check"):
+        for tr in frames:
+            check.observe(tr, None)
+    s = check.summary()
+    assert s["warned_turn_ratio"] and abs(s["median_turn_ratio"] - 57.3) < 1.0
+    assert not s["warned"]  # the same axis
+    assert len(re.findall(r"the gyro turns 5\d\.\d times as far as the camera", caplog.text)) == 1
+    assert "is the gyro in rad/s (one in deg/s turns 57 times as far)?" in caplog.text

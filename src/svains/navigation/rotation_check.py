@@ -12,6 +12,8 @@ points anywhere; the paper's gyro, 7°/s per sample, gave a 30° median on a rig
 a median above ``max_median_deg`` is warned once, naming the angle. Only the axis is compared:
 a car turns about one axis, which fixes no full rotation, but a wrong mount still moves that
 axis. Small errors (KITTI raw's 0.4°) are for ``vision.estimate_extrinsics``, not this test.
+The same frames compare the two turns' sizes: a median gyro turn outside 0.5-2 times the
+camera's is warned too (a gyro in deg/s turns 57 times as far), with or without GPS.
 """
 
 from __future__ import annotations
@@ -25,7 +27,6 @@ from numpy.typing import NDArray
 from svains.frontend.types import StereoTracks
 from svains.geometry.rotation import so3_log
 from svains.models.state import BG
-from svains.models.vision_imu import imu_increment
 from svains.navigation.base import FrameContext
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.ins import default_imu_calib
@@ -46,6 +47,8 @@ class RotationCheckOptions:
     min_snr: float = 10.0
     min_frames: int = 10
     max_median_deg: float = 20.0
+    # the gyro's turn over the camera's: a median outside this band is warned (deg/s: 57)
+    turn_ratio_band: tuple[float, float] = (0.5, 2.0)
 
 
 class RotationCheck:
@@ -61,7 +64,9 @@ class RotationCheck:
         self.gyro_density = float(gyro_noise_density)
         self.options = options or RotationCheckOptions()
         self.angles_deg: list[float] = []
+        self.ratios: list[float] = []  # |gyro turn| / |camera turn| per counted frame
         self.warned = False
+        self.warned_ratio = False
 
     def observe_frame(self, tr: StereoTracks | None, ctx: FrameContext) -> None:
         """``observe`` with the filter's gyro bias at the frame (none for the paper state)."""
@@ -76,8 +81,7 @@ class RotationCheck:
         t = h.t_ns
         if t.size < 2 or t[0] > tr.t_prev_ns or t[-1] < tr.t_ns:
             return  # the samples of this interval are gone (or not there yet)
-        inc = imu_increment(t, h.gyro_B, h.accel_B, tr.t_prev_ns, tr.t_ns, np.zeros(3), bg_B)
-        r_B = so3_log(inc.dR_Bkm1_Bk)
+        r_B = _gyro_turn(t, h.gyro_B, tr.t_prev_ns, tr.t_ns, bg_B)
         # noise of either rotation (rad): the gyro's white noise over the interval, and the
         # egomotion's rotation standard deviation
         var = self.gyro_density**2 * (tr.t_ns - tr.t_prev_ns) * 1e-9 * 3
@@ -92,7 +96,17 @@ class RotationCheck:
             return
         cos = float(r_C @ (self.R_C_B @ r_B)) / (n_C * float(np.linalg.norm(r_B)))
         self.angles_deg.append(float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))))
+        self.ratios.append(turn / n_C)
         o = self.options
+        lo, hi = o.turn_ratio_band
+        if not self.warned_ratio and len(self.ratios) >= o.min_frames:
+            ratio = float(np.median(self.ratios))
+            if not lo <= ratio <= hi:
+                self.warned_ratio = True
+                hint = " (one in deg/s turns 57 times as far)" if ratio > 10 else ""
+                log.warning("the gyro turns %.3g times as far as the camera (median of %d "
+                            "turning frames): is the gyro in rad/s%s?", ratio, len(self.ratios),
+                            hint)  # fmt: skip
         if not self.warned and len(self.angles_deg) >= o.min_frames:
             median = float(np.median(self.angles_deg))
             if median > o.max_median_deg:
@@ -105,10 +119,28 @@ class RotationCheck:
                 )
 
     def summary(self) -> dict[str, object]:
-        """``frames`` compared and the ``median_axis_deg`` (None before any)."""
-        a = self.angles_deg
+        """``frames`` compared, the ``median_axis_deg`` and ``median_turn_ratio`` (gyro over
+        camera; None before any), and whether each was warned."""
+        a, r = self.angles_deg, self.ratios
         return {"frames": len(a), "median_axis_deg": float(np.median(a)) if a else None,
-                "warned": self.warned}  # fmt: skip
+                "median_turn_ratio": float(np.median(r)) if r else None,
+                "warned": self.warned, "warned_turn_ratio": self.warned_ratio}  # fmt: skip
+
+
+def _gyro_turn(t_ns: NDArray[np.int64], gyro_B: F64, t0_ns: int, t1_ns: int,
+               bg_B: F64 | None) -> F64:
+    """The gyro's rates (bias ``bg_B`` removed) integrated over ``[t0_ns, t1_ns]`` (3,) rad,
+    trapezoids with the ends interpolated: the rotation vector of the turn to first order, and
+    unlike the log of the composed rotation, not wrapped past π (a gyro read in deg/s turns
+    by radians between two frames)."""
+    i0 = max(int(np.searchsorted(t_ns, t0_ns, side="right")) - 1, 0)
+    i1 = min(int(np.searchsorted(t_ns, t1_ns, side="left")) + 1, t_ns.size)
+    t = (t_ns[i0:i1] - t0_ns) * 1e-9
+    w = gyro_B[i0:i1] - (0.0 if bg_B is None else bg_B)
+    cum = np.vstack([np.zeros(3), np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t)[:, None], axis=0)])
+    end = (t1_ns - t0_ns) * 1e-9
+    return np.array([np.interp(end, t, cum[:, k]) - np.interp(0.0, t, cum[:, k])
+                     for k in range(3)])  # fmt: skip
 
 
 def rotation_check(history: ImuHistory | None, R_B_C: F64,
