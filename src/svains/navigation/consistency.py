@@ -331,8 +331,10 @@ class ConsistencyMonitor:
                 if s.whitened and (s.whitened[-1][1].shape != w.shape or _window_broken(
                         s.last_accepted_ns, s.fix_spacing_ns, int(t_ns))):
                     s.whitened.clear()  # a fix without velocity, or after an outage
-                s.whitened.append((int(t_ns), w, self._rate_whitened(sensor, residual,
-                                                                     innovation_cov)))
+                # the rate channel alone, only for the opt-in condition that reads it
+                rate = (None if o.bias_rate_probability is None
+                        else self._rate_whitened(sensor, residual, innovation_cov))  # fmt: skip
+                s.whitened.append((int(t_ns), w, rate))
             if s.last_accepted_ns is not None:
                 s.fix_spacing_ns = int(t_ns) - s.last_accepted_ns
             s.fused += 1
@@ -634,10 +636,10 @@ class ConsistencyMonitor:
             W = np.stack([w for _, w, _ in s.whitened])
             span_s = (s.whitened[-1][0] - s.whitened[0][0]) / 1e9
             stat = _common_offset(W)
-            rates = [r for _, _, r in s.whitened]
-            if (o.bias_rate_probability is not None and all(r is not None for r in rates)
-                    and _common_offset(np.stack(rates)) <= chi2_gate(  # type: ignore[arg-type]
-                        o.bias_rate_probability, rates[0].size)):  # type: ignore[union-attr]
+            rates = [r for _, _, r in s.whitened if r is not None]
+            if (o.bias_rate_probability is not None and len(rates) == len(s.whitened)
+                    and _common_offset(np.stack(rates))
+                    <= chi2_gate(o.bias_rate_probability, rates[0].size)):  # fmt: skip
                 continue  # leans in position only: not the IMU
             vision = name in o.standalone_sensors
             p = o.vision_bias_probability if vision else o.bias_probability

@@ -2,7 +2,8 @@
 
 Between two frames the left camera turns by ``R_Ckm1_Ck = R_C_B ΔR_Bkm1_Bk R_B_C`` for a rigid
 mount, so the rotation vectors obey ``Log R_Ckm1_Ck = R_C_B Log ΔR_Bkm1_Bk`` (``-Log R_Ck_Ckm1``
-from the front end's egomotion; ``ΔR`` from the gyro, the filter's bias removed). A calibration
+from the front end's egomotion; ``Log ΔR`` taken as the gyro's rates integrated over the
+interval, the filter's bias removed: equal to first order, and not wrapped past π). A calibration
 whose ``T_BS`` is inverted (camera-to-body given as body-to-camera), or has axes swapped, maps
 the gyro's rotation axis away from the camera's. Each frame that turns by at least
 ``min_rotation_deg`` and ``min_snr`` times the two rotations' noise (the gyro's white noise
