@@ -26,7 +26,13 @@ from svains.datasets.types import (
     SonarCalib,
 )
 from svains.errors import CalibrationError, DatasetError
-from svains.sensors.units import accel_units_problem
+from svains.sensors.units import (
+    GPS_TURN_MIN_DEG,
+    GPS_TURN_MIN_SPEED_M_S,
+    GPS_TURN_STEP_S,
+    accel_units_problem,
+    course_turn_problem,
+)
 
 log = logging.getLogger(__name__)
 
@@ -216,24 +222,8 @@ def check_gps_units(t_ns: NDArray[np.int64], p_W_G: NDArray[np.float64],
         )
 
 
-# The GPS course against the IMU's turn about the vertical (``check_gps_against_gyro``): over
-# steps of at least GPS_TURN_STEP_S, moving faster than GPS_TURN_MIN_SPEED_M_S and turning at
-# least GPS_TURN_MIN_DEG by the gyro, a cosine below GPS_MIRROR_COSINE over GPS_MIRROR_MIN_STEPS
-# or more such steps, GPS_MIRROR_MIN_TURN_DEG in all, says the GPS frame is mirrored. A car's
-# course follows its heading (cosine +0.99 on KITTI raw, the simulator's village +0.99); a
-# multirotor may fly sideways (+0.5 on the MH_03 trajectory), so only a strong opposite
-# agreement is refused.
-GPS_TURN_STEP_S = 1.0
-GPS_TURN_MIN_SPEED_M_S = 2.0
-GPS_TURN_MIN_DEG = 3.0
-GPS_MIRROR_COSINE = -0.7
-GPS_MIRROR_MIN_STEPS = 4
-GPS_MIRROR_MIN_TURN_DEG = 45.0
-# The same steps, agreeing (cosine above GPS_SCALE_COSINE): the course turns per gyro turn
-# (1 for a car: 0.99 on KITTI raw) outside this band says the gyro is in another unit (deg/s:
-# 1/57).
-GPS_SCALE_COSINE = 0.9
-GPS_TURN_RATIO_BAND = (0.2, 5.0)
+# The GPS course against the gyro (``check_gps_against_gyro``): thresholds and verdict in
+# ``svains.sensors.units`` (the estimator checks online input the same way).
 
 
 def gps_course_vs_imu_turn(
@@ -291,24 +281,10 @@ def check_gps_against_gyro(ds: Dataset, path: Path, imu_path: Path) -> None:
                                  ds.gps.v_W_G, np.asarray(ds.gravity_W, float))  # fmt: skip
     if got is None:
         return
-    cosine, n, turn_deg, ratio = got
-    lo, hi = GPS_TURN_RATIO_BAND
-    if (cosine > GPS_SCALE_COSINE and n >= GPS_MIRROR_MIN_STEPS
-            and not lo <= ratio <= hi):  # fmt: skip
-        raise DatasetError(
-            f"{imu_path}: the gyro turns {1.0 / ratio:.3g} times as far as the GPS course (cosine "
-            f"{cosine:.2f} over {n} turns): "
-            + ("is it in deg/s? " if abs(ratio * 180.0 / np.pi - 1.0) < 0.2 else "")
-            + "svains reads the gyro in rad/s"
-        )
-    if (cosine < GPS_MIRROR_COSINE and n >= GPS_MIRROR_MIN_STEPS
-            and turn_deg >= GPS_MIRROR_MIN_TURN_DEG):  # fmt: skip
-        raise DatasetError(
-            f"{path}: the GPS course turns against the IMU (cosine {cosine:.2f} over {n} "
-            f"turns, {turn_deg:.0f}° by the gyro): its frame is mirrored against gravity_W "
-            f"{np.round(ds.gravity_W, 3).tolist()} (NED, or two axes swapped?); svains reads "
-            "a right-handed local frame with gravity_W's up (e.g. ENU)"
-        )
+    problem = course_turn_problem(*got, np.asarray(ds.gravity_W, float))
+    if problem is not None:
+        kind, why = problem
+        raise DatasetError(f"{imu_path if kind == 'gyro' else path}: {why}")
 
 
 def vet_streams(ds: Dataset) -> None:

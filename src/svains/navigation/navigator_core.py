@@ -17,6 +17,7 @@ import numpy as np
 
 from svains.filter.ukf import UpdateStats
 from svains.navigation.base import FrameContext, MeasurementBlock
+from svains.navigation.course_check import CourseCheck
 from svains.navigation.event_queue import FRAME, GPS, MAG, SONAR, TICK
 from svains.navigation.fault_handling import (
     LEAN_ROWS,
@@ -88,6 +89,8 @@ class Core:
         )
         self._next_zupt_ns = self.t0_ns
         self.history = history_recorder(config, ins) if config.smoother.enabled else None
+        # the GPS frame and the gyro's unit against each other (files are checked on load)
+        self._course_check = CourseCheck(ins.history, rig.gravity_W) if gps_used else None
         self._log()
 
     def _bias_random_walk(self) -> np.ndarray:
@@ -176,6 +179,8 @@ class Core:
                     self.gps_outage_skipped += 1
                     continue
                 assert self.rig.gps is not None
+                if self._course_check is not None:
+                    self._course_check.observe_fix(t, payload[1])
                 use_v = cfg.use_gps_velocity and not (
                     self._recovery is not None and self._recovery.rate_off("gps", t))
                 if self._recovery is not None and self._recovery.reset_pending:
@@ -430,6 +435,8 @@ class Core:
             report["gps_outage_fixes_skipped"] = self.gps_outage_skipped
         if self.held_skipped:
             report["mag_held_skipped"] = self.held_skipped
+        if self._course_check is not None:
+            report["gps_course_check"] = self._course_check.summary()
         if self._gps_off:
             # Configured windows without GPS (int64 ns, [start, end)): the accuracy step reports
             # the error inside them as it does for gaps in the GPS stream.
