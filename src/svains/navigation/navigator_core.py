@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from svains.filter.ukf import UpdateStats
+from svains.models.state import DV, V
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.course_check import CourseCheck
 from svains.navigation.event_queue import FRAME, GPS, MAG, SONAR, TICK
@@ -27,7 +28,8 @@ from svains.navigation.fault_handling import (
     add_gap_covariance,
     whitened_correction,
 )
-from svains.navigation.ins import InsFilter
+from svains.navigation.heading_check import HeadingCheck, turn_heading, yaw_std
+from svains.navigation.ins import InsFilter, default_imu_calib
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import NavState, RunResult, UpdateRecord, WorldFrame
 from svains.navigation.smoothing import history_recorder
@@ -91,6 +93,15 @@ class Core:
         self.history = history_recorder(config, ins) if config.smoother.enabled else None
         # the GPS frame and the gyro's unit against each other (files are checked on load)
         self._course_check = CourseCheck(ins.history, rig.gravity_W) if gps_used else None
+        self._up_W = -np.asarray(rig.gravity_W, float) / np.linalg.norm(rig.gravity_W)
+        self._heading_check = (
+            HeadingCheck(self._up_W, rig.gps.velocity_noise_std,
+                         (rig.imu or default_imu_calib()).accel_noise_density)
+            if gps_used and rig.gps is not None and config.use_gps_velocity
+            and config.faults.heading_check else None
+        )  # fmt: skip
+        self._heading_fixes: list[Any] = []  # (t, v_W_G) of this group's GPS velocities
+        self._mag_off = False  # after a heading turn the magnetometer, which held it, is off
         self._log()
 
     def _bias_random_walk(self) -> np.ndarray:
@@ -183,6 +194,8 @@ class Core:
                     self._course_check.observe_fix(t, payload[1])
                 use_v = cfg.use_gps_velocity and not (
                     self._recovery is not None and self._recovery.rate_off("gps", t))
+                if self._heading_check is not None and payload[1] is not None:
+                    self._check_heading(t, payload[1], use_v)
                 if self._recovery is not None and self._recovery.reset_pending:
                     v = payload[1] if use_v else None
                     self._recovery.reset_from_gps(ins.ukf, self.rig.gps, payload[0], v)
@@ -190,6 +203,9 @@ class Core:
             elif kind == MAG:
                 assert self.rig.mag is not None
                 if self._recovery is not None and self._recovery.held("mag", t):
+                    self.held_skipped += 1
+                    continue
+                if self._mag_off:  # it held a heading the GPS velocities turned back
                     self.held_skipped += 1
                     continue
                 blocks.append(ins.mag_block(self.rig.mag, payload))
@@ -211,6 +227,10 @@ class Core:
             blocks = []
         if has_frame:
             self._frame(t, blocks)
+        for t_fix, v_fix in self._heading_fixes:
+            assert self._heading_check is not None
+            self._heading_check.after_update(t_fix, ins.ukf.x[V], v_fix)
+        self._heading_fixes.clear()
         if self._recovery is not None and (has_frame or blocks or len(items) > has_tick):
             self._recovery.check(ins.ukf, t)
         self._check_vision_gap(t)
@@ -218,6 +238,37 @@ class Core:
             self._keep_imu(t)
         if has_tick:
             self._log()
+
+    def _check_heading(self, t: int, v_W_G: Any, use_v: bool) -> None:
+        """Before a GPS fix's update: turn the state when the velocities since the last fixes
+        show its heading wrong (``navigation.heading_check``), warned. Not across an IMU fault
+        (a bridged gap predicts no velocity change) nor with a GPS velocity switched off."""
+        assert self._heading_check is not None
+        ukf = self.ins.ukf
+        fault_ns = None if self._imu_faults is None else self._imu_faults.last_fault_ns
+        usable = use_v and (fault_ns is None or fault_ns < self._heading_check.last_fix_ns)
+        v_var = float(np.trace(ukf.P[DV, DV])) / 3.0
+        error = self._heading_check.before_update(t, ukf.x[V], v_W_G, yaw_std(ukf, self._up_W),
+                                                  v_var, usable)  # fmt: skip
+        self._heading_fixes.append((t, np.asarray(v_W_G, float)))
+        if error is None:
+            return
+        # The fix's velocity replaces the turned one (it is the reference the turn was found
+        # against; an INS's velocity error is no rotation of its velocity).
+        assert self.rig.gps is not None
+        turn_heading(ukf, error, self._up_W, np.asarray(v_W_G, float),
+                     self.rig.gps.velocity_noise_std)  # fmt: skip
+        # A heading the magnetometer held (at the start or since) was its: fused on, it would
+        # pull the turned state back once the yaw is uncertain (simulator, `ins`, magnetometer
+        # turned 90°: back to 110° off 9 s after the turn).
+        hint = ""
+        if self.rig.mag is not None and self.config.use_mag:
+            self._mag_off = True
+            hint = ("; the magnetometer is not fused from now on (is its T_BS right? "
+                    "svains reads its field in the body frame through it)")
+        self._warn.warn("heading-turn", t, f"the heading was {np.degrees(error.angle_rad):.1f}° "
+                        f"off (± {np.degrees(error.std_rad):.1f}°, from the GPS velocities "
+                        f"over {error.steps} fixes): the state is turned{hint}")  # fmt: skip
 
     def _zero_velocity(self, t: int) -> None:
         """A zero-velocity update when the IMU shows the platform at rest (``navigation.zupt``);
@@ -437,6 +488,8 @@ class Core:
             report["mag_held_skipped"] = self.held_skipped
         if self._course_check is not None:
             report["gps_course_check"] = self._course_check.summary()
+        if self._heading_check is not None:
+            report["heading_check"] = self._heading_check.summary()
         if self._gps_off:
             # Configured windows without GPS (int64 ns, [start, end)): the accuracy step reports
             # the error inside them as it does for gaps in the GPS stream.

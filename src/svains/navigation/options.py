@@ -511,6 +511,10 @@ class FaultOptions:
     it the magnetometer is not fused for ``lean_hold_s``, warned (steel nearby turns the field
     by a few degrees: each sample passes its gate and the heading follows; the simulator's
     fault bench, 8° for 10 s, `3d` 11.6x -> 1.7x its clean position RMSE). None: off.
+    ``heading_check``: compare the filter's velocity changes between GPS fixes with the GPS's
+    and, when a rotation about the vertical maps one onto the other beyond the noise, turn the
+    state by it, warned (``navigation.heading_check``: a heading taken from a magnetometer
+    whose ``T_BS`` is off, which no other action mends).
     """
 
     imu_guard: bool = True
@@ -539,6 +543,7 @@ class FaultOptions:
     gps_velocity_drop_s: float | None = 30.0  # s without a GPS velocity that alone disagrees
     lean_test_probability: float | None = 0.9999  # magnetometer lean test (None: off)
     lean_hold_s: float = 10.0  # s a leaning magnetometer is not fused
+    heading_check: bool = True  # turn a heading the GPS velocity changes show wrong
 
     def __post_init__(self) -> None:
         if not self.imu_gap_factor > 1:

@@ -1,0 +1,217 @@
+"""A heading gone wrong, found from the GPS velocities and turned back.
+
+A filter sure of a wrong heading (a magnetometer whose ``T_BS`` is off, a start heading taken
+from a course the vehicle does not fly) integrates the IMU in a world turned by that error: its
+velocity changes between two GPS fixes are the true ones turned about the vertical. GPS gates
+then refuse the velocities, the consistency monitor reads the refusals as bias steps, multipath
+or a lost filter, and none of its actions touches the heading (the simulator's village with
+the magnetometer turned 90° and an in-flight start: `3d` 21.7 m off, GPS refused to the end).
+
+:class:`HeadingCheck` compares, fix by fix, the filter's horizontal velocity change since the
+previous fix (from its state after that fix to its prediction at this one: IMU and any vision
+in between, no GPS) with the GPS's over the same interval. Over a window of such steps the
+rotation about the vertical that best maps the first onto the second (least squares: the angle
+of ``Σ p·g`` and ``Σ (p×g)·up``) is the heading error, with a standard deviation
+``σΔ / √(Σ|g|²)`` (``σΔ`` the noise of one step's difference: both GPS fixes' velocity noise and
+the accelerometer's white noise over the step). It is acted on only when the steps moved
+enough to pin it (standard deviation at most ``max_std_deg``), it exceeds ``min_error_deg``,
+four of its own standard deviations and four of the filter's yaw standard deviation, and the
+turned steps fit the GPS ones within their noise (a chi-square test): a GPS velocity that jumps
+or scatters is no rotation. :func:`turn_heading` then turns the state about the vertical
+through the current position: attitude, velocity, and every pose clone (rigidly, so the motion
+since each clone is unchanged), with the turn's uncertainty added to the covariance.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import chi2
+
+from svains.filter.ukf import UKF
+from svains.geometry.rotation import quat_multiply, quat_normalize, quat_to_rotmat
+from svains.models.clones import CloneManifold
+from svains.models.state import DP, DTH, DV, Q, V
+from svains.models.state import P as POS
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class HeadingCheckOptions:
+    """``window`` GPS steps (each at most ``max_step_s`` long) per estimate; a turn needs the
+    estimate at most ``max_std_deg`` uncertain, at least ``min_error_deg``, and the turned steps
+    within the noise at ``fit_probability``."""
+
+    window: int = 4
+    max_step_s: float = 2.0
+    min_error_deg: float = 20.0
+    max_std_deg: float = 10.0
+    fit_probability: float = 0.999
+
+
+@dataclass(frozen=True)
+class HeadingError:
+    """A heading error found: the filter's world is turned by ``-angle_rad`` about the vertical
+    (turning it by ``angle_rad`` mends it), known to ``std_rad``, over ``steps`` GPS steps."""
+
+    angle_rad: float
+    std_rad: float
+    steps: int
+
+
+class HeadingCheck:
+    """Velocity changes between GPS fixes, filter against GPS (see the module docstring)."""
+
+    def __init__(self, up_W: F64, velocity_noise_std: float, accel_noise_density: float,
+                 options: HeadingCheckOptions | None = None) -> None:  # fmt: skip
+        """``up_W`` (3,); the GPS's velocity noise (m/s) and the accelerometer's white-noise
+        density (m/s²/√Hz) the filter uses."""
+        up = np.asarray(up_W, dtype=float)
+        self.up_W = up / np.linalg.norm(up)
+        self.options = options or HeadingCheckOptions()
+        self._var_v = float(velocity_noise_std) ** 2
+        self._var_a = float(accel_noise_density) ** 2
+        self._steps: deque[tuple[F64, F64, float]] = deque(maxlen=self.options.window)
+        self._fixes: deque[tuple[F64, F64, float]] = deque(maxlen=self.options.window)
+        self._prev: tuple[int, F64, F64] | None = None  # t_ns, filter v after, GPS v
+        self.turns: list[dict[str, float]] = []
+
+    def _horizontal(self, v: F64) -> F64:
+        return v - (v @ self.up_W) * self.up_W
+
+    def before_update(self, t_ns: int, v_pred_W: F64, v_gps_W: F64, yaw_std_rad: float,
+                      v_var: float = 0.0, usable: bool = True) -> HeadingError | None:  # fmt: skip
+        """At a GPS fix, before its update: the filter's predicted velocity ``v_pred_W`` (3,)
+        and its variance per axis ``v_var`` (m²/s²), the fix's ``v_gps_W`` (3,) m/s, the
+        filter's yaw standard deviation. ``usable`` False: the interval since the previous fix
+        or this fix's velocity cannot be compared (an IMU gap bridged in it, a GPS velocity the
+        recovery switched off): the windows start again. A heading error to mend now, or None."""
+        o = self.options
+        v_pred, v_gps = np.asarray(v_pred_W, float), np.asarray(v_gps_W, float)
+        prev = self._prev
+        if not usable or prev is None or (t_ns - prev[0]) * 1e-9 > o.max_step_s:
+            self._steps.clear()
+            self._fixes.clear()
+            if not usable:
+                return None
+        else:
+            dt = (t_ns - prev[0]) * 1e-9
+            self._steps.append((self._horizontal(v_pred - prev[1]),
+                                self._horizontal(v_gps - prev[2]),
+                                2.0 * self._var_v + self._var_a * dt))  # fmt: skip
+        self._fixes.append((self._horizontal(v_pred), self._horizontal(v_gps),
+                            self._var_v + float(v_var)))  # fmt: skip
+        # Velocities (a vision method's, held to the camera's motion in the body frame, turn
+        # with the heading) and velocity changes (the IMU's, which turn with it too).
+        tests = (self._rotation(self._fixes, yaw_std_rad), self._rotation(self._steps, yaw_std_rad))
+        found = [e for e in tests if e is not None]
+        # The GPS velocity must disagree now too: a filter that has come round mends itself.
+        d = self._fixes[-1][1] - self._fixes[-1][0]
+        if not found or float(d @ d) / self._fixes[-1][2] <= chi2.ppf(o.fit_probability, 2):
+            return None
+        error = min(found, key=lambda e: e.std_rad)
+        self._steps.clear()
+        self._fixes.clear()
+        self.turns.append({"t_ns": float(t_ns), "angle_deg": math.degrees(error.angle_rad),
+                           "std_deg": math.degrees(error.std_rad)})  # fmt: skip
+        return error
+
+    def _rotation(self, rows: deque[tuple[F64, F64, float]],
+                  yaw_std_rad: float) -> HeadingError | None:  # fmt: skip
+        """The turn about the vertical mapping the filter's vectors of ``rows`` onto the GPS's,
+        when the window is full and the turn is sure, large and fits (module docstring)."""
+        o = self.options
+        if len(rows) < o.window:
+            return None
+        ps = np.array([r[0] for r in rows])
+        gs = np.array([r[1] for r in rows])
+        var = np.array([r[2] for r in rows])
+        energy = float(np.sum(gs * gs))
+        if energy <= 0.0:
+            return None
+        angle = math.atan2(float(np.sum(np.cross(ps, gs) @ self.up_W)), float(np.sum(ps * gs)))
+        std = math.sqrt(float(np.mean(var)) / energy)
+        if std > math.radians(o.max_std_deg):
+            return None
+        if abs(angle) < max(math.radians(o.min_error_deg), 4.0 * std, 4.0 * yaw_std_rad):
+            return None
+        c, s = math.cos(angle), math.sin(angle)
+        turned = c * ps + s * np.cross(self.up_W, ps)  # Rodrigues about up (ps ⟂ up)
+        fit = float(np.sum(np.sum((turned - gs) ** 2, axis=1) / var))
+        if fit > chi2.ppf(o.fit_probability, 2 * len(ps)):
+            return None
+        return HeadingError(angle, std, len(ps))
+
+    @property
+    def last_fix_ns(self) -> int:
+        """The previous fix's time (-1 before any)."""
+        return -1 if self._prev is None else self._prev[0]
+
+    def after_update(self, t_ns: int, v_post_W: F64, v_gps_W: F64) -> None:
+        """After the fix's update (accepted or not): the filter's velocity ``v_post_W`` (3,)."""
+        self._prev = (int(t_ns), np.array(v_post_W, float), np.array(v_gps_W, float))
+
+    def summary(self) -> dict[str, object]:
+        """The turns made: ``t_ns``, ``angle_deg``, ``std_deg`` each."""
+        return {"turns": [dict(t) for t in self.turns]}
+
+
+def yaw_std(ukf: UKF, up_W: F64) -> float:
+    """The filter's standard deviation (rad) of its heading: the attitude error (body frame)
+    along the vertical."""
+    u_B = quat_to_rotmat(ukf.x[Q]).T @ up_W
+    return math.sqrt(max(float(u_B @ ukf.P[DTH, DTH] @ u_B), 0.0))
+
+
+def _rz(up: F64, angle: float) -> F64:
+    """Rotation (3, 3) by ``angle`` about the unit axis ``up``."""
+    K = np.array([[0.0, -up[2], up[1]], [up[2], 0.0, -up[0]], [-up[1], up[0], 0.0]])
+    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * K @ K
+
+
+def turn_heading(ukf: UKF, error: HeadingError, up_W: F64, v_W: F64 | None = None,
+                 v_std: float = 0.0) -> None:  # fmt: skip
+    """Turn the state by ``error.angle_rad`` about ``up_W`` through the current position:
+    attitude and velocity, and each pose clone rigidly (its position about the current one, its
+    attitude), so the motion since each clone stays as it was. The covariance follows the map
+    (world-frame position and velocity errors turn; body-frame attitude errors do not) and gains
+    the turn's own uncertainty ``error.std_rad``, common to every turned part. ``v_W`` (3,)
+    m/s: the velocity is set to it instead, with ``v_std`` per axis and no correlation (an
+    INS's velocity error, GPS-corrected since the start, is no rotation of its velocity)."""
+    up = np.asarray(up_W, dtype=float) / np.linalg.norm(up_W)
+    Rz = _rz(up, error.angle_rad)
+    q_z = np.array([math.cos(0.5 * error.angle_rad), *(math.sin(0.5 * error.angle_rad) * up)])
+    x = ukf.x.copy()
+    n = ukf.P.shape[0]
+    J = np.eye(n)
+    a = np.zeros(n)  # d(state)/d(angle): where the turn's uncertainty goes
+    x[V] = Rz @ x[V]
+    x[Q] = quat_normalize(quat_multiply(q_z, x[Q]))
+    J[DV, DV] = Rz
+    a[DV] = np.cross(up, x[V])
+    a[DTH] = quat_to_rotmat(x[Q]).T @ up
+    manifold = ukf.manifold
+    if isinstance(manifold, CloneManifold):
+        p = x[POS].copy()
+        for i in range(manifold.n_clones):
+            cp, cq = manifold.columns(i)
+            x[cp] = p + Rz @ (x[cp] - p)
+            x[cq] = quat_normalize(quat_multiply(q_z, x[cq]))
+            t = manifold.tangent(i)
+            tp, tq = slice(t.start, t.start + 3), slice(t.start + 3, t.start + 6)
+            J[tp, tp] = Rz
+            J[tp, DP] = np.eye(3) - Rz
+            a[tp] = np.cross(up, x[cp] - p)
+            a[tq] = quat_to_rotmat(x[cq]).T @ up
+    P = J @ ukf.P @ J.T + error.std_rad**2 * np.outer(a, a)
+    if v_W is not None:
+        x[V] = v_W
+        P[DV, :] = 0.0
+        P[:, DV] = 0.0
+        P[DV, DV] = v_std**2 * np.eye(3)
+    ukf.x, ukf.P = x, 0.5 * (P + P.T)

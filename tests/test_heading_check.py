@@ -1,0 +1,162 @@
+"""A wrong heading found from the GPS velocities and turned back (``navigation.heading_check``):
+the rotation is estimated from velocities (a vision method's) or from velocity changes (the
+IMU's), a velocity fault is no rotation, the turn keeps the motion since each clone, and a run
+started from a magnetometer turned 90° on its mount is mended."""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from svains.datasets import load_dataset
+from svains.datasets.types import MagStream
+from svains.evaluation.run import run_method
+from svains.filter.sigma_points import MerweScaledSigmaPoints
+from svains.filter.ukf import UKF
+from svains.geometry.rotation import quat_to_rotmat
+from svains.models.clones import CloneManifold, augment_clone
+from svains.models.manifold import NavManifold
+from svains.models.state import BIASED, DTH, Q, V
+from svains.models.state import P as POS
+from svains.navigation.heading_check import HeadingCheck, HeadingError, turn_heading, yaw_std
+from svains.navigation.options import FaultOptions, InitOptions, RunOptions
+from svains.sim import SimConfig, simulate
+
+UP = np.array([0.0, 0.0, 1.0])
+S = 1_000_000_000
+
+
+def _rz(angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _weave(n: int = 8) -> np.ndarray:
+    """True velocities (n, 3) at 1 Hz fixes: 5 m/s, the course swinging ±40°."""
+    course = np.radians(40.0) * np.sin(np.arange(n) * 0.9)
+    return 5.0 * np.stack([np.cos(course), np.sin(course), np.zeros(n)], axis=1)
+
+
+def _feed(check: HeadingCheck, v_filter: np.ndarray, v_gps: np.ndarray) -> list[HeadingError]:
+    """Fixes at 1 Hz; a turn found turns the filter's velocities from then on, as the state."""
+    found: list[HeadingError] = []
+    for k in range(len(v_gps)):
+        v_f = _rz(sum(e.angle_rad for e in found)) @ v_filter[k]
+        e = check.before_update(k * S, v_f, v_gps[k], math.radians(2.0), 0.01)
+        if e is not None:
+            found.append(e)
+            v_f = _rz(e.angle_rad) @ v_f
+        check.after_update(k * S, v_f, v_gps[k])
+    return found
+
+
+@pytest.mark.parametrize("error_deg", [0.0, 90.0, -35.0])
+def test_velocities_turned_by_the_heading_error_give_it_back(error_deg: float) -> None:
+    rng = np.random.default_rng(1)
+    v = _weave()
+    v_gps = v + rng.normal(0.0, 0.1, v.shape) * [1, 1, 0]
+    v_filter = v @ _rz(-math.radians(error_deg)).T  # a vision method's: held to the camera
+    found = _feed(HeadingCheck(UP, 0.1, 0.05), v_filter, v_gps)
+    if error_deg == 0.0:
+        assert found == []
+    else:
+        assert len(found) == 1
+        tol = 3 * math.degrees(found[0].std_rad)
+        assert math.degrees(found[0].angle_rad) == pytest.approx(error_deg, abs=tol)
+
+
+def test_velocity_changes_find_an_error_the_velocities_hide() -> None:
+    """The IMU alone: started from the GPS velocity, its changes turn with the heading."""
+    rng = np.random.default_rng(2)
+    v = _weave() + np.array([10.0, 0.0, 0.0])  # mostly straight on: the velocities barely turn
+    v_gps = v + rng.normal(0.0, 0.1, v.shape) * [1, 1, 0]
+    v_filter = v[0] + (v - v[0]) @ _rz(-math.radians(60.0)).T
+    check = HeadingCheck(UP, 0.1, 0.05)
+    found = _feed(check, v_filter, v_gps)
+    assert len(found) == 1 and math.degrees(found[0].angle_rad) == pytest.approx(60.0, abs=10.0)
+    assert check.summary()["turns"][0]["angle_deg"] == pytest.approx(60.0, abs=10.0)  # type: ignore[index]
+
+
+def test_a_gps_velocity_that_jumps_or_scatters_is_no_turn() -> None:
+    rng = np.random.default_rng(3)
+    v = _weave()
+    jumped = v.copy()
+    jumped[3:] += [-5.0, 5.0, 0.0]  # +5 m/s sideways from the fourth fix on
+    scattered = v + rng.normal(0.0, 3.0, v.shape) * [1, 1, 0]
+    for v_gps in (jumped, scattered):
+        assert _feed(HeadingCheck(UP, 0.1, 0.05), v, v_gps) == []
+    # and too little motion pins no turn: a hover
+    assert _feed(HeadingCheck(UP, 0.1, 0.05), 0.02 * v @ _rz(1.0).T, 0.02 * v) == []
+
+
+def test_the_turn_keeps_the_motion_since_each_clone() -> None:
+    rng = np.random.default_rng(4)
+    x = np.zeros(BIASED.nx)
+    x[Q] = [math.cos(0.2), 0.05, -0.03, math.sin(0.2)]
+    x[Q] /= np.linalg.norm(x[Q])
+    x[V] = [3.0, 1.0, 0.2]
+    sd = np.r_[np.full(3, 0.3), np.full(3, 0.1), np.full(3, 0.02), np.full(3, 0.01),
+               np.full(3, 1e-3), np.full(3, 0.02)]  # fmt: skip
+    C = np.corrcoef(rng.normal(size=(BIASED.ndx, 4 * BIASED.ndx)))
+    P0 = 0.5 * C * np.outer(sd, sd) + 0.5 * np.diag(sd**2)
+    m = CloneManifold(NavManifold(BIASED), 0)
+    x, P0, m = augment_clone(x, P0, m)
+    x[POS] += [4.0, -2.0, 0.5]
+    x[Q] = [math.cos(0.4), 0.0, 0.02, math.sin(0.4)]
+    x[Q] /= np.linalg.norm(x[Q])
+    ukf = UKF(m, MerweScaledSigmaPoints(m.ndx), x, P0)
+
+    def relative(u: UKF) -> tuple[np.ndarray, np.ndarray]:
+        cp, cq = m.columns(0)
+        R_c, R = quat_to_rotmat(u.x[cq]), quat_to_rotmat(u.x[Q])
+        return R_c.T @ (u.x[POS] - u.x[cp]), R_c.T @ R
+
+    before = relative(ukf)
+    yaw_before = yaw_std(ukf, UP)
+    v_before, R_before = ukf.x[V].copy(), quat_to_rotmat(ukf.x[Q])
+    turn_heading(ukf, HeadingError(0.7, math.radians(8.0), 4), UP)
+    after = relative(ukf)
+    np.testing.assert_allclose(after[0], before[0], atol=1e-12)
+    np.testing.assert_allclose(after[1], before[1], atol=1e-12)
+    np.testing.assert_allclose(ukf.x[V], _rz(0.7) @ v_before, atol=1e-12)
+    np.testing.assert_allclose(quat_to_rotmat(ukf.x[Q]), _rz(0.7) @ R_before, atol=1e-12)
+    assert np.allclose(ukf.P, ukf.P.T) and np.linalg.eigvalsh(ukf.P).min() > 0
+    assert yaw_std(ukf, UP) == pytest.approx(math.hypot(yaw_before, math.radians(8.0)), rel=1e-6)
+    # the turn's uncertainty is common to now and the clone: their relative heading stays sure
+    u_now = quat_to_rotmat(ukf.x[Q]).T @ UP
+    u_clone = quat_to_rotmat(ukf.x[m.columns(0)[1]]).T @ UP
+    t = m.tangent(0)
+    a = np.zeros(ukf.P.shape[0])
+    a[DTH] = u_now
+    a[t.start + 3:t.start + 6] = -u_clone
+    assert a @ ukf.P @ a == pytest.approx(a @ P0 @ a, rel=1e-6)  # P0: the clones' P before
+
+
+@pytest.fixture(scope="module")
+def village(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    cfg = SimConfig(duration_s=30.0, seed=0)
+    cfg.camera.render_images = False
+    cfg.gps.outages = []
+    return simulate(cfg, tmp_path_factory.mktemp("village") / "data")
+
+
+def test_a_run_started_from_a_magnetometer_turned_90_deg_is_mended(
+    village: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    ds = load_dataset(village)
+    assert ds.mag is not None
+    turned = replace(ds, mag=MagStream(ds.mag.t_ns, ds.mag.m_S @ _rz(math.pi / 2).T))
+    options = RunOptions(init=InitOptions(mode="gps"))
+    with caplog.at_level(logging.WARNING, logger="svains.navigation.fault_handling"):
+        mended = run_method(turned, "3d", options).report
+    left = run_method(turned, "3d", replace(options, faults=FaultOptions(heading_check=False)))
+    turns = mended["heading_check"]["turns"]
+    assert len(turns) == 1 and abs(turns[0]["angle_deg"]) > 60
+    assert "the magnetometer is not fused from now on" in caplog.text
+    assert mended["position_rmse_m"] < 0.3 * left.report["position_rmse_m"]
+    assert "heading_check" not in left.report
