@@ -17,7 +17,9 @@ keeps the identity ``T_BS``:
 (``--init gps``: the start's heading from the magnetometer), with the heading check
 (``faults.heading_check``, default) and without it. Prints per mount and method the mean over
 the seeds of the position and attitude RMSE [m, deg] against the ground truth and the turns
-the check made.
+the check made, and per mount the load-time test of the field's turns against the gyro's
+(``datasets.validate.mag_frame_turn``: the cosine, +1 for a right mount; below -0.7 a file is
+refused, and online the magnetometer is left out, ``mag_turn_check``).
 
     python bench/mag_mount.py [--seeds 0-3] [--methods ins,3d] [--init gps]
 """
@@ -36,6 +38,7 @@ from faults import parse_seeds  # bench/faults.py: "0-7", "0,1,5" or "3"
 
 from svains.datasets import load_dataset
 from svains.datasets.types import MagStream
+from svains.datasets.validate import mag_frame_turn
 from svains.evaluation.run import run_method
 from svains.navigation.options import FaultOptions, InitOptions, RunOptions
 from svains.sim import SimConfig, simulate
@@ -59,6 +62,7 @@ def main() -> None:
     on = RunOptions(init=InitOptions(mode=args.init))
     off = replace(on, faults=FaultOptions(heading_check=False))
     rows: dict[tuple[str, str, str], list[tuple[float, float, int]]] = {}
+    cosines: dict[str, list[float]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for seed in args.seeds:
             cfg = SimConfig(duration_s=30.0, seed=seed)
@@ -68,6 +72,8 @@ def main() -> None:
             assert ds.mag is not None
             for mount, M in MOUNTS.items():
                 d = replace(ds, mag=MagStream(ds.mag.t_ns, ds.mag.m_S @ M.T))
+                turn = mag_frame_turn(d)
+                cosines.setdefault(mount, []).append(math.nan if turn is None else turn[0])
                 for method in methods:
                     for check, options in (("on", on), ("off", off)):
                         rep = run_method(d, method, options).report
@@ -86,6 +92,9 @@ def main() -> None:
                 cells.append(f"{r[:, 0].mean():.3f} / {r[:, 1].mean():.1f}"
                              + (f" ({int(r[:, 2].sum())})" if check == "on" else ""))
             print(f"| {mount} | {method} | {cells[0]} | {cells[1]} |")
+    print("\nfield turns against the gyro's, cosine per seed (+1: right; below -0.7: refused):")
+    for mount, cs in cosines.items():
+        print(f"  {mount}: {', '.join(f'{c:+.2f}' for c in cs)}")
     worst = max((np.array(v)[:, 0].max(), k) for k, v in rows.items())
     print(f"\nlargest position RMSE: {worst[0]:.2f} m ({', '.join(worst[1])})"
           if math.isfinite(worst[0]) else "")

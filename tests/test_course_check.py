@@ -95,3 +95,53 @@ def test_a_run_fed_a_mirrored_gps_warns_and_reports_it(
     assert reports["ned"]["gps_course_check"]["warned"] == ["gps"]
     assert reports["deg"]["gps_course_check"]["warned"] == ["gyro"]
     assert caplog.text.count("online input:") == 2
+
+
+@pytest.fixture(scope="module")
+def village(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from svains.sim import SimConfig, simulate
+
+    cfg = SimConfig(duration_s=30.0, seed=0)
+    cfg.camera.render_images = False
+    return simulate(cfg, tmp_path_factory.mktemp("village") / "data")
+
+
+X_REVERSED = np.diag([-1.0, 1.0, 1.0])  # one axis wired the other way (LSM9DS1-style)
+
+
+def test_a_mirrored_magnetometer_is_refused_on_load(village: Path, tmp_path: Path) -> None:
+    import shutil
+
+    from svains.datasets.validate import mag_frame_turn
+    from svains.errors import DatasetError
+
+    cosine, n, turn_deg = mag_frame_turn(load_dataset(village))  # type: ignore[misc]
+    assert cosine > 0.9 and n >= 4 and turn_deg > 45
+    copy = tmp_path / "data"
+    shutil.copytree(village, copy)
+    csv = copy / "mav0/mag0/data.csv"
+    header = csv.read_text().splitlines()[0]
+    rows = np.loadtxt(csv, delimiter=",", comments="#", dtype=object)
+    rows[:, 1] = [repr(-float(v)) for v in rows[:, 1]]
+    csv.write_text(header + "\n" + "\n".join(",".join(map(str, r)) for r in rows) + "\n")
+    with pytest.raises(DatasetError, match=r"mag0/data\.csv: the magnetic field turns with the "
+                       r"IMU instead of against it \(cosine -0\.9\d over"):  # fmt: skip
+        load_dataset(copy)
+
+
+def test_a_mirrored_magnetometer_fed_online_is_warned_and_left_out(
+    village: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    ds = load_dataset(village)
+    assert ds.mag is not None
+    mirrored = replace(ds, mag=replace(ds.mag, m_S=ds.mag.m_S @ X_REVERSED.T))
+    options = RunOptions(init=InitOptions(mode="groundtruth"))
+    with caplog.at_level(logging.WARNING, logger="svains.navigation.course_check"):
+        ok = run_method(ds, "ins", options).report
+        bad = run_method(mirrored, "ins", options).report
+    assert ok["mag_turn_check"]["warned"] is False and ok["mag_turn_check"]["cosine"] > 0.9
+    assert bad["mag_turn_check"]["warned"] is True and bad["mag_turn_check"]["cosine"] < -0.7
+    assert caplog.text.count("online input: the magnetic field turns with the IMU") == 1
+    # from the warning on the samples are left out
+    fused = bad["measurements"]["mag"]["fused"] + bad["measurements"]["mag"]["rejected"]
+    assert bad["mag_held_skipped"] > 0.5 * ok["measurements"]["mag"]["fused"] > fused / 2

@@ -81,6 +81,13 @@ def _print(summary: dict[str, Any], console: Console) -> None:
             f"({c['gyro_turn_deg']:.0f}° by the gyro), the course turning "
             f"{c['course_per_gyro_turn']:.3g} times as far (1: ENU-like frame, gyro in rad/s)"
         )
+    if "mag_turn_vs_gyro" in checks:
+        c = checks["mag_turn_vs_gyro"]
+        console.print(
+            f"magnetic field against the gyro: cosine {c['cosine']:.2f} over {c['turns']} turns "
+            f"({c['gyro_turn_deg']:.0f}° by the gyro; +1: the field turns against the body, as "
+            "it must)"
+        )
 
 
 def _print_bag(path: Path, console: Console) -> dict[str, Any]:

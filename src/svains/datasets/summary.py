@@ -8,7 +8,7 @@ import numpy as np
 
 from svains.datasets.loader import stream_times
 from svains.datasets.types import Dataset
-from svains.datasets.validate import gps_course_vs_imu_turn
+from svains.datasets.validate import gps_course_vs_imu_turn, mag_frame_turn
 
 STREAM_LABELS = {
     "imu": "imu0",
@@ -117,4 +117,7 @@ def _checks(ds: Dataset) -> dict[str, Any]:
             cosine, n, turn_deg, ratio = got
             out["gps_course_vs_gyro"] = {"cosine": cosine, "turns": n, "gyro_turn_deg": turn_deg,
                                          "course_per_gyro_turn": ratio}  # fmt: skip
+    turn = mag_frame_turn(ds)
+    if turn is not None:
+        out["mag_turn_vs_gyro"] = {"cosine": turn[0], "turns": turn[1], "gyro_turn_deg": turn[2]}
     return out

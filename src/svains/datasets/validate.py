@@ -27,11 +27,11 @@ from svains.datasets.types import (
 )
 from svains.errors import CalibrationError, DatasetError
 from svains.sensors.units import (
-    GPS_TURN_MIN_DEG,
-    GPS_TURN_MIN_SPEED_M_S,
-    GPS_TURN_STEP_S,
     accel_units_problem,
     course_turn_problem,
+    gps_course_vs_imu_turn,
+    mag_turn_problem,
+    mag_turn_vs_gyro,
 )
 
 log = logging.getLogger(__name__)
@@ -226,51 +226,6 @@ def check_gps_units(t_ns: NDArray[np.int64], p_W_G: NDArray[np.float64],
 # ``svains.sensors.units`` (the estimator checks online input the same way).
 
 
-def gps_course_vs_imu_turn(
-    imu_t_ns: NDArray[np.int64], gyro_S: NDArray[np.float64], accel_S: NDArray[np.float64],
-    gps_t_ns: NDArray[np.int64], v_W_G: NDArray[np.float64], g_W: NDArray[np.float64],
-) -> tuple[float, int, float, float] | None:
-    """How the GPS course turns against the IMU's turn about the vertical: (cosine of the two
-    series of per-step turns, steps used, total IMU turn in deg, course turn per gyro turn by
-    least squares), or None without a usable step. The vertical in the IMU frame is its
-    specific force averaged over 1 s, so no mounting calibration is needed (gyro and
-    accelerometer share a frame)."""
-    if len(imu_t_ns) < 3 or len(gps_t_ns) < 2:
-        return None
-    t = (imu_t_ns - imu_t_ns[0]) * 1e-9
-    # 1 s boxcar of the specific force by time (irregular IMU streams too)
-    csum = np.vstack([np.zeros(3), np.cumsum(accel_S, axis=0)])
-    lo = np.searchsorted(t, t - 0.5)
-    hi = np.searchsorted(t, t + 0.5, side="right")
-    up_S = (csum[hi] - csum[lo]) / (hi - lo)[:, None]
-    norm = np.linalg.norm(up_S, axis=1)
-    rate = np.sum(gyro_S * up_S, axis=1) / np.where(norm > 0, norm, np.inf)
-    turn = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t))])
-    tg = (gps_t_ns - imu_t_ns[0]) * 1e-9
-    tg_in = tg[(tg >= t[0]) & (tg <= t[-1])]
-    if tg_in.size < 2:
-        return None
-    steps = np.unique(np.searchsorted(tg, np.arange(tg_in[0], tg_in[-1], GPS_TURN_STEP_S)))
-    if steps.size < 2:
-        return None
-    up_W = -g_W / np.linalg.norm(g_W)
-    e1 = np.cross(up_W, (1.0, 0.0, 0.0) if abs(up_W[0]) < 0.9 else (0.0, 1.0, 0.0))
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(up_W, e1)  # (e1, e2, up) right-handed
-    v = v_W_G[steps]
-    course = np.arctan2(v @ e2, v @ e1)
-    speed = np.hypot(v @ e1, v @ e2)
-    d_course = np.angle(np.exp(1j * np.diff(course)))
-    d_turn = np.diff(np.interp(tg[steps], t, turn))
-    ok = ((speed[1:] > GPS_TURN_MIN_SPEED_M_S) & (speed[:-1] > GPS_TURN_MIN_SPEED_M_S)
-          & (np.abs(d_turn) > np.radians(GPS_TURN_MIN_DEG)))  # fmt: skip
-    if not ok.any():
-        return None
-    a, b = d_course[ok], d_turn[ok]
-    cosine = float(a @ b / np.sqrt((a @ a) * (b @ b)))
-    return cosine, int(ok.sum()), float(np.degrees(np.sum(np.abs(b)))), float(a @ b / (b @ b))
-
-
 def check_gps_against_gyro(ds: Dataset, path: Path, imu_path: Path) -> None:
     """DatasetError when the GPS course turns against the IMU (``gps_course_vs_imu_turn``):
     a GPS in a mirrored frame (NED or a swapped axis against ``gravity_W``'s z-up); or with it
@@ -287,12 +242,34 @@ def check_gps_against_gyro(ds: Dataset, path: Path, imu_path: Path) -> None:
         raise DatasetError(f"{imu_path if kind == 'gyro' else path}: {why}")
 
 
+def mag_frame_turn(ds: Dataset) -> tuple[float, int, float] | None:
+    """``mag_turn_vs_gyro`` on ``ds``'s magnetometer and IMU, both taken to the body frame
+    through their ``T_BS`` (None without both, their calibrations or a usable turn)."""
+    if ds.imu is None or ds.mag is None or ds.imu_calib is None or ds.mag_calib is None:
+        return None
+    R_imu, R_mag = ds.imu_calib.T_B_S[:3, :3], ds.mag_calib.T_B_S[:3, :3]
+    return mag_turn_vs_gyro(ds.imu.t_ns, ds.imu.gyro_B @ R_imu.T, ds.imu.accel_B @ R_imu.T,
+                            ds.mag.t_ns, ds.mag.m_S @ R_mag.T)  # fmt: skip
+
+
+def check_mag_against_gyro(ds: Dataset, path: Path) -> None:
+    """DatasetError when the magnetic field turns with the body instead of against it
+    (``mag_turn_vs_gyro``): the magnetometer's axes mirrored against the IMU's through the
+    calibrations (an axis reversed; x and y swapped, as the MPU-9250's AK8963 against its
+    accelerometer)."""
+    got = mag_frame_turn(ds)
+    problem = None if got is None else mag_turn_problem(*got)
+    if problem is not None:
+        raise DatasetError(f"{path}: {problem}")
+
+
 def vet_streams(ds: Dataset) -> None:
     """The units, clocks and frames a reader cannot see in a file's syntax, for every format:
     the IMU's specific force (``check_accel_units``), GPS positions against its velocities
     (``check_gps_units``), every stream's span against the IMU's (a sensor stream that never
     meets it is refused; a reference that never does is dropped from ``ds`` with a warning),
-    and the GPS course against the gyro (``check_gps_against_gyro``). The error names the
+    the GPS course against the gyro (``check_gps_against_gyro``) and the magnetic field's turns
+    against the gyro's (``check_mag_against_gyro``). The error names the
     stream's ASL file where there is one."""
 
     def where(folder: str) -> Path:
@@ -330,6 +307,7 @@ def vet_streams(ds: Dataset) -> None:
             continue
         raise DatasetError(msg)
     check_gps_against_gyro(ds, where("gps0"), where("imu0"))
+    check_mag_against_gyro(ds, where("mag0"))
 
 
 def png_size(path: Path) -> tuple[int, int] | None:

@@ -18,7 +18,7 @@ import numpy as np
 from svains.filter.ukf import UpdateStats
 from svains.models.state import DV, V
 from svains.navigation.base import FrameContext, MeasurementBlock
-from svains.navigation.course_check import CourseCheck
+from svains.navigation.course_check import CourseCheck, MagTurnCheck
 from svains.navigation.event_queue import FRAME, GPS, MAG, SONAR, TICK
 from svains.navigation.fault_handling import (
     LEAN_ROWS,
@@ -102,6 +102,9 @@ class Core:
         )  # fmt: skip
         self._heading_fixes: list[Any] = []  # (t, v_W_G) of this group's GPS velocities
         self._mag_off = False  # after a heading turn the magnetometer, which held it, is off
+        # the magnetometer's axes against the IMU's (files are checked on load)
+        self._mag_turn = (MagTurnCheck(ins.history, rig.mag.T_B_S[:3, :3])
+                          if rig.mag is not None and config.use_mag else None)  # fmt: skip
         self._log()
 
     def _bias_random_walk(self) -> np.ndarray:
@@ -202,10 +205,12 @@ class Core:
                 blocks.append(ins.gps_block(self.rig.gps, payload[0], payload[1], use_v))
             elif kind == MAG:
                 assert self.rig.mag is not None
+                if self._mag_turn is not None and self._mag_turn.observe(t, payload):
+                    self._mag_off = True  # its field turns with the body: mirrored axes
                 if self._recovery is not None and self._recovery.held("mag", t):
                     self.held_skipped += 1
                     continue
-                if self._mag_off:  # it held a heading the GPS velocities turned back
+                if self._mag_off:  # or it held a heading the GPS velocities turned back
                     self.held_skipped += 1
                     continue
                 blocks.append(ins.mag_block(self.rig.mag, payload))
@@ -490,6 +495,8 @@ class Core:
             report["gps_course_check"] = self._course_check.summary()
         if self._heading_check is not None:
             report["heading_check"] = self._heading_check.summary()
+        if self._mag_turn is not None:
+            report["mag_turn_check"] = self._mag_turn.summary()
         if self._gps_off:
             # Configured windows without GPS (int64 ns, [start, end)): the accuracy step reports
             # the error inside them as it does for gaps in the GPS stream.

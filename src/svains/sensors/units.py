@@ -82,3 +82,125 @@ def course_turn_problem(cosine: float, n: int, turn_deg: float, ratio: float,
             "svains reads a right-handed local frame with gravity_W's up (e.g. ENU)"
         )
     return None
+
+
+def _vertical_turn(imu_t_ns: NDArray[np.int64], gyro_S: NDArray[np.float64],
+                   accel_S: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:  # fmt: skip
+    """Times (N,) s from the first sample, the unit up (N, 3) in the IMU's frame (its specific
+    force over a 1 s boxcar, by time: irregular streams too) and the gyro's turn about it (N,)
+    rad, integrated from the first sample."""
+    t = (imu_t_ns - imu_t_ns[0]) * 1e-9
+    csum = np.vstack([np.zeros(3), np.cumsum(accel_S, axis=0)])
+    lo = np.searchsorted(t, t - 0.5)
+    hi = np.searchsorted(t, t + 0.5, side="right")
+    up_S = (csum[hi] - csum[lo]) / (hi - lo)[:, None]
+    norm = np.linalg.norm(up_S, axis=1)
+    up_S = up_S / np.where(norm > 0, norm, np.inf)[:, None]
+    rate = np.sum(gyro_S * up_S, axis=1)
+    turn = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t))])
+    return t, up_S, turn
+
+
+def gps_course_vs_imu_turn(
+    imu_t_ns: NDArray[np.int64], gyro_S: NDArray[np.float64], accel_S: NDArray[np.float64],
+    gps_t_ns: NDArray[np.int64], v_W_G: NDArray[np.float64], g_W: NDArray[np.float64],
+) -> tuple[float, int, float, float] | None:
+    """How the GPS course turns against the IMU's turn about the vertical: (cosine of the two
+    series of per-step turns, steps used, total IMU turn in deg, course turn per gyro turn by
+    least squares), or None without a usable step. The vertical in the IMU frame is its
+    specific force averaged over 1 s, so no mounting calibration is needed (gyro and
+    accelerometer share a frame)."""
+    if len(imu_t_ns) < 3 or len(gps_t_ns) < 2:
+        return None
+    t, _, turn = _vertical_turn(imu_t_ns, gyro_S, accel_S)
+    tg = (gps_t_ns - imu_t_ns[0]) * 1e-9
+    tg_in = tg[(tg >= t[0]) & (tg <= t[-1])]
+    if tg_in.size < 2:
+        return None
+    steps = np.unique(np.searchsorted(tg, np.arange(tg_in[0], tg_in[-1], GPS_TURN_STEP_S)))
+    if steps.size < 2:
+        return None
+    up_W = -g_W / np.linalg.norm(g_W)
+    e1 = np.cross(up_W, (1.0, 0.0, 0.0) if abs(up_W[0]) < 0.9 else (0.0, 1.0, 0.0))
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up_W, e1)  # (e1, e2, up) right-handed
+    v = v_W_G[steps]
+    course = np.arctan2(v @ e2, v @ e1)
+    speed = np.hypot(v @ e1, v @ e2)
+    d_course = np.angle(np.exp(1j * np.diff(course)))
+    d_turn = np.diff(np.interp(tg[steps], t, turn))
+    ok = ((speed[1:] > GPS_TURN_MIN_SPEED_M_S) & (speed[:-1] > GPS_TURN_MIN_SPEED_M_S)
+          & (np.abs(d_turn) > np.radians(GPS_TURN_MIN_DEG)))  # fmt: skip
+    if not ok.any():
+        return None
+    a, b = d_course[ok], d_turn[ok]
+    cosine = float(a @ b / np.sqrt((a @ a) * (b @ b)))
+    return cosine, int(ok.sum()), float(np.degrees(np.sum(np.abs(b)))), float(a @ b / (b @ b))
+
+
+# The magnetic field in the body frame turns against the body's own turn about the vertical
+# (the field stays put, the body turns under it). Over steps of at least MAG_TURN_STEP_S turning
+# at least GPS_TURN_MIN_DEG by the gyro, a cosine between the field's turn and the gyro's
+# opposite below MAG_MIRROR_COSINE over GPS_MIRROR_MIN_STEPS or more steps and
+# GPS_MIRROR_MIN_TURN_DEG in all says the field turns with the body: the magnetometer's axes
+# are mirrored against the IMU's through the calibration (an axis reversed, x and y swapped).
+MAG_TURN_STEP_S = 1.0
+MAG_MIRROR_COSINE = -0.7
+MAG_MEAN_S = 0.2  # s of samples averaged at each step's end (the field's direction is noisy)
+
+
+def mag_turn_vs_gyro(imu_t_ns: NDArray[np.int64], gyro_B: NDArray[np.float64],
+                     accel_B: NDArray[np.float64], mag_t_ns: NDArray[np.int64],
+                     m_B: NDArray[np.float64]) -> tuple[float, int, float] | None:  # fmt: skip
+    """How the magnetic field ``m_B`` (M, 3), in the frame of the IMU's ``gyro_B`` and
+    ``accel_B`` (N, 3), turns about the vertical against the gyro: (cosine of the field's
+    per-step turns with the gyro's reversed, +1 for a right mount; steps used; total gyro
+    turn in deg), or None without a usable step."""
+    if len(imu_t_ns) < 3 or len(mag_t_ns) < 2:
+        return None
+    t, up, turn = _vertical_turn(imu_t_ns, gyro_B, accel_B)
+    tm = (np.asarray(mag_t_ns) - imu_t_ns[0]) * 1e-9
+    inside = (tm >= t[0]) & (tm <= t[-1])
+    if inside.sum() < 2:
+        return None
+    tm, m = tm[inside], np.asarray(m_B, float)[inside]
+    ends = np.arange(tm[0] + MAG_MEAN_S, tm[-1], MAG_TURN_STEP_S)
+    if ends.size < 2:
+        return None
+    csum = np.vstack([np.zeros(3), np.cumsum(m, axis=0)])
+    lo = np.searchsorted(tm, ends - MAG_MEAN_S)
+    hi = np.searchsorted(tm, ends, side="right")
+    ok_mean = hi > lo
+    m_end = (csum[hi] - csum[lo]) / np.maximum(hi - lo, 1)[:, None]
+    k = np.clip(np.searchsorted(t, ends), 0, t.size - 1)
+    u = up[k]
+    # the field's angle about the vertical, from a body axis projected on the horizontal
+    ref = np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    e1 = ref - np.sum(ref * u, axis=1, keepdims=True) * u
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(u, e1)
+    angle = np.arctan2(np.sum(m_end * e2, axis=1), np.sum(m_end * e1, axis=1))
+    d_field = np.angle(np.exp(1j * np.diff(angle)))
+    d_turn = np.diff(np.interp(ends, t, turn))
+    ok = (ok_mean[1:] & ok_mean[:-1] & (np.abs(d_turn) > np.radians(GPS_TURN_MIN_DEG))
+          & (ref[1:, 0] == ref[:-1, 0]))  # fmt: skip
+    if not ok.any():
+        return None
+    a, b = d_field[ok], -d_turn[ok]
+    cosine = float(a @ b / np.sqrt((a @ a) * (b @ b)))
+    return cosine, int(ok.sum()), float(np.degrees(np.sum(np.abs(b))))
+
+
+def mag_turn_problem(cosine: float, n: int, turn_deg: float) -> str | None:
+    """Why the field's turns (``mag_turn_vs_gyro``) cannot come from a magnetometer read in
+    the IMU's frame, or None."""
+    if (cosine < MAG_MIRROR_COSINE and n >= GPS_MIRROR_MIN_STEPS
+            and turn_deg >= GPS_MIRROR_MIN_TURN_DEG):  # fmt: skip
+        return (
+            f"the magnetic field turns with the IMU instead of against it (cosine {cosine:.2f} "
+            f"over {n} turns, {turn_deg:.0f}° by the gyro): the magnetometer's axes are "
+            "mirrored against the IMU's through its T_BS (an axis reversed, or x and y "
+            "swapped?); svains reads the field in the sensor frame that mag0's T_BS maps to "
+            "the body"
+        )
+    return None
