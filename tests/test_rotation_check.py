@@ -22,9 +22,10 @@ FRAME_NS = 200_000_000
 
 
 def _flight(R_B_C_true: np.ndarray, seed: int = 0, rate_scale: float = 1.0,
-            gyro_scale: float = 1.0):
+            gyro_scale: float = 1.0, offset_s: float = 0.0):
     """Body rates that change every frame (turns about every axis), 200 Hz gyro with white
-    noise, and per frame the camera's egomotion from the true mount with 0.02° of noise."""
+    noise, and per frame the camera's egomotion from the true mount with 0.02° of noise; the
+    frames stamped ``offset_s`` early on the IMU's clock (``t_imu = t_cam + offset_s``)."""
     rng = np.random.default_rng(seed)
     h = ImuHistory(capacity=8192)
     frames = []
@@ -39,9 +40,11 @@ def _flight(R_B_C_true: np.ndarray, seed: int = 0, rate_scale: float = 1.0,
         R_Ck_Ckm1 = R_Ckm1_Ck.T @ so3_exp(rng.normal(0.0, np.radians(0.02), 3))
         ego = Egomotion(R_Ck_Ckm1, np.zeros(3), np.eye(6) * np.radians(0.02) ** 2)
         e = np.zeros((0, 2))
-        frames.append(StereoTracks(t0, t, np.zeros(0, np.int64), e, e, e, e, np.zeros((0, 3)),
-                                   np.zeros(0, bool), ego))  # fmt: skip
-    h.append(t, np.zeros(3), np.array([0.0, 0.0, 9.81]))
+        off = round(offset_s * 1e9)
+        frames.append(StereoTracks(t0 - off, t - off, np.zeros(0, np.int64), e, e, e, e,
+                                   np.zeros((0, 3)), np.zeros(0, bool), ego))  # fmt: skip
+    for j in range(60):  # 0.3 s more: the shifted intervals of the last frames
+        h.append(t + j * 5_000_000, np.zeros(3), np.array([0.0, 0.0, 9.81]))
     return h, frames
 
 
@@ -69,7 +72,9 @@ def test_a_camera_turned_on_the_body_is_warned_once(caplog: pytest.LogCaptureFix
     s = check.summary()
     assert s["warned"] and s["median_axis_deg"] > 45.0
     assert caplog.text.count("the camera turns about an axis") == 1
-    assert "median of 10 turning frames" in caplog.text
+    # after the camera stamps' own test has its 10 frames (which leaves the mount to blame)
+    assert re.search(r"median of 1\d turning frames", caplog.text)
+    assert not s["warned_time_offset"] and s["time_offset_fit"] > 100
 
 
 def test_turns_inside_the_noise_are_not_counted() -> None:
@@ -79,7 +84,9 @@ def test_turns_inside_the_noise_are_not_counted() -> None:
     for tr in frames:
         check.observe(tr, None)
     assert check.summary() == {"frames": 0, "median_axis_deg": None, "median_turn_ratio": None,
-                               "warned": False, "warned_turn_ratio": False}
+                               "warned": False, "warned_turn_ratio": False,
+                               "time_offset_ms": None, "time_offset_std_ms": None,
+                               "time_offset_fit": None, "warned_time_offset": False}  # fmt: skip
 
 
 def test_a_gyro_in_deg_s_turns_57_times_as_far_as_the_camera(
@@ -95,3 +102,30 @@ def test_a_gyro_in_deg_s_turns_57_times_as_far_as_the_camera(
     assert not s["warned"]  # the same axis
     assert len(re.findall(r"the gyro turns 5\d\.\d times as far as the camera", caplog.text)) == 1
     assert "is the gyro in rad/s (one in deg/s turns 57 times as far)?" in caplog.text
+
+
+@pytest.mark.parametrize("offset_ms", [0.0, 40.0, -60.0, 150.0])
+def test_camera_stamps_off_the_imu_clock_are_found_and_warned(
+    offset_ms: float, caplog: pytest.LogCaptureFixture
+) -> None:
+    h, frames = _flight(R_B_C, seed=2, offset_s=offset_ms * 1e-3)
+    check = RotationCheck(h, R_B_C, DENSITY)
+    with caplog.at_level("WARNING", logger="svains.navigation.rotation_check"):
+        for tr in frames:
+            check.observe(tr, None)
+    s = check.summary()
+    if offset_ms == 150.0:  # beyond the ±100 ms tried: no figure, but a warning
+        assert s["time_offset_ms"] is None and s["warned_time_offset"]
+        assert "the IMU more than 100 ms after the camera stamps" in caplog.text
+        return
+    # the synthetic gyro holds each frame's rate up to the next sample, which a trapezoid
+    # integral reads half a sample (2.5 ms) late: the figure is good to that
+    tol = 3 * s["time_offset_std_ms"] + 2.5
+    assert s["time_offset_ms"] == pytest.approx(offset_ms, abs=tol)
+    assert s["time_offset_std_ms"] < 5.0
+    assert s["warned_time_offset"] is (offset_ms != 0.0)
+    assert caplog.text.count("the camera's turns match the gyro's best") == (offset_ms != 0.0)
+    if offset_ms:
+        said = re.search(r"timeshift_cam_imu: ([+-]0\.\d{3})", caplog.text)
+        assert said and float(said.group(1)) == pytest.approx(offset_ms * 1e-3, abs=0.005)
+        assert "the camera turns about an axis" not in caplog.text  # the stamps are told

@@ -15,6 +15,10 @@ a car turns about one axis, which fixes no full rotation, but a wrong mount stil
 axis. Small errors (KITTI raw's 0.4°) are for ``vision.estimate_extrinsics``, not this test.
 The same frames compare the two turns' sizes: a median gyro turn outside 0.5-2 times the
 camera's is warned too (a gyro in deg/s turns 57 times as far), with or without GPS.
+The same frames test the camera stamps against the IMU's clock: the gyro's turn over each
+frame's interval shifted by up to ``offset_range_s`` either way, against the camera's; a best
+shift of ``offset_warn_s`` or more, beyond 4 of its standard deviations and explaining the
+turns (``offset_max_fit``), is warned once with the ``timeshift_cam_imu`` to give.
 """
 
 from __future__ import annotations
@@ -50,6 +54,14 @@ class RotationCheckOptions:
     max_median_deg: float = 20.0
     # the gyro's turn over the camera's: a median outside this band is warned (deg/s: 57)
     turn_ratio_band: tuple[float, float] = (0.5, 2.0)
+    # camera stamps against the IMU's: shifts tried (s, each way) and their step, and the
+    # smallest best shift warned (and only beyond 4 of its standard deviations)
+    offset_range_s: float = 0.1
+    offset_step_s: float = 0.0025
+    offset_warn_s: float = 0.015
+    # ... and only when that shift explains the turns (misfit per degree of freedom at most
+    # this: KITTI raw 0.99, 1.6 with its stamps 50 ms off; a mount 20° off gives hundreds)
+    offset_max_fit: float = 10.0
 
 
 class RotationCheck:
@@ -68,6 +80,12 @@ class RotationCheck:
         self.ratios: list[float] = []  # |gyro turn| / |camera turn| per counted frame
         self.warned = False
         self.warned_ratio = False
+        o = self.options
+        n = round(o.offset_range_s / o.offset_step_s)
+        self._shifts_s = np.arange(-n, n + 1) * o.offset_step_s
+        self._offset_chi2 = np.zeros(self._shifts_s.size)  # summed over the counted frames
+        self.offset_frames = 0
+        self.warned_offset = False
 
     def observe_frame(self, tr: StereoTracks | None, ctx: FrameContext) -> None:
         """``observe`` with the filter's gyro bias at the frame (none for the paper state)."""
@@ -98,6 +116,7 @@ class RotationCheck:
         cos = float(r_C @ (self.R_C_B @ r_B)) / (n_C * float(np.linalg.norm(r_B)))
         self.angles_deg.append(float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))))
         self.ratios.append(turn / n_C)
+        self._observe_offset(tr.t_prev_ns, tr.t_ns, self.R_C_B.T @ r_C, bg_B, var)
         o = self.options
         lo, hi = o.turn_ratio_band
         if not self.warned_ratio and len(self.ratios) >= o.min_frames:
@@ -108,7 +127,11 @@ class RotationCheck:
                 log.warning("the gyro turns %.3g times as far as the camera (median of %d "
                             "turning frames): is the gyro in rad/s%s?", ratio, len(self.ratios),
                             hint)  # fmt: skip
-        if not self.warned and len(self.angles_deg) >= o.min_frames:
+        # Camera stamps off the IMU's clock move the turns' axes too: that is told first (the
+        # stamps' test counts only frames whose shifted intervals the history holds).
+        judged = self.offset_frames >= o.min_frames or len(self.angles_deg) >= 2 * o.min_frames
+        if (not self.warned and not self.warned_offset and judged
+                and len(self.angles_deg) >= o.min_frames):  # fmt: skip
             median = float(np.median(self.angles_deg))
             if median > o.max_median_deg:
                 self.warned = True
@@ -119,13 +142,101 @@ class RotationCheck:
                     median, len(self.angles_deg),
                 )
 
+    def _observe_offset(self, t0_ns: int, t1_ns: int, r_B: F64, bg_B: F64 | None,
+                        var: float) -> None:  # fmt: skip
+        """Add the frame's misfit, for each tried shift ``δ``, between the camera's turn
+        ``r_B`` (3,) rad (body axes) and the gyro's over ``[t0 + δ, t1 + δ]``, weighted by the
+        frame's noise ``var``; warn once when the best shift is clearly not zero."""
+        h, o = self.history, self.options
+        t = h.t_ns
+        lo, hi = t0_ns + int(self._shifts_s[0] * 1e9), t1_ns + int(self._shifts_s[-1] * 1e9)
+        if t.size < 2 or t[0] > lo or t[-1] < hi:
+            return  # the samples of every shifted interval are not all there
+        i0 = max(int(np.searchsorted(t, lo, side="right")) - 1, 0)
+        i1 = min(int(np.searchsorted(t, hi, side="left")) + 1, t.size)
+        ts = (t[i0:i1] - t0_ns) * 1e-9
+        w = h.gyro_B[i0:i1] - (0.0 if bg_B is None else bg_B)
+        cum = np.vstack([np.zeros(3),
+                         np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(ts)[:, None], axis=0)])
+        span = (t1_ns - t0_ns) * 1e-9
+        turns = np.stack([np.interp(span + self._shifts_s, ts, cum[:, k])
+                          - np.interp(self._shifts_s, ts, cum[:, k]) for k in range(3)], axis=1)
+        self._offset_chi2 += np.sum((turns - r_B) ** 2, axis=1) / var
+        self.offset_frames += 1
+        if self.warned_offset or self.offset_frames < o.min_frames:
+            return
+        got = self.time_offset()
+        if got is None:
+            # The best shift at the edge of those tried: warned when it halves the misfit at
+            # zero (a mount error moves it little: 0.83 for 90° off, 0.99 for 20°).
+            c = self._offset_chi2
+            k = int(np.argmin(c))
+            zero = c.size // 2
+            if k in (0, c.size - 1) and c[zero] - c[k] > 25.0 and c[k] < 0.5 * c[zero]:
+                self.warned_offset = True
+                log.warning(
+                    "the camera's turns match the gyro's best with the IMU more than %.0f ms "
+                    "%s the camera stamps (%d turning frames): are the images stamped on the "
+                    "IMU's clock? Measure the offset and give it as timeshift_cam_imu in the "
+                    "camera calibration", o.offset_range_s * 1e3,
+                    "after" if k > zero else "before", self.offset_frames,
+                )  # fmt: skip
+            return
+        shift, std = got
+        fit = self.offset_fit()
+        if fit is None or fit > o.offset_max_fit:
+            return  # no shift explains the turns: a mount error, told by the axes
+        if abs(shift) >= o.offset_warn_s and abs(shift) > 4.0 * std:
+            self.warned_offset = True
+            log.warning(
+                "the camera's turns match the gyro's best with the IMU %.0f ms %s the camera "
+                "stamps (± %.0f ms, %d turning frames): are the images stamped on the IMU's "
+                "clock? Give timeshift_cam_imu: %+.3f (t_imu = t_cam + shift) in the camera "
+                "calibration, or let the filter estimate it (vision.estimate_time_offset)",
+                abs(shift) * 1e3, "after" if shift > 0 else "before", std * 1e3,
+                self.offset_frames, shift,
+            )
+
+    def time_offset(self) -> tuple[float, float] | None:
+        """The shift ``δ`` (s) of the IMU's clock against the camera stamps that best matches
+        their turns (``t_imu = t_cam + δ``, Kalibr's ``timeshift_cam_imu`` still missing from
+        the calibration) and its standard deviation (from the misfit's curvature), or None
+        before any frame or with the best shift at the edge of those tried (beyond them)."""
+        if self.offset_frames == 0:
+            return None
+        c = self._offset_chi2
+        k = int(np.argmin(c))
+        if k == 0 or k == c.size - 1:
+            return None
+        curv = c[k - 1] - 2.0 * c[k] + c[k + 1]
+        if not curv > 0.0:
+            return None
+        step = self.options.offset_step_s
+        shift = self._shifts_s[k] + 0.5 * step * (c[k - 1] - c[k + 1]) / curv
+        # chi-square curvature: d²χ²/dδ² = 2 / σ²
+        return float(shift), float(np.sqrt(2.0 * step**2 / curv))
+
+    def offset_fit(self) -> float | None:
+        """The misfit per degree of freedom between the camera's and the gyro's turns at the
+        best shift (about 1 where the mount and the noise are right; None before any frame)."""
+        if self.offset_frames == 0:
+            return None
+        return float(np.min(self._offset_chi2)) / (3 * self.offset_frames)
+
     def summary(self) -> dict[str, object]:
         """``frames`` compared, the ``median_axis_deg`` and ``median_turn_ratio`` (gyro over
-        camera; None before any), and whether each was warned."""
+        camera; None before any), and whether each was warned; the camera stamps' best
+        ``time_offset_ms`` against the gyro and its ``time_offset_std_ms`` (None: none found
+        inside ±100 ms) and whether it was warned."""
         a, r = self.angles_deg, self.ratios
+        offset = self.time_offset()
         return {"frames": len(a), "median_axis_deg": float(np.median(a)) if a else None,
                 "median_turn_ratio": float(np.median(r)) if r else None,
-                "warned": self.warned, "warned_turn_ratio": self.warned_ratio}  # fmt: skip
+                "warned": self.warned, "warned_turn_ratio": self.warned_ratio,
+                "time_offset_ms": None if offset is None else offset[0] * 1e3,
+                "time_offset_std_ms": None if offset is None else offset[1] * 1e3,
+                "time_offset_fit": self.offset_fit(),
+                "warned_time_offset": self.warned_offset}  # fmt: skip
 
 
 def _gyro_turn(t_ns: NDArray[np.int64], gyro_B: F64, t0_ns: int, t1_ns: int,
