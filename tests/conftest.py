@@ -67,3 +67,15 @@ def kitti_raw() -> Path:
     if not KITTI_RAW.is_dir():
         pytest.fail(f"real data missing: {KITTI_RAW} (CI provides ../shared)")
     return KITTI_RAW
+
+
+@pytest.fixture(scope="session")
+def village_30s(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The simulator's village, 30 s, seed 0, features only, GPS at 1 Hz throughout (the
+    online sensor checks' tests: ``test_course_check.py``, ``test_heading_check.py``)."""
+    from svains.sim import SimConfig, simulate
+
+    cfg = SimConfig(duration_s=30.0, seed=0)
+    cfg.camera.render_images = False
+    cfg.gps.outages = []
+    return simulate(cfg, tmp_path_factory.mktemp("village_30s") / "data")

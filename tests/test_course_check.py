@@ -97,28 +97,19 @@ def test_a_run_fed_a_mirrored_gps_warns_and_reports_it(
     assert caplog.text.count("online input:") == 2
 
 
-@pytest.fixture(scope="module")
-def village(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from svains.sim import SimConfig, simulate
-
-    cfg = SimConfig(duration_s=30.0, seed=0)
-    cfg.camera.render_images = False
-    return simulate(cfg, tmp_path_factory.mktemp("village") / "data")
-
-
 X_REVERSED = np.diag([-1.0, 1.0, 1.0])  # one axis wired the other way (LSM9DS1-style)
 
 
-def test_a_mirrored_magnetometer_is_refused_on_load(village: Path, tmp_path: Path) -> None:
+def test_a_mirrored_magnetometer_is_refused_on_load(village_30s: Path, tmp_path: Path) -> None:
     import shutil
 
     from svains.datasets.validate import mag_frame_turn
     from svains.errors import DatasetError
 
-    cosine, n, turn_deg = mag_frame_turn(load_dataset(village))  # type: ignore[misc]
+    cosine, n, turn_deg = mag_frame_turn(load_dataset(village_30s))  # type: ignore[misc]
     assert cosine > 0.9 and n >= 4 and turn_deg > 45
     copy = tmp_path / "data"
-    shutil.copytree(village, copy)
+    shutil.copytree(village_30s, copy)
     csv = copy / "mav0/mag0/data.csv"
     header = csv.read_text().splitlines()[0]
     rows = np.loadtxt(csv, delimiter=",", comments="#", dtype=object)
@@ -130,9 +121,9 @@ def test_a_mirrored_magnetometer_is_refused_on_load(village: Path, tmp_path: Pat
 
 
 def test_a_mirrored_magnetometer_fed_online_is_warned_and_left_out(
-    village: Path, caplog: pytest.LogCaptureFixture
+    village_30s: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    ds = load_dataset(village)
+    ds = load_dataset(village_30s)
     assert ds.mag is not None
     mirrored = replace(ds, mag=replace(ds.mag, m_S=ds.mag.m_S @ X_REVERSED.T))
     options = RunOptions(init=InitOptions(mode="groundtruth"))

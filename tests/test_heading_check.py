@@ -25,7 +25,6 @@ from svains.models.state import BIASED, DTH, Q, V
 from svains.models.state import P as POS
 from svains.navigation.heading_check import HeadingCheck, HeadingError, turn_heading, yaw_std
 from svains.navigation.options import FaultOptions, InitOptions, RunOptions
-from svains.sim import SimConfig, simulate
 
 UP = np.array([0.0, 0.0, 1.0])
 S = 1_000_000_000
@@ -137,18 +136,10 @@ def test_the_turn_keeps_the_motion_since_each_clone() -> None:
     assert a @ ukf.P @ a == pytest.approx(a @ P0 @ a, rel=1e-6)  # P0: the clones' P before
 
 
-@pytest.fixture(scope="module")
-def village(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    cfg = SimConfig(duration_s=30.0, seed=0)
-    cfg.camera.render_images = False
-    cfg.gps.outages = []
-    return simulate(cfg, tmp_path_factory.mktemp("village") / "data")
-
-
 def test_a_run_started_from_a_magnetometer_turned_90_deg_is_mended(
-    village: Path, caplog: pytest.LogCaptureFixture
+    village_30s: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    ds = load_dataset(village)
+    ds = load_dataset(village_30s)
     assert ds.mag is not None
     turned = replace(ds, mag=MagStream(ds.mag.t_ns, ds.mag.m_S @ _rz(math.pi / 2).T))
     options = RunOptions(init=InitOptions(mode="gps"))

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections import deque
 
 import numpy as np
 from numpy.typing import NDArray
@@ -140,7 +141,7 @@ class MagTurnCheck:
         """``history``: the body-frame IMU samples; ``R_B_S`` (3, 3): the magnetometer's mount."""
         self.history = history
         self.R_B_S = np.asarray(R_B_S, dtype=float)
-        self._recent: list[tuple[int, F64]] = []  # the last MAG_MEAN_S of samples, body frame
+        self._recent: deque[tuple[int, F64]] = deque()  # the last MAG_MEAN_S of samples, body
         self._anchor: tuple[int, F64] | None = None  # t_ns, mean field (body frame)
         self._ab = self._aa = self._bb = self._abs_b = 0.0
         self.steps = 0
@@ -154,7 +155,7 @@ class MagTurnCheck:
         self._recent.append((t_ns, self.R_B_S @ np.asarray(m_S, float)))
         cut = t_ns - int(MAG_MEAN_S * 1e9)
         while self._recent[0][0] < cut:
-            self._recent.pop(0)
+            self._recent.popleft()
         if self._anchor is not None and t_ns - self._anchor[0] < MAG_TURN_STEP_S * 1e9:
             return False
         m_end = np.mean([m for _, m in self._recent], axis=0)

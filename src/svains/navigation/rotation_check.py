@@ -100,7 +100,7 @@ class RotationCheck:
         t = h.t_ns
         if t.size < 2 or t[0] > tr.t_prev_ns or t[-1] < tr.t_ns:
             return  # the samples of this interval are gone (or not there yet)
-        r_B = _gyro_turn(t, h.gyro_B, tr.t_prev_ns, tr.t_ns, bg_B)
+        r_B = _gyro_turns(t, h.gyro_B, tr.t_prev_ns, tr.t_ns, bg_B, _NO_SHIFT)[0]
         # noise of either rotation (rad): the gyro's white noise over the interval, and the
         # egomotion's rotation standard deviation
         var = self.gyro_density**2 * (tr.t_ns - tr.t_prev_ns) * 1e-9 * 3
@@ -152,15 +152,7 @@ class RotationCheck:
         lo, hi = t0_ns + int(self._shifts_s[0] * 1e9), t1_ns + int(self._shifts_s[-1] * 1e9)
         if t.size < 2 or t[0] > lo or t[-1] < hi:
             return  # the samples of every shifted interval are not all there
-        i0 = max(int(np.searchsorted(t, lo, side="right")) - 1, 0)
-        i1 = min(int(np.searchsorted(t, hi, side="left")) + 1, t.size)
-        ts = (t[i0:i1] - t0_ns) * 1e-9
-        w = h.gyro_B[i0:i1] - (0.0 if bg_B is None else bg_B)
-        cum = np.vstack([np.zeros(3),
-                         np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(ts)[:, None], axis=0)])
-        span = (t1_ns - t0_ns) * 1e-9
-        turns = np.stack([np.interp(span + self._shifts_s, ts, cum[:, k])
-                          - np.interp(self._shifts_s, ts, cum[:, k]) for k in range(3)], axis=1)
+        turns = _gyro_turns(t, h.gyro_B, t0_ns, t1_ns, bg_B, self._shifts_s)
         self._offset_chi2 += np.sum((turns - r_B) ** 2, axis=1) / var
         self.offset_frames += 1
         if self.warned_offset or self.offset_frames < o.min_frames:
@@ -239,20 +231,26 @@ class RotationCheck:
                 "warned_time_offset": self.warned_offset}  # fmt: skip
 
 
-def _gyro_turn(t_ns: NDArray[np.int64], gyro_B: F64, t0_ns: int, t1_ns: int,
-               bg_B: F64 | None) -> F64:
-    """The gyro's rates (bias ``bg_B`` removed) integrated over ``[t0_ns, t1_ns]`` (3,) rad,
-    trapezoids with the ends interpolated: the rotation vector of the turn to first order, and
+_NO_SHIFT = np.zeros(1)
+
+
+def _gyro_turns(t_ns: NDArray[np.int64], gyro_B: F64, t0_ns: int, t1_ns: int,
+                bg_B: F64 | None, shifts_s: F64) -> F64:  # fmt: skip
+    """The gyro's rates (bias ``bg_B`` removed) integrated over ``[t0_ns + δ, t1_ns + δ]`` for
+    each shift ``δ`` of ``shifts_s`` (S,) s: (S, 3) rad, trapezoids over one cumulative
+    integral with the ends interpolated: the rotation vector of the turn to first order, and
     unlike the log of the composed rotation, not wrapped past π (a gyro read in deg/s turns
     by radians between two frames)."""
-    i0 = max(int(np.searchsorted(t_ns, t0_ns, side="right")) - 1, 0)
-    i1 = min(int(np.searchsorted(t_ns, t1_ns, side="left")) + 1, t_ns.size)
+    lo = t0_ns + int(shifts_s[0] * 1e9)
+    hi = t1_ns + int(shifts_s[-1] * 1e9)
+    i0 = max(int(np.searchsorted(t_ns, lo, side="right")) - 1, 0)
+    i1 = min(int(np.searchsorted(t_ns, hi, side="left")) + 1, t_ns.size)
     t = (t_ns[i0:i1] - t0_ns) * 1e-9
     w = gyro_B[i0:i1] - (0.0 if bg_B is None else bg_B)
     cum = np.vstack([np.zeros(3), np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t)[:, None], axis=0)])
     end = (t1_ns - t0_ns) * 1e-9
-    return np.array([np.interp(end, t, cum[:, k]) - np.interp(0.0, t, cum[:, k])
-                     for k in range(3)])  # fmt: skip
+    return np.stack([np.interp(end + shifts_s, t, cum[:, k]) - np.interp(shifts_s, t, cum[:, k])
+                     for k in range(3)], axis=1)  # fmt: skip
 
 
 def rotation_check(history: ImuHistory | None, R_B_C: F64,
