@@ -16,7 +16,9 @@ among them, with the frozen GPS, the dead magnetometer and the bad sonar;
 not the persistent GPS step, which has its own row). "GPS lost" (no fix from the fault on) is
 the reference the ``ins`` run under the GPS step is held to: with no other sensor to
 contradict a step, its error must be no worse than without GPS; "GPS lost 10 s" is the frozen
-GPS's, the multipath's and the ramp's (their fixes carry next to nothing).
+GPS's, the multipath's and the ramp's (their fixes carry next to nothing); "data lost" is all
+at once's: the data its faults destroy left out instead of corrupted (the bias steps, not a
+loss of data, left out of it).
 
 It runs ``ins`` and ``3d`` on each through the public library entry
 (``svains.evaluation.run.run_method``, started from the ground truth) and prints:
@@ -258,8 +260,49 @@ def all_at_once(imu_faults: tuple[Fault, ...]) -> Fault:
     return Fault("all at once", max(t - ALL_SPACING_S, 10.0), inject)
 
 
+def _drop(st: Streams, at_ns: int) -> None:
+    """The one IMU sample at ``at_ns`` left out (a spike the guard drops)."""
+    k = int(np.searchsorted(st.t, at_ns))
+    st.keep[k] = False
+
+
+def _mag_lost(st: Streams, at_ns: int) -> None:
+    st.mag_t[st.mag_t >= at_ns] = -1  # marked for removal (``faulty_copy`` drops them)
+
+
+def _sonar_lost_5s(st: Streams, at_ns: int) -> None:
+    st.sonar_t[(st.sonar_t >= at_ns) & (st.sonar_t < at_ns + 5 * S)] = -1
+
+
+def data_lost(imu_faults: tuple[Fault, ...]) -> Fault:
+    """The reference of "all at once": the same data with what its faults destroy left out
+    instead of corrupted: each IMU class's samples (a spike's one sample, the window of the
+    saturation, zeros, frozen output and gap), the 10 s of frozen fixes, the magnetometer from
+    the fault on, the 5 s of bad sonar. The bias steps are not a loss of data and are not
+    applied: what "all at once" adds to this run is the steps and whatever the detection of
+    the rest costs."""
+    starts, t = [], 0.0
+    for f in imu_faults:
+        starts.append(t)
+        t += max(f.duration_s, 0.0) + ALL_SPACING_S
+
+    def inject(st: Streams, at_ns: int) -> None:
+        for f, t0 in zip(imu_faults, starts, strict=True):
+            at = at_ns + round(t0 * S)
+            if "step" in f.name:
+                continue
+            if f.duration_s > 0:
+                _imu(_gap(f.duration_s))(st, at)
+            else:
+                _drop(st, at)
+        for lose in (_gps_lost_10s, _mag_lost, _sonar_lost_5s):
+            lose(st, at_ns)
+
+    return Fault("data lost (reference for all at once)", max(t - ALL_SPACING_S, 10.0), inject)
+
+
 FAULTS = (Fault("clean", 0.0, lambda st, at_ns: None), *IMU_FAULTS, *OTHER_FAULTS,
-          all_at_once(IMU_FAULTS))  # fmt: skip
+          all_at_once(IMU_FAULTS), data_lost(IMU_FAULTS))  # fmt: skip
 
 
 def selected(gap_s: float, names: str | None) -> tuple[Fault, ...]:
@@ -267,7 +310,7 @@ def selected(gap_s: float, names: str | None) -> tuple[Fault, ...]:
     starts with one of the comma-separated ``names`` (None: all)."""
     imu = tuple(Fault(f"gap {gap_s:g} s", gap_s, _imu(_gap(gap_s))) if f.name.startswith("gap ")
                 else f for f in IMU_FAULTS)  # fmt: skip
-    faults = (FAULTS[0], *imu, *OTHER_FAULTS, all_at_once(imu))
+    faults = (FAULTS[0], *imu, *OTHER_FAULTS, all_at_once(imu), data_lost(imu))
     if names is None:
         return faults
     wanted = [n.strip() for n in names.split(",") if n.strip()]
@@ -306,9 +349,11 @@ def faulty_copy(clean: Path, fault: Fault, at_s: float, out: Path, guard: bool) 
         ok = st.gps_t >= 0
         w.write_gps(GpsStream(st.gps_t[ok], st.gps_p[ok], st.gps_v[ok]), ds.gps_calib)
     if ds.mag is not None and ds.mag_calib is not None:
-        w.write_mag(MagStream(st.mag_t, st.mag_m), ds.mag_calib)
+        ok = st.mag_t >= 0
+        w.write_mag(MagStream(st.mag_t[ok], st.mag_m[ok]), ds.mag_calib)
     if ds.sonar is not None and ds.sonar_calib is not None:
-        w.write_sonar(SonarStream(st.sonar_t, st.sonar_r), ds.sonar_calib)
+        ok = st.sonar_t >= 0
+        w.write_sonar(SonarStream(st.sonar_t[ok], st.sonar_r[ok]), ds.sonar_calib)
     return out
 
 
@@ -367,12 +412,13 @@ def row(res: RunResult, out: Outcome, fault: Fault) -> str:
 
 def summary(results: dict[tuple[str, str], list[Outcome]], seeds: list[int]) -> None:
     """The table over the seeds (one row per fault and method); the GPS step's, the frozen
-    GPS's and all at once's rows also give the RMSE against the same seed's run without those
-    fixes (what no estimator can beat: a frozen fix carries nothing, a step that nothing
-    contradicts neither; all at once includes the frozen GPS)."""
+    GPS's rows also give the RMSE against the same seed's run without those fixes (what no
+    estimator can beat: a frozen fix carries nothing, a step that nothing contradicts
+    neither), all at once's against the run with all the data its faults destroy left out
+    (:func:`data_lost`)."""
     print(f"\nOver seeds {', '.join(map(str, seeds))}:\n")
     print("| fault | method | NEES after: mean (max) | seeds > 12 | x clean: mean (max) | "
-          "x GPS lost: mean (max) | GPS back, latest [s] |")  # fmt: skip
+          "x data lost: mean (max) | GPS back, latest [s] |")  # fmt: skip
     print("|---|---|---|---|---|---|---|")
     for (fault, method), outs in results.items():
         nees = np.array([o.nees_after[0] for o in outs])
@@ -383,7 +429,7 @@ def summary(results: dict[tuple[str, str], list[Outcome]], seeds: list[int]) -> 
                      "GPS frozen": "GPS lost 10 s (reference)",
                      "GPS multipath": "GPS lost 10 s (reference)",
                      "GPS ramp": "GPS lost 10 s (reference)",
-                     "all at once": "GPS lost 10 s (reference)"}  # fmt: skip
+                     "all at once": "data lost (reference for all at once)"}  # fmt: skip
         ref_name = next((r for f, r in reference.items() if fault.startswith(f)), None)
         lost = results.get((ref_name, method)) if ref_name else None
         vs_lost = "-"
