@@ -37,6 +37,7 @@ def _frontend(
 ) -> None:
     """Track features, match stereo, estimate egomotion per frame; write frames.csv, report.json."""
     from svains.datasets import load_dataset, stereo_pairs
+    from svains.datasets.stereo_images import check_stereo_images
     from svains.frontend.pipeline import FrontendOptions
     from svains.frontend.run import frame_rows, run_frontend, summarize
     from svains.frontend.stereo import StereoMatchOptions
@@ -52,6 +53,7 @@ def _frontend(
                 f"{dataset}: {pairs[0].size} stereo pair(s) with images on disk; the front end "
                 "needs at least 2 (cam0/cam1 images within the stereo tolerance)"
             )
+        check_stereo_images(ds)
         opts = FrontendOptions(
             stereo=StereoMatchOptions(method=dense_method if dense else "sparse"), bundle=bundle
         )

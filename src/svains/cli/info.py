@@ -88,6 +88,14 @@ def _print(summary: dict[str, Any], console: Console) -> None:
             f"({c['gyro_turn_deg']:.0f}° by the gyro; +1: the field turns against the body, as "
             "it must)"
         )
+    if "stereo_pair" in checks:
+        c = checks["stereo_pair"]
+        console.print(escape(
+            f"stereo pair: {c['matches']} left-right matches over {c['pairs']} pairs, "
+            f"{100 * c['negative_fraction']:.1f} % at negative disparity (0: left and right in "
+            f"order), rows {c['row_offset_px']:.2f} px apart (median)"
+            + (f"; {c['problem']}" if c["problem"] else "")
+        ))  # fmt: skip
 
 
 def _print_bag(path: Path, console: Console) -> dict[str, Any]:

@@ -7,8 +7,10 @@ from typing import Any
 import numpy as np
 
 from svains.datasets.loader import stream_times
+from svains.datasets.stereo_images import recorded_stereo_check
 from svains.datasets.types import Dataset
 from svains.datasets.validate import gps_course_vs_imu_turn, mag_frame_turn
+from svains.errors import SvainsError
 
 STREAM_LABELS = {
     "imu": "imu0",
@@ -120,4 +122,10 @@ def _checks(ds: Dataset) -> dict[str, Any]:
     turn = mag_frame_turn(ds)
     if turn is not None:
         out["mag_turn_vs_gyro"] = {"cosine": turn[0], "turns": turn[1], "gyro_turn_deg": turn[2]}
+    try:
+        stereo = recorded_stereo_check(ds)
+    except SvainsError:  # a calibration rectification refuses: a run says so in one line
+        stereo = None
+    if stereo is not None:
+        out["stereo_pair"] = {**stereo.summary(), "problem": stereo.problem()}
     return out

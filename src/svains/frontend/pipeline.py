@@ -33,6 +33,7 @@ from svains.frontend.options import HOLD_STATUSES, FrameStats, FrontendOptions
 from svains.frontend.reacquire import Reacquired, Reacquirer
 from svains.frontend.rectify import StereoRectifier
 from svains.frontend.stereo import dense_disparity, match_dense, match_sparse
+from svains.frontend.stereo_check import StereoCheck
 from svains.frontend.tracking import Pyramid, levels_for_residual, track_klt
 from svains.frontend.types import Egomotion, StereoTracks
 from svains.geometry.camera import RectifiedStereo
@@ -45,6 +46,7 @@ log = logging.getLogger(__name__)
 
 _WARN_FIRST = 3  # malformed pairs warned one by one; after them, one warning per _WARN_EVERY
 _WARN_EVERY = 100
+CHECK_MAX_PAIRS = 10  # good pairs the stereo check may look at before it gives up undecided
 
 
 @dataclass
@@ -91,6 +93,10 @@ class StereoFrontend:
         self._frozen = 0
         self._malformed = 0  # pairs dropped as no image or of another size
         self._reacquirer = Reacquirer(self.rig, self.options.reacquire)
+        # Left and right swapped, rows that do not agree (``stereo_check``): judged on the
+        # first good pairs, warned once; a swapped pair gives no tracks.
+        self.stereo_check = StereoCheck()
+        self._swapped = False
         warm_up(self.rig)  # compiled RANSAC kernels loaded now, not on the first frame
 
     @property
@@ -200,6 +206,11 @@ class StereoFrontend:
             log.info("frame %d: textureless (black, saturated or blank)", t_ns)
             self.stats.status = "textureless"
             return None if self._ref is None else self._empty(t_ns, "textureless")
+        if not self.stereo_check.decided and self.stereo_check.pairs < CHECK_MAX_PAIRS:
+            self._check_stereo(left, right, gl, gr)
+        if self._swapped:
+            self.stats.status = "swapped"
+            return None
 
         t1 = time.perf_counter()
         pl, pr = Pyramid(left, o.klt), Pyramid(right, o.klt)
@@ -286,6 +297,19 @@ class StereoFrontend:
         if result is None:
             self.stats.status = "first"
         return result
+
+    def _check_stereo(self, left: U8, right: U8, gl: U8, gr: U8) -> None:
+        """Pool one pair into ``stereo_check`` (rectified ``left``/``right``, or the raw ``gl``/
+        ``gr`` rectified here when the front end tracks on raw images); warn once decided."""
+        if self._geo is not None:
+            left, right = self.rectifier.rectify_pair(gl, gr)
+        self.stereo_check.add_pair(left, right, self.options.detector)
+        if not self.stereo_check.decided:
+            return
+        problem = self.stereo_check.problem()
+        if problem is not None:
+            log.warning("stereo pair: %s", problem)
+        self._swapped = self.stereo_check.swapped
 
     def _detect(self, left: U8, uv_have: F64, tm: dict[str, float]) -> F64:
         """New corners (M, 2) rectified px away from the features ``uv_have`` (N, 2) rectified px

@@ -47,7 +47,7 @@ from svains.navigation.vision_pixels import (
     imu_and_prior,
     tracks_with_prior,
 )
-from svains.navigation.vision_sources import FeatureFrames, ImageFrames
+from svains.navigation.vision_sources import FeatureFrames, ImageFrames, stereo_check_summary
 from svains.sensors.types import ImuCalib, Rig
 
 __all__ = ["LcUpdater", "PixelUpdater", "VisionOptions", "make_vision_updater", "tune_for_frames"]
@@ -148,6 +148,7 @@ class LcUpdater:
             lc_cov_scale={k: self.options.lc_scale(k) for k in sorted(self._estimators)},
             egomotion_estimators=dict(sorted(self._estimators.items())),
             frontend_status=dict(getattr(self.source, "status_counts", {})),
+            **stereo_check_summary(self.source),
             nis_per_dof_mean=float(nis.mean()) if nis.size else None,
             nis_per_dof_median=float(np.median(nis)) if nis.size else None,
         )

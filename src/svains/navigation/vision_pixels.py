@@ -39,7 +39,7 @@ from svains.navigation.vision_noise import (
     previous_pixel_bias,
     whiten_chol,
 )
-from svains.navigation.vision_sources import FeatureFrames, ImageFrames
+from svains.navigation.vision_sources import FeatureFrames, ImageFrames, stereo_check_summary
 from svains.navigation.vision_two_view import TwoViewFeatures
 from svains.sensors.types import Rig
 
@@ -433,7 +433,8 @@ class PixelUpdater:
         """Counters and settings for ``report.json``."""
         out: dict[str, Any] = self.counters.as_dict()
         out.update(source=self.source.kind, sigma_px=self.sigma_px, rotation=self.options.rotation,
-                   frontend_status=dict(getattr(self.source, "status_counts", {})))
+                   frontend_status=dict(getattr(self.source, "status_counts", {})),
+                   **stereo_check_summary(self.source))
         if self.rotation_check is not None:
             out["rotation_check"] = self.rotation_check.summary()
         if self.clones is not None:

@@ -9,6 +9,7 @@ images wait for the estimator, because the front end's motion prior needs the fi
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,6 +33,14 @@ def rig_from_calibrations(cam0: CameraCalib | None, cam1: CameraCalib | None) ->
     from svains.frontend.rectify import StereoRectifier
 
     return StereoRectifier.from_calibration(cam0, cam1).rig
+
+
+def stereo_check_summary(source: object) -> dict[str, Any]:
+    """``{"stereo_check": {...}}`` of an image source's front end (``frontend.stereo_check``:
+    left and right swapped, rows that do not agree), empty for other sources."""
+    frontend = getattr(source, "frontend", None)
+    check = getattr(frontend, "stereo_check", None)
+    return {} if check is None else {"stereo_check": check.summary()}
 
 
 def _logged(log: TrackLog, tracks: StereoTracks | None) -> StereoTracks | None:

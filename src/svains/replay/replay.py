@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from svains.datasets.loader import PairReader, stereo_pairs
+from svains.datasets.stereo_images import check_stereo_images
 from svains.datasets.types import DEFAULT_GRAVITY_W, Dataset
 from svains.errors import DatasetError
 from svains.models.state import BIASED, PAPER
@@ -186,6 +187,10 @@ def replay(
     """Run ``config`` over ``ds`` (``config`` as given: call ``resolve_config`` first to get the
     ``svains run`` behaviour). Returns the Navigator's ``RunResult`` with ``report["dataset"]``.
     """
+    if config.method != "ins" and config.vision.source == "images":
+        # Swapped left and right streams leave every match on the wrong side: refused before
+        # any work (``frontend.stereo_check``; rows that do not fit are warned during the run).
+        check_stereo_images(ds)
     if config.method == "vo":  # stereo only: no IMU needed (KITTI odometry, bare rigs)
         from svains.replay.vo import run as run_vo
 

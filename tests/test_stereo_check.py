@@ -1,0 +1,145 @@
+"""Left and right images swapped, or rows that rectification does not align
+(``frontend.stereo_check``): refused before a run from files, warned and left unfused online."""
+
+from __future__ import annotations
+
+import logging
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from svains.cli.main import app
+from svains.datasets import load_dataset
+from svains.datasets.loader import stereo_pairs
+from svains.datasets.stereo_images import check_stereo_images, recorded_stereo_check
+from svains.errors import DatasetError
+from svains.frontend.pipeline import StereoFrontend
+from svains.frontend.rectify import StereoRectifier
+from svains.frontend.stereo_check import check_pairs
+
+runner = CliRunner()
+
+
+def _swapped_copy(src: Path, dst: Path) -> Path:
+    """``src`` with the two image streams crossed (each camera's images and data.csv in the
+    other's folder), the calibrations left where they were: the cables plugged the wrong way."""
+    mav = dst / "mav0"
+    mav.mkdir(parents=True)
+    for item in (src / "mav0").iterdir():
+        if item.name not in ("cam0", "cam1"):
+            (mav / item.name).symlink_to(item)
+    for cam, other in (("cam0", "cam1"), ("cam1", "cam0")):
+        (mav / cam).mkdir()
+        shutil.copy(src / "mav0" / cam / "sensor.yaml", mav / cam / "sensor.yaml")
+        shutil.copy(src / "mav0" / other / "data.csv", mav / cam / "data.csv")
+        (mav / cam / "data").symlink_to(src / "mav0" / other / "data")
+    return dst
+
+
+@pytest.fixture(scope="module")
+def kitti_swapped(kitti_raw: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _swapped_copy(kitti_raw, tmp_path_factory.mktemp("swapped") / "kitti")
+
+
+@pytest.mark.parametrize("name", ["kitti_raw", "kitti_a", "euroc_micro"])
+def test_the_shared_recordings_pass(name: str, request: pytest.FixtureRequest) -> None:
+    check = check_stereo_images(load_dataset(request.getfixturevalue(name)))
+    assert check is not None and check.decided
+    # Measured: 0-0.3 % of 640-1780 matches negative, rows 0.12-0.57 px apart.
+    assert check.negative_fraction < 0.02
+    assert check.row_offset_px < 1.0
+    assert check.problem() is None
+
+
+def test_swapped_images_are_refused_by_run_and_frontend_in_one_line(
+    kitti_swapped: Path, tmp_path: Path
+) -> None:
+    check = recorded_stereo_check(load_dataset(kitti_swapped))
+    assert check is not None and check.swapped and check.negative_fraction > 0.95
+    for args in (
+        ["run", str(kitti_swapped), "--method", "3d", "--images", "--init", "groundtruth",
+         "--no-gps", "--no-mag", "--out", str(tmp_path / "r")],
+        ["run", str(kitti_swapped), "--method", "vo", "--out", str(tmp_path / "v")],
+        ["frontend", str(kitti_swapped), "--out", str(tmp_path / "f")],
+    ):  # fmt: skip
+        res = runner.invoke(app, args)
+        assert res.exit_code == 1, res.output
+        err = res.stderr.strip()
+        assert err.count("\n") == 0
+        assert "cam0/cam1: the left and right images look swapped" in err
+        assert "is the left camera's stream in cam1?" in err
+        assert not (tmp_path / "r").exists()
+
+
+def test_online_a_swapped_pair_is_warned_once_and_gives_no_tracks(
+    kitti_raw: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    ds = load_dataset(kitti_raw)
+    assert ds.left is not None and ds.right is not None and ds.cam0 and ds.cam1
+    _, il, ir = stereo_pairs(ds)
+    fe = StereoFrontend.from_calibration(ds.cam0, ds.cam1)
+    statuses = []
+    with caplog.at_level(logging.WARNING, logger="svains.frontend.pipeline"):
+        for k in range(6):
+            # The right camera's image handed in as the left one, and the other way round.
+            tracks = fe.process(int(ds.left.t_ns[il[k]]), ds.right.load(int(ir[k])),
+                                ds.left.load(int(il[k])))  # fmt: skip
+            statuses.append(fe.stats.status)
+            if k >= 2:
+                assert tracks is None
+    assert statuses[2:] == ["swapped"] * 4
+    assert fe.stereo_check.swapped and fe.stereo_check.pairs == 3
+    assert caplog.text.count("the left and right images look swapped") == 1
+
+
+def test_online_the_right_order_is_judged_once_and_tracks_go_on(kitti_raw: Path) -> None:
+    ds = load_dataset(kitti_raw)
+    assert ds.left is not None and ds.right is not None and ds.cam0 and ds.cam1
+    _, il, ir = stereo_pairs(ds)
+    fe = StereoFrontend.from_calibration(ds.cam0, ds.cam1)
+    for k in range(5):
+        fe.process(int(ds.left.t_ns[il[k]]), ds.left.load(int(il[k])), ds.right.load(int(ir[k])))
+    assert fe.stats.status == "ok"
+    assert fe.stereo_check.decided and not fe.stereo_check.swapped
+    assert fe.stereo_check.pairs == 3  # judged, then no longer looked at
+
+
+def test_rows_that_do_not_agree_are_named(euroc_micro: Path) -> None:
+    ds = load_dataset(euroc_micro)
+    assert ds.left is not None and ds.right is not None and ds.cam0 and ds.cam1
+    rect = StereoRectifier.from_calibration(ds.cam0, ds.cam1)
+    _, il, ir = stereo_pairs(ds)
+    pairs = [rect.rectify_pair(ds.left.load(int(il[k])), ds.right.load(int(ir[k])))
+             for k in (0, 40, 80)]  # fmt: skip
+    assert check_pairs(pairs).problem() is None
+    # The right image 6 px lower, as a camera rotation missing from T_BS would leave it.
+    lowered = [(left, np.roll(right, 6, axis=0)) for left, right in pairs]
+    check = check_pairs(lowered)
+    assert not check.swapped
+    assert 5.0 < check.row_offset_px < 7.0
+    problem = check.problem()
+    assert problem is not None and "rectification does not fit the images" in problem
+
+
+def test_too_little_texture_decides_nothing() -> None:
+    flat = np.full((120, 160), 128, np.uint8)
+    check = check_pairs([(flat, flat)] * 4)
+    assert not check.decided and not check.swapped and check.problem() is None
+
+
+def test_the_refusal_names_the_data_set(kitti_swapped: Path) -> None:
+    with pytest.raises(DatasetError, match=r"kitti: cam0/cam1: the left and right images"):
+        check_stereo_images(load_dataset(kitti_swapped))
+
+
+def test_info_prints_the_figures_and_the_problem(kitti_raw: Path, kitti_swapped: Path) -> None:
+    ok = runner.invoke(app, ["info", str(kitti_raw)])
+    assert ok.exit_code == 0
+    assert "0.0 % at negative disparity" in ok.stdout and "look swapped" not in ok.stdout
+    bad = runner.invoke(app, ["info", str(kitti_swapped)])
+    assert bad.exit_code == 0  # info describes; run refuses
+    assert "100.0 % at negative disparity" in bad.stdout
+    assert "look swapped" in " ".join(bad.stdout.split())
