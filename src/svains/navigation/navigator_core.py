@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from svains.filter.ukf import UpdateStats
-from svains.models.state import DV, V
+from svains.models.state import BA, BG, DV, Q, V
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.course_check import CourseCheck, MagTurnCheck
 from svains.navigation.event_queue import FRAME, GPS, MAG, SONAR, TICK
@@ -28,6 +28,7 @@ from svains.navigation.fault_handling import (
     add_gap_covariance,
     whitened_correction,
 )
+from svains.navigation.gps_latency import GpsLatencyCheck
 from svains.navigation.heading_check import HeadingCheck, turn_heading, yaw_std
 from svains.navigation.ins import InsFilter, default_imu_calib
 from svains.navigation.options import RunConfig
@@ -93,6 +94,14 @@ class Core:
         self.history = history_recorder(config, ins) if config.smoother.enabled else None
         # the GPS frame and the gyro's unit against each other (files are checked on load)
         self._course_check = CourseCheck(ins.history, rig.gravity_W) if gps_used else None
+        # the GPS stamps against the IMU's clock (a receiver's latency)
+        imu_calib = rig.imu or default_imu_calib()
+        self._gps_latency = (
+            GpsLatencyCheck(ins.history, np.asarray(rig.gravity_W, float), rig.gps.p_B_G,
+                            rig.gps.velocity_noise_std, imu_calib.gyro_noise_density,
+                            imu_calib.accel_noise_density)
+            if gps_used and rig.gps is not None and config.faults.gps_latency_check else None
+        )  # fmt: skip
         self._up_W = -np.asarray(rig.gravity_W, float) / np.linalg.norm(rig.gravity_W)
         self._heading_check = (
             HeadingCheck(self._up_W, rig.gps.velocity_noise_std,
@@ -195,6 +204,8 @@ class Core:
                 assert self.rig.gps is not None
                 if self._course_check is not None:
                     self._course_check.observe_fix(t, payload[1])
+                if self._gps_latency is not None and payload[1] is not None:
+                    self._observe_latency(t, payload[1])
                 use_v = cfg.use_gps_velocity and not (
                     self._recovery is not None and self._recovery.rate_off("gps", t))
                 if self._heading_check is not None and payload[1] is not None:
@@ -243,6 +254,18 @@ class Core:
             self._keep_imu(t)
         if has_tick:
             self._log()
+
+    def _observe_latency(self, t: int, v_W_G: Any) -> None:
+        """Hand a fix to the GPS latency check with the filter's attitude and biases before
+        its update; a step across an IMU fault (a bridged gap) is not used."""
+        assert self._gps_latency is not None
+        x, last = self.ins.ukf.x, self._gps_latency.last_fix_ns
+        fault_ns = None if self._imu_faults is None else self._imu_faults.last_fault_ns
+        usable = fault_ns is None or last is None or fault_ns < last
+        zero = np.zeros(3)
+        biased = self.ins.layout.biased
+        self._gps_latency.observe_fix(t, v_W_G, x[Q], x[BG] if biased else zero,
+                                      x[BA] if biased else zero, usable)  # fmt: skip
 
     def _check_heading(self, t: int, v_W_G: Any, use_v: bool) -> None:
         """Before a GPS fix's update: turn the state when the velocities since the last fixes
@@ -493,6 +516,8 @@ class Core:
             report["mag_held_skipped"] = self.held_skipped
         if self._course_check is not None:
             report["gps_course_check"] = self._course_check.summary()
+        if self._gps_latency is not None:
+            report["gps_latency_check"] = self._gps_latency.summary()
         if self._heading_check is not None:
             report["heading_check"] = self._heading_check.summary()
         if self._mag_turn is not None:

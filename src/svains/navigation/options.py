@@ -515,6 +515,9 @@ class FaultOptions:
     and, when a rotation about the vertical maps one onto the other beyond the noise, turn the
     state by it, warned (``navigation.heading_check``: a heading taken from a magnetometer
     whose ``T_BS`` is off, which no other action mends).
+    ``gps_latency_check``: find the shift of the GPS stamps that best matches the fixes'
+    velocity changes to the IMU's and warn of 40 ms or more with the ``timeshift_gps_imu`` to
+    give (``navigation.gps_latency``; a receiver stamped on arrival); it only warns.
     """
 
     imu_guard: bool = True
@@ -544,6 +547,7 @@ class FaultOptions:
     lean_test_probability: float | None = 0.9999  # magnetometer lean test (None: off)
     lean_hold_s: float = 10.0  # s a leaning magnetometer is not fused
     heading_check: bool = True  # turn a heading the GPS velocity changes show wrong
+    gps_latency_check: bool = True  # warn of GPS stamps late against the IMU's clock
 
     def __post_init__(self) -> None:
         if not self.imu_gap_factor > 1:
