@@ -243,13 +243,20 @@ OTHER_FAULTS = (
 ALL_SPACING_S = 1.5  # s between the IMU classes of "all at once"
 
 
-def all_at_once(imu_faults: tuple[Fault, ...]) -> Fault:
-    """Every IMU class in turn, ``ALL_SPACING_S`` apart (a class starts when the one before
-    ended), with the frozen GPS, the dead magnetometer and the bad sonar from the fault on."""
+def _in_turn(imu_faults: tuple[Fault, ...]) -> tuple[list[float], float]:
+    """Start (s after the fault) of each IMU class of "all at once", ``ALL_SPACING_S`` after
+    the one before ended, and the span of them all (s, at least 10)."""
     starts, t = [], 0.0
     for f in imu_faults:
         starts.append(t)
         t += max(f.duration_s, 0.0) + ALL_SPACING_S
+    return starts, max(t - ALL_SPACING_S, 10.0)
+
+
+def all_at_once(imu_faults: tuple[Fault, ...]) -> Fault:
+    """Every IMU class in turn, ``ALL_SPACING_S`` apart (a class starts when the one before
+    ended), with the frozen GPS, the dead magnetometer and the bad sonar from the fault on."""
+    starts, span = _in_turn(imu_faults)
 
     def inject(st: Streams, at_ns: int) -> None:
         for f, t0 in zip(imu_faults, starts, strict=True):
@@ -257,7 +264,7 @@ def all_at_once(imu_faults: tuple[Fault, ...]) -> Fault:
         for f in (_gps_frozen, _mag_dead, _sonar_bad):
             f(st, at_ns)
 
-    return Fault("all at once", max(t - ALL_SPACING_S, 10.0), inject)
+    return Fault("all at once", span, inject)
 
 
 def _drop(st: Streams, at_ns: int) -> None:
@@ -281,10 +288,7 @@ def data_lost(imu_faults: tuple[Fault, ...]) -> Fault:
     the fault on, the 5 s of bad sonar. The bias steps are not a loss of data and are not
     applied: what "all at once" adds to this run is the steps and whatever the detection of
     the rest costs."""
-    starts, t = [], 0.0
-    for f in imu_faults:
-        starts.append(t)
-        t += max(f.duration_s, 0.0) + ALL_SPACING_S
+    starts, span = _in_turn(imu_faults)
 
     def inject(st: Streams, at_ns: int) -> None:
         for f, t0 in zip(imu_faults, starts, strict=True):
@@ -298,7 +302,7 @@ def data_lost(imu_faults: tuple[Fault, ...]) -> Fault:
         for lose in (_gps_lost_10s, _mag_lost, _sonar_lost_5s):
             lose(st, at_ns)
 
-    return Fault("data lost (reference for all at once)", max(t - ALL_SPACING_S, 10.0), inject)
+    return Fault("data lost (reference for all at once)", span, inject)
 
 
 FAULTS = (Fault("clean", 0.0, lambda st, at_ns: None), *IMU_FAULTS, *OTHER_FAULTS,

@@ -39,22 +39,21 @@ def _reference(step_m: float) -> GroundTruth:
                        np.zeros((n, 3)))  # fmt: skip
 
 
-def test_a_reference_whose_velocity_matches_its_positions_is_its_own_velocity_path() -> None:
-    hs = _bench()
-    gt = _reference(0.0)
+def _deviation(step_m: float) -> np.ndarray:
+    """Reference positions (N, 3) minus the velocity path tied at 2 s and 18 s."""
+    gt = _reference(step_m)
     a_ns, b_ns = 2 * S, 18 * S
     m = (gt.t_ns >= a_ns) & (gt.t_ns <= b_ns)
-    dev = gt.p_W_B[m] - hs.velocity_path(gt, gt.t_ns[m], a_ns, b_ns)
+    return gt.p_W_B[m] - _bench().velocity_path(gt, gt.t_ns[m], a_ns, b_ns)
+
+
+def test_a_reference_whose_velocity_matches_its_positions_is_its_own_velocity_path() -> None:
     # Only the trapezoid rule's error over steps up to 0.25 s.
-    assert np.abs(dev).max() < 0.01
+    assert np.abs(_deviation(0.0)).max() < 0.01
 
 
 def test_a_height_step_without_vertical_velocity_shows_against_the_velocity_path() -> None:
-    hs = _bench()
-    gt = _reference(0.5)
-    a_ns, b_ns = 2 * S, 18 * S
-    m = (gt.t_ns >= a_ns) & (gt.t_ns <= b_ns)
-    dev = gt.p_W_B[m] - hs.velocity_path(gt, gt.t_ns[m], a_ns, b_ns)
-    # Tied at 2 s and 18 s, the path climbs the 0.5 m evenly: half of it at the step.
+    dev = _deviation(0.5)
+    # Tied at both ends, the path climbs the 0.5 m evenly: half of it at the step.
     assert 0.2 < np.abs(dev[:, 2]).max() < 0.3
     assert np.abs(dev[:, :2]).max() < 0.01
