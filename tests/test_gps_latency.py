@@ -104,3 +104,18 @@ def test_the_simulator_with_its_noisy_gyro_raises_no_alarm(village_30s: Path) ->
     got = run_method(load_dataset(village_30s), "ins", options).report["gps_latency_check"]
     assert got["steps"] >= 20 and got["warned"] is None
     assert got["delta_chi2"] < 1.5 * got["steps"]
+
+
+def test_a_10_hz_receiver_makes_steps_of_half_a_second() -> None:
+    t = np.arange(0.0, 30.0, 0.005)
+    hist = ImuHistory(capacity=t.size + 1)
+    for ti, ai in zip(t, _accel(t) - G_W, strict=True):
+        hist.append(round(ti * S), np.zeros(3), ai)
+    check = GpsLatencyCheck(hist, G_W, np.zeros(3), 0.02)
+    rng = np.random.default_rng(7)
+    for tg in np.arange(1.0, 29.0, 0.1):
+        v = _velocity(np.array([tg - 0.15]))[0] + 0.02 * rng.standard_normal(3)
+        check.observe_fix(round(tg * S), v, np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3))
+    assert 50 <= check.steps <= 56  # one per 0.5 s, not one per fix
+    assert check.figures()[0] == pytest.approx(0.15, abs=0.011)  # type: ignore[index]
+    assert check.warned == "latency"

@@ -6,7 +6,8 @@ filter then fuses each fix against the state of a moment later and follows a lat
 (KITTI raw ``ins`` with the fixes stamped 0.1 s late: 0.81 m position RMSE against 0.28 m).
 Nothing else says so: each fix passes its gate.
 
-Between two consecutive fixes (0.5-3 s apart) the GPS velocity changes by ``Δv_GPS``; the IMU
+Between two fixes 0.5-3 s apart (consecutive at 1 Hz; a faster receiver's fixes in between
+passed over) the GPS velocity changes by ``Δv_GPS``; the IMU
 says how the velocity changed over any interval: its specific force, turned into the world
 frame from the filter's attitude at the first fix by the gyro (biases removed), plus gravity,
 integrated (and the lever arm's ``R (ω × p_B_G)`` at both ends). A GPS whose fixes hold ``τ``
@@ -93,7 +94,7 @@ class GpsLatencyCheck:
 
     @property
     def last_fix_ns(self) -> int | None:
-        """Time of the last fix observed (None before any)."""
+        """Time of the fix the next step starts from (None before any)."""
         return None if self._last is None else self._last.t_ns
 
     def __post_init__(self) -> None:
@@ -105,14 +106,17 @@ class GpsLatencyCheck:
     def observe_fix(self, t_ns: int, v_W_G: F64, q_W_B_wxyz: F64, b_g: F64, b_a: F64,
                     usable: bool = True) -> None:  # fmt: skip
         """A GPS fix at ``t_ns`` with velocity ``v_W_G`` (3,) m/s and the filter's attitude and
-        biases there; ``usable=False`` (an IMU fault since the last fix) starts afresh."""
+        biases there; ``usable=False`` (an IMU fault since the step's first fix) starts afresh.
+        A step runs from its first fix to the first fix ``STEP_MIN_S`` or more after it (a
+        5-10 Hz receiver's fixes in between are passed over), which starts the next."""
+        last = self._last
+        if usable and last is not None and t_ns - last.t_ns < STEP_MIN_S * 1e9:
+            return
         fix = _Fix(int(t_ns), np.asarray(v_W_G, float).copy(),
                    np.asarray(quat_to_rotmat(np.asarray(q_W_B_wxyz, float)), float),
                    np.asarray(b_g, float).copy(), np.asarray(b_a, float).copy())  # fmt: skip
-        last, self._last = self._last, fix
-        if usable and last is not None and (
-            STEP_MIN_S * 1e9 <= fix.t_ns - last.t_ns <= STEP_MAX_S * 1e9
-        ):
+        self._last = fix
+        if usable and last is not None and fix.t_ns - last.t_ns <= STEP_MAX_S * 1e9:
             self._pending.append((last, fix))
         self.poll()
 
