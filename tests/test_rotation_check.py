@@ -104,7 +104,7 @@ def test_a_gyro_in_deg_s_turns_57_times_as_far_as_the_camera(
     assert "is the gyro in rad/s (one in deg/s turns 57 times as far)?" in caplog.text
 
 
-@pytest.mark.parametrize("offset_ms", [0.0, 40.0, -60.0, 150.0])
+@pytest.mark.parametrize("offset_ms", [0.0, 40.0, -60.0, 150.0, 400.0])
 def test_camera_stamps_off_the_imu_clock_are_found_and_warned(
     offset_ms: float, caplog: pytest.LogCaptureFixture
 ) -> None:
@@ -114,9 +114,9 @@ def test_camera_stamps_off_the_imu_clock_are_found_and_warned(
         for tr in frames:
             check.observe(tr, None)
     s = check.summary()
-    if offset_ms == 150.0:  # beyond the ±100 ms tried: no figure, but a warning
+    if offset_ms == 400.0:  # beyond the ±300 ms tried: no figure, but a warning
         assert s["time_offset_ms"] is None and s["warned_time_offset"]
-        assert "the IMU more than 100 ms after the camera stamps" in caplog.text
+        assert "the IMU more than 300 ms after the camera stamps" in caplog.text
         return
     # the synthetic gyro holds each frame's rate up to the next sample, which a trapezoid
     # integral reads half a sample (2.5 ms) late: the figure is good to that
@@ -129,3 +129,30 @@ def test_camera_stamps_off_the_imu_clock_are_found_and_warned(
         said = re.search(r"timeshift_cam_imu: ([+-]0\.\d{3})", caplog.text)
         assert said and float(said.group(1)) == pytest.approx(offset_ms * 1e-3, abs=0.005)
         assert "the camera turns about an axis" not in caplog.text  # the stamps are told
+
+
+def test_frames_wait_for_the_imu_samples_past_their_shifted_interval(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Online a frame is fused 0.1 s after its stamp (``buffer.window_s``), before the IMU
+    samples a shift of up to 0.3 s needs: it is judged on a later frame, and all are."""
+    full, frames = _flight(R_B_C, seed=2, offset_s=0.15)
+    h = ImuHistory(capacity=8192)
+    check = RotationCheck(h, R_B_C, DENSITY)
+    t, g, a = full.t_ns, full.gyro_B, full.accel_B
+    k = 0
+    with caplog.at_level("WARNING", logger="svains.navigation.rotation_check"):
+        for tr in frames:
+            while k < t.size and t[k] <= tr.t_ns + 100_000_000:
+                h.append(int(t[k]), g[k], a[k])
+                k += 1
+            check.observe(tr, None)
+            assert len(check._offset_pending) <= 2  # the last frame or two wait
+        while k < t.size:
+            h.append(int(t[k]), g[k], a[k])
+            k += 1
+        s = check.summary()
+    # all but the first two, whose shifted intervals start before the recording
+    assert check.offset_frames == len(check.angles_deg) - 2 and not check._offset_pending
+    assert s["time_offset_ms"] == pytest.approx(150.0, abs=3 * s["time_offset_std_ms"] + 2.5)
+    assert s["warned_time_offset"]
