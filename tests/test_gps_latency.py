@@ -91,7 +91,7 @@ def test_kitti_raw_as_shipped_is_silent_and_stamped_late_is_warned(
         moved = run_method(late, "ins", options).report["gps_latency_check"]
     # As shipped the OXTS velocities lag its accelerations by about 60 ms (its positions fit
     # best unshifted): under the evidence needed, not warned.
-    assert shipped["warned"] is None and shipped["delta_chi2"] < 50.0
+    assert shipped["warned"] is None and shipped["delta_deviance"] < 50.0
     assert 0.0 <= shipped["latency_ms"] <= 100.0
     assert moved["warned"] == "latency" and 150.0 <= moved["latency_ms"] <= 260.0
     assert caplog.text.count("online input: the GPS fixes lag the IMU") == 1
@@ -103,7 +103,7 @@ def test_the_simulator_with_its_noisy_gyro_raises_no_alarm(village_30s: Path) ->
     options = RunOptions(init=InitOptions(mode="groundtruth"))
     got = run_method(load_dataset(village_30s), "ins", options).report["gps_latency_check"]
     assert got["steps"] >= 20 and got["warned"] is None
-    assert got["delta_chi2"] < 1.5 * got["steps"]
+    assert got["delta_deviance"] < 1.5 * got["steps"]
 
 
 def test_a_10_hz_receiver_makes_steps_of_half_a_second() -> None:

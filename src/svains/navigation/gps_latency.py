@@ -7,32 +7,34 @@ filter then fuses each fix against the state of a moment later and follows a lat
 Nothing else says so: each fix passes its gate.
 
 Between two fixes 0.5-3 s apart (consecutive at 1 Hz; a faster receiver's fixes in between
-passed over) the GPS velocity changes by ``Δv_GPS``; the IMU
-says how the velocity changed over any interval: its specific force, turned into the world
-frame from the filter's attitude at the first fix by the gyro (biases removed), plus gravity,
-integrated (and the lever arm's ``R (ω × p_B_G)`` at both ends). A GPS whose fixes hold ``τ``
-before their stamps changes its velocity as the IMU's did over the interval shifted back by
-``τ``. For each shift on a grid (``-MAX_EARLY_S`` … ``MAX_LATE_S``, ``STEP_S``) the misfit
-``Σ |Δv_GPS - Δv_IMU(τ)|² / σ²`` sums over the steps (``σ²`` per axis: both fixes' velocity
-noise plus ``MODEL_STD_MPS²`` for the attitude's and the accelerometer's errors over a step);
-its minimum is the latency, its curvature the standard deviation (scaled by the misfit per
-degree of freedom when that exceeds 1). Only a change of acceleration shows a shift (a
-constant acceleration integrates the same over any shifted interval): braking, pulling away,
-the entry and exit of turns. Unlike the GPS course against the gyro's turns, this needs no
-assumption about the vehicle: a car's course lags its heading in a turn (KITTI raw: by 80 ms
-by that measure) and a multicopter's velocity need not follow its heading at all.
+passed over) the GPS velocity changes by ``Δv_GPS``; the IMU says how the velocity changed
+over any interval: its specific force, turned into the world frame from the filter's attitude
+at the first fix by the gyro (biases removed), plus gravity, integrated (and the lever arm's
+``R (ω × p_B_G)`` at both ends). A GPS whose fixes hold ``τ`` before their stamps changes its
+velocity as the IMU's did over the interval shifted back by ``τ``. Each shift on a grid
+(``-MAX_EARLY_S`` … ``MAX_LATE_S``, ``STEP_S``) is scored by its deviance over the steps,
+``Σ |Δv_GPS - Δv_IMU(τ)|² / σ² + log σ²`` per axis, ``σ²`` the step's variance at that shift
+(``_variance``: both fixes' velocity noise, ``MODEL_STD_MPS²``, the accelerometer's white
+noise, and on the horizontal axes the tilt the gyro's random walk leaks, which grows with the
+distance of the shifted interval from the attitude's anchor). The best shift is the latency,
+its standard deviation half the width of the shifts within one (scaled) unit of deviance of
+it. Only a change of acceleration shows a shift (a constant acceleration integrates the same
+over any shifted interval): braking, pulling away, the entry and exit of turns. Unlike the GPS
+course against the gyro's turns, this needs no assumption about the vehicle: a car's course
+lags its heading in a turn (KITTI raw: by 80 ms by that measure) and a multicopter's velocity
+need not follow its heading at all.
 
 A latency of ``WARN_MS`` or more, from at least ``MIN_STEPS`` steps whose velocity changes it
 explains (misfit per degree of freedom at most ``MAX_FIT``) and that the stamps as given fit
-worse in deviance by ``MIN_DELTA_CHI2`` and by ``MIN_DELTA_PER_STEP`` per step (scaled by the
+worse in deviance by ``MIN_DELTA_DEVIANCE`` and by ``MIN_DELTA_PER_STEP`` per step (scaled by the
 misfit per degree of freedom when above 1), is warned once. Per step, since a model error
 (the simulator's very noisy gyro, KITTI raw's OXTS velocities lagging its own accelerations
 by about 60 ms while its positions fit unshifted) sums over steps as a latency does, but at
 about 0.3-0.5 per step against 3 per step for KITTI raw's fixes stamped 0.1 s late. The
 warning gives the ``timeshift_gps_imu`` to set; a best shift at the grid's edge is warned as
-beyond it. A step is judged once the IMU
-history reaches ``MAX_EARLY_S`` past its second fix (at the next fix); steps across an IMU
-fault are skipped by the caller. Costs a few hundred 3x3 products per fix.
+beyond it. A step is judged once the IMU history reaches ``MAX_EARLY_S`` past its second fix
+(at a later fix); steps across an IMU fault are skipped by the caller. Costs a few hundred
+3x3 products per step.
 """
 
 from __future__ import annotations
@@ -58,7 +60,7 @@ MODEL_STD_MPS = 0.05  # per axis and step: attitude (0.3° of tilt is 0.05 m/s p
 MIN_STEPS = 10
 MAX_FIT = 10.0
 WARN_MS = 40.0
-MIN_DELTA_CHI2 = 50.0  # how much worse the stamps as given must fit than the best shift
+MIN_DELTA_DEVIANCE = 50.0  # how much worse the stamps as given must fit than the best shift
 MIN_DELTA_PER_STEP = 1.5  # and per step: an effect, not a model error summed over many steps
 
 
@@ -224,7 +226,7 @@ class GpsLatencyCheck:
         if got is None or self.warned is not None:
             return
         lag, std, fit, delta = got
-        if fit > MAX_FIT or delta < max(MIN_DELTA_CHI2, MIN_DELTA_PER_STEP * self.steps):
+        if fit > MAX_FIT or delta < max(MIN_DELTA_DEVIANCE, MIN_DELTA_PER_STEP * self.steps):
             return
         edge = lag <= self.shifts_s[0] + STEP_S / 2 or lag >= self.shifts_s[-1] - STEP_S / 2
         if edge:
@@ -244,11 +246,11 @@ class GpsLatencyCheck:
 
     def summary(self) -> dict[str, object]:
         """``latency_ms`` (positive: stamped late), ``latency_std_ms``, ``latency_fit``,
-        ``delta_chi2`` (None before enough steps), ``steps`` and ``warned`` (None, ``latency``
+        ``delta_deviance`` (None before enough steps), ``steps`` and ``warned`` (None, ``latency``
         or ``beyond``)."""
         got = self.figures()
         return {"latency_ms": None if got is None else 1e3 * got[0],
                 "latency_std_ms": None if got is None else 1e3 * got[1],
                 "latency_fit": None if got is None else got[2],
-                "delta_chi2": None if got is None else got[3],
+                "delta_deviance": None if got is None else got[3],
                 "steps": self.steps, "warned": self.warned}  # fmt: skip
