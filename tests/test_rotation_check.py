@@ -22,10 +22,11 @@ FRAME_NS = 200_000_000
 
 
 def _flight(R_B_C_true: np.ndarray, seed: int = 0, rate_scale: float = 1.0,
-            gyro_scale: float = 1.0, offset_s: float = 0.0):
+            gyro_scale: float = 1.0, offset_s: float = 0.0, camera_scale: float = 1.0):
     """Body rates that change every frame (turns about every axis), 200 Hz gyro with white
     noise, and per frame the camera's egomotion from the true mount with 0.02° of noise; the
-    frames stamped ``offset_s`` early on the IMU's clock (``t_imu = t_cam + offset_s``)."""
+    frames stamped ``offset_s`` early on the IMU's clock (``t_imu = t_cam + offset_s``), their
+    turns ``camera_scale`` times the true ones (a focal length off by its inverse)."""
     rng = np.random.default_rng(seed)
     h = ImuHistory(capacity=8192)
     frames = []
@@ -36,7 +37,7 @@ def _flight(R_B_C_true: np.ndarray, seed: int = 0, rate_scale: float = 1.0,
             noise = rng.normal(0.0, DENSITY / np.sqrt(0.005), 3)
             h.append(t + j * 5_000_000, (w + noise) * gyro_scale, np.array([0.0, 0.0, 9.81]))
         t0, t = t, t + FRAME_NS
-        R_Ckm1_Ck = R_B_C_true.T @ so3_exp(w * FRAME_NS * 1e-9) @ R_B_C_true
+        R_Ckm1_Ck = R_B_C_true.T @ so3_exp(w * FRAME_NS * 1e-9 * camera_scale) @ R_B_C_true
         R_Ck_Ckm1 = R_Ckm1_Ck.T @ so3_exp(rng.normal(0.0, np.radians(0.02), 3))
         ego = Egomotion(R_Ck_Ckm1, np.zeros(3), np.eye(6) * np.radians(0.02) ** 2)
         e = np.zeros((0, 2))
@@ -86,7 +87,9 @@ def test_turns_inside_the_noise_are_not_counted() -> None:
     assert check.summary() == {"frames": 0, "median_axis_deg": None, "median_turn_ratio": None,
                                "warned": False, "warned_turn_ratio": False,
                                "time_offset_ms": None, "time_offset_std_ms": None,
-                               "time_offset_fit": None, "warned_time_offset": False}  # fmt: skip
+                               "time_offset_fit": None, "warned_time_offset": False,
+                               "turn_scale": None, "turn_scale_std": None,
+                               "warned_turn_scale": False}  # fmt: skip
 
 
 def test_a_gyro_in_deg_s_turns_57_times_as_far_as_the_camera(
@@ -156,3 +159,25 @@ def test_frames_wait_for_the_imu_samples_past_their_shifted_interval(
     assert check.offset_frames == len(check.angles_deg) - 2 and not check._offset_pending
     assert s["time_offset_ms"] == pytest.approx(150.0, abs=3 * s["time_offset_std_ms"] + 2.5)
     assert s["warned_time_offset"]
+
+
+@pytest.mark.parametrize("camera_scale", [1.0, 0.91, 1.05])
+def test_a_camera_turning_more_or_less_than_the_gyro_names_its_focal_length(
+    camera_scale: float, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Turns 9 % short (a focal length 10 % too large, KITTI raw's with fu, fv x1.1: 0.91) or
+    5 % long: warned as the intrinsics, and no shift of the stamps is read into it."""
+    h, frames = _flight(R_B_C, seed=3, camera_scale=camera_scale)
+    check = RotationCheck(h, R_B_C, DENSITY)
+    with caplog.at_level("WARNING", logger="svains.navigation.rotation_check"):
+        for tr in frames:
+            check.observe(tr, None)
+    s = check.summary()
+    # the held synthetic rates read by trapezoids lean the factor by about 1 %
+    assert s["turn_scale"] == pytest.approx(camera_scale, abs=0.015)
+    assert s["turn_scale_std"] < 0.01
+    assert not s["warned_time_offset"] and abs(s["time_offset_ms"]) < 5.0
+    assert s["warned_turn_scale"] is (camera_scale != 1.0)
+    assert caplog.text.count("are the camera's intrinsics right?") == (camera_scale != 1.0)
+    if camera_scale == 0.91:
+        assert re.search(r"A focal length \(fu, fv\) (8|9|10) % too large", caplog.text)

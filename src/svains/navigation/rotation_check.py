@@ -63,6 +63,9 @@ class RotationCheckOptions:
     # this: KITTI raw 0.99, 1.6 with its stamps 50 ms off, 13.4 at 150 ms, where the filter's
     # gyro bias, fed the late frames, is off too; a mount 20° off gives hundreds)
     offset_max_fit: float = 30.0
+    # the camera's turn per gyro turn (best common factor at the best shift) warned when this
+    # far from 1 and beyond 4 of its standard deviations (a focal length 10 % off: 0.91/1.10)
+    scale_warn: float = 0.03
 
 
 class RotationCheck:
@@ -84,12 +87,17 @@ class RotationCheck:
         o = self.options
         n = round(o.offset_range_s / o.offset_step_s)
         self._shifts_s = np.arange(-n, n + 1) * o.offset_step_s
-        self._offset_chi2 = np.zeros(self._shifts_s.size)  # summed over the counted frames
+        # per shift, over the counted frames (each term over the frame's noise): the gyro's
+        # turn squared, its product with the camera's, and the camera's turn squared
+        self._gg = np.zeros(self._shifts_s.size)
+        self._gc = np.zeros(self._shifts_s.size)
+        self._cc = 0.0
         # frames whose shifted intervals reach past the IMU samples held so far (the frame is
         # fused ``buffer.window_s`` after its stamp): judged on a later frame
         self._offset_pending: list[tuple[int, int, F64, F64 | None, float]] = []
         self.offset_frames = 0
         self.warned_offset = False
+        self.warned_scale = False
 
     def observe_frame(self, tr: StereoTracks | None, ctx: FrameContext) -> None:
         """``observe`` with the filter's gyro bias at the frame (none for the paper state)."""
@@ -161,9 +169,14 @@ class RotationCheck:
             self._offset_pending.append((t0_ns, t1_ns, r_B, bg_B, var))
             return
         turns = _gyro_turns(t, h.gyro_B, t0_ns, t1_ns, bg_B, self._shifts_s)
-        self._offset_chi2 += np.sum((turns - r_B) ** 2, axis=1) / var
+        self._gg += np.sum(turns * turns, axis=1) / var
+        self._gc += (turns @ r_B) / var
+        self._cc += float(r_B @ r_B) / var
         self.offset_frames += 1
-        if self.warned_offset or self.offset_frames < o.min_frames:
+        if self.offset_frames < o.min_frames:
+            return
+        self._judge_scale()
+        if self.warned_offset:
             return
         got = self.time_offset()
         if got is None:
@@ -196,6 +209,45 @@ class RotationCheck:
                 abs(shift) * 1e3, "after" if shift > 0 else "before", std * 1e3,
                 self.offset_frames, shift,
             )
+
+    @property
+    def _offset_chi2(self) -> F64:
+        """Misfit (S,) per shift between the camera's turns and the gyro's scaled by the best
+        common factor at that shift (``Σ |c|² - (Σ g·c)² / Σ |g|²``): a camera that turns a
+        few per cent more or less than the gyro (a focal length off) does not pull the shift."""
+        return self._cc - self._gc**2 / np.maximum(self._gg, 1e-300)
+
+    def turn_scale(self) -> tuple[float, float] | None:
+        """How far the camera turns per radian of the gyro's turn at the best shift, and its
+        standard deviation (scaled by the misfit per degree of freedom when above 1); None
+        before any frame."""
+        if self.offset_frames == 0:
+            return None
+        k = int(np.argmin(self._offset_chi2))
+        fit = self.offset_fit() or 0.0
+        scale = float(self._gc[k] / self._gg[k])
+        return scale, float(np.sqrt(max(fit, 1.0) / self._gg[k]))
+
+    def _judge_scale(self) -> None:
+        """Warn once when the camera turns clearly more or less than the gyro (a few per cent
+        up to the factor the turn ratio's band takes: a focal length off, or the gyro's scale)."""
+        o = self.options
+        got = self.turn_scale()
+        fit = self.offset_fit()
+        if self.warned_scale or self.warned_ratio or got is None or fit is None:
+            return
+        scale, std = got
+        off = abs(scale - 1.0)
+        if fit > o.offset_max_fit or off < o.scale_warn or off <= 4.0 * std or not 0.5 < scale < 2:
+            return
+        self.warned_scale = True
+        log.warning(
+            "the camera turns %.3f ± %.3f times as far as the gyro (%d turning frames): are the "
+            "camera's intrinsics right? A focal length (fu, fv) %.0f %% too %s turns it so "
+            "(about the optical axis excepted), and so does a gyro scale factor off",
+            scale, std, self.offset_frames, abs(100.0 * (1.0 / scale - 1.0)),
+            "large" if scale < 1.0 else "small",
+        )  # fmt: skip
 
     def _flush_offsets(self) -> None:
         """Judge the frames held for IMU samples past their shifted intervals, now there."""
@@ -231,10 +283,11 @@ class RotationCheck:
 
     def offset_fit(self) -> float | None:
         """The misfit per degree of freedom between the camera's and the gyro's turns at the
-        best shift (about 1 where the mount and the noise are right; None before any frame)."""
+        best shift and scale (about 1 where the mount and the noise are right; None before
+        any frame)."""
         if self.offset_frames == 0:
             return None
-        return float(np.min(self._offset_chi2)) / (3 * self.offset_frames)
+        return float(np.min(self._offset_chi2)) / max(3 * self.offset_frames - 1, 1)
 
     def summary(self) -> dict[str, object]:
         """``frames`` compared, the ``median_axis_deg`` and ``median_turn_ratio`` (gyro over
@@ -243,14 +296,17 @@ class RotationCheck:
         inside ±300 ms) and whether it was warned."""
         self._flush_offsets()
         a, r = self.angles_deg, self.ratios
-        offset = self.time_offset()
+        offset, scale = self.time_offset(), self.turn_scale()
         return {"frames": len(a), "median_axis_deg": float(np.median(a)) if a else None,
                 "median_turn_ratio": float(np.median(r)) if r else None,
                 "warned": self.warned, "warned_turn_ratio": self.warned_ratio,
                 "time_offset_ms": None if offset is None else offset[0] * 1e3,
                 "time_offset_std_ms": None if offset is None else offset[1] * 1e3,
                 "time_offset_fit": self.offset_fit(),
-                "warned_time_offset": self.warned_offset}  # fmt: skip
+                "warned_time_offset": self.warned_offset,
+                "turn_scale": None if scale is None else scale[0],
+                "turn_scale_std": None if scale is None else scale[1],
+                "warned_turn_scale": self.warned_scale}  # fmt: skip
 
 
 _NO_SHIFT = np.zeros(1)
