@@ -3,12 +3,16 @@ pairs spread over the recording, rectified with the data set's calibration, befo
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from svains.datasets.loader import stereo_pairs
 from svains.datasets.types import Dataset
 from svains.errors import DatasetError
-from svains.frontend.stereo_check import StereoCheck, check_pairs
+
+if TYPE_CHECKING:  # the front end imports OpenCV: only when a check runs (see below)
+    from svains.frontend.stereo_check import StereoCheck
 
 PAIRS = 5  # pairs looked at, evenly spread over the recording (about 0.1 s each at 1392x512)
 
@@ -18,7 +22,10 @@ def recorded_stereo_check(ds: Dataset, pairs: int = PAIRS) -> StereoCheck | None
     or no calibration)."""
     if ds.left is None or ds.right is None or ds.cam0 is None or ds.cam1 is None:
         return None
+    # Imported here, not with the module: OpenCV starts its BLAS threads when loaded, and a
+    # process that forks workers after that (a campaign, a process pool) leaves them hung.
     from svains.frontend.rectify import StereoRectifier
+    from svains.frontend.stereo_check import check_pairs
 
     _, idx_l, idx_r = stereo_pairs(ds)
     if idx_l.size == 0:
