@@ -46,7 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from svains.geometry.rotation import quat_to_rotmat, so3_exp
-from svains.navigation.imu_history import ImuHistory
+from svains.navigation.imu_history import ImuHistory, shifted_integrals
 
 log = logging.getLogger(__name__)
 
@@ -189,16 +189,14 @@ class GpsLatencyCheck:
         for k in range(j - 1, -1, -1):
             R[k] = R[k + 1] @ inc[k].T
         acc = np.einsum("nij,nj->ni", R, f) + self.g_W
-        cum = np.vstack([np.zeros(3), np.cumsum(0.5 * (acc[1:] + acc[:-1])
-                                                * np.diff(ts)[:, None], axis=0)])  # fmt: skip
-        lever = np.einsum("nij,nj->ni", R, np.cross(w, self.p_B_G))  # R (ω × p_B_G)
-        total = cum + lever
         d = (b.t_ns - a.t_ns) * 1e-9
-
-        def at(x: F64) -> F64:
-            return np.stack([np.interp(x, ts, total[:, i]) for i in range(3)], axis=1)
-
-        return at(d - self.shifts_s) - at(-self.shifts_s)
+        dv = shifted_integrals(ts, acc, d, -self.shifts_s)  # shifted back by each shift
+        if not self.p_B_G.any():
+            return dv
+        lever = np.einsum("nij,nj->ni", R, np.cross(w, self.p_B_G))  # R (ω × p_B_G)
+        return dv + np.stack([np.interp(d - self.shifts_s, ts, lever[:, i])
+                              - np.interp(-self.shifts_s, ts, lever[:, i])
+                              for i in range(3)], axis=1)  # fmt: skip
 
     def figures(self) -> tuple[float, float, float, float] | None:
         """(latency s, its standard deviation s, misfit per degree of freedom at the best shift,

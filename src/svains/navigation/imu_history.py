@@ -182,3 +182,13 @@ class ImuHistory:
         self.n = self._done = m
         self.dropped += cut
         return m
+
+
+def shifted_integrals(t_s: F64, y: F64, end_s: float, shifts_s: F64) -> F64:
+    """Integrals (S, k) of the samples ``y`` (N, k) at times ``t_s`` (N,) s over the windows
+    ``[δ, end_s + δ]`` for each shift ``δ`` of ``shifts_s`` (S,): trapezoids over one
+    cumulative integral, the window ends interpolated (the samples must span every window)."""
+    steps = 0.5 * (y[1:] + y[:-1]) * np.diff(t_s)[:, None]
+    cum = np.vstack([np.zeros(y.shape[1]), np.cumsum(steps, axis=0)])
+    return np.stack([np.interp(end_s + shifts_s, t_s, c) - np.interp(shifts_s, t_s, c)
+                     for c in cum.T], axis=1)  # fmt: skip

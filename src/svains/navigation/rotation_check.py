@@ -33,7 +33,7 @@ from svains.frontend.types import StereoTracks
 from svains.geometry.rotation import so3_log
 from svains.models.state import BG
 from svains.navigation.base import FrameContext
-from svains.navigation.imu_history import ImuHistory
+from svains.navigation.imu_history import ImuHistory, shifted_integrals
 from svains.navigation.ins import default_imu_calib
 from svains.sensors.types import ImuCalib
 
@@ -325,10 +325,7 @@ def _gyro_turns(t_ns: NDArray[np.int64], gyro_B: F64, t0_ns: int, t1_ns: int,
     i1 = min(int(np.searchsorted(t_ns, hi, side="left")) + 1, t_ns.size)
     t = (t_ns[i0:i1] - t0_ns) * 1e-9
     w = gyro_B[i0:i1] - (0.0 if bg_B is None else bg_B)
-    cum = np.vstack([np.zeros(3), np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t)[:, None], axis=0)])
-    end = (t1_ns - t0_ns) * 1e-9
-    return np.stack([np.interp(end + shifts_s, t, cum[:, k]) - np.interp(shifts_s, t, cum[:, k])
-                     for k in range(3)], axis=1)  # fmt: skip
+    return shifted_integrals(t, w, (t1_ns - t0_ns) * 1e-9, shifts_s)
 
 
 def rotation_check(history: ImuHistory | None, R_B_C: F64,
