@@ -159,6 +159,18 @@ def run(root: Path, method: str, args: list[str], out: Path) -> tuple[int, dict[
     return p.returncode, rep, lines[-1] if lines else ""
 
 
+def warned_checks(rep: dict[str, Any], prefix: str = "") -> list[str]:
+    """The report's input checks that warned: every ``warned*`` key that is true, by path
+    (``vision.scale_check.warned_gps``)."""
+    out: list[str] = []
+    for key, value in rep.items():
+        if isinstance(value, dict):
+            out += warned_checks(value, f"{prefix}{key}.")
+        elif key.startswith("warned") and value is True:
+            out.append(f"{prefix}{key}")
+    return out
+
+
 def figure(rep: dict[str, Any], key: str) -> float:
     v = rep.get(key)
     return float(v) if isinstance(v, int | float) else math.nan
@@ -181,8 +193,8 @@ def main() -> None:
     ds = load_dataset(data)
     print(f"## {data.name}, `{args.method}` {' '.join(args.run_args)}, faults at {args.at:g} s\n")
     print("| fault | exit | pos RMSE [m] | x clean | x lost | ATE [m] | NEES | final [%] | "
-          "last line |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "checks warned | last line |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     rmse: dict[str, float] = {}
     with tempfile.TemporaryDirectory() as tmp:
         # The references first: the rows of the faults held to them can then give "x lost".
@@ -211,7 +223,8 @@ def main() -> None:
             lost = f"{r / ref:.2f}" if math.isfinite(ref) else "-"
             print(f"| {name} | {code} | {r:.3f} | {r / clean:.2f} | {lost} | "
                   f"{figure(rep, 'ate_rmse_m'):.3f} | {figure(rep, 'nees_mean'):.2f} | "
-                  f"{figure(rep, 'final_error_pct'):.2f} | {last[:120] if code else ''} |",
+                  f"{figure(rep, 'final_error_pct'):.2f} | {', '.join(warned_checks(rep)) or '-'} "
+                  f"| {last[:120] if code else ''} |",
                   flush=True)  # fmt: skip
 
 

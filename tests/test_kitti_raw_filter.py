@@ -7,10 +7,15 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
+
+from svains.datasets import load_dataset
+from svains.datasets.kalibr import write_camchain
 
 pytestmark = [pytest.mark.realdata]
 
@@ -31,6 +36,9 @@ def test_gps_denied_3d_ends_where_the_results_page_says(kitti_raw: Path, tmp_pat
     assert r["final_error_pct"] == pytest.approx(1.359, abs=0.01)
     assert r["ate_rmse_m"] < 0.296 * 1.05
     assert r["nees_mean"] < 79.2 * 1.1
+    # the baseline's check by the accelerometer: measured 1.026 ± 0.021, not warned
+    scale = r["vision"]["scale_check"]
+    assert scale["factor"] == pytest.approx(1.0, abs=0.05) and not scale["warned"]
 
 
 def test_gps_outages_stay_within_the_measured_largest_errors(
@@ -43,3 +51,30 @@ def test_gps_outages_stay_within_the_measured_largest_errors(
     first, second = r["outage_max_error_m"]
     assert first == pytest.approx(0.660, abs=0.066) and second == pytest.approx(0.511, abs=0.051)
     assert r["nees_mean"] < 11.3 * 1.1
+    # the baseline's check by the GPS speeds: measured 0.9986 ± 0.001 without the outages
+    scale = r["vision"]["scale_check"]
+    assert scale["gps_factor"] == pytest.approx(1.0, abs=0.005) and not scale["warned_gps"]
+
+
+def test_a_stereo_baseline_10_percent_long_is_warned_by_the_gps(
+    kitti_raw: Path, tmp_path: Path
+) -> None:
+    # cam1's T_BS moved along the baseline by 10 %: KITTI raw 3d with GPS ends at ATE 1.7 m
+    # (0.22 m right) under warnings of a bias step; the GPS speeds measure 1.098 ± 0.001.
+    ds = load_dataset(kitti_raw)
+    assert ds.cam0 is not None and ds.cam1 is not None and ds.imu_calib is not None
+    T_B_C0 = np.asarray(ds.cam0.T_B_C, float)
+    T_C0_C1 = np.linalg.inv(T_B_C0) @ np.asarray(ds.cam1.T_B_C, float)
+    T_C0_C1[:3, 3] *= 1.1
+    chain = write_camchain(tmp_path / "camchain.yaml",
+                           (ds.cam0, replace(ds.cam1, T_B_C=T_B_C0 @ T_C0_C1)),
+                           ds.imu_calib.T_B_S, ds.cam0.timeshift_cam_imu_s)  # fmt: skip
+    svains = Path(sys.executable).with_name("svains")
+    out = tmp_path / "run"
+    p = subprocess.run([str(svains), "run", str(kitti_raw), "--method", "3d", "--images",
+                        "--no-mag", "--init", "gps", "--duration", "20", "--calib", str(chain),
+                        "--out", str(out)], capture_output=True, text=True, check=True)  # fmt: skip
+    said = [line for line in p.stderr.splitlines() if "stereo baseline" in line]
+    assert len(said) == 1 and "times as far as the GPS says" in said[0]
+    scale = json.loads((out / "report.json").read_text(encoding="utf-8"))["vision"]["scale_check"]
+    assert scale["warned_gps"] and scale["gps_factor"] == pytest.approx(1.1, abs=0.01)

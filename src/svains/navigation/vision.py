@@ -37,6 +37,7 @@ from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.options import RunConfig, VisionOptions
 from svains.navigation.rotation_check import rotation_check
+from svains.navigation.scale_check import scale_check
 from svains.navigation.vision_clones import clone_window, next_reference_ns
 from svains.navigation.vision_egomotion import egomotion_noise
 from svains.navigation.vision_pixels import (
@@ -75,6 +76,7 @@ class LcUpdater:
         self._estimators: dict[str, int] = {}  # egomotions fused per estimator
         self.clones = clone_window(options, applied_offset_s(rig), history, rig.gravity_W)
         self.rotation_check = rotation_check(history, self.rig.R_B_C, rig.imu)
+        self.scale_check = scale_check(history, self.rig, rig.gravity_W, rig.imu)
 
     def measurement(self, tr: StereoTracks) -> tuple[F64, F64] | None:
         """``z`` (6,) (rotation vector rad, translation m) and its covariance (6, 6): the front
@@ -94,6 +96,8 @@ class LcUpdater:
         tr, inc = tracks_with_prior(self.source, self._prior, ctx)
         if self.rotation_check is not None:
             self.rotation_check.observe_frame(tr, ctx)
+        if self.scale_check is not None:
+            self.scale_check.observe_frame(tr, ctx)
         if tr is None or tr.egomotion is None or tr.t_ns <= tr.t_prev_ns:
             c.frames_without_tracks += 1
             return None
@@ -154,6 +158,8 @@ class LcUpdater:
         )
         if self.rotation_check is not None:
             out["rotation_check"] = self.rotation_check.summary()
+        if self.scale_check is not None:
+            out["scale_check"] = self.scale_check.summary()
         if self.clones is not None:
             out.update(self.clones.summary())
         return out

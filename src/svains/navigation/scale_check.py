@@ -1,0 +1,459 @@
+"""The stereo baseline checked against the accelerometer and the GPS while the run goes.
+
+A stereo rig measures distances in units of its baseline: a baseline off by a factor ``k`` (a
+spec-sheet figure, a ``T_BS`` translation measured between the wrong points, a calibration of
+another rig) makes every triangulated point, and so every egomotion translation, ``k`` times
+the truth, while the rectification (which uses the baseline's direction only) and the turns are
+unchanged. Nothing else says so: KITTI raw ``3d`` with the baseline 10 % long ends 10 % of the
+path off GPS-denied (1.3 % with the right one), and with GPS the fixes and the images pull
+apart (ATE 0.22 → 1.7 m) under warnings of "an IMU bias step".
+
+**The accelerometer** measures distances in metres. Over two consecutive spans ``[a, b]``,
+``[b, c]`` of chained frames (each at least ``span_s``), the camera's mean velocity changes by
+``u = D_1 / Δ_1 - D_0 / Δ_0`` by the images (``D_j`` the span's egomotion translations turned
+into the world frame by the filter's attitude at each frame) and by
+``w = (P(c) - P(b)) / Δ_1 - (P(b) - P(a)) / Δ_0`` plus the lever arm's turn by the IMU, where
+``P`` is the specific force (biases removed) turned into the world frame by the gyro from the
+filter's attitude at ``a``, plus gravity, integrated twice from ``a``: the unknown velocity at
+``a`` cancels. A right baseline gives ``u = w``, a wrong one ``u = k w``. Both sides are noisy
+(the images' translation covariance; the IMU's white noise, the tilt its gyro leaks and
+``MODEL_STD_MPS2`` for the filter's tilt and bias), so ``k`` minimises
+``Σ |u - k w|² / (σ_u² + k² σ_w²)`` (:func:`fit_factor`: a plain regression on a noisy ``w``
+shrinks ``k`` towards 0; the paper's IMU gave 0.41 so); the pairs fall into windows of
+``window_pairs`` whose weighted means are removed first (a tilt or bias the filter has wrong
+adds about the same to each of a window's ``w``), and pairs beyond the 0.999 chi-square quantile
+of the pairs' own scatter are dropped. Only changes of velocity show it (braking, pulling away,
+turns, a multicopter's manoeuvres). With the filter lost the misfit is large and nothing is
+judged (``max_fit``).
+
+**The GPS** (when its fixes carry a velocity): each closed span's length by the images,
+``|D_W|``, against the camera's displacement by the fixes' velocities integrated over the span
+(less the lever arms' turn), ``k`` fitted the same way on the lengths (1 dof each: the filter's
+heading does not enter). A car at 9 m/s measures it to 0.1 % in 30 s.
+
+After ``min_pairs`` pairs (spans) a factor ``warn`` (``warn_gps``) or more from 1 and beyond 4
+of its standard deviations is warned once, with the baseline that would fit; the GPS's
+judgement comes first when there is one. Only warns: a few hundred 3x3 products per span.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from svains.frontend.types import StereoTracks
+from svains.geometry.camera import RectifiedStereo
+from svains.geometry.rotation import quat_to_rotmat, so3_exp
+from svains.models.state import BA, BG, Q
+from svains.navigation.base import FrameContext
+from svains.navigation.imu_history import ImuHistory
+from svains.navigation.ins import default_imu_calib
+from svains.sensors.types import ImuCalib
+
+log = logging.getLogger(__name__)
+
+F64 = NDArray[np.float64]
+
+# the filter's tilt and accelerometer bias left after the windows' means, per axis (m/s²)
+MODEL_STD_MPS2 = 0.02
+CHI2_999 = {1: 10.83, 3: 16.27}  # chi-square 0.999 quantiles by dof
+CHI2_MEDIAN = {1: 0.455, 3: 2.366}  # and medians
+
+
+@dataclass(frozen=True)
+class ScaleCheckOptions:
+    """Spans of chained frames at least ``span_s`` long (a frame step longer than
+    ``max_step_s``, or an IMU gap longer than ``max_imu_gap_s`` inside a span, breaks the chain);
+    after ``min_pairs`` span pairs a factor at least ``warn`` from 1 (and beyond 4 of its
+    standard deviations) is warned, when the misfit per degree of freedom is at most
+    ``max_fit`` (beyond it something else is wrong: stamps, mount, a lost filter)."""
+
+    span_s: float = 1.0
+    max_step_s: float = 3.0
+    max_imu_gap_s: float = 0.5  # the filter bridges longer gaps as faults
+    min_pairs: int = 10
+    window_pairs: int = 6
+    warn: float = 0.03
+    warn_gps: float = 0.02  # GPS speeds measure it to a few tenths of a per cent
+    max_fit: float = 3.0
+    # the accelerometer's factor reads 0.99-1.03 with the right baseline on the shared and
+    # rendered data (tilt and bias errors the windows leave): added to its deviation
+    floor: float = 0.01
+
+
+@dataclass(frozen=True)
+class FrameState:
+    t_ns: int
+    R_W_B: F64
+    b_g: F64
+    b_a: F64
+
+
+@dataclass(frozen=True)
+class _Span:
+    start: FrameState
+    end: FrameState
+    D_W: F64  # the camera's displacement over the span by the images (world frame) m
+    var: float  # its variance per axis m²
+
+
+class ScaleCheck:
+    """Collects, span pair by span pair, the images' velocity changes against the IMU's."""
+
+    def __init__(self, history: ImuHistory, stereo: RectifiedStereo, gravity_W: F64,
+                 imu: ImuCalib, options: ScaleCheckOptions | None = None) -> None:  # fmt: skip
+        """``history``: the body-frame IMU samples; ``stereo``: the rectified rig (left camera
+        on the body, baseline); ``gravity_W`` (3,) m/s²; ``imu``: its noise densities."""
+        self.accel_density = float(imu.accel_noise_density)
+        self.gyro_density = float(imu.gyro_noise_density)
+        self.history = history
+        self.R_B_C = np.asarray(stereo.R_B_C, float)
+        self.p_B_C = np.asarray(stereo.p_B_C, float)
+        self.baseline_m = float(stereo.baseline)
+        self.g_W = np.asarray(gravity_W, float)
+        self.options = options or ScaleCheckOptions()
+        self._last: FrameState | None = None  # the frame before (None: the chain is broken)
+        self._open: tuple[FrameState, F64, float] | None = None  # span start, D_W, var so far
+        self._closed: _Span | None = None  # the last closed span, if the chain holds since
+        self._u: list[F64] = []
+        self._w: list[F64] = []
+        self._var_u: list[float] = []  # per axis, the images' (m/s)²
+        self._var_w: list[float] = []  # per axis, the IMU's (m/s)²
+        self._group: list[int] = []  # the window each pair belongs to
+        self._groups = 0
+        self._in_group = 0
+        self.warned = False
+        # GPS: the antenna's lever arm (None: no GPS velocity seen), the fixes' velocities,
+        # spans waiting for a fix past their end, and per span (|D_W|, |D_GPS|, variance)
+        self.p_B_G: F64 | None = None
+        self.gps_velocity_std = 0.1
+        self._fixes_t: list[int] = []
+        self._fixes_v: list[F64] = []
+        self._gps_pending: list[_Span] = []
+        self._gps_rows: list[tuple[float, float, float, float]] = []
+        self.warned_gps = False
+
+    def observe_gps(self, t_ns: int, v_W_G: F64, p_B_G: F64, velocity_std: float) -> None:
+        """A GPS fix's antenna velocity ``v_W_G`` (3,) m/s at ``t_ns`` (its lever arm
+        ``p_B_G`` (3,) m, velocity noise ``velocity_std`` m/s per axis)."""
+        if not np.all(np.isfinite(v_W_G)) or (self._fixes_t and t_ns <= self._fixes_t[-1]):
+            return
+        self.p_B_G = np.asarray(p_B_G, float)
+        self.gps_velocity_std = float(velocity_std)
+        self._fixes_t.append(int(t_ns))
+        self._fixes_v.append(np.asarray(v_W_G, float))
+        if len(self._fixes_t) > 4096:  # spans older than the newest thousands of fixes
+            del self._fixes_t[:2048], self._fixes_v[:2048]
+        self._gps_spans()
+
+    def _gps_spans(self) -> None:
+        """Compare each closed span whose end the fixes now pass with the GPS's displacement
+        (the fixes' velocities integrated piecewise linearly over it), warn when due."""
+        if not self._fixes_t or self.p_B_G is None:
+            return
+        t = np.asarray(self._fixes_t)
+        waiting = []
+        for span in self._gps_pending:
+            a, b = span.start.t_ns, span.end.t_ns
+            if t[-1] < b:
+                waiting.append(span)
+                continue
+            if t[0] > a:
+                continue
+            inside = t[(t > a) & (t < b)]
+            knots = np.concatenate([[a], inside, [b]])
+            V = np.asarray(self._fixes_v)
+            vk = np.stack([np.interp(knots, t, V[:, i]) for i in range(3)], axis=1)
+            gap = np.max(np.diff(np.concatenate([t[(t <= a)][-1:], inside, t[t >= b][:1]])))
+            if gap > 3e9:  # fixes too far apart to say the span's motion
+                continue
+            dk = np.diff(knots)[:, None] * 1e-9
+            d_G = np.sum(0.5 * (vk[1:] + vk[:-1]) * dk, axis=0)
+            # the camera's displacement by the GPS: the antenna's less the lever arms' turn
+            lever = (span.end.R_W_B - span.start.R_W_B) @ (self.p_B_G - self.p_B_C)
+            d_C = d_G - lever
+            dur = (b - a) * 1e-9
+            var_g = (self.gps_velocity_std * dur) ** 2 / max(inside.size + 1, 1)
+            self._gps_rows.append((float(np.linalg.norm(span.D_W)), float(np.linalg.norm(d_C)),
+                                   span.var, var_g))  # fmt: skip
+        self._gps_pending = waiting[-64:]  # (no fix for a minute: the oldest are let go)
+        self._judge_gps()
+
+    def gps_factor(self) -> tuple[float, float, float, int] | None:
+        """(factor of the images' span lengths over the GPS's, its standard deviation, misfit
+        per degree of freedom, spans kept), outliers dropped; None before two moving spans."""
+        if len(self._gps_rows) < 2:
+            return None
+        rows = np.asarray(self._gps_rows)
+        return fit_factor(rows[:, :1], rows[:, 1:2], rows[:, 2], rows[:, 3],
+                          np.ones(len(rows), bool), 0)
+
+    def _judge_gps(self) -> None:
+        o = self.options
+        n = len(self._gps_rows)
+        if self.warned_gps or n < o.min_pairs or (n > 50 and n % 10):
+            return
+        got = self.gps_factor()
+        if got is None:
+            return
+        k, std, fit, n = got
+        off = abs(k - 1.0)
+        if n < o.min_pairs or fit > o.max_fit or off < o.warn_gps or off <= 4.0 * std:
+            return
+        self.warned_gps = True
+        log.warning(
+            "the camera moves %.3f ± %.3f times as far as the GPS says (%d spans): is the "
+            "stereo baseline right? The calibration gives %.4f m; %.4f m would fit (cam1's "
+            "T_BS translation, or the rectified baseline)",
+            k, std, n, self.baseline_m, self.baseline_m / k,
+        )  # fmt: skip
+
+    def observe_frame(self, tr: StereoTracks | None, ctx: FrameContext) -> None:
+        """The frame ``tr`` (its egomotion over ``[t_prev_ns, t_ns]``) with the filter's state
+        at ``ctx`` (attitude, biases; zero for the paper's state)."""
+        x = np.asarray(ctx.ukf.x)
+        zero = np.zeros(3)
+        biased = ctx.layout.biased
+        frame = FrameState(int(ctx.t_ns), quat_to_rotmat(x[Q]), x[BG].copy() if biased else zero,
+                       x[BA].copy() if biased else zero)  # fmt: skip
+        self.observe(tr, frame)
+
+    def observe(self, tr: StereoTracks | None, frame: FrameState) -> None:
+        """Chain ``tr`` onto the frame before; close a span and judge a pair when due."""
+        last, self._last = self._last, frame
+        o = self.options
+        ok = (tr is not None and tr.egomotion is not None and last is not None
+              and tr.t_prev_ns == last.t_ns and tr.t_ns == frame.t_ns
+              and 0 < tr.t_ns - tr.t_prev_ns <= o.max_step_s * 1e9)  # fmt: skip
+        if not ok or tr is None or tr.egomotion is None or last is None:
+            self._open, self._closed = None, None
+            self._next_group()
+            return
+        ego = tr.egomotion
+        R = np.asarray(ego.R_Ck_Ckm1, float)
+        p_Ckm1_Ck = -R.T @ np.asarray(ego.p_Ck_Ckm1, float)  # camera k in camera k-1's frame
+        d_W = last.R_W_B @ self.R_B_C @ p_Ckm1_Ck
+        cov_C = np.asarray(ego.cov, float)[3:, 3:]
+        var = float(np.trace(cov_C)) / 3.0
+        if self._open is None:
+            self._open = (last, d_W, var)
+        else:
+            start, D, v = self._open
+            self._open = (start, D + d_W, v + var)
+        start, D, v = self._open
+        if (frame.t_ns - start.t_ns) * 1e-9 < o.span_s:
+            return
+        span = _Span(start, frame, D, v)
+        self._open = None
+        if self.p_B_G is not None:
+            self._gps_pending.append(span)
+            self._gps_spans()
+        before, self._closed = self._closed, span
+        if before is not None and before.end.t_ns == span.start.t_ns:
+            self._pair(before, span)
+
+    def _pair(self, s0: _Span, s1: _Span) -> None:
+        """Add the pair's velocity changes (images and IMU) and judge."""
+        w = self._imu_change(s0, s1)
+        if w is None:
+            return
+        d0 = (s0.end.t_ns - s0.start.t_ns) * 1e-9
+        d1 = (s1.end.t_ns - s1.start.t_ns) * 1e-9
+        u = s1.D_W / d1 - s0.D_W / d0
+        T = d0 + d1
+        g = float(np.linalg.norm(self.g_W))
+        # the IMU's: a tilt or bias off by MODEL_STD_MPS2, the accelerometer's white noise,
+        # and the tilt the gyro's white noise leaks into the horizontal over the pair
+        var_w = ((MODEL_STD_MPS2 * 0.5 * T) ** 2 + self.accel_density**2 * 0.5 * T
+                 + (g * self.gyro_density) ** 2 * T**3 / 12.0)  # fmt: skip
+        self._u.append(u)
+        self._w.append(w)
+        self._var_u.append(s1.var / d1**2 + s0.var / d0**2)
+        self._var_w.append(var_w)
+        if self._in_group >= self.options.window_pairs:
+            self._next_group()
+        self._group.append(self._groups)
+        self._in_group += 1
+        self._judge()
+
+    def _next_group(self) -> None:
+        if self._in_group:
+            self._groups += 1
+            self._in_group = 0
+
+    def _imu_change(self, s0: _Span, s1: _Span) -> F64 | None:
+        """``w`` (3,) m/s: the change of the camera's mean velocity from span ``s0`` to ``s1``
+        by the IMU; None when the history does not hold the samples or has a gap."""
+        h, a = self.history, s0.start
+        t = h.t_ns
+        if t.size < 2 or t[0] > a.t_ns or t[-1] < s1.end.t_ns:
+            return None
+        i0 = max(int(np.searchsorted(t, a.t_ns, side="right")) - 1, 0)
+        i1 = min(int(np.searchsorted(t, s1.end.t_ns)) + 1, t.size)
+        ts = (t[i0:i1] - a.t_ns) * 1e-9
+        if ts.size < 3 or np.max(np.diff(ts)) > self.options.max_imu_gap_s:
+            return None
+        w = h.gyro_B[i0:i1] - a.b_g
+        f = h.accel_B[i0:i1] - a.b_a
+        R = np.empty((ts.size, 3, 3))
+        R[0] = a.R_W_B @ so3_exp(w[0] * ts[0])  # back from the frame to the sample before
+        inc = so3_exp(w[:-1] * np.diff(ts)[:, None])
+        for k in range(ts.size - 1):
+            R[k + 1] = R[k] @ inc[k]
+        acc = np.einsum("nij,nj->ni", R, f) + self.g_W
+        dt = np.diff(ts)[:, None]
+        V = np.vstack([np.zeros(3), np.cumsum(0.5 * (acc[1:] + acc[:-1]) * dt, axis=0)])
+        P = np.vstack([np.zeros(3), np.cumsum(0.5 * (V[1:] + V[:-1]) * dt, axis=0)])
+        tb = (s0.end.t_ns - a.t_ns) * 1e-9
+        tc = (s1.end.t_ns - a.t_ns) * 1e-9
+        at = [0.0, tb, tc]
+        Pi = np.stack([np.interp(at, ts, P[:, i]) for i in range(3)], axis=1)
+        Ri = R[np.clip(np.searchsorted(ts, at), 0, ts.size - 1)]
+        pc = Pi + Ri @ self.p_B_C  # the camera's positions (from a's, velocity at a aside)
+        return (pc[2] - pc[1]) / (tc - tb) - (pc[1] - pc[0]) / tb
+
+    def factor(self) -> tuple[float, float, float, int] | None:
+        """(factor ``k`` of the images' translations over the IMU's, its standard deviation,
+        misfit per degree of freedom, pairs kept), outliers dropped; None before two pairs in
+        one window or without any velocity change. Each window's weighted means of ``u`` and
+        ``w`` are removed first: a constant acceleration error (the filter's tilt or bias off)
+        adds about the same to each of a window's ``w``."""
+        if not self._u:
+            return None
+        u, w = np.asarray(self._u), np.asarray(self._w)
+        vu, vw = np.asarray(self._var_u), np.asarray(self._var_w)
+        group = np.asarray(self._group)
+        keep = np.ones(vu.size, bool)
+        u, w, groups = _centred(u, w, 1.0 / (vu + vw), group, keep)
+        got = fit_factor(u, w, vu, vw, keep, 3 * groups)
+        if got is None:
+            return None
+        k, std, fit, n = got
+        return k, float(np.hypot(std, self.options.floor)), fit, n
+
+    def _judge(self) -> None:
+        o = self.options
+        n = len(self._u)
+        if self.p_B_G is not None:
+            return  # a GPS with velocities judges (far more precisely)
+        if self.warned or n < o.min_pairs or (n > 50 and n % 10):
+            return  # (every pair at first, then every tenth: each judgement is O(pairs))
+        got = self.factor()
+        if got is None:
+            return
+        k, std, fit, n = got
+        off = abs(k - 1.0)
+        if n < o.min_pairs or fit > o.max_fit or off < o.warn or off <= 4.0 * std:
+            return
+        self.warned = True
+        log.warning(
+            "the camera moves %.3f ± %.3f times as far as the accelerometer says (%d span "
+            "pairs): is the stereo baseline right? The calibration gives %.4f m; %.4f m would "
+            "fit (cam1's T_BS translation, or the rectified baseline)",
+            k, std, n, self.baseline_m, self.baseline_m / k,
+        )  # fmt: skip
+
+    def summary(self) -> dict[str, object]:
+        """``pairs`` collected, the ``factor`` (images over IMU) and its ``factor_std``,
+        the ``fit`` (misfit per degree of freedom), and whether it was ``warned``."""
+        got, gps = self.factor(), self.gps_factor()
+        return {"pairs": len(self._u), "pairs_kept": None if got is None else got[3],
+                "factor": None if got is None else got[0],
+                "factor_std": None if got is None else got[1],
+                "fit": None if got is None else got[2], "warned": self.warned,
+                "gps_spans": len(self._gps_rows),
+                "gps_factor": None if gps is None else gps[0],
+                "gps_factor_std": None if gps is None else gps[1],
+                "gps_fit": None if gps is None else gps[2],
+                "warned_gps": self.warned_gps}  # fmt: skip
+
+
+def fit_factor(u: F64, w: F64, var_u: F64, var_w: F64, keep: NDArray[np.bool_],
+               lost_dof: int) -> tuple[float, float, float, int] | None:
+    """The factor ``k`` with ``u ≈ k w`` (rows (N, d)), both noisy (per-axis variances
+    ``var_u``, ``var_w`` (N,)): the minimum over ``k`` of ``Σ |u - k w|² / (var_u + k² var_w)``
+    (errors in both: a plain regression of ``u`` on a noisy ``w`` shrinks ``k`` towards 0),
+    started from the ``k`` of least median misfit, rows beyond the 0.999 chi-square quantile of
+    the rows' own scatter dropped (three times). Returns
+    (k, its standard deviation from the misfit's curvature, scaled by the misfit per degree of
+    freedom when above 1; the misfit per degree of freedom (``lost_dof`` taken off); rows kept)
+    or None (fewer than two rows kept, or no ``w`` at all)."""
+    d = u.shape[1]
+    q999, q50 = CHI2_999[d], CHI2_MEDIAN[d]
+
+    def chi2_rows(k: F64, rows: NDArray[np.bool_]) -> F64:  # (K, N)
+        r = u[rows][None] - k[:, None, None] * w[rows][None]
+        return np.sum(r * r, axis=2) / (var_u[rows][None] + k[:, None] ** 2 * var_w[rows][None])
+
+    def best(rows: NDArray[np.bool_]) -> tuple[float, float, float]:
+        """The minimising k on a coarse log grid (0.1-10), then a fine one around it; with the
+        fine grid's step and curvature (in log k)."""
+        coarse = np.exp(np.linspace(np.log(0.1), np.log(10.0), 41))
+        j = int(np.argmin(chi2_rows(coarse, rows).sum(axis=1)))
+        ks = coarse[j] * np.exp(np.linspace(-0.12, 0.12, 41))
+        c = chi2_rows(ks, rows).sum(axis=1)
+        j = int(np.clip(np.argmin(c), 1, ks.size - 2))
+        h = float(np.log(ks[1] / ks[0]))
+        curv = float(c[j - 1] - 2.0 * c[j] + c[j + 1])
+        k = float(ks[j] * np.exp(0.5 * h * (c[j - 1] - c[j + 1]) / curv)) if curv > 0 else ks[j]
+        return k, h, curv
+
+    keep = keep.copy()
+    every = np.ones(keep.size, bool)
+    # a first guess robust to wild rows (which would pull k up: a larger k widens every row's
+    # variance): the k of least median misfit, then the rows it leaves
+    coarse = np.exp(np.linspace(np.log(0.1), np.log(10.0), 81))
+    if keep.sum() >= 2:
+        rows = chi2_rows(coarse, keep)
+        k0 = coarse[int(np.argmin(np.median(rows, axis=1)))]
+        r2 = chi2_rows(np.array([k0]), every)[0]
+        keep &= r2 <= q999 * max(1.0, float(np.median(r2[keep])) / q50)
+    for it in range(3):
+        if keep.sum() < 2 or not np.any(w[keep]):
+            return None
+        k, h, curv = best(keep)
+        r2 = chi2_rows(np.array([k]), every)[0]
+        if it == 2:
+            break
+        # against the rows' own scatter (the egomotion's covariance may be optimistic)
+        keep &= r2 <= q999 * max(1.0, float(np.median(r2[keep])) / q50)
+    n = int(keep.sum())
+    fit = float(np.sum(r2[keep])) / max(d * n - lost_dof - 1, 1)
+    # curvature in k (the grid is in log k): d²χ²/dk² ≈ curv / (k h)², χ² = 2 / σ²
+    std = k * h * np.sqrt(2.0 / curv) if curv > 0 else float("inf")
+    return k, float(std * np.sqrt(max(fit, 1.0))), fit, n
+
+
+def _centred(u: F64, w: F64, iv: F64, group: NDArray[np.int64],
+             keep: NDArray[np.bool_]) -> tuple[F64, F64, int]:  # fmt: skip
+    """``u``, ``w`` (N, 3) less their weighted means over the kept pairs of each group (a
+    group with fewer than two kept pairs is zeroed and its pairs dropped from ``keep``
+    in place), and how many groups are left."""
+    u, w = u.copy(), w.copy()
+    n = 0
+    for g in np.unique(group):
+        m = (group == g) & keep
+        if m.sum() < 2:
+            keep[group == g] = False
+            u[group == g] = 0.0
+            w[group == g] = 0.0
+            continue
+        n += 1
+        wt = iv[m] / iv[m].sum()
+        u[group == g] -= wt @ u[m]
+        w[group == g] -= wt @ w[m]
+    return u, w, n
+
+
+def scale_check(history: ImuHistory | None, stereo: RectifiedStereo,
+                gravity_W: F64 | tuple[float, float, float],
+                imu: ImuCalib | None) -> ScaleCheck | None:  # fmt: skip
+    """A check of ``stereo``'s baseline on ``history``'s accelerometer (noise from ``imu``,
+    else the filter's default), or None without an IMU."""
+    if history is None:
+        return None
+    return ScaleCheck(history, stereo, np.asarray(gravity_W, float),
+                      imu or default_imu_calib())

@@ -1,0 +1,161 @@
+"""The stereo baseline's check (``navigation.scale_check``) on seeded synthetic flights: the
+images' velocity changes against the accelerometer's, and span lengths against the GPS's
+velocities. A right baseline reads 1 and is not warned; a wrong one is found, warned once with
+the baseline that would fit; the factor fitted with noise on both sides is not shrunk."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from svains.frontend.types import Egomotion, StereoTracks
+from svains.geometry.camera import RectifiedStereo
+from svains.geometry.rotation import so3_exp
+from svains.navigation.imu_history import ImuHistory
+from svains.navigation.scale_check import FrameState, ScaleCheck, fit_factor
+from svains.sensors.types import ImuCalib
+
+G_W = np.array([0.0, 0.0, -9.81])
+# a forward-looking camera on a body x forward, z up, 0.2 m ahead of the IMU
+R_B_C = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+P_B_C = np.array([0.2, 0.05, -0.03])
+BASELINE = 0.11
+STEREO = RectifiedStereo(400.0, 320.0, 240.0, BASELINE, R_B_C, P_B_C, 640, 480)
+IMU = ImuCalib(np.eye(4), 200.0, 2e-4, 2e-5, 2e-3, 3e-3)
+P_B_G = np.array([-0.1, 0.0, 0.3])
+S = 1_000_000_000
+
+
+def _motion(t: np.ndarray) -> tuple[np.ndarray, ...]:
+    """A weaving flight: position (N, 3), velocity, acceleration (world), yaw and its rate."""
+    a = np.array([3.0, 2.0, 0.5])
+    om = np.array([0.45, 0.7, 0.9])
+    p = a * np.sin(om * t[:, None])
+    v = a * om * np.cos(om * t[:, None])
+    acc = -a * om**2 * np.sin(om * t[:, None])
+    yaw = 0.6 * np.sin(0.3 * t)
+    return p, v, acc, yaw, 0.18 * np.cos(0.3 * t)
+
+
+def _rz(yaw: float) -> np.ndarray:
+    return so3_exp(np.array([0.0, 0.0, yaw]))
+
+
+def _flight(factor: float, seed: int = 0, seconds: float = 40.0, gps: bool = False,
+            check: ScaleCheck | None = None) -> ScaleCheck:  # fmt: skip
+    """Run ``check`` over a flight whose egomotion translations are ``factor`` times the truth
+    (a baseline that long), 5 Hz frames with 2 mm of noise, a 200 Hz IMU with white noise,
+    the filter's attitude exact; ``gps`` adds 10 Hz antenna velocities with 2 cm/s of noise."""
+    rng = np.random.default_rng(seed)
+    h = ImuHistory(capacity=16384)
+    check = check or ScaleCheck(h, STEREO, G_W, IMU)
+    check.history = h
+    t_imu = np.arange(0.0, seconds + 0.5, 0.005)
+    _, _, acc, yaw, yaw_rate = _motion(t_imu)
+    for k, t in enumerate(t_imu):
+        f_B = _rz(yaw[k]).T @ (acc[k] - G_W) + rng.normal(0.0, 2e-3 / np.sqrt(0.005), 3)
+        h.append(round(t * S), np.array([0.0, 0.0, yaw_rate[k]]), f_B)
+    t_cam = np.arange(0.0, seconds, 0.2)
+    p, _, _, yaw_c, _ = _motion(t_cam)
+    R_W_C = [_rz(y) @ R_B_C for y in yaw_c]
+    p_W_C = [p[k] + _rz(yaw_c[k]) @ P_B_C for k in range(t_cam.size)]
+    t_gps = np.arange(0.0, seconds + 0.5, 0.1)
+    _, v_g, _, yaw_g, yaw_rate_g = _motion(t_gps)
+    e = np.zeros((0, 2))
+    next_fix = 0
+    for k, t in enumerate(t_cam):
+        frame = FrameState(round(t * S), _rz(yaw_c[k]), np.zeros(3), np.zeros(3))
+        tr = None
+        if k:
+            R = R_W_C[k].T @ R_W_C[k - 1]
+            p_Ck_Ckm1 = R_W_C[k].T @ (p_W_C[k - 1] - p_W_C[k]) * factor
+            ego = Egomotion(R, p_Ck_Ckm1 + rng.normal(0.0, 2e-3, 3), np.eye(6) * 4e-6)
+            tr = StereoTracks(round(t_cam[k - 1] * S), round(t * S), np.zeros(0, np.int64),
+                              e, e, e, e, np.zeros((0, 3)), np.zeros(0, bool), ego)  # fmt: skip
+        check.observe(tr, frame)
+        while gps and t_gps[next_fix] <= t + 0.15:  # fixes arrive a little after the frames
+            i = next_fix
+            lever = _rz(yaw_g[i]) @ np.cross([0.0, 0.0, yaw_rate_g[i]], P_B_G)
+            check.observe_gps(round(t_gps[i] * S), v_g[i] + lever + rng.normal(0, 0.02, 3),
+                              P_B_G, 0.02)  # fmt: skip
+            next_fix += 1
+    return check
+
+
+def test_a_right_baseline_reads_one_and_is_not_warned(caplog: pytest.LogCaptureFixture) -> None:
+    with caplog.at_level("WARNING", logger="svains.navigation.scale_check"):
+        check = _flight(1.0)
+    got = check.factor()
+    assert got is not None
+    k, std, fit, n = got
+    assert abs(k - 1.0) < 0.02 and abs(k - 1.0) < 3 * std
+    assert n >= 15 and fit < 3.0
+    assert not check.warned and caplog.records == []
+
+
+def test_a_baseline_8_percent_long_is_warned_once_with_the_one_that_fits(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    with caplog.at_level("WARNING", logger="svains.navigation.scale_check"):
+        check = _flight(1.08)
+    assert check.warned
+    k = check.summary()["factor"]
+    assert isinstance(k, float) and k == pytest.approx(1.08, abs=0.02)
+    (rec,) = caplog.records
+    msg = rec.getMessage()
+    assert "times as far as the accelerometer says" in msg and "stereo baseline" in msg
+    said = re.search(r"moves ([\d.]+) ±", msg)
+    fits = re.search(r"; ([\d.]+) m would fit", msg)
+    assert said and fits
+    assert float(fits.group(1)) == pytest.approx(BASELINE / float(said.group(1)), rel=1e-3)
+
+
+def test_a_baseline_short_is_found_on_every_seed() -> None:
+    for seed in range(3):
+        k = _flight(0.93, seed=seed).summary()["factor"]
+        assert isinstance(k, float) and k == pytest.approx(0.93, abs=0.02)
+
+
+def test_gps_velocities_measure_the_baseline_and_judge_instead_of_the_imu(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    right = _flight(1.0, gps=True).summary()
+    assert right["gps_factor"] == pytest.approx(1.0, abs=0.004)
+    assert not right["warned_gps"] and not right["warned"]
+    with caplog.at_level("WARNING", logger="svains.navigation.scale_check"):
+        off = _flight(1.03, gps=True).summary()
+    assert off["gps_factor"] == pytest.approx(1.03, abs=0.004)
+    assert off["warned_gps"] and not off["warned"]  # the GPS judged, the IMU test stood back
+    (rec,) = caplog.records
+    assert "times as far as the GPS says" in rec.getMessage()
+
+
+def test_a_broken_chain_makes_no_pair() -> None:
+    check = _flight(1.0, seconds=6.0)
+    assert check.summary()["pairs"] > 0
+    h = ImuHistory()
+    lone = ScaleCheck(h, STEREO, G_W, IMU)
+    e = np.zeros((0, 2))
+    ego = Egomotion(np.eye(3), np.array([0.0, 0.0, -0.2]), np.eye(6) * 1e-6)
+    for k in range(1, 40):  # every frame's egomotion starts at a frame the check never saw
+        tr = StereoTracks((2 * k - 1) * S // 10, 2 * k * S // 10, np.zeros(0, np.int64), e, e,
+                          e, e, np.zeros((0, 3)), np.zeros(0, bool), ego)  # fmt: skip
+        lone.observe(tr, FrameState(2 * k * S // 10, np.eye(3), np.zeros(3), np.zeros(3)))
+    assert lone.summary()["pairs"] == 0
+
+
+def test_the_factor_is_not_shrunk_by_noise_on_the_imu_side_and_outliers_go() -> None:
+    rng = np.random.default_rng(7)
+    w_true = rng.normal(0.0, 1.0, (400, 3))
+    u = 1.1 * w_true + rng.normal(0.0, 0.1, w_true.shape)
+    w = w_true + rng.normal(0.0, 0.7, w_true.shape)
+    u[:10] += 20.0  # ten wild rows
+    ols = float(np.sum(u[10:] * w[10:]) / np.sum(w[10:] ** 2))
+    assert ols < 0.8  # a plain regression on the noisy side shrinks it
+    got = fit_factor(u, w, np.full(400, 0.01), np.full(400, 0.49), np.ones(400, bool), 0)
+    assert got is not None
+    k, std, fit, n = got
+    assert k == pytest.approx(1.1, abs=3 * std) and std < 0.03
+    assert n <= 390 and 0.8 < fit < 1.3
