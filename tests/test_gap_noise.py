@@ -151,3 +151,14 @@ def test_a_long_gap_is_bridged_between_window_means_and_the_filter_waits_for_the
         expected = (np.mean(d**2) - np.mean(d0**2)) / 12.0 * T2
         np.testing.assert_allclose(Q[rows, rows].diagonal() - Q0[rows, rows].diagonal(),
                                    expected, rtol=1e-6)  # fmt: skip
+
+
+def test_a_gap_is_marked_on_the_history_for_the_checks_that_integrate_it() -> None:
+    # The mount, stamps and baseline checks integrate the samples over intervals; across a
+    # bridged gap those are no measurement, and the checks ask the history (fault_in).
+    _, t, history, _, _ = _long_gap(0.0)
+    k1 = int(np.searchsorted(t, 4 * S))
+    assert history.fault_in(int(t[k1 - 1]), int(t[k1]))
+    assert history.fault_in(3 * S, 3 * S + 1)  # inside the gap
+    assert not history.fault_in(0, int(t[k1 - 1]) - 1)  # before it
+    assert not history.fault_in(int(t[k1]) + 1, 6 * S)  # after it

@@ -149,6 +149,8 @@ class ImuFaults:
         verdict = self.guard.check(t_ns, gyro_S, accel_S)
         if verdict.kind in ("drop", "gap"):
             self.last_fault_ns = t_ns
+            last = history.last_ns
+            history.mark_fault(t_ns if last is None else last, t_ns)  # from the last kept one
         if verdict.kind == "drop":
             why = f"IMU sample dropped ({verdict.reason}), bridged by its neighbours"
             self._warn.warn(f"imu-{verdict.reason}", t_ns, why)

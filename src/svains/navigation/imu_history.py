@@ -40,6 +40,9 @@ class ImuHistory:
         self._ts = np.empty(capacity)  # the stencil's times, s from the first sample
         self._raw = np.empty((capacity, 6))  # gyro_S | accel_S as received
         self._data = np.empty((capacity, 9))  # gyro_B | accel_B | alpha_B
+        # spans (start, end) ns where samples were dropped or missing (the fault handler's
+        # marks): the checks that integrate the samples leave intervals touching them out
+        self._faults: list[tuple[int, int]] = []
 
     @property
     def t_ns(self) -> I64:
@@ -84,6 +87,17 @@ class ImuHistory:
         self._raw[k, 0:3] = gyro_S
         self._raw[k, 3:6] = accel_S
         self.n = k + 1
+
+    def mark_fault(self, start_ns: int, end_ns: int) -> None:
+        """Note that the samples of ``[start_ns, end_ns]`` are missing or were dropped (the
+        newest 1024 spans are kept)."""
+        self._faults.append((int(start_ns), int(end_ns)))
+        if len(self._faults) > 1024:
+            del self._faults[:512]
+
+    def fault_in(self, lo_ns: int, hi_ns: int) -> bool:
+        """Whether a marked fault span touches ``[lo_ns, hi_ns]``."""
+        return any(s <= hi_ns and e >= lo_ns for s, e in reversed(self._faults))
 
     def fit_last(
         self, window_s: float, noise_std: ArrayLike, tolerance: float = 2.0

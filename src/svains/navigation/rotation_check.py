@@ -113,6 +113,8 @@ class RotationCheck:
         t = h.t_ns
         if t.size < 2 or t[0] > tr.t_prev_ns or t[-1] < tr.t_ns:
             return  # the samples of this interval are gone (or not there yet)
+        if h.fault_in(tr.t_prev_ns, tr.t_ns):
+            return  # samples dropped or missing: the gyro's turn is a bridge's
         r_B = _gyro_turns(t, h.gyro_B, tr.t_prev_ns, tr.t_ns, bg_B, _NO_SHIFT)[0]
         # noise of either rotation (rad): the gyro's white noise over the interval, and the
         # egomotion's rotation standard deviation
@@ -168,6 +170,8 @@ class RotationCheck:
         if t[-1] < hi:
             self._offset_pending.append((t0_ns, t1_ns, r_B, bg_B, var))
             return
+        if h.fault_in(lo, hi):
+            return  # a shifted interval over dropped or missing samples
         turns = _gyro_turns(t, h.gyro_B, t0_ns, t1_ns, bg_B, self._shifts_s)
         self._gg += np.sum(turns * turns, axis=1) / var
         self._gc += (turns @ r_B) / var
@@ -265,7 +269,8 @@ class RotationCheck:
     def time_offset(self) -> tuple[float, float] | None:
         """The shift ``δ`` (s) of the IMU's clock against the camera stamps that best matches
         their turns (``t_imu = t_cam + δ``, Kalibr's ``timeshift_cam_imu`` still missing from
-        the calibration) and its standard deviation (from the misfit's curvature), or None
+        the calibration) and its standard deviation (from the misfit's curvature, scaled by the
+        misfit per degree of freedom when above 1), or None
         before any frame or with the best shift at the edge of those tried (beyond them)."""
         if self.offset_frames == 0:
             return None
@@ -278,8 +283,10 @@ class RotationCheck:
             return None
         step = self.options.offset_step_s
         shift = self._shifts_s[k] + 0.5 * step * (c[k - 1] - c[k + 1]) / curv
-        # chi-square curvature: d²χ²/dδ² = 2 / σ²
-        return float(shift), float(np.sqrt(2.0 * step**2 / curv))
+        # chi-square curvature: d²χ²/dδ² = 2 / σ², scaled by the misfit per degree of freedom
+        # when above 1 (turns the noise does not explain: a gyro bias the filter has wrong)
+        scale = max(self.offset_fit() or 0.0, 1.0)
+        return float(shift), float(np.sqrt(2.0 * step**2 / curv * scale))
 
     def offset_fit(self) -> float | None:
         """The misfit per degree of freedom between the camera's and the gyro's turns at the

@@ -296,6 +296,8 @@ class ScaleCheck:
         ts = (t[i0:i1] - a.t_ns) * 1e-9
         if ts.size < 3 or np.max(np.diff(ts)) > self.options.max_imu_gap_s:
             return None
+        if h.fault_in(a.t_ns, s1.end.t_ns):
+            return None  # samples dropped or missing (bridged): not the IMU's own motion
         w = h.gyro_B[i0:i1] - a.b_g
         f = h.accel_B[i0:i1] - a.b_a
         R = np.empty((ts.size, 3, 3))
