@@ -55,6 +55,7 @@ from irregular_frames import (
     one_line,
     report_figures,
 )
+from real_faults import warned_checks
 from threadpoolctl import threadpool_limits
 
 from svains.cli.run_config import build_config
@@ -144,6 +145,7 @@ class Run:
     fused: str = "-"
     wall_s: float = math.nan
     error: str | None = None
+    warned: tuple[str, ...] = ()  # the report's input checks that warned
 
     def failed(self, fail_ate: float) -> bool:
         return self.error is not None or not (self.ate <= fail_ate)
@@ -162,6 +164,7 @@ def run_one(job: tuple[str, str, int, str, str, float, float, tuple[str, ...]]) 
             config = resolve_config(ds, build_config(None, list(sets), switches))
             result = run_method(ds, None, config)
             row.ate, row.nees, row.blocks, row.fused = report_figures(result, ds)
+            row.warned = tuple(warned_checks(result.report))
     except Exception as exc:  # a stopped run is a result of this bench
         row.error = one_line(exc)
     row.wall_s = time.perf_counter() - t0
@@ -171,13 +174,13 @@ def run_one(job: tuple[str, str, int, str, str, float, float, tuple[str, ...]]) 
 def table(rows: list[Run], fail_ate: float, verbose: bool) -> None:
     if verbose:
         print("| flight | seed | method | source | frames | max gap [s] | ATE [m] | NEES (9) | "
-              "NEES blocks | fused | wall [s] | status |")
-        print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+              "NEES blocks | fused | wall [s] | checks warned | status |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
         for r in rows:
             status = r.error or ("ATE > limit" if r.failed(fail_ate) else "ok")
             print(f"| {r.flight} | {r.seed} | {r.method} | {r.source} | {r.frames} | "
                   f"{r.max_gap_s:.2f} | {r.ate:.3f} | {r.nees:.3g} | {fmt_blocks(r.blocks)} | "
-                  f"{r.fused} | {r.wall_s:.1f} | {status} |")
+                  f"{r.fused} | {r.wall_s:.1f} | {', '.join(r.warned) or '-'} | {status} |")
         print()
     print("| method | source | runs | mean ATE [m] | median | max | stopped | ATE > "
           f"{fail_ate:g} m | mean NEES (9) |")
