@@ -86,6 +86,9 @@ class ScaleCheckOptions:
 
 @dataclass(frozen=True)
 class FrameState:
+    """The filter's state at a frame: stamp ``t_ns``, attitude ``R_W_B`` (3, 3), gyro bias
+    ``b_g`` (3,) rad/s and accelerometer bias ``b_a`` (3,) m/s² (zero for the paper's state)."""
+
     t_ns: int
     R_W_B: F64
     b_g: F64
@@ -192,24 +195,28 @@ class ScaleCheck:
                           np.ones(len(rows), bool), 0)
 
     def _judge_gps(self) -> None:
+        if not self.warned_gps and _due(len(self._gps_rows), self.options.min_pairs):
+            self.warned_gps = self._warn(self.gps_factor(), self.options.warn_gps, "the GPS says",
+                                         "spans")  # fmt: skip
+
+    def _warn(self, got: tuple[float, float, float, int] | None, warn: float, by: str,
+              unit: str) -> bool:  # fmt: skip
+        """Warn (once: the caller keeps the flag) when the factor ``got`` is ``warn`` or more
+        from 1 and beyond 4 of its deviations, from enough rows that fit; whether it did."""
         o = self.options
-        n = len(self._gps_rows)
-        if self.warned_gps or n < o.min_pairs or (n > 50 and n % 10):
-            return
-        got = self.gps_factor()
         if got is None:
-            return
+            return False
         k, std, fit, n = got
         off = abs(k - 1.0)
-        if n < o.min_pairs or fit > o.max_fit or off < o.warn_gps or off <= 4.0 * std:
-            return
-        self.warned_gps = True
+        if n < o.min_pairs or fit > o.max_fit or off < warn or off <= 4.0 * std:
+            return False
         log.warning(
-            "the camera moves %.3f ± %.3f times as far as the GPS says (%d spans): is the "
-            "stereo baseline right? The calibration gives %.4f m; %.4f m would fit (cam1's "
-            "T_BS translation, or the rectified baseline)",
-            k, std, n, self.baseline_m, self.baseline_m / k,
+            "the camera moves %.3f ± %.3f times as far as %s (%d %s): is the stereo baseline "
+            "right? The calibration gives %.4f m; %.4f m would fit (cam1's T_BS translation, "
+            "or the rectified baseline)",
+            k, std, by, n, unit, self.baseline_m, self.baseline_m / k,
         )  # fmt: skip
+        return True
 
     def observe_frame(self, tr: StereoTracks | None, ctx: FrameContext) -> None:
         """The frame ``tr`` (its egomotion over ``[t_prev_ns, t_ns]``) with the filter's state
@@ -337,26 +344,11 @@ class ScaleCheck:
         return k, float(np.hypot(std, self.options.floor)), fit, n
 
     def _judge(self) -> None:
-        o = self.options
-        n = len(self._u)
         if self.p_B_G is not None:
             return  # a GPS with velocities judges (far more precisely)
-        if self.warned or n < o.min_pairs or (n > 50 and n % 10):
-            return  # (every pair at first, then every tenth: each judgement is O(pairs))
-        got = self.factor()
-        if got is None:
-            return
-        k, std, fit, n = got
-        off = abs(k - 1.0)
-        if n < o.min_pairs or fit > o.max_fit or off < o.warn or off <= 4.0 * std:
-            return
-        self.warned = True
-        log.warning(
-            "the camera moves %.3f ± %.3f times as far as the accelerometer says (%d span "
-            "pairs): is the stereo baseline right? The calibration gives %.4f m; %.4f m would "
-            "fit (cam1's T_BS translation, or the rectified baseline)",
-            k, std, n, self.baseline_m, self.baseline_m / k,
-        )  # fmt: skip
+        if not self.warned and _due(len(self._u), self.options.min_pairs):
+            self.warned = self._warn(self.factor(), self.options.warn, "the accelerometer says",
+                                     "span pairs")  # fmt: skip
 
     def summary(self) -> dict[str, object]:
         """``pairs`` collected, the ``factor`` (images over IMU) and its ``factor_std``,
@@ -371,6 +363,12 @@ class ScaleCheck:
                 "gps_factor_std": None if gps is None else gps[1],
                 "gps_fit": None if gps is None else gps[2],
                 "warned_gps": self.warned_gps}  # fmt: skip
+
+
+def _due(n: int, min_pairs: int) -> bool:
+    """Judge after ``n`` rows: every row from ``min_pairs`` on, every tenth past 50 (each
+    judgement costs O(rows))."""
+    return n >= min_pairs and (n <= 50 or n % 10 == 0)
 
 
 def fit_factor(u: F64, w: F64, var_u: F64, var_w: F64, keep: NDArray[np.bool_],
