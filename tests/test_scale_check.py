@@ -44,10 +44,12 @@ def _rz(yaw: float) -> np.ndarray:
 
 
 def _flight(factor: float, seed: int = 0, seconds: float = 40.0, gps: bool = False,
-            check: ScaleCheck | None = None) -> ScaleCheck:  # fmt: skip
+            check: ScaleCheck | None = None,
+            positions_only: bool = False) -> ScaleCheck:  # fmt: skip
     """Run ``check`` over a flight whose egomotion translations are ``factor`` times the truth
     (a baseline that long), 5 Hz frames with 2 mm of noise, a 200 Hz IMU with white noise,
-    the filter's attitude exact; ``gps`` adds 10 Hz antenna velocities with 2 cm/s of noise."""
+    the filter's attitude exact; ``gps`` adds 10 Hz antenna fixes, velocities with 2 cm/s of
+    noise (``positions_only``: none, positions with 5 cm)."""
     rng = np.random.default_rng(seed)
     h = ImuHistory(capacity=16384)
     check = check or ScaleCheck(h, STEREO, G_W, IMU)
@@ -62,7 +64,7 @@ def _flight(factor: float, seed: int = 0, seconds: float = 40.0, gps: bool = Fal
     R_W_C = [_rz(y) @ R_B_C for y in yaw_c]
     p_W_C = [p[k] + _rz(yaw_c[k]) @ P_B_C for k in range(t_cam.size)]
     t_gps = np.arange(0.0, seconds + 0.5, 0.1)
-    _, v_g, _, yaw_g, yaw_rate_g = _motion(t_gps)
+    p_g, v_g, _, yaw_g, yaw_rate_g = _motion(t_gps)
     e = np.zeros((0, 2))
     next_fix = 0
     for k, t in enumerate(t_cam):
@@ -78,8 +80,9 @@ def _flight(factor: float, seed: int = 0, seconds: float = 40.0, gps: bool = Fal
         while gps and t_gps[next_fix] <= t + 0.15:  # fixes arrive a little after the frames
             i = next_fix
             lever = _rz(yaw_g[i]) @ np.cross([0.0, 0.0, yaw_rate_g[i]], P_B_G)
-            check.observe_gps(round(t_gps[i] * S), v_g[i] + lever + rng.normal(0, 0.02, 3),
-                              P_B_G, 0.02)  # fmt: skip
+            p_W_G = p_g[i] + _rz(yaw_g[i]) @ P_B_G + rng.normal(0, 0.05, 3)
+            v_W_G = None if positions_only else v_g[i] + lever + rng.normal(0, 0.02, 3)
+            check.observe_gps(round(t_gps[i] * S), p_W_G, v_W_G, P_B_G, 0.05, 0.02)
             next_fix += 1
     return check
 
@@ -159,3 +162,17 @@ def test_the_factor_is_not_shrunk_by_noise_on_the_imu_side_and_outliers_go() -> 
     k, std, fit, n = got
     assert k == pytest.approx(1.1, abs=3 * std) and std < 0.03
     assert n <= 390 and 0.8 < fit < 1.3
+
+
+def test_gps_positions_alone_measure_the_baseline_over_segments(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # A receiver without velocities: 10 s segments of chained frames against the fixes'
+    # positions at their ends.
+    right = _flight(1.0, seconds=150.0, gps=True, positions_only=True).summary()
+    assert isinstance(right["gps_spans"], int) and right["gps_spans"] >= 12
+    assert right["gps_factor"] == pytest.approx(1.0, abs=0.01) and not right["warned_gps"]
+    with caplog.at_level("WARNING", logger="svains.navigation.scale_check"):
+        off = _flight(1.06, seconds=150.0, gps=True, positions_only=True).summary()
+    assert off["gps_factor"] == pytest.approx(1.06, abs=0.01) and off["warned_gps"]
+    assert "times as far as the GPS says" in caplog.records[0].getMessage()

@@ -206,8 +206,7 @@ class Core:
                     self._course_check.observe_fix(t, payload[1])
                 if self._gps_latency is not None and payload[1] is not None:
                     self._observe_latency(t, payload[1])
-                if payload[1] is not None:
-                    self._observe_gps_scale(t, payload[1])
+                self._observe_gps_scale(t, payload[0], payload[1])
                 use_v = cfg.use_gps_velocity and not (
                     self._recovery is not None and self._recovery.rate_off("gps", t))
                 if self._heading_check is not None and payload[1] is not None:
@@ -257,12 +256,14 @@ class Core:
         if has_tick:
             self._log()
 
-    def _observe_gps_scale(self, t: int, v_W_G: Any) -> None:
-        """Hand a fix's velocity to the vision updater's baseline check, if it has one."""
+    def _observe_gps_scale(self, t: int, p_W_G: Any, v_W_G: Any) -> None:
+        """Hand a fix to the vision updater's baseline check, if it has one."""
         check = getattr(self._vision_updater(), "scale_check", None)
-        if check is not None and self.rig.gps is not None:
-            check.observe_gps(t, np.asarray(v_W_G, float), self.rig.gps.p_B_G,
-                              float(self.rig.gps.velocity_noise_std))  # fmt: skip
+        gps = self.rig.gps
+        if check is not None and gps is not None:
+            check.observe_gps(t, np.asarray(p_W_G, float),
+                              None if v_W_G is None else np.asarray(v_W_G, float), gps.p_B_G,
+                              float(gps.position_noise_std), float(gps.velocity_noise_std))
 
     def _observe_latency(self, t: int, v_W_G: Any) -> None:
         """Hand a fix to the GPS latency check with the filter's attitude and biases before

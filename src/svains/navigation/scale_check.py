@@ -59,6 +59,7 @@ F64 = NDArray[np.float64]
 
 # the filter's tilt and accelerometer bias left after the windows' means, per axis (m/s²)
 MODEL_STD_MPS2 = 0.02
+MAX_FIX_GAP_NS = 3_000_000_000  # fixes further apart say nothing of the motion between
 CHI2_999 = {1: 10.83, 3: 16.27}  # chi-square 0.999 quantiles by dof
 CHI2_MEDIAN = {1: 0.455, 3: 2.366}  # and medians
 
@@ -78,6 +79,9 @@ class ScaleCheckOptions:
     window_pairs: int = 6
     warn: float = 0.03
     warn_gps: float = 0.02  # GPS speeds measure it to a few tenths of a per cent
+    # fixes without a velocity: chained spans joined into segments this long, their lengths
+    # against the fixes' positions at the ends (a car at 9 m/s: 90 m against 1-2 m of noise)
+    segment_s: float = 10.0
     max_fit: float = 3.0
     # the accelerometer's factor reads 0.99-1.03 with the right baseline on the shared and
     # rendered data (tilt and bias errors the windows leave): added to its deviation
@@ -133,57 +137,97 @@ class ScaleCheck:
         # spans waiting for a fix past their end, and per span (|D_W|, |D_GPS|, variance)
         self.p_B_G: F64 | None = None
         self.gps_velocity_std = 0.1
+        self.gps_position_std = 1.0
         self._fixes_t: list[int] = []
-        self._fixes_v: list[F64] = []
+        self._fixes_p: list[F64] = []
+        self._fixes_v: list[F64] = []  # NaN where a fix has no velocity
         self._gps_pending: list[_Span] = []
+        # chained spans joined into segments of at least ``segment_s`` (for fixes without a
+        # velocity: their positions at the ends), the open one and those waiting for fixes
+        self._segment: _Span | None = None
+        self._seg_pending: list[_Span] = []
         self._gps_rows: list[tuple[float, float, float, float]] = []
         self.warned_gps = False
 
-    def observe_gps(self, t_ns: int, v_W_G: F64, p_B_G: F64, velocity_std: float) -> None:
-        """A GPS fix's antenna velocity ``v_W_G`` (3,) m/s at ``t_ns`` (its lever arm
-        ``p_B_G`` (3,) m, velocity noise ``velocity_std`` m/s per axis)."""
-        if not np.all(np.isfinite(v_W_G)) or (self._fixes_t and t_ns <= self._fixes_t[-1]):
+    def observe_gps(self, t_ns: int, p_W_G: F64, v_W_G: F64 | None, p_B_G: F64,
+                    position_std: float, velocity_std: float) -> None:  # fmt: skip
+        """A GPS fix at ``t_ns``: the antenna's position ``p_W_G`` (3,) m and velocity
+        ``v_W_G`` (3,) m/s (None: the receiver gives none), its lever arm ``p_B_G`` (3,) m and
+        noise standard deviations per axis."""
+        v = np.full(3, np.nan) if v_W_G is None else np.asarray(v_W_G, float)
+        p = np.asarray(p_W_G, float)
+        if not np.all(np.isfinite(p)) or (self._fixes_t and t_ns <= self._fixes_t[-1]):
             return
         self.p_B_G = np.asarray(p_B_G, float)
+        self.gps_position_std = float(position_std)
         self.gps_velocity_std = float(velocity_std)
         self._fixes_t.append(int(t_ns))
-        self._fixes_v.append(np.asarray(v_W_G, float))
+        self._fixes_p.append(p)
+        self._fixes_v.append(v)
         if len(self._fixes_t) > 4096:  # spans older than the newest thousands of fixes
-            del self._fixes_t[:2048], self._fixes_v[:2048]
+            del self._fixes_t[:2048], self._fixes_p[:2048], self._fixes_v[:2048]
         self._gps_spans()
 
     def _gps_spans(self) -> None:
         """Compare each closed span whose end the fixes now pass with the GPS's displacement
-        (the fixes' velocities integrated piecewise linearly over it), warn when due."""
+        (the fixes' velocities integrated piecewise linearly over it), and each segment of
+        ``segment_s`` with the fixes' positions at its ends when they carry no velocity;
+        warn when due."""
         if not self._fixes_t or self.p_B_G is None:
             return
         t = np.asarray(self._fixes_t)
+        V = np.asarray(self._fixes_v)
         waiting = []
         for span in self._gps_pending:
             a, b = span.start.t_ns, span.end.t_ns
             if t[-1] < b:
                 waiting.append(span)
                 continue
-            if t[0] > a:
-                continue
+            near = (t >= a - MAX_FIX_GAP_NS) & (t <= b + MAX_FIX_GAP_NS)
+            if t[0] > a or not np.all(np.isfinite(V[near])):
+                continue  # (fixes without a velocity: the segments' positions say it)
             inside = t[(t > a) & (t < b)]
             knots = np.concatenate([[a], inside, [b]])
-            V = np.asarray(self._fixes_v)
             vk = np.stack([np.interp(knots, t, V[:, i]) for i in range(3)], axis=1)
             gap = np.max(np.diff(np.concatenate([t[(t <= a)][-1:], inside, t[t >= b][:1]])))
-            if gap > 3e9:  # fixes too far apart to say the span's motion
+            if gap > MAX_FIX_GAP_NS:  # fixes too far apart to say the span's motion
                 continue
             dk = np.diff(knots)[:, None] * 1e-9
             d_G = np.sum(0.5 * (vk[1:] + vk[:-1]) * dk, axis=0)
-            # the camera's displacement by the GPS: the antenna's less the lever arms' turn
-            lever = (span.end.R_W_B - span.start.R_W_B) @ (self.p_B_G - self.p_B_C)
-            d_C = d_G - lever
             dur = (b - a) * 1e-9
             var_g = (self.gps_velocity_std * dur) ** 2 / max(inside.size + 1, 1)
-            self._gps_rows.append((float(np.linalg.norm(span.D_W)), float(np.linalg.norm(d_C)),
-                                   span.var, var_g))  # fmt: skip
+            self._gps_row(span, d_G, var_g)
         self._gps_pending = waiting[-64:]  # (no fix for a minute: the oldest are let go)
+        waiting = []
+        P = np.asarray(self._fixes_p)
+        for seg in self._seg_pending:
+            a, b = seg.start.t_ns, seg.end.t_ns
+            if t[-1] < b:
+                waiting.append(seg)
+                continue
+            near = (t >= a - MAX_FIX_GAP_NS) & (t <= b + MAX_FIX_GAP_NS)
+            if t[0] > a or np.any(np.isfinite(V[near])):
+                continue  # (fixes with a velocity: the spans say it)
+            ends = []
+            for c in (a, b):
+                j = int(np.searchsorted(t, c))
+                if j == 0 or j == t.size or t[j] - t[j - 1] > MAX_FIX_GAP_NS:
+                    break
+                ends.append(np.array([np.interp(c, t[j - 1 : j + 1], P[j - 1 : j + 1, i])
+                                      for i in range(3)]))  # fmt: skip
+            if len(ends) == 2:
+                self._gps_row(seg, ends[1] - ends[0], 2.0 * self.gps_position_std**2)
+        self._seg_pending = waiting[-16:]
         self._judge_gps()
+
+    def _gps_row(self, span: _Span, d_G: F64, var_g: float) -> None:
+        """Add a span's (segment's) length by the images and by the GPS: the antenna's
+        displacement ``d_G`` (3,) m less the lever arms' turn, with its variance per axis."""
+        assert self.p_B_G is not None
+        lever = (span.end.R_W_B - span.start.R_W_B) @ (self.p_B_G - self.p_B_C)
+        d_C = d_G - lever
+        self._gps_rows.append((float(np.linalg.norm(span.D_W)), float(np.linalg.norm(d_C)),
+                               span.var, var_g))  # fmt: skip
 
     def gps_factor(self) -> tuple[float, float, float, int] | None:
         """(factor of the images' span lengths over the GPS's, its standard deviation, misfit
@@ -236,7 +280,7 @@ class ScaleCheck:
               and tr.t_prev_ns == last.t_ns and tr.t_ns == frame.t_ns
               and 0 < tr.t_ns - tr.t_prev_ns <= o.max_step_s * 1e9)  # fmt: skip
         if not ok or tr is None or tr.egomotion is None or last is None:
-            self._open, self._closed = None, None
+            self._open, self._closed, self._segment = None, None, None
             self._next_group()
             return
         ego = tr.egomotion
@@ -255,6 +299,16 @@ class ScaleCheck:
             return
         span = _Span(start, frame, D, v)
         self._open = None
+        seg = self._segment
+        if seg is not None and seg.end.t_ns == span.start.t_ns:
+            seg = _Span(seg.start, span.end, seg.D_W + span.D_W, seg.var + span.var)
+        else:
+            seg = span
+        self._segment = seg
+        if (seg.end.t_ns - seg.start.t_ns) * 1e-9 >= o.segment_s:
+            self._segment = None
+            if self.p_B_G is not None:
+                self._seg_pending.append(seg)
         if self.p_B_G is not None:
             self._gps_pending.append(span)
             self._gps_spans()
