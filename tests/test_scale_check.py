@@ -44,12 +44,13 @@ def _rz(yaw: float) -> np.ndarray:
 
 
 def _flight(factor: float, seed: int = 0, seconds: float = 40.0, gps: bool = False,
-            check: ScaleCheck | None = None,
-            positions_only: bool = False) -> ScaleCheck:  # fmt: skip
+            check: ScaleCheck | None = None, positions_only: bool = False,
+            accel_map: np.ndarray | None = None) -> ScaleCheck:  # fmt: skip
     """Run ``check`` over a flight whose egomotion translations are ``factor`` times the truth
     (a baseline that long), 5 Hz frames with 2 mm of noise, a 200 Hz IMU with white noise,
     the filter's attitude exact; ``gps`` adds 10 Hz antenna fixes, velocities with 2 cm/s of
-    noise (``positions_only``: none, positions with 5 cm)."""
+    noise (``positions_only``: none, positions with 5 cm); ``accel_map`` (3, 3) turns the
+    accelerometer's samples (an axis reversed or swapped in the recording)."""
     rng = np.random.default_rng(seed)
     h = ImuHistory(capacity=16384)
     check = check or ScaleCheck(h, STEREO, G_W, IMU)
@@ -58,6 +59,8 @@ def _flight(factor: float, seed: int = 0, seconds: float = 40.0, gps: bool = Fal
     _, _, acc, yaw, yaw_rate = _motion(t_imu)
     for k, t in enumerate(t_imu):
         f_B = _rz(yaw[k]).T @ (acc[k] - G_W) + rng.normal(0.0, 2e-3 / np.sqrt(0.005), 3)
+        if accel_map is not None:
+            f_B = accel_map @ f_B
         h.append(round(t * S), np.array([0.0, 0.0, yaw_rate[k]]), f_B)
     t_cam = np.arange(0.0, seconds, 0.2)
     p, _, _, yaw_c, _ = _motion(t_cam)
@@ -176,3 +179,40 @@ def test_gps_positions_alone_measure_the_baseline_over_segments(
         off = _flight(1.06, seconds=150.0, gps=True, positions_only=True).summary()
     assert off["gps_factor"] == pytest.approx(1.06, abs=0.01) and off["warned_gps"]
     assert "times as far as the GPS says" in caplog.records[0].getMessage()
+
+
+@pytest.mark.parametrize("axis", [0, 1])
+def test_a_reversed_accelerometer_axis_is_named(
+    axis: int, caplog: pytest.LogCaptureFixture
+) -> None:
+    # A driver's sign or a left-handed frame: the pairs fit with that axis's share flipped
+    # (KITTI raw with a_x / a_y reversed: 28.9 → 4.2 / 43.9 → 5.0 per degree of freedom).
+    flip = np.ones(3)
+    flip[axis] = -1.0
+    with caplog.at_level("WARNING", logger="svains.navigation.scale_check"):
+        s = _flight(1.0, seconds=60.0, accel_map=np.diag(flip)).summary()
+    name = "xy"[axis]
+    assert s["reversed_axis"] == name and s["warned_axis"] and not s["warned"]
+    fits = s["axis_fits"]
+    assert isinstance(fits, dict) and fits[name] < 2.0 < 100.0 < fits["as_is"]
+    (rec,) = caplog.records
+    assert f"accelerometer's {name} axis looks reversed" in rec.getMessage()
+
+
+def test_a_right_accelerometer_fits_best_as_it_is() -> None:
+    s = _flight(1.0, seconds=60.0).summary()
+    fits = s["axis_fits"]
+    assert isinstance(fits, dict) and fits["as_is"] < 2.0
+    assert min(fits["x"], fits["y"], fits["z"]) > 50.0 * fits["as_is"]
+    assert s["reversed_axis"] is None and not s["warned_mismatch"]
+
+
+def test_swapped_accelerometer_axes_are_warned_as_a_mismatch(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    swap = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    with caplog.at_level("WARNING", logger="svains.navigation.scale_check"):
+        s = _flight(1.0, seconds=60.0, accel_map=swap).summary()
+    assert s["warned_mismatch"] and s["reversed_axis"] is None and not s["warned"]
+    (rec,) = caplog.records
+    assert "do not fit the images'" in rec.getMessage()

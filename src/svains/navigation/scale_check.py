@@ -83,6 +83,12 @@ class ScaleCheckOptions:
     # against the fixes' positions at the ends (a car at 9 m/s: 90 m against 1-2 m of noise)
     segment_s: float = 10.0
     max_fit: float = 3.0
+    # an accelerometer axis is warned as reversed when flipping it divides the misfit (per
+    # degree of freedom, above ``max_fit``) by this (KITTI raw x / y reversed: 6.5 / 8.9, the
+    # rendered MAV's y: 3.5; right: flips 5-8000 times worse); velocity changes that fit no
+    # way, beyond ``mismatch_fit``, are warned as such (a lost filter under faults: 3-16)
+    axis_ratio: float = 3.0
+    mismatch_fit: float = 100.0
     # the accelerometer's factor reads 0.99-1.03 with the right baseline on the shared and
     # rendered data (tilt and bias errors the windows leave): added to its deviation
     floor: float = 0.01
@@ -127,6 +133,9 @@ class ScaleCheck:
         self._closed: _Span | None = None  # the last closed span, if the chain holds since
         self._u: list[F64] = []
         self._w: list[F64] = []
+        self._axes: list[F64] = []  # per pair, each accelerometer axis's share of w (3, 3)
+        self.warned_axis: str | None = None  # the axis warned as reversed
+        self.warned_mismatch = False
         self._var_u: list[float] = []  # per axis, the images' (m/s)²
         self._var_w: list[float] = []  # per axis, the IMU's (m/s)²
         self._group: list[int] = []  # the window each pair belongs to
@@ -318,9 +327,10 @@ class ScaleCheck:
 
     def _pair(self, s0: _Span, s1: _Span) -> None:
         """Add the pair's velocity changes (images and IMU) and judge."""
-        w = self._imu_change(s0, s1)
-        if w is None:
+        got = self._imu_change(s0, s1)
+        if got is None:
             return
+        w, axes = got
         d0 = (s0.end.t_ns - s0.start.t_ns) * 1e-9
         d1 = (s1.end.t_ns - s1.start.t_ns) * 1e-9
         u = s1.D_W / d1 - s0.D_W / d0
@@ -332,6 +342,7 @@ class ScaleCheck:
                  + (g * self.gyro_density) ** 2 * T**3 / 12.0)  # fmt: skip
         self._u.append(u)
         self._w.append(w)
+        self._axes.append(axes)
         self._var_u.append(s1.var / d1**2 + s0.var / d0**2)
         self._var_w.append(var_w)
         if self._in_group >= self.options.window_pairs:
@@ -345,9 +356,10 @@ class ScaleCheck:
             self._groups += 1
             self._in_group = 0
 
-    def _imu_change(self, s0: _Span, s1: _Span) -> F64 | None:
+    def _imu_change(self, s0: _Span, s1: _Span) -> tuple[F64, F64] | None:
         """``w`` (3,) m/s: the change of the camera's mean velocity from span ``s0`` to ``s1``
-        by the IMU; None when the history does not hold the samples or has a gap."""
+        by the IMU, and each accelerometer axis's share of it (3 axes, 3 world); None when the
+        history does not hold the samples or has a gap."""
         h, a = self.history, s0.start
         t = h.t_ns
         if t.size < 2 or t[0] > a.t_ns or t[-1] < s1.end.t_ns:
@@ -366,17 +378,25 @@ class ScaleCheck:
         inc = so3_exp(w[:-1] * np.diff(ts)[:, None])
         for k in range(ts.size - 1):
             R[k + 1] = R[k] @ inc[k]
-        acc = np.einsum("nij,nj->ni", R, f) + self.g_W
+        # each accelerometer axis's share of the world acceleration (N, 3 world, 3 axes), then
+        # gravity: the velocity change is linear in them (an axis reversed flips its share)
+        shares = R * f[:, None, :]
+        acc = np.concatenate([shares.reshape(-1, 9), np.broadcast_to(self.g_W, (ts.size, 3))],
+                             axis=1)  # fmt: skip
         dt = np.diff(ts)[:, None]
-        V = np.vstack([np.zeros(3), np.cumsum(0.5 * (acc[1:] + acc[:-1]) * dt, axis=0)])
-        P = np.vstack([np.zeros(3), np.cumsum(0.5 * (V[1:] + V[:-1]) * dt, axis=0)])
+        V = np.vstack([np.zeros(12), np.cumsum(0.5 * (acc[1:] + acc[:-1]) * dt, axis=0)])
+        P = np.vstack([np.zeros(12), np.cumsum(0.5 * (V[1:] + V[:-1]) * dt, axis=0)])
         tb = (s0.end.t_ns - a.t_ns) * 1e-9
         tc = (s1.end.t_ns - a.t_ns) * 1e-9
         at = [0.0, tb, tc]
-        Pi = np.stack([np.interp(at, ts, P[:, i]) for i in range(3)], axis=1)
+        Pi = np.stack([np.interp(at, ts, P[:, i]) for i in range(12)], axis=1)  # (3 times, 12)
+        change = (Pi[2] - Pi[1]) / (tc - tb) - (Pi[1] - Pi[0]) / tb
+        axes = change[:9].reshape(3, 3).T  # (axis, world)
         Ri = R[np.clip(np.searchsorted(ts, at), 0, ts.size - 1)]
-        pc = Pi + Ri @ self.p_B_C  # the camera's positions (from a's, velocity at a aside)
-        return (pc[2] - pc[1]) / (tc - tb) - (pc[1] - pc[0]) / tb
+        lever = Ri @ self.p_B_C  # the camera's positions less the IMU's
+        w = axes.sum(axis=0) + change[9:] + (lever[2] - lever[1]) / (tc - tb) - (
+            lever[1] - lever[0]) / tb
+        return w, axes
 
     def factor(self) -> tuple[float, float, float, int] | None:
         """(factor ``k`` of the images' translations over the IMU's, its standard deviation,
@@ -386,23 +406,69 @@ class ScaleCheck:
         adds about the same to each of a window's ``w``."""
         if not self._u:
             return None
-        u, w = np.asarray(self._u), np.asarray(self._w)
-        vu, vw = np.asarray(self._var_u), np.asarray(self._var_w)
-        group = np.asarray(self._group)
-        keep = np.ones(vu.size, bool)
-        u, w, groups = _centred(u, w, 1.0 / (vu + vw), group, keep)
-        got = fit_factor(u, w, vu, vw, keep, 3 * groups)
+        got = self._fit(np.asarray(self._w))
         if got is None:
             return None
         k, std, fit, n = got
         return k, float(np.hypot(std, self.options.floor)), fit, n
 
+    def _fit(self, w: F64) -> tuple[float, float, float, int] | None:
+        """``fit_factor`` of the images' velocity changes on ``w`` (N, 3), windows centred."""
+        vu, vw = np.asarray(self._var_u), np.asarray(self._var_w)
+        keep = np.ones(vu.size, bool)
+        u, wc, groups = _centred(np.asarray(self._u), w, 1.0 / (vu + vw),
+                                 np.asarray(self._group), keep)  # fmt: skip
+        return fit_factor(u, wc, vu, vw, keep, 3 * groups)
+
+    def axis_fits(self) -> dict[str, float] | None:
+        """The misfit per degree of freedom of the images' velocity changes on the IMU's as
+        they are (``as_is``) and with each accelerometer axis reversed (``x``, ``y``, ``z``:
+        that axis's share of every ``w`` flipped); None before any pair."""
+        if not self._u:
+            return None
+        w, axes = np.asarray(self._w), np.asarray(self._axes)
+        out: dict[str, float] = {}
+        for name, ww in (("as_is", w), *(("xyz"[j], w - 2.0 * axes[:, j]) for j in range(3))):
+            got = self._fit(ww)
+            out[name] = float("inf") if got is None else got[2]
+        return out
+
+    def _judge_axes(self) -> None:
+        """Warn once of an accelerometer axis that fits reversed (a mirrored axis: a driver's
+        sign, a left-handed frame), or of velocity changes that fit no way at all."""
+        o = self.options
+        if self.warned_axis or len(self._u) < 2 * o.min_pairs:
+            return
+        fits = self.axis_fits()
+        if fits is None or not fits["as_is"] > o.max_fit:
+            return
+        name = min("xyz", key=lambda a: fits[a])
+        if fits[name] < fits["as_is"] / o.axis_ratio:
+            self.warned_axis = name
+            log.warning(
+                "the accelerometer's %s axis looks reversed: the images' velocity changes fit "
+                "the IMU's %.0f times better with it flipped (misfit %.1f → %.1f per degree of "
+                "freedom, %d span pairs): check the sign of that axis in imu0 and the IMU's "
+                "T_BS", name, fits["as_is"] / fits[name], fits["as_is"], fits[name],
+                len(self._u),
+            )  # fmt: skip
+        elif fits["as_is"] > o.mismatch_fit and not self.warned_mismatch:
+            self.warned_mismatch = True
+            log.warning(
+                "the accelerometer's velocity changes do not fit the images' (misfit %.0f per "
+                "degree of freedom over %d span pairs, about 1 when they agree): check the "
+                "IMU's axes, units and T_BS against the cameras'", fits["as_is"], len(self._u),
+            )  # fmt: skip
+
     def _judge(self) -> None:
         if self.p_B_G is not None:
             return  # a GPS with velocities judges (far more precisely)
-        if not self.warned and _due(len(self._u), self.options.min_pairs):
+        if not _due(len(self._u), self.options.min_pairs):
+            return
+        if not self.warned:
             self.warned = self._warn(self.factor(), self.options.warn, "the accelerometer says",
                                      "span pairs")  # fmt: skip
+        self._judge_axes()
 
     def summary(self) -> dict[str, object]:
         """``pairs`` collected, the ``factor`` (images over IMU) and its ``factor_std``,
@@ -412,6 +478,9 @@ class ScaleCheck:
                 "factor": None if got is None else got[0],
                 "factor_std": None if got is None else got[1],
                 "fit": None if got is None else got[2], "warned": self.warned,
+                "axis_fits": self.axis_fits(), "reversed_axis": self.warned_axis,
+                "warned_axis": self.warned_axis is not None,
+                "warned_mismatch": self.warned_mismatch,
                 "gps_spans": len(self._gps_rows),
                 "gps_factor": None if gps is None else gps[0],
                 "gps_factor_std": None if gps is None else gps[1],
@@ -452,7 +521,8 @@ def fit_factor(u: F64, w: F64, var_u: F64, var_w: F64, keep: NDArray[np.bool_],
         j = int(np.clip(np.argmin(c), 1, ks.size - 2))
         h = float(np.log(ks[1] / ks[0]))
         curv = float(c[j - 1] - 2.0 * c[j] + c[j + 1])
-        k = float(ks[j] * np.exp(0.5 * h * (c[j - 1] - c[j + 1]) / curv)) if curv > 0 else ks[j]
+        step = float(np.clip(0.5 * h * (c[j - 1] - c[j + 1]) / curv, -h, h)) if curv > 0 else 0.0
+        k = float(ks[j] * np.exp(step))
         return k, h, curv
 
     keep = keep.copy()
