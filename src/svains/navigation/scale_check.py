@@ -33,7 +33,14 @@ heading does not enter). A car at 9 m/s measures it to 0.1 % in 30 s.
 
 After ``min_pairs`` pairs (spans) a factor ``warn`` (``warn_gps``) or more from 1 and beyond 4
 of its standard deviations is warned once, with the baseline that would fit; the GPS's
-judgement comes first when there is one. Only warns: a few hundred 3x3 products per span.
+judgement comes first when there is one.
+
+**An accelerometer axis reversed** (a driver's sign, a left-handed IMU frame): ``w`` is the sum
+of each accelerometer axis's share and gravity's, so the pairs are refitted with one share
+flipped (:meth:`ScaleCheck.axis_fits`); without GPS velocities, after ``2 min_pairs`` pairs, an
+axis whose flip divides a misfit above ``max_fit`` by ``axis_ratio`` is warned by name, and a
+misfit above ``mismatch_fit`` that no flip mends as a mismatch. Only warns: a few hundred 3x3
+products per span.
 """
 
 from __future__ import annotations
