@@ -45,8 +45,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.geometry.rotation import quat_to_rotmat, so3_exp
-from svains.navigation.imu_history import ImuHistory, shifted_integrals
+from svains.geometry.rotation import quat_to_rotmat
+from svains.navigation.imu_history import ImuHistory, gyro_attitudes, shifted_integrals
 
 log = logging.getLogger(__name__)
 
@@ -177,17 +177,7 @@ class GpsLatencyCheck:
         ts = (t[i0:i1] - a.t_ns) * 1e-9
         w = h.gyro_B[i0:i1] - a.b_g
         f = h.accel_B[i0:i1] - a.b_a
-        # Attitude at each sample: the filter's at the first fix, turned by the gyro (the
-        # rate at the start of each interval, as the filter's own propagation).
-        j = int(np.searchsorted(ts, 0.0, side="right")) - 1  # last sample at or before a
-        j = min(max(j, 0), ts.size - 1)
-        R = np.empty((ts.size, 3, 3))
-        R[j] = a.R_W_B @ so3_exp(w[j] * ts[j])  # back from the fix to that sample
-        inc = so3_exp(w[:-1] * np.diff(ts)[:, None])  # sample k -> k+1
-        for k in range(j, ts.size - 1):
-            R[k + 1] = R[k] @ inc[k]
-        for k in range(j - 1, -1, -1):
-            R[k] = R[k + 1] @ inc[k].T
+        R = gyro_attitudes(a.R_W_B, w, ts)  # the filter's attitude at the first fix, turned
         acc = np.einsum("nij,nj->ni", R, f) + self.g_W
         d = (b.t_ns - a.t_ns) * 1e-9
         dv = shifted_integrals(ts, acc, d, -self.shifts_s)  # shifted back by each shift

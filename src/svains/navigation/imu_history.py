@@ -19,6 +19,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from svains.geometry.rotation import so3_exp
+
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
@@ -206,3 +208,19 @@ def shifted_integrals(t_s: F64, y: F64, end_s: float, shifts_s: F64) -> F64:
     cum = np.vstack([np.zeros(y.shape[1]), np.cumsum(steps, axis=0)])
     return np.stack([np.interp(end_s + shifts_s, t_s, c) - np.interp(shifts_s, t_s, c)
                      for c in cum.T], axis=1)  # fmt: skip
+
+
+def gyro_attitudes(R_W_B: F64, gyro_B: F64, t_s: F64) -> F64:
+    """Attitudes (N, 3, 3) at the samples ``t_s`` (N,) s: ``R_W_B`` (3, 3) at time 0 turned by
+    the gyro's rates ``gyro_B`` (N, 3) rad/s (biases removed; the rate at the start of each
+    interval, as the filter's own propagation), forwards and backwards from the last sample at
+    or before 0."""
+    j = min(max(int(np.searchsorted(t_s, 0.0, side="right")) - 1, 0), t_s.size - 1)
+    R = np.empty((t_s.size, 3, 3))
+    R[j] = R_W_B @ so3_exp(gyro_B[j] * t_s[j])  # back from time 0 to that sample
+    inc = so3_exp(gyro_B[:-1] * np.diff(t_s)[:, None])  # sample k -> k+1
+    for k in range(j, t_s.size - 1):
+        R[k + 1] = R[k] @ inc[k]
+    for k in range(j - 1, -1, -1):
+        R[k] = R[k + 1] @ inc[k].T
+    return R

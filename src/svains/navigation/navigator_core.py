@@ -258,10 +258,10 @@ class Core:
 
     def _observe_gps_scale(self, t: int, p_W_G: Any, v_W_G: Any) -> None:
         """Hand a fix to the vision updater's baseline check, if it has one."""
-        check = getattr(self._vision_updater(), "scale_check", None)
+        checks = getattr(self._vision_updater(), "checks", None)
         gps = self.rig.gps
-        if check is not None and gps is not None:
-            check.observe_gps(t, np.asarray(p_W_G, float),
+        if checks is not None and gps is not None:
+            checks.scale.observe_gps(t, np.asarray(p_W_G, float),
                               None if v_W_G is None else np.asarray(v_W_G, float), gps.p_B_G,
                               float(gps.position_noise_std), float(gps.velocity_noise_std))
 

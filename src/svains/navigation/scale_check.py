@@ -53,10 +53,10 @@ from numpy.typing import NDArray
 
 from svains.frontend.types import StereoTracks
 from svains.geometry.camera import RectifiedStereo
-from svains.geometry.rotation import quat_to_rotmat, so3_exp
+from svains.geometry.rotation import quat_to_rotmat
 from svains.models.state import BA, BG, Q
 from svains.navigation.base import FrameContext
-from svains.navigation.imu_history import ImuHistory
+from svains.navigation.imu_history import ImuHistory, gyro_attitudes
 from svains.navigation.ins import default_imu_calib
 from svains.sensors.types import ImuCalib
 
@@ -380,11 +380,7 @@ class ScaleCheck:
             return None  # samples dropped or missing (bridged): not the IMU's own motion
         w = h.gyro_B[i0:i1] - a.b_g
         f = h.accel_B[i0:i1] - a.b_a
-        R = np.empty((ts.size, 3, 3))
-        R[0] = a.R_W_B @ so3_exp(w[0] * ts[0])  # back from the frame to the sample before
-        inc = so3_exp(w[:-1] * np.diff(ts)[:, None])
-        for k in range(ts.size - 1):
-            R[k + 1] = R[k] @ inc[k]
+        R = gyro_attitudes(a.R_W_B, w, ts)  # the filter's attitude at ``a``, turned
         # each accelerometer axis's share of the world acceleration (N, 3 world, 3 axes), then
         # gravity: the velocity change is linear in them (an axis reversed flips its share)
         shares = R * f[:, None, :]

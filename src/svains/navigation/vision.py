@@ -36,8 +36,7 @@ from svains.models.vision_lc import predict_egomotion_lc
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.options import RunConfig, VisionOptions
-from svains.navigation.rotation_check import rotation_check
-from svains.navigation.scale_check import scale_check
+from svains.navigation.vision_checks import vision_checks
 from svains.navigation.vision_clones import clone_window, next_reference_ns
 from svains.navigation.vision_egomotion import egomotion_noise
 from svains.navigation.vision_pixels import (
@@ -75,8 +74,7 @@ class LcUpdater:
         self._nis_per_dof: list[float] = []  # consistency check: should average ~1
         self._estimators: dict[str, int] = {}  # egomotions fused per estimator
         self.clones = clone_window(options, applied_offset_s(rig), history, rig.gravity_W)
-        self.rotation_check = rotation_check(history, self.rig.R_B_C, rig.imu)
-        self.scale_check = scale_check(history, self.rig, rig.gravity_W, rig.imu)
+        self.checks = vision_checks(history, self.rig, rig)  # mount, stamps, baseline
 
     def measurement(self, tr: StereoTracks) -> tuple[F64, F64] | None:
         """``z`` (6,) (rotation vector rad, translation m) and its covariance (6, 6): the front
@@ -94,10 +92,8 @@ class LcUpdater:
         c = self.counters
         c.frames += 1
         tr, inc = tracks_with_prior(self.source, self._prior, ctx)
-        if self.rotation_check is not None:
-            self.rotation_check.observe_frame(tr, ctx)
-        if self.scale_check is not None:
-            self.scale_check.observe_frame(tr, ctx)
+        if self.checks is not None:
+            self.checks.observe_frame(tr, ctx)
         if tr is None or tr.egomotion is None or tr.t_ns <= tr.t_prev_ns:
             c.frames_without_tracks += 1
             return None
@@ -156,10 +152,8 @@ class LcUpdater:
             nis_per_dof_mean=float(nis.mean()) if nis.size else None,
             nis_per_dof_median=float(np.median(nis)) if nis.size else None,
         )
-        if self.rotation_check is not None:
-            out["rotation_check"] = self.rotation_check.summary()
-        if self.scale_check is not None:
-            out["scale_check"] = self.scale_check.summary()
+        if self.checks is not None:
+            out.update(self.checks.summary())
         if self.clones is not None:
             out.update(self.clones.summary())
         return out

@@ -23,8 +23,7 @@ from svains.models.vision_common import ImuIncrement, camera_motion, stack_pixel
 from svains.models.vision_tc import pixels_tc_from_motion
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.imu_history import ImuHistory
-from svains.navigation.rotation_check import rotation_check
-from svains.navigation.scale_check import scale_check
+from svains.navigation.vision_checks import vision_checks
 from svains.navigation.vision_clones import clone_window, next_reference_ns
 from svains.navigation.vision_egomotion import egomotion_block, tracks_egomotion
 from svains.navigation.vision_motion import (
@@ -133,8 +132,7 @@ class PixelUpdater:
         self._pixel_std_px = max(float(std), 0.05)  # the pixels' own noise, unscaled
         self.sigma_px = self._pixel_std_px * options.noise_scale()
         self.clones = clone_window(options, applied_offset_s(rig), history, rig.gravity_W)
-        self.rotation_check = rotation_check(history, self.rig.R_B_C, rig.imu)
-        self.scale_check = scale_check(history, self.rig, rig.gravity_W, rig.imu)
+        self.checks = vision_checks(history, self.rig, rig)  # mount, stamps, baseline
         known = options.pixel_noise_std is not None or self.source.kind == "features"
         self._min_disparity_px = options.min_disparity(self.sigma_px, known)
         # The k-1 pixel noise biases the prediction (``vision_noise.previous_pixel_bias``); the
@@ -301,10 +299,8 @@ class PixelUpdater:
         c = self.counters
         c.frames += 1
         tr, inc = tracks_with_prior(self.source, self._prior, ctx)
-        if self.rotation_check is not None:
-            self.rotation_check.observe_frame(tr, ctx)
-        if self.scale_check is not None:
-            self.scale_check.observe_frame(tr, ctx)
+        if self.checks is not None:
+            self.checks.observe_frame(tr, ctx)
         usable = (
             np.zeros(0, bool) if tr is None
             else tr.inlier & np.isfinite(tr.p_Ckm1_F).all(axis=1) & (tr.p_Ckm1_F[:, 2] > 0)
@@ -439,10 +435,8 @@ class PixelUpdater:
         out.update(source=self.source.kind, sigma_px=self.sigma_px, rotation=self.options.rotation,
                    frontend_status=dict(getattr(self.source, "status_counts", {})),
                    **stereo_check_summary(self.source))
-        if self.rotation_check is not None:
-            out["rotation_check"] = self.rotation_check.summary()
-        if self.scale_check is not None:
-            out["scale_check"] = self.scale_check.summary()
+        if self.checks is not None:
+            out.update(self.checks.summary())
         if self.clones is not None:
             out.update(self.clones.summary())
         return out
