@@ -164,12 +164,14 @@ def write_csv(path: Path, header: str | Sequence[str], blocks: Sequence[NDArray[
     path.write_text("#" + head + "\n" + body + ("\n" if body else ""))
 
 
-def read_csv_rows(path: Path, n_cols: int) -> tuple[list[list[str]], list[int]]:
+def read_csv_rows(path: Path, n_cols: int | tuple[int, ...]) -> tuple[list[list[str]], list[int]]:
     """Split a ``#``-headed CSV into rows of ``n_cols`` fields and their 1-based line numbers.
 
     Blank lines and ``#`` comment lines are skipped; a row with another field count raises a
-    DatasetError naming the file and line.
+    DatasetError naming the file and line. ``n_cols`` as a tuple allows several layouts (a
+    GPS with or without velocity): the first row picks one and every row must follow it.
     """
+    allowed = (n_cols,) if isinstance(n_cols, int) else tuple(n_cols)
     rows: list[list[str]] = []
     line_no: list[int] = []
     # Lines split as a text-mode file would (universal newlines), so numbers match editors'.
@@ -179,10 +181,16 @@ def read_csv_rows(path: Path, n_cols: int) -> tuple[list[list[str]], list[int]]:
         if not line or line.startswith("#"):
             continue
         fields = [f.strip() for f in line.split(",")]
-        if len(fields) != n_cols:
+        if len(fields) not in allowed:
+            expected = " or ".join(str(n) for n in allowed)
             raise DatasetError(
-                f"{path}:{k}: malformed row, expected {n_cols} fields, got {len(fields)}: "
+                f"{path}:{k}: malformed row, expected {expected} fields, got {len(fields)}: "
                 f"{line[:80]!r}"
+            )
+        if rows and len(fields) != len(rows[0]):
+            raise DatasetError(
+                f"{path}:{k}: malformed row, {len(fields)} fields where the rows before have "
+                f"{len(rows[0])}: {line[:80]!r}"
             )
         rows.append(fields)
         line_no.append(k)

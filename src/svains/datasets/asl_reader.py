@@ -92,9 +92,10 @@ def _rate(calib: dict[str, Any], path: Path, t_ns: np.ndarray) -> float:
 
 
 def _table(
-    folder: Path, n_cols: int, strict: bool = True, min_rows: int = 1
+    folder: Path, n_cols: int | tuple[int, ...], strict: bool = True, min_rows: int = 1
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``data.csv`` of a numeric stream: (t_ns (N,), values (N, n_cols - 1)), N >= min_rows."""
+    """``data.csv`` of a numeric stream: (t_ns (N,), values (N, n_cols - 1)), N >= min_rows
+    (``n_cols`` a tuple: the layout the first row picks, ``_textio.read_csv_rows``)."""
     path = folder / "data.csv"
     rows, lines = read_csv_rows(path, n_cols)
     t = parse_timestamps(path, rows, lines, strict=strict)
@@ -201,23 +202,34 @@ def read_groundtruth(folder: Path) -> GroundTruth:
 
 def read_gps(folder: Path) -> tuple[GpsStream, GpsCalib]:
     """GPS folder: fixes on the IMU clock (``t_imu = t_gps + timeshift_gps_imu``, an optional
-    key, s) and calibration."""
-    t, a = _table(folder, 7)
+    key, s) and calibration. Rows of 7 fields carry position and velocity; rows of 4 fields
+    position only (a receiver that gives no velocity, NMEA GGA): their velocities are NaN and
+    ``velocity_noise_std`` may be left out (then that of two fixes differenced one period
+    apart, ``√2 σ_p · rate``, which only the in-flight start uses)."""
+    t, a = _table(folder, (7, 4))
     ypath = folder / "sensor.yaml"
     y = read_sensor_yaml(ypath)
     shift = yaml_float(y, "timeshift_gps_imu", ypath, default=0.0)
     if not np.isfinite(shift):
         raise CalibrationError(f"{ypath}: field 'timeshift_gps_imu' must be finite, is {shift}")
+    rate_hz = _rate(y, ypath, t)
+    sigma_p = yaml_float(y, "position_noise_std", ypath)
+    with_velocity = a.shape[1] == 6
+    if with_velocity or "velocity_noise_std" in y:
+        sigma_v = yaml_float(y, "velocity_noise_std", ypath)
+    else:
+        sigma_v = float(np.sqrt(2.0) * sigma_p * (rate_hz if rate_hz > 0 else 1.0))
     calib = GpsCalib(
         p_B_G=yaml_T_BS(y, ypath)[:3, 3].copy(),
-        rate_hz=_rate(y, ypath, t),
-        position_noise_std=yaml_float(y, "position_noise_std", ypath),
-        velocity_noise_std=yaml_float(y, "velocity_noise_std", ypath),
+        rate_hz=rate_hz,
+        position_noise_std=sigma_p,
+        velocity_noise_std=sigma_v,
         timeshift_gps_imu_s=shift,
     )
     check_gps_calib(calib, ypath)
     t_imu = t + np.int64(round(shift * 1e9))
-    return GpsStream(t_ns=t_imu, p_W_G=a[:, 0:3], v_W_G=a[:, 3:6]), calib
+    v = a[:, 3:6] if with_velocity else np.full((len(t), 3), np.nan)
+    return GpsStream(t_ns=t_imu, p_W_G=a[:, 0:3], v_W_G=v), calib
 
 
 def read_mag(folder: Path) -> tuple[MagStream, MagCalib]:

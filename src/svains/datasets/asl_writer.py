@@ -28,6 +28,7 @@ from svains.datasets.types import (
     SonarCalib,
     SonarStream,
 )
+from svains.errors import DatasetError
 
 IMU_HEADER = (
     "timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
@@ -44,6 +45,7 @@ GPS_HEADER = (
     "timestamp [ns],p_WG_x [m],p_WG_y [m],p_WG_z [m],v_WG_x [m s^-1],v_WG_y [m s^-1],"
     "v_WG_z [m s^-1]"
 )
+GPS_POSITION_HEADER = "timestamp [ns],p_WG_x [m],p_WG_y [m],p_WG_z [m]"
 MAG_HEADER = "timestamp [ns],m_B_x [G],m_B_y [G],m_B_z [G]"
 SONAR_HEADER = "timestamp [ns],range [m]"
 FEATURES_HEADER = "timestamp [ns],track_id,u_left [px],v_left [px],u_right [px],v_right [px]"
@@ -156,12 +158,20 @@ class AslWriter:
         return d
 
     def write_gps(self, stream: GpsStream, calib: GpsCalib, name: str = "gps0") -> Path:
-        """``gps0``: antenna position/velocity in W; ``T_BS`` translation = lever arm ``p_B_G``."""
+        """``gps0``: antenna position/velocity in W (position only, 4 fields, when no fix has a
+        velocity); ``T_BS`` translation = lever arm ``p_B_G``."""
+        has_v = stream.has_velocity
+        if has_v.any() and not has_v.all():
+            raise DatasetError(f"{name}: {int((~has_v).sum())} of {has_v.size} fixes have "
+                               "no velocity; gps0 holds velocities for every fix or for none")
         d = self._folder(name)
         shift_ns = np.int64(round(calib.timeshift_gps_imu_s * 1e9))
         # back on the receiver's clock: reading the folder applies the shift again
         t_gps = np.asarray(stream.t_ns, dtype=np.int64) - shift_ns
-        write_csv(d / "data.csv", GPS_HEADER, [t_gps, stream.p_W_G, stream.v_W_G])
+        if has_v.all():
+            write_csv(d / "data.csv", GPS_HEADER, [t_gps, stream.p_W_G, stream.v_W_G])
+        else:
+            write_csv(d / "data.csv", GPS_POSITION_HEADER, [t_gps, stream.p_W_G])
         T = np.eye(4)
         T[:3, 3] = np.asarray(calib.p_B_G, dtype=float)
         shift: list[tuple[str, Any]] = (

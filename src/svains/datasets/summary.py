@@ -85,7 +85,9 @@ def dataset_summary(ds: Dataset) -> dict[str, Any]:
         calib["gps"] = {"p_B_G": ds.gps_calib.p_B_G.tolist(),
                         "position_noise_std": ds.gps_calib.position_noise_std,
                         "velocity_noise_std": ds.gps_calib.velocity_noise_std,
-                        "timeshift_gps_imu_s": ds.gps_calib.timeshift_gps_imu_s}  # fmt: skip
+                        "timeshift_gps_imu_s": ds.gps_calib.timeshift_gps_imu_s,
+                        "fixes_with_velocity": None if ds.gps is None
+                        else bool(ds.gps.has_velocity.all())}  # fmt: skip
     if ds.mag_calib is not None:
         calib["mag"] = {"m_W": ds.mag_calib.m_W.tolist(), "noise_std": ds.mag_calib.noise_std}
     if ds.sonar_calib is not None:
@@ -114,7 +116,8 @@ def _checks(ds: Dataset) -> dict[str, Any]:
         out["gravity_mps2"] = float(np.linalg.norm(ds.gravity_W))
     if ds.imu is not None and ds.gps is not None:
         got = gps_course_vs_imu_turn(ds.imu.t_ns, ds.imu.gyro_B, ds.imu.accel_B, ds.gps.t_ns,
-                                     ds.gps.v_W_G, np.asarray(ds.gravity_W, float))  # fmt: skip
+                                     ds.gps.velocity_or_differenced(),
+                                     np.asarray(ds.gravity_W, float))  # fmt: skip
         if got is not None:
             cosine, n, turn_deg, ratio = got
             out["gps_course_vs_gyro"] = {"cosine": cosine, "turns": n, "gyro_turn_deg": turn_deg,

@@ -68,11 +68,27 @@ class ImageStream:
 
 @dataclass(frozen=True)
 class GpsStream:
-    """Antenna position ``p_W_G`` (N, 3) m and velocity ``v_W_G`` (N, 3) m/s, local world frame."""
+    """Antenna position ``p_W_G`` (N, 3) m and velocity ``v_W_G`` (N, 3) m/s, local world frame;
+    a fix without velocity (a receiver that gives position only) has a NaN row in ``v_W_G``."""
 
     t_ns: I64
     p_W_G: F64
     v_W_G: F64
+
+    @property
+    def has_velocity(self) -> NDArray[np.bool_]:
+        """(N,) whether each fix carries a velocity."""
+        return np.all(np.isfinite(self.v_W_G), axis=1)
+
+    def velocity_or_differenced(self) -> F64:
+        """(N, 3) m/s: the fixes' velocities, or where a fix has none the positions' central
+        difference (one-sided at the ends) for checks that only need the course and speed."""
+        v = self.v_W_G.copy()
+        missing = ~self.has_velocity
+        if missing.any() and len(self.t_ns) > 1:
+            t_s = (self.t_ns - self.t_ns[0]) * 1e-9
+            v[missing] = np.gradient(self.p_W_G, t_s, axis=0)[missing]
+        return v
 
 
 @dataclass(frozen=True)

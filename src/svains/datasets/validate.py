@@ -233,7 +233,8 @@ def check_gps_against_gyro(ds: Dataset, path: Path, imu_path: Path) -> None:
     if ds.imu is None or ds.gps is None:
         return
     got = gps_course_vs_imu_turn(ds.imu.t_ns, ds.imu.gyro_B, ds.imu.accel_B, ds.gps.t_ns,
-                                 ds.gps.v_W_G, np.asarray(ds.gravity_W, float))  # fmt: skip
+                                 ds.gps.velocity_or_differenced(),
+                                 np.asarray(ds.gravity_W, float))  # fmt: skip
     if got is None:
         return
     problem = course_turn_problem(*got, np.asarray(ds.gravity_W, float))
@@ -278,7 +279,7 @@ def vet_streams(ds: Dataset) -> None:
 
     if ds.imu is not None:
         check_accel_units(ds.imu.accel_B, ds.gravity_W, where("imu0"))
-    if ds.gps is not None:
+    if ds.gps is not None and ds.gps.has_velocity.all():  # position-only: nothing to compare
         check_gps_units(ds.gps.t_ns, ds.gps.p_W_G, ds.gps.v_W_G, where("gps0"))
     if ds.imu is None or len(ds.imu.t_ns) == 0:
         return

@@ -310,10 +310,42 @@ def _from_groundtruth(
     return InitialState(t0, x, P0, {"mode": "groundtruth"})
 
 
+def _with_start_velocities(
+    gps: GpsArrays, name: str, position_std_m: float, accel_prior_std: float
+) -> tuple[GpsArrays, float]:
+    """``gps`` whose first two fixes carry velocities, and the standard deviation (m/s²) of
+    the acceleration between them taken from positions (0 when the fixes carry velocities).
+    From a receiver without velocity, the first three positions differenced: the mean
+    velocities over the two intervals, and between them a constant acceleration
+    (``v_0 = v_01 - a Δt_01 / 2``, ``v_1 = v_0 + a Δt_01``). A second difference of noisy
+    fixes is a poor acceleration, so it is combined with a zero-mean prior of
+    ``accel_prior_std`` per axis (the posterior mean and standard deviation)."""
+    if np.all(np.isfinite(gps.v_W_G[:2])):
+        return gps, 0.0
+    if len(gps.t_ns) < 3:
+        raise InitialisationError(
+            f"{name}: --init gps from fixes without velocity needs at least 3 fixes"
+        )
+    dt01, dt12 = np.diff(gps.t_ns[:3]) * 1e-9
+    v01 = (gps.p_W_G[1] - gps.p_W_G[0]) / dt01
+    v12 = (gps.p_W_G[2] - gps.p_W_G[1]) / dt12
+    # a = (p2/dt12 - p1 (1/dt12 + 1/dt01) + p0/dt01) / mean(dt): independent position noise
+    gain = np.sqrt(dt12**-2 + (1 / dt12 + 1 / dt01) ** 2 + dt01**-2)
+    var_fix = (position_std_m * gain / (0.5 * (dt01 + dt12))) ** 2
+    var_prior = accel_prior_std**2
+    a_W = (v12 - v01) / (0.5 * (dt01 + dt12)) * var_prior / (var_prior + var_fix)
+    v = gps.v_W_G.copy()
+    v[0] = v01 - 0.5 * a_W * dt01
+    v[1] = v[0] + a_W * dt01
+    accel_std = float(np.sqrt(var_prior * var_fix / (var_prior + var_fix)))
+    return GpsArrays(gps.t_ns, gps.p_W_G, v), accel_std
+
+
 def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> InitialState:
     """In-flight start (no static interval needed): position and velocity from the first GPS
     fixes; roll and pitch from the mean specific force over the first GPS interval against the
-    acceleration the GPS velocities show (``f_B = R^T (a_W - g_W)``); heading from the
+    acceleration the GPS velocities show (``f_B = R^T (a_W - g_W)``; fixes without velocity:
+    from the first three positions, ``_with_start_velocities``); heading from the
     magnetometer (TRIAD on that same vector), else arbitrary with ``yaw_std_unknown``. Biases
     start at zero with their prior standard deviations."""
     imu, gps = dataset.imu, dataset.gps
@@ -323,6 +355,9 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
             f"{dataset.name}: --init gps needs a GPS stream with at least 2 fixes and its "
             "calibration"
         )
+    gps, accel_std = _with_start_velocities(gps, dataset.name,
+                                            dataset.gps_calib.position_noise_std,
+                                            o.flight_accel_prior_std)
     ta, tb = int(gps.t_ns[0]), int(gps.t_ns[1])
     k = max(2, int(np.searchsorted(imu.t_ns, ta)))
     win = (imu.t_ns >= ta) & (imu.t_ns <= tb)
@@ -366,7 +401,11 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
     x[W] = gyro_B[-1] if layout.biased else stencil_consistent_rate(gyro_B, len(gyro_B) - 1)
     pos_std = max(o.position_std, 3.0 * dataset.gps_calib.position_noise_std)
     vel_std = max(o.velocity_std, 3.0 * dataset.gps_calib.velocity_noise_std)
-    # Roll/pitch: the mean over a GPS interval hides the attitude changing inside it.
+    # Roll/pitch: the mean over a GPS interval hides the attitude changing inside it; an
+    # acceleration from differenced positions tilts the specific force by about σ_a / |f|.
+    tilt_std = max(o.flight_roll_pitch_std, accel_std / float(np.linalg.norm(f_W)))
+    if accel_std > 0:
+        info["gps_acceleration_std"] = accel_std
     P0 = _levelled_covariance(layout, o, R_W_B, -g_W / np.linalg.norm(g_W), pos_std, vel_std,
-                              o.flight_roll_pitch_std, yaw_std)  # fmt: skip
+                              tilt_std, yaw_std)  # fmt: skip
     return InitialState(t0, x, P0, info)

@@ -106,6 +106,10 @@ class InitOptions:
     velocity_std: float = 0.05  # m/s
     roll_pitch_std: float = 0.02  # rad
     flight_roll_pitch_std: float = 0.05  # rad (in-flight start from GPS)
+    # m/s², per axis: the vehicle's acceleration before any measurement, which an acceleration
+    # differenced from position-only fixes is shrunk towards zero with (a 1 Hz fix of 1.4 m
+    # gives an acceleration of 3.5 m/s² std, a tilt of 20°; ``init._with_start_velocities``)
+    flight_accel_prior_std: float = 1.0
     yaw_std: float = 0.1  # rad (with magnetometer or ground truth)
     yaw_std_unknown: float = 0.5  # rad (no heading source, GPS fused: the heading is unknown)
     # rad (no heading source and no GPS fused: the start heading defines the world frame's yaw,

@@ -51,8 +51,15 @@ class Starter:
         self._mag.append((t_ns, m_S))
 
     def add_gps(self, t_ns: int, p_W_G: np.ndarray, v_W_G: np.ndarray | None) -> None:
+        """A fix (``v_W_G`` None: position only). Two fixes with velocity start in flight;
+        position-only fixes need a third (``init._from_gps`` differences them)."""
+        if len(self._gps) < self._gps_needed():
+            self._gps.append((t_ns, p_W_G, np.full(3, np.nan) if v_W_G is None else v_W_G))
+
+    def _gps_needed(self) -> int:
         if len(self._gps) < 2:
-            self._gps.append((t_ns, p_W_G, np.zeros(3) if v_W_G is None else v_W_G))
+            return 2
+        return 2 if all(np.all(np.isfinite(v)) for _, _, v in self._gps[:2]) else 3
 
     def _data(self, history: ImuHistory) -> InitData:
         # The history is already in the body frame: no IMU mount to apply again.
@@ -80,7 +87,8 @@ class Starter:
             return self.given if last >= self.given.t_ns else None
         o = self.options
         if o.mode == "gps":
-            if len(self._gps) < 2 or horizon_ns <= self._gps[1][0]:
+            n = self._gps_needed()
+            if len(self._gps) < n or horizon_ns <= self._gps[n - 1][0]:
                 return None
             return initialise(self._data(history), self.layout, o)
         if history.n < 3:

@@ -169,7 +169,8 @@ def feed(nav: Navigator, kind: int, t: int, payload: Any) -> None:
     if kind == _IMU:
         nav.feed_imu(t, payload[0], payload[1])
     elif kind == _GPS:
-        nav.feed_gps(t, payload[0], payload[1])
+        v = payload[1]  # a NaN row: the receiver gave no velocity with this fix
+        nav.feed_gps(t, payload[0], v if np.all(np.isfinite(v)) else None)
     elif kind == _MAG:
         nav.feed_mag(t, payload[0])
     elif kind == _SONAR:
