@@ -182,6 +182,8 @@ def test_navsatfix_becomes_local_enu(tmp_path: Path) -> None:
     np.testing.assert_allclose(ds.gps.p_W_G[2, :2], [111.319, 110.574], atol=2e-3)
     assert ds.gps.p_W_G[2, 2] == pytest.approx(2.0, abs=2e-3)
     assert ds.gps_calib.position_noise_std == pytest.approx(np.sqrt(17 / 3 * 2), rel=1e-12)
+    # a NavSatFix has no velocity: none is made up from the positions
+    assert not ds.gps.has_velocity.any()
     np.testing.assert_allclose(geodetic_to_enu(0.0, 0.0, 10.0, (0.0, 0.0, 10.0)), 0.0, atol=1e-9)
 
 
