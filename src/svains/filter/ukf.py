@@ -13,7 +13,7 @@ updates ``h(X (S, nx)) -> (S, nz)``, both vectorised over the S sigma points.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -68,6 +68,10 @@ class UpdateStats:
     residual: F64 | None = field(default=None, compare=False, repr=False)
     offset_refused: bool = False
     innovation_cov: F64 | None = field(default=None, compare=False, repr=False)
+    # ``update_blocks(contribution_of=name)``: this accepted block's share of the joint update,
+    # (dx (ndx,), dP (ndx, ndx)) = the update with every kept block minus the update without it
+    # (prior tangent; the same sigma points), what un-fusing it would take back.
+    contribution: tuple[F64, F64] | None = field(default=None, compare=False, repr=False)
 
 
 class UKF:
@@ -160,6 +164,7 @@ class UKF:
         blocks: list[tuple[MeasurementFn, F64, F64, ResidualFn | None, str]],
         gate_probability: float | None = None,
         offsets: Mapping[str, F64] | None = None,
+        contribution_of: str | None = None,
     ) -> list[UpdateStats]:
         """Fuse several independent measurements ``(h, z, R, residual, name)`` taken at the same
         time with ONE sigma-point draw: each block is gated on its own marginal innovation
@@ -167,7 +172,8 @@ class UKF:
         ``offsets`` maps a block's name to an offset ``d`` (nz,) its sensor is suspected of:
         the block is also refused when its innovation is nearer ``d`` than zero in the metric
         of its innovation covariance (``(r - d)' S⁻¹ (r - d) < r' S⁻¹ r``), i.e. when the
-        measurement fits "offset by ``d``" better than "right".
+        measurement fits "offset by ``d``" better than "right". ``contribution_of``: the name
+        of a block whose share of the update its stats carry (``UpdateStats.contribution``).
         """
         if not blocks:
             return []
@@ -205,14 +211,17 @@ class UKF:
             if ok:
                 kept.append((dY, r, Rm))
         if kept:
-            dY = np.concatenate([k[0] for k in kept], axis=1)
-            r = np.concatenate([k[1] for k in kept])
-            R = np.zeros((r.size, r.size))
-            i = 0
-            for _, _, Rk in kept:
-                R[i : i + len(Rk), i : i + len(Rk)] = Rk
-                i += len(Rk)
-            dx, _, dP = _dense_gain(dX, dY, Wc, R, r, "+".join(s.name for s in stats if s.accepted))
+            label = "+".join(s.name for s in stats if s.accepted)
+            dx, dP = _stacked_gain(dX, Wc, kept, label)
+            accepted = [s for s in stats if s.accepted]
+            for j, st in enumerate(accepted):
+                if contribution_of is not None and st.name == contribution_of:
+                    others = kept[:j] + kept[j + 1 :]
+                    dx_o, dP_o = (_stacked_gain(dX, Wc, others, label) if others
+                                  else (np.zeros_like(dx), np.zeros_like(dP)))  # fmt: skip
+                    accepted[j] = replace(st, contribution=(dx - dx_o, dP - dP_o))
+            it = iter(accepted)
+            stats = [next(it) if s.accepted else s for s in stats]
             self._set_posterior(self.manifold.retract(self.x[None, :], dx[None, :])[0],
                                 self.P - dP)  # fmt: skip
         return stats
@@ -351,6 +360,22 @@ def kalman_correction(
     if D is not None:
         Rm = Rm + D.T @ D
     return _dense_gain(dX, dY, Wc, Rm, r, name)
+
+
+def _stacked_gain(
+    dX: F64, Wc: F64, kept: list[tuple[F64, F64, F64]], name: str
+) -> tuple[F64, F64]:
+    """Correction and covariance decrease of blocks ``(dY, r, R)`` fused together (R
+    block-diagonal)."""
+    dY = np.concatenate([k[0] for k in kept], axis=1)
+    r = np.concatenate([k[1] for k in kept])
+    R = np.zeros((r.size, r.size))
+    i = 0
+    for _, _, Rk in kept:
+        R[i : i + len(Rk), i : i + len(Rk)] = Rk
+        i += len(Rk)
+    dx, _, dP = _dense_gain(dX, dY, Wc, R, r, name)
+    return dx, dP
 
 
 def _dense_gain(dX: F64, dY: F64, Wc: F64, R: F64, r: F64, name: str) -> tuple[F64, float, F64]:

@@ -41,6 +41,7 @@ from svains.navigation.consistency import ConsistencyMonitor, ConsistencyOptions
 from svains.navigation.imu_guard import ImuGuard, ImuGuardOptions
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.options import FaultOptions
+from svains.navigation.unfuse import LeanShares, unfuse
 from svains.navigation.zupt import StaticTest
 from svains.sensors.types import GpsCalib, Rig
 
@@ -301,11 +302,16 @@ class Recovery:
     """``ConsistencyMonitor`` fed by every gated update; applies its actions to ``ukf``."""
 
     def __init__(self, options: FaultOptions, warn: RateLimitedLog, gps_used: bool = True,
-                 bias_random_walk_var: Callable[[], F64] | None = None) -> None:  # fmt: skip
+                 bias_random_walk_var: Callable[[], F64] | None = None,
+                 heading_witness: bool = False,
+                 clone_times: Callable[[], tuple[int, ...]] | None = None) -> None:  # fmt: skip
         """``gps_used``: the run fuses GPS (else vision alone may call for an inflation).
         ``bias_random_walk_var() -> (6,)``: the filter's bias random-walk variances per second
         (gyro then accelerometer), for recalling the biases after a bias alarm
-        (``navigation.bias_recall``); None: zero."""
+        (``navigation.bias_recall``); None: zero. ``heading_witness``: the run fuses another
+        sensor that holds the heading between magnetometer samples (vision), so a leaning
+        magnetometer's samples are taken back (``faults.lean_unfuse``); ``clone_times()``:
+        the times of the state's pose clones (``navigation.unfuse``)."""
         self.monitor = ConsistencyMonitor(ConsistencyOptions(
             inflate_factor=options.inflate_factor, anchor_in_use=gps_used,
             bias_window=options.bias_test_window,
@@ -328,6 +334,12 @@ class Recovery:
         self.reset_pending = False
         # (sensor, "rate" | "all") -> t_ns until which that part of it is not fused
         self._off_until_ns: dict[tuple[str, str], int] = {}
+        o = self.monitor.options
+        self.shares = (LeanShares(o.lean_sensors, o.lean_window)
+                       if options.lean_unfuse and heading_witness and o.lean_probability is not None
+                       else None)  # fmt: skip
+        self.unfused = 0  # samples of a leaning sensor taken back (``navigation.unfuse``)
+        self._clone_times = clone_times or tuple
 
     @staticmethod
     def _vision_lean(options: FaultOptions, gps_used: bool) -> bool:
@@ -367,6 +379,13 @@ class Recovery:
             self.monitor.observe(key, stats.accepted, stats.nis, stats.dof, t_ns, stats.gate,
                                  stats.whitened, stats.residual,
                                  stats.innovation_cov)  # fmt: skip
+            if self.shares is not None:
+                self.shares.observe(stats, self._clone_times())
+
+    @property
+    def watched(self) -> str | None:
+        """The sensor whose update shares the filter is asked for (``contribution_of``)."""
+        return self.shares.sensors[0] if self.shares is not None and self.shares.sensors else None
 
     def check(self, ukf: UKF, t_ns: int) -> None:
         """Ask the monitor after a group of updates and apply its action."""
@@ -375,6 +394,11 @@ class Recovery:
         held = self.monitor.leaning(t_ns)
         if held is not None:
             self._switch_off(held, "all", self._options.lean_hold_s, t_ns)
+            if self.shares is not None:
+                for name in held.sensors:
+                    taken = self.shares.take(name)
+                    unfuse(ukf, taken, self._clone_times())
+                    self.unfused += len(taken)
         position_std_m = math.sqrt(float(np.trace(ukf.P[DP, DP])) / 3.0)
         action = self.monitor.should_recover(t_ns, position_std_m)
         if action is None:
@@ -483,6 +507,8 @@ class Recovery:
         out = self.monitor.summary()
         out["bias_confirmed"] = self.bias_confirmed
         out["bias_restored"] = self.bias_restored
+        out["lean_unfuse"] = self.shares is not None  # armed: a lean's samples are taken back
+        out["lean_unfused"] = self.unfused
         return out
 
 

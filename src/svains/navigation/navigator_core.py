@@ -81,7 +81,9 @@ class Core:
         self._warn = warn or RateLimitedLog(config.faults.warn_interval_s)
         self._imu_faults = imu_faults
         gps_used = bool(config.use_gps and rig.gps is not None)
-        self._recovery = (Recovery(config.faults, self._warn, gps_used, self._bias_random_walk)
+        self._recovery = (Recovery(config.faults, self._warn, gps_used, self._bias_random_walk,
+                                   heading_witness=config.method in ("lc", "tc", "3d"),
+                                   clone_times=self._clone_times)
                           if config.faults.consistency else None)  # fmt: skip
         self._vision_fused_t: list[int] = []
         self._vision_warned_gap = False
@@ -241,8 +243,9 @@ class Core:
         if blocks and not (has_frame and cfg.filter.stack_with_vision):
             # Simultaneous measurements: one sigma-point draw, each gated on its own.
             offsets = self._recovery.monitor.jump_offsets(t) if self._recovery else None
+            watched = self._recovery.watched if self._recovery else None
             for stats in ins.ukf.update_blocks(
-                [(b.h, b.z, b.R, b.residual, b.name) for b in blocks], gate, offsets
+                [(b.h, b.z, b.R, b.residual, b.name) for b in blocks], gate, offsets, watched
             ):
                 self._record(stats, stats.name, t)
             blocks = []
@@ -428,6 +431,11 @@ class Core:
         # The gap covariance reads the signal's spread before a gap (``faults.gap_spread_s``).
         keep_s = max(keep_s, self.config.faults.gap_spread_s)
         self.ins.history.keep_from_ns = oldest - int(keep_s * 1e9)
+
+    def _clone_times(self) -> tuple[int, ...]:
+        """Times (ns) of the pose clones in the state, in state order (none: ())."""
+        clones = getattr(self._updater, "clones", None)
+        return tuple(clones.times) if clones is not None else ()
 
     def _vision_updater(self) -> PixelUpdater | LcUpdater | None:
         if self._updater is None and self._source is not None:

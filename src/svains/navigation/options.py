@@ -515,6 +515,10 @@ class FaultOptions:
     it the magnetometer is not fused for ``lean_hold_s``, warned (steel nearby turns the field
     by a few degrees: each sample passes its gate and the heading follows; the simulator's
     fault bench, 8° for 10 s, `3d` 11.6x -> 1.7x its clean position RMSE). None: off.
+    ``lean_unfuse``: with the hold, the samples in the test's window are taken back
+    (``navigation.unfuse``) when vision holds the heading between them (``tc``, ``3d``,
+    ``lc``); with the magnetometer the only heading witness (``ins``) a lean is as often the
+    disturbance's end, the filter having followed it (two of the bench's eight seeds).
     ``heading_check``: compare the filter's velocity changes between GPS fixes with the GPS's
     and, when a rotation about the vertical maps one onto the other beyond the noise, turn the
     state by it, warned (``navigation.heading_check``: a heading taken from a magnetometer
@@ -550,6 +554,7 @@ class FaultOptions:
     gps_velocity_drop_s: float | None = 30.0  # s without a GPS velocity that alone disagrees
     lean_test_probability: float | None = 0.9999  # magnetometer lean test (None: off)
     lean_hold_s: float = 10.0  # s a leaning magnetometer is not fused
+    lean_unfuse: bool = True  # and its leaning samples taken back (vision methods)
     heading_check: bool = True  # turn a heading the GPS velocity changes show wrong
     gps_latency_check: bool = True  # warn of GPS stamps late against the IMU's clock
 
