@@ -73,4 +73,4 @@ def test_cli_run_writes_the_three_outputs(euroc_micro: Path, tmp_path: Path) -> 
     bad = CliRunner().invoke(app, ["run", str(euroc_micro), "--out", str(tmp_path / "b"),
                                    "--init", "x"])
     flat = " ".join(bad.output.replace("│", " ").split())  # the message box may wrap it
-    assert bad.exit_code != 0 and "--init must be static, gps or groundtruth" in flat
+    assert bad.exit_code != 0 and "--init must be static, gps, groundtruth or vision" in flat

@@ -90,7 +90,8 @@ def compare(
                      "(paper eq. 18) or exp.", callback=_common.rotation_choice),
     ] = None,
     init: Annotated[
-        str, typer.Option("--init", help="static, gps (in flight) or groundtruth.")
+        str, typer.Option("--init", help="static, gps (in flight), vision (in flight "
+                                 "from stereo and IMU) or groundtruth.")
     ] = "groundtruth",
     gps: Annotated[bool, typer.Option("--gps/--no-gps", help="Fuse GPS when present.")] = True,
     mag: Annotated[bool, typer.Option("--mag/--no-mag", help="Fuse magnetometer.")] = True,

@@ -40,7 +40,8 @@ def run(
         str | None, typer.Option("--model", help="paper (eq. 14 state) or biased (+ IMU biases).")
     ] = None,
     init: Annotated[
-        str | None, typer.Option("--init", help="static, gps (in flight) or groundtruth.")
+        str | None, typer.Option("--init", help="static, gps (in flight), vision (in flight "
+                                 "from stereo and IMU) or groundtruth.")
     ] = None,
     gps: Annotated[bool | None, typer.Option("--gps/--no-gps", help="Fuse GPS.")] = None,
     mag: Annotated[bool | None, typer.Option("--mag/--no-mag", help="Fuse magnetometer.")] = None,
@@ -134,7 +135,7 @@ def run(
     console = Console()
     for name, value, known in (("--model", model, ("paper", "biased")),
                                ("--method", method, ("ins", "vo", "lc", "tc", "3d")),
-                               ("--init", init, ("static", "gps", "groundtruth"))):
+                               ("--init", init, ("static", "gps", "groundtruth", "vision"))):
         if value is not None and value not in known:
             raise typer.BadParameter(f"{name} must be {', '.join(known[:-1])} or {known[-1]}, "
                                      f"got {value!r}")

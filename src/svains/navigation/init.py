@@ -20,6 +20,7 @@ from svains.models.state import BA, BG, DBA, DBG, DP, DTH, DV, DW, P, Q, StateLa
 from svains.navigation.heading import course_heading_or_none
 from svains.navigation.options import InitOptions
 from svains.navigation.platform_noise import block_deviation, block_means, measure_static_noise
+from svains.navigation.vision_start import VisionInertialFit
 from svains.sensors.types import GpsCalib, GroundTruth, ImuCalib, MagCalib
 from svains.sensors.units import accel_units_problem
 
@@ -409,3 +410,38 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
     P0 = _levelled_covariance(layout, o, R_W_B, -g_W / np.linalg.norm(g_W), pos_std, vel_std,
                               tilt_std, yaw_std)  # fmt: skip
     return InitialState(t0, x, P0, info)
+
+
+# m: the start's position when a vision start is followed by GPS fixes (it knows none).
+VISION_GPS_POSITION_STD_M = 1000.0
+
+
+def from_vision_fit(
+    fit: VisionInertialFit, t_ns: int, R_W_B: F64, v_W_B: F64, omega_B: F64,
+    layout: StateLayout, o: InitOptions, gravity_W: F64, gps_fused: bool,
+) -> InitialState:
+    """Initial state at the IMU sample ``t_ns`` from a vision-inertial fit
+    (``navigation.vision_start``) carried there: attitude ``R_W_B``, velocity ``v_W_B``, body
+    rate ``omega_B`` (gyro minus the fitted bias), position at the origin; the standard
+    deviations three times the fit's, floored by the static start's, yaw a gauge unless GPS
+    will tie it (and then the position too: ``VISION_GPS_POSITION_STD_M``)."""
+    x = np.zeros(layout.nx)
+    x[Q] = quat_normalize(rotmat_to_quat(R_W_B))
+    x[V] = v_W_B
+    x[W] = omega_B
+    if layout.biased:
+        x[BG] = fit.b_g
+    up = -np.asarray(gravity_W, float) / np.linalg.norm(gravity_W)
+    vel_std = max(o.velocity_std, 3.0 * float(np.max(fit.v_std)))
+    tilt_std = max(o.roll_pitch_std, 3.0 * fit.tilt_std)
+    yaw_std = o.yaw_std_unknown if gps_fused else o.yaw_std_local
+    # With GPS fused the first fix places the origin-started body (VISION_GPS_POSITION_STD_M).
+    pos_std = VISION_GPS_POSITION_STD_M if gps_fused else o.position_std
+    P0 = _levelled_covariance(layout, o, R_W_B, up, pos_std, vel_std, tilt_std, yaw_std)
+    info: dict[str, object] = {
+        "mode": "vision", "frames": fit.frames, "window_s": o.vision_window_s,
+        "gravity_fit_mps2": fit.g_fit_mps2, "rms_m": fit.rms_m,
+        "tilt_std_deg": float(np.degrees(fit.tilt_std)), "velocity_W": v_W_B.tolist(),
+        "gyro_bias": fit.b_g.tolist(),
+    }
+    return InitialState(int(t_ns), x, P0, info)

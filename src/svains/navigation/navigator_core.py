@@ -88,10 +88,10 @@ class Core:
         self._vision_fused_t: list[int] = []
         self._vision_warned_gap = False
         self._next_keep_ns = self.t0_ns  # when ``_keep_imu`` runs next
-        # An in-flight start (``init.mode`` gps) has no start's rest to hold: a car cruising
-        # passes the IMU's rest test, and with the wide velocity of a start from position-only
-        # fixes the gate let "v = 0" in (KITTI raw: 4.7 m/s zeroed, velocity NEES 3.6e4).
-        start_rest = config.zupt.after_start or config.init.mode != "gps"
+        # An in-flight start (``init.mode`` gps or vision) has no start's rest to hold: a car
+        # cruising passes the IMU's rest test, and with the wide velocity of a start from
+        # position-only fixes the gate let "v = 0" in (KITTI raw: 4.7 m/s zeroed, NEES 3.6e4).
+        start_rest = config.zupt.after_start or config.init.mode not in ("gps", "vision")
         self._zupt = (
             StaticTest(config.zupt, config.init, float(np.linalg.norm(rig.gravity_W)))
             if config.zupt.enabled and start_rest else None

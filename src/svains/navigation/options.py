@@ -14,7 +14,7 @@ from svains.errors import ConfigError
 from svains.models.vision_common import ROTATION_MODELS
 
 ModelName = Literal["paper", "biased"]
-InitMode = Literal["static", "gps", "groundtruth"]
+InitMode = Literal["static", "gps", "groundtruth", "vision"]
 MethodName = Literal["ins", "vo", "lc", "tc", "3d"]
 SourceName = Literal["auto", "features", "images"]
 
@@ -87,7 +87,9 @@ class NoiseOptions:
 class InitOptions:
     """Initialisation: ``mode`` static (gravity, gyro mean, magnetometer heading), gps (in
     flight: GPS position, velocity and acceleration, specific force, magnetometer heading;
-    ``flight_roll_pitch_std`` then) or groundtruth.
+    ``flight_roll_pitch_std`` then), vision (in flight without GPS: gravity and velocity from
+    the first seconds of stereo odometry against the IMU, computed by the replay) or
+    groundtruth.
 
     The static interval is the first ``static_s`` seconds. Rotors make a resting vehicle's IMU
     vibrate (EuRoC: 0.3 m/s², 0.08 rad/s sample std), so "static" is tested on the means of
@@ -119,6 +121,11 @@ class InitOptions:
     # 7.5° (RMS 2.2°) while the MAV was at rest (ground truth: 0.19°); 0.27° (0.16°) with this.
     yaw_std_local: float = 0.02
     course_min_speed_mps: float = 3.0  # GPS start without magnetometer: heading from the course
+    # ``vision`` (in flight, no GPS needed): stereo odometry over the first ``vision_window_s``
+    # s against the IMU gives gravity and the velocity (``navigation.vision_start``); the fit's
+    # gravity magnitude must lie within ``vision_max_g_error`` (relative) of the data set's.
+    vision_window_s: float = 2.0
+    vision_max_g_error: float = 0.1
     omega_std: float = 0.01  # rad/s
     gyro_bias_std: float = 0.005  # rad/s
     accel_bias_std: float = 0.1  # m/s²
@@ -711,9 +718,9 @@ class RunConfig:
             raise ConfigError(f"method must be ins, vo, lc, tc or 3d, got {self.method!r}")
         if self.model not in ("paper", "biased"):
             raise ConfigError(f"model must be paper or biased, got {self.model!r}")
-        if self.init.mode not in ("static", "gps", "groundtruth"):
+        if self.init.mode not in ("static", "gps", "groundtruth", "vision"):
             raise ConfigError(
-                f"init.mode must be static, gps or groundtruth, got {self.init.mode!r}"
+                f"init.mode must be static, gps, groundtruth or vision, got {self.init.mode!r}"
             )
         if not self.output_period_s > 0:
             raise ConfigError(f"output_period_s must be positive, got {self.output_period_s}")

@@ -35,8 +35,9 @@ class Starter:
         gps_fused: bool | None = None,
     ) -> None:
         """``gps_fused``: whether the run fuses GPS (None: when the rig has one)."""
-        if given is None and options.mode == "groundtruth":
-            raise ConfigError("init.mode groundtruth needs the initial state (initial_state=)")
+        if given is None and options.mode in ("groundtruth", "vision"):
+            raise ConfigError(f"init.mode {options.mode} needs the initial state (initial_state=; "
+                              "svains run computes it from the recording)")  # fmt: skip
         if given is None and options.mode == "gps" and rig.gps is None:
             raise ConfigError("init.mode gps needs a GPS calibration in the rig")
         self.options = options

@@ -210,6 +210,10 @@ def replay(
     init = None
     if config.init.mode == "groundtruth":
         init = groundtruth_start(ds, config, t0 if config.replay.start_s > 0 else None)
+    elif config.init.mode == "vision":
+        from svains.replay.vision_start import vision_start
+
+        init = vision_start(ds, config)
     nav = Navigator(config, rig_from_dataset(ds), on_output=on_output, initial_state=init)
     span = max(1, int(t_imu[-1]) - t0)
     next_report = t0
