@@ -26,9 +26,7 @@ from svains.datasets.types import Dataset
 from svains.evaluation.run import run_method
 from svains.geometry.rotation import quat_to_rotmat
 from svains.navigation.options import InitOptions, RunConfig
-from svains.replay import resolve_config
 from svains.replay.groundtruth import interpolate_groundtruth
-from svains.replay.vision_start import vision_start
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -40,15 +38,16 @@ def parse_seeds(text: str) -> list[int]:
 
 
 def start_errors(ds: Dataset, config: RunConfig) -> tuple[float, float, dict]:
-    """Tilt (deg) and body-velocity error norm (m/s) of the vision start, and its info."""
-    init = vision_start(ds, resolve_config(ds, config))
+    """Tilt (deg) and body-velocity error norm (m/s) of the vision start (a run's first logged
+    state is its start), and its info."""
+    res = run_method(ds, config.method, replace(config, duration_s=1.0))
     assert ds.groundtruth is not None
-    _, _, v, q = interpolate_groundtruth(ds.groundtruth, np.array([init.t_ns], np.int64))
-    R_gt, R_est = quat_to_rotmat(q[0]), quat_to_rotmat(init.x[6:10])
+    _, _, v, q = interpolate_groundtruth(ds.groundtruth, res.t_ns[:1])
+    R_gt, R_est = quat_to_rotmat(q[0]), quat_to_rotmat(res.x[0, 6:10])
     up = np.array([0.0, 0.0, 1.0])
     tilt = float(np.degrees(np.arccos(np.clip((R_gt.T @ up) @ (R_est.T @ up), -1.0, 1.0))))
-    dv = float(np.linalg.norm(R_gt.T @ v[0] - R_est.T @ init.x[3:6]))
-    return tilt, dv, init.info
+    dv = float(np.linalg.norm(R_gt.T @ v[0] - R_est.T @ res.x[0, 3:6]))
+    return tilt, dv, res.report["init"]
 
 
 def main() -> None:

@@ -419,27 +419,41 @@ VISION_GPS_POSITION_STD_M = 1000.0
 def from_vision_fit(
     fit: VisionInertialFit, t_ns: int, R_W_B: F64, v_W_B: F64, omega_B: F64,
     layout: StateLayout, o: InitOptions, gravity_W: F64, gps_fused: bool,
+    m_B: F64 | None = None, m_W: F64 | None = None,
 ) -> InitialState:
     """Initial state at the IMU sample ``t_ns`` from a vision-inertial fit
     (``navigation.vision_start``) carried there: attitude ``R_W_B``, velocity ``v_W_B``, body
     rate ``omega_B`` (gyro minus the fitted bias), position at the origin; the standard
-    deviations three times the fit's, floored by the static start's, yaw a gauge unless GPS
-    will tie it (and then the position too: ``VISION_GPS_POSITION_STD_M``)."""
+    deviations three times the fit's, floored by the static start's. The heading: from the
+    magnetic field ``m_B`` (body frame, mean of the samples at the start) against ``m_W``
+    when given (as a static start takes it: TRIAD with the fitted vertical), else a gauge
+    (the odometry's first camera's) unless GPS will tie it (and then the position too:
+    ``VISION_GPS_POSITION_STD_M``)."""
+    up = -np.asarray(gravity_W, float) / np.linalg.norm(gravity_W)
+    heading = ("none (arbitrary yaw: the GPS fixes tie it)" if gps_fused
+               else "none (local frame: the start defines its yaw)")  # fmt: skip
+    if m_B is not None and m_W is not None:
+        R_mag = _triad(R_W_B.T @ up, m_B, up, np.asarray(m_W, float))
+        v_W_B = R_mag @ R_W_B.T @ v_W_B
+        R_W_B = R_mag
+        heading = "magnetometer"
     x = np.zeros(layout.nx)
     x[Q] = quat_normalize(rotmat_to_quat(R_W_B))
     x[V] = v_W_B
     x[W] = omega_B
     if layout.biased:
         x[BG] = fit.b_g
-    up = -np.asarray(gravity_W, float) / np.linalg.norm(gravity_W)
     vel_std = max(o.velocity_std, 3.0 * float(np.max(fit.v_std)))
     tilt_std = max(o.roll_pitch_std, 3.0 * fit.tilt_std)
-    yaw_std = o.yaw_std_unknown if gps_fused else o.yaw_std_local
+    if heading == "magnetometer":
+        yaw_std = o.yaw_std
+    else:
+        yaw_std = o.yaw_std_unknown if gps_fused else o.yaw_std_local
     # With GPS fused the first fix places the origin-started body (VISION_GPS_POSITION_STD_M).
     pos_std = VISION_GPS_POSITION_STD_M if gps_fused else o.position_std
     P0 = _levelled_covariance(layout, o, R_W_B, up, pos_std, vel_std, tilt_std, yaw_std)
     info: dict[str, object] = {
-        "mode": "vision", "frames": fit.frames, "window_s": o.vision_window_s,
+        "mode": "vision", "heading": heading, "frames": fit.frames, "window_s": o.vision_window_s,
         "gravity_fit_mps2": fit.g_fit_mps2, "rms_m": fit.rms_m,
         "tilt_std_deg": float(np.degrees(fit.tilt_std)), "velocity_W": v_W_B.tolist(),
         "gyro_bias": fit.b_g.tolist(),

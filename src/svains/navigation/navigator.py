@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from svains.errors import ConfigError
+from svains.errors import ConfigError, InitialisationError
 from svains.models.state import BIASED, PAPER
 from svains.navigation.event_queue import FRAME, GPS, MAG, SONAR, EventQueue
 from svains.navigation.fault_handling import ImuFaults, RateLimitedLog
@@ -58,7 +58,7 @@ class Navigator:
 
     ``on_output(state)`` is called at every output tick (and for the final state); the same
     states can be drained with ``outputs()``. ``initial_state`` starts the filter from a given
-    state (``init.mode == "groundtruth"``) instead of the IMU/GPS start.
+    state (``init.mode == "groundtruth"``) instead of the IMU/GPS/vision start.
     """
 
     def __init__(
@@ -86,7 +86,8 @@ class Navigator:
         if self._window_ns < 0:
             raise ConfigError(f"buffer.window_s must be >= 0, got {config.buffer.window_s}")
         self.starter = Starter(config.init, rig, self.layout, initial_state,
-                               gps_fused=config.use_gps and rig.gps is not None)
+                               gps_fused=config.use_gps and rig.gps is not None,
+                               max_row_diff_px=config.vision.max_row_diff_px)
         self._warn = RateLimitedLog(config.faults.warn_interval_s)
         # A rig without an IMU calibration is guarded with the default one the filter uses: a
         # non-finite sample fed online would otherwise reach the filter and end the run.
@@ -154,9 +155,10 @@ class Navigator:
         turned grey): the front end runs on it when the estimator reaches ``t_ns`` (camera
         clock = IMU clock); a pair of another size than the calibration's is dropped with a
         warning. The arrays are copied unless ``copy=False``, which hands them over: the caller
-        must not change them afterwards. Ignored by ``ins``. ``TypeError`` for another dtype:
+        must not change them afterwards. Ignored by ``ins`` but for an ``init.mode`` vision start.
+        ``TypeError`` for another dtype:
         a 12- or 16-bit or float image has no one right conversion, so the caller makes it."""
-        if self.config.method != "ins":
+        if self._takes_frames:
             for name, img in (("left", left), ("right", right)):
                 dtype = getattr(img, "dtype", None)
                 if dtype is not None and dtype != np.uint8:
@@ -176,7 +178,7 @@ class Navigator:
         """Pre-tracked features of one stereo frame: ``track_id`` (M,) int, ``uv_left``,
         ``uv_right`` (M, 2) px in the rectified pair ``cam0``/``cam1`` define. Ignored by
         ``ins``."""
-        if self.config.method != "ins":
+        if self._takes_frames:
             ids = np.asarray(track_id, np.int64)
             uv_l, uv_r = np.asarray(uv_left, float), np.asarray(uv_right, float)
             m = ids.shape[0] if ids.ndim == 1 else -1
@@ -238,6 +240,12 @@ class Navigator:
                 self.core.end_ns = end
             self._advance(end + 1)
             if self.core is None:
+                odo = self.starter.odometry
+                if odo is not None:  # a ``vision`` start: what its odometry had
+                    raise InitialisationError(
+                        f"in-flight start from vision: the stream ended before "
+                        f"{self.config.init.vision_window_s:g} s of linked stereo frames (the "
+                        f"last chain: {len(odo.t_ns)} frames over {odo.span_s():.2f} s)")
                 raise ConfigError("the stream ended before the initial state was decided")
             self._finish(end)
         if self.core is None:
@@ -348,9 +356,17 @@ class Navigator:
                 return
             if not self._rate_ok(SONAR, t, cfg.max_sonar_rate_hz):
                 return
-        elif kind == FRAME and not self._frame_stage(t, payload):
-            return
+        elif kind == FRAME:
+            if self.core is None:
+                self.starter.add_frame(t, payload)  # the ``vision`` start's odometry
+            if cfg.method == "ins" or not self._frame_stage(t, payload):
+                return
         self._backlog.append((t, kind, payload if kind != FRAME else None))
+
+    @property
+    def _takes_frames(self) -> bool:
+        """Frames are fused by the vision methods, and start every method with ``vision``."""
+        return self.config.method != "ins" or self.config.init.mode == "vision"
 
     def _rate_ok(self, kind: int, t: int, max_rate_hz: float | None) -> bool:
         # Keep the first sample of each 1/max_rate bin (bins anchored at 0 ns, so streams

@@ -88,7 +88,7 @@ class InitOptions:
     """Initialisation: ``mode`` static (gravity, gyro mean, magnetometer heading), gps (in
     flight: GPS position, velocity and acceleration, specific force, magnetometer heading;
     ``flight_roll_pitch_std`` then), vision (in flight without GPS: gravity and velocity from
-    the first seconds of stereo odometry against the IMU, computed by the replay) or
+    the first seconds of stereo odometry against the IMU, ``navigation.vision_start``) or
     groundtruth.
 
     The static interval is the first ``static_s`` seconds. Rotors make a resting vehicle's IMU

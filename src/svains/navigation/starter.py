@@ -21,10 +21,15 @@ from svains.navigation.init import (
     InitData,
     InitialState,
     MagArrays,
+    from_vision_fit,
     initialise,
 )
 from svains.navigation.options import InitOptions
+from svains.navigation.vision_start import StartOdometry, fit_vision_inertial, state_at
 from svains.sensors.types import Rig
+
+# A ``vision`` start takes its heading from the magnetometer samples this near its time.
+MAG_HEADING_SPAN_NS = 250_000_000
 
 
 class Starter:
@@ -32,12 +37,12 @@ class Starter:
 
     def __init__(
         self, options: InitOptions, rig: Rig, layout: StateLayout, given: InitialState | None,
-        gps_fused: bool | None = None,
+        gps_fused: bool | None = None, max_row_diff_px: float | None = 2.0,
     ) -> None:
-        """``gps_fused``: whether the run fuses GPS (None: when the rig has one)."""
-        if given is None and options.mode in ("groundtruth", "vision"):
-            raise ConfigError(f"init.mode {options.mode} needs the initial state (initial_state=; "
-                              "svains run computes it from the recording)")  # fmt: skip
+        """``gps_fused``: whether the run fuses GPS (None: when the rig has one);
+        ``max_row_diff_px``: the stereo rows' tolerance of the start's odometry (``vision``)."""
+        if given is None and options.mode == "groundtruth":
+            raise ConfigError("init.mode groundtruth needs the initial state (initial_state=)")
         if given is None and options.mode == "gps" and rig.gps is None:
             raise ConfigError("init.mode gps needs a GPS calibration in the rig")
         self.options = options
@@ -47,9 +52,16 @@ class Starter:
         self.gps_fused = gps_fused
         self._mag: list[tuple[int, np.ndarray]] = []
         self._gps: list[tuple[int, np.ndarray, np.ndarray]] = []
+        self.odometry = (StartOdometry(rig.cam0, rig.cam1, max_row_diff_px)
+                         if given is None and options.mode == "vision" else None)  # fmt: skip
 
     def add_mag(self, t_ns: int, m_S: np.ndarray) -> None:
         self._mag.append((t_ns, m_S))
+
+    def add_frame(self, t_ns: int, payload: tuple) -> None:
+        """A stereo frame, for the ``vision`` start's odometry until the start is decided."""
+        if self.odometry is not None:
+            self.odometry.add_frame(t_ns, payload)
 
     def add_gps(self, t_ns: int, p_W_G: np.ndarray, v_W_G: np.ndarray | None) -> None:
         """A fix (``v_W_G`` None: position only). Two fixes with velocity start in flight;
@@ -87,6 +99,8 @@ class Starter:
         if self.given is not None:
             return self.given if last >= self.given.t_ns else None
         o = self.options
+        if o.mode == "vision":
+            return self._vision_start(history, horizon_ns)
         if o.mode == "gps":
             n = self._gps_needed()
             if len(self._gps) < n or horizon_ns <= self._gps[n - 1][0]:
@@ -104,3 +118,36 @@ class Starter:
         if self.rig.gps is not None and not self._gps and horizon_ns <= t_first + wait_ns:
             return None
         return initialise(self._data(history), self.layout, o)
+
+    def _vision_start(self, history: ImuHistory, horizon_ns: int) -> InitialState | None:
+        """Once the odometry spans ``init.vision_window_s`` in one chain and the IMU covers it:
+        the fit (``navigation.vision_start``) at the first IMU sample from its first frame."""
+        odo = self.odometry
+        o = self.options
+        assert odo is not None
+        last = history.last_ns
+        if (len(odo.t_ns) < 4 or odo.span_s() < o.vision_window_s or last is None
+                or last < odo.t_ns[-1] or horizon_ns <= odo.t_ns[-1]):  # fmt: skip
+            return None
+        t_f, R_V_B, p_V_B = odo.body_poses()
+        t_imu, gyro_B, accel_B = history.t_ns, history.gyro_B, history.accel_B
+        cal = self.rig.imu
+        g_W = np.asarray(self.rig.gravity_W, float)
+        fit = fit_vision_inertial(
+            t_f, R_V_B, p_V_B, t_imu, gyro_B, accel_B, g_W, o.vision_max_g_error,
+            0.0 if cal is None else cal.gyro_noise_density, o.gyro_bias_std,
+            0.0 if cal is None else cal.accel_noise_density,
+        )  # fmt: skip
+        k = int(np.searchsorted(t_imu, fit.t0_ns))
+        t_s = int(t_imu[k])
+        R_W_B, v_W_B = state_at(fit, R_V_B[0], t_imu, gyro_B, accel_B, t_s)
+        gps_fused = bool(self.gps_fused if self.gps_fused is not None else self.rig.gps)
+        m_B = m_W = None
+        if self.rig.mag is not None:  # the heading, as a static start takes it
+            near = [m for t, m in self._mag if abs(t - t_s) <= MAG_HEADING_SPAN_NS]
+            if near:
+                m_B = self.rig.mag.T_B_S[:3, :3] @ np.mean(near, axis=0)
+                m_W = self.rig.mag.m_W
+        self.odometry = None  # its frames and front end are no longer needed
+        return from_vision_fit(fit, t_s, R_W_B, v_W_B, gyro_B[k] - fit.b_g, self.layout, o,
+                               g_W, gps_fused, m_B, m_W)  # fmt: skip

@@ -24,6 +24,7 @@ them (its yaw is the odometry's first camera's: a gauge, as after a static start
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -181,3 +182,65 @@ def state_at(
     dt = (t_ns - fit.t0_ns) * 1e-9
     v_V = fit.v_V + fit.g_V * dt + R_V_B0 @ beta[0]
     return fit.R_W_V @ R_V_B0 @ R[0], fit.R_W_V @ v_V
+
+
+class StartOdometry:
+    """Stereo odometry over the first frames for ``init.mode: vision``: its own tracks source
+    (the ``vo`` method's: egomotion of every frame, bundle-adjusted), chained into the left
+    camera's poses in its first frame V. A frame without a motion, or not the successor of the
+    last one, starts the chain anew from it (the window must be one unbroken chain)."""
+
+    def __init__(self, cam0: Any, cam1: Any, max_row_diff_px: float | None) -> None:
+        self._cams = (cam0, cam1)
+        self._max_row_diff_px = max_row_diff_px
+        self._source: Any = None
+        self.t_ns: list[int] = []
+        self.T_V_C: list[F64] = []
+
+    def add_frame(self, t_ns: int, payload: tuple) -> None:
+        """One frame as the Navigator stages it: ``("images", left, right)`` or
+        ``("features", track_id, uv_left, uv_right)``."""
+        from svains.navigation.tracks import TrackOptions
+        from svains.navigation.vision_sources import (
+            FeatureFrames,
+            ImageFrames,
+            rig_from_calibrations,
+        )
+
+        kind = payload[0]
+        if self._source is None:
+            if kind == "images":
+                self._source = ImageFrames(*self._cams, bundle=True)
+            else:
+                opts = TrackOptions(max_row_diff_px=self._max_row_diff_px, egomotion=True,
+                                    bundle=True)  # fmt: skip
+                self._source = FeatureFrames(rig_from_calibrations(*self._cams), opts)
+        if self._source.kind != kind:
+            return
+        # Its own copies: the tracks source the filter is fed the same arrays.
+        self._source.push(int(t_ns), *(np.array(a, copy=True) for a in payload[1:]))
+        tr = self._source.tracks_at(int(t_ns))
+        linked = (tr is not None and tr.egomotion is not None and bool(self.t_ns)
+                  and int(tr.t_prev_ns) == self.t_ns[-1])  # fmt: skip
+        if not linked:
+            self.t_ns, self.T_V_C = [int(t_ns)], [np.eye(4)]
+            return
+        ego = tr.egomotion  # type: ignore[union-attr]
+        T_inv = np.eye(4)  # T_Ckm1_Ck = T_Ck_Ckm1^-1
+        T_inv[:3, :3] = ego.R_Ck_Ckm1.T
+        T_inv[:3, 3] = -ego.R_Ck_Ckm1.T @ ego.p_Ck_Ckm1
+        self.t_ns.append(int(t_ns))
+        self.T_V_C.append(self.T_V_C[-1] @ T_inv)
+
+    def span_s(self) -> float:
+        return (self.t_ns[-1] - self.t_ns[0]) * 1e-9 if self.t_ns else 0.0
+
+    def body_poses(self) -> tuple[I64, F64, F64]:
+        """Frame times (K,), body attitudes ``R_V_B`` (K, 3, 3) and positions ``p_V_B`` (K, 3)
+        (through the rectified left camera's mount on the body)."""
+        rig = self._source.rig
+        R_B_C, p_B_C = np.asarray(rig.R_B_C, float), np.asarray(rig.p_B_C, float)
+        T = np.array(self.T_V_C)
+        R_V_B = T[:, :3, :3] @ R_B_C.T
+        p_V_B = T[:, :3, 3] - R_V_B @ p_B_C
+        return np.array(self.t_ns, np.int64), R_V_B, p_V_B

@@ -68,7 +68,7 @@ def history_from_dataset(ds: Dataset) -> ImuHistory:
 def resolve_config(ds: Dataset, config: RunConfig) -> RunConfig:
     """``config`` with what the recording implies: the tracks' source (``auto``), the features'
     pixel noise, and the ``rotation="imu"`` frame noise (``tune_for_frames``). Idempotent."""
-    if config.method == "ins":
+    if config.method == "ins" and config.init.mode != "vision":  # no frames to read
         return config
     v = config.vision
     source = v.source
@@ -145,8 +145,12 @@ def _rows(t_ns: Any, kind: int, t0: int, *arrays: Any) -> Iterator[tuple[int, in
         yield t_i, kind, rows
 
 
-def measurements(ds: Dataset, config: RunConfig, t0: int) -> Iterator[tuple[int, int, Any]]:
-    """``(t_ns, kind, payload)`` of every measurement stamped at or after ``t0``, in order."""
+def measurements(
+    ds: Dataset, config: RunConfig, t0: int, frames_while: Callable[[], bool] | None = None
+) -> Iterator[tuple[int, int, Any]]:
+    """``(t_ns, kind, payload)`` of every measurement stamped at or after ``t0``, in order.
+    ``frames_while()``: stereo frames for ``ins`` too while it holds (a ``vision`` start's
+    odometry), none once it turns false."""
     streams = []
     if ds.gps is not None:
         streams.append(_rows(ds.gps.t_ns, _GPS, t0, ds.gps.p_W_G, ds.gps.v_W_G))
@@ -154,14 +158,26 @@ def measurements(ds: Dataset, config: RunConfig, t0: int) -> Iterator[tuple[int,
         streams.append(_rows(ds.mag.t_ns, _MAG, t0, ds.mag.m_S))
     if ds.sonar is not None:
         streams.append(_rows(ds.sonar.t_ns, _SONAR, t0, ds.sonar.range_m))
-    if config.method != "ins":
+    if config.method != "ins" or frames_while is not None:
+        frames = None
         if config.vision.source == "features" and ds.features is not None:
-            streams.append(_feature_frames(ds, t0))
+            frames = _feature_frames(ds, t0)
         elif config.vision.source == "images" and ds.left is not None and ds.right is not None:
-            streams.append(_image_pairs(ds, t0))
+            frames = _image_pairs(ds, t0)
+        if frames is not None:
+            streams.append(frames if config.method != "ins" or frames_while is None
+                           else _while(frames, frames_while))  # fmt: skip
     assert ds.imu is not None
     streams.append(_rows(ds.imu.t_ns, _IMU, t0, ds.imu.gyro_B, ds.imu.accel_B))
     return heapq.merge(*streams, key=lambda e: (e[0], e[1]))
+
+
+def _while(events: Iterator[tuple[int, int, Any]],
+           keep: Callable[[], bool]) -> Iterator[tuple[int, int, Any]]:  # fmt: skip
+    for ev in events:
+        if not keep():
+            return
+        yield ev
 
 
 def feed(nav: Navigator, kind: int, t: int, payload: Any) -> None:
@@ -210,17 +226,15 @@ def replay(
     init = None
     if config.init.mode == "groundtruth":
         init = groundtruth_start(ds, config, t0 if config.replay.start_s > 0 else None)
-    elif config.init.mode == "vision":
-        from svains.replay.vision_start import vision_start
 
-        init = vision_start(ds, config)
     nav = Navigator(config, rig_from_dataset(ds), on_output=on_output, initial_state=init)
     span = max(1, int(t_imu[-1]) - t0)
     next_report = t0
     # Once around the whole loop (entering costs ~0.6 ms); under ``svains`` it keeps the
     # command's ``--threads``.
     with limit_threads(None):
-        for t, kind, payload in measurements(ds, config, t0):
+        starting = (lambda: nav.core is None) if config.init.mode == "vision" else None
+        for t, kind, payload in measurements(ds, config, t0, starting):
             feed(nav, kind, t, payload)
             if nav.status == "finished":
                 break
