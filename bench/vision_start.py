@@ -20,6 +20,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from faults import parse_seeds
 
 from svains.datasets import load_dataset
 from svains.datasets.types import Dataset
@@ -27,14 +28,6 @@ from svains.evaluation.run import run_method
 from svains.geometry.rotation import quat_to_rotmat
 from svains.navigation.options import InitOptions, RunConfig
 from svains.replay.groundtruth import interpolate_groundtruth
-
-
-def parse_seeds(text: str) -> list[int]:
-    seeds: list[int] = []
-    for part in text.split(","):
-        lo, _, hi = part.partition("-")
-        seeds += list(range(int(lo), int(hi or lo) + 1))
-    return seeds
 
 
 def start_errors(ds: Dataset, config: RunConfig) -> tuple[float, float, dict]:
