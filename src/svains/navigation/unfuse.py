@@ -16,7 +16,8 @@ made after the sample (a copy of the pose by then) gets the pose's share instead
 sample moved the pose by 0.4° and the clone of 0.5 s before by 0.03° (the images had pinned
 the clone; the pose's recent turn was what the magnetometer could move). First-order: exact
 for a linear model without process noise between the samples and the undo
-(``tests/test_unfuse.py``).
+(``tests/test_unfuse.py``). A smoother (``--smooth``) sees the change as a reset of the state
+and cuts its chain there (``smoothed.chain_cuts``).
 """
 
 from __future__ import annotations
