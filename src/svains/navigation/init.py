@@ -174,8 +174,8 @@ def _from_static(dataset: InitData, layout: StateLayout, o: InitOptions) -> Init
         raise InitialisationError(
             f"IMU is not static during the first {o.static_s} s: {o.block_s} s block means "
             f"deviate by up to {acc_dev:.3f} m/s² (max {o.max_accel_dev}) and {gyro_dev:.4f} "
-            f"rad/s (max {o.max_gyro_dev}); use --init groundtruth or a data set with a "
-            f"static start{hint}"
+            f"rad/s (max {o.max_gyro_dev}); to start in motion use --init vision (stereo) or "
+            f"--init gps, or --init groundtruth{hint}"
         )
     f_B = acc.mean(axis=0)
     bg = gyro.mean(axis=0)
