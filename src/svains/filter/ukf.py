@@ -181,6 +181,7 @@ class UKF:
         Wm, Wc = self.points.Wm, self.points.Wc
         stats: list[UpdateStats] = []
         kept: list[tuple[F64, F64, F64]] = []  # (dY, r, R as a matrix)
+        kept_at: list[int] = []  # their positions in ``stats``
         for h, z, R, residual, name in blocks:
             z = np.asarray(z, dtype=float).ravel()
             nz = z.size
@@ -210,18 +211,16 @@ class UKF:
             stats.append(UpdateStats(name, ok, nis, nz, float(gate), w, r.copy(), refused, S))
             if ok:
                 kept.append((dY, r, Rm))
+                kept_at.append(len(stats) - 1)
         if kept:
             label = "+".join(s.name for s in stats if s.accepted)
             dx, dP = _stacked_gain(dX, Wc, kept, label)
-            accepted = [s for s in stats if s.accepted]
-            for j, st in enumerate(accepted):
-                if contribution_of is not None and st.name == contribution_of:
+            for j, i in enumerate(kept_at):
+                if stats[i].name == contribution_of:
                     others = kept[:j] + kept[j + 1 :]
                     dx_o, dP_o = (_stacked_gain(dX, Wc, others, label) if others
                                   else (np.zeros_like(dx), np.zeros_like(dP)))  # fmt: skip
-                    accepted[j] = replace(st, contribution=(dx - dx_o, dP - dP_o))
-            it = iter(accepted)
-            stats = [next(it) if s.accepted else s for s in stats]
+                    stats[i] = replace(stats[i], contribution=(dx - dx_o, dP - dP_o))
             self._set_posterior(self.manifold.retract(self.x[None, :], dx[None, :])[0],
                                 self.P - dP)  # fmt: skip
         return stats

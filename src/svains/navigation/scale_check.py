@@ -193,12 +193,9 @@ class ScaleCheck:
             return
         t = np.asarray(self._fixes_t)
         V = np.asarray(self._fixes_v)
-        waiting = []
-        for span in self._gps_pending:
+        due, self._gps_pending = _passed(self._gps_pending, int(t[-1]), 64)
+        for span in due:
             a, b = span.start.t_ns, span.end.t_ns
-            if t[-1] < b:
-                waiting.append(span)
-                continue
             near = (t >= a - MAX_FIX_GAP_NS) & (t <= b + MAX_FIX_GAP_NS)
             if t[0] > a or not np.all(np.isfinite(V[near])):
                 continue  # (fixes without a velocity: the segments' positions say it)
@@ -213,14 +210,10 @@ class ScaleCheck:
             dur = (b - a) * 1e-9
             var_g = (self.gps_velocity_std * dur) ** 2 / max(inside.size + 1, 1)
             self._gps_row(span, d_G, var_g)
-        self._gps_pending = waiting[-64:]  # (no fix for a minute: the oldest are let go)
-        waiting = []
         P = np.asarray(self._fixes_p)
-        for seg in self._seg_pending:
+        due, self._seg_pending = _passed(self._seg_pending, int(t[-1]), 16)
+        for seg in due:
             a, b = seg.start.t_ns, seg.end.t_ns
-            if t[-1] < b:
-                waiting.append(seg)
-                continue
             near = (t >= a - MAX_FIX_GAP_NS) & (t <= b + MAX_FIX_GAP_NS)
             if t[0] > a or np.any(np.isfinite(V[near])):
                 continue  # (fixes with a velocity: the spans say it)
@@ -233,7 +226,6 @@ class ScaleCheck:
                                       for i in range(3)]))  # fmt: skip
             if len(ends) == 2:
                 self._gps_row(seg, ends[1] - ends[0], 2.0 * self.gps_position_std**2)
-        self._seg_pending = waiting[-16:]
         self._judge_gps()
 
     def _gps_row(self, span: _Span, d_G: F64, var_g: float) -> None:
@@ -584,3 +576,11 @@ def scale_check(history: ImuHistory | None, stereo: RectifiedStereo,
         return None
     return ScaleCheck(history, stereo, np.asarray(gravity_W, float),
                       imu or default_imu_calib())
+
+
+def _passed(pending: list[_Span], last_ns: int, keep: int) -> tuple[list[_Span], list[_Span]]:
+    """``pending`` spans split into those whose end the fixes have passed (``last_ns``) and
+    the rest, of which the newest ``keep`` wait (without fixes for long, the oldest are let
+    go)."""
+    due = [s for s in pending if s.end.t_ns <= last_ns]
+    return due, [s for s in pending if s.end.t_ns > last_ns][-keep:]

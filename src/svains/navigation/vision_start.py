@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from svains.errors import InitialisationError
+from svains.frontend.vo_chain import chain_egomotion
 from svains.geometry.rotation import so3_exp, so3_log
 
 F64 = NDArray[np.float64]
@@ -225,12 +226,8 @@ class StartOdometry:
         if not linked:
             self.t_ns, self.T_V_C = [int(t_ns)], [np.eye(4)]
             return
-        ego = tr.egomotion  # type: ignore[union-attr]
-        T_inv = np.eye(4)  # T_Ckm1_Ck = T_Ck_Ckm1^-1
-        T_inv[:3, :3] = ego.R_Ck_Ckm1.T
-        T_inv[:3, 3] = -ego.R_Ck_Ckm1.T @ ego.p_Ck_Ckm1
         self.t_ns.append(int(t_ns))
-        self.T_V_C.append(self.T_V_C[-1] @ T_inv)
+        self.T_V_C.append(chain_egomotion([tr.egomotion], self.T_V_C[-1])[-1])  # type: ignore[union-attr]
 
     def span_s(self) -> float:
         return (self.t_ns[-1] - self.t_ns[0]) * 1e-9 if self.t_ns else 0.0
