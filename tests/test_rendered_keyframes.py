@@ -61,6 +61,11 @@ def test_3d_keeps_keyframes_seconds_apart_linked_through_the_image_front_end(
     res = run_method(keyframes, "3d", RunConfig(use_gps=False, use_mag=False,
                                                 vision=VisionOptions(source="images")))
     rep = res.report
-    assert rep["ate_rmse_m"] < 0.5, rep["ate_rmse_m"]  # measured 0.281 m
-    assert rep["nees_mean"] < 12.0, rep["nees_mean"]  # measured 6.07
-    assert rep["vision"]["frames_fused"] >= 36  # 38 of 47
+    # Measured 0.172 m, NEES 2.95, 41 of 47 frames fused, 3 of them relocalised by ORB
+    # descriptors against keyframes 12-19 s older (``navigation.relocalise``); without the
+    # relocalisation (``vision.relocalise=false``) 0.281 m, NEES 6.07, 38 fused.
+    assert rep["ate_rmse_m"] < 0.25, rep["ate_rmse_m"]
+    assert rep["nees_mean"] < 9.0, rep["nees_mean"]
+    assert rep["vision"]["frames_fused"] >= 39
+    assert rep["vision"]["frames_relocalised"] >= 2
+    assert 0 < rep["vision"]["keyframes_kb"] < 3000  # 17 keyframes, 1.3 MB

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -30,7 +31,7 @@ from svains.frontend.features import detect_corners
 from svains.frontend.images import as_grey, image_problem, texture_std
 from svains.frontend.motion_checks import agrees_with_prior, plausible
 from svains.frontend.options import HOLD_STATUSES, FrameStats, FrontendOptions
-from svains.frontend.reacquire import Reacquired, Reacquirer
+from svains.frontend.reacquire import OrbStereo, Reacquired, Reacquirer, match_global, orb_stereo
 from svains.frontend.rectify import StereoRectifier
 from svains.frontend.stereo import dense_disparity, match_dense, match_sparse
 from svains.frontend.stereo_check import StereoCheck
@@ -46,6 +47,9 @@ log = logging.getLogger(__name__)
 
 _WARN_FIRST = 3  # malformed pairs warned one by one; after them, one warning per _WARN_EVERY
 _WARN_EVERY = 100
+# ORB features kept per keyframe (each ~88 bytes: pixels, point, descriptor): 1000 hold a
+# room's view and 500 keyframes stay under 45 MB.
+KEYFRAME_ORB_FEATURES = 1000
 CHECK_MAX_PAIRS = 10  # good pairs the stereo check may look at before it gives up undecided
 
 
@@ -82,6 +86,8 @@ class StereoFrontend:
         self._n_after_detect = 0  # reference features right after the last corner search
         self._since_detect = 0  # frames since the last corner search
         self._rng = np.random.default_rng(self.options.ransac.seed)
+        # Its own stream: a relocalisation leaves the tracking's draws as they were.
+        self._reloc_rng = np.random.default_rng([self.options.ransac.seed, 1])
         # Sparse matching on a rig that needs rectification tracks on the raw images and
         # rectifies only the feature pixels (two whole-image remaps per frame saved); the dense
         # methods need rectified images.
@@ -93,6 +99,9 @@ class StereoFrontend:
         self._frozen = 0
         self._malformed = 0  # pairs dropped as no image or of another size
         self._reacquirer = Reacquirer(self.rig, self.options.reacquire)
+        # The last good frame processed: time, pyramids, dense disparity (keyframes and
+        # relocalisation work on it after ``process`` returned).
+        self._frame: tuple[int, Pyramid, Pyramid, F64 | None] | None = None
         # Left and right swapped, rows that do not agree (``stereo_check``): judged on the
         # first good pairs, warned once; a swapped pair gives no tracks.
         self.stereo_check = StereoCheck()
@@ -221,6 +230,7 @@ class StereoFrontend:
         if disparity is not None:
             tm["dense"] = (time.perf_counter() - t1) * 1e3
 
+        self._frame = (int(t_ns), pl, pr, disparity)
         ref = self._ref
         result: StereoTracks | None = None
         keep_id = np.zeros(0, np.int64)
@@ -297,6 +307,69 @@ class StereoFrontend:
         if result is None:
             self.stats.status = "first"
         return result
+
+    # ------------------------------------------------------------------ keyframes
+    def keyframe_features(self, t_ns: int) -> OrbStereo | None:
+        """ORB features of the frame processed at ``t_ns`` with their stereo matches and
+        points (``KEYFRAME_ORB_FEATURES`` at most), for a later relocalisation against it; None
+        unless it is the last good frame processed."""
+        f = self._frame
+        if f is None or f[0] != int(t_ns):
+            return None
+        _, pl, pr, disparity = f
+        opts = replace(self.options.reacquire, n_features=KEYFRAME_ORB_FEATURES)
+        return orb_stereo(pl.image, self.rig, self._to_rect,
+                          lambda uv: self._stereo(pl, pr, uv, None, disparity), opts)  # fmt: skip
+
+    def relocalise(
+        self, t_ns: int, keyframes: Sequence[tuple[int, OrbStereo]], min_inliers: int
+    ) -> StereoTracks | None:
+        """Tracks from a stored keyframe to the frame processed at ``t_ns``: its ORB features
+        matched over the whole image to each keyframe's (``(t_ns, OrbStereo)``; Lowe's ratio,
+        mutual best), left-right matched, and the RANSAC motion of the re-acquisition's
+        settings; of the keyframes with a consensus of ``min_inliers`` and the front end's
+        inlier fraction, the one with the most inliers. New track ids; no effect on the
+        front end's own tracking. None without one."""
+        f = self._frame
+        if f is None or f[0] != int(t_ns) or not keyframes:
+            return None
+        _, pl, pr, disparity = f
+        o, ro = self.options, self.options.reacquire
+        uv_cur, desc_cur = self._reacquirer.current(pl.image, self._to_rect)
+        ransac = replace(o.ransac, inlier_px=ro.ransac_inlier_px,
+                         min_inliers=max(ro.min_inliers, min_inliers),
+                         iterations=ro.ransac_iterations)  # fmt: skip
+        best: StereoTracks | None = None
+        for t_kf, kf in keyframes:
+            i_r, i_c = match_global(kf.desc, desc_cur, ro)
+            if i_r.size < max(ro.min_matches, min_inliers):
+                continue
+            uvl, (uvr, ok) = uv_cur[i_c], self._stereo(pl, pr, uv_cur[i_c], None, disparity)
+            i_r, uvl, uvr = i_r[ok], uvl[ok], uvr[ok]
+            if i_r.size < min_inliers:
+                continue
+            p_kf = kf.p_C_F[i_r]
+            res = estimate_egomotion(p_kf, uvl, uvr, self.rig, ransac,
+                                     p_cur=lambda a=uvl, b=uvr: self.rig.triangulate(a, b),
+                                     rng=self._reloc_rng)  # fmt: skip
+            epi = (np.abs(uvl[:, 1] - uvr[:, 1]) <= o.epipolar_final_px) & (
+                np.abs(kf.uv_left[i_r, 1] - kf.uv_right[i_r, 1]) <= o.epipolar_final_px)
+            inlier = res.inlier & epi
+            n_inl = int(inlier.sum())
+            if (res.egomotion is None or n_inl < max(min_inliers, o.min_inlier_fraction * i_r.size)
+                    or (best is not None and n_inl <= int(best.inlier.sum()))):  # fmt: skip
+                continue
+            ids = np.arange(self._next_id, self._next_id + i_r.size, dtype=np.int64)
+            best = StereoTracks(
+                t_prev_ns=int(t_kf), t_ns=int(t_ns), track_id=ids,
+                uv_left_prev=kf.uv_left[i_r], uv_right_prev=kf.uv_right[i_r], uv_left=uvl,
+                uv_right=uvr, p_Ckm1_F=p_kf, inlier=inlier, egomotion=res.egomotion,
+            )  # fmt: skip
+        if best is not None:
+            self._next_id += best.track_id.size
+            log.info("frame %d: relocalised against the keyframe of %d by descriptors, %d "
+                     "inliers", t_ns, best.t_prev_ns, int(best.inlier.sum()))  # fmt: skip
+        return best
 
     def _check_stereo(self, left: U8, right: U8, gl: U8, gr: U8) -> None:
         """Pool one pair into ``stereo_check`` (rectified ``left``/``right``, or the raw ``gl``/

@@ -185,6 +185,37 @@ def _accept(knn: list, ratio: float, max_hamming: int) -> tuple[NDArray[np.int64
     return i_ref, i_cur
 
 
+@dataclass(frozen=True)
+class OrbStereo:
+    """A frame's ORB features with a stereo match (K of them): rectified left and right pixels
+    (K, 2), points ``p_C_F`` (K, 3) m in its left camera, descriptors (K, 32)."""
+
+    uv_left: F64
+    uv_right: F64
+    p_C_F: F64
+    desc: U8
+
+    @property
+    def nbytes(self) -> int:
+        return self.uv_left.nbytes + self.uv_right.nbytes + self.p_C_F.nbytes + self.desc.nbytes
+
+
+def orb_stereo(
+    img: U8, rig: RectifiedStereo, to_rect: Callable[[F64], F64],
+    stereo: Callable[[F64], tuple[F64, Bool]], opts: ReacquireOptions,
+) -> OrbStereo:
+    """ORB features of the left image ``img`` (the tracked one, raw or rectified) inside the
+    rectified view that ``stereo`` (rectified px -> right px, found) matches, triangulated
+    (``to_rect`` maps ``img``'s pixels to rectified ones)."""
+    uv_img, desc = orb_features(img, opts)
+    uv = to_rect(uv_img)
+    ok = np.isfinite(uv).all(1) & rig.in_image(uv)
+    uv_r, ok_s = stereo(uv[ok]) if ok.any() else (np.zeros((0, 2)), np.zeros(0, bool))
+    p = rig.triangulate(uv[ok][ok_s], uv_r[ok_s])
+    good = np.isfinite(p).all(1) & (p[:, 2] > 0.1)
+    return OrbStereo(uv[ok][ok_s][good], uv_r[ok_s][good], p[good], desc[ok][ok_s][good])
+
+
 class Reacquirer:
     """Descriptor matching between a reference stereo frame and the current left image; the
     reference's ORB features, stereo matches and points are kept while it stays the reference."""
@@ -201,13 +232,8 @@ class Reacquirer:
     ) -> tuple[F64, F64, F64, U8]:
         """Reference features with a stereo match: left, right (rectified px), points, desc."""
         if self._ref_t_ns != t_ns or self._ref is None:
-            uv_img, desc = orb_features(img, self.options)
-            uv = to_rect(uv_img)
-            ok = np.isfinite(uv).all(1) & self.rig.in_image(uv)
-            uv_r, ok_s = stereo(uv[ok]) if ok.any() else (np.zeros((0, 2)), np.zeros(0, bool))
-            p = self.rig.triangulate(uv[ok][ok_s], uv_r[ok_s])
-            good = np.isfinite(p).all(1) & (p[:, 2] > 0.1)
-            self._ref = (uv[ok][ok_s][good], uv_r[ok_s][good], p[good], desc[ok][ok_s][good])
+            f = orb_stereo(img, self.rig, to_rect, stereo, self.options)
+            self._ref = (f.uv_left, f.uv_right, f.p_C_F, f.desc)
             self._ref_t_ns = t_ns
         return self._ref
 

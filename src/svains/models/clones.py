@@ -229,6 +229,27 @@ def augment_clone(
     return _appended(x, P[np.ix_(J_rows, J_rows)], manifold, x[P_SLICE], x[Q_SLICE], jitter)
 
 
+def augment_independent_clone(
+    x: F64, P: F64, manifold: CloneManifold, p_W_B: F64, q_W_B_wxyz: F64, P_pose: F64
+) -> tuple[F64, F64, CloneManifold]:
+    """Append a pose ``(p_W_B (3,) m, q_W_B_wxyz (4,))`` with its own covariance ``P_pose``
+    (6, 6; tangent ``(δp, δθ_B)``) and no correlation with the state: ``x'`` (nx + 7,),
+    ``P'`` (ndx + 6, ndx + 6). For a pose estimated long ago and stored apart from the
+    filter (a keyframe, ``navigation.relocalise``), whose correlation with the state the
+    filter no longer holds."""
+    x, P = _checked(x, P, manifold)
+    P_pose = np.asarray(P_pose, dtype=float)
+    if P_pose.shape != (CLONE_NDX, CLONE_NDX):
+        raise ConfigError(f"a pose covariance is ({CLONE_NDX}, {CLONE_NDX}), got {P_pose.shape}")
+    n = manifold.ndx
+    P_new = np.zeros((n + CLONE_NDX, n + CLONE_NDX))
+    P_new[:n, :n] = P
+    P_new[n:, n:] = P_pose
+    q = np.asarray(q_W_B_wxyz, dtype=float)
+    return _appended(x, P_new, manifold, np.asarray(p_W_B, dtype=float), q / np.linalg.norm(q),
+                     None)  # fmt: skip
+
+
 def shifted_clone(
     x: F64, manifold: CloneManifold, td: int, inc: ShiftIncrement | ShiftTable
 ) -> tuple[F64, F64, F64]:

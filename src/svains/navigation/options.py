@@ -267,6 +267,14 @@ class VisionOptions:
     (11.6) without it; with the vision bias test (``FaultOptions``) 1.39x (10.1), one seed
     still 3.46x: its 100 Hz magnetometer corrects the heading between frames, so the frame
     corrections lean too little (docs/results/faults.md).
+
+    ``relocalise`` (``tc``/``3d`` with clones, recorded features whose ids persist): a frame
+    that shares too few features with the frame before is fused against the stored keyframe
+    (one at most every ``keyframe_spacing_s``, at most ``max_keyframes``) that shares the most,
+    at least ``relocalise_min_features``, its pose taken into the state for that update as
+    independent of it, each block's covariance inflated so that the update stays consistent
+    (at least ``relocalise_inflation`` times), and only while the state's position variance is
+    ``relocalise_min_drift`` (> 2) times the keyframe's (``navigation.relocalise``).
     """
 
     source: SourceName = "auto"
@@ -303,8 +311,24 @@ class VisionOptions:
     long_iterations: int = 6
     two_view_after_long: bool = True
     two_view_fill_far: bool = False
+    relocalise: bool = True
+    relocalise_min_features: int = 20
+    relocalise_min_drift: float = 2.5
+    relocalise_inflation: float = 1.5
+    keyframe_spacing_s: float = 1.0
+    max_keyframes: int = 500
 
     def __post_init__(self) -> None:
+        if self.relocalise_min_features < 3 or self.max_keyframes < 1:
+            raise ConfigError(
+                "vision.relocalise_min_features must be >= 3 and vision.max_keyframes >= 1, "
+                f"got {self.relocalise_min_features} and {self.max_keyframes}")
+        if not (self.relocalise_inflation >= 1 and self.relocalise_min_drift > 2
+                and self.keyframe_spacing_s >= 0):  # fmt: skip
+            raise ConfigError(
+                "vision.relocalise_inflation must be >= 1, vision.relocalise_min_drift > 2 and "
+                f"vision.keyframe_spacing_s >= 0, got {self.relocalise_inflation}, "
+                f"{self.relocalise_min_drift} and {self.keyframe_spacing_s}")
         if self.long_iterations < 1:
             raise ConfigError(f"vision.long_iterations must be >= 1, got {self.long_iterations}")
         if self.update_iterations < 1:

@@ -9,7 +9,7 @@ care where tracks came from. ``tracks_from_features`` does it for a whole record
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -87,6 +87,34 @@ def _estimate(
                           candidate=candidate)  # fmt: skip
 
 
+# One frame of features: time (ns), track ids (M,), rectified left and right pixels (M, 2).
+Frame = tuple[int, NDArray[np.int64], F64, F64]
+
+
+def pair_frames(
+    prev: Frame, cur: Frame, rig: RectifiedStereo, options: TrackOptions
+) -> StereoTracks:
+    """The tracks from frame ``prev`` to frame ``cur`` (any two frames: their shared ids),
+    ``p_Ckm1_F`` triangulated at ``prev`` (eq. 10), ``inlier`` the disparity and epipolar
+    gates of ``options``; no egomotion."""
+    t_a, ids_a, uvl_a, uvr_a = prev
+    t_b, ids, uvl_b, uvr_b = cur
+    _, ia, ib = np.intersect1d(ids_a, ids, assume_unique=False, return_indices=True)
+    uvl0, uvr0 = uvl_a[ia], uvr_a[ia]
+    uvl1, uvr1 = uvl_b[ib], uvr_b[ib]
+    p_prev = rig.triangulate(uvl0, uvr0)
+    ok = np.isfinite(p_prev).all(axis=1) & (uvl0[:, 0] - uvr0[:, 0] >= options.min_disparity_px)
+    ok &= np.isfinite(uvl1).all(axis=1) & np.isfinite(uvr1).all(axis=1)
+    if options.max_row_diff_px is not None:
+        ok &= np.abs(uvl0[:, 1] - uvr0[:, 1]) <= options.max_row_diff_px
+        ok &= np.abs(uvl1[:, 1] - uvr1[:, 1]) <= options.max_row_diff_px
+    return StereoTracks(
+        t_prev_ns=int(t_a), t_ns=int(t_b), track_id=ids_a[ia],
+        uv_left_prev=uvl0, uv_right_prev=uvr0, uv_left=uvl1, uv_right=uvr1,
+        p_Ckm1_F=p_prev, inlier=ok, egomotion=None,
+    )  # fmt: skip
+
+
 class TrackBuilder:
     """Pairs each new frame of features with the previous one (see ``add``).
 
@@ -99,9 +127,14 @@ class TrackBuilder:
     def __init__(self, rig: RectifiedStereo, options: TrackOptions | None = None) -> None:
         self.rig = rig
         self.options = options or TrackOptions()
-        self._prev: tuple[int, NDArray[np.int64], F64, F64] | None = None
+        self._prev: Frame | None = None
         self._k = 0  # frames seen so far
         self._prior: Egomotion | None = None
+
+    @property
+    def last(self) -> Frame | None:
+        """The last frame added (None before the first)."""
+        return self._prev
 
     def add(
         self, t_ns: int, track_id: NDArray[np.int64], uv_left: F64, uv_right: F64
@@ -115,17 +148,10 @@ class TrackBuilder:
         self._k += 1
         if prev is None:
             return None
-        t_a, ids_a, uvl_a, uvr_a = prev
-        opts, rig = self.options, self.rig
-        _, ia, ib = np.intersect1d(ids_a, ids, assume_unique=False, return_indices=True)
-        uvl0, uvr0 = uvl_a[ia], uvr_a[ia]
-        uvl1, uvr1 = uvl_b[ib], uvr_b[ib]
-        p_prev = rig.triangulate(uvl0, uvr0)
-        ok = np.isfinite(p_prev).all(axis=1) & (uvl0[:, 0] - uvr0[:, 0] >= opts.min_disparity_px)
-        ok &= np.isfinite(uvl1).all(axis=1) & np.isfinite(uvr1).all(axis=1)
-        if opts.max_row_diff_px is not None:
-            ok &= np.abs(uvl0[:, 1] - uvr0[:, 1]) <= opts.max_row_diff_px
-            ok &= np.abs(uvl1[:, 1] - uvr1[:, 1]) <= opts.max_row_diff_px
+        tr = pair_frames(prev, self._prev, self.rig, self.options)
+        opts, rig, ok = self.options, self.rig, tr.inlier
+        uvl0, uvr0, uvl1, uvr1, p_prev = (tr.uv_left_prev, tr.uv_right_prev, tr.uv_left,
+                                          tr.uv_right, tr.p_Ckm1_F)  # fmt: skip
         ego: Egomotion | None = None
         if opts.egomotion and ok.sum() >= 3:
             p_cur = rig.triangulate(uvl1, uvr1)
@@ -134,11 +160,7 @@ class TrackBuilder:
                                  widen=opts.widen)
             ok &= inl
             self._prior = ego
-        return StereoTracks(
-            t_prev_ns=t_a, t_ns=int(t_ns), track_id=ids_a[ia],
-            uv_left_prev=uvl0, uv_right_prev=uvr0, uv_left=uvl1, uv_right=uvr1,
-            p_Ckm1_F=p_prev, inlier=ok, egomotion=ego,
-        )  # fmt: skip
+        return replace(tr, inlier=ok, egomotion=ego)
 
 
 def tracks_from_features(

@@ -50,6 +50,7 @@ from svains.models.clones import (
     as_clone_manifold,
     augment_calibration,
     augment_clone,
+    augment_independent_clone,
     augment_shifted_clone_sigma,
     marginalize_clone,
 )
@@ -204,6 +205,32 @@ class CloneWindow:
                 self.extrinsic = (value[:3], std[:3])
             if self.time_offset_std_s is not None:
                 self.time_offset.append((int(t_ns), float(value[-1]), float(std[-1])))
+
+    def add_keyframe(self, ukf: UKF, t_ns: int, p_W_B: F64, q_W_B_wxyz: F64,
+                     P_pose: F64) -> None:  # fmt: skip
+        """Put a stored keyframe's pose at ``t_ns`` (ns; ``p_W_B`` (3,) m, ``q_W_B_wxyz`` (4,),
+        covariance ``P_pose`` (6, 6)) in the state as a clone uncorrelated with it, for one
+        frame's relocalisation (``navigation.relocalise``); the next ``after_frame`` drops it
+        as any clone that is not the next reference."""
+        if int(t_ns) in self.times:
+            raise ValueError(f"the state already holds a clone at t={t_ns} ns")
+        manifold = as_clone_manifold(ukf.manifold)
+        x, P, manifold = augment_independent_clone(ukf.x, ukf.P, manifold, p_W_B, q_W_B_wxyz,
+                                                   P_pose)  # fmt: skip
+        # The new rows are a state of its own (zeros in the map from the old tangent).
+        T = np.vstack([np.eye(ukf.P.shape[0]), np.zeros((P.shape[0] - ukf.P.shape[0],
+                                                         ukf.P.shape[0]))])  # fmt: skip
+        ukf.resize(manifold, x, P, T)
+        self.times = [*self.times, int(t_ns)]
+
+    def drop(self, ukf: UKF, t_ns: int) -> None:
+        """Marginalise the clone at ``t_ns`` (ns) out of the state."""
+        i = self.times.index(int(t_ns))
+        manifold = as_clone_manifold(ukf.manifold)
+        T = np.delete(np.eye(manifold.ndx), np.arange(manifold.ndx)[manifold.tangent(i)], axis=0)
+        x, P, manifold = marginalize_clone(ukf.x, ukf.P, manifold, i)
+        ukf.resize(manifold, x, np.asarray(P), T)
+        self.times = [t for j, t in enumerate(self.times) if j != i]
 
     def summary(self) -> dict[str, Any]:
         """The estimated calibration for ``report.json`` (empty when none): the rotation

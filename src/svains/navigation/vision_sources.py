@@ -9,7 +9,8 @@ images wait for the estimator, because the front end's motion prior needs the fi
 from __future__ import annotations
 
 import time
-from typing import Any
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -18,13 +19,20 @@ from svains.errors import ConfigError
 from svains.frontend.types import Egomotion, StereoTracks
 from svains.geometry.camera import RectifiedStereo
 from svains.navigation.outputs import TrackLog
-from svains.navigation.tracks import TrackBuilder, TrackOptions
+from svains.navigation.relocalise import Keyframe, most_shared
+from svains.navigation.tracks import Frame, TrackBuilder, TrackOptions, pair_frames
 from svains.sensors.types import CameraCalib
+
+if TYPE_CHECKING:
+    from svains.frontend.reacquire import OrbStereo
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 U8 = NDArray[np.uint8]
 
+
+# Keyframes tried by descriptors for one frame that lost its link (closest views first).
+RELOCALISE_TRIES = 5
 
 def rig_from_calibrations(cam0: CameraCalib | None, cam1: CameraCalib | None) -> RectifiedStereo:
     """The rectified pair that ``cam0``/``cam1`` define (``features0`` pixels live in it)."""
@@ -62,22 +70,53 @@ class FeatureFrames:
         self.rig = rig
         self.pixel_noise_std = 1.0
         self._builder = TrackBuilder(rig, track_options)
+        self.track_options = track_options
         self._tracks: dict[int, StereoTracks] = {}
+        # Every feature of the frames pushed and not yet asked for, and of the last one asked
+        # for (``current``): a relocalisation pairs it with a stored keyframe.
+        self._frames: dict[int, Frame] = {}
+        self.current: Frame | None = None
         self.track_log = TrackLog()
 
     def push(self, t_ns: int, track_id: I64, uv_left: F64, uv_right: F64) -> bool:
         """Pair this frame with the previous one; True if it gave tracks (not the first)."""
         tr = self._builder.add(t_ns, track_id, uv_left, uv_right)
+        frame = self._builder.last
+        assert frame is not None
+        self._frames[int(t_ns)] = frame
         if tr is not None:
             self._tracks[int(t_ns)] = tr
         return tr is not None
 
     def discard(self, t_ns: int) -> None:
         self._tracks.pop(int(t_ns), None)
+        self._frames.pop(int(t_ns), None)
 
     def tracks_at(self, t_ns: int, motion_prior: Egomotion | None = None) -> StereoTracks | None:
         """The tracks ending at ``t_ns`` (``motion_prior`` is not needed here)."""
-        return _logged(self.track_log, self._tracks.pop(int(t_ns), None))
+        t = int(t_ns)
+        self.current = self._frames.pop(t, None)
+        for old in [s for s in self._frames if s < t]:  # frames never asked for
+            del self._frames[old]
+        return _logged(self.track_log, self._tracks.pop(t, None))
+
+    def keyframe_features(self, t_ns: int) -> Frame | None:
+        """The features of the frame last asked for, if at ``t_ns`` (a keyframe's)."""
+        f = self.current
+        return f if f is not None and f[0] == int(t_ns) else None
+
+    def relocalisation_tracks(
+        self, t_ns: int, keyframes: Sequence[Keyframe], min_features: int
+    ) -> tuple[Keyframe, StereoTracks] | None:
+        """Tracks to the frame at ``t_ns`` from the keyframe that shares the most track ids
+        (``relocalise.most_shared``), when at least ``min_features`` pass the gates."""
+        frame = self.keyframe_features(t_ns)
+        found = None if frame is None else most_shared(keyframes, frame, min_features)
+        if found is None:
+            return None
+        assert frame is not None
+        tr = pair_frames(found[0].features, frame, self.rig, self.track_options)
+        return (found[0], tr) if int(tr.inlier.sum()) >= min_features else None
 
 
 class ImageFrames:
@@ -134,3 +173,22 @@ class ImageFrames:
         status = self.frontend.stats.status or "none"
         self.status_counts[status] = self.status_counts.get(status, 0) + 1
         return _logged(self.track_log, tracks)
+
+    def keyframe_features(self, t_ns: int) -> OrbStereo | None:
+        """ORB features, stereo matches and points of the frame processed at ``t_ns`` (a
+        keyframe's; None unless it was the last good frame)."""
+        return self.frontend.keyframe_features(int(t_ns))
+
+    def relocalisation_tracks(
+        self, t_ns: int, keyframes: Sequence[Keyframe], min_features: int
+    ) -> tuple[Keyframe, StereoTracks] | None:
+        """Tracks to the frame at ``t_ns`` from the first ``RELOCALISE_TRIES`` of
+        ``keyframes`` (given closest view first) by descriptors
+        (``StereoFrontend.relocalise``): the one with the most RANSAC inliers, at least
+        ``min_features``."""
+        tried = list(keyframes[:RELOCALISE_TRIES])
+        tr = self.frontend.relocalise(int(t_ns), [(k.t_ns, k.features) for k in tried],
+                                      min_features)  # fmt: skip
+        if tr is None:
+            return None
+        return next(k for k in tried if k.t_ns == tr.t_prev_ns), tr
