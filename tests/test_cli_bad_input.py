@@ -119,6 +119,17 @@ def _scale_columns(rel: str, cols: slice, scale: float, offset: float = 0.0) -> 
     return edit
 
 
+def _position_only_in_degrees(root: Path) -> None:
+    """``gps0`` cut to positions (a GGA receiver), latitude and longitude in degrees."""
+    p = root / "mav0" / "gps0" / "data.csv"
+    lines = p.read_text().splitlines()
+    rows = [ln.split(",")[:4] for ln in lines[1:]]
+    for r in rows:
+        r[1:3] = [repr(float(v) * 1e-5 + 49.0) for v in r[1:3]]
+    header = ",".join(lines[0].split(",")[:4])
+    p.write_text("\n".join([header, *(",".join(r) for r in rows)]) + "\n")
+
+
 def _shift_stamps(rel: str, shift_s: int) -> Edit:
     """The stamps of ``mav0/rel`` moved by ``shift_s`` (a stream on another clock)."""
 
@@ -191,6 +202,8 @@ DATA_CASES: list[tuple[str, Edit, str]] = [
     ("accelerometer without gravity", _gravity_removed, "gravity removed"),
     ("gps in degrees", _scale_columns("gps0/data.csv", slice(1, 3), 1e-5, 49.0),
      "positions in degrees or km?"),
+    ("position-only gps in degrees", _position_only_in_degrees,
+     "(median) where the height moves"),
     ("stereo baseline in mm", _baseline_in_mm, "translations in millimetres?"),
     ("gps on another clock", _shift_stamps("gps0/data.csv", 315_964_800),
      "gps0/data.csv: its stamps (315964800."),

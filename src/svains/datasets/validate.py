@@ -55,6 +55,14 @@ MAX_BASELINE_M = 20.0
 GPS_PATH_MIN_RATIO = 0.1
 GPS_MOVING_M_S = 0.5
 GPS_MIN_PATH_M = 5.0
+# Position-only fixes have no velocity to hold them against; their own noise does it: from fix
+# to fix a receiver's height moves about as much as its horizontal axes (RTK or not, within a
+# few times), while latitude and longitude in degrees move 1e-5 times as much (1 m is 9e-6°).
+# A horizontal axis whose median step is below this fraction of the height's (of at least
+# GPS_MIN_HEIGHT_STEP_M, so a 2-D fix with a fixed height is left alone) is in another unit;
+# one that does not move at all is a receiver holding its position, not a unit.
+GPS_POSITION_STEP_RATIO = 1e-3
+GPS_MIN_HEIGHT_STEP_M = 1e-3
 # Ground-truth quaternions are unit; a norm off by more than this is a broken file.
 QUATERNION_NORM_TOL = 1e-2
 # A stereo stream whose left frames find a right partner less often than this is warned about.
@@ -222,6 +230,26 @@ def check_gps_units(t_ns: NDArray[np.int64], p_W_G: NDArray[np.float64],
         )
 
 
+def check_gps_position_units(p_W_G: NDArray[np.float64], path: Path) -> None:
+    """Position-only fixes ``p_W_G`` (N, 3): a horizontal axis whose median step from fix to
+    fix is below ``GPS_POSITION_STEP_RATIO`` times the height's (``GPS_MIN_HEIGHT_STEP_M`` or
+    more), yet not zero, is latitude or longitude in degrees (or km): refused, naming it."""
+    p = np.asarray(p_W_G, dtype=float)
+    if p.shape[0] < 3:
+        return
+    step = np.median(np.abs(np.diff(p, axis=0)), axis=0)
+    if not step[2] >= GPS_MIN_HEIGHT_STEP_M:
+        return
+    bad = np.flatnonzero((step[:2] > 0.0) & (step[:2] < GPS_POSITION_STEP_RATIO * step[2]))
+    if bad.size:
+        k = int(bad[0])
+        raise DatasetError(
+            f"{path}: from fix to fix axis {'xyz'[k]} moves {step[k]:.3g} m (median) where the "
+            f"height moves {step[2]:.3g} m: positions in degrees or km? svains reads a local "
+            "metric frame (e.g. ENU metres, docs/formats.md)"
+        )
+
+
 # The GPS course against the gyro (``check_gps_against_gyro``): thresholds and verdict in
 # ``svains.sensors.units`` (the estimator checks online input the same way).
 
@@ -267,7 +295,8 @@ def check_mag_against_gyro(ds: Dataset, path: Path) -> None:
 def vet_streams(ds: Dataset) -> None:
     """The units, clocks and frames a reader cannot see in a file's syntax, for every format:
     the IMU's specific force (``check_accel_units``), GPS positions against its velocities
-    (``check_gps_units``), every stream's span against the IMU's (a sensor stream that never
+    (``check_gps_units``; position-only fixes: their horizontal steps against their height's,
+    ``check_gps_position_units``), every stream's span against the IMU's (a sensor stream that never
     meets it is refused; a reference that never does is dropped from ``ds`` with a warning),
     the GPS course against the gyro (``check_gps_against_gyro``) and the magnetic field's turns
     against the gyro's (``check_mag_against_gyro``). The error names the
@@ -279,8 +308,10 @@ def vet_streams(ds: Dataset) -> None:
 
     if ds.imu is not None:
         check_accel_units(ds.imu.accel_B, ds.gravity_W, where("imu0"))
-    if ds.gps is not None and ds.gps.has_velocity.all():  # position-only: nothing to compare
+    if ds.gps is not None and ds.gps.has_velocity.all():
         check_gps_units(ds.gps.t_ns, ds.gps.p_W_G, ds.gps.v_W_G, where("gps0"))
+    elif ds.gps is not None:  # position-only: the fixes' own steps, per axis
+        check_gps_position_units(ds.gps.p_W_G, where("gps0"))
     if ds.imu is None or len(ds.imu.t_ns) == 0:
         return
     t0, t1 = int(ds.imu.t_ns[0]), int(ds.imu.t_ns[-1])
