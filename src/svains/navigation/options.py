@@ -268,13 +268,16 @@ class VisionOptions:
     still 3.46x: its 100 Hz magnetometer corrects the heading between frames, so the frame
     corrections lean too little (docs/results/faults.md).
 
-    ``relocalise`` (``tc``/``3d`` with clones, recorded features whose ids persist): a frame
-    that shares too few features with the frame before is fused against the stored keyframe
-    (one at most every ``keyframe_spacing_s``, at most ``max_keyframes``) that shares the most,
-    at least ``relocalise_min_features``, its pose taken into the state for that update as
-    independent of it, each block's covariance inflated so that the update stays consistent
-    (at least ``relocalise_inflation`` times), and only while the state's position variance is
-    ``relocalise_min_drift`` (> 2) times the keyframe's (``navigation.relocalise``).
+    ``relocalise`` (``tc``/``3d``/``lc`` with clones): a frame that lost its link to the frame
+    before is fused against a stored keyframe (one at most every ``keyframe_spacing_s``, at
+    most ``max_keyframes``) the source matches it with by at least
+    ``relocalise_min_features`` features (recorded features: by their ids; images: by ORB
+    descriptors, among the keyframes that looked the same way from nearby), its pose taken into
+    the state for that update as independent of it, each block's covariance inflated so that
+    the update stays consistent (at least ``relocalise_inflation`` times), and only while the
+    state's position variance is ``relocalise_min_drift`` (> 2) times the keyframe's
+    (``navigation.relocalise``). EuRoC irregular frames ``3d`` 0.402 -> 0.316 m, ``lc`` 0.361
+    -> 0.329 m; rendered keyframes from images ``3d`` 0.428 -> 0.275 m.
     """
 
     source: SourceName = "auto"

@@ -7,9 +7,9 @@ where the rig is. A platform that comes back to a place it has seen (a MAV in a 
 survey's return leg) sees features of a frame taken long before. ``KeyframeMemory`` stores,
 at most every ``keyframe_spacing_s``, a fused frame's features with the filter's pose
 estimate and its 6x6 covariance at that frame. For a frame with no link, the source finds
-the stored frame it can be matched with, and the pixel updater fuses the frame against it as
-against a clone (``CloneWindow.add_keyframe``), the stored pose added to the state for that
-one update:
+the stored frame it can be matched with, and the updater fuses the frame against it as
+against a clone (``CloneWindow.add_keyframe``; ``tc``/``3d`` its pixels, ``lc`` its
+egomotion), the stored pose added to the state for that one update (``Relocaliser``):
 
 - recorded features whose ids persist (``features0``, an external front end with its own
   place recognition): the keyframe that shares the most ids (``most_shared``);
@@ -34,18 +34,27 @@ keyframe from being used again before the state has drifted from it as far again
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from svains.errors import FilterError
 from svains.geometry.rotation import quat_to_rotmat
 from svains.models.state import DP, DTH
 from svains.models.state import P as P_SLICE
 from svains.models.state import Q as Q_SLICE
 from svains.navigation.tracks import Frame
+
+if TYPE_CHECKING:
+    from svains.filter.ukf import UpdateStats
+    from svains.frontend.types import StereoTracks
+    from svains.geometry.camera import RectifiedStereo
+    from svains.navigation.base import FrameContext
+    from svains.navigation.options import VisionOptions
+    from svains.navigation.vision_clones import CloneWindow
 
 F64 = NDArray[np.float64]
 
@@ -174,3 +183,99 @@ def by_view(
         if angle <= max_angle_deg and dist <= max_distance_m:
             scored.append((angle / 30.0 + dist / 2.0, k))
     return [k for _, k in sorted(scored, key=lambda sk: sk[0])]
+
+
+# Keyframes sought by view for the image front end (``by_view``): cameras that looked within
+# this angle (deg), from within this distance (m) plus 3 position sigmas of the state.
+RELOCALISE_MAX_ANGLE_DEG = 60.0
+RELOCALISE_MIN_REACH_M = 3.0
+
+
+class Relocaliser:
+    """One vision updater's keyframes (``remember`` after each frame) and the relocalisation
+    of a frame that lost its link (``attempt``), against the clones of ``clones`` and the
+    frames of ``source`` (``FeatureFrames`` or ``ImageFrames``: ``keyframe_features``,
+    ``relocalisation_tracks``) of the rig ``rig``."""
+
+    def __init__(self, options: VisionOptions, clones: CloneWindow, source: Any,
+                 rig: RectifiedStereo) -> None:  # fmt: skip
+        self.options = options
+        self.clones = clones
+        self.source = source
+        self.rig = rig
+        self.memory = KeyframeMemory(options.keyframe_spacing_s, options.max_keyframes)
+        self.relocalised = 0
+
+    def remember(self, ctx: FrameContext, fused: bool) -> None:
+        """Store the frame at ``ctx.t_ns`` (posterior state) when it was ``fused`` and is due."""
+        if fused and self.memory.due(ctx.t_ns):
+            features = self.source.keyframe_features(ctx.t_ns)
+            if features is not None:
+                self.memory.remember(ctx.t_ns, features, ctx.ukf.x, ctx.ukf.P)
+
+    def _find(self, ctx: FrameContext) -> tuple[Keyframe, StereoTracks, F64] | None:
+        """A keyframe the source matches the frame at ``ctx.t_ns`` with, its tracks, and the
+        covariance to fuse its pose with (``keyframe_covariance``); None without one."""
+        o, ukf = self.options, ctx.ukf
+        P_now = ukf.P[np.ix_(POSE_ROWS, POSE_ROWS)]
+        usable = [k for k in self.memory.keyframes if k.t_ns < ctx.t_ns and keyframe_covariance(
+            k.P_pose, P_now, o.relocalise_min_drift, o.relocalise_inflation) is not None]
+        drift = float(np.trace(ukf.P[DP, DP]))
+        if not usable:
+            log.debug("t=%.3f s: no relocalisation, the state's position variance %.3g m² is "
+                      "not %g times any keyframe's", ctx.t_ns * 1e-9, drift,
+                      o.relocalise_min_drift)  # fmt: skip
+            return None
+        if getattr(self.source, "kind", None) == "images":
+            # No ids to say which keyframe saw this place: those that looked the same way
+            # from nearby, at the poses the filter gives (the closest first).
+            reach = RELOCALISE_MIN_REACH_M + 3.0 * np.sqrt(drift)
+            usable = by_view(usable, ukf.x, self.rig.R_B_C, self.rig.p_B_C,
+                             RELOCALISE_MAX_ANGLE_DEG, reach)  # fmt: skip
+        found = self.source.relocalisation_tracks(ctx.t_ns, usable, o.relocalise_min_features)
+        if found is None:
+            return None
+        kf, tr = found
+        P_kf = keyframe_covariance(kf.P_pose, P_now, o.relocalise_min_drift,
+                                   o.relocalise_inflation)  # fmt: skip
+        assert P_kf is not None
+        return kf, tr, P_kf
+
+    def attempt(
+        self, ctx: FrameContext, fuse: Callable[[StereoTracks], UpdateStats | None]
+    ) -> UpdateStats | None:
+        """Put a matching keyframe's pose in the state (``CloneWindow.add_keyframe``) and
+        ``fuse`` the tracks from it; None when none matches. A numerical failure of that
+        update drops the keyframe and skips it (the state is as before; raised if the update
+        had changed it). Counted in ``relocalised`` when accepted."""
+        found = self._find(ctx)
+        if found is None:
+            return None
+        kf, tr, P_kf = found
+        ukf = ctx.ukf
+        x0, P0 = ukf.x.copy(), ukf.P.copy()
+        std_before = float(np.sqrt(np.trace(ukf.P[DP, DP])))
+        self.clones.add_keyframe(ukf, kf.t_ns, kf.p_W_B, kf.q_W_B_wxyz, P_kf)
+        try:
+            stats = fuse(tr)
+        except (np.linalg.LinAlgError, FilterError) as exc:
+            # The keyframe is independent of the state: without it the state is as it was,
+            # unless the update had changed it (then the failure is the filter's own).
+            self.clones.drop(ukf, kf.t_ns)
+            if not (np.array_equal(ukf.x, x0) and np.array_equal(ukf.P, P0)):
+                raise
+            log.warning("t=%.3f s: the relocalisation against the keyframe of t=%.3f s failed "
+                        "numerically and is skipped (%s)", ctx.t_ns * 1e-9, kf.t_ns * 1e-9, exc)
+            return None
+        if stats is not None and stats.accepted:
+            self.relocalised += 1
+            log.info("t=%.3f s: relocalised against the keyframe of t=%.3f s (%d shared "
+                     "features, position std %.3g m before)", ctx.t_ns * 1e-9, kf.t_ns * 1e-9,
+                     int(tr.inlier.sum()), std_before)  # fmt: skip
+        return stats
+
+    def summary(self) -> dict[str, Any]:
+        """``report.json`` keys: ``frames_relocalised``, ``keyframes_stored``, ``keyframes_kb``."""
+        return {"frames_relocalised": self.relocalised,
+                "keyframes_stored": len(self.memory.keyframes),
+                "keyframes_kb": round(self.memory.n_bytes / 1024, 1)}  # fmt: skip

@@ -36,9 +36,10 @@ from svains.models.vision_lc import predict_egomotion_lc
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.options import RunConfig, VisionOptions
+from svains.navigation.relocalise import Relocaliser
 from svains.navigation.vision_checks import vision_checks
 from svains.navigation.vision_clones import clone_window, next_reference_ns
-from svains.navigation.vision_egomotion import egomotion_noise
+from svains.navigation.vision_egomotion import egomotion_noise, tracks_egomotion
 from svains.navigation.vision_pixels import (
     PixelUpdater,
     VisionCounters,
@@ -75,6 +76,10 @@ class LcUpdater:
         self._estimators: dict[str, int] = {}  # egomotions fused per estimator
         self.clones = clone_window(options, applied_offset_s(rig), history, rig.gravity_W)
         self.checks = vision_checks(history, self.rig, rig)  # mount, stamps, baseline
+        # Keyframes for a frame that loses its link (``navigation.relocalise``).
+        self.relocaliser = (Relocaliser(options, self.clones, source, self.rig)
+                            if options.relocalise and self.clones is not None else None)
+        self._fused_before = 0
 
     def measurement(self, tr: StereoTracks) -> tuple[F64, F64] | None:
         """``z`` (6,) (rotation vector rad, translation m) and its covariance (6, 6): the front
@@ -95,8 +100,26 @@ class LcUpdater:
         if self.checks is not None:
             self.checks.observe_frame(tr, ctx)
         if tr is None or tr.egomotion is None or tr.t_ns <= tr.t_prev_ns:
-            c.frames_without_tracks += 1
-            return None
+            stats = None
+            if self.relocaliser is not None:
+                stats = self.relocaliser.attempt(ctx, lambda kf_tr: self._fuse(ctx, kf_tr, None))
+            if stats is None:
+                c.frames_without_tracks += 1
+            return stats
+        return self._fuse(ctx, tr, inc)
+
+    def _fuse(
+        self, ctx: FrameContext, tr: StereoTracks, inc: ImuIncrement | None
+    ) -> UpdateStats | None:
+        """Fuse the egomotion of the tracks ``tr`` ending at ``ctx.t_ns`` (from a stored
+        keyframe: estimated here when the tracks carry none)."""
+        c = self.counters
+        if tr.egomotion is None:
+            ego = tracks_egomotion(tr, self.rig, seed=c.frames,
+                                   bundle=self.options.bundle_for(self.method))  # fmt: skip
+            if ego is None:
+                return None
+            tr = replace(tr, egomotion=ego)
         dt_s = (tr.t_ns - tr.t_prev_ns) * 1e-9
         zc = self.measurement(tr)
         if zc is None:
@@ -136,12 +159,18 @@ class LcUpdater:
         return lambda X: predict_egomotion_lc(X, dt_s, rig, rot, inc)
 
     def after_frame(self, ctx: FrameContext) -> None:
-        """Once per frame, after ``update``: keep the clone the next frame needs."""
+        """Once per frame, after ``update``: keep the clone the next frame needs, and the
+        frame as a keyframe when it was fused."""
         if self.clones is not None:
             self.clones.after_frame(ctx.ukf, ctx.t_ns, next_reference_ns(self.source, ctx.t_ns))
+        if self.relocaliser is not None:
+            self.relocaliser.remember(ctx, self.counters.frames_fused > self._fused_before)
+        self._fused_before = self.counters.frames_fused
 
     def summary(self) -> dict[str, Any]:
         out: dict[str, Any] = self.counters.as_dict()
+        if self.relocaliser is not None:
+            out.update(self.relocaliser.summary())
         nis = np.asarray(self._nis_per_dof)
         out.update(
             source=self.source.kind,

@@ -15,22 +15,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.errors import ConfigError, FilterError
+from svains.errors import ConfigError
 from svains.filter.ukf import UpdateStats, chi2_gate
 from svains.frontend.types import StereoTracks
-from svains.models.state import DP
 from svains.models.vision_3d import pixels_from_motion
 from svains.models.vision_clone import clone_camera_motion, predict_egomotion_clone
 from svains.models.vision_common import ImuIncrement, camera_motion, stack_pixels
 from svains.models.vision_tc import pixels_tc_from_motion
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.imu_history import ImuHistory
-from svains.navigation.relocalise import (
-    POSE_ROWS,
-    KeyframeMemory,
-    by_view,
-    keyframe_covariance,
-)
+from svains.navigation.relocalise import Relocaliser
 from svains.navigation.vision_checks import vision_checks
 from svains.navigation.vision_clones import clone_window, next_reference_ns
 from svains.navigation.vision_egomotion import egomotion_block, tracks_egomotion
@@ -65,11 +59,6 @@ MotionFn = Callable[[F64], tuple[F64, F64]]
 NEW_FEATURE_DISPARITY_FACTOR = 2.0
 
 
-# Keyframes sought by view for the image front end (``relocalise.by_view``): cameras that looked
-# within this angle (deg), from within this distance (m) plus 3 position sigmas of the state.
-RELOCALISE_MAX_ANGLE_DEG = 60.0
-RELOCALISE_MIN_REACH_M = 3.0
-
 @dataclass
 class VisionCounters:
     """Per-run counts of the vision updates (go into ``report.json`` under ``vision``)."""
@@ -85,7 +74,6 @@ class VisionCounters:
     frames_bad_covariance: int = 0  # lc: the egomotion's covariance was not positive definite
     frames_egomotion: int = 0  # tc/3d: of the fused, through the frame's egomotion (fallback)
     frames_failed_numerics: int = 0  # skipped: the update raised a numerical error
-    frames_relocalised: int = 0  # tc/3d: of the fused, against a stored keyframe
 
     def as_dict(self) -> dict[str, int]:
         return {f.name: int(getattr(self, f.name)) for f in fields(self)}
@@ -171,9 +159,10 @@ class PixelUpdater:
         self.two_view = options.two_view
         self._two_view_in_gaps = self.clones is not None and options.single_use_pixels
         # Keyframes for a frame that loses its link (``navigation.relocalise``).
-        self.keyframes = (
-            KeyframeMemory(options.keyframe_spacing_s, options.max_keyframes)
-            if options.relocalise and self._two_view_in_gaps else None
+        self.relocaliser = (
+            Relocaliser(options, self.clones, source, self.rig)
+            if options.relocalise and self.clones is not None and self._two_view_in_gaps
+            else None
         )  # fmt: skip
         self._fused_before = 0
 
@@ -358,7 +347,8 @@ class PixelUpdater:
                 ego = self._egomotion_update(ctx, tr)
             if ego is not None and ego.accepted:
                 return ego
-            if not keyframe and (stats := self._relocalise(ctx)) is not None:
+            if not keyframe and self.relocaliser is not None and (stats := self.relocaliser.attempt(
+                    ctx, lambda kf_tr: self._fuse(ctx, kf_tr, None, keyframe=True))) is not None:
                 return stats
             c.frames_without_tracks += 1
             return ego
@@ -429,57 +419,6 @@ class PixelUpdater:
         c.frames_rejected += 1
         return stats
 
-    def _relocalise(self, ctx: FrameContext) -> UpdateStats | None:
-        """Fuse the frame at ``ctx.t_ns``, which lost its link to the frame before, against a
-        stored keyframe the source can match it with (``navigation.relocalise``); None when
-        there is none, or the drift since every keyframe is too small to take its pose as
-        independent. Counted in ``frames_relocalised`` when accepted."""
-        memory, o, ukf = self.keyframes, self.options, ctx.ukf
-        if memory is None or self.clones is None or not memory.keyframes:
-            return None
-        P_now = ukf.P[np.ix_(POSE_ROWS, POSE_ROWS)]
-        usable = [k for k in memory.keyframes if k.t_ns < ctx.t_ns and keyframe_covariance(
-            k.P_pose, P_now, o.relocalise_min_drift, o.relocalise_inflation) is not None]
-        drift = float(np.trace(ukf.P[DP, DP]))
-        if not usable:
-            log.debug("t=%.3f s: no relocalisation, the state's position variance %.3g m² is "
-                      "not %g times any keyframe's", ctx.t_ns * 1e-9, drift,
-                      o.relocalise_min_drift)  # fmt: skip
-            return None
-        if isinstance(self.source, ImageFrames):
-            # No ids to say which keyframe saw this place: those that looked the same way
-            # from nearby, at the poses the filter gives (the closest first).
-            reach = RELOCALISE_MIN_REACH_M + 3.0 * np.sqrt(drift)
-            usable = by_view(usable, ukf.x, self.rig.R_B_C, self.rig.p_B_C,
-                             RELOCALISE_MAX_ANGLE_DEG, reach)  # fmt: skip
-        found = self.source.relocalisation_tracks(ctx.t_ns, usable, o.relocalise_min_features)
-        if found is None:
-            return None
-        kf, tr = found
-        P_kf = keyframe_covariance(kf.P_pose, P_now, o.relocalise_min_drift,
-                                   o.relocalise_inflation)  # fmt: skip
-        assert P_kf is not None
-        n_shared = int(tr.inlier.sum())
-        x0, P0 = ctx.ukf.x.copy(), ctx.ukf.P.copy()
-        self.clones.add_keyframe(ctx.ukf, kf.t_ns, kf.p_W_B, kf.q_W_B_wxyz, P_kf)
-        try:
-            stats = self._fuse(ctx, tr, None, keyframe=True)
-        except (np.linalg.LinAlgError, FilterError) as exc:
-            # The keyframe is independent of the state: without it the state is as it was,
-            # unless the update had changed it (then the failure is the filter's own).
-            self.clones.drop(ctx.ukf, kf.t_ns)
-            if not (np.array_equal(ctx.ukf.x, x0) and np.array_equal(ctx.ukf.P, P0)):
-                raise
-            log.warning("t=%.3f s: the relocalisation against the keyframe of t=%.3f s failed "
-                        "numerically and is skipped (%s)", ctx.t_ns * 1e-9, kf.t_ns * 1e-9, exc)
-            return None
-        if stats is not None and stats.accepted:
-            self.counters.frames_relocalised += 1
-            log.info("t=%.3f s: relocalised against the keyframe of t=%.3f s (%d shared "
-                     "features, position std %.3g m before)", ctx.t_ns * 1e-9, kf.t_ns * 1e-9,
-                     n_shared, np.sqrt(drift))  # fmt: skip
-        return stats
-
     def _egomotion_update(self, ctx: FrameContext, tr: StereoTracks) -> UpdateStats | None:
         """Fuse the frame's egomotion against the clone of the k-1 frame, counted as a fused
         frame when accepted (None: no clone, no egomotion or an unusable covariance)."""
@@ -520,12 +459,8 @@ class PixelUpdater:
         frame as a keyframe when it was fused."""
         if self.clones is not None:
             self.clones.after_frame(ctx.ukf, ctx.t_ns, next_reference_ns(self.source, ctx.t_ns))
-        memory = self.keyframes
-        if (memory is not None and self.counters.frames_fused > self._fused_before
-                and memory.due(ctx.t_ns)):  # fmt: skip
-            features = self.source.keyframe_features(ctx.t_ns)
-            if features is not None:
-                memory.remember(ctx.t_ns, features, ctx.ukf.x, ctx.ukf.P)
+        if self.relocaliser is not None:
+            self.relocaliser.remember(ctx, self.counters.frames_fused > self._fused_before)
         self._fused_before = self.counters.frames_fused
 
     def summary(self) -> dict[str, Any]:
@@ -538,9 +473,8 @@ class PixelUpdater:
             out.update(self.checks.summary())
         if self.clones is not None:
             out.update(self.clones.summary())
-        if self.keyframes is not None:
-            out.update(keyframes_stored=len(self.keyframes.keyframes),
-                       keyframes_kb=round(self.keyframes.n_bytes / 1024, 1))
+        if self.relocaliser is not None:
+            out.update(self.relocaliser.summary())
         return out
 
 
