@@ -379,14 +379,6 @@ class PixelUpdater:
         wide = n_valid < max(self.options.min_features, 0.5 * idx.size)
         refused = n_kept < max(self.options.min_features,
                                self.options.frame_min_inlier_fraction * n_valid)  # fmt: skip
-        filled = far[idx]
-        if refused and filled.any():
-            # Far features see the rotation alone: an IMU turned wrong fails them where the
-            # gated features still pass. They fill a frame; they never refuse one the gated
-            # features alone would accept (the far ones that fail are dropped).
-            nv, nk = int(f.finite[~filled].sum()), int(f.keep[~filled].sum())
-            refused = nk < max(self.options.min_features,
-                               self.options.frame_min_inlier_fraction * nv)  # fmt: skip
         ego = None
         if wide or refused:
             # The prior cannot be linearised over (most features invalid) or disagrees with
