@@ -13,8 +13,10 @@
    two runners do); each process reports the better of two runs.
 
 Plain script: prints its figures with the load average; timings depend on the machine's load.
-Usage: ``.venv/bin/python bench/bench_online.py [--duration S] [--old-rev REV] [--rotation M]``
-(``M``: the vision motion model of both runs, default the library's, ``clone``; the old runner
+Usage: ``.venv/bin/python bench/bench_online.py [--duration S] [--old-rev REV] [--rotation M]
+[--no-relocalise] [--latency-only]`` (``--no-relocalise``: the latency without the keyframes of
+``vision.relocalise``; ``--latency-only``: part 1 alone; ``M``: the vision motion model of
+both runs, default the library's, ``clone``; the old runner
 runs with ``imu`` (the model of the pre-Navigator commit) or when ``--old-rev`` is given: it must
 have the model). Threads per numerical library: ``SVAINS_THREADS`` (default 1), entered once.
 """
@@ -71,7 +73,7 @@ print(json.dumps(best))
 """
 
 
-def _args() -> tuple[float, str | None, str]:
+def _args() -> tuple[float, str | None, str, bool, bool]:
     """Duration (s), the old runner's revision (None: skip it) and the motion model."""
     from svains.navigation.options import VisionOptions
 
@@ -81,10 +83,10 @@ def _args() -> tuple[float, str | None, str]:
     rev = a[a.index("--old-rev") + 1] if "--old-rev" in a else None
     if rev is None and rotation == "imu":
         rev = "2a6a877"  # the commit before the Navigator (no clones)
-    return duration, rev, rotation
+    return duration, rev, rotation, "--no-relocalise" not in a, "--latency-only" in a
 
 
-def bench_latency(root: Path, rotation: str) -> None:
+def bench_latency(root: Path, rotation: str, relocalise: bool = True) -> None:
     from svains.datasets.loader import load_dataset
     from svains.navigation.navigator import Navigator
     from svains.navigation.options import BufferOptions, InitOptions, RunConfig, VisionOptions
@@ -99,7 +101,8 @@ def bench_latency(root: Path, rotation: str) -> None:
 
     ds = load_dataset(root)
     cfg = RunConfig(method="3d", init=InitOptions(mode="groundtruth"),
-                    vision=VisionOptions(source="images", rotation=rotation),
+                    vision=VisionOptions(source="images", rotation=rotation,
+                                         relocalise=relocalise),
                     buffer=BufferOptions(window_s=0.0))
     cfg = resolve_config(ds, cfg)
     nav = Navigator(cfg, rig_from_dataset(ds), initial_state=groundtruth_start(ds, cfg, None))
@@ -119,7 +122,8 @@ def bench_latency(root: Path, rotation: str) -> None:
                 pending = None
     nav.close()
     ms = np.array(lat[1:])
-    print(f"feed_stereo latency, 3d from 752x480 images, {len(ms)} frames (window 0, load "
+    print(f"feed_stereo latency, 3d from 752x480 images{'' if relocalise else ', no keyframes'}, "
+          f"{len(ms)} frames (window 0, load "
           f"average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores): median "
           f"{np.median(ms[:, 0]):.1f} ms (target <= 15), p99 {np.percentile(ms[:, 0], 99):.1f} "
           f"ms (target <= 40); main-thread CPU per frame (less sensitive to other processes): "
@@ -171,7 +175,7 @@ def bench_replay(root: Path, old_rev: str | None, rotation: str, rounds: int = 2
 def main() -> None:
     from svains.sim import SimConfig, simulate
 
-    duration, old_rev, rotation = _args()
+    duration, old_rev, rotation, relocalise, latency_only = _args()
     with tempfile.TemporaryDirectory() as tmp:
         cfg = SimConfig()
         cfg = replace(cfg, duration_s=duration, camera=replace(cfg.camera, rate_hz=20.0))
@@ -180,8 +184,9 @@ def main() -> None:
         print(f"simulated {duration:.0f} s at 20 Hz with 752x480 images in "
               f"{time.perf_counter() - t0:.1f} s")
         print(f"3d from images, vision.rotation={rotation}")
-        bench_latency(root, rotation)
-        bench_replay(root, old_rev, rotation)
+        bench_latency(root, rotation, relocalise)
+        if not latency_only:
+            bench_replay(root, old_rev, rotation)
 
 
 if __name__ == "__main__":
