@@ -352,9 +352,7 @@ class StereoFrontend:
             res = estimate_egomotion(p_kf, uvl, uvr, self.rig, ransac,
                                      p_cur=lambda a=uvl, b=uvr: self.rig.triangulate(a, b),
                                      rng=self._reloc_rng)  # fmt: skip
-            epi = (np.abs(uvl[:, 1] - uvr[:, 1]) <= o.epipolar_final_px) & (
-                np.abs(kf.uv_left[i_r, 1] - kf.uv_right[i_r, 1]) <= o.epipolar_final_px)
-            inlier = res.inlier & epi
+            inlier = res.inlier & self._epipolar(kf.uv_left[i_r], kf.uv_right[i_r], uvl, uvr)
             n_inl = int(inlier.sum())
             if (res.egomotion is None or n_inl < max(min_inliers, o.min_inlier_fraction * i_r.size)
                     or (best is not None and n_inl <= int(best.inlier.sum()))):  # fmt: skip
@@ -504,6 +502,12 @@ class StereoFrontend:
         st.status, st.tracked, st.inliers, st.outliers, self._last_motion = saved
         return klt
 
+    def _epipolar(self, uvl0: F64, uvr0: F64, uvl: F64, uvr: F64) -> NDArray[np.bool_]:
+        """Features (N,) whose left and right rows agree within ``epipolar_final_px`` at both
+        frames (rectified px (N, 2) each)."""
+        tol = self.options.epipolar_final_px
+        return (np.abs(uvl[:, 1] - uvr[:, 1]) <= tol) & (np.abs(uvl0[:, 1] - uvr0[:, 1]) <= tol)
+
     def _egomotion(
         self, t_ns: int, ref: _Reference, uv_l: F64, uv_r: F64, sel: NDArray[np.bool_],
         motion_prior: Egomotion | None, tm: dict[str, float],
@@ -525,9 +529,7 @@ class StereoFrontend:
             prior=prior, rng=self._rng,
         )
         tm["ransac"] = tm.get("ransac", 0.0) + (time.perf_counter() - t6) * 1e3
-        epi = (np.abs(uvl[:, 1] - uvr[:, 1]) <= o.epipolar_final_px) & (
-            np.abs(ref.uv_left[sel, 1] - ref.uv_right[sel, 1]) <= o.epipolar_final_px
-        )
+        epi = self._epipolar(ref.uv_left[sel], ref.uv_right[sel], uvl, uvr)
         inlier = res.inlier & epi
         ego = res.egomotion
         if o.bundle and ego is not None:

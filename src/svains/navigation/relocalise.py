@@ -60,7 +60,7 @@ F64 = NDArray[np.float64]
 
 log = logging.getLogger(__name__)
 
-POSE_ROWS = np.r_[np.arange(15)[DP], np.arange(15)[DTH]]
+POSE_ROWS = np.r_[DP, DTH]  # the pose's (δp, δθ_B) rows of the tangent
 
 
 # A block whose drift ratio is below the threshold is fused this many times wider: the update
@@ -218,8 +218,12 @@ class Relocaliser:
         covariance to fuse its pose with (``keyframe_covariance``); None without one."""
         o, ukf = self.options, ctx.ukf
         P_now = ukf.P[np.ix_(POSE_ROWS, POSE_ROWS)]
-        usable = [k for k in self.memory.keyframes if k.t_ns < ctx.t_ns and keyframe_covariance(
-            k.P_pose, P_now, o.relocalise_min_drift, o.relocalise_inflation) is not None]
+        P_fused: dict[int, F64] = {}  # keyframe time -> the covariance to fuse its pose with
+        for k in self.memory.keyframes:
+            if k.t_ns < ctx.t_ns and (P := keyframe_covariance(
+                    k.P_pose, P_now, o.relocalise_min_drift, o.relocalise_inflation)) is not None:
+                P_fused[k.t_ns] = P
+        usable = [k for k in self.memory.keyframes if k.t_ns in P_fused]
         drift = float(np.trace(ukf.P[DP, DP]))
         if not usable:
             log.debug("t=%.3f s: no relocalisation, the state's position variance %.3g m² is "
@@ -236,10 +240,7 @@ class Relocaliser:
         if found is None:
             return None
         kf, tr = found
-        P_kf = keyframe_covariance(kf.P_pose, P_now, o.relocalise_min_drift,
-                                   o.relocalise_inflation)  # fmt: skip
-        assert P_kf is not None
-        return kf, tr, P_kf
+        return kf, tr, P_fused[kf.t_ns]
 
     def attempt(
         self, ctx: FrameContext, fuse: Callable[[StereoTracks], UpdateStats | None]
