@@ -125,6 +125,11 @@ def test_two_view_is_refused_without_clones_and_single_use_pixels(
     # Without the k-1 frame's clone and single-use pixels, the k-1 pixels were already fused as
     # the last frame's k pixels: fusing them again would count them twice.
     with pytest.raises(ConfigError, match=rf"vision\.two_view needs .* got rotation "
-                       rf"'{rotation}', single_use_pixels {single_use}"):  # fmt: skip
-        VisionOptions(two_view=True, rotation=rotation, single_use_pixels=single_use)
+                       rf"'{rotation}', shared_pixels False, "
+                       rf"single_use_pixels {single_use}"):  # fmt: skip
+        VisionOptions(two_view=True, rotation=rotation, single_use_pixels=single_use,
+                      shared_pixels=False)
     VisionOptions(two_view=True)  # the defaults (clone, single-use pixels) take it
+    VisionOptions(two_view=True, shared_pixels=True, single_use_pixels=False)  # shared too
+    with pytest.raises(ConfigError, match=r"got rotation 'imu', shared_pixels True"):
+        VisionOptions(two_view=True, rotation="imu", shared_pixels=True)  # needs the clone

@@ -123,3 +123,27 @@ def test_lc_measurement_without_egomotion_raises(village: Dataset) -> None:
     with pytest.raises(DatasetError, match="carry no egomotion"):
         up.measurement(replace(tr, egomotion=None))
     assert isinstance(tr.egomotion, Egomotion)
+
+
+def test_lc_bundle_short_refines_the_short_frames_only(village: Dataset) -> None:
+    """``vision.lc_bundle_short``: the egomotion of recorded frames at most ``short_gap_s`` apart
+    is the bundle adjustment's (``TrackOptions.bundle_max_gap_s``), of frames further apart
+    RANSAC's; the updater fuses the first at ``LC_COV_SCALE_BUNDLE``."""
+    from svains.navigation.options import LC_COV_SCALE_BUNDLE
+    from svains.navigation.tracks import TrackBuilder, TrackOptions, frame_slices
+
+    assert village.features is not None and village.cam0 is not None
+    up = updater_for("lc", village, VisionOptions(source="features", lc_bundle_short=True))
+    fs = village.features
+    times, bounds = frame_slices(fs)
+    for stride, expected in ((1, "bundle"), (10, "forward")):  # 0.2 s and 2 s apart
+        builder = TrackBuilder(up.rig, TrackOptions(egomotion=True, bundle_max_gap_s=1.0))
+        kinds = []
+        for k in range(0, len(times), stride):
+            r = slice(bounds[k], bounds[k + 1])
+            tr = builder.add(int(times[k]), fs.track_id[r], fs.uv_left[r], fs.uv_right[r])
+            if tr is not None and tr.egomotion is not None:
+                kinds.append(tr.egomotion.estimator)
+        assert len(kinds) >= 4 and set(kinds) == {expected}, (stride, kinds)
+    opts = VisionOptions(lc_bundle_short=True)
+    assert opts.lc_scale("bundle") == LC_COV_SCALE_BUNDLE == 2.0

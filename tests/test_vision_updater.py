@@ -82,7 +82,7 @@ def test_clone_update_pulls_position_towards_truth(method: str) -> None:
     and the frame's update measures the k-1 -> k motion against the clone."""
     tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
     upd = updater_for(method, _dataset(tf),
-                      VisionOptions(rotation="clone", min_disparity_px=0.0))
+                      VisionOptions(rotation="clone", min_disparity_px=0.0, shared_pixels=False))
     ukf = _ukf(tf.x_km1, np.zeros(3))
     ctx0 = FrameContext(ukf, PAPER, T0, None, None, [], None)  # type: ignore[arg-type]
     upd.after_frame(ctx0)
@@ -254,7 +254,8 @@ def test_online_extrinsic_rotation_moves_towards_the_true_camera(
     turned = replace(RIG, R_B_C=RIG.R_B_C @ so3_exp(phi))
     tf = two_frames(turned, DT_S, np.array([0.3, -0.4, 0.2]), np.zeros(3), n_features=80)
     # lc without its accuracy allowance (``lc_cov_scale``): one noise-free egomotion.
-    opts = VisionOptions(rotation="clone", min_disparity_px=0.0, estimate_extrinsics=True,
+    opts = VisionOptions(rotation="clone", min_disparity_px=0.0, shared_pixels=False,
+                         estimate_extrinsics=True,
                          lc_cov_scale=1.0)
     upd = updater_for(method, _dataset(tf), opts)
     ukf = UKF(NavManifold(PAPER), MerweScaledSigmaPoints(12), tf.x_km1.copy(),
@@ -322,7 +323,7 @@ def test_features_new_at_k_minus_1_pass_the_disparity_gate_at_twice_the_threshol
     from svains.navigation.vision_pixels import NEW_FEATURE_DISPARITY_FACTOR
 
     tf = two_frames(RIG, DT_S, np.zeros(3), np.zeros(3), n_features=60)
-    upd = updater_for("3d", _dataset(tf), VisionOptions())
+    upd = updater_for("3d", _dataset(tf), VisionOptions(shared_pixels=False))
     d_min = upd._min_disparity_px
     assert d_min == pytest.approx(3.6) and NEW_FEATURE_DISPARITY_FACTOR == 2.0
 
@@ -356,6 +357,7 @@ def test_two_view_frames_fill_up_with_features_below_the_disparity_gate(
     disp = tf.uv_left_prev[:, 0] - tf.uv_right_prev[:, 0]
     gate = float(np.median(disp))
     opts = VisionOptions(min_disparity_px=gate / 2, max_features=40, two_view_fill_far=fill,
+                         shared_pixels=False,
                          egomotion_fallback=False)  # fmt: skip
     upd = updater_for("3d", _dataset(tf), opts)
     ukf = _ukf(tf.x_km1, np.zeros(3))
@@ -433,3 +435,81 @@ def test_a_frame_with_too_few_features_for_the_pixels_fuses_its_egomotion() -> N
     stats, ukf, upd = run(False)
     assert stats is None and upd.summary()["frames_without_tracks"] == 1
     assert np.linalg.norm(ukf.x[0:3] - tf.x_k[0:3]) > 0.29
+
+
+def _clone_frame(opts: VisionOptions, err_m: float) -> tuple[float, float, float]:
+    """One clone update of ``opts`` with the state at k moved by ``err_m`` (m, variance to
+    match): (position error before, after, trace of the posterior variance of the position
+    relative to the clone)."""
+    tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
+    upd = updater_for("3d", _dataset(tf), opts)
+    ukf = _ukf(tf.x_km1, np.zeros(3))
+    upd.after_frame(FrameContext(ukf, PAPER, T0, None, None, [], None))  # type: ignore[arg-type]
+    x = ukf.x.copy()
+    x[:13] = tf.x_k
+    d = err_m * np.array([0.8, -0.5, 0.3])
+    x[0:3] += d
+    P = ukf.P.copy()
+    P[0:3, 0:3] += err_m**2 * np.eye(3)
+    ukf.resize(ukf.manifold, x, P)
+    stats = upd.update(_ctx(ukf))
+    assert stats is not None and stats.accepted
+    after = float(np.linalg.norm(ukf.x[0:3] - tf.x_k[0:3]))
+    # The frame measures the motion from the clone: the variance of p_k - p_clone.
+    c = ukf.manifold.tangent(0).start  # type: ignore[attr-defined]
+    A = np.zeros((3, ukf.P.shape[0]))
+    A[:, 0:3], A[:, c:c + 3] = np.eye(3), -np.eye(3)
+    return float(np.linalg.norm(d)), after, float(np.trace(A @ ukf.P @ A.T))
+
+
+def test_shared_pixels_fuse_every_feature_by_two_view_at_twice_the_variance() -> None:
+    """``shared_pixels`` (opt-in) shares each pixel between its two frame pairs: every frame
+    two-view, no disparity gate, no single-use filter, each pair's pixels at twice their
+    variance, so the fused information is half the single-use two-view frame's."""
+    tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
+    SHARED = VisionOptions(shared_pixels=True)
+    shared = updater_for("3d", _dataset(tf), SHARED)
+    assert shared.shared and shared.two_view and shared._min_disparity_px == 0.0
+    assert shared.summary()["shared_pixels"] is True
+    single = updater_for("3d", _dataset(tf), VisionOptions())  # the default
+    assert not single.shared and not single.two_view and single._min_disparity_px > 0.0
+    assert single.summary()["shared_pixels"] is False
+    # Each pulls a 5 cm error towards the truth; the shared frame fuses half the information.
+    before, after_shared, var_shared = _clone_frame(SHARED, 0.05)
+    _, after_single, var_single = _clone_frame(VisionOptions(two_view=True, min_disparity_px=0.0),
+                                               0.05)  # fmt: skip
+    assert after_shared < 0.5 * before and after_single < 0.5 * before
+    assert 1.6 < var_shared / var_single < 2.4, (var_shared, var_single)
+
+
+def test_shared_pixels_are_opt_in_and_need_clones() -> None:
+    assert not VisionOptions().shares_pixels("features")
+    assert VisionOptions(shared_pixels=True).shares_pixels("images")
+    # Without clones (another motion model) nothing is shared, whatever the option says.
+    tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
+    opts = VisionOptions(rotation="imu", shared_pixels=True)
+    assert not updater_for("3d", _dataset(tf), opts).shared
+
+
+def test_short_frames_fuse_more_features() -> None:
+    opts = VisionOptions()  # 120, 300 within 1 s
+    assert opts.features_for_gap(0.2) == 300 and opts.features_for_gap(1.0) == 300
+    assert opts.features_for_gap(1.01) == 120
+    assert VisionOptions(max_features=None).features_for_gap(0.2) is None
+    assert VisionOptions(max_features_short=None).features_for_gap(0.2) is None
+    assert VisionOptions(max_features_short=50).features_for_gap(0.2) == 120  # the larger
+    assert VisionOptions(short_gap_s=None).features_for_gap(0.01) == 120
+    with pytest.raises(ConfigError, match=r"vision\.short_gap_s must be >= 0 s or null, got -1"):
+        VisionOptions(short_gap_s=-1.0)
+    with pytest.raises(ConfigError, match=r"vision\.max_features_short must be >= 1 or null"):
+        VisionOptions(max_features_short=0)
+
+
+def test_lc_refines_the_egomotion_of_short_recorded_frames_on_request() -> None:
+    assert VisionOptions().bundle_max_gap_for("lc") is None  # opt-in
+    opts = VisionOptions(lc_bundle_short=True)
+    assert opts.bundle_max_gap_for("lc") == 1.0
+    assert opts.bundle_max_gap_for("3d") is None and opts.bundle_max_gap_for("vo") is None
+    assert VisionOptions(lc_bundle_short=True, egomotion_bundle=False).bundle_max_gap_for(
+        "lc") is None
+    assert VisionOptions(lc_bundle_short=True, short_gap_s=None).bundle_max_gap_for("lc") is None

@@ -407,6 +407,7 @@ class Navigator:
         track_opts = TrackOptions(max_row_diff_px=v.max_row_diff_px,
                                   egomotion=self.config.method == "lc",
                                   bundle=v.bundle_for(self.config.method),
+                                  bundle_max_gap_s=v.bundle_max_gap_for(self.config.method),
                                   widen=True)  # fmt: skip
         return FeatureFrames(rig, track_opts)
 

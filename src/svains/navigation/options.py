@@ -154,8 +154,11 @@ LC_COV_SCALE = 30.0
 # (``frontend.egomotion_bundle``: the points fitted with the motion to all four pixels, features
 # gated on their joint residual). Its covariance is honest and its per-frame bias gone, so its
 # errors no longer drift together (features0, NEES of 10 summed frames 2.8-5.7 against 18.2
-# for RANSAC's on the village, see ``BundleOptions``).
-LC_COV_SCALE_BUNDLE = 1.0
+# for RANSAC's on the village, see ``BundleOptions``). Factor 2, not 1: consecutive egomotions
+# share the pixels of the frame between them (as ``vision_pixels.SHARED_PIXEL_VARIANCE``); the
+# village's 10 seeds at 5 Hz give NEES 14.1 with 1 (above the 95 % band, 6.57-11.81), 11.0
+# with 2, ATE 0.072 / 0.070 m (2026-12-05).
+LC_COV_SCALE_BUNDLE = 2.0
 
 # Vision motion models: the state-at-k ones of ``models.vision_common`` and ``clone`` (the pose
 # at k-1 cloned into the state, ``navigation.vision_clones``; exact relative motion).
@@ -171,17 +174,29 @@ class VisionOptions:
     ``pixel_noise_std`` px (None: the features0 value, 1 px for images; a replay resolves it)
     times ``pixel_noise_scale`` (None: ``noise_scale()``, 1 with clones, 2 for the approximate
     motion models); ``feature_gate_probability`` per-feature chi-square(4) gate (None: off);
-    ``max_features`` per frame (evenly subsampled; None: all); ``rotation`` is the motion
+    ``max_features`` per frame (evenly subsampled; None: all), ``max_features_short`` in a frame
+    at most ``short_gap_s`` (s; None: none is short) after the one before, with shared pixels
+    (``features_for_gap``);
+    ``rotation`` is the motion
     model between frames: "clone" (default: the pose at k-1 cloned into the state, exact
     relative motion, ``navigation.vision_clones``), "linear" (paper eq. 18), "exp" or "imu"
     (relative motion from the IMU samples between the frames: ``models.vision_imu``);
+    ``shared_pixels`` (clones, ``tc``/``3d``; opt-in, see ``shares_pixels``): every frame takes
+    the two-view model
+    (``two_view``, each feature's point marginalised over its 8 pixels at k-1 and k) and each
+    feature's pixels enter both frame pairs they belong to (k-1 -> k and k -> k+1), each time at
+    twice their variance: a pixel's information is split between its two updates, so none is
+    counted twice and none is left out (``vision_pixels.SHARED_PIXEL_VARIANCE``). Off:
     ``single_use_pixels`` (clones) lets each feature pixel enter one update only (a feature
-    fused at k-1 is not triangulated again at k); ``min_disparity_px`` (None:
+    fused at k-1 is not triangulated again at k, every other frame of a long track is lost);
+    ``min_disparity_px`` (None:
     ``min_disparity()``) drops features whose disparity one frame earlier is smaller;
     ``frame_stride`` uses every n-th stereo frame; ``egomotion_bundle`` refines the
     egomotion of pre-tracked features by a two-frame bundle adjustment (None: ``vo`` only, see
-    ``bundle_for``); ``lc_cov_scale`` multiplies the egomotion
-    covariance (None: ``lc_scale()``: 30 for RANSAC's estimate, 1 for the bundle's);
+    ``bundle_for``); ``lc_bundle_short`` (opt-in) refines ``lc``'s too when its recorded
+    frames are at most ``short_gap_s`` apart (``bundle_max_gap_for``);
+    ``lc_cov_scale`` multiplies the egomotion
+    covariance (None: ``lc_scale()``: 30 for RANSAC's estimate, 2 for the bundle's);
     ``lc_min_std`` (rad, m) floors its standard deviations; ``imu_noise`` adds the IMU
     increment's noise (``rotation="imu"``) to the pixel covariance as a feature-correlated
     term; ``frame_gyro_walk`` (``imu`` only, applied by ``tune_for_frames``) instead lets the
@@ -285,6 +300,8 @@ class VisionOptions:
     pixel_noise_scale: float | None = None
     feature_gate_probability: float | None = 0.999
     max_features: int | None = 120
+    max_features_short: int | None = 300
+    short_gap_s: float | None = 1.0
     min_features: int = 3
     rotation: str = "clone"
     frame_stride: int = 1
@@ -293,6 +310,7 @@ class VisionOptions:
     lc_min_std: tuple[float, float] = (1e-4, 1e-3)
     imu_noise: bool = True
     frame_gyro_walk: bool = True
+    shared_pixels: bool = False
     single_use_pixels: bool = True
     min_disparity_px: float | None = None
     motion_prior: bool = False
@@ -309,6 +327,7 @@ class VisionOptions:
     frame_min_inlier_fraction: float = 0.5
     egomotion_fallback: bool = True
     egomotion_bundle: bool | None = None
+    lc_bundle_short: bool = False
     frame_max_nis_per_dof: float | None = 3.0
     iterate_after_s: float | None = 0.3
     long_iterations: int = 6
@@ -353,12 +372,20 @@ class VisionOptions:
                 "vision.estimate_extrinsics needs vision.rotation=clone (the camera rotation "
                 f"is estimated against the cloned pose), got {self.rotation!r}"
             )
-        if self.two_view and (self.rotation != "clone" or not self.single_use_pixels):
+        if self.two_view and (self.rotation != "clone"
+                              or not (self.single_use_pixels or self.shared_pixels)):
             raise ConfigError(
-                "vision.two_view needs vision.rotation=clone and vision.single_use_pixels=true "
-                f"(it fuses the k-1 pixels themselves, which only then are unfused), got "
-                f"rotation {self.rotation!r}, single_use_pixels {self.single_use_pixels}"
+                "vision.two_view needs vision.rotation=clone and vision.shared_pixels=true or "
+                "vision.single_use_pixels=true (it fuses the k-1 pixels themselves, which are "
+                f"then split or unfused), got rotation {self.rotation!r}, shared_pixels "
+                f"{self.shared_pixels}, single_use_pixels {self.single_use_pixels}"
             )
+        if self.short_gap_s is not None and not self.short_gap_s >= 0:
+            raise ConfigError(f"vision.short_gap_s must be >= 0 s or null, got {self.short_gap_s}")
+        for name in ("max_features", "max_features_short"):
+            n = getattr(self, name)
+            if n is not None and n < 1:
+                raise ConfigError(f"vision.{name} must be >= 1 or null (all), got {n}")
         if not 0 <= self.frame_min_inlier_fraction <= 1:
             raise ConfigError("vision.frame_min_inlier_fraction must be in [0, 1], got "
                               f"{self.frame_min_inlier_fraction}")  # fmt: skip
@@ -385,8 +412,29 @@ class VisionOptions:
             return float(self.pixel_noise_scale)
         return 1.0 if self.rotation == "clone" else 2.0
 
-    def min_disparity(self, sigma_px: float, noise_known: bool = True) -> float:
-        """``min_disparity_px``, or its default: 12 pixel-noise standard deviations with
+    def shares_pixels(self, source_kind: str) -> bool:
+        """Whether ``tc``/``3d`` with clones share each pixel between its two frame pairs:
+        ``shared_pixels`` (opt-in) with any source (``source_kind``, "features" or "images").
+
+        Why not the default (measured 2026-12-05, ``docs/results/low-rate.md``): GPS-denied on
+        recorded features it is the more accurate (EuRoC V1_01 synthetic every frame 0.037 →
+        0.020 m, simulated flights 2 Hz 0.056 → 0.029 m, 0.5 Hz 0.425 → 0.272 m, village 5 Hz
+        10 seeds 0.093 → 0.071 m, NEES 11.5 → 9.7), but the k-1 pixels it fuses again have
+        already moved the clone they are measured against, a correlation the factor 2 does
+        not model: on a GPS-aided village flight with a 10 s outage (``tests/test_smoothing.py``)
+        the forward ATE goes 0.048 → 0.059 m and the smoothed one 0.029 → 0.067 m, worse than
+        the forward run. On images (KITTI raw ``3d`` GPS-denied): final error 1.353 → 1.169 %,
+        NEES 73.7 → 89.8. A two-view update over a prior far wider than the frame's motion
+        (0.37 m off for a 7 cm step) moves away from the truth where the paper's model does
+        not. The way to keep the information without the correlation is a window of clones
+        fusing each track once (the MSCKF update)."""
+        del source_kind  # the same rule for recorded features and images
+        return bool(self.shared_pixels)
+
+    def min_disparity(self, sigma_px: float, noise_known: bool = True,
+                      shared: bool = False) -> float:
+        """``min_disparity_px``, or its default: none with ``shared`` pixels (every frame is a
+        two-view frame, see ``two_view_fill_far``), else 12 pixel-noise standard deviations with
         clones when the pixel noise is known (``noise_known``: recorded features or a given
         ``pixel_noise_std``), none otherwise (the image front end's 1 px is a placeholder) and
         for the other models (their measured settings).
@@ -404,7 +452,9 @@ class VisionOptions:
         """
         if self.min_disparity_px is not None:
             return float(self.min_disparity_px)
-        return 12.0 * sigma_px if self.rotation == "clone" and noise_known else 0.0
+        if self.rotation != "clone" or not noise_known or shared:
+            return 0.0  # shared pixels: two-view frames, whose inverse-depth points need none
+        return 12.0 * sigma_px
 
     def bundle_for(self, method: str) -> bool:
         """Whether ``method``'s egomotions on pre-tracked features are refined by the two-frame
@@ -424,6 +474,48 @@ class VisionOptions:
         if self.egomotion_bundle is not None:
             return bool(self.egomotion_bundle)
         return method == "vo"
+
+    def bundle_max_gap_for(self, method: str) -> float | None:
+        """The longest frame gap (s) at which ``method``'s egomotions are refined by the
+        bundle adjustment although ``bundle_for`` is false (None: never): ``short_gap_s`` for
+        ``lc`` with ``lc_bundle_short`` when ``egomotion_bundle`` is None.
+
+        Over short gaps the IMU's prediction is honest and the precise egomotion wins; over
+        seconds on a real MAV IMU it does not (see ``bundle_for``). Recorded features only: on
+        images the bundle's covariance, from the residuals, misses the front end's errors
+        shared across features (KITTI raw ``lc`` GPS-denied NEES 51 → 464, ATE 0.276 → 0.332
+        m), so image-based ``lc`` keeps RANSAC's. Measured 2026-12-05 with 1 s and
+        ``LC_COV_SCALE_BUNDLE`` 2 (before: RANSAC's egomotion at every gap), ``lc``: EuRoC
+        V1_01 synthetic 5 Hz (``bench/low_rate.py``) every frame (0.2 s) 0.114 → 0.017 m,
+        every 10th / 25th frame unchanged (0.120 / 0.569 m); irregular frames 0.05-7 s
+        (``bench/irregular_frames.py``) 0.329 → 0.321 m; simulated flights 2 Hz 0.219 → 0.037
+        m, 0.5 Hz unchanged; the village 5 Hz, 10 seeds (``bench/paper_ordering.py``) 0.309 →
+        0.070 m, NEES 7.86 → 11.0 (inside the 95 % band, 14.1 with factor 1). Opt-in: with
+        it ``lc`` passes the default ``3d`` (2 Hz flights 0.037 against 0.056 m, village 0.070
+        against 0.093 m), the paper's ordering reversed; with ``shared_pixels`` too ``3d``
+        leads again at 2 Hz (0.029 m), but that has costs of its own (``shares_pixels``)."""
+        if method != "lc" or self.egomotion_bundle is not None or not self.lc_bundle_short:
+            return None
+        return self.short_gap_s
+
+    def features_for_gap(self, gap_s: float) -> int | None:
+        """The most features a ``tc``/``3d`` frame ``gap_s`` s after its reference fuses:
+        the larger of ``max_features_short`` and ``max_features`` when the gap is short
+        (``short_gap_s``), else ``max_features`` (None: all).
+
+        A short frame's prior is narrow and its pixels near-linear in the state: each feature
+        adds information. Across a long gap the sigma points span metres and the real IMU's
+        prediction is overconfident, so many precise features pull a wide prior too hard.
+        Measured 2026-12-05 with shared pixels, 300 against 120 in every frame: EuRoC V1_01
+        synthetic 5 Hz every frame 0.038 → 0.020 m; simulated flights at 2 Hz 0.043 → 0.029 m;
+        at 0.5 Hz 0.272 → 0.651 m (V1_02 seed 2: 0.32 → 3.99 m) and EuRoC irregular frames
+        0.308 → 0.326 m, where 300 in short frames only gives 0.272 and 0.304 m."""
+        short = self.short_gap_s is not None and gap_s <= self.short_gap_s
+        if not short or self.max_features is None:
+            return self.max_features
+        if self.max_features_short is None:
+            return None
+        return max(self.max_features, self.max_features_short)
 
     def lc_scale(self, estimator: str = "forward") -> float:
         """``lc_cov_scale``, or its default for an egomotion from ``estimator``: ``"bundle"``

@@ -34,7 +34,9 @@ class TrackOptions:
     by ``lc``/``vo``; its inlier mask then replaces the all-true default); ``bundle``: refine it
     with the points on all four pixels of every feature that passed the gates
     (``frontend.egomotion_bundle``; its inliers replace RANSAC's; off, the RANSAC estimate);
-    ``widen``: where RANSAC finds no motion, retry at wider inlier thresholds
+    ``bundle_max_gap_s``: refine it also, with ``bundle`` off, when the frames are at most
+    that many seconds apart (None: never); ``widen``: where RANSAC finds no motion, retry at
+    wider inlier thresholds
     (``frontend.egomotion.estimate_egomotion_widening``: frames seconds apart). For ``lc``,
     whose filter gates the motion against the IMU's prediction; not for ``vo``, which would
     chain a wrong wide consensus unchecked (tracks gone wrong can agree on a wrong motion
@@ -46,7 +48,13 @@ class TrackOptions:
     min_disparity_px: float = 0.5
     egomotion: bool = False
     bundle: bool = False
+    bundle_max_gap_s: float | None = None
     widen: bool = False
+
+    def refine(self, gap_s: float) -> bool:
+        """Whether the egomotion of frames ``gap_s`` s apart is refined by the bundle."""
+        return self.bundle or (self.bundle_max_gap_s is not None
+                               and gap_s <= self.bundle_max_gap_s)  # fmt: skip
 
 
 def frame_slices(fs: Any) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -156,7 +164,8 @@ class TrackBuilder:
         if opts.egomotion and ok.sum() >= 3:
             p_cur = rig.triangulate(uvl1, uvr1)
             ego, inl = _estimate(p_prev, uvl1, uvr1, rig, p_cur, seed=k, prior=self._prior,
-                                 prev_pixels=(uvl0, uvr0, ok) if opts.bundle else None,
+                                 prev_pixels=(uvl0, uvr0, ok)
+                                 if opts.refine((tr.t_ns - tr.t_prev_ns) * 1e-9) else None,
                                  widen=opts.widen)
             ok &= inl
             self._prior = ego
