@@ -126,3 +126,37 @@ def run_case(case: Case, tmp: Path) -> Any:
 
     ds = load_case_dataset(case, tmp)
     return replay(ds, case_options(case, ds))
+
+
+def record(names: list[str], tmp: Path) -> list[str]:
+    """Re-record the golden cases ``names`` (all when empty) from the current code: one line
+    per case, its fused/rejected counts before and after. ``source_commit`` is the commit the
+    code was at (the working tree may differ: say so in the commit that stores them)."""
+    import subprocess
+
+    unknown = set(names) - {c.name for c in CASES}
+    if unknown:
+        raise SystemExit(f"no golden case named {', '.join(sorted(unknown))}")
+    head = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
+                          cwd=GOLDEN_DIR, check=False).stdout.strip()  # fmt: skip
+    lines = []
+    for case in CASES:
+        if names and case.name not in names:
+            continue
+        res = run_case(case, tmp)
+        arrays = summarise(res.t_ns, res.x, res.P9, res.report)
+        path = GOLDEN_DIR / f"{case.name}.npz"
+        before = np.load(path, allow_pickle=True)["counts"].tolist() if path.exists() else None
+        np.savez_compressed(path, source_commit=np.array(head), **arrays)
+        lines.append(f"{case.name}: counts {before} -> {arrays['counts'].tolist()}")
+    return lines
+
+
+if __name__ == "__main__":
+    # Re-record after a change that is meant to move the goldens:
+    #   python tests/_golden_cases.py [CASE ...]    (no names: every case)
+    import sys
+    import tempfile
+
+    for line in record(sys.argv[1:], Path(tempfile.mkdtemp())):
+        print(line)

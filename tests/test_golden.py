@@ -33,3 +33,10 @@ def assert_matches_golden(case: Case, arrays: dict[str, np.ndarray]) -> None:
 def test_run_entry_reproduces_the_goldens(case: Case, golden_tmp: Path) -> None:
     res = run_case(case, golden_tmp)
     assert_matches_golden(case, summarise(res.t_ns, res.x, res.P9, res.report))
+
+
+def test_recording_refuses_an_unknown_case(tmp_path: Path) -> None:
+    from _golden_cases import record
+
+    with pytest.raises(SystemExit, match="no golden case named nope"):
+        record(["euroc_lc", "nope"], tmp_path)
