@@ -483,8 +483,7 @@ def test_shared_pixels_fuse_every_feature_by_two_view_at_twice_the_variance() ->
 
 
 def test_shared_pixels_are_opt_in_and_need_clones() -> None:
-    assert not VisionOptions().shares_pixels("features")
-    assert VisionOptions(shared_pixels=True).shares_pixels("images")
+    assert not VisionOptions().shared_pixels
     # Without clones (another motion model) nothing is shared, whatever the option says.
     tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
     opts = VisionOptions(rotation="imu", shared_pixels=True)

@@ -176,27 +176,23 @@ class VisionOptions:
     motion models); ``feature_gate_probability`` per-feature chi-square(4) gate (None: off);
     ``max_features`` per frame (evenly subsampled; None: all), ``max_features_short`` in a frame
     at most ``short_gap_s`` (s; None: none is short) after the one before, with shared pixels
-    (``features_for_gap``);
-    ``rotation`` is the motion
-    model between frames: "clone" (default: the pose at k-1 cloned into the state, exact
-    relative motion, ``navigation.vision_clones``), "linear" (paper eq. 18), "exp" or "imu"
-    (relative motion from the IMU samples between the frames: ``models.vision_imu``);
-    ``shared_pixels`` (clones, ``tc``/``3d``; opt-in, see ``shares_pixels``): every frame takes
-    the two-view model
-    (``two_view``, each feature's point marginalised over its 8 pixels at k-1 and k) and each
-    feature's pixels enter both frame pairs they belong to (k-1 -> k and k -> k+1), each time at
-    twice their variance: a pixel's information is split between its two updates, so none is
-    counted twice and none is left out (``vision_pixels.SHARED_PIXEL_VARIANCE``). Off:
-    ``single_use_pixels`` (clones) lets each feature pixel enter one update only (a feature
-    fused at k-1 is not triangulated again at k, every other frame of a long track is lost);
-    ``min_disparity_px`` (None:
+    (``features_for_gap``); ``rotation`` is the motion model between frames: "clone" (default:
+    the pose at k-1 cloned into the state, exact relative motion, ``navigation.vision_clones``),
+    "linear" (paper eq. 18), "exp" or "imu" (relative motion from the IMU samples between the
+    frames: ``models.vision_imu``); ``shared_pixels`` (clones, ``tc``/``3d``; opt-in, see the
+    comment at the field): every frame takes the two-view model (``two_view``, each feature's
+    point marginalised over its 8 pixels at k-1 and k) and each feature's pixels enter both
+    frame pairs they belong to (k-1 -> k and k -> k+1), each time at twice their variance: a
+    pixel's information is split between its two updates, so none is counted twice and none is
+    left out (``vision_pixels.SHARED_PIXEL_VARIANCE``). Off: ``single_use_pixels`` (clones) lets
+    each feature pixel enter one update only (a feature fused at k-1 is not triangulated again
+    at k, every other frame of a long track is lost); ``min_disparity_px`` (None:
     ``min_disparity()``) drops features whose disparity one frame earlier is smaller;
-    ``frame_stride`` uses every n-th stereo frame; ``egomotion_bundle`` refines the
-    egomotion of pre-tracked features by a two-frame bundle adjustment (None: ``vo`` only, see
-    ``bundle_for``); ``lc_bundle_short`` (opt-in) refines ``lc``'s too when its recorded
-    frames are at most ``short_gap_s`` apart (``bundle_max_gap_for``);
-    ``lc_cov_scale`` multiplies the egomotion
-    covariance (None: ``lc_scale()``: 30 for RANSAC's estimate, 2 for the bundle's);
+    ``frame_stride`` uses every n-th stereo frame; ``egomotion_bundle`` refines the egomotion of
+    pre-tracked features by a two-frame bundle adjustment (None: ``vo`` only, see
+    ``bundle_for``); ``lc_bundle_short`` (opt-in) refines ``lc``'s too when its recorded frames
+    are at most ``short_gap_s`` apart (``bundle_max_gap_for``); ``lc_cov_scale`` multiplies the
+    egomotion covariance (None: ``lc_scale()``: 30 for RANSAC's estimate, 2 for the bundle's);
     ``lc_min_std`` (rad, m) floors its standard deviations; ``imu_noise`` adds the IMU
     increment's noise (``rotation="imu"``) to the pixel covariance as a feature-correlated
     term; ``frame_gyro_walk`` (``imu`` only, applied by ``tune_for_frames``) instead lets the
@@ -310,6 +306,16 @@ class VisionOptions:
     lc_min_std: tuple[float, float] = (1e-4, 1e-3)
     imu_noise: bool = True
     frame_gyro_walk: bool = True
+    # Opt-in (measured 2026-12-05, ``docs/results/low-rate.md``): GPS-denied on recorded
+    # features it is the more accurate (EuRoC V1_01 synthetic every frame 0.037 -> 0.020 m,
+    # simulated flights 2 Hz 0.056 -> 0.029 m, 0.5 Hz 0.425 -> 0.272 m, village 5 Hz 10 seeds
+    # 0.093 -> 0.071 m, NEES 11.5 -> 9.7), but the k-1 pixels it fuses again have already moved
+    # the clone they are measured against, a correlation the factor 2 does not model: on a
+    # GPS-aided village flight with a 10 s outage (``tests/test_smoothing.py``) the forward ATE
+    # goes 0.048 -> 0.059 m and the smoothed one 0.029 -> 0.067 m, worse than the forward run.
+    # On images (KITTI raw ``3d`` GPS-denied): final error 1.353 -> 1.169 %, NEES 73.7 -> 89.8.
+    # Keeping the information without the correlation needs a window of clones fusing each
+    # track once (the MSCKF update).
     shared_pixels: bool = False
     single_use_pixels: bool = True
     min_disparity_px: float | None = None
@@ -412,26 +418,6 @@ class VisionOptions:
             return float(self.pixel_noise_scale)
         return 1.0 if self.rotation == "clone" else 2.0
 
-    def shares_pixels(self, source_kind: str) -> bool:
-        """Whether ``tc``/``3d`` with clones share each pixel between its two frame pairs:
-        ``shared_pixels`` (opt-in) with any source (``source_kind``, "features" or "images").
-
-        Why not the default (measured 2026-12-05, ``docs/results/low-rate.md``): GPS-denied on
-        recorded features it is the more accurate (EuRoC V1_01 synthetic every frame 0.037 →
-        0.020 m, simulated flights 2 Hz 0.056 → 0.029 m, 0.5 Hz 0.425 → 0.272 m, village 5 Hz
-        10 seeds 0.093 → 0.071 m, NEES 11.5 → 9.7), but the k-1 pixels it fuses again have
-        already moved the clone they are measured against, a correlation the factor 2 does
-        not model: on a GPS-aided village flight with a 10 s outage (``tests/test_smoothing.py``)
-        the forward ATE goes 0.048 → 0.059 m and the smoothed one 0.029 → 0.067 m, worse than
-        the forward run. On images (KITTI raw ``3d`` GPS-denied): final error 1.353 → 1.169 %,
-        NEES 73.7 → 89.8. A two-view update over a prior far wider than the frame's motion
-        (0.37 m off for a 7 cm step, noise-free pixels of points 6-19 m away) ends 0.74 m off;
-        the paper's model, whose k-1 points are then exact, within 2 mm. The way to keep the
-        information without the correlation is a window of clones fusing each track once (the
-        MSCKF update)."""
-        del source_kind  # the same rule for recorded features and images
-        return bool(self.shared_pixels)
-
     def min_disparity(self, sigma_px: float, noise_known: bool = True,
                       shared: bool = False) -> float:
         """``min_disparity_px``, or its default: none with ``shared`` pixels (every frame is a
@@ -494,7 +480,8 @@ class VisionOptions:
         0.070 m, NEES 7.86 → 11.0 (inside the 95 % band, 14.1 with factor 1). Opt-in: with
         it ``lc`` passes the default ``3d`` (2 Hz flights 0.037 against 0.056 m, village 0.070
         against 0.093 m), the paper's ordering reversed; with ``shared_pixels`` too ``3d``
-        leads again at 2 Hz (0.029 m), but that has costs of its own (``shares_pixels``)."""
+        leads again at 2 Hz (0.029 m), at costs of its own (see the comment at the
+        ``shared_pixels`` field)."""
         if method != "lc" or self.egomotion_bundle is not None or not self.lc_bundle_short:
             return None
         return self.short_gap_s

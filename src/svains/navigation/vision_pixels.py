@@ -147,7 +147,7 @@ class PixelUpdater:
         self.clones = clone_window(options, applied_offset_s(rig), history, rig.gravity_W)
         self.checks = vision_checks(history, self.rig, rig)  # mount, stamps, baseline
         known = options.pixel_noise_std is not None or self.source.kind == "features"
-        self.shared = self.clones is not None and options.shares_pixels(self.source.kind)
+        self.shared = self.clones is not None and options.shared_pixels
         self._min_disparity_px = options.min_disparity(self.sigma_px, known, self.shared)
         # The k-1 pixel noise biases the prediction (``vision_noise.previous_pixel_bias``); the
         # correction needs the true noise, so it is made only when that is known.
