@@ -370,8 +370,7 @@ class PixelUpdater:
             return ego
         dt_s = (tr.t_ns - tr.t_prev_ns) * 1e-9
         # More features in a short frame with shared pixels (``VisionOptions.features_for_gap``).
-        n_max = (self.options.features_for_gap((tr.t_ns - tr.t_prev_ns) * 1e-9) if self.shared
-                 else self.options.max_features)  # fmt: skip
+        n_max = self.options.features_for_gap(dt_s) if self.shared else self.options.max_features
         idx = _subsample(np.flatnonzero(usable), n_max)
         if far.any() and (n_max is None or idx.size < n_max):
             room = None if n_max is None else n_max - idx.size
