@@ -7,11 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from svains.datasets.types import Dataset, GpsStream, GroundTruth
+from svains.datasets.types import Dataset, FeatureStream, GpsStream, GroundTruth
 from svains.evaluation.accuracy import gps_outage_report
 from svains.evaluation.compare import (
     align_to_groundtruth,
     comparison_markdown,
+    frame_rows,
     gps_outages,
     outage_max_errors,
     trajectory_metrics,
@@ -164,3 +165,18 @@ def test_vo_is_aligned_like_the_filters_when_it_starts_from_the_true_pose() -> N
     assert ate_alignment("vo", gps_used=False, world_frame="local") == "se3"
     assert ate_alignment("3d", gps_used=False) == "posyaw"
     assert ate_alignment("3d", gps_used=True) == "none"
+
+
+def test_frame_rows_picks_the_output_pose_at_each_recorded_frame() -> None:
+    """``ate_frames_m``'s rows: outputs at 10 Hz, stereo frames at 2 Hz 1 ms after an output
+    (matched), one frame 30 ms from any output (not matched); none without ``features0``."""
+    t_out = np.arange(0, 3_000_000_000, 100_000_000, dtype=np.int64)  # 0 .. 2.9 s
+    frames = np.array([1, 500, 1000, 1500, 2030, 2500], np.int64) * 1_000_000 + 1_000_000
+    fs = FeatureStream(t_ns=np.repeat(frames, 2), track_id=np.tile([0, 1], frames.size),
+                       uv_left=np.zeros((2 * frames.size, 2)),
+                       uv_right=np.zeros((2 * frames.size, 2)), pixel_noise_std=0.5)  # fmt: skip
+    ds = Dataset(root=Path("memory"), name="frames", features=fs)
+    rows = frame_rows(t_out, ds)
+    assert rows is not None
+    np.testing.assert_array_equal(rows, [0, 5, 10, 15, 25])
+    assert frame_rows(t_out, Dataset(root=Path("memory"), name="none", features=None)) is None

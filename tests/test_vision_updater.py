@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -512,3 +513,59 @@ def test_lc_refines_the_egomotion_of_short_recorded_frames_on_request() -> None:
     assert VisionOptions(lc_bundle_short=True, egomotion_bundle=False).bundle_max_gap_for(
         "lc") is None
     assert VisionOptions(lc_bundle_short=True, short_gap_s=None).bundle_max_gap_for("lc") is None
+
+
+def _lc_update_with_position_error(
+    tf: TwoFrames, opts: VisionOptions, error_m: float, motion_std_m: float,
+    gate: float | None = 0.999,
+) -> tuple[Any, UKF, Any, np.ndarray]:
+    """An ``lc`` clone update of ``tf``'s frame k gated at ``gate``, as
+    ``_clone_update_with_position_error``; also returns the prior covariance."""
+    upd = updater_for("lc", _dataset(tf), opts)
+    ukf = _ukf(tf.x_km1, np.zeros(3))
+    upd.after_frame(FrameContext(ukf, PAPER, T0, None, None, [], None))  # type: ignore[arg-type]
+    x = ukf.x.copy()
+    x[:13] = tf.x_k
+    x[0] += error_m
+    P = ukf.P.copy()
+    P[0:3, 0:3] += motion_std_m**2 * np.eye(3)
+    ukf.resize(ukf.manifold, x, P)
+    ctx = FrameContext(ukf, PAPER, T0 + int(DT_S * 1e9), T0, gate, [], None)  # type: ignore[arg-type]
+    return upd.update(ctx), ukf, upd, P
+
+
+def test_lc_egomotion_just_above_the_gate_is_fused_at_an_inflated_covariance() -> None:
+    """``vision.lc_inflate_max``: an egomotion whose NIS is above the gate but within the limit
+    is fused with the motion covariance and its own scaled by NIS / gate (the ungated update's
+    mean, its NIS on the gate, the posterior wider); far above the limit, or with the option
+    off, it is refused and the state is left as it was."""
+    tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
+    off = VisionOptions(lc_inflate_max=None)
+    refused, ukf, upd, P = _lc_update_with_position_error(tf, off, 0.15, 0.01)
+    assert refused is not None and not refused.accepted
+    assert 1.2 * refused.gate < refused.nis < 4.0 * refused.gate  # 22.5 < NIS < 90
+    np.testing.assert_array_equal(ukf.P, P)
+    assert upd.summary()["frames_rejected"] == 1 and upd.summary()["frames_inflated"] == 0
+
+    stats, ukf, upd, _ = _lc_update_with_position_error(tf, VisionOptions(), 0.15, 0.01)
+    assert stats is not None and stats.accepted
+    assert stats.nis == pytest.approx(stats.gate, rel=1e-3)
+    assert upd.summary()["frames_inflated"] == 1 and upd.summary()["frames_fused"] == 1
+    _, ungated, _, _ = _lc_update_with_position_error(tf, off, 0.15, 0.01, gate=None)
+    err = np.linalg.norm(ukf.x[0:3] - tf.x_k[0:3])
+    # Pulled in as far as the plain update would (a 1 cm prior against RANSAC x30).
+    # (to 0.1 %: the angular-rate block of this state is not scaled)
+    assert err < 0.13 and err == pytest.approx(
+        np.linalg.norm(ungated.x[0:3] - tf.x_k[0:3]), rel=1e-3)
+    ratio = np.diag(ukf.P)[0:3] / np.diag(ungated.P)[0:3]
+    np.testing.assert_allclose(ratio, refused.nis / refused.gate, rtol=1e-3)
+
+    far, ukf_far, upd_far, P_far = _lc_update_with_position_error(tf, VisionOptions(), 1.0, 0.01)
+    assert far is not None and not far.accepted and far.nis > 4.0 * far.gate
+    np.testing.assert_array_equal(ukf_far.P, P_far)
+    assert upd_far.summary()["frames_inflated"] == 0
+
+
+def test_lc_inflate_max_below_one_is_refused() -> None:
+    with pytest.raises(ConfigError, match=r"vision.lc_inflate_max must be >= 1 .*got 0.5"):
+        VisionOptions(lc_inflate_max=0.5)

@@ -4,6 +4,10 @@ Per method: the runner's ``report.json`` content plus
 - ``ate_m`` with the alignment that fits the run (``ate_alignment``): ``none`` when GPS fixes the
   world frame, ``posyaw`` (yaw + translation: what a GPS-denied visual-inertial filter cannot
   observe) otherwise, also for VO started from the true pose; ``se3`` for VO in a local frame;
+- ``ate_frames_m``: the same ATE over the poses at the recorded stereo frames only
+  (``frame_rows``; None without ``features0``): ``vo`` writes a pose per frame, the filters
+  between frames too, where only the IMU carries them, so this compares the methods at the
+  same stamps;
 - ``outage_max_error_m``: the largest position error inside each GPS outage (gaps in ``gps0``);
 - ``final_position_error_m``, ``path_length_m`` and their ratio ``final_error_pct_of_path``
   (the final error is taken after the ATE's alignment when the run's world frame is local, i.e. a
@@ -39,6 +43,8 @@ F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 log = logging.getLogger(__name__)
+
+FRAME_MATCH_NS = 5_000_000  # ``frame_rows``: an output pose within 5 ms of a frame is its pose
 
 METHODS: tuple[str, ...] = ("ins", "vo", "lc", "tc", "3d")
 
@@ -85,18 +91,22 @@ def ate_alignment(method: str, gps_used: bool, world_frame: str = "groundtruth")
     return "none" if gps_used else "posyaw"
 
 
-def align_to_groundtruth(result: RunResult, ds: Dataset, align: str) -> AteResult | None:
+def align_to_groundtruth(
+    result: RunResult, ds: Dataset, align: str, rows: NDArray[np.int64] | None = None
+) -> AteResult | None:
     """ATE of a run (:func:`svains.evaluation.metrics.ate`, equal to evo's) against the ground
     truth interpolated at the run's own timestamps, so association is exact; ``None`` if < 3
-    poses."""
+    poses. ``rows``: only these output rows (None: all)."""
     gt = ds.groundtruth
     if gt is None:
         return None
-    inside, p_gt, _, q_gt = interpolate_groundtruth(gt, result.t_ns)
+    t_all = result.t_ns if rows is None else result.t_ns[rows]
+    x_all = result.x if rows is None else result.x[rows]
+    inside, p_gt, _, q_gt = interpolate_groundtruth(gt, t_all)
     if int(inside.sum()) < 3:
         return None
-    t = result.t_ns[inside]
-    args = (t, result.x[inside, 0:3], result.x[inside, 6:10], t, p_gt, q_gt)
+    t = t_all[inside]
+    args = (t, x_all[inside, 0:3], x_all[inside, 6:10], t, p_gt, q_gt)
     up_W = -np.asarray(ds.gravity_W, float)
     try:
         return ate(*args, align=align, up_W=up_W)
@@ -104,6 +114,21 @@ def align_to_groundtruth(result: RunResult, ds: Dataset, align: str) -> AteResul
         # A straight-line run leaves Umeyama's rotation undetermined: report it unaligned.
         log.warning("%s alignment impossible (%s); ATE reported without alignment", align, exc)
         return ate(*args, align="none", up_W=up_W)
+
+
+def frame_rows(t_ns: NDArray[np.int64], ds: Dataset) -> NDArray[np.int64] | None:
+    """Rows of the output stamps ``t_ns`` (T,) ns nearest the data's recorded stereo frames
+    (``features0``), each at most ``FRAME_MATCH_NS`` away (None: no recorded frames, or fewer
+    than 3 matched). A filter writes poses between frames too, carried by the IMU alone; the
+    ATE over these rows compares every method at the poses ``vo`` has."""
+    fs = ds.features
+    if fs is None or fs.t_ns.size == 0 or t_ns.size == 0:
+        return None
+    frames = np.unique(fs.t_ns)
+    j = np.clip(np.searchsorted(t_ns, frames), 1, t_ns.size - 1)
+    j = np.where(np.abs(t_ns[j - 1] - frames) <= np.abs(t_ns[j] - frames), j - 1, j)
+    rows = np.unique(j[np.abs(t_ns[j] - frames) <= FRAME_MATCH_NS])
+    return rows if rows.size >= 3 else None
 
 
 def trajectory_metrics(
@@ -130,8 +155,11 @@ def trajectory_metrics(
         final = float(np.linalg.norm(res.p_est_aligned[-1] - res.p_ref[-1]))
     else:
         final = float(np.linalg.norm(p_est[-1] - p_gt[-1]))
+    rows = frame_rows(result.t_ns, ds)
+    at_frames = None if rows is None else align_to_groundtruth(result, ds, align, rows)
     out: dict[str, Any] = {
         "ate_m": ate_m, "ate_alignment": res.alignment, "path_length_m": path,
+        "ate_frames_m": None if at_frames is None else at_frames.rmse,
         "final_position_error_m": final,
         "final_error_pct_of_path": 100.0 * final / path if path > 0 else None,
     }

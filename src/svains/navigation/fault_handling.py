@@ -536,6 +536,11 @@ def _has_biases(ukf: UKF) -> bool:
 
 
 def inflate(ukf: UKF, action: RecoveryAction) -> None:
+    """``scale_motion_covariance(ukf, action.inflate_factor)``."""
+    scale_motion_covariance(ukf, action.inflate_factor)
+
+
+def scale_motion_covariance(ukf: UKF, factor: float) -> None:
     """P ← D P D with D = sqrt(factor) on δp, δv, δθ, on the IMU biases (biased model) and on
     every pose clone's (δp, δθ), 1 elsewhere.
 
@@ -547,7 +552,7 @@ def inflate(ukf: UKF, action: RecoveryAction) -> None:
     with the current pose keeps every correlation.
     """
     d = np.ones(ukf.P.shape[0])
-    root = math.sqrt(action.inflate_factor)
+    root = math.sqrt(factor)
     d[NAV9] = root
     assert DTH.stop == NAV9.stop
     if isinstance(ukf.manifold, CloneManifold):

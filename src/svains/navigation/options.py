@@ -193,7 +193,13 @@ class VisionOptions:
     ``bundle_for``); ``lc_bundle_short`` (opt-in) refines ``lc``'s too when its recorded frames
     are at most ``short_gap_s`` apart (``bundle_max_gap_for``); ``lc_cov_scale`` multiplies the
     egomotion covariance (None: ``lc_scale()``: 30 for RANSAC's estimate, 2 for the bundle's);
-    ``lc_min_std`` (rad, m) floors its standard deviations; ``imu_noise`` adds the IMU
+    ``lc_min_std`` (rad, m) floors its standard deviations; ``lc_inflate_max``: an egomotion
+    refused by the gate with an NIS at most this many times the gate is fused after all, the
+    state's motion covariance and its own scaled by NIS / gate (``LcUpdater._inflated``; None:
+    refused as before). Each egomotion links a frame to the one before, so a refused one
+    keeps the IMU's error over its interval for good: simulated 2 Hz flights (seed 2, a
+    tail-end IMU interval at 30.5 s) ``lc`` with ``lc_bundle_short`` 0.040 -> 0.021 m (V2_02),
+    0.062 -> 0.021 m (MH_03); ``imu_noise`` adds the IMU
     increment's noise (``rotation="imu"``) to the pixel covariance as a feature-correlated
     term; ``frame_gyro_walk`` (``imu`` only, applied by ``tune_for_frames``) instead lets the
     gyro-bias state absorb it, see there; ``motion_prior`` hands the image front end the
@@ -304,6 +310,7 @@ class VisionOptions:
     max_row_diff_px: float | None = 2.0
     lc_cov_scale: float | None = None
     lc_min_std: tuple[float, float] = (1e-4, 1e-3)
+    lc_inflate_max: float | None = 4.0
     imu_noise: bool = True
     frame_gyro_walk: bool = True
     # Opt-in (measured 2026-12-05, ``docs/results/low-rate.md``): GPS-denied on recorded
@@ -392,6 +399,10 @@ class VisionOptions:
             n = getattr(self, name)
             if n is not None and n < 1:
                 raise ConfigError(f"vision.{name} must be >= 1 or null (all), got {n}")
+        if self.lc_inflate_max is not None and not self.lc_inflate_max >= 1:
+            raise ConfigError("vision.lc_inflate_max must be >= 1 (times the gate) or null "
+                              f"(refuse every egomotion above the gate), got "
+                              f"{self.lc_inflate_max}")  # fmt: skip
         if not 0 <= self.frame_min_inlier_fraction <= 1:
             raise ConfigError("vision.frame_min_inlier_fraction must be in [0, 1], got "
                               f"{self.frame_min_inlier_fraction}")  # fmt: skip

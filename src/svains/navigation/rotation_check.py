@@ -120,6 +120,8 @@ class RotationCheck:
         # egomotion's rotation standard deviation
         var = self.gyro_density**2 * (tr.t_ns - tr.t_prev_ns) * 1e-9 * 3
         var += float(np.trace(np.asarray(tr.egomotion.cov, dtype=float)[:3, :3]))
+        if not var >= 0.0:
+            return  # a degenerate egomotion covariance (negative or NaN trace): nothing to test
         turn = float(np.linalg.norm(r_B))
         if (np.degrees(turn) < self.options.min_rotation_deg
                 or not turn >= self.options.min_snr * np.sqrt(var)):  # fmt: skip

@@ -83,6 +83,7 @@ class VisionCounters:
     frames_bad_covariance: int = 0  # lc: the egomotion's covariance was not positive definite
     frames_egomotion: int = 0  # tc/3d: of the fused, through the frame's egomotion (fallback)
     frames_failed_numerics: int = 0  # skipped: the update raised a numerical error
+    frames_inflated: int = 0  # lc: of the fused, at an inflated covariance (``lc_inflate_max``)
 
     def as_dict(self) -> dict[str, int]:
         return {f.name: int(getattr(self, f.name)) for f in fields(self)}
