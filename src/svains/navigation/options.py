@@ -198,7 +198,7 @@ class VisionOptions:
     state's motion covariance and its own scaled by NIS / gate (``LcUpdater._inflated``; None:
     refused as before). Each egomotion links a frame to the one before, so a refused one
     keeps the IMU's error over its interval for good: simulated 2 Hz flights (seed 2, a
-    tail-end IMU interval at 30.5 s) ``lc`` with ``lc_bundle_short`` 0.040 -> 0.021 m (V2_02),
+    tail-end IMU interval at 30.5 s) ``lc`` with ``lc_bundle_short`` 0.042 -> 0.021 m (V2_02),
     0.062 -> 0.021 m (MH_03); ``imu_noise`` adds the IMU
     increment's noise (``rotation="imu"``) to the pixel covariance as a feature-correlated
     term; ``frame_gyro_walk`` (``imu`` only, applied by ``tune_for_frames``) instead lets the
