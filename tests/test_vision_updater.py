@@ -380,12 +380,14 @@ def test_two_view_frames_fill_up_with_features_below_the_disparity_gate(
 
 
 def _clone_update_with_position_error(
-    tf: TwoFrames, opts: VisionOptions, error_m: float, motion_std_m: float
-) -> tuple[object, UKF, object]:
-    """A ``3d`` clone update of ``tf``'s frame k: the k-1 pose cloned at the truth, the state at
-    k true but for ``error_m`` along x with ``motion_std_m`` more position std per axis. Returns
-    the update's stats, the filter and the updater."""
-    upd = updater_for("3d", _dataset(tf), opts)
+    tf: TwoFrames, opts: VisionOptions, error_m: float, motion_std_m: float,
+    method: str = "3d", gate: float | None = None,
+) -> tuple[Any, UKF, Any, np.ndarray]:
+    """A ``method`` clone update of ``tf``'s frame k gated at ``gate`` (None: ungated): the k-1
+    pose cloned at the truth, the state at k true but for ``error_m`` along x with
+    ``motion_std_m`` more position std per axis. Returns the update's stats, the filter, the
+    updater and the prior covariance."""
+    upd = updater_for(method, _dataset(tf), opts)
     ukf = _ukf(tf.x_km1, np.zeros(3))
     upd.after_frame(FrameContext(ukf, PAPER, T0, None, None, [], None))  # type: ignore[arg-type]
     x = ukf.x.copy()
@@ -394,7 +396,8 @@ def _clone_update_with_position_error(
     P = ukf.P.copy()
     P[0:3, 0:3] += motion_std_m**2 * np.eye(3)
     ukf.resize(ukf.manifold, x, P)
-    return upd.update(_ctx(ukf)), ukf, upd
+    ctx = FrameContext(ukf, PAPER, T0 + int(DT_S * 1e9), T0, gate, [], None)  # type: ignore[arg-type]
+    return upd.update(ctx), ukf, upd, P
 
 
 def test_a_frame_the_prior_cannot_explain_fuses_its_egomotion_instead() -> None:
@@ -405,7 +408,7 @@ def test_a_frame_the_prior_cannot_explain_fuses_its_egomotion_instead() -> None:
     def run(fallback: bool) -> tuple[object, UKF, object]:
         # the motion since the clone: known to 1 cm
         opts = VisionOptions(egomotion_fallback=fallback)
-        return _clone_update_with_position_error(tf, opts, 0.5, 0.01)
+        return _clone_update_with_position_error(tf, opts, 0.5, 0.01)[:3]
 
     stats, ukf, upd = run(True)
     assert stats is not None and stats.accepted and stats.name == "vision_egomotion"
@@ -426,7 +429,7 @@ def test_a_frame_with_too_few_features_for_the_pixels_fuses_its_egomotion() -> N
     def run(fallback: bool) -> tuple[object, UKF, object]:
         # the motion since the clone: known to 30 cm
         opts = VisionOptions(egomotion_fallback=fallback, min_disparity_px=1e4)
-        return _clone_update_with_position_error(tf, opts, 0.3, 0.3)
+        return _clone_update_with_position_error(tf, opts, 0.3, 0.3)[:3]
 
     stats, ukf, upd = run(True)
     assert stats is not None and stats.accepted and stats.name == "vision_egomotion"
@@ -519,19 +522,8 @@ def _lc_update_with_position_error(
     tf: TwoFrames, opts: VisionOptions, error_m: float, motion_std_m: float,
     gate: float | None = 0.999,
 ) -> tuple[Any, UKF, Any, np.ndarray]:
-    """An ``lc`` clone update of ``tf``'s frame k gated at ``gate``, as
-    ``_clone_update_with_position_error``; also returns the prior covariance."""
-    upd = updater_for("lc", _dataset(tf), opts)
-    ukf = _ukf(tf.x_km1, np.zeros(3))
-    upd.after_frame(FrameContext(ukf, PAPER, T0, None, None, [], None))  # type: ignore[arg-type]
-    x = ukf.x.copy()
-    x[:13] = tf.x_k
-    x[0] += error_m
-    P = ukf.P.copy()
-    P[0:3, 0:3] += motion_std_m**2 * np.eye(3)
-    ukf.resize(ukf.manifold, x, P)
-    ctx = FrameContext(ukf, PAPER, T0 + int(DT_S * 1e9), T0, gate, [], None)  # type: ignore[arg-type]
-    return upd.update(ctx), ukf, upd, P
+    """``_clone_update_with_position_error`` for ``lc``, gated at 0.999 unless told."""
+    return _clone_update_with_position_error(tf, opts, error_m, motion_std_m, "lc", gate)
 
 
 def test_lc_egomotion_just_above_the_gate_is_fused_at_an_inflated_covariance() -> None:

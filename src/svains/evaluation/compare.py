@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from svains.datasets.types import Dataset, GroundTruth
 from svains.errors import AlignmentError, ConfigError
 from svains.evaluation.extrinsics import write_estimated_camchain
-from svains.evaluation.metrics import AteResult, ate
+from svains.evaluation.metrics import AteResult, ate, matching_time_indices
 from svains.evaluation.run import add_smoothed, run_accuracy, run_owned
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import RunResult
@@ -124,10 +124,8 @@ def frame_rows(t_ns: NDArray[np.int64], ds: Dataset) -> NDArray[np.int64] | None
     fs = ds.features
     if fs is None or fs.t_ns.size == 0 or t_ns.size == 0:
         return None
-    frames = np.unique(fs.t_ns)
-    j = np.clip(np.searchsorted(t_ns, frames), 1, t_ns.size - 1)
-    j = np.where(np.abs(t_ns[j - 1] - frames) <= np.abs(t_ns[j] - frames), j - 1, j)
-    rows = np.unique(j[np.abs(t_ns[j] - frames) <= FRAME_MATCH_NS])
+    _, j = matching_time_indices(np.unique(fs.t_ns) * 1e-9, t_ns * 1e-9, FRAME_MATCH_NS * 1e-9)
+    rows = np.unique(j)
     return rows if rows.size >= 3 else None
 
 
