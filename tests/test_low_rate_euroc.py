@@ -60,9 +60,12 @@ def test_frames_5_s_apart_run_to_the_end_without_diverging(
     # Since the relocalisation (2026-12-05): 0.488 m, NEES 8.0, 27 of 28 fused, 12 through
     # their egomotion, 2 against a stored keyframe (frames that share nothing with the one
     # before, seen again from 20-60 s earlier); without it 0.860 m (limit 1.33x).
+    # Since two-view frames over a wide prior are linearised at their egomotion (2026-12-05):
+    # 0.507 m, NEES 9.8, 27 of 28 fused, none through the egomotion fallback (the pixels now
+    # fit), 26 linearised at the egomotion.
     assert r["ate_rmse_m"] < 0.65
     assert r["nees_mean"] < 12.0
-    assert r["vision"]["frames_egomotion"] >= 8
+    assert r["vision"]["frames_linearised_at_egomotion"] >= 20
     assert r["vision"]["frames_fused"] >= 25
     assert r["vision"]["frames_relocalised"] >= 1
     assert 0 < r["vision"]["keyframes_stored"] <= 28

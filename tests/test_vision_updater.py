@@ -561,3 +561,20 @@ def test_lc_egomotion_just_above_the_gate_is_fused_at_an_inflated_covariance() -
 def test_lc_inflate_max_below_one_is_refused() -> None:
     with pytest.raises(ConfigError, match=r"vision.lc_inflate_max must be >= 1 .*got 0.5"):
         VisionOptions(lc_inflate_max=0.5)
+
+
+def test_a_two_view_frame_over_a_wide_prior_is_linearised_at_its_egomotion() -> None:
+    # The prior 0.37 m off (0.32 m std per axis): points refined at that motion carried its
+    # error into the null spaces, and the update moved the state away (0.37 -> 0.60 m). The
+    # frame's own egomotion fits the pixels better, so the points are refined there.
+    tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
+    stats, ukf, upd, _ = _clone_update_with_position_error(tf, VisionOptions(two_view=True),
+                                                           0.37, 0.1**0.5)  # fmt: skip
+    assert stats is not None and stats.accepted and stats.name == "vision_3d"
+    assert upd.summary()["frames_linearised_at_egomotion"] == 1
+    assert np.linalg.norm(ukf.x[0:3] - tf.x_k[0:3]) < 0.02
+    # A prior that already fits the pixels needs no egomotion.
+    _, ukf, upd, _ = _clone_update_with_position_error(tf, VisionOptions(two_view=True),
+                                                       0.0, 0.05)  # fmt: skip
+    assert upd.summary()["frames_linearised_at_egomotion"] == 0
+    assert np.linalg.norm(ukf.x[0:3] - tf.x_k[0:3]) < 1e-3

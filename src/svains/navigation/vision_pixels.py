@@ -84,6 +84,8 @@ class VisionCounters:
     frames_egomotion: int = 0  # tc/3d: of the fused, through the frame's egomotion (fallback)
     frames_failed_numerics: int = 0  # skipped: the update raised a numerical error
     frames_inflated: int = 0  # lc: of the fused, at an inflated covariance (``lc_inflate_max``)
+    # two-view: frames whose egomotion was computed to linearise at (the mean fitted poorly)
+    frames_linearised_at_egomotion: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return {f.name: int(getattr(self, f.name)) for f in fields(self)}
@@ -309,15 +311,27 @@ class PixelUpdater:
         return _Features(Y, z, R_blocks, G, keep & sane, finite & sane, nis, model)
 
     def _two_view_features(
-        self, ctx: FrameContext, X: F64, z: F64, uvl0: F64, uvr0: F64, motion: MotionFn
+        self, ctx: FrameContext, tr: StereoTracks, X: F64, z: F64, uvl0: F64, uvr0: F64,
+        motion: MotionFn,
     ) -> _Features:
         """Each feature's point marginalised over its 8 pixels at k-1 and k
-        (``navigation.vision_two_view``): 5 numbers each, gated one by one. Clones only, so no
-        IMU-increment term."""
+        (``navigation.vision_two_view``): 5 numbers each, gated one by one, linearised at the
+        frame's egomotion (from all of ``tr``) when the prior's mean fits the pixels poorly.
+        Clones only, so no IMU-increment term."""
         R_all, r_all = motion(np.vstack([X, ctx.ukf.x[None, :]]))
         z8 = np.concatenate([uvl0, uvr0, z.reshape(-1, 4)], axis=1)
+
+        def egomotion() -> tuple[F64, F64] | None:
+            ego = tracks_egomotion(tr, self.rig, seed=self.counters.frames,
+                                   bundle=self.options.bundle_for(self.method))  # fmt: skip
+            if ego is None:
+                return None
+            self.counters.frames_linearised_at_egomotion += 1
+            # p_Ck = R p_Ckm1 + p  is  d_k = R_c d - r_c
+            return np.asarray(ego.R_Ck_Ckm1, float), -np.asarray(ego.p_Ck_Ckm1, float)
+
         tv = TwoViewFeatures.build(R_all, r_all, z8, self.rig.triangulate(uvl0, uvr0), self.rig,
-                                   self._two_view_sigma_px)  # fmt: skip
+                                   self._two_view_sigma_px, egomotion)  # fmt: skip
         keep, finite, nis = tv.gate(ctx.ukf.points, self.options.feature_gate_probability)
         return _Features(tv.Y, tv.z, tv.R_blocks, None, keep, finite, nis,
                          lambda kept: tv.model(kept, motion))  # fmt: skip
@@ -388,7 +402,7 @@ class PixelUpdater:
             return None
         X, _ = ctx.ukf.sigma_points()  # reused by the update below (same state)
         if two_view:
-            f = self._two_view_features(ctx, X, z, uvl0, uvr0, motion)
+            f = self._two_view_features(ctx, tr, X, z, uvl0, uvr0, motion)
         else:
             f = self._paper_features(ctx, X, z, uvl0, uvr0, motion, inc, dt_s)
         c.features_invalid += int((~f.finite).sum())

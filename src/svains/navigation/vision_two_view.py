@@ -4,12 +4,18 @@
 the camera motion k-1 -> k of every sigma point and of the mean (``models.vision_two_view``):
 
 1. the point is refined by Gauss-Newton over its 8 pixels at the mean motion (start: the k-1
-   stereo point);
+   stereo point). When the mean motion explains the pixels poorly (the median feature's
+   refined residual beyond ``WIDE_MISFIT``: a prior metres wide after a long gap), the frame's
+   own egomotion is tried as well and the motion with the smaller misfit is taken. Points
+   refined at a motion 0.37 m off carry that error into the null spaces: the update then moved
+   the state away from the truth (0.37 -> 0.60 m on ``tests/test_vision_updater.py``'s frame;
+   at the true motion: 0.008 m);
 2. each feature's 8 residuals (tracked minus predicted pixels) are projected onto the left null
    space of the point Jacobian (5 numbers, noise ``σ² I`` since the basis is orthonormal). The
    block's measurement is 0 and ``h`` returns the projected negative residuals, so an iterated
    update (``filter.iterated``) refines the points and their null spaces again at each new
-   linearisation point (the sigma points' centre, ``X[0]``);
+   linearisation point (the sigma points' centre, ``X[0]``, or the egomotion, whichever fits
+   better);
 3. the features are gated on those 5 numbers; the kept ones form one whitened block.
 
 The projection removes the point's error to first order, so the k-1 stereo noise no longer sits
@@ -39,7 +45,11 @@ from svains.navigation.vision_noise import feature_gate
 
 F64 = NDArray[np.float64]
 MotionFn = Callable[[F64], tuple[F64, F64]]
+Motion = tuple[F64, F64]  # one camera motion k-1 -> k: R_c (3, 3), r_c (3,) m
 _FAR_RHO = 1e-3  # 1/m, stand-in point (1 km ahead) for a feature whose refinement failed
+# Median over the features of the refined pixel residual's squared norm over σ²: about 5 (the
+# χ² of its 5 dof) at the right motion; beyond the χ²(5) 0.99 quantile the motion is off.
+WIDE_MISFIT = 15.09
 
 
 @dataclass
@@ -47,9 +57,10 @@ class TwoViewFeatures:
     """One frame's features in the two-view form: ``Y`` (S, 5M) the sigma points' projected
     predictions minus the tracked pixels, ``z`` (5M,) zeros, ``R_blocks`` (M, 5, 5), the
     null-space bases ``N`` (M, 8, 5), the refined points ``a_F`` (M, 3) (inverse depth at k-1),
-    ``valid`` (M,) (refinement converged in front of both cameras) and the tracked pixels
-    ``z8`` (M, 8). The camera motion comes from the k-1 frame's pose clone, so no IMU
-    increment noise enters (``rotation="imu"`` is refused)."""
+    ``valid`` (M,) (refinement converged in front of both cameras), the tracked pixels
+    ``z8`` (M, 8) and ``alternative``, the frame's own egomotion when it was needed (the mean
+    motion fitted the pixels poorly). The camera motion comes from the k-1 frame's pose clone,
+    so no IMU increment noise enters (``rotation="imu"`` is refused)."""
 
     Y: F64
     z: F64
@@ -59,21 +70,33 @@ class TwoViewFeatures:
     valid: NDArray[np.bool_]
     rig: RectifiedStereo
     z8: F64
+    sigma_px: float
+    alternative: Motion | None = None
 
     @classmethod
     def build(
         cls, R_all: F64, r_all: F64, z8: F64, p_Ckm1_F: F64, rig: RectifiedStereo,
-        sigma_px: float,
+        sigma_px: float, egomotion: Callable[[], Motion | None] | None = None,
     ) -> TwoViewFeatures:
         """``R_all`` (S+1, 3, 3), ``r_all`` (S+1, 3): camera motion of the sigma points, the
         mean last; ``z8`` (M, 8) px tracked pixels; ``p_Ckm1_F`` (M, 3) m the k-1 stereo
-        points; ``sigma_px`` one pixel's noise."""
-        a, valid, N = _linearised(inverse_depth(p_Ckm1_F), z8, R_all[-1], r_all[-1], rig)
+        points; ``sigma_px`` one pixel's noise; ``egomotion`` gives the frame's own camera
+        motion (None: none), asked for only when the mean motion fits the pixels poorly."""
+        a0 = inverse_depth(p_Ckm1_F)
+        lin = _linearised(a0, z8, R_all[-1], r_all[-1], rig)
+        alternative = None
+        if egomotion is not None and _misfit(lin, z8, R_all[-1], r_all[-1], rig,
+                                             sigma_px) > WIDE_MISFIT:  # fmt: skip
+            alternative = egomotion()
+            if alternative is not None:
+                lin = _better(lin, a0, z8, (R_all[-1], r_all[-1]), alternative, rig, sigma_px)
+        a, valid, N = lin
         Y = _projected(N, two_view_pixels(R_all[:-1], r_all[:-1], a, rig), z8)
         M = z8.shape[0]
         z = np.zeros(M * NUM_FUSED)
         R_blocks = np.broadcast_to(sigma_px**2 * np.eye(NUM_FUSED), (M, NUM_FUSED, NUM_FUSED))
-        return cls(Y, z, np.ascontiguousarray(R_blocks), N, a, valid, rig, z8)
+        return cls(Y, z, np.ascontiguousarray(R_blocks), N, a, valid, rig, z8, sigma_px,
+                   alternative)  # fmt: skip
 
     def gate(
         self, points: MerweScaledSigmaPoints, probability: float | None
@@ -88,11 +111,14 @@ class TwoViewFeatures:
     def model(self, kept: NDArray[np.int64], motion: MotionFn) -> Callable[[F64], F64]:
         """``h(X)`` (S, 5K) of the kept features for any sigma points ``X`` (S, nx) (iterated
         updates): points and null spaces linearised again at the motion of ``X[0]``."""
-        a0, z8, rig = self.a_F[kept], self.z8[kept], self.rig
+        a0, z8, rig, alt = self.a_F[kept], self.z8[kept], self.rig, self.alternative
 
         def h(X: F64) -> F64:
             R_c, r_c = motion(X)
-            a, _, N = _linearised(a0, z8, R_c[0], r_c[0], rig)
+            lin = _linearised(a0, z8, R_c[0], r_c[0], rig)
+            if alt is not None:
+                lin = _better(lin, a0, z8, (R_c[0], r_c[0]), alt, rig, self.sigma_px)
+            a, _, N = lin
             return _projected(N, two_view_pixels(R_c, r_c, a, rig), z8)
 
         return h
@@ -111,6 +137,33 @@ def _linearised(
     q_z = R_c[2, 2] - a[:, 2] * r_c[2] + a[:, :2] @ R_c[2, :2]
     valid &= q_z > 0.0  # in front of the camera at k too
     return a, valid, null_space(point_jacobian(R_c, r_c, a, rig))
+
+
+def _misfit(
+    lin: tuple[F64, NDArray[np.bool_], F64], z8: F64, R_c: F64, r_c: F64, rig: RectifiedStereo,
+    sigma_px: float,
+) -> float:
+    """Median over the features of ``|z8 - pixels|² / σ²`` at the points ``lin`` refined for
+    the motion ``R_c``, ``r_c`` (an invalid feature counts as infinite)."""
+    a, valid, _ = lin
+    r = z8 - two_view_pixels(R_c[None], r_c[None], a, rig)[0]
+    cost = np.where(valid, np.einsum("mk,mk->m", r, r) / sigma_px**2, np.inf)
+    return float(np.median(cost)) if cost.size else np.inf
+
+
+def _better(
+    lin: tuple[F64, NDArray[np.bool_], F64], a0: F64, z8: F64, motion: Motion,
+    alternative: Motion, rig: RectifiedStereo, sigma_px: float,
+) -> tuple[F64, NDArray[np.bool_], F64]:
+    """The linearisation (points, valid, null spaces) at ``motion`` (given as ``lin``) while it
+    fits the pixels ``z8`` (``_misfit`` at most ``WIDE_MISFIT``), else at ``alternative`` if
+    that fits better. Near the posterior the state's motion is kept: the egomotion, fitted to
+    the pixels alone, always fits them a little better."""
+    own = _misfit(lin, z8, *motion, rig, sigma_px)
+    if own <= WIDE_MISFIT:
+        return lin
+    other = _linearised(a0, z8, *alternative, rig)
+    return other if _misfit(other, z8, *alternative, rig, sigma_px) < own else lin
 
 
 def _projected(N: F64, Y8: F64, z8: F64) -> F64:
