@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -346,20 +347,22 @@ def test_features_new_at_k_minus_1_pass_the_disparity_gate_at_twice_the_threshol
 
 
 @pytest.mark.parametrize(("two_view", "fill", "n_fused"),
-                         [(True, True, 40), (True, False, 30), (False, True, 30)])
+                         [(True, True, 40), (True, False, 30), (False, True, 30), (True, None, 40)])
 def test_two_view_frames_fill_up_with_features_below_the_disparity_gate(
-    two_view: bool, fill: bool, n_fused: int
+    two_view: bool, fill: bool | None, n_fused: int
 ) -> None:
     # All 60 features are new at k-1, so the gate is twice min_disparity_px: set at their median
     # disparity, 30 pass it. A two-view frame (the point estimated in inverse depth from its 8
     # pixels) fills up to max_features (40) with the 10 far ones evenly spread, the near ones
-    # first (``two_view_fill_far``, off by default); the paper's one-view model keeps the gate.
+    # first (``two_view_fill_far``, on by default: ``fill`` None); the paper's one-view model
+    # keeps the gate.
     tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
     disp = tf.uv_left_prev[:, 0] - tf.uv_right_prev[:, 0]
     gate = float(np.median(disp))
-    opts = VisionOptions(min_disparity_px=gate / 2, max_features=40, two_view_fill_far=fill,
-                         shared_pixels=False,
+    opts = VisionOptions(min_disparity_px=gate / 2, max_features=40, shared_pixels=False,
                          egomotion_fallback=False)  # fmt: skip
+    if fill is not None:
+        opts = replace(opts, two_view_fill_far=fill)
     upd = updater_for("3d", _dataset(tf), opts)
     ukf = _ukf(tf.x_km1, np.zeros(3))
     upd.after_frame(FrameContext(ukf, PAPER, T0, None, None, [], None))  # type: ignore[arg-type]

@@ -273,20 +273,23 @@ class VisionOptions:
     seen from metres away are no longer exact enough to be taken as known; where the prior's
     mean motion fits the pixels poorly, the points are refined at the frame's own egomotion
     (``navigation.vision_two_view``; EuRoC irregular frames 0.316 -> 0.312 m, simulated 0.5 Hz
-    flights 0.425 -> 0.371 m). ``two_view_fill_far``
-    (off by default): a two-view frame fills up to ``max_features`` with the features below the
-    disparity gate. The gate guards the paper's model, which takes the k-1 stereo point as
-    exact; the two-view model estimates each point in inverse depth from its 8 pixels, and far
+    flights 0.425 -> 0.371 m). ``two_view_fill_far`` (on by default since 2026-12-05): a
+    two-view frame fills up to ``max_features`` with the features below the disparity gate.
+    The gate guards the paper's model, which takes the k-1 stereo point as exact; the two-view
+    model estimates each point in inverse depth from its 8 pixels, and far
     features carry the rotation. Features that pass the gate still come first, so a near scene
     fuses what it fused before. Measured (``docs/results/low-rate.md``): simulated flights along
     the EuRoC trajectories (median disparity 3.7 px, 78 % of the features below the 6 px gate),
     ``3d`` mean ATE 0.056 -> 0.037 m at 2 Hz and 0.885 -> 0.673 m at 0.5 Hz; EuRoC V1_01 every
     10th / 25th frame 0.098 -> 0.072 m / 0.860 -> 0.807 m; irregular EuRoC frames over seeds
-    0-29 0.329 m either way. Not the default: on the fault bench (2 Hz village, GPS-aided) a
-    gyro bias step of 0.05 rad/s costs ``3d`` 1.72x its clean error (NEES 16.0) against 1.08x
-    (11.6) without it; with the vision bias test (``FaultOptions``) 1.39x (10.1), one seed
-    still 3.46x: its 100 Hz magnetometer corrects the heading between frames, so the frame
-    corrections lean too little (docs/results/faults.md).
+    0-29 0.329 m either way. It was not the default while two-view points were refined at the
+    prior's mean only: the fault bench's gyro bias step cost ``3d`` 1.72x its clean error. With
+    them refined at the egomotion where the mean fits poorly, on against off (2026-12-05):
+    irregular EuRoC 0.312 -> 0.291 m (seeds 10-29 0.265 -> 0.264), simulated flights 2 Hz
+    0.056 -> 0.037 m and 0.5 Hz 0.371 -> 0.218 m, fault bench ``3d`` all at once 1.69x ->
+    1.40x, GPS ramp 1.63x -> 1.48x; costs: the gyro bias step 0.95x -> 1.33x (one seed 2.97x,
+    NEES 24.6), clean 0.0811 -> 0.0826 m, EuRoC every 10th / 25th frame 0.096 -> 0.099 m /
+    0.507 -> 0.514 m (docs/results/low-rate.md).
 
     ``relocalise`` (``tc``/``3d``/``lc`` with clones): a frame that lost its link to the frame
     before is fused against a stored keyframe (one at most every ``keyframe_spacing_s``, at
@@ -348,7 +351,7 @@ class VisionOptions:
     iterate_after_s: float | None = 0.3
     long_iterations: int = 6
     two_view_after_long: bool = True
-    two_view_fill_far: bool = False
+    two_view_fill_far: bool = True
     relocalise: bool = True
     relocalise_min_features: int = 20
     relocalise_min_drift: float = 2.5
