@@ -561,6 +561,28 @@ def test_lc_egomotion_just_above_the_gate_is_fused_at_an_inflated_covariance() -
     assert upd_far.summary()["frames_inflated"] == 0
 
 
+def test_a_3d_fallback_egomotion_just_above_the_gate_is_fused_at_an_inflated_covariance(
+) -> None:
+    # A 15 cm error against a 1 cm prior: every feature fails its gate, and the frame's
+    # egomotion lands just above its own gate. ``lc_inflate_max`` governs the tc/3d fallback
+    # too (the fault bench's gyro step, seed 4: the frame 1 s after the step was refused and
+    # the bias alarm came 7 s late).
+    tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
+    refused, ukf, upd, P = _clone_update_with_position_error(
+        tf, VisionOptions(lc_inflate_max=None), 0.15, 0.01, "3d", 0.999)
+    assert refused is not None and not refused.accepted and refused.name == "vision_egomotion"
+    assert refused.gate < refused.nis < 4.0 * refused.gate
+    np.testing.assert_array_equal(ukf.P, P)
+    assert upd.summary()["frames_inflated"] == 0 and upd.summary()["frames_egomotion"] == 0
+    stats, ukf, upd, _ = _clone_update_with_position_error(tf, VisionOptions(), 0.15, 0.01,
+                                                           "3d", 0.999)  # fmt: skip
+    assert stats is not None and stats.accepted and stats.name == "vision_egomotion"
+    assert stats.nis == pytest.approx(stats.gate, rel=1e-3)
+    summary = upd.summary()
+    assert summary["frames_inflated"] == 1 and summary["frames_egomotion"] == 1
+    assert np.linalg.norm(ukf.x[0:3] - tf.x_k[0:3]) < 0.13
+
+
 def test_lc_inflate_max_below_one_is_refused() -> None:
     with pytest.raises(ConfigError, match=r"vision.lc_inflate_max must be >= 1 .*got 0.5"):
         VisionOptions(lc_inflate_max=0.5)

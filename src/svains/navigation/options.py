@@ -195,11 +195,14 @@ class VisionOptions:
     egomotion covariance (None: ``lc_scale()``: 30 for RANSAC's estimate, 2 for the bundle's);
     ``lc_min_std`` (rad, m) floors its standard deviations; ``lc_inflate_max``: an egomotion
     refused by the gate with an NIS at most this many times the gate is fused after all, the
-    state's motion covariance and its own scaled by NIS / gate (``LcUpdater._inflated``; None:
-    refused as before). Each egomotion links a frame to the one before, so a refused one
-    keeps the IMU's error over its interval for good: simulated 2 Hz flights (seed 2, a
-    tail-end IMU interval at 30.5 s) ``lc`` with ``lc_bundle_short`` 0.042 -> 0.021 m (V2_02),
-    0.062 -> 0.021 m (MH_03); ``imu_noise`` adds the IMU
+    state's motion covariance and its own scaled by NIS / gate (``vision_pixels.fuse_inflated``;
+    None: refused as before), by ``lc`` and, since 2026-12-05, by the ``tc``/``3d`` egomotion
+    fallback. Each egomotion links a frame to the one before, so a refused one keeps the IMU's
+    error over its interval for good: simulated 2 Hz flights (seed 2, a tail-end IMU interval
+    at 30.5 s) ``lc`` with ``lc_bundle_short`` 0.042 -> 0.021 m (V2_02), 0.062 -> 0.021 m
+    (MH_03); the fault bench's gyro bias step, seed 4, ``3d`` 2.97x -> 1.3x its clean error
+    (the bias alarm 5.5 s sooner); EuRoC every 10th frame ``3d`` 0.099 -> 0.070 m, irregular
+    frames 0.291 -> 0.286 m; ``imu_noise`` adds the IMU
     increment's noise (``rotation="imu"``) to the pixel covariance as a feature-correlated
     term; ``frame_gyro_walk`` (``imu`` only, applied by ``tune_for_frames``) instead lets the
     gyro-bias state absorb it, see there; ``motion_prior`` hands the image front end the
@@ -288,8 +291,9 @@ class VisionOptions:
     irregular EuRoC 0.312 -> 0.291 m (seeds 10-29 0.265 -> 0.264), simulated flights 2 Hz
     0.056 -> 0.037 m and 0.5 Hz 0.371 -> 0.218 m, fault bench ``3d`` all at once 1.69x ->
     1.40x, GPS ramp 1.63x -> 1.48x; costs: the gyro bias step 0.95x -> 1.33x (one seed 2.97x,
-    NEES 24.6), clean 0.0811 -> 0.0826 m, EuRoC every 10th / 25th frame 0.096 -> 0.099 m /
-    0.507 -> 0.514 m (docs/results/low-rate.md).
+    NEES 24.6; 1.12x since the egomotion fallback is fused inflated, ``lc_inflate_max``),
+    clean 0.0811 -> 0.0826 m, EuRoC every 10th / 25th frame 0.096 -> 0.099 m / 0.507 ->
+    0.514 m (docs/results/low-rate.md).
 
     ``relocalise`` (``tc``/``3d``/``lc`` with clones): a frame that lost its link to the frame
     before is fused against a stored keyframe (one at most every ``keyframe_spacing_s``, at

@@ -34,7 +34,6 @@ from svains.models.vision_clone import predict_egomotion_clone
 from svains.models.vision_common import ImuIncrement
 from svains.models.vision_lc import predict_egomotion_lc
 from svains.navigation.base import FrameContext, MeasurementBlock
-from svains.navigation.fault_handling import scale_motion_covariance
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.options import RunConfig, VisionOptions
 from svains.navigation.relocalise import Relocaliser
@@ -46,6 +45,7 @@ from svains.navigation.vision_pixels import (
     VisionCounters,
     applied_offset_s,
     apply_blocks,
+    fuse_inflated,
     imu_and_prior,
     tracks_with_prior,
 )
@@ -59,8 +59,6 @@ I64 = NDArray[np.int64]
 
 log = logging.getLogger(__name__)
 
-# ``LcUpdater._inflated``: scalings tried before an egomotion is refused after all.
-_INFLATE_TRIES = 3
 
 
 class LcUpdater:
@@ -138,7 +136,8 @@ class LcUpdater:
         block = MeasurementBlock(name="vision_lc", h=h, z=z, R=cov)
         stats = apply_blocks(ctx, [block, *ctx.extra])
         if not stats.accepted:
-            stats = self._inflated(ctx, block, stats)
+            stats = fuse_inflated(ctx, block, stats, self.options.lc_inflate_max)
+            c.frames_inflated += int(stats.accepted)
         if stats.dof > 0 and np.isfinite(stats.nis):
             self._nis_per_dof.append(stats.nis / stats.dof)
         if stats.accepted:
@@ -147,42 +146,6 @@ class LcUpdater:
         else:
             c.frames_rejected += 1
         return stats
-
-    def _inflated(
-        self, ctx: FrameContext, block: MeasurementBlock, refused: UpdateStats
-    ) -> UpdateStats:
-        """A refused egomotion whose NIS is at most ``lc_inflate_max`` times the gate, fused
-        with the state's motion covariance (``fault_handling.scale_motion_covariance``: pose,
-        velocity, biases, clones) and its own scaled by s = NIS / gate: the gain is the
-        ungated update's, the NIS lands on the gate, and the posterior covariance is s times
-        wider, owning the disagreement. Else ``refused`` (the state untouched).
-
-        Each egomotion links a frame to the one before: refusing one leaves the IMU's motion
-        over that interval in the state for good. Simulated 2 Hz flights, seed 2 at 30.5 s: a
-        correct egomotion (bundle covariance, 0.01° in rotation) against an IMU interval in
-        its noise's tail, NIS 22-27 at a gate of 22.5 (6 dof); refused, the attitude kept a
-        1.3° error and ``lc``'s ATE tripled. Scaling the egomotion's covariance alone does not
-        move such an NIS (the prediction's spread dominates it). A wrong egomotion (a failed
-        RANSAC, a moving object) lands far above the gate and is still refused."""
-        limit = self.options.lc_inflate_max
-        if limit is None or not np.isfinite(refused.nis) or refused.nis > limit * refused.gate:
-            return refused
-        ukf = ctx.ukf
-        P0, scale, stats = ukf.P, 1.0, refused
-        for _ in range(_INFLATE_TRIES):
-            # An iterated update's NIS (long frames) moves with the scale but not as 1 / s;
-            # the margin keeps round-off from leaving the NIS a hair above the gate.
-            scale *= stats.nis / stats.gate * (1.0 + 1e-6)
-            ukf.P = P0
-            scale_motion_covariance(ukf, scale)
-            stats = apply_blocks(ctx, [replace(block, R=scale * block.R), *ctx.extra])
-            if stats.accepted:
-                self.counters.frames_inflated += 1
-                log.debug("lc egomotion at t=%d ns fused at %.2fx the covariance (NIS %.1f, "
-                          "gate %.1f)", ctx.t_ns, scale, refused.nis, refused.gate)
-                return stats
-        ukf.P = P0
-        return refused
 
     def _model(
         self, ctx: FrameContext, tr: StereoTracks, dt_s: float, inc: ImuIncrement | None
