@@ -274,7 +274,8 @@ class VisionOptions:
     2.7 m with three; every 10th: 0.115 -> 0.101 m). Such a frame also takes the two-view
     model (``two_view_after_long``, clones and single-use pixels only): its k-1 stereo points
     seen from metres away are no longer exact enough to be taken as known; where the prior's
-    mean motion fits the pixels poorly, the points are refined at the frame's own egomotion
+    mean motion fits the pixels poorly and their noise is known (recorded features, or
+    ``pixel_noise_std``), the points are refined at the frame's own egomotion
     (``navigation.vision_two_view``; EuRoC irregular frames 0.316 -> 0.312 m, simulated 0.5 Hz
     flights 0.425 -> 0.371 m). ``two_view_fill_far`` (on by default since 2026-12-05): a
     two-view frame fills up to ``max_features`` with the features below the disparity gate.
