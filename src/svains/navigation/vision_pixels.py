@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from svains.errors import ConfigError
 from svains.filter.ukf import UpdateStats, chi2_gate
-from svains.frontend.types import StereoTracks
+from svains.frontend.types import Egomotion, StereoTracks
 from svains.models.vision_3d import pixels_from_motion
 from svains.models.vision_clone import clone_camera_motion, predict_egomotion_clone
 from svains.models.vision_common import ImuIncrement, camera_motion, stack_pixels
@@ -84,7 +84,7 @@ class VisionCounters:
     frames_bad_covariance: int = 0  # lc: the egomotion's covariance was not positive definite
     frames_egomotion: int = 0  # tc/3d: of the fused, through the frame's egomotion (fallback)
     frames_failed_numerics: int = 0  # skipped: the update raised a numerical error
-    frames_inflated: int = 0  # lc: of the fused, at an inflated covariance (``lc_inflate_max``)
+    frames_inflated: int = 0  # of the fused egomotions (lc, tc/3d fallback): inflated
     # two-view: frames whose egomotion was computed to linearise at (the mean fitted poorly)
     frames_linearised_at_egomotion: int = 0
 
@@ -155,12 +155,13 @@ class PixelUpdater:
         self._min_disparity_px = options.min_disparity(self.sigma_px, known, self.shared)
         # The k-1 pixel noise biases the prediction (``vision_noise.previous_pixel_bias``); the
         # correction needs the true noise, so it is made only when that is known.
-        self._debias = known
-        # The two-view misfit test (``vision_two_view.WIDE_MISFIT``) reads residuals in units of
-        # the pixel noise, so the egomotion is offered as a linearisation point only where that
-        # is known: on rendered keyframes from images (1 px assumed) it took V2_02 seed 2 from
-        # 0.366 to 0.996 m.
-        self._linearise_at_egomotion = known
+        # So is the two-view misfit test (``vision_two_view.WIDE_MISFIT``), which reads residuals
+        # in units of that noise: the egomotion is offered as a linearisation point only where
+        # it is known (on rendered keyframes from images, 1 px assumed, it took V2_02 seed 2
+        # from 0.366 to 0.996 m).
+        self._noise_known = known
+        # The last tracks' egomotion (``_egomotion_of``): a frame may need it twice.
+        self._egomotion_memo: tuple[StereoTracks, Egomotion | None] | None = None
         self._fused: tuple[int, I64] | None = None  # (frame time, track ids) of the last update
         # Track ids and disparities (px) at the k-1 frame of the last tracks (``_near``).
         self._disparity_before: tuple[I64, F64] = (np.zeros(0, np.int64), np.zeros(0))
@@ -273,7 +274,7 @@ class PixelUpdater:
         pixels' own std, not the scaled ``sigma_px``, which also covers model error), at the
         mean camera motion ``R_c`` (3, 3), ``r_c`` (3,); None when the noise is unknown or the
         bias is zero everywhere (nothing to correct)."""
-        if not self._debias:
+        if not self._noise_known:
             return None
         rig, R1, r1 = self.rig, R_c[None], r_c[None]
         if self.method == "3d":
@@ -328,8 +329,7 @@ class PixelUpdater:
         z8 = np.concatenate([uvl0, uvr0, z.reshape(-1, 4)], axis=1)
 
         def egomotion() -> tuple[F64, F64] | None:
-            ego = tracks_egomotion(tr, self.rig, seed=self.counters.frames,
-                                   bundle=self.options.bundle_for(self.method))  # fmt: skip
+            ego = self._egomotion_of(tr)
             if ego is None:
                 return None
             self.counters.frames_linearised_at_egomotion += 1
@@ -338,7 +338,7 @@ class PixelUpdater:
 
         tv = TwoViewFeatures.build(R_all, r_all, z8, self.rig.triangulate(uvl0, uvr0), self.rig,
                                    self._two_view_sigma_px,
-                                   egomotion if self._linearise_at_egomotion else None)  # fmt: skip
+                                   egomotion if self._noise_known else None)  # fmt: skip
         keep, finite, nis = tv.gate(ctx.ukf.points, self.options.feature_gate_probability)
         return _Features(tv.Y, tv.z, tv.R_blocks, None, keep, finite, nis,
                          lambda kept: tv.model(kept, motion))  # fmt: skip
@@ -458,8 +458,7 @@ class PixelUpdater:
         cols = self.clones.columns(ctx.ukf, tr.t_prev_ns)
         if cols is None:
             return None
-        ego = tracks_egomotion(tr, self.rig, seed=self.counters.frames,
-                               bundle=self.options.bundle_for(self.method))
+        ego = self._egomotion_of(tr)
         if ego is None:
             return None
         calib, rig = self.clones.calib(ctx.ukf), self.rig
@@ -477,6 +476,15 @@ class PixelUpdater:
             self.counters.frames_fused += 1
             self.counters.frames_egomotion += 1
         return stats
+
+    def _egomotion_of(self, tr: StereoTracks) -> Egomotion | None:
+        """``tracks_egomotion`` of ``tr``, computed once: a two-view frame linearised at its
+        egomotion may fall back to fusing it."""
+        if self._egomotion_memo is None or self._egomotion_memo[0] is not tr:
+            ego = tracks_egomotion(tr, self.rig, seed=self.counters.frames,
+                                   bundle=self.options.bundle_for(self.method))  # fmt: skip
+            self._egomotion_memo = (tr, ego)
+        return self._egomotion_memo[1]
 
     def _refused(self, f: _Features, n_valid: int) -> UpdateStats:
         """The stats of a frame refused by the frame test: the NIS of its valid features

@@ -85,11 +85,10 @@ class TwoViewFeatures:
         a0 = inverse_depth(p_Ckm1_F)
         lin = _linearised(a0, z8, R_all[-1], r_all[-1], rig)
         alternative = None
-        if egomotion is not None and _misfit(lin, z8, R_all[-1], r_all[-1], rig,
-                                             sigma_px) > WIDE_MISFIT:  # fmt: skip
-            alternative = egomotion()
-            if alternative is not None:
-                lin = _better(lin, a0, z8, (R_all[-1], r_all[-1]), alternative, rig, sigma_px)
+        if egomotion is not None:
+            own = _misfit(lin, z8, R_all[-1], r_all[-1], rig, sigma_px)
+            if own > WIDE_MISFIT and (alternative := egomotion()) is not None:
+                lin = _better(lin, own, a0, z8, alternative, rig, sigma_px)
         a, valid, N = lin
         Y = _projected(N, two_view_pixels(R_all[:-1], r_all[:-1], a, rig), z8)
         M = z8.shape[0]
@@ -117,7 +116,11 @@ class TwoViewFeatures:
             R_c, r_c = motion(X)
             lin = _linearised(a0, z8, R_c[0], r_c[0], rig)
             if alt is not None:
-                lin = _better(lin, a0, z8, (R_c[0], r_c[0]), alt, rig, self.sigma_px)
+                # Near the posterior the state's own motion is kept: the egomotion, fitted to
+                # the pixels alone, always fits them a little better.
+                own = _misfit(lin, z8, R_c[0], r_c[0], rig, self.sigma_px)
+                if own > WIDE_MISFIT:
+                    lin = _better(lin, own, a0, z8, alt, rig, self.sigma_px)
             a, _, N = lin
             return _projected(N, two_view_pixels(R_c, r_c, a, rig), z8)
 
@@ -152,16 +155,12 @@ def _misfit(
 
 
 def _better(
-    lin: tuple[F64, NDArray[np.bool_], F64], a0: F64, z8: F64, motion: Motion,
-    alternative: Motion, rig: RectifiedStereo, sigma_px: float,
+    lin: tuple[F64, NDArray[np.bool_], F64], own: float, a0: F64, z8: F64, alternative: Motion,
+    rig: RectifiedStereo, sigma_px: float,
 ) -> tuple[F64, NDArray[np.bool_], F64]:
-    """The linearisation (points, valid, null spaces) at ``motion`` (given as ``lin``) while it
-    fits the pixels ``z8`` (``_misfit`` at most ``WIDE_MISFIT``), else at ``alternative`` if
-    that fits better. Near the posterior the state's motion is kept: the egomotion, fitted to
-    the pixels alone, always fits them a little better."""
-    own = _misfit(lin, z8, *motion, rig, sigma_px)
-    if own <= WIDE_MISFIT:
-        return lin
+    """The linearisation (points, valid, null spaces) ``lin``, whose misfit is ``own``
+    (``_misfit``), or the one at ``alternative`` if that fits the pixels ``z8`` better. The
+    callers ask only once ``own`` exceeds ``WIDE_MISFIT``."""
     other = _linearised(a0, z8, *alternative, rig)
     return other if _misfit(other, z8, *alternative, rig, sigma_px) < own else lin
 
