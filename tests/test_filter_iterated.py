@@ -87,3 +87,53 @@ def test_an_exact_copy_in_the_prior_is_iterated_like_the_plain_update() -> None:
     np.testing.assert_allclose(iterated.P, plain.P, rtol=0, atol=1e-9 * np.abs(P0).max())
     assert s3.nis == pytest.approx(s1.nis, rel=1e-6)
     assert iterated.x[2] == pytest.approx(iterated.x[0], rel=1e-6)  # the copy moves along
+
+
+def test_many_measurements_with_a_diagonal_noise_take_the_lemma_and_match_the_dense_path() -> None:
+    """nz > 2 (S + ndx) with a diagonal R: the matrix-inversion-lemma path of
+    ``iterated_update`` gives the dense path's posterior, NIS, gain and ``S⁻¹ r``."""
+    from svains.filter.iterated import iterated_update
+
+    rng = np.random.default_rng(0)
+    n, nz = 4, 200
+    H = rng.normal(size=(nz, n))
+
+    def h(X: np.ndarray) -> np.ndarray:  # non-linear: the iterations matter
+        return np.sin(0.3 * X @ H.T) + X[:, :1] ** 2
+
+    x0, P0 = rng.normal(size=n), np.diag(rng.uniform(0.1, 1.0, n))
+    R = rng.uniform(0.5, 1.0, nz)
+    z = h(x0[None] + 0.3)[0]
+    pts = MerweScaledSigmaPoints(n, alpha=0.7)
+    lemma = iterated_update(Euclidean(n), pts, x0, P0, h, z, R, 4)
+    dense = iterated_update(Euclidean(n), pts, x0, P0, h, z, np.diag(R), 4)
+    for a, b in zip(lemma[:2], dense[:2], strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-12)
+    assert lemma[2] == pytest.approx(dense[2], rel=1e-10)
+    for a, b in zip(lemma[3], dense[3], strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_a_lemma_posterior_that_is_not_positive_definite_is_solved_densely(
+        monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """The lemma's subtraction can lose the small eigenvalues (a strong frame over a wide
+    prior): such an iteration is solved densely instead of stopping the run."""
+    import svains.filter.iterated as it
+
+    rng = np.random.default_rng(2)
+    n, nz = 3, 60
+    H = rng.normal(size=(nz, n))
+    x0, P0 = rng.normal(size=n), np.eye(n)
+    z, R = rng.normal(size=nz), np.full(nz, 0.5)
+    pts = MerweScaledSigmaPoints(n, alpha=0.7)
+    dense = it.iterated_update(Euclidean(n), pts, x0, P0, lambda X: X @ H.T, z, np.diag(R), 2)
+
+    def broken(*args: object) -> tuple[np.ndarray, np.ndarray]:
+        B = args[-1]
+        assert isinstance(B, np.ndarray)
+        return 10.0 * B[:, :-1], B[:, -1:]  # a gain that makes P0 - P H^T K^T indefinite
+
+    monkeypatch.setattr(it, "_lemma_solve", broken)
+    got = it.iterated_update(Euclidean(n), pts, x0, P0, lambda X: X @ H.T, z, R, 2)
+    np.testing.assert_allclose(got[0], dense[0], atol=1e-10)
+    np.testing.assert_allclose(got[1], dense[1], atol=1e-10)

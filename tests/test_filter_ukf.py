@@ -333,3 +333,24 @@ def test_update_blocks_refuses_a_block_nearer_its_suspected_offset() -> None:
     for offsets in ({"other": d}, {"gps": np.zeros(6)}):
         (s,) = fresh().update_blocks([block(np.array([25.0, 0.0, 0.0]))], 0.999, offsets)
         assert s.accepted and not s.offset_refused
+
+
+def test_the_last_gain_and_innovation_solve_are_the_same_on_both_paths() -> None:
+    """``UKF.last_gain_T`` (K^T) and ``last_innovation_solve`` (S⁻¹ r), which noise-correlation
+    callers read, agree between the Woodbury path (diagonal R, nz >> S) and the dense one, and
+    equal the textbook K and S⁻¹ r."""
+    rng = np.random.default_rng(4)
+    n, nz = 4, 200
+    H = rng.normal(size=(nz, n))
+    x0, P0 = rng.normal(size=n), np.diag(rng.uniform(0.1, 1.0, n))
+    R, z = rng.uniform(0.5, 1.0, nz), rng.normal(size=nz)
+    fast = UKF(Euclidean(n), MerweScaledSigmaPoints(n, alpha=1.0), x0, P0)
+    dense = UKF(Euclidean(n), MerweScaledSigmaPoints(n, alpha=1.0), x0, P0)
+    fast.update(lambda X: X @ H.T, z, R)
+    dense.update(lambda X: X @ H.T, z, np.diag(R))
+    S = H @ P0 @ H.T + np.diag(R)
+    for ukf in (fast, dense):
+        assert ukf.last_gain_T is not None and ukf.last_innovation_solve is not None
+        np.testing.assert_allclose(ukf.last_gain_T, np.linalg.solve(S, H @ P0), atol=1e-10)
+        np.testing.assert_allclose(ukf.last_innovation_solve, np.linalg.solve(S, z - H @ x0),
+                                   atol=1e-9)  # fmt: skip

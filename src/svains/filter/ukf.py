@@ -96,6 +96,14 @@ class UKF:
         self._sigma_cache: tuple[bytes, F64, F64] | None = None
         # Sees every change of the state for a smoother (``filter.rts``); None: not recorded.
         self.recorder: RtsRecorder | None = None
+        # Further observers of the same calls (e.g. ``noise_correlation.NoiseCorrelation``).
+        self.observers: list[Any] = []
+        # The gain K^T (nz, ndx) of the last accepted ``update`` (None: none yet, or
+        # ``update_blocks``); callers that track noise correlations read it.
+        self.last_gain_T: F64 | None = None
+        # ... and its S^-1 r (nz,) (r the innovation, S its covariance): the same callers
+        # estimate the noise they follow from it.
+        self.last_innovation_solve: F64 | None = None
 
     def sigma_points(self) -> tuple[F64, F64]:
         """Sigma points ``X`` (S, nx) of the current state and their tangent offsets (S, ndx).
@@ -131,8 +139,8 @@ class UKF:
                 f"x {self.x.shape} / P {self.P.shape} do not match nx={manifold.nx}, "
                 f"ndx={manifold.ndx}"
             )
-        if self.recorder is not None:
-            self.recorder.resized(x_old, P_old, transform, self.x, self.P)
+        for obs in self._watching():
+            obs.resized(x_old, P_old, transform, self.x, self.P)
 
     def predict(self, f: ProcessFn, u: Any, dt: float, Q: F64) -> None:
         """Propagate through ``f(X, u, dt)`` and add ``Q`` (n, n) or its diagonal (n,).
@@ -151,11 +159,12 @@ class UKF:
         if n > P.shape[0]:
             raise ConfigError(f"process noise of size {n} for a {P.shape[0]}-dim tangent")
         P[:n, :n] += np.diag(Q) if np.ndim(Q) == 1 else Q
-        if self.recorder is not None:
+        if watching := self._watching():
             # The step's statistical linearisation A = P_xy^T P^-1 (the sigma points' own).
             _, dX = self.sigma_points()
             A = _regression(self.P, dX.T @ (self.points.Wc[:, None] * dY))
-            self.recorder.predicted(self.x, self.P, A, x)
+            for obs in watching:
+                obs.predicted(self.x, self.P, A, x)
         self.x = x
         self.P = 0.5 * (P + P.T)
 
@@ -223,6 +232,7 @@ class UKF:
                     stats[i] = replace(stats[i], contribution=(dx - dx_o, dP - dP_o))
             self._set_posterior(self.manifold.retract(self.x[None, :], dx[None, :])[0],
                                 self.P - dP)  # fmt: skip
+            self.last_gain_T = self.last_innovation_solve = None  # the stacked gain is not kept
         return stats
 
     def update(
@@ -274,13 +284,14 @@ class UKF:
         r = z - y if residual is None else residual(z, y)
         # The matrix-inversion-lemma path pays off for many measurements (or a low-rank term).
         fast = R.ndim == 1 and (nz > 2 * X.shape[0] or D is not None)
-        dx, nis, dP = kalman_correction(dX, dY, Wc, R, r, D, name, allow_woodbury=fast)
+        dx, nis, dP, gain = _correction(dX, dY, Wc, R, r, D, name, fast)
         gate = _gate(gate_probability, max_nis_per_dof, nz)
         if not np.isfinite(nis):
             raise FilterError(f"{name or 'measurement'}: non-finite innovation")
         if nis > gate:
             return UpdateStats(name, False, float(nis), nz, float(gate))
         self._set_posterior(self.manifold.retract(self.x[None, :], dx[None, :])[0], self.P - dP)
+        self.last_gain_T, self.last_innovation_solve = gain
         return UpdateStats(name, True, float(nis), nz, float(gate))
 
     def _set_posterior(self, x: F64, P: F64) -> None:
@@ -288,8 +299,12 @@ class UKF:
         x_prior, P_prior = self.x, self.P
         self.x = x
         self.P = 0.5 * (P + P.T)
-        if self.recorder is not None:
-            self.recorder.updated(self.manifold, x_prior, P_prior, self.x, self.P)
+        for obs in self._watching():
+            obs.updated(self.manifold, x_prior, P_prior, self.x, self.P)
+
+    def _watching(self) -> list[Any]:
+        """The recorder and the observers, in that order."""
+        return self.observers if self.recorder is None else [self.recorder, *self.observers]
 
     def _update_iterated(
         self, h: MeasurementFn, z: F64, R: F64, D: F64 | None, gate: float, name: str,
@@ -297,16 +312,15 @@ class UKF:
     ) -> UpdateStats:
         """``update`` with ``iterations`` posterior linearisations (``filter.iterated``) and the
         NIS threshold ``gate`` (inf: none)."""
-        Rm = np.diag(R) if R.ndim == 1 else R
-        if D is not None:
-            Rm = Rm + D.T @ D
-        x, P, nis = iterated_update(self.manifold, self.points, self.x, self.P, h, z, Rm,
-                                    iterations, name or "measurement")  # fmt: skip
+        Rm = R if D is None else (np.diag(R) if R.ndim == 1 else R) + D.T @ D
+        x, P, nis, gain = iterated_update(self.manifold, self.points, self.x, self.P, h, z, Rm,
+                                        iterations, name or "measurement")  # fmt: skip
         if not np.isfinite(nis):
             raise FilterError(f"{name or 'measurement'}: non-finite innovation")
         if nis > gate:
             return UpdateStats(name, False, nis, z.size, float(gate))
         self._set_posterior(x, P)
+        self.last_gain_T, self.last_innovation_solve = gain
         return UpdateStats(name, True, nis, z.size, float(gate))
 
 
@@ -347,6 +361,14 @@ def kalman_correction(
     state offset and unit weight (their ``A^T A`` adds ``D^T D``). Otherwise S (nz, nz) is
     formed and Cholesky-solved.
     """
+    return _correction(dX, dY, Wc, R, r, R_low_rank, name, allow_woodbury)[:3]
+
+
+def _correction(
+    dX: F64, dY: F64, Wc: F64, R: F64, r: F64, R_low_rank: F64 | None, name: str,
+    allow_woodbury: bool,
+) -> tuple[F64, float, F64, tuple[F64, F64] | None]:
+    """``kalman_correction`` and (the gain ``K^T`` (nz, ndx), ``S^-1 r`` (nz,))."""
     R = np.asarray(R, dtype=float)
     D = R_low_rank
     if allow_woodbury and R.ndim == 1 and np.all(Wc >= 0.0):
@@ -373,12 +395,15 @@ def _stacked_gain(
     for _, _, Rk in kept:
         R[i : i + len(Rk), i : i + len(Rk)] = Rk
         i += len(Rk)
-    dx, _, dP = _dense_gain(dX, dY, Wc, R, r, name)
+    dx, _, dP, _ = _dense_gain(dX, dY, Wc, R, r, name)
     return dx, dP
 
 
-def _dense_gain(dX: F64, dY: F64, Wc: F64, R: F64, r: F64, name: str) -> tuple[F64, float, F64]:
-    """Correction, NIS and covariance decrease with a Cholesky solve of S (nz, nz)."""
+def _dense_gain(
+    dX: F64, dY: F64, Wc: F64, R: F64, r: F64, name: str
+) -> tuple[F64, float, F64, tuple[F64, F64]]:
+    """Correction, NIS, covariance decrease and (gain ``K^T`` (nz, ndx), ``S^-1 r`` (nz,)) with a
+    Cholesky solve of S (nz, nz)."""
     WdY = Wc[:, None] * dY
     S = dY.T @ WdY
     S += np.diag(R) if R.ndim == 1 else R
@@ -387,14 +412,18 @@ def _dense_gain(dX: F64, dY: F64, Wc: F64, R: F64, r: F64, name: str) -> tuple[F
     # K^T = S^-1 Pxz^T (solve, never invert).
     KT = scipy.linalg.cho_solve((L, True), Pxz.T, check_finite=False)
     w = scipy.linalg.solve_triangular(L, r, lower=True, check_finite=False)
-    return KT.T @ r, float(w @ w), Pxz @ KT
+    Sr = scipy.linalg.solve_triangular(L, w, lower=True, trans="T", check_finite=False)
+    return KT.T @ r, float(w @ w), Pxz @ KT, (KT, Sr)
 
 
-def _woodbury_gain(dX: F64, dY: F64, Wc: F64, Rdiag: F64, r: F64) -> tuple[F64, float, F64]:
+def _woodbury_gain(
+    dX: F64, dY: F64, Wc: F64, Rdiag: F64, r: F64
+) -> tuple[F64, float, F64, tuple[F64, F64]]:
     """Same as ``_dense_gain`` for a diagonal R and nz >> S, in O(S² nz) (matrix inversion lemma).
 
     With ``A = sqrt(Wc) dY`` (S, nz), ``C = sqrt(Wc) dX`` (S, ndx), ``B = A R^-1`` and
-    ``M = I + B A^T``: ``K = C^T M^-1 B`` and ``K S K^T = C^T (I - M^-1) C``.
+    ``M = I + B A^T``: ``K = C^T M^-1 B``, ``K S K^T = C^T (I - M^-1) C`` and
+    ``S^-1 = R^-1 - B^T M^-1 B``.
     """
     sw = np.sqrt(Wc)[:, None]
     A = sw * dY
@@ -407,4 +436,4 @@ def _woodbury_gain(dX: F64, dY: F64, Wc: F64, Rdiag: F64, r: F64) -> tuple[F64, 
     Mi = scipy.linalg.cho_solve((L, True), np.column_stack([Br, C]), check_finite=False)
     MiBr, MiC = Mi[:, 0], Mi[:, 1:]
     nis = float(r @ (r / Rdiag) - Br @ MiBr)
-    return C.T @ MiBr, nis, C.T @ (C - MiC)
+    return C.T @ MiBr, nis, C.T @ (C - MiC), (B.T @ MiC, r / Rdiag - B.T @ MiBr)
