@@ -497,6 +497,20 @@ def test_shared_pixels_are_opt_in_and_need_clones() -> None:
     assert not updater_for("3d", _dataset(tf), opts).shared
 
 
+def test_correlated_pixels_are_opt_in_need_clones_and_a_known_pixel_noise() -> None:
+    tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=60)
+    assert not VisionOptions().correlated_pixels
+    assert not updater_for("3d", _dataset(tf), VisionOptions()).correlated
+    upd = updater_for("3d", _dataset(tf), VisionOptions(correlated_pixels=True))
+    assert upd.correlated and not upd.shared  # recorded features: their noise is known
+    assert upd.summary()["correlated_pixels"] is True
+    imu = VisionOptions(rotation="imu", correlated_pixels=True)
+    assert not updater_for("3d", _dataset(tf), imu).correlated  # no clones
+    with pytest.raises(ConfigError, match=r"vision\.shared_pixels and vision\.correlated_pixels "
+                       r"are two ways of fusing a pixel in both frame pairs: choose one"):
+        VisionOptions(shared_pixels=True, correlated_pixels=True)
+
+
 def test_short_frames_fuse_more_features() -> None:
     opts = VisionOptions()  # 120, 300 within 1 s
     assert opts.features_for_gap(0.2) == 300 and opts.features_for_gap(1.0) == 300

@@ -184,7 +184,20 @@ class VisionOptions:
     point marginalised over its 8 pixels at k-1 and k) and each feature's pixels enter both
     frame pairs they belong to (k-1 -> k and k -> k+1), each time at twice their variance: a
     pixel's information is split between its two updates, so none is counted twice and none is
-    left out (``vision_pixels.SHARED_PIXEL_VARIANCE``). Off: ``single_use_pixels`` (clones) lets
+    left out (``vision_pixels.SHARED_PIXEL_VARIANCE``). ``correlated_pixels`` (opt-in; clones,
+    ``tc``/``3d``, recorded features or a given ``pixel_noise_std``: the correlation is in the
+    pixels' noise units) fuses every feature in both its frame pairs at its full variance and
+    takes out of the second pair what the first left correlated with the state
+    (``navigation.vision_correlated``, ``filter.noise_correlation``: exact for linear models);
+    frames at most ``short_gap_s`` apart are fused like shared ones (two-view, no disparity
+    gate, ``features_for_gap``), longer ones as by default but with every feature. Measured
+    2026-12-06 (``docs/results/low-rate.md``), default -> correlated: simulated village 5 Hz,
+    10 seeds GPS-denied, ``3d`` ATE 0.094 -> 0.054 m, NEES 11.58 -> 9.10 (band 6.57-11.81);
+    EuRoC V1_01 every frame 0.037 -> 0.018 m, every 10th / 25th 0.070 / 0.514 -> 0.070 /
+    0.509 m; simulated 2 Hz flights 0.0371 -> 0.0279 m (0.0331 -> 0.0230 at ``vo``'s stamps);
+    costs: EuRoC irregular frames 0.286 -> 0.310 m (max 0.660 -> 0.786), about 4x the wall time
+    of a 5 Hz run, and the smoother, which takes measurement noise as white, does not know the
+    correlation. Off: ``single_use_pixels`` (clones) lets
     each feature pixel enter one update only (a feature fused at k-1 is not triangulated again
     at k, every other frame of a long track is lost); ``min_disparity_px`` (None:
     ``min_disparity()``) drops features whose disparity one frame earlier is smaller;
@@ -335,6 +348,11 @@ class VisionOptions:
     # Keeping the information without the correlation needs a window of clones fusing each
     # track once (the MSCKF update).
     shared_pixels: bool = False
+    # Every pixel in both frame pairs it belongs to at its full variance, the noise it shares
+    # between them followed as a cross-covariance with the state (``filter.noise_correlation``):
+    # the information single use leaves out, without the double count shared pixels split.
+    # Opt-in (measurements in the docstring): it loses on EuRoC's irregular frames, costs 4x.
+    correlated_pixels: bool = False
     single_use_pixels: bool = True
     min_disparity_px: float | None = None
     motion_prior: bool = False
@@ -396,8 +414,13 @@ class VisionOptions:
                 "vision.estimate_extrinsics needs vision.rotation=clone (the camera rotation "
                 f"is estimated against the cloned pose), got {self.rotation!r}"
             )
-        if self.two_view and (self.rotation != "clone"
-                              or not (self.single_use_pixels or self.shared_pixels)):
+        if self.shared_pixels and self.correlated_pixels:
+            raise ConfigError(
+                "vision.shared_pixels and vision.correlated_pixels are two ways of fusing a "
+                "pixel in both frame pairs: choose one"
+            )
+        if self.two_view and (self.rotation != "clone" or not (
+                self.single_use_pixels or self.shared_pixels or self.correlated_pixels)):
             raise ConfigError(
                 "vision.two_view needs vision.rotation=clone and vision.shared_pixels=true or "
                 "vision.single_use_pixels=true (it fuses the k-1 pixels themselves, which are "

@@ -16,12 +16,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from svains.errors import ConfigError
+from svains.filter.noise_correlation import NoiseCorrelation
 from svains.filter.ukf import UpdateStats, chi2_gate
 from svains.frontend.types import Egomotion, StereoTracks
 from svains.models.vision_3d import pixels_from_motion
 from svains.models.vision_clone import clone_camera_motion, predict_egomotion_clone
 from svains.models.vision_common import ImuIncrement, camera_motion, stack_pixels
 from svains.models.vision_tc import pixels_tc_from_motion
+from svains.navigation import vision_correlated
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.fault_handling import scale_motion_covariance
 from svains.navigation.imu_history import ImuHistory
@@ -87,6 +89,10 @@ class VisionCounters:
     frames_inflated: int = 0  # of the fused egomotions (lc, tc/3d fallback): inflated
     # two-view: frames whose egomotion was computed to linearise at (the mean fitted poorly)
     frames_linearised_at_egomotion: int = 0
+    # correlated pixels: features whose k-1 pixels' correlation was taken out, and frames where
+    # it did not fit the prior (fused without those features' correlation)
+    features_correlated: int = 0
+    frames_correlation_dropped: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return {f.name: int(getattr(self, f.name)) for f in fields(self)}
@@ -117,8 +123,8 @@ def _subsample(idx: I64, n_max: int | None) -> I64:
 class _Features:
     """One frame's candidate features: the sigma points' predictions ``Y`` (S, dM), ``z``
     (dM,), per-feature noise ``R_blocks`` (M, d, d), the IMU-increment factor ``G`` (dM, 6) or
-    None, ``keep``/``finite``/``nis`` (M,) from the gate, and ``model(kept)``: ``h`` of the kept
-    features for any sigma points."""
+    None, ``keep``/``finite``/``nis`` (M,) from the gate, ``model(kept)``: ``h`` of the kept
+    features for any sigma points, and (two-view) the null-space bases ``N`` (M, 8, 5)."""
 
     Y: F64
     z: F64
@@ -128,6 +134,7 @@ class _Features:
     finite: NDArray[np.bool_]
     nis: F64
     model: Callable[[I64], Callable[[F64], F64]]
+    N: F64 | None = None
 
 
 class PixelUpdater:
@@ -152,6 +159,11 @@ class PixelUpdater:
         self.checks = vision_checks(history, self.rig, rig)  # mount, stamps, baseline
         known = options.pixel_noise_std is not None or self.source.kind == "features"
         self.shared = self.clones is not None and options.shared_pixels
+        # Pixels in both frame pairs with the correlation between the pairs followed
+        # (``correlated_pixels``, ``vision_correlated``): where the pixel noise is known, as
+        # the correlation is in its units.
+        self.correlated = self.clones is not None and options.correlated_pixels and known
+        self._correlation: NoiseCorrelation | None = None
         self._min_disparity_px = options.min_disparity(self.sigma_px, known, self.shared)
         # The k-1 pixel noise biases the prediction (``vision_noise.previous_pixel_bias``); the
         # correction needs the true noise, so it is made only when that is known.
@@ -179,7 +191,7 @@ class PixelUpdater:
         # twice.
         self.two_view = options.two_view or self.shared
         self._two_view_in_gaps = self.clones is not None and (
-            options.single_use_pixels or self.shared)
+            options.single_use_pixels or self.shared or self.correlated)
         # One pixel's noise in the two-view update (px): split between the pairs it enters.
         self._two_view_sigma_px = self.sigma_px * (
             float(np.sqrt(SHARED_PIXEL_VARIANCE)) if self.shared else 1.0)
@@ -341,7 +353,7 @@ class PixelUpdater:
                                    egomotion if self._noise_known else None)  # fmt: skip
         keep, finite, nis = tv.gate(ctx.ukf.points, self.options.feature_gate_probability)
         return _Features(tv.Y, tv.z, tv.R_blocks, None, keep, finite, nis,
-                         lambda kept: tv.model(kept, motion))  # fmt: skip
+                         lambda kept: tv.model(kept, motion), tv.N)  # fmt: skip
 
     def update(self, ctx: FrameContext) -> UpdateStats | None:
         """Fuse the frame at ``ctx.t_ns`` (see the module docstring)."""
@@ -358,13 +370,26 @@ class PixelUpdater:
         """Fuse the tracks ``tr`` ending at ``ctx.t_ns`` (``keyframe``: from a stored keyframe
         put in the state, ``_relocalise``: two-view, never relocalised again)."""
         c = self.counters
+        # The last fused frame's pixel correlation serves this frame's pixel update only.
+        corr = vision_correlated.take(ctx.ukf, self._correlation)
+        self._correlation = None
         usable = (
             np.zeros(0, bool) if tr is None
             else tr.inlier & np.isfinite(tr.p_Ckm1_F).all(axis=1) & (tr.p_Ckm1_F[:, 2] > 0)
         )
-        two_view = self.two_view or ((ctx.two_view or keyframe) and self._two_view_in_gaps)
-        near = self._near(tr)
-        usable &= self._fresh(tr)
+        # A short frame with correlated pixels is fused like a shared one: two-view, every
+        # feature, no disparity gate (``features_for_gap``); a longer one as by default, with
+        # every feature too where it takes the two-view model (the correlation, which needs
+        # the two-view null spaces, replaces single use).
+        short = self.correlated and tr is not None and self.options.short_gap_s is not None \
+            and (tr.t_ns - tr.t_prev_ns) * 1e-9 <= self.options.short_gap_s
+        two_view = short or self.two_view or (
+            (ctx.two_view or keyframe) and self._two_view_in_gaps)
+        near = True if short else self._near(tr)
+        if short:
+            self._near(tr)  # it keeps the disparities of the frame before
+        if not (self.correlated and two_view):
+            usable &= self._fresh(tr)
         # The two-view model estimates each point in inverse depth from all 8 pixels, so a
         # far feature neither biases it nor leaves the linear range (the reasons for the gate):
         # features below the disparity gate fill the frame up to ``max_features`` when too few
@@ -392,7 +417,8 @@ class PixelUpdater:
             return ego
         dt_s = (tr.t_ns - tr.t_prev_ns) * 1e-9
         # More features in a short frame with shared pixels (``VisionOptions.features_for_gap``).
-        n_max = self.options.features_for_gap(dt_s) if self.shared else self.options.max_features
+        n_max = (self.options.features_for_gap(dt_s) if self.shared or short
+                 else self.options.max_features)
         idx = _subsample(np.flatnonzero(usable), n_max)
         if far.any() and (n_max is None or idx.size < n_max):
             room = None if n_max is None else n_max - idx.size
@@ -437,11 +463,21 @@ class PixelUpdater:
         kept = np.flatnonzero(f.keep)
         block = _whitened_block(f"vision_{self.method}", kept, X, f.Y, f.z, f.R_blocks, f.G,
                                 f.model(kept))  # fmt: skip
+        ids_kept = tr.track_id[idx[kept]]
+        white = None
+        if self.correlated and f.N is not None:
+            block, n_corr, white = vision_correlated.with_correlation(
+                block, ctx.ukf, corr, tr.t_prev_ns, ids_kept, f.N[kept], self._two_view_sigma_px)
+            c.features_correlated += max(n_corr, 0)
+            c.frames_correlation_dropped += int(n_corr < 0)
         stats = apply_blocks(ctx, [block, *ctx.extra])
         if stats.accepted:
             c.frames_fused += 1
             c.features_fused += kept.size
-            self._fused = (tr.t_ns, np.sort(tr.track_id[idx[kept]]))
+            self._fused = (tr.t_ns, np.sort(ids_kept))
+            if self.correlated and f.N is not None:
+                self._correlation = vision_correlated.after_update(
+                    ctx.ukf, block, white, ids_kept, f.N[kept], self._two_view_sigma_px, tr.t_ns)
             return stats
         if not ctx.extra and not wide:  # a wide prior's fallback was tried above, same state
             ego = self._egomotion_update(ctx, tr)
@@ -509,7 +545,7 @@ class PixelUpdater:
         """Counters and settings for ``report.json``."""
         out: dict[str, Any] = self.counters.as_dict()
         out.update(source=self.source.kind, sigma_px=self.sigma_px, shared_pixels=self.shared,
-                   rotation=self.options.rotation,
+                   correlated_pixels=self.correlated, rotation=self.options.rotation,
                    frontend_status=dict(getattr(self.source, "status_counts", {})),
                    **stereo_check_summary(self.source))
         if self.checks is not None:

@@ -1,0 +1,130 @@
+"""Noise shared by two updates: the followed cross-covariance and the decorrelated update equal a
+Kalman filter that carries the noise in its state (linear-Gaussian, exact)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from svains.filter import UKF, Euclidean, MerweScaledSigmaPoints
+from svains.filter.noise_correlation import NoiseCorrelation, decorrelated
+
+
+def _kf_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, R: np.ndarray, z: np.ndarray):
+    S = H @ P @ H.T + R
+    K = P @ H.T @ np.linalg.inv(S)
+    return x + K @ (z - H @ x), P - K @ S @ K.T
+
+
+def _problem(seed: int = 3):
+    rng = np.random.default_rng(seed)
+    n, k = 4, 3
+    return dict(
+        rng=rng, n=n, k=k,
+        x0=rng.normal(size=n), P0=np.diag(rng.uniform(0.2, 1.0, n)),
+        Sigma=np.diag(rng.uniform(0.05, 0.2, k)),
+        H1=rng.normal(size=(5, n)), B1=rng.normal(size=(5, k)), W1=0.05 * np.eye(5),
+        F=np.eye(n) + 0.1 * rng.normal(size=(n, n)), Q=np.diag(rng.uniform(0.01, 0.05, n)),
+        Hs=rng.normal(size=(1, n)), Ws=np.array([[0.1]]),
+        H2=rng.normal(size=(6, n + 2)), A2=rng.normal(size=(6, k)), W2=0.05 * np.eye(6),
+    )
+
+
+def test_shared_noise_followed_through_predict_update_and_clone_equals_the_joint_filter() -> None:
+    p = _problem()
+    rng, n, k = p["rng"], p["n"], p["k"]
+    z1, zs, z2, u = rng.normal(size=5), rng.normal(size=1), rng.normal(size=6), rng.normal(size=n)
+    T = np.vstack([np.eye(n), np.eye(n)[:2]])  # a clone of the first two states
+
+    # Reference: the noise n in the state (no process noise), every update linear.
+    xa = np.concatenate([p["x0"], np.zeros(k)])
+    Pa = np.block([[p["P0"], np.zeros((n, k))], [np.zeros((k, n)), p["Sigma"]]])
+    xa, Pa = _kf_update(xa, Pa, np.hstack([p["H1"], p["B1"]]), p["W1"], z1)
+    Fa = np.block([[p["F"], np.zeros((n, k))], [np.zeros((k, n)), np.eye(k)]])
+    xa, Pa = Fa @ xa + np.concatenate([u, np.zeros(k)]), Fa @ Pa @ Fa.T
+    Pa[:n, :n] += p["Q"]
+    xa, Pa = _kf_update(xa, Pa, np.hstack([p["Hs"], np.zeros((1, k))]), p["Ws"], zs)
+    Ta = np.block([[T, np.zeros((n + 2, k))], [np.zeros((k, n)), np.eye(k)]])
+    xa, Pa = Ta @ xa, Ta @ Pa @ Ta.T
+    xa, Pa = _kf_update(xa, Pa, np.hstack([p["H2"], p["A2"]]), p["W2"], z2)
+
+    # The filter on x alone, the correlation followed by the observer.
+    ukf = UKF(Euclidean(n), MerweScaledSigmaPoints(n, alpha=0.7), p["x0"], p["P0"])
+    R1 = p["B1"] @ p["Sigma"] @ p["B1"].T + p["W1"]
+    assert ukf.update(lambda X: X @ p["H1"].T, z1, R1).accepted
+    assert ukf.last_gain_T is not None
+    assert ukf.last_innovation_solve is not None
+    Sig, B1 = p["Sigma"], p["B1"]
+    learnt = Sig - Sig @ B1.T @ np.linalg.solve(R1, B1 @ Sig)  # from update 1's own residual
+    corr = NoiseCorrelation(-ukf.last_gain_T.T @ B1 @ Sig, Sig @ B1.T @ ukf.last_innovation_solve,
+                            ukf.P, learnt[None], np.arange(1), 0)  # fmt: skip
+    ukf.observers.append(corr)
+    ukf.predict(lambda X, u_, dt: X @ p["F"].T + u_, u, 0.1, p["Q"])
+    assert ukf.update(lambda X: X @ p["Hs"].T, zs, p["Ws"]).accepted
+    ukf.resize(Euclidean(n + 2), T @ ukf.x, T @ ukf.P @ T.T, transform=T)
+    ukf.observers.remove(corr)
+    C0, Mp = corr.unexplained(ukf.P)
+    R_e = p["W2"] + p["A2"] @ (corr.blocks[0] + C0.T @ Mp @ C0) @ p["A2"].T
+    h2 = decorrelated(lambda X: X @ p["H2"].T, ukf.manifold, ukf.x, ukf.P,
+                      p["A2"] @ corr.current().T, p["A2"] @ corr.mean)  # fmt: skip
+    x_before, P_before = ukf.x.copy(), ukf.P.copy()
+    assert ukf.update(h2, z2, R_e).accepted
+
+    np.testing.assert_allclose(ukf.x, xa[: n + 2], rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(ukf.P, Pa[: n + 2, : n + 2], rtol=1e-8, atol=1e-10)
+    # Ignoring the correlation (the noise counted twice) is wrong by far more than round-off.
+    naive = UKF(Euclidean(n + 2), MerweScaledSigmaPoints(n + 2, alpha=0.7), x_before, P_before)
+    naive.update(lambda X: X @ p["H2"].T, z2, p["A2"] @ Sig @ p["A2"].T + p["W2"])
+    assert np.abs(naive.x - xa[: n + 2]).max() > 1e-3
+
+
+def test_iterated_update_takes_the_decorrelated_model_too() -> None:
+    """The linear term is measured from the prior mean, so re-linearising over the posterior
+    (``iterations`` > 1) changes nothing for a linear model."""
+    p = _problem(seed=8)
+    n, k = p["n"], p["k"]
+    C = 0.1 * p["rng"].normal(size=(n, k))
+    ukf = UKF(Euclidean(n), MerweScaledSigmaPoints(n, alpha=0.7), p["x0"], p["P0"])
+    H, A = p["H2"][:, :n], p["A2"]
+    R = A @ (p["Sigma"] - C.T @ np.linalg.solve(p["P0"], C)) @ A.T + p["W2"]
+    h2 = decorrelated(lambda X: X @ H.T, ukf.manifold, ukf.x, ukf.P, A @ C.T, A @ np.ones(k))
+    z = p["rng"].normal(size=6)
+    once = UKF(Euclidean(n), MerweScaledSigmaPoints(n, alpha=0.7), p["x0"], p["P0"])
+    once.update(h2, z, R)
+    ukf.update(h2, z, R, iterations=4)
+    np.testing.assert_allclose(ukf.x, once.x, rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(ukf.P, once.P, rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(ukf.last_gain_T, once.last_gain_T, rtol=1e-7, atol=1e-10)
+
+
+def test_a_resize_without_a_map_invalidates_the_correlation() -> None:
+    corr = NoiseCorrelation(np.ones((2, 1)), np.zeros(1), np.eye(2), np.ones((1, 1, 1)),
+                            np.array([7]), 5)  # fmt: skip
+    corr.predicted(np.zeros(2), np.eye(2), 2.0 * np.eye(2), np.zeros(2))
+    np.testing.assert_allclose(corr.current(), 2.0 * np.ones((2, 1)))
+    corr.resized(np.zeros(2), np.eye(2), None, np.zeros(3), np.eye(3))
+    assert not corr.valid
+
+
+@pytest.mark.parametrize("singular", [False, True])
+def test_an_update_maps_the_correlation_by_p_post_p_prior_inverse(singular: bool) -> None:
+    """``I - K H`` = ``P⁺ P⁻¹``, also where P is singular (an exact clone: pseudo-inverse)."""
+    rng = np.random.default_rng(1)
+    n = 3
+    P = np.diag([0.5, 0.3, 0.2])
+    H = rng.normal(size=(2, n))
+    if singular:  # the third state a copy of the first
+        T = np.vstack([np.eye(2), np.eye(2)[:1]])
+        P = T @ np.diag([0.5, 0.3]) @ T.T
+        C = T @ rng.normal(size=(2, 2))
+    else:
+        C = rng.normal(size=(n, 2))
+    S = H @ P @ H.T + 0.1 * np.eye(2)
+    K = P @ H.T @ np.linalg.inv(S)
+    corr = NoiseCorrelation(C, np.zeros(2), P, np.eye(2)[None], np.arange(1), 0)
+    x_post = K @ rng.normal(size=2)  # a step the update's gain can make
+    corr.updated(Euclidean(n), np.zeros(n), P, x_post, P - K @ S @ K.T)
+    np.testing.assert_allclose(corr.current(), (np.eye(n) - K @ H) @ C, atol=1e-9)
+    # n̂ moves by the update's gain on n, C^T H^T S^-1 r (= C^T P^-1 K r)
+    r = np.linalg.lstsq(K, x_post, rcond=None)[0]
+    np.testing.assert_allclose(corr.mean, C.T @ H.T @ np.linalg.solve(S, r), atol=1e-9)
