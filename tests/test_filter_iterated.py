@@ -90,7 +90,7 @@ def test_an_exact_copy_in_the_prior_is_iterated_like_the_plain_update() -> None:
 
 
 def test_many_measurements_with_a_diagonal_noise_take_the_lemma_and_match_the_dense_path() -> None:
-    """nz > 2 (S + ndx) with a diagonal R: the matrix-inversion-lemma path of
+    """nz > 12 (S + ndx) with a diagonal R: the matrix-inversion-lemma path of
     ``iterated_update`` gives the dense path's posterior, NIS, gain and ``S⁻¹ r``."""
     from svains.filter.iterated import iterated_update
 
@@ -121,7 +121,7 @@ def test_a_lemma_posterior_that_is_not_positive_definite_is_solved_densely(
     import svains.filter.iterated as it
 
     rng = np.random.default_rng(2)
-    n, nz = 3, 60
+    n, nz = 3, 150
     H = rng.normal(size=(nz, n))
     x0, P0 = rng.normal(size=n), np.eye(n)
     z, R = rng.normal(size=nz), np.full(nz, 0.5)

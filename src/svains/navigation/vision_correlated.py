@@ -74,6 +74,8 @@ def with_correlation(
     to the new's), None where the block is unchanged."""
     if corr is None or corr.t_ns != t_prev_ns or track_ids.size == 0 or corr.keys.size == 0:
         return block, 0, None
+    if np.ndim(block.R) != 1 or not np.all(np.asarray(block.R) == 1.0):
+        return block, 0, None  # another layout (an IMU term): left as it is
     order = np.argsort(corr.keys)
     keys = corr.keys[order]
     pos = np.clip(np.searchsorted(keys, track_ids), 0, keys.size - 1)
@@ -98,8 +100,6 @@ def with_correlation(
     # per feature (blocks) and the part the state error no longer explains (low rank, C₀ M'
     # C₀^T). Whitened again (feature blocks, then the low-rank term) so the filter keeps its
     # diagonal-noise path.
-    if np.ndim(block.R) != 1 or not np.all(np.asarray(block.R) == 1.0):
-        return block, 0, None  # another layout (an IMU term): left as it is
     n_f = nz // NUM_FUSED
     R_b = np.broadcast_to(np.eye(NUM_FUSED), (n_f, NUM_FUSED, NUM_FUSED)).copy()
     R_b[rows] += np.einsum("mjp,mpq,miq->mji", A,
@@ -135,8 +135,9 @@ def after_update(
     Y = N[:, _PIXELS:, :] / sigma_px  # (K, 4, 5)
     Q = None
     if white is not None:
-        Y = whiten_chol(Y.reshape(n_f * _PIXELS, 1, NUM_FUSED) * 1.0, np.repeat(
-            white.L, _PIXELS, axis=0)).reshape(n_f, _PIXELS, NUM_FUSED)  # fmt: skip
+        # Each row of B^T is one feature's 5 numbers: whitened by that feature's own factor.
+        Y = whiten_chol(Y.reshape(1, n_f * _PIXELS * NUM_FUSED),
+                        np.repeat(white.L, _PIXELS, axis=0)).reshape(n_f, _PIXELS, NUM_FUSED)
         if white.U is not None:
             Uf = white.U.reshape(n_f, NUM_FUSED, -1)  # (K, 5, r)
             Q = np.einsum("kpj,kjr->kpr", Y, Uf) * white.d  # (K, 4, r): (Y U) D
@@ -159,7 +160,7 @@ def after_update(
     # (0.1 σ)² where exact) was overconfident and less accurate: simulated village, 10 seeds,
     # 5 Hz, GPS-denied: NEES 12.54 (position 4.97 of 3), ATE 0.0695 m, against 9.10 (2.96),
     # 0.0542 m without.
-    learnt = np.broadcast_to(var * np.eye(_PIXELS), (n_f, _PIXELS, _PIXELS))
-    corr = NoiseCorrelation(C, n_mean, ukf.P, learnt, track_ids, t_ns)
+    blocks = np.broadcast_to(var * np.eye(_PIXELS), (n_f, _PIXELS, _PIXELS))
+    corr = NoiseCorrelation(C, n_mean, ukf.P, blocks, track_ids, t_ns)
     ukf.observers.append(corr)
     return corr
