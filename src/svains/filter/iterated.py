@@ -82,8 +82,7 @@ def iterated_update(
             assert L0 is not None
             PjdX = _solve_psd(Pj, (Wc[:, None] * dX).T, name)  # (ndx, S)
             KT, Sr = _lemma_solve(R, H @ L0, dX, dY, Wc, PjdX, np.column_stack([PHt.T, r]))
-            P_next = P0 - PHt @ KT
-            P_next = 0.5 * (P_next + P_next.T)
+            P_next = _posterior(P0, PHt, KT)
             if _positive_definite(P_next):
                 Sr = Sr[:, 0]
                 nis = float(r @ Sr)
@@ -98,11 +97,16 @@ def iterated_update(
             w = scipy.linalg.solve_triangular(L, r, lower=True, check_finite=False)
             nis = float(w @ w)
             Sr = scipy.linalg.solve_triangular(L, w, lower=True, trans="T", check_finite=False)
-            P_next = P0 - PHt @ KT
-            P_next = 0.5 * (P_next + P_next.T)
+            P_next = _posterior(P0, PHt, KT)
         xj = manifold.retract(x0[None, :], (KT.T @ r)[None, :])[0]
         Pj = P_next
     return xj, Pj, nis, (KT, Sr)
+
+
+def _posterior(P0: F64, PHt: F64, KT: F64) -> F64:
+    """``P0 - P0 H^T K^T``, symmetrised."""
+    P = P0 - PHt @ KT
+    return 0.5 * (P + P.T)
 
 
 def _positive_definite(P: F64) -> bool:

@@ -45,9 +45,7 @@ _RCOND = 1e-10
 
 def _pinv_psd(P: F64) -> F64:
     """Pseudo-inverse of a symmetric positive semi-definite ``P`` (n, n)."""
-    w, V = np.linalg.eigh(0.5 * (P + P.T))
-    keep = w > _RCOND * max(float(w[-1]), 0.0)
-    return (V[:, keep] / w[keep]) @ V[:, keep].T
+    return np.linalg.pinv(0.5 * (P + P.T), rcond=_RCOND, hermitian=True)
 
 
 class NoiseCorrelation:
@@ -79,6 +77,10 @@ class NoiseCorrelation:
     def _map(self, M: F64) -> None:
         self._phi = M if self._phi is None else M @ self._phi
 
+    def _maps(self) -> F64:
+        """The product of the maps since ``C`` was set (ndx, ndx0)."""
+        return np.eye(self._C.shape[0]) if self._phi is None else self._phi
+
     def current(self) -> F64:
         """``C`` (ndx, k) for the state as it is now."""
         return self._C if self._phi is None else self._phi @ self._C
@@ -87,7 +89,7 @@ class NoiseCorrelation:
         """``(C₀ (ndx0, k), M' (ndx0, ndx0))`` with ``Σ_n - C^T P⁻¹ C = blocks ⊕ + C₀^T M' C₀``
         for the current covariance ``P``: the noise's covariance given the state error (its
         part the state does not explain)."""
-        phi = np.eye(self._C.shape[0]) if self._phi is None else self._phi
+        phi = self._maps()
         Mp = self._M - phi.T @ _pinv_psd(P) @ phi
         # A covariance: round-off of the difference (M holds P⁻¹, up to 1e9) clipped at zero.
         w, V = np.linalg.eigh(0.5 * (Mp + Mp.T))
@@ -103,9 +105,9 @@ class NoiseCorrelation:
         ``Σ_n <- Σ_n - C^T P⁻¹ (P - P⁺) P⁻¹ C``, ``C <- P⁺ P⁻¹ C``."""
         Pi = _pinv_psd(P_prior)
         dx = manifold.local(np.asarray(x_post, float)[None, :], np.asarray(x_prior, float))[0]
-        self.mean = self.mean + self.current().T @ (Pi @ dx)
-        phi = np.eye(self._C.shape[0]) if self._phi is None else self._phi
-        PiPhi = Pi @ phi
+        PiPhi = Pi @ self._maps()
+        # (Φ C₀)^T P⁻¹ δx̂ without forming Φ C₀ (ndx × k) at every update between frames.
+        self.mean = self.mean + self._C.T @ (PiPhi.T @ dx)
         self._M = self._M - PiPhi.T @ (P_prior - P_post) @ PiPhi
         self._map(P_post @ Pi)
 

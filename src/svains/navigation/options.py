@@ -531,6 +531,10 @@ class VisionOptions:
             return None
         return self.short_gap_s
 
+    def is_short(self, gap_s: float) -> bool:
+        """Whether a frame ``gap_s`` s after its reference is short (``short_gap_s``)."""
+        return self.short_gap_s is not None and gap_s <= self.short_gap_s
+
     def features_for_gap(self, gap_s: float) -> int | None:
         """The most features a ``tc``/``3d`` frame ``gap_s`` s after its reference fuses:
         the larger of ``max_features_short`` and ``max_features`` when the gap is short
@@ -543,8 +547,7 @@ class VisionOptions:
         synthetic 5 Hz every frame 0.038 → 0.020 m; simulated flights at 2 Hz 0.043 → 0.029 m;
         at 0.5 Hz 0.272 → 0.651 m (V1_02 seed 2: 0.32 → 3.99 m) and EuRoC irregular frames
         0.308 → 0.326 m, where 300 in short frames only gives 0.272 and 0.304 m."""
-        short = self.short_gap_s is not None and gap_s <= self.short_gap_s
-        if not short or self.max_features is None:
+        if not self.is_short(gap_s) or self.max_features is None:
             return self.max_features
         if self.max_features_short is None:
             return None

@@ -19,7 +19,7 @@ are the two-view numbers over σ, unit noise.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,26 +28,11 @@ from svains.filter.noise_correlation import NoiseCorrelation, decorrelated
 from svains.filter.ukf import UKF
 from svains.models.vision_two_view import NUM_FUSED
 from svains.navigation.base import MeasurementBlock
-from svains.navigation.vision_noise import lowrank_factors, whiten_chol
+from svains.navigation.vision_noise import Whitening, whiten_chol
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 _PIXELS = 4  # one stereo observation: u, v left, u, v right
-
-
-@dataclass(frozen=True)
-class Whitening:
-    """Rows (..., nz) of a block's numbers to unit noise: each feature's 5 numbers times
-    ``L_m^-1`` (``L`` (K, 5, 5)), then times ``I - U diag(d) U^T`` (``U`` (nz, r) orthonormal
-    columns, ``d`` (r,); None: no low-rank term), ``vision_noise.lowrank_whiten``'s form."""
-
-    L: F64
-    U: F64 | None
-    d: F64 | None
-
-    def __call__(self, Y: F64) -> F64:
-        Yw = whiten_chol(Y, self.L)
-        return Yw if self.U is None else Yw - ((Yw @ self.U) * self.d) @ self.U.T
 
 
 def take(ukf: UKF, corr: NoiseCorrelation | None) -> NoiseCorrelation | None:
@@ -110,7 +95,7 @@ def with_correlation(
         return block, -1, None
     w, V = np.linalg.eigh(Mp)
     G = whiten_chol((AC0.reshape(nz, -1) @ (V * np.sqrt(np.maximum(w, 0.0)))).T, L_b).T
-    white = Whitening(L_b, *lowrank_factors(G))
+    white = Whitening.of(L_b, G)
     h2 = decorrelated(block.h, ukf.manifold, ukf.x, ukf.P, AC.reshape(nz, ndx),
                       A_mean.reshape(-1))  # fmt: skip
     return (replace(block, h=lambda X: white(h2(X)), z=white(block.z[None, :])[0]),

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -195,6 +195,27 @@ def lowrank_factors(G: F64 | None) -> tuple[F64 | None, F64 | None]:
         return None, None
     U, sv, _ = np.linalg.svd(G, full_matrices=False)
     return U, 1.0 - 1.0 / np.sqrt(1.0 + sv**2)
+
+
+@dataclass(frozen=True)
+class Whitening:
+    """Rows (..., dK) of K features' stacked numbers to unit noise: each feature's d numbers
+    times ``L_m^-1`` (``L`` (K, d, d), ``whiten_chol``), then times ``I - U diag(d) U^T``
+    (``lowrank_whiten``'s form; ``U`` None: no low-rank term)."""
+
+    L: F64
+    U: F64 | None = None
+    d: F64 | None = None
+
+    @classmethod
+    def of(cls, L: F64, G: F64 | None) -> Whitening:
+        """Per-feature factors ``L`` and the low-rank term ``G`` (dK, k) already whitened by
+        them (None: none): noise ``L L^T + G G^T`` in the original rows."""
+        return cls(L, *lowrank_factors(G))
+
+    def __call__(self, Y: F64) -> F64:
+        Yw = whiten_chol(Y, self.L)
+        return Yw if self.U is None else Yw - ((Yw @ self.U) * self.d) @ self.U.T
 
 
 def _pixel_jacobian(p_C: F64, f: float, baseline: float) -> F64:

@@ -38,9 +38,9 @@ from svains.navigation.vision_motion import (
     MotionPriorOptions,
 )
 from svains.navigation.vision_noise import (
+    Whitening,
     analytic_noise,
     feature_gate,
-    lowrank_factors,
     previous_pixel_bias,
     whiten_chol,
 )
@@ -381,8 +381,8 @@ class PixelUpdater:
         # feature, no disparity gate (``features_for_gap``); a longer one as by default, with
         # every feature too where it takes the two-view model (the correlation, which needs
         # the two-view null spaces, replaces single use).
-        short = self.correlated and tr is not None and self.options.short_gap_s is not None \
-            and (tr.t_ns - tr.t_prev_ns) * 1e-9 <= self.options.short_gap_s
+        short = self.correlated and tr is not None and self.options.is_short(
+            (tr.t_ns - tr.t_prev_ns) * 1e-9)
         two_view = short or self.two_view or (
             (ctx.two_view or keyframe) and self._two_view_in_gaps)
         near = True if short else self._near(tr)
@@ -574,13 +574,7 @@ def _whitened_block(
     nb = R_blocks.shape[1]
     rows = (nb * kept[:, None] + np.arange(nb)).reshape(-1)
     L = np.linalg.cholesky(R_blocks[kept])  # (K, d, d)
-    Gw = None if G is None else whiten_chol(G[rows].T, L).T
-    U, d = lowrank_factors(Gw)
-
-    def white(Yr: F64) -> F64:
-        Yw = whiten_chol(Yr, L)
-        return Yw if U is None else Yw - ((Yw @ U) * d) @ U.T
-
+    white = Whitening.of(L, None if G is None else whiten_chol(G[rows].T, L).T)
     # The sigma points' predictions and z whitened in one pass.
     YZ = white(np.vstack([Y[:, rows], z[rows][None, :]]))
     h = CachedModel(lambda X_: white(h_kept(X_)), X, YZ[:-1])
