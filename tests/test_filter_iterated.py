@@ -90,8 +90,8 @@ def test_an_exact_copy_in_the_prior_is_iterated_like_the_plain_update() -> None:
 
 
 def test_many_measurements_with_a_diagonal_noise_take_the_lemma_and_match_the_dense_path() -> None:
-    """nz > 12 (S + ndx) with a diagonal R: the matrix-inversion-lemma path of
-    ``iterated_update`` gives the dense path's posterior, NIS, gain and ``S⁻¹ r``."""
+    """nz > 2 S with a diagonal R: the information form of ``iterated_update`` gives the dense
+    path's posterior, NIS, gain and ``S⁻¹ r``."""
     from svains.filter.iterated import iterated_update
 
     rng = np.random.default_rng(0)
@@ -114,26 +114,54 @@ def test_many_measurements_with_a_diagonal_noise_take_the_lemma_and_match_the_de
         np.testing.assert_allclose(a, b, atol=1e-12)
 
 
-def test_a_lemma_posterior_that_is_not_positive_definite_is_solved_densely(
-        monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
-    """The lemma's subtraction can lose the small eigenvalues (a strong frame over a wide
-    prior): such an iteration is solved densely instead of stopping the run."""
-    import svains.filter.iterated as it
+def test_a_strong_frame_over_a_wide_prior_keeps_a_positive_definite_posterior() -> None:
+    """Many precise measurements over a prior metres wide (EuRoC every 25th frame with
+    correlated pixels: the earlier lemma's subtraction lost the small eigenvalues there): the
+    information form gives the exact linear posterior ``(P0^-1 + H^T R^-1 H)^-1``, positive
+    definite, where ``P0 - P0 H^T K^T`` is not."""
+    from svains.filter.iterated import iterated_update
 
     rng = np.random.default_rng(2)
-    n, nz = 3, 150
+    n, nz = 6, 300
     H = rng.normal(size=(nz, n))
-    x0, P0 = rng.normal(size=n), np.eye(n)
-    z, R = rng.normal(size=nz), np.full(nz, 0.5)
-    pts = MerweScaledSigmaPoints(n, alpha=0.7)
-    dense = it.iterated_update(Euclidean(n), pts, x0, P0, lambda X: X @ H.T, z, np.diag(R), 2)
+    x0 = rng.normal(size=n)
+    P0 = np.diag([1e4, 1e4, 1e4, 1e2, 1.0, 1e4])  # λmax 1e4, as after a 5 s gap
+    R = np.full(nz, 1e-6)
+    z = H @ (x0 + 3.0)
+    pts = MerweScaledSigmaPoints(n, alpha=0.52)
+    x, P, _, (KT, _) = iterated_update(Euclidean(n), pts, x0, P0, lambda X: X @ H.T, z, R, 2)
+    exact_P = np.linalg.inv(np.linalg.inv(P0) + H.T @ (H / R[:, None]))
+    exact_x = x0 + exact_P @ (H.T @ ((z - H @ x0) / R))
+    np.testing.assert_allclose(np.linalg.eigvalsh(P), np.linalg.eigvalsh(exact_P), rtol=1e-6)
+    np.testing.assert_allclose(P, exact_P, rtol=0, atol=1e-10 * np.abs(exact_P).max())
+    np.testing.assert_allclose(x, exact_x, rtol=1e-8)
+    # What the subtraction form gives from the same gain: not a covariance any more.
+    dense = P0 - P0 @ H.T @ KT
+    assert np.linalg.eigvalsh(0.5 * (dense + dense.T))[0] < 0
 
-    def broken(*args: object) -> tuple[np.ndarray, np.ndarray]:
-        B = args[-1]
-        assert isinstance(B, np.ndarray)
-        return 10.0 * B[:, :-1], B[:, -1:]  # a gain that makes P0 - P H^T K^T indefinite
 
-    monkeypatch.setattr(it, "_lemma_solve", broken)
-    got = it.iterated_update(Euclidean(n), pts, x0, P0, lambda X: X @ H.T, z, R, 2)
-    np.testing.assert_allclose(got[0], dense[0], atol=1e-10)
-    np.testing.assert_allclose(got[1], dense[1], atol=1e-10)
+def test_a_low_rank_noise_term_keeps_the_fast_path_and_matches_the_dense_one() -> None:
+    """``R_low_rank`` D joins the linearisation error's factor: the same posterior, NIS and
+    gain as a dense ``diag(R) + D^T D``; weights with a negative centre (alpha < 0.5176)
+    take the dense path and agree too."""
+    from svains.filter.iterated import iterated_update
+
+    rng = np.random.default_rng(3)
+    n, nz = 4, 120
+    H = rng.normal(size=(nz, n))
+
+    def h(X: np.ndarray) -> np.ndarray:
+        return np.sin(0.3 * X @ H.T) + X[:, 1:2] ** 2
+
+    x0, P0 = rng.normal(size=n), np.diag(rng.uniform(0.1, 1.0, n))
+    R, D = rng.uniform(0.5, 1.0, nz), 0.3 * rng.normal(size=(2, nz))
+    z = h(x0[None] + 0.3)[0]
+    for alpha in (0.52, 0.3):
+        pts = MerweScaledSigmaPoints(n, alpha=alpha)
+        low = iterated_update(Euclidean(n), pts, x0, P0, h, z, R, 3, R_low_rank=D)
+        dense = iterated_update(Euclidean(n), pts, x0, P0, h, z, np.diag(R) + D.T @ D, 3)
+        for a, b in zip(low[:2], dense[:2], strict=True):
+            np.testing.assert_allclose(a, b, atol=1e-12)
+        assert low[2] == pytest.approx(dense[2], rel=1e-10)
+        for a, b in zip(low[3], dense[3], strict=True):
+            np.testing.assert_allclose(a, b, atol=1e-12)

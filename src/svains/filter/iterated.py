@@ -21,7 +21,6 @@ difference, a few degrees at most). Pure numpy/scipy; the filter's conventions (
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable
 
 import numpy as np
@@ -44,24 +43,29 @@ def iterated_update(
     R: F64,
     iterations: int,
     name: str = "",
+    R_low_rank: F64 | None = None,
 ) -> tuple[F64, F64, float, tuple[F64, F64]]:
     """Posterior mean (nx,), covariance (ndx, ndx), the last iteration's NIS and (gain ``K^T``
     (nz, ndx), ``S^-1 r`` (nz,)) of fusing
     ``z`` (nz,) with model ``h`` (S, nx) -> (S, nz) and noise ``R`` (nz, nz), or its diagonal
-    (nz,), into the prior ``x0`` (nx,), ``P0`` (ndx, ndx), linearised ``iterations`` (>= 1)
-    times. A diagonal ``R`` with many measurements (nz > 12 (S + ndx)) is solved by the matrix
-    inversion lemma in O(nz (S + ndx)²) instead of O(nz³): ``H P0 H^T`` and ``Ω`` have rank
-    ndx and S at most. An iteration whose lemma posterior is not positive definite (a strong
-    frame over a prior metres wide: the lemma's subtraction loses the small eigenvalues) is
-    solved densely instead."""
+    (nz,), plus ``D^T D`` for ``R_low_rank`` = D (k, nz), into the prior ``x0`` (nx,), ``P0``
+    (ndx, ndx), linearised ``iterations`` (>= 1) times.
+
+    A diagonal ``R`` with many measurements (nz > 2 S) and non-negative covariance weights is
+    solved in information form in O(nz (S + ndx)²) instead of O(nz³) (``_low_rank_update``):
+    the linearisation error ``Ω`` and ``D^T D`` have rank S and k at most, and the posterior
+    ``L0 (I + L0^T H^T E^-1 H L0)^-1 L0^T`` (``E = R + Ω + D^T D``) is positive definite by
+    construction, whatever the strength of the frame against the prior.
+    """
     nz = z.size
-    diagonal = np.ndim(R) == 1
-    # Below 12x the low rank the dense solve costs about as little, and it reproduces to the
-    # last digits across BLAS builds (the goldens, Python 3.11 and 3.13: the lemma's LU of an
-    # indefinite capacitance moved them by 4e-9 m).
-    fast = diagonal and nz > 12 * (points.Wc.size + P0.shape[0])
-    L0 = safe_cholesky(P0, f"iterated prior covariance of {name}") if fast else None
+    D = None if R_low_rank is None else np.asarray(R_low_rank, dtype=float)
     Wm, Wc = points.Wm, points.Wc
+    fast = np.ndim(R) == 1 and nz > 2 * Wc.size and bool(np.all(Wc >= 0.0))
+    if not fast:
+        R = np.diag(R) if np.ndim(R) == 1 else R
+        if D is not None:
+            R = R + D.T @ D
+    L0 = safe_cholesky(P0, f"iterated prior covariance of {name}") if fast else None
     xj, Pj = x0, P0
     nis = float("nan")
     KT, Sr = np.zeros((nz, P0.shape[0])), np.zeros(nz)
@@ -76,45 +80,70 @@ def iterated_update(
         H = _solve_psd(Pj, Psi, name).T  # (nz, ndx)
         e0 = manifold.local(x0[None, :], xj)[0]  # the prior mean in x_j's tangent space
         r = z - y - H @ e0
-        PHt = P0 @ H.T
-        P_next = None
         if fast:
             assert L0 is not None
-            PjdX = _solve_psd(Pj, (Wc[:, None] * dX).T, name)  # (ndx, S)
-            KT, Sr = _lemma_solve(R, H @ L0, dX, dY, Wc, PjdX, np.column_stack([PHt.T, r]))
-            P_next = _posterior(P0, PHt, KT)
-            if _positive_definite(P_next):
-                Sr = Sr[:, 0]
-                nis = float(r @ Sr)
-            else:  # the lemma lost definiteness (a strong frame over a wide prior): dense
-                P_next = None
-        if P_next is None:
-            Rm = np.diag(R) if diagonal else R
+            F = _linearisation_error_factor(dY, Wc)
+            if D is not None:
+                F = np.vstack([F, D])
+            P_next, KT, dx, Sr = _low_rank_update(R, F, H @ L0, L0, r, name)
+            nis = float(r @ Sr)
+        else:
+            PHt = P0 @ H.T
             Omega = dY.T @ WdY - H @ Pj @ H.T
-            S = H @ PHt + Rm + Omega
+            S = H @ PHt + R + Omega
             L = safe_cholesky(0.5 * (S + S.T), f"iterated innovation covariance of {name}")
             KT = scipy.linalg.cho_solve((L, True), PHt.T, check_finite=False)
             w = scipy.linalg.solve_triangular(L, r, lower=True, check_finite=False)
             nis = float(w @ w)
             Sr = scipy.linalg.solve_triangular(L, w, lower=True, trans="T", check_finite=False)
             P_next = _posterior(P0, PHt, KT)
-        xj = manifold.retract(x0[None, :], (KT.T @ r)[None, :])[0]
+            dx = KT.T @ r
+        xj = manifold.retract(x0[None, :], dx[None, :])[0]
         Pj = P_next
     return xj, Pj, nis, (KT, Sr)
+
+
+def _linearisation_error_factor(dY: F64, Wc: F64) -> F64:
+    """``F`` (n + 1, nz) with ``F^T F = Ω = dY^T W dY - H Pj H^T``, the statistical
+    linearisation's error, for the Merwe points' offsets ``0, ±c L`` (``Pj = L L^T``) and
+    weights ``Wc`` (2n + 1,), all >= 0. The regression ``H`` explains the antisymmetric part
+    of each ± pair exactly, so what it leaves is the centre's deviation and each pair's
+    symmetric part (the model's curvature): ``Ω = Wc0 dY0 dY0^T + Σ_i (Wc_i / 2) s_i s_i^T``,
+    ``s_i = dY_+i + dY_-i``."""
+    n = (Wc.size - 1) // 2
+    pairs = dY[1 : n + 1] + dY[n + 1 :]
+    return np.vstack([np.sqrt(Wc[0]) * dY[:1], np.sqrt(0.5 * Wc[1 : n + 1])[:, None] * pairs])
+
+
+def _low_rank_update(
+    Rd: F64, F: F64, HL0: F64, L0: F64, r: F64, name: str
+) -> tuple[F64, F64, F64, F64]:
+    """Posterior covariance (ndx, ndx), gain ``K^T`` (nz, ndx), correction ``K r`` (ndx,) and
+    ``S^-1 r`` (nz,) for the prior ``P0 = L0 L0^T``, ``H L0`` (nz, n) and the innovation
+    covariance ``S = E + (H L0)(H L0)^T``, ``E = diag(Rd) + F^T F`` (F (m, nz), m small).
+
+    Information form: ``P+ = L0 M^-1 L0^T`` with ``M = I + (H L0)^T E^-1 H L0``,
+    ``K = P+ H^T E^-1``; ``E^-1`` and ``S^-1`` by the matrix inversion lemma. Both capacitance
+    matrices (``I + F E0^-1 F^T`` and ``M``) are symmetric and at least the identity, so the
+    Cholesky factors exist and no subtraction can make the posterior indefinite."""
+    Fd = F / Rd  # (m, nz)
+    Lf = safe_cholesky(np.eye(F.shape[0]) + Fd @ F.T, f"iterated noise capacitance of {name}")
+    B = np.column_stack([HL0, r])
+    EB = B / Rd[:, None] - Fd.T @ scipy.linalg.cho_solve((Lf, True), Fd @ B, check_finite=False)
+    Ea, Er = EB[:, :-1], EB[:, -1]
+    M = np.eye(HL0.shape[1]) + HL0.T @ Ea
+    Lm = safe_cholesky(0.5 * (M + M.T), f"iterated information capacitance of {name}")
+    Mi = scipy.linalg.cho_solve((Lm, True), np.column_stack([L0.T, HL0.T @ Er]),
+                                check_finite=False)  # fmt: skip
+    MiL0T, Mig = Mi[:, :-1], Mi[:, -1]
+    P = L0 @ MiL0T
+    return 0.5 * (P + P.T), Ea @ MiL0T, L0 @ Mig, Er - Ea @ Mig
 
 
 def _posterior(P0: F64, PHt: F64, KT: F64) -> F64:
     """``P0 - P0 H^T K^T``, symmetrised."""
     P = P0 - PHt @ KT
     return 0.5 * (P + P.T)
-
-
-def _positive_definite(P: F64) -> bool:
-    try:
-        np.linalg.cholesky(P)
-    except np.linalg.LinAlgError:
-        return False
-    return True
 
 
 def _solve_psd(P: F64, B: F64, name: str) -> F64:
@@ -125,29 +154,3 @@ def _solve_psd(P: F64, B: F64, name: str) -> F64:
         L = safe_cholesky(P, f"iterated covariance of {name}")
         return scipy.linalg.cho_solve((L, True), B, check_finite=False)
 
-
-def _lemma_solve(
-    Rd: F64, HL0: F64, dX: F64, dY: F64, Wc: F64, PjWdX: F64, B: F64
-) -> tuple[F64, F64]:
-    """``S^-1 B`` (nz, k) split as (its first k-1 columns, its last) for
-    ``S = diag(Rd) + H P0 H^T + Ω``: ``H P0 H^T = (H L0)(H L0)^T`` and
-    ``Ω = dY^T W dY - H Pj H^T = dY^T Wt dY`` with ``Wt = W - W dX Pj^-1 dX^T W`` (S, S), both
-    of low rank: ``S = diag(Rd) + U^T Λ U`` with ``U = [(H L0)^T; dY]``, ``Λ = diag(I, Wt)``,
-    and ``S^-1 = R^-1 - R^-1 U^T Λ (I + U R^-1 U^T Λ)^-1 U R^-1`` (no inverse of Λ, which is
-    singular). ``PjWdX`` = ``Pj^-1 dX^T W`` (ndx, S)."""
-    n = HL0.shape[1]
-    Wt = np.diag(Wc) - (Wc[:, None] * dX) @ PjWdX
-    U = np.vstack([HL0.T, dY])  # (n + S, nz)
-    m = U.shape[0]
-    Lam = np.zeros((m, m))
-    Lam[:n, :n] = np.eye(n)
-    Lam[n:, n:] = 0.5 * (Wt + Wt.T)
-    RiB = B / Rd[:, None]
-    RiUt = U.T / Rd[:, None]
-    cap = np.eye(m) + (U @ RiUt) @ Lam
-    with warnings.catch_warnings():
-        # An ill-conditioned capacitance is caught by the caller's definiteness check.
-        warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
-        X = scipy.linalg.solve(cap, U @ RiB, check_finite=False)
-    out = RiB - RiUt @ (Lam @ X)
-    return out[:, :-1], out[:, -1:]

@@ -258,8 +258,8 @@ class UKF:
         measurements that flags a bad linearisation without refusing every slightly
         imperfect model: at 480 dof the 0.999 quantile is 1.21 nz).
         ``iterations`` > 1 re-linearises ``h`` over the posterior that many times
-        (``filter.iterated``, plain residuals only; dense, O(nz³)); the gate then uses the last
-        linearisation's NIS.
+        (``filter.iterated``, plain residuals only; O(nz (S + ndx)²) with a diagonal ``R`` and
+        many measurements, else O(nz³)); the gate then uses the last linearisation's NIS.
         """
         z = np.asarray(z, dtype=float).ravel()
         R = np.asarray(R, dtype=float)
@@ -312,9 +312,8 @@ class UKF:
     ) -> UpdateStats:
         """``update`` with ``iterations`` posterior linearisations (``filter.iterated``) and the
         NIS threshold ``gate`` (inf: none)."""
-        Rm = R if D is None else (np.diag(R) if R.ndim == 1 else R) + D.T @ D
-        x, P, nis, gain = iterated_update(self.manifold, self.points, self.x, self.P, h, z, Rm,
-                                        iterations, name or "measurement")  # fmt: skip
+        x, P, nis, gain = iterated_update(self.manifold, self.points, self.x, self.P, h, z, R,
+                                        iterations, name or "measurement", D)  # fmt: skip
         if not np.isfinite(nis):
             raise FilterError(f"{name or 'measurement'}: non-finite innovation")
         if nis > gate:
