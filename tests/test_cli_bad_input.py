@@ -225,6 +225,29 @@ def test_a_byte_order_mark_before_the_header_is_read(base: Path, tmp_path: Path)
     np.testing.assert_array_equal(ds.imu.t_ns, plain.imu.t_ns)
 
 
+def test_imu_columns_in_another_order_are_read_by_their_header(base: Path,
+                                                               tmp_path: Path) -> None:  # fmt: skip
+    """An imu0/data.csv whose header names the accelerometer first (a user's probe,
+    2026-12-06: read in EuRoC's order, it was diagnosed as "gravity removed")."""
+    from svains.datasets import load_dataset
+
+    def accel_first(root: Path) -> None:
+        p = root / "mav0/imu0/data.csv"
+        head, *rows = p.read_text().splitlines()
+        names = head.split(",")
+        out = [",".join([names[0], *names[4:7], *names[1:4]])]
+        for row in rows:
+            f = row.split(",")
+            out.append(",".join([f[0], *f[4:7], *f[1:4]]))
+        p.write_text("\n".join(out) + "\n")
+
+    plain = load_dataset(base)
+    ds = load_dataset(_copy(base, tmp_path, accel_first))
+    assert ds.imu is not None and plain.imu is not None
+    np.testing.assert_array_equal(ds.imu.gyro_B, plain.imu.gyro_B)
+    np.testing.assert_array_equal(ds.imu.accel_B, plain.imu.accel_B)
+
+
 def _check(res: object, code: int, fragment: str) -> None:
     out, err = res.stdout, res.stderr  # type: ignore[attr-defined]
     assert res.exit_code == code, (res.exit_code, out[-500:], err[-500:])  # type: ignore[attr-defined]
@@ -333,6 +356,21 @@ USAGE_CASES: list[tuple[list[str], str]] = [
     (["evaluate", "{tmp}/a.tum", "{tmp}/a.tum", "--max-diff", "nan"], "'--max-diff'"),
     (["evaluate", "{tmp}/a.tum", "{tmp}/a.tum", "--json", "{tmp}/afile"], "exists; use --force"),
     (["info", "{ds}", "--json", "{tmp}/full"], "is a folder"),
+    # Exit 1 before (a user's probe, 2026-12-06); the --set ranges are in test_run_config.py.
+    (["simulate", "--out", "{tmp}/o", "--duration", "1e9"], "'--duration': must be at most 3600"),
+    (["simulate", "--out", "{tmp}/o", "--seed", "-1"], "'--seed'"),
+    (["simulate", "--out", "{tmp}/o", "--scenario", "foo"],
+     "'--scenario': must be 'village' or 'trajectory', got 'foo'"),
+    (["simulate", "--out", "{tmp}/o", "--imu-preset", "foo"], "'--imu-preset'"),
+    (["run", "{ds}", "--out", "{tmp}/o", "--gps-outage", "10-20"],
+     "'--gps-outage': expects START:DURATION in seconds, got '10-20'"),
+    (["run", "{ds}", "--out", "{tmp}/o", "--gps-outage", "10:-5"],
+     "'--gps-outage': expects START >= 0 and DURATION > 0"),
+    (["compare", "{ds}", "--out", "{tmp}/o", "--gps-until", "-1"], "'--gps-until'"),
+    (["frontend", "{ds}", "--out", "{tmp}/o", "--dense", "--dense-method", "foo"],
+     "'--dense-method': must be 'sgbm' or 'elas'"),
+    (["run", "{ds}", "--out", "{tmp}/o", "--set", "filter.gate_probability=0"],
+     "filter.gate_probability must be a probability in (0, 1)"),
 ]
 
 
@@ -372,8 +410,6 @@ BAD_INPUT_FILES: list[tuple[str, Callable[[Path], list[str]], str]] = [
      lambda d: ["simulate", "--out", str(d / "o"), "--config",
                 str(_write(d / "c.yaml", "gps:\n  position_noise_std: -1\n"))],
      "gps.position_noise_std must be > 0"),
-    ("simulate a duration that cannot fit in memory",
-     lambda d: ["simulate", "--out", str(d / "o"), "--duration", "1e9"], "duration_s must be in"),
     ("simulate config of the wrong type",
      lambda d: ["simulate", "--out", str(d / "o"), "--config",
                 str(_write(d / "c.yaml", "duration_s: abc\n"))], "duration_s has an invalid"),
@@ -387,6 +423,14 @@ BAD_INPUT_FILES: list[tuple[str, Callable[[Path], list[str]], str]] = [
      lambda d: ["frontend", str(d / "ds"), "--out", str(d / "o")], "0 stereo pair(s)"),
     ("run a missing data set",
      lambda d: ["run", str(d / "nothing"), "--out", str(d / "o")], "data set folder not found"),
+    # "no IMU sample was fed: nothing to estimate" before (a user's probe, 2026-12-06)
+    ("run from past the end",
+     lambda d: ["run", str(d / "ds"), "--out", str(d / "o"), "--start", "1000"],
+     "the start 1000 s (--start, replay.start_s) is past the end of its IMU stream"),
+    # "the stream ended before the initial state was decided" alone before
+    ("run a static start longer than the data",
+     lambda d: ["run", str(d / "ds"), "--out", str(d / "o"), "--set", "init.static_s=1000"],
+     "the static start needs more than init.static_s = 1000 s of IMU samples, the stream had"),
 ]
 
 
@@ -437,3 +481,13 @@ def test_a_duration_shorter_than_the_static_start_says_so(
                                   "--method", "ins", "--duration", "0.3"])  # fmt: skip
     assert res.exit_code == 0, res.output
     assert any("shorter than the static start's 2 s" in r.getMessage() for r in caplog.records)
+
+
+@pytest.mark.parametrize("frame", ["0", "51"])
+def test_a_figure_frame_without_tracks_is_refused_before_the_work(
+        kitti_a: Path, tmp_path: Path, frame: str) -> None:  # fmt: skip
+    """Frame 0 (no frame before it) or past the 51 pairs: exit 0 without the figure before."""
+    res = runner.invoke(app, ["frontend", str(kitti_a), "--out", str(tmp_path / "o"),
+                              "--figures", "--figure-frame", frame])  # fmt: skip
+    _check(res, 1, f"--figure-frame {frame}: kitti_stereo_a has 51 stereo pairs; frames 1 to 50")
+    assert not (tmp_path / "o").exists()

@@ -94,6 +94,39 @@ def test_a_gyro_in_deg_s_on_real_data_is_refused(kitti_copy: Path) -> None:
         load_dataset(kitti_copy)
 
 
+def test_gps_stamps_on_another_clock_are_found_from_the_turns() -> None:
+    """Fixes stamped 18 s late (GPS time against an IMU in UTC) or 1 s early: the course
+    matches the gyro at that shift; the stamps as given, and a multirotor flying sideways,
+    give nothing to refuse."""
+    from svains.sensors.units import gps_clock_problem, gps_clock_shift
+
+    t = np.arange(0.0, 90.0, 0.01)
+    rate = 0.3 * np.sin(2 * np.pi * t / 12.0) * (1.0 + 0.5 * np.sin(2 * np.pi * t / 31.0))
+    t_ns, gyro, accel, tg, v = _drive(rate, t)
+    shift, cosine, given, n = gps_clock_shift(t_ns, gyro, accel, tg, v, G_W)
+    assert abs(shift) < 0.1 and cosine > 0.99 and gps_clock_problem(shift, cosine, given, n) is None
+    for tau in (18.0, -1.0):
+        got = gps_clock_shift(t_ns, gyro, accel, tg + int(tau * 1e9), v, G_W)
+        assert got is not None and abs(got[0] - tau) <= 0.1 and got[1] > 0.99 and got[2] < 0.89
+        why = gps_clock_problem(*got)
+        assert why is not None and f"timeshift_gps_imu: {-tau:.1f}" in why
+    t_ns, gyro, accel, tg, v = _drive(rate, t, sideways=True)
+    got = gps_clock_shift(t_ns, gyro, accel, tg, v, G_W)
+    assert got is None or gps_clock_problem(*got) is None
+
+
+def test_gps_stamps_a_second_late_on_real_data_are_refused(kitti_copy: Path) -> None:
+    path = kitti_copy / "mav0/gps0/data.csv"
+    lines = path.read_text().splitlines()
+    out = [lines[0], *(",".join([str(int(ln.split(",")[0]) + 10**9), *ln.split(",")[1:]])
+                       for ln in lines[1:])]  # fmt: skip
+    path.write_text("\n".join(out) + "\n")
+    with pytest.raises(DatasetError, match=r"gps0/data\.csv: the GPS course turns with the gyro "
+                       r"when its stamps are moved \+1\.\d s .*stamped about 1\.\d s late "
+                       r".*timeshift_gps_imu: -1\.\d in gps0/sensor\.yaml"):
+        load_dataset(kitti_copy)
+
+
 @pytest.mark.parametrize(
     ("scale", "remove_gravity", "guess"),
     [(1.0, False, None), (1 / 9.81, False, "looks like g "), (1000 / 9.81, False, "like mg"),
@@ -130,3 +163,23 @@ def test_a_principal_point_near_the_edge_warns_of_the_intrinsics_order(
         assert caplog.text == ""  # EuRoC's own
         check_camera_calib(calib([367.2, 248.4, 458.7, 457.3]), Path("cam0/sensor.yaml"))
     assert "principal point (458.7, 457.3) px lies near the edge of the 752x480" in caplog.text
+
+
+def test_intrinsics_of_a_half_resolution_image_are_refused() -> None:
+    """EuRoC's cam0 intrinsics halved against its 752x480 images (a calibration of binned
+    images): runs ended 4-5 m off, exit 0; refused with the factor to scale them by. A
+    principal point off the middle on one axis only (a cropped image) is read."""
+    from svains.datasets.validate import check_camera_calib
+    from svains.errors import CalibrationError
+    from svains.sensors.types import CameraCalib
+
+    def calib(intrinsics: list[float]) -> CameraCalib:
+        return CameraCalib("cam0", np.eye(4), 20.0, (752, 480), np.array(intrinsics),
+                           "radtan", np.zeros(4))  # fmt: skip
+
+    with pytest.raises(CalibrationError, match=r"cam0/sensor\.yaml: the principal point "
+                       r"\(183\.6, 124\.2\) px sits at 0\.50 times the middle of the 752x480 "
+                       r"image on both axes: intrinsics of a 378x241 image\? Scale fu, fv, cu, "
+                       r"cv by 1\.99"):
+        check_camera_calib(calib([229.35, 228.65, 183.6, 124.2]), Path("cam0/sensor.yaml"))
+    check_camera_calib(calib([458.7, 457.3, 200.0, 248.4]), Path("cam0/sensor.yaml"))

@@ -188,3 +188,24 @@ def test_batch_errors_are_one_line_and_an_unwritable_campaign_folder_is_refused(
     if Path("/proc/self").is_dir():
         res = runner.invoke(app, ["batch", str(spec), "--out", "/proc/svains-campaign"])
         assert res.exit_code == 2 and "/proc/svains-campaign cannot be written" in res.stderr
+
+
+def test_georeferenced_positions_keep_their_millimetres(tmp_path: Path) -> None:
+    """A position in UTM-sized coordinates (northing 5.4e6 m) is written with its sub-millimetre
+    digits in ``states.csv`` and the EuRoC csv (9 significant digits kept only 1 cm)."""
+    import numpy as np
+
+    from svains.models.state import BIASED
+    from svains.navigation.outputs import RunResult
+    from svains.replay import writers
+
+    x = np.zeros((1, BIASED.nx))
+    x[0, 0:3] = (4_500_000.1234, 5_400_000.5678, 12.3456)
+    x[0, 6] = 1.0
+    res = RunResult(t_ns=np.array([10**18], np.int64), x=x, std=np.ones((1, BIASED.ndx)),
+                    P9=np.tile(np.eye(9), (1, 1, 1)), report={})  # fmt: skip
+    writers.write_states(tmp_path / "states.csv", res, BIASED)
+    writers.write_euroc_csv(tmp_path / "euroc.csv", res)
+    for name in ("states.csv", "euroc.csv"):
+        row = (tmp_path / name).read_text().splitlines()[1].split(",")
+        np.testing.assert_allclose([float(v) for v in row[1:4]], x[0, 0:3], rtol=0, atol=1e-6)

@@ -56,6 +56,44 @@ def test_bad_settings_name_their_key() -> None:
     assert with_settings(c, {"vision.lc_min_std": [0.1, 2]}).vision.lc_min_std == (0.1, 2.0)
 
 
+@pytest.mark.parametrize(("setting", "value", "message"), [
+    # Each accepted silently before (a user's probe, 2026-12-06): a hang, exit 0 with an ATE of
+    # kilometres, or a crash after the whole run.
+    ("output_period_s", "1e-9", r"output_period_s must be at least 0\.001 s"),
+    ("filter.gate_probability", 0, r"filter\.gate_probability must be a probability in \(0, 1\)"),
+    ("vision.feature_gate_probability", 1.5, r"vision\.feature_gate_probability must be a prob"),
+    ("init.gt_attitude_std", 0, r"init\.gt_attitude_std must be positive"),
+    ("init.gt_position_std", -1, r"init\.gt_position_std must be positive"),
+    ("noise.gyro_noise_density", -1, r"noise\.gyro_noise_density must be positive"),
+    ("noise.accel_noise_density", 0, r"noise\.accel_noise_density must be positive"),
+    ("noise.white_scale", 0, r"noise\.white_scale must be positive"),
+    ("noise.gyro_random_walk", -1e-5, r"noise\.gyro_random_walk must not be negative"),
+    ("vision.pixel_noise_std", -2, r"vision\.pixel_noise_std must be positive"),
+    ("vision.lc_min_std", [0.0, 1e-3], r"vision\.lc_min_std must be positive"),
+    ("filter.alpha", 0, r"filter\.alpha must be positive"),
+    ("filter.beta", -100, r"filter\.beta must not be negative"),
+    ("filter.kappa", -50, r"filter\.kappa must be above -9"),
+    ("gps_until_s", -1, r"gps_until_s must not be negative"),
+    ("noise.white_scale", float("nan"), r"noise\.white_scale must be finite"),
+    ("max_mag_rate_hz", float("inf"), r"max_mag_rate_hz must be finite"),
+])  # fmt: skip
+def test_numbers_out_of_their_range_are_refused_naming_the_key(
+        setting: str, value: object, message: str) -> None:  # fmt: skip
+    with pytest.raises(ConfigError, match=message):
+        with_settings(RunConfig(), {setting: value})
+
+
+def test_a_number_with_an_exponent_and_no_dot_is_a_number() -> None:
+    """YAML 1.1 reads ``1e-3`` as a string; a float option takes it as the number."""
+    from svains.navigation.config_io import parse_setting
+
+    c = with_settings(RunConfig(), dict([parse_setting("output_period_s=2e-3"),
+                                         parse_setting("noise.white_scale=1E+1")]))  # fmt: skip
+    assert c.output_period_s == 2e-3 and c.noise.white_scale == 10.0
+    with pytest.raises(ConfigError, match=r"filter\.max_predict_steps must be an integer"):
+        with_settings(RunConfig(), dict([parse_setting("filter.max_predict_steps=1e3")]))
+
+
 def test_rotation_has_one_default() -> None:
     assert VisionOptions().rotation == "clone" == RunConfig().vision.rotation
 
@@ -144,3 +182,15 @@ def test_compare_takes_the_gps_outage_switches(village_gps: Path, tmp_path: Path
     assert outage["duration_s"] == pytest.approx(4.0, abs=1e-6)
     assert rep["outage_max_error_m"] == [outage["error_max_m"]]
     assert "max err in outages" in (out / "compare.md").read_text()
+
+
+def test_an_outage_after_the_end_of_the_data_is_warned(
+        village_gps: Path, caplog: pytest.LogCaptureFixture) -> None:  # fmt: skip
+    from svains.datasets import load_dataset
+    from svains.evaluation.run import run_method
+    from svains.navigation.options import InitOptions
+
+    with caplog.at_level("WARNING", logger="svains.replay.replay"):
+        run_method(load_dataset(village_gps), "ins",
+                   RunConfig(init=InitOptions(mode="groundtruth"), gps_outages=((100.0, 5.0),)))
+    assert "the GPS outage 100:5 starts after the end of the data" in caplog.text

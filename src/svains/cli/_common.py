@@ -21,7 +21,7 @@ import math
 import os
 import sys
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
@@ -60,6 +60,18 @@ def usage_error(message: str, option: str | None = None) -> NoReturn:
 
 
 # --- option values ---------------------------------------------------------------------------
+
+
+def one_of(*names: str) -> Callable[[str | None], str | None]:
+    """Typer callback: ``None`` or one of ``names`` (else a usage error, exit 2)."""
+
+    def check(value: str | None) -> str | None:
+        if value is not None and value not in names:
+            raise typer.BadParameter(f"must be {' or '.join(repr(n) for n in names)}, got "
+                                     f"{value!r}")  # fmt: skip
+        return value
+
+    return check
 
 
 def positive_finite(value: float | None) -> float | None:
@@ -218,11 +230,28 @@ class OneLineErrorGroup(TyperGroup):
 SonarOption = Annotated[
     bool | None, typer.Option("--sonar/--no-sonar", help="Fuse sonar.")
 ]
+
+
+def gps_outages(values: list[str] | None) -> list[str] | None:
+    """Typer callback: each ``--gps-outage`` a ``START:DURATION`` pair of finite seconds,
+    START >= 0 and DURATION > 0 (else a usage error, exit 2)."""
+    for text in values or []:
+        try:
+            start, length = (float(part) for part in text.split(":"))
+        except ValueError:
+            raise typer.BadParameter(f"expects START:DURATION in seconds, got {text!r}") from None
+        if not (math.isfinite(start) and math.isfinite(length) and start >= 0 and length > 0):
+            raise typer.BadParameter(
+                f"expects START >= 0 and DURATION > 0 (finite seconds), got {text!r}")
+    return values
+
+
 GpsOutageOption = Annotated[
     list[str] | None,
     typer.Option("--gps-outage", help="START:DURATION [s from the first IMU sample fed] "
-                 "without GPS; repeatable."),
+                 "without GPS; repeatable.", callback=gps_outages),
 ]
 GpsUntilOption = Annotated[
-    float | None, typer.Option("--gps-until", help="No GPS after S seconds.")
+    float | None, typer.Option("--gps-until", help="No GPS after S seconds.",
+                               callback=non_negative_finite),
 ]

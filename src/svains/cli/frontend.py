@@ -11,8 +11,8 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from svains.cli._common import check_out_dir, fail
-from svains.errors import DatasetError, SvainsError
+from svains.cli._common import check_out_dir, fail, one_of
+from svains.errors import ConfigError, DatasetError, SvainsError
 
 
 def _frontend(
@@ -25,7 +25,8 @@ def _frontend(
                            "bundle adjustment (vo's default); --no-bundle: RANSAC's alone.")
     ] = True,
     dense_method: Annotated[
-        str, typer.Option("--dense-method", help="sgbm or elas (needs pyelas).")
+        str, typer.Option("--dense-method", help="sgbm or elas (needs pyelas).",
+                         callback=one_of("sgbm", "elas"))
     ] = "sgbm",
     figure_frame: Annotated[
         int, typer.Option("--figure-frame", help="Frame index of fig. 8 (-1: middle).")
@@ -62,6 +63,9 @@ def _frontend(
         with replaced_dir(out, owned) as stage:
             n = int(pairs[0].size)
             pick = figure_frame if figure_frame >= 0 else n // 2
+            if figures and not 1 <= pick < n:
+                raise ConfigError(f"--figure-frame {figure_frame}: {ds.name} has {n} stereo "
+                                  f"pairs; frames 1 to {n - 1} have tracks to draw")  # fmt: skip
             drawn: list[Path] = []
 
             def on_frame(i: int, tracks, fe) -> None:  # type: ignore[no-untyped-def]
@@ -91,6 +95,8 @@ def _frontend(
     console.print(json.dumps(report, indent=2))
     for p in drawn:
         console.print(f"figure: {out / p.name}")
+    if figures and not drawn:
+        typer.echo(f"warning: frame {pick} gave no tracks: figure 8 not drawn", err=True)
 
 
 def register(app: typer.Typer) -> None:

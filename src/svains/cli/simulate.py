@@ -8,8 +8,18 @@ from typing import Annotated
 
 import typer
 
-from svains.cli._common import check_out_dir, fail, positive_finite, stereo_rate
+from svains.cli._common import check_out_dir, fail, one_of, positive_finite, stereo_rate
 from svains.errors import SvainsError
+
+
+def _flight_duration(value: float | None) -> float | None:
+    """Typer callback: ``None`` or a finite duration in (0, MAX_DURATION_S] seconds."""
+    from svains.sim.config import MAX_DURATION_S
+
+    value = positive_finite(value)
+    if value is not None and value > MAX_DURATION_S:
+        raise typer.BadParameter(f"must be at most {MAX_DURATION_S:g} s, got {value:g}")
+    return value
 
 
 def register(app: typer.Typer) -> None:
@@ -20,13 +30,15 @@ def register(app: typer.Typer) -> None:
         scenario: Annotated[str, typer.Option(
             "--scenario", help="'village': the paper's rectangle at 2 m altitude and 2 m/s "
             "through a textured village; 'trajectory': follow a TUM file (see --trajectory).",
+            callback=one_of("village", "trajectory"),
         )] = "village",
         duration: Annotated[float | None, typer.Option(
-            "--duration", help="Flight duration in seconds (default 110, or the config's).",
-            callback=positive_finite,
+            "--duration", help="Flight duration in seconds (default 110, or the config's; at "
+            "most 3600).",
+            callback=_flight_duration,
         )] = None,
         seed: Annotated[int | None, typer.Option(
-            "--seed", help="Seed of every random draw (world layout, sensor noise).",
+            "--seed", help="Seed of every random draw (world layout, sensor noise).", min=0,
         )] = None,
         camera_rate: Annotated[float | None, typer.Option(
             "--camera-rate", help="Stereo frame rate in Hz, up to 20 (default 2, as the paper).",
@@ -47,6 +59,7 @@ def register(app: typer.Typer) -> None:
         imu_preset: Annotated[str | None, typer.Option(
             "--imu-preset", help="'paper' (Table 1 noise, no bias drift) or 'adis16448' "
             "(EuRoC ADIS16448 noise and bias random walk).",
+            callback=one_of("paper", "adis16448"),
         )] = None,
         force: Annotated[bool, typer.Option(
             "--force", help="Replace the data set already in --out (its mav0/).",

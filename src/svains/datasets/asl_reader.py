@@ -120,7 +120,32 @@ def read_imu(folder: Path) -> tuple[ImuStream, ImuCalib]:
         ),
     )
     check_imu_calib(calib, ypath)
+    a = a[:, _imu_columns(folder / "data.csv")]
     return ImuStream(t_ns=t, gyro_B=a[:, 0:3], accel_B=a[:, 3:6]), calib
+
+
+def _imu_columns(path: Path) -> list[int]:
+    """The order (6,) that puts an IMU ``data.csv``'s value columns as gyro x y z, accelerometer
+    x y z: EuRoC's order, or the one its header names (``w_RS_S_x`` … ``a_RS_S_z``, or any
+    names starting ``w_``/``gyro`` and ``a_``/``acc`` and ending in the axis) when it has
+    one naming all six."""
+    with open(path, encoding="utf-8-sig", errors="replace") as fh:
+        first = fh.readline().strip()
+    if not first.startswith("#"):
+        return list(range(6))
+    names = [f.strip().lower().split(" ")[0] for f in first.lstrip("#").split(",")[1:]]
+    order: list[int] = []
+    for kind in (("w_", "gyro"), ("a_", "acc")):
+        for axis in "xyz":
+            hits = [i for i, n in enumerate(names) if n.startswith(kind) and n.endswith(axis)]
+            if len(hits) != 1:
+                return list(range(6))
+            order.append(hits[0])
+    if sorted(order) != list(range(6)):
+        return list(range(6))
+    if order != list(range(6)):
+        log.info("%s: columns read by the header's names (%s)", path, ", ".join(names))
+    return order
 
 
 def read_camera_calib(folder: Path, t_ns: np.ndarray | None = None) -> CameraCalib:

@@ -29,6 +29,8 @@ from svains.errors import CalibrationError, DatasetError
 from svains.sensors.units import (
     accel_units_problem,
     course_turn_problem,
+    gps_clock_problem,
+    gps_clock_shift,
     gps_course_vs_imu_turn,
     mag_turn_problem,
     mag_turn_vs_gyro,
@@ -46,6 +48,9 @@ MIN_BASELINE_M = 1e-3  # any real stereo rig has centimetres
 # Lenses sit near the sensor's middle; a principal point outside this fraction of the image
 # is more often a calibration in another order than a cropped image (warned, not refused).
 PRINCIPAL_POINT_BAND = (0.1, 0.9)
+# A principal point this far (relative) towards the origin on both axes by the same factor is
+# the intrinsics of a smaller image (refused: runs ended metres off with nothing else said).
+PRINCIPAL_POINT_SCALE_OFF = 0.3
 # Wide-baseline rigs reach metres; tens of metres is a calibration written in millimetres.
 MAX_BASELINE_M = 20.0
 # A GPS whose positions cover less than this fraction of the path its velocities integrate to
@@ -139,6 +144,17 @@ def check_camera_calib(c: CameraCalib, path: Path) -> None:
         log.warning("%s: the principal point (%.1f, %.1f) px lies near the edge of the %dx%d "
                     "image: intrinsics in another order? (svains reads [fu, fv, cu, cv])",
                     path, cu, cv, w, h)  # fmt: skip
+        return
+    # Both coordinates towards the origin by the same factor: the intrinsics of the same camera
+    # at a lower resolution (a calibration of binned or scaled images).
+    su, sv = cu / (0.5 * w), cv / (0.5 * h)
+    if max(su, sv) < 1.0 - PRINCIPAL_POINT_SCALE_OFF and abs(su - sv) < 0.1 * max(su, sv):
+        s = 0.5 * (su + sv)
+        raise CalibrationError(
+            f"{path}: the principal point ({cu:.1f}, {cv:.1f}) px sits at {s:.2f} times the "
+            f"middle of the {w}x{h} image on both axes: intrinsics of a "
+            f"{round(s * w)}x{round(s * h)} image? Scale fu, fv, cu, cv by {1.0 / s:.3g} to "
+            f"the images' resolution")
 
 
 def check_gps_calib(c: GpsCalib, path: Path) -> None:
@@ -269,6 +285,11 @@ def check_gps_against_gyro(ds: Dataset, path: Path, imu_path: Path) -> None:
     if problem is not None:
         kind, why = problem
         raise DatasetError(f"{imu_path if kind == 'gyro' else path}: {why}")
+    shift = gps_clock_shift(ds.imu.t_ns, ds.imu.gyro_B, ds.imu.accel_B, ds.gps.t_ns,
+                            ds.gps.velocity_or_differenced(), np.asarray(ds.gravity_W, float))
+    clock = None if shift is None else gps_clock_problem(*shift)
+    if clock is not None:
+        raise DatasetError(f"{path}: {clock}")
 
 
 def mag_frame_turn(ds: Dataset) -> tuple[float, int, float] | None:

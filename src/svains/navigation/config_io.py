@@ -8,6 +8,7 @@ Values are type-checked against the dataclass fields (bool, int, float, str, ``L
 from __future__ import annotations
 
 import dataclasses
+import re
 import types
 import typing
 from pathlib import Path
@@ -17,6 +18,9 @@ import yaml
 
 from svains.errors import ConfigError
 from svains.navigation.options import RunConfig
+
+# A decimal number with an exponent and no dot, which YAML 1.1 (PyYAML) leaves a string.
+_DECIMAL = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
 
 
 def to_dict(config: Any) -> dict[str, Any]:
@@ -74,6 +78,8 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
             raise ConfigError(f"{key} must be an integer, got {value!r}")
         return value
     if tp is float:
+        if isinstance(value, str) and _DECIMAL.fullmatch(value.strip()):
+            value = float(value)  # YAML 1.1 reads 1e-9 (no dot) as a string
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{key} must be a number, got {value!r}")
         return float(value)

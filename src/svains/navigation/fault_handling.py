@@ -71,12 +71,15 @@ NAV9 = slice(0, 9)  # δp, δv, δθ in the tangent space (``models.state``)
 
 
 class RateLimitedLog:
-    """Warnings at most once per ``interval_ns`` of data time per kind; the rest are counted."""
+    """Warnings at most once per ``interval_ns`` of data time per kind; the rest are counted.
+    Each is stamped in seconds from ``origin_ns`` (the first IMU sample fed, set by the
+    Navigator: the time ``--start`` and ``--gps-outage`` count in) when it is set."""
 
     def __init__(self, interval_s: float) -> None:
         self._interval_ns = int(interval_s * 1e9)
         self._last: dict[str, int] = {}
         self._suppressed: dict[str, int] = {}
+        self.origin_ns: int | None = None
 
     def warn(self, kind: str, t_ns: int, message: str) -> None:
         last = self._last.get(kind)
@@ -86,7 +89,10 @@ class RateLimitedLog:
         more = self._suppressed.pop(kind, 0)
         self._last[kind] = t_ns
         tail = f" ({more} more since the last warning)" if more else ""
-        log.warning("t=%.3f s: %s%s", t_ns * 1e-9, message, tail)
+        if self.origin_ns is None:
+            log.warning("t=%.3f s: %s%s", t_ns * 1e-9, message, tail)
+        else:
+            log.warning("%.3f s into the run: %s%s", (t_ns - self.origin_ns) * 1e-9, message, tail)
 
 
 @dataclass

@@ -214,9 +214,13 @@ class GpsLatencyCheck:
         if got is None or self.warned is not None:
             return
         lag, std, fit, delta = got
-        if fit > MAX_FIT or delta < max(MIN_DELTA_DEVIANCE, MIN_DELTA_PER_STEP * self.steps):
+        if delta < max(MIN_DELTA_DEVIANCE, MIN_DELTA_PER_STEP * self.steps):
             return
         edge = lag <= self.shifts_s[0] + STEP_S / 2 or lag >= self.shifts_s[-1] - STEP_S / 2
+        if not edge and fit > MAX_FIT:
+            return
+        # A shift beyond the grid cannot fit at its edge: warned whatever the misfit, as long
+        # as the edge explains the steps far better than the stamps as given.
         if edge:
             self.warned = "beyond"
             log.warning(

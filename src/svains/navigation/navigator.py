@@ -121,6 +121,8 @@ class Navigator:
         # The one place IMU samples enter the estimator.
         if self.status in ("finished", "closed"):
             return
+        if self._warn.origin_ns is None:
+            self._warn.origin_ns = int(t_ns)  # warnings count seconds from here
         last = self.history.last_ns
         if last is not None and t_ns <= last:
             self.queue.drop("imu", t_ns, "stamp not after the previous IMU sample")
@@ -246,7 +248,8 @@ class Navigator:
                         f"in-flight start from vision: the stream ended before "
                         f"{self.config.init.vision_window_s:g} s of linked stereo frames (the "
                         f"last chain: {len(odo.t_ns)} frames over {odo.span_s():.2f} s)")
-                raise ConfigError("the stream ended before the initial state was decided")
+                raise InitialisationError("the stream ended before the initial state was "
+                                          f"decided: {self.starter.waiting_for(self.history)}")
             self._finish(end)
         if self.core is None:
             raise ConfigError("no IMU sample was fed: nothing to estimate")

@@ -6,6 +6,7 @@ Every option has one default, here. ``svains.navigation.config_io`` gives the YA
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Literal
@@ -877,8 +878,10 @@ class RunConfig:
             raise ConfigError(
                 f"init.mode must be static, gps, groundtruth or vision, got {self.init.mode!r}"
             )
-        if not self.output_period_s > 0:
-            raise ConfigError(f"output_period_s must be positive, got {self.output_period_s}")
+        _check_numbers(self, "")
+        if not self.output_period_s >= MIN_OUTPUT_PERIOD_S:
+            raise ConfigError(f"output_period_s must be at least {MIN_OUTPUT_PERIOD_S} s (outputs "
+                              f"at 1 kHz at most), got {self.output_period_s}")  # fmt: skip
         for start, length in self.gps_outages:
             if length < 0:
                 raise ConfigError(f"gps_outages: negative duration {length} at {start} s")
@@ -886,3 +889,56 @@ class RunConfig:
 
 # The name before the typed configuration (``svains.evaluation.run.run_method`` callers).
 RunOptions = RunConfig
+
+
+MIN_OUTPUT_PERIOD_S = 1e-3
+# Ranges by the option's name, checked for every section (``_check_numbers``): a name ending in
+# one of these is a quantity that cannot be zero (a standard deviation, a noise density, a rate,
+# a scale or inflation factor), cannot be negative (a duration, a random walk, a pixel or metre
+# bound), or a probability.
+_POSITIVE_SUFFIXES = ("_std", "_std_deg", "_std_ms", "_std_mps", "_noise_density", "_scale",
+                      "_hz", "_factor", "_inflation")  # fmt: skip
+_NON_NEGATIVE_SUFFIXES = ("_s", "_walk", "_density", "_px", "_dev", "_mps", "_drift", "_error",
+                          "_fraction", "_max", "_dof", "_m")  # fmt: skip
+_POSITIVE = {"filter.alpha", "vision.lc_min_std", "vision.motion_prior_min_std"}
+_NON_NEGATIVE = {"filter.beta"}
+# n + kappa > 0 for the smallest state (position, velocity, attitude: 9), so that the sigma
+# points' n + lambda = alpha² (n + kappa) is positive for every state.
+_MIN_KAPPA = -9.0
+
+
+def _check_numbers(obj: object, prefix: str) -> None:
+    """Refuse (``ConfigError`` naming the dotted key) a non-finite number in any option of
+    ``obj`` and its sections, and a number outside its range by the option's name: ``*_probability``
+    in (0, 1), the ``_POSITIVE_SUFFIXES`` above zero, the ``_NON_NEGATIVE_SUFFIXES`` not below
+    it (None stays allowed where the option is optional)."""
+    for f in dataclasses.fields(obj):  # type: ignore[arg-type]
+        key, value = prefix + f.name, getattr(obj, f.name)
+        if dataclasses.is_dataclass(value):
+            _check_numbers(value, key + ".")
+            continue
+        numbers = _floats(value)
+        if not numbers:
+            continue
+        if not all(math.isfinite(v) for v in numbers):
+            raise ConfigError(f"{key} must be finite, got {value!r}")
+        if key.endswith("_probability") and not all(0 < v < 1 for v in numbers):
+            raise ConfigError(f"{key} must be a probability in (0, 1), got {value!r}")
+        if (key in _POSITIVE or key.endswith(_POSITIVE_SUFFIXES)) and min(numbers) <= 0:
+            raise ConfigError(f"{key} must be positive, got {value!r}")
+        if (key in _NON_NEGATIVE or key.endswith(_NON_NEGATIVE_SUFFIXES)) and min(numbers) < 0:
+            raise ConfigError(f"{key} must not be negative, got {value!r}")
+        if key == "filter.kappa" and not value > _MIN_KAPPA:
+            raise ConfigError(f"filter.kappa must be above {_MIN_KAPPA:g} (the sigma points need "
+                              f"n + kappa > 0 for a 9-dof state), got {value!r}")  # fmt: skip
+
+
+def _floats(value: object) -> list[float]:
+    """The float numbers of an option's value (a float, or a tuple of them, nested)."""
+    if isinstance(value, bool) or value is None:
+        return []
+    if isinstance(value, (int, float)):
+        return [float(value)]
+    if isinstance(value, tuple):
+        return [v for item in value for v in _floats(item)]
+    return []

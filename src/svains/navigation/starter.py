@@ -119,6 +119,19 @@ class Starter:
             return None
         return initialise(self._data(history), self.layout, o)
 
+    def waiting_for(self, history: ImuHistory) -> str:
+        """What the start still lacked when the stream ended (one clause, for the error)."""
+        o = self.options
+        got = 0.0 if history.n == 0 else (history.last_ns - int(history.t_ns[0])) * 1e-9
+        if self.given is not None:
+            return (f"the given initial state is stamped {self.given.t_ns} ns, after the last "
+                    f"IMU sample")  # fmt: skip
+        if o.mode == "gps":
+            return (f"init.mode gps needs {self._gps_needed()} GPS fixes (2 with velocities, 3 "
+                    f"positions only), the stream had {len(self._gps)} over {got:.2f} s of IMU")
+        return (f"the static start needs more than init.static_s = {o.static_s:g} s of IMU "
+                f"samples, the stream had {got:.2f} s")  # fmt: skip
+
     def _vision_start(self, history: ImuHistory, horizon_ns: int) -> InitialState | None:
         """Once the odometry spans ``init.vision_window_s`` in one chain and the IMU covers it:
         the fit (``navigation.vision_start``) at the first IMU sample from its first frame."""

@@ -11,6 +11,7 @@ pairs are decoded one ahead on a thread (PNG decoding releases the GIL). The run
 from __future__ import annotations
 
 import heapq
+import logging
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
@@ -42,6 +43,8 @@ from svains.threads import limit_threads
 
 ProgressFn = Callable[[float], None]
 _GPS, _MAG, _SONAR, _FRAME, _IMU = range(5)
+
+log = logging.getLogger(__name__)
 
 
 def rig_from_dataset(ds: Dataset) -> Rig:
@@ -223,6 +226,15 @@ def replay(
                                "image-based vision needs at least 2")
     t_imu = np.asarray(ds.imu.t_ns, np.int64)
     t0 = int(t_imu[0]) + int(config.replay.start_s * 1e9)
+    if t0 >= int(t_imu[-1]):
+        raise DatasetError(f"{ds.name}: the start {config.replay.start_s:g} s (--start, "
+                           f"replay.start_s) is past the end of its IMU stream, "
+                           f"{(int(t_imu[-1]) - int(t_imu[0])) * 1e-9:.2f} s long")  # fmt: skip
+    span_s = (int(t_imu[-1]) - t0) * 1e-9  # outages count from the first sample fed
+    for start, length in config.gps_outages:
+        if start >= span_s:
+            log.warning("the GPS outage %g:%g starts after the end of the data (%.1f s of IMU "
+                        "from the start): nothing is cut", start, length, span_s)  # fmt: skip
     init = None
     if config.init.mode == "groundtruth":
         init = groundtruth_start(ds, config, t0 if config.replay.start_s > 0 else None)

@@ -8,6 +8,7 @@ with a ``report.json`` holds a complete run.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -91,13 +92,19 @@ def _layout_of(result: RunResult) -> StateLayout:
     return BIASED if result.x.shape[-1] == BIASED.nx else PAPER
 
 
+def _csv_row(values: Sequence[float] | np.ndarray) -> str:
+    """Comma-separated values, 9 significant digits, the first three (a position, m) 15: a
+    georeferenced position (UTM northings reach 1e7 m) keeps its micrometres."""
+    return ",".join([*(f"{v:.15g}" for v in values[:3]), *(f"{v:.9g}" for v in values[3:])])
+
+
 def write_states(path: Path, result: RunResult, layout: StateLayout) -> None:
     """``states.csv``: t ns, the state (``layout.nx``) and its tangent standard deviations."""
     header = ",".join(["t_ns", *_STATE_NAMES[: layout.nx], *_STD_NAMES[: layout.ndx]])
     with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
         fh.write(header + "\n")
         for t, xs, ss in zip(result.t_ns, result.x, result.std, strict=True):
-            fh.write(f"{int(t)}," + ",".join(f"{v:.9g}" for v in np.concatenate([xs, ss])) + "\n")
+            fh.write(f"{int(t)}," + _csv_row(np.concatenate([xs, ss])) + "\n")
 
 
 def write_smoothed_outputs(out_dir: Path, smoothed: RunResult) -> None:
@@ -129,8 +136,7 @@ def write_euroc_csv(path: Path, result: RunResult) -> None:
     with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
         fh.write(EUROC_HEADER + "\n")
         for t, xs, b in zip(result.t_ns, x, biases, strict=True):
-            vals = (*xs[0:3], *xs[6:10], *xs[3:6], *b)
-            fh.write(f"{int(t)}," + ",".join(f"{v:.9g}" for v in vals) + "\n")
+            fh.write(f"{int(t)}," + _csv_row((*xs[0:3], *xs[6:10], *xs[3:6], *b)) + "\n")
 
 
 def write_pose_covariance(path: Path, result: RunResult) -> None:

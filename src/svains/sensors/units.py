@@ -204,3 +204,76 @@ def mag_turn_problem(cosine: float, n: int, turn_deg: float) -> str | None:
             "the body"
         )
     return None
+
+
+# The GPS stamps against the IMU's clock, seconds apart (a receiver stamping GPS time against
+# an IMU in UTC: 18 s; a driver's buffer: a second): the course's turns are matched against
+# the gyro's over steps of GPS_TURN_STEP_S with the gyro's interval shifted by each shift of
+# -GPS_CLOCK_MAX_S … +GPS_CLOCK_MAX_S (GPS_CLOCK_STEP_S apart). Steps where the course turns
+# GPS_TURN_MIN_DEG or more while moving count; at least GPS_CLOCK_MIN_STEPS of them. A best
+# shift of GPS_CLOCK_MIN_S or more (the online latency search covers less,
+# ``navigation.gps_latency``) whose cosine reaches GPS_CLOCK_COSINE while the stamps as given
+# fall GPS_CLOCK_MARGIN below it says the clocks differ (KITTI raw as shipped: 0.998 at +0.1 s,
+# a car's course lagging its heading, against 0.995 as stamped).
+GPS_CLOCK_MAX_S = 30.0
+GPS_CLOCK_STEP_S = 0.05
+GPS_CLOCK_MIN_S = 0.5
+GPS_CLOCK_MIN_STEPS = 6
+GPS_CLOCK_COSINE = 0.9
+GPS_CLOCK_MARGIN = 0.1
+
+
+def gps_clock_shift(
+    imu_t_ns: NDArray[np.int64], gyro_S: NDArray[np.float64], accel_S: NDArray[np.float64],
+    gps_t_ns: NDArray[np.int64], v_W_G: NDArray[np.float64], g_W: NDArray[np.float64],
+) -> tuple[float, float, float, int] | None:
+    """The shift (s, positive: fixes stamped late) that best matches the GPS course's turns to
+    the gyro's, its cosine, the cosine of the stamps as given and the steps used; None without
+    ``GPS_CLOCK_MIN_STEPS`` turning steps. Like ``gps_course_vs_imu_turn``, no mounting
+    calibration is needed; a vehicle that flies sideways (a multirotor) matches at no shift."""
+    if len(imu_t_ns) < 3 or len(gps_t_ns) < 2:
+        return None
+    t, _, turn = _vertical_turn(imu_t_ns, gyro_S, accel_S)
+    tg = (gps_t_ns - imu_t_ns[0]) * 1e-9
+    steps = np.unique(np.searchsorted(tg, np.arange(tg[0], tg[-1], GPS_TURN_STEP_S)))
+    steps = steps[steps < tg.size]
+    if steps.size < 2:
+        return None
+    up_W = -g_W / np.linalg.norm(g_W)
+    e1 = np.cross(up_W, (1.0, 0.0, 0.0) if abs(up_W[0]) < 0.9 else (0.0, 1.0, 0.0))
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up_W, e1)
+    v = v_W_G[steps]
+    speed = np.hypot(v @ e1, v @ e2)
+    d_course = np.angle(np.exp(1j * np.diff(np.arctan2(v @ e2, v @ e1))))
+    ok = ((speed[1:] > GPS_TURN_MIN_SPEED_M_S) & (speed[:-1] > GPS_TURN_MIN_SPEED_M_S)
+          & (np.abs(d_course) > np.radians(GPS_TURN_MIN_DEG)))  # fmt: skip
+    if ok.sum() < GPS_CLOCK_MIN_STEPS:
+        return None
+    a = d_course[ok]
+    t0, t1 = tg[steps[:-1]][ok], tg[steps[1:]][ok]
+    shifts = np.arange(-GPS_CLOCK_MAX_S, GPS_CLOCK_MAX_S + GPS_CLOCK_STEP_S / 2, GPS_CLOCK_STEP_S)
+    # A fix stamped tau late held at its stamp minus tau: the gyro's turn over the interval
+    # shifted back; intervals outside the IMU's span give no turn (np.interp holds the ends).
+    b = (np.interp(t1[None, :] - shifts[:, None], t, turn)
+         - np.interp(t0[None, :] - shifts[:, None], t, turn))  # fmt: skip
+    norm = np.sqrt((a @ a) * np.einsum("ij,ij->i", b, b))
+    cosine = np.where(norm > 0, (b @ a) / np.where(norm > 0, norm, 1.0), 0.0)
+    k = int(np.argmax(cosine))
+    given = float(cosine[int(np.argmin(np.abs(shifts)))])
+    return float(shifts[k]), float(cosine[k]), given, int(ok.sum())
+
+
+def gps_clock_problem(shift_s: float, cosine: float, given: float, n: int) -> str | None:
+    """The line to refuse GPS stamps on another clock (``gps_clock_shift``'s figures), or
+    None."""
+    if (abs(shift_s) >= GPS_CLOCK_MIN_S and cosine >= GPS_CLOCK_COSINE
+            and given < cosine - GPS_CLOCK_MARGIN and n >= GPS_CLOCK_MIN_STEPS):  # fmt: skip
+        return (
+            f"the GPS course turns with the gyro when its stamps are moved {shift_s:+.1f} s "
+            f"(cosine {cosine:.2f} over {n} turns; {given:.2f} as stamped): the fixes are "
+            f"stamped about {abs(shift_s):.1f} s {'late' if shift_s > 0 else 'early'} against "
+            f"the IMU's clock (GPS time against UTC: 18 s); give timeshift_gps_imu: "
+            f"{-shift_s:.1f} in gps0/sensor.yaml (the run's latency check finds what remains)"
+        )
+    return None
