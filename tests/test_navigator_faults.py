@@ -529,3 +529,21 @@ def test_a_magnetometer_turned_by_steel_is_held_not_followed(flight: Path) -> No
     # ``ins`` has no other heading witness: its lean may be the disturbance's end, kept
     assert held.report["recovery"]["lean_unfuse"] is True
     assert _run(turned, "ins").report["recovery"]["lean_unfuse"] is False
+
+
+def test_frames_seconds_apart_are_not_each_warned_as_a_vision_gap(
+        flight: Path, caplog: pytest.LogCaptureFixture) -> None:  # fmt: skip
+    """Every 6th frame (3 s apart), each fused: at most the start's wait is warned (a user's
+    every 25th frame on EuRoC printed a warning at each of its 28 frames); frames refused
+    are still warned, past 2.5 of the stream's spacings."""
+    ds = load_dataset(flight)
+    cfg = with_settings(RunConfig(method="3d", init=InitOptions(mode="groundtruth")),
+                        {"vision.frame_stride": 6})  # fmt: skip
+    with caplog.at_level("WARNING", logger="svains.navigation.fault_handling"):
+        res = run_method(ds, "3d", cfg)
+    gaps = [r for r in caplog.records if "no vision fused" in r.getMessage()]
+    assert res.report["vision"]["frames_fused"] >= 2 and len(gaps) <= 1
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="svains.navigation.fault_handling"):
+        run_method(ds, "3d", with_settings(cfg, {"vision.min_features": 100000}))
+    assert any("no vision fused" in r.getMessage() for r in caplog.records)

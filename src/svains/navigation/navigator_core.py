@@ -9,6 +9,7 @@ measurement update is known.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 from collections.abc import Callable
 from typing import Any
@@ -40,6 +41,9 @@ from svains.navigation.vision_gaps import vision_gap_report
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames
 from svains.navigation.zupt import StaticTest, zero_velocity_block
 from svains.sensors.types import Rig
+
+# A stretch without fused vision is warned past this many of the stream's frame spacings.
+VISION_GAP_SPACINGS = 2.5
 
 
 class Core:
@@ -87,6 +91,8 @@ class Core:
                           if config.faults.consistency else None)  # fmt: skip
         self._vision_fused_t: list[int] = []
         self._vision_warned_gap = False
+        # the last frames' spacings (ns): a gap is judged against the stream's own rate
+        self._frame_spacing: collections.deque[int] = collections.deque(maxlen=31)
         self._next_keep_ns = self.t0_ns  # when ``_keep_imu`` runs next
         # An in-flight start (``init.mode`` gps or vision) has no start's rest to hold: a car
         # cruising passes the IMU's rest test, and with the wide velocity of a start from
@@ -384,6 +390,8 @@ class Core:
             updater.after_frame(ctx)  # pose clones (rotation="clone")
         if stats is not None:
             self._record(stats, cfg.method, t)
+        if self._t_prev_frame is not None:
+            self._frame_spacing.append(t - self._t_prev_frame)
         self._t_prev_frame = t
 
     def _vision_apply(
@@ -460,12 +468,17 @@ class Core:
             self._vision_warned_gap = False
 
     def _check_vision_gap(self, t: int) -> None:
-        """Warn once per stretch without fused vision longer than ``faults.vision_max_gap_s``."""
+        """Warn once per stretch without fused vision longer than ``faults.vision_max_gap_s``,
+        or than 2.5 frame spacings (the median of the last 30) where frames come further apart
+        (a user's every 25th frame, 5 s: a warning at every frame said nothing)."""
         if self.config.method == "ins" or self._vision_warned_gap:
             return
         since = self._vision_fused_t[-1] if self._vision_fused_t else self.t0_ns
         gap_s = (t - since) * 1e-9
-        if gap_s > self.config.faults.vision_max_gap_s:
+        limit = self.config.faults.vision_max_gap_s
+        if self._frame_spacing:
+            limit = max(limit, VISION_GAP_SPACINGS * 1e-9 * float(np.median(self._frame_spacing)))
+        if gap_s > limit:
             self._vision_warned_gap = True
             self._warn.warn("vision-gap", t, f"{self.config.method}: no vision fused for "
                             f"{gap_s:.1f} s: the estimate is inertial only")  # fmt: skip
