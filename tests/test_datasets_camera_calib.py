@@ -81,3 +81,18 @@ def test_bad_distortion_is_rejected(tmp_path: Path, model: str, coeffs: str, mes
     _set_distortion(root / "mav0" / "cam1" / "sensor.yaml", model, coeffs)
     with pytest.raises(CalibrationError, match=f"cam1/sensor.yaml: {message}"):
         load_dataset(root)
+
+
+def test_a_camera_without_distortion_coefficients_is_read_undistorted_and_warned(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:  # fmt: skip
+    """A user's probe (2026-12-06): the field left out was read as no distortion silently."""
+    root = tmp_path / "ds"
+    write_full(root)
+    path = root / "mav0" / "cam0" / "sensor.yaml"
+    path.write_text("\n".join(ln for ln in path.read_text().splitlines()
+                              if not ln.startswith("distortion_coefficients")) + "\n")
+    with caplog.at_level("WARNING", logger="svains.datasets.asl_reader"):
+        ds = load_dataset(root)
+    assert ds.cam0 is not None and not ds.cam0.distortion.any()
+    assert "cam0/sensor.yaml: no 'distortion_coefficients': the lens is taken as undistorted" \
+        in caplog.text

@@ -160,6 +160,9 @@ def read_camera_calib(folder: Path, t_ns: np.ndarray | None = None) -> CameraCal
     if model != "pinhole":
         raise CalibrationError(f"{ypath}: camera_model '{model}' is not supported (pinhole only)")
     dist_model = str(y.get("distortion_model", "radial-tangential"))
+    if y.get("distortion_coefficients") is None:
+        log.warning("%s: no 'distortion_coefficients': the lens is taken as undistorted (write "
+                    "[0.0, 0.0, 0.0, 0.0] to say so)", ypath)  # fmt: skip
     try:
         canonical = canonical_model(dist_model)
         dist = (
