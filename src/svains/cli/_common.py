@@ -28,7 +28,7 @@ from typing import Annotated, Any, NoReturn
 import typer
 from typer.core import TyperGroup
 
-from svains.errors import SvainsError
+from svains.errors import ConfigError, SvainsError
 from svains.outputs import TMP_PREFIX, holds_working_dir
 
 EXIT_OK = 0
@@ -232,17 +232,28 @@ SonarOption = Annotated[
 ]
 
 
+def parse_outage(text: str) -> tuple[float, float]:
+    """``--gps-outage`` ``START:DURATION`` (seconds) -> (start, duration): ConfigError unless
+    both are finite, START >= 0 and DURATION > 0."""
+    try:
+        a, b = text.split(":")
+        start, length = float(a), float(b)
+    except ValueError as exc:
+        raise ConfigError(f"--gps-outage expects START:DURATION in seconds, got {text!r}") from exc
+    if not (math.isfinite(start) and math.isfinite(length) and start >= 0 and length > 0):
+        raise ConfigError(f"--gps-outage expects START >= 0 and DURATION > 0 (finite seconds), "
+                          f"got {text!r}")  # fmt: skip
+    return start, length
+
+
 def gps_outages(values: list[str] | None) -> list[str] | None:
-    """Typer callback: each ``--gps-outage`` a ``START:DURATION`` pair of finite seconds,
-    START >= 0 and DURATION > 0 (else a usage error, exit 2)."""
+    """Typer callback: each ``--gps-outage`` read by ``parse_outage`` (else a usage error,
+    exit 2, naming the option)."""
     for text in values or []:
         try:
-            start, length = (float(part) for part in text.split(":"))
-        except ValueError:
-            raise typer.BadParameter(f"expects START:DURATION in seconds, got {text!r}") from None
-        if not (math.isfinite(start) and math.isfinite(length) and start >= 0 and length > 0):
-            raise typer.BadParameter(
-                f"expects START >= 0 and DURATION > 0 (finite seconds), got {text!r}")
+            parse_outage(text)
+        except ConfigError as exc:
+            raise typer.BadParameter(str(exc).removeprefix("--gps-outage ")) from None
     return values
 
 

@@ -15,17 +15,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from svains.cli._common import usage_error
+from svains.cli._common import parse_outage, usage_error
 from svains.errors import ConfigError
-
-
-def parse_outage(text: str) -> tuple[float, float]:
-    """``START:DURATION`` (seconds) -> (start, duration)."""
-    try:
-        a, b = text.split(":")
-        return float(a), float(b)
-    except ValueError as exc:
-        raise ConfigError(f"--gps-outage expects START:DURATION in seconds, got {text!r}") from exc
 
 
 def gps_off_switches(

@@ -32,6 +32,7 @@ from svains.sensors.units import (
     gps_clock_problem,
     gps_clock_shift,
     gps_course_vs_imu_turn,
+    imu_turn,
     mag_turn_problem,
     mag_turn_vs_gyro,
 )
@@ -276,17 +277,18 @@ def check_gps_against_gyro(ds: Dataset, path: Path, imu_path: Path) -> None:
     but by another amount: a gyro in deg/s."""
     if ds.imu is None or ds.gps is None:
         return
-    got = gps_course_vs_imu_turn(ds.imu.t_ns, ds.imu.gyro_B, ds.imu.accel_B, ds.gps.t_ns,
-                                 ds.gps.velocity_or_differenced(),
-                                 np.asarray(ds.gravity_W, float))  # fmt: skip
+    g_W = np.asarray(ds.gravity_W, float)
+    streams = (ds.imu.t_ns, ds.imu.gyro_B, ds.imu.accel_B, ds.gps.t_ns,
+               ds.gps.velocity_or_differenced(), g_W)  # fmt: skip
+    turn = imu_turn(*streams[:3]) if len(ds.imu.t_ns) >= 3 else None
+    got = gps_course_vs_imu_turn(*streams, turn=turn)
     if got is None:
         return
-    problem = course_turn_problem(*got, np.asarray(ds.gravity_W, float))
+    problem = course_turn_problem(*got, g_W)
     if problem is not None:
         kind, why = problem
         raise DatasetError(f"{imu_path if kind == 'gyro' else path}: {why}")
-    shift = gps_clock_shift(ds.imu.t_ns, ds.imu.gyro_B, ds.imu.accel_B, ds.gps.t_ns,
-                            ds.gps.velocity_or_differenced(), np.asarray(ds.gravity_W, float))
+    shift = gps_clock_shift(*streams, turn=turn)
     clock = None if shift is None else gps_clock_problem(*shift)
     if clock is not None:
         raise DatasetError(f"{path}: {clock}")

@@ -96,7 +96,8 @@ def iterated_update(
             w = scipy.linalg.solve_triangular(L, r, lower=True, check_finite=False)
             nis = float(w @ w)
             Sr = scipy.linalg.solve_triangular(L, w, lower=True, trans="T", check_finite=False)
-            P_next = _posterior(P0, PHt, KT)
+            P_next = P0 - PHt @ KT
+            P_next = 0.5 * (P_next + P_next.T)
             dx = KT.T @ r
         xj = manifold.retract(x0[None, :], dx[None, :])[0]
         Pj = P_next
@@ -138,12 +139,6 @@ def _low_rank_update(
     MiL0T, Mig = Mi[:, :-1], Mi[:, -1]
     P = L0 @ MiL0T
     return 0.5 * (P + P.T), Ea @ MiL0T, L0 @ Mig, Er - Ea @ Mig
-
-
-def _posterior(P0: F64, PHt: F64, KT: F64) -> F64:
-    """``P0 - P0 H^T K^T``, symmetrised."""
-    P = P0 - PHt @ KT
-    return 0.5 * (P + P.T)
 
 
 def _solve_psd(P: F64, B: F64, name: str) -> F64:

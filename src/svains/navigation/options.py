@@ -934,7 +934,8 @@ def _check_numbers(obj: object, prefix: str) -> None:
 
 
 def _floats(value: object) -> list[float]:
-    """The float numbers of an option's value (a float, or a tuple of them, nested)."""
+    """The numbers of an option's value (an int or float, or a tuple of them, nested; bools
+    are not numbers here)."""
     if isinstance(value, bool) or value is None:
         return []
     if isinstance(value, (int, float)):

@@ -226,21 +226,20 @@ def replay(
                                "image-based vision needs at least 2")
     t_imu = np.asarray(ds.imu.t_ns, np.int64)
     t0 = int(t_imu[0]) + int(config.replay.start_s * 1e9)
-    if t0 >= int(t_imu[-1]):
+    span = int(t_imu[-1]) - t0  # ns of IMU from the start (outages count from there)
+    if span <= 0:
         raise DatasetError(f"{ds.name}: the start {config.replay.start_s:g} s (--start, "
                            f"replay.start_s) is past the end of its IMU stream, "
                            f"{(int(t_imu[-1]) - int(t_imu[0])) * 1e-9:.2f} s long")  # fmt: skip
-    span_s = (int(t_imu[-1]) - t0) * 1e-9  # outages count from the first sample fed
     for start, length in config.gps_outages:
-        if start >= span_s:
+        if start >= span * 1e-9:
             log.warning("the GPS outage %g:%g starts after the end of the data (%.1f s of IMU "
-                        "from the start): nothing is cut", start, length, span_s)  # fmt: skip
+                        "from the start): nothing is cut", start, length, span * 1e-9)  # fmt: skip
     init = None
     if config.init.mode == "groundtruth":
         init = groundtruth_start(ds, config, t0 if config.replay.start_s > 0 else None)
 
     nav = Navigator(config, rig_from_dataset(ds), on_output=on_output, initial_state=init)
-    span = max(1, int(t_imu[-1]) - t0)
     next_report = t0
     # Once around the whole loop (entering costs ~0.6 ms); under ``svains`` it keeps the
     # command's ``--threads``.

@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+F64 = NDArray[np.float64]
+
 # Median accelerometer magnitude over a stream, in units of |gravity|: a vehicle's specific
 # force averages about 1 g (a racing quadrotor's median stays under 2 g); outside this band
 # the column is in another unit (g, mg, ft/s²) or has gravity removed.
@@ -101,23 +103,22 @@ def _vertical_turn(imu_t_ns: NDArray[np.int64], gyro_S: NDArray[np.float64],
     return t, up_S, turn
 
 
-def gps_course_vs_imu_turn(
-    imu_t_ns: NDArray[np.int64], gyro_S: NDArray[np.float64], accel_S: NDArray[np.float64],
-    gps_t_ns: NDArray[np.int64], v_W_G: NDArray[np.float64], g_W: NDArray[np.float64],
-) -> tuple[float, int, float, float] | None:
-    """How the GPS course turns against the IMU's turn about the vertical: (cosine of the two
-    series of per-step turns, steps used, total IMU turn in deg, course turn per gyro turn by
-    least squares), or None without a usable step. The vertical in the IMU frame is its
-    specific force averaged over 1 s, so no mounting calibration is needed (gyro and
-    accelerometer share a frame)."""
-    if len(imu_t_ns) < 3 or len(gps_t_ns) < 2:
-        return None
+def imu_turn(imu_t_ns: NDArray[np.int64], gyro_S: F64, accel_S: F64) -> tuple[F64, F64]:
+    """Times (N,) s from the first sample and the gyro's turn about the vertical (N,) rad
+    (``_vertical_turn``): what the GPS course is compared with, computed once for both
+    ``gps_course_vs_imu_turn`` and ``gps_clock_shift`` (their ``turn``)."""
     t, _, turn = _vertical_turn(imu_t_ns, gyro_S, accel_S)
-    tg = (gps_t_ns - imu_t_ns[0]) * 1e-9
-    tg_in = tg[(tg >= t[0]) & (tg <= t[-1])]
-    if tg_in.size < 2:
-        return None
-    steps = np.unique(np.searchsorted(tg, np.arange(tg_in[0], tg_in[-1], GPS_TURN_STEP_S)))
+    return t, turn
+
+
+def _course_steps(tg: F64, v_W_G: F64, g_W: F64, lo: float, hi: float,
+                  ) -> tuple[NDArray[np.int64], F64, NDArray[np.bool_]] | None:  # fmt: skip
+    """The fixes (indices into ``tg`` (M,) s) at least ``GPS_TURN_STEP_S`` apart from ``lo`` to
+    ``hi`` s, the course's turn between consecutive ones (rad, about ``g_W``'s up) and whether
+    the vehicle moved faster than ``GPS_TURN_MIN_SPEED_M_S`` at both; None with fewer than
+    two."""
+    steps = np.unique(np.searchsorted(tg, np.arange(lo, hi, GPS_TURN_STEP_S)))
+    steps = steps[steps < tg.size]
     if steps.size < 2:
         return None
     up_W = -g_W / np.linalg.norm(g_W)
@@ -125,12 +126,35 @@ def gps_course_vs_imu_turn(
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(up_W, e1)  # (e1, e2, up) right-handed
     v = v_W_G[steps]
-    course = np.arctan2(v @ e2, v @ e1)
     speed = np.hypot(v @ e1, v @ e2)
-    d_course = np.angle(np.exp(1j * np.diff(course)))
-    d_turn = np.diff(np.interp(tg[steps], t, turn))
-    ok = ((speed[1:] > GPS_TURN_MIN_SPEED_M_S) & (speed[:-1] > GPS_TURN_MIN_SPEED_M_S)
-          & (np.abs(d_turn) > np.radians(GPS_TURN_MIN_DEG)))  # fmt: skip
+    d_course = np.angle(np.exp(1j * np.diff(np.arctan2(v @ e2, v @ e1))))
+    moving = (speed[1:] > GPS_TURN_MIN_SPEED_M_S) & (speed[:-1] > GPS_TURN_MIN_SPEED_M_S)
+    return steps, d_course, moving
+
+
+def gps_course_vs_imu_turn(
+    imu_t_ns: NDArray[np.int64], gyro_S: NDArray[np.float64], accel_S: NDArray[np.float64],
+    gps_t_ns: NDArray[np.int64], v_W_G: NDArray[np.float64], g_W: NDArray[np.float64],
+    turn: tuple[F64, F64] | None = None,
+) -> tuple[float, int, float, float] | None:
+    """How the GPS course turns against the IMU's turn about the vertical: (cosine of the two
+    series of per-step turns, steps used, total IMU turn in deg, course turn per gyro turn by
+    least squares), or None without a usable step. The vertical in the IMU frame is its
+    specific force averaged over 1 s, so no mounting calibration is needed (gyro and
+    accelerometer share a frame). ``turn``: ``imu_turn``'s, when already computed."""
+    if len(imu_t_ns) < 3 or len(gps_t_ns) < 2:
+        return None
+    t, gyro_turn = turn if turn is not None else imu_turn(imu_t_ns, gyro_S, accel_S)
+    tg = (gps_t_ns - imu_t_ns[0]) * 1e-9
+    tg_in = tg[(tg >= t[0]) & (tg <= t[-1])]
+    if tg_in.size < 2:
+        return None
+    got = _course_steps(tg, v_W_G, g_W, tg_in[0], tg_in[-1])
+    if got is None:
+        return None
+    steps, d_course, moving = got
+    d_turn = np.diff(np.interp(tg[steps], t, gyro_turn))
+    ok = moving & (np.abs(d_turn) > np.radians(GPS_TURN_MIN_DEG))
     if not ok.any():
         return None
     a, b = d_course[ok], d_turn[ok]
@@ -226,28 +250,22 @@ GPS_CLOCK_MARGIN = 0.1
 def gps_clock_shift(
     imu_t_ns: NDArray[np.int64], gyro_S: NDArray[np.float64], accel_S: NDArray[np.float64],
     gps_t_ns: NDArray[np.int64], v_W_G: NDArray[np.float64], g_W: NDArray[np.float64],
+    turn: tuple[F64, F64] | None = None,
 ) -> tuple[float, float, float, int] | None:
     """The shift (s, positive: fixes stamped late) that best matches the GPS course's turns to
     the gyro's, its cosine, the cosine of the stamps as given and the steps used; None without
     ``GPS_CLOCK_MIN_STEPS`` turning steps. Like ``gps_course_vs_imu_turn``, no mounting
-    calibration is needed; a vehicle that flies sideways (a multirotor) matches at no shift."""
+    calibration is needed; a vehicle that flies sideways (a multirotor) matches at no shift.
+    ``turn``: ``imu_turn``'s, when already computed."""
     if len(imu_t_ns) < 3 or len(gps_t_ns) < 2:
         return None
-    t, _, turn = _vertical_turn(imu_t_ns, gyro_S, accel_S)
+    t, gyro_turn = turn if turn is not None else imu_turn(imu_t_ns, gyro_S, accel_S)
     tg = (gps_t_ns - imu_t_ns[0]) * 1e-9
-    steps = np.unique(np.searchsorted(tg, np.arange(tg[0], tg[-1], GPS_TURN_STEP_S)))
-    steps = steps[steps < tg.size]
-    if steps.size < 2:
+    got = _course_steps(tg, v_W_G, g_W, tg[0], tg[-1])
+    if got is None:
         return None
-    up_W = -g_W / np.linalg.norm(g_W)
-    e1 = np.cross(up_W, (1.0, 0.0, 0.0) if abs(up_W[0]) < 0.9 else (0.0, 1.0, 0.0))
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(up_W, e1)
-    v = v_W_G[steps]
-    speed = np.hypot(v @ e1, v @ e2)
-    d_course = np.angle(np.exp(1j * np.diff(np.arctan2(v @ e2, v @ e1))))
-    ok = ((speed[1:] > GPS_TURN_MIN_SPEED_M_S) & (speed[:-1] > GPS_TURN_MIN_SPEED_M_S)
-          & (np.abs(d_course) > np.radians(GPS_TURN_MIN_DEG)))  # fmt: skip
+    steps, d_course, moving = got
+    ok = moving & (np.abs(d_course) > np.radians(GPS_TURN_MIN_DEG))
     if ok.sum() < GPS_CLOCK_MIN_STEPS:
         return None
     a = d_course[ok]
@@ -255,8 +273,8 @@ def gps_clock_shift(
     shifts = np.arange(-GPS_CLOCK_MAX_S, GPS_CLOCK_MAX_S + GPS_CLOCK_STEP_S / 2, GPS_CLOCK_STEP_S)
     # A fix stamped tau late held at its stamp minus tau: the gyro's turn over the interval
     # shifted back; intervals outside the IMU's span give no turn (np.interp holds the ends).
-    b = (np.interp(t1[None, :] - shifts[:, None], t, turn)
-         - np.interp(t0[None, :] - shifts[:, None], t, turn))  # fmt: skip
+    b = (np.interp(t1[None, :] - shifts[:, None], t, gyro_turn)
+         - np.interp(t0[None, :] - shifts[:, None], t, gyro_turn))  # fmt: skip
     norm = np.sqrt((a @ a) * np.einsum("ij,ij->i", b, b))
     cosine = np.where(norm > 0, (b @ a) / np.where(norm > 0, norm, 1.0), 0.0)
     k = int(np.argmax(cosine))
