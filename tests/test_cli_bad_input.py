@@ -370,7 +370,7 @@ USAGE_CASES: list[tuple[list[str], str]] = [
     (["frontend", "{ds}", "--out", "{tmp}/o", "--dense", "--dense-method", "foo"],
      "'--dense-method': must be 'sgbm' or 'elas'"),
     (["run", "{ds}", "--out", "{tmp}/o", "--set", "filter.gate_probability=0"],
-     "filter.gate_probability must be a probability in (0, 1)"),
+     "filter.gate_probability must be a probability in [0.5, 1)"),
 ]
 
 

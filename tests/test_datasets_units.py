@@ -183,3 +183,27 @@ def test_intrinsics_of_a_half_resolution_image_are_refused() -> None:
                        r"cv by 1\.99"):
         check_camera_calib(calib([229.35, 228.65, 183.6, 124.2]), Path("cam0/sensor.yaml"))
     check_camera_calib(calib([458.7, 457.3, 200.0, 248.4]), Path("cam0/sensor.yaml"))
+
+
+def test_an_imu_stream_faster_than_its_declared_rate_is_warned(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A 200 Hz stream declared 100 Hz: every sample would get half its white-noise variance.
+    Warned on load with both rates; a stream slower than declared (KITTI raw keeps one OXTS
+    record in four) and the written rate itself are read silently."""
+    from test_datasets_roundtrip import write_full
+
+    root = tmp_path / "ds"
+    write_full(root)  # 200 Hz samples, rate_hz 200
+    yaml_path = root / "mav0" / "imu0" / "sensor.yaml"
+    text = yaml_path.read_text()
+    with caplog.at_level("WARNING", logger="svains.datasets.validate"):
+        load_dataset(root)
+        assert "rate_hz" not in caplog.text
+        yaml_path.write_text(text.replace("rate_hz: 200", "rate_hz: 800"))
+        load_dataset(root)
+        assert "rate_hz" not in caplog.text
+        yaml_path.write_text(text.replace("rate_hz: 200", "rate_hz: 100"))
+        load_dataset(root)
+    assert ("imu0/data.csv: samples come at 200 Hz but sensor.yaml declares rate_hz 100: each "
+            "sample is given the noise of a 100 Hz sensor, 2x too little variance") in caplog.text

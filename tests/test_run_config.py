@@ -60,7 +60,11 @@ def test_bad_settings_name_their_key() -> None:
     # Each accepted silently before (a user's probe, 2026-12-06): a hang, exit 0 with an ATE of
     # kilometres, or a crash after the whole run.
     ("output_period_s", "1e-9", r"output_period_s must be at least 0\.001 s"),
-    ("filter.gate_probability", 0, r"filter\.gate_probability must be a probability in \(0, 1\)"),
+    ("filter.gate_probability", 0, r"filter\.gate_probability must be a probability in \[0\.5, "),
+    # every update refused, the run diverged into a numerical error naming no key
+    ("filter.gate_probability", 1e-4, r"filter\.gate_probability must be a probability in "
+     r"\[0\.5, 1\) \(the share of consistent data its test passes\), got 0\.0001"),
+    ("faults.bias_test_probability", 0.3, r"faults\.bias_test_probability must be a probability"),
     ("vision.feature_gate_probability", 1.5, r"vision\.feature_gate_probability must be a prob"),
     ("init.gt_attitude_std", 0, r"init\.gt_attitude_std must be positive"),
     ("init.gt_position_std", -1, r"init\.gt_position_std must be positive"),

@@ -223,6 +223,27 @@ def check_accel_units(accel_S: NDArray[np.float64], g_W: NDArray[np.float64], pa
         raise DatasetError(f"{path}: {problem}")
 
 
+# A stream this much faster than the declared rate cannot come from that sensor: its samples
+# would be given less noise than they carry (one sample's variance is σ² times the declared rate)
+IMU_RATE_ABOVE_DECLARED = 1.25
+
+
+def check_imu_rate(t_ns: NDArray[np.int64], rate_hz: float, path: Path) -> None:
+    """Warn when the IMU's median sample rate exceeds its declared ``rate_hz`` by more than
+    ``IMU_RATE_ABOVE_DECLARED``: each sample's white noise is σ²·rate_hz, so too low a rate
+    makes the filter overconfident. A stream slower than the declared rate is a recording that
+    keeps some of the sensor's samples (KITTI raw's OXTS) and is read as such."""
+    u = np.unique(t_ns)
+    if u.size < 2 or rate_hz <= 0:
+        return
+    stream_hz = 1e9 / float(np.median(np.diff(u)))
+    if stream_hz > IMU_RATE_ABOVE_DECLARED * rate_hz:
+        log.warning("%s: samples come at %.4g Hz but sensor.yaml declares rate_hz %.4g: each "
+                    "sample is given the noise of a %.4g Hz sensor, %.2gx too little variance; "
+                    "set rate_hz to the sensor's own rate", path, stream_hz, rate_hz, rate_hz,
+                    stream_hz / rate_hz)  # fmt: skip
+
+
 def check_gps_units(t_ns: NDArray[np.int64], p_W_G: NDArray[np.float64],
                     v_W_G: NDArray[np.float64], path: Path) -> None:  # fmt: skip
     """On each axis, GPS positions move as far as their velocities say while moving
@@ -331,6 +352,8 @@ def vet_streams(ds: Dataset) -> None:
 
     if ds.imu is not None:
         check_accel_units(ds.imu.accel_B, ds.gravity_W, where("imu0"))
+        if ds.imu_calib is not None:
+            check_imu_rate(ds.imu.t_ns, ds.imu_calib.rate_hz, where("imu0"))
     if ds.gps is not None and ds.gps.has_velocity.all():
         check_gps_units(ds.gps.t_ns, ds.gps.p_W_G, ds.gps.v_W_G, where("gps0"))
     elif ds.gps is not None:  # position-only: the fixes' own steps, per axis

@@ -902,6 +902,10 @@ _NON_NEGATIVE_SUFFIXES = ("_s", "_walk", "_density", "_px", "_dev", "_mps", "_dr
                           "_fraction", "_max", "_dof", "_m")  # fmt: skip
 _POSITIVE = {"filter.alpha", "vision.lc_min_std", "vision.motion_prior_min_std"}
 _NON_NEGATIVE = {"filter.beta"}
+# Every ``*_probability`` option is the quantile of a test that consistent data pass with that
+# probability: below one half a gate refuses most good measurements (``filter.gate_probability``
+# 1e-4 refused every update and the run diverged into a numerical error naming no option).
+MIN_TEST_PROBABILITY = 0.5
 # n + kappa > 0 for the smallest state (position, velocity, attitude: 9), so that the sigma
 # points' n + lambda = alpha² (n + kappa) is positive for every state.
 _MIN_KAPPA = -9.0
@@ -910,7 +914,7 @@ _MIN_KAPPA = -9.0
 def _check_numbers(obj: object, prefix: str) -> None:
     """Refuse (``ConfigError`` naming the dotted key) a non-finite number in any option of
     ``obj`` and its sections, and a number outside its range by the option's name: ``*_probability``
-    in (0, 1), the ``_POSITIVE_SUFFIXES`` above zero, the ``_NON_NEGATIVE_SUFFIXES`` not below
+    in [0.5, 1), the ``_POSITIVE_SUFFIXES`` above zero, the ``_NON_NEGATIVE_SUFFIXES`` not below
     it (None stays allowed where the option is optional)."""
     for f in dataclasses.fields(obj):  # type: ignore[arg-type]
         key, value = prefix + f.name, getattr(obj, f.name)
@@ -922,8 +926,11 @@ def _check_numbers(obj: object, prefix: str) -> None:
             continue
         if not all(math.isfinite(v) for v in numbers):
             raise ConfigError(f"{key} must be finite, got {value!r}")
-        if key.endswith("_probability") and not all(0 < v < 1 for v in numbers):
-            raise ConfigError(f"{key} must be a probability in (0, 1), got {value!r}")
+        if key.endswith("_probability") and not all(MIN_TEST_PROBABILITY <= v < 1
+                                                    for v in numbers):  # fmt: skip
+            raise ConfigError(f"{key} must be a probability in [{MIN_TEST_PROBABILITY:g}, 1) "
+                              "(the share of consistent data its test passes), got "
+                              f"{value!r}")  # fmt: skip
         if (key in _POSITIVE or key.endswith(_POSITIVE_SUFFIXES)) and min(numbers) <= 0:
             raise ConfigError(f"{key} must be positive, got {value!r}")
         if (key in _NON_NEGATIVE or key.endswith(_NON_NEGATIVE_SUFFIXES)) and min(numbers) < 0:
