@@ -35,6 +35,7 @@ def test_info_euroc_micro(euroc_micro: Path, tmp_path: Path) -> None:
     assert "fu=458.654 fv=457.296 cu=367.215 cv=248.375" in out
     summary = json.loads((tmp_path / "i.json").read_text())
     assert summary["missing_images"] == {"cam1": 4}
+    assert summary["unreadable_images"] == {}
     assert summary["streams"]["imu"]["span_s"] == pytest.approx(145.595, abs=1e-3)
     assert summary["streams"]["groundtruth"]["rate_hz"] == pytest.approx(20.0, rel=1e-3)
 
@@ -60,6 +61,29 @@ def test_info_shows_how_far_kitti_raw_sits_from_the_unit_and_frame_checks(
     checks = json.loads((tmp_path / "i.json").read_text())["checks"]
     assert checks["gps_course_vs_gyro"]["turns"] == 8
     assert checks["gps_course_vs_gyro"]["course_per_gyro_turn"] == pytest.approx(1.047, abs=1e-3)
+
+
+def test_info_lists_images_that_cannot_be_decoded(tmp_path: Path) -> None:
+    """A PNG cut short, an empty file and a text file named .png (found by a user's probe:
+    info said nothing, run dropped them one warning at a time): counted per camera from the
+    files' first and last bytes, the first named with its reason; whole images are not."""
+    from test_datasets_roundtrip import write_full
+
+    root = tmp_path / "ds"
+    write_full(root)
+    left = sorted((root / "mav0" / "cam0" / "data").glob("*.png"))
+    right = sorted((root / "mav0" / "cam1" / "data").glob("*.png"))
+    left[1].write_bytes(left[1].read_bytes()[:-20])
+    left[2].write_bytes(b"")
+    right[0].write_text("not an image")
+    res = runner.invoke(app, ["info", str(root), "--json", str(tmp_path / "i.json")],
+                        env={"COLUMNS": "400"})  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert (f"Unreadable files: 3 image(s) that cannot be decoded, dropped by run (cam0: 2, cam1: "
+            f"1; first {left[1]}: no PNG end chunk (cut short?))") in res.output
+    unreadable = json.loads((tmp_path / "i.json").read_text())["unreadable_images"]
+    assert unreadable["cam1"] == {"count": 1, "first": str(right[0]),
+                                  "reason": "not a PNG (no PNG signature)"}  # fmt: skip
 
 
 def test_info_missing_folder(tmp_path: Path) -> None:

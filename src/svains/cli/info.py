@@ -40,6 +40,14 @@ def _print(summary: dict[str, Any], console: Console) -> None:
         )
     else:
         console.print("Missing files: none")
+    unreadable = summary["unreadable_images"]
+    if unreadable:
+        n = sum(u["count"] for u in unreadable.values())
+        detail = ", ".join(f"{k}: {u['count']}" for k, u in unreadable.items())
+        first = next(iter(unreadable.values()))
+        console.print(escape(
+            f"Unreadable files: {n} image(s) that cannot be decoded, dropped by run ({detail}; "
+            f"first {first['first']}: {first['reason']})"))  # fmt: skip
     cal = summary["calibration"]
     console.print(escape(f"gravity_W: {cal['gravity_W']} m/s²"))
     cams = cal["cameras"]

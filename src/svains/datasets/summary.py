@@ -9,7 +9,7 @@ import numpy as np
 from svains.datasets.loader import stream_times
 from svains.datasets.stereo_images import recorded_stereo_check
 from svains.datasets.types import Dataset
-from svains.datasets.validate import gps_course_vs_imu_turn, mag_frame_turn
+from svains.datasets.validate import gps_course_vs_imu_turn, image_file_problem, mag_frame_turn
 from svains.errors import SvainsError
 
 STREAM_LABELS = {
@@ -102,9 +102,24 @@ def dataset_summary(ds: Dataset) -> dict[str, Any]:
         "name": ds.name,
         "streams": streams,
         "missing_images": dict(ds.missing_images),
+        "unreadable_images": _unreadable_images(ds),
         "calibration": calib,
         "checks": _checks(ds),
     }
+
+
+def _unreadable_images(ds: Dataset) -> dict[str, Any]:
+    """Per camera stream, the images whose bytes say they cannot be decoded
+    (``validate.image_file_problem``: an end chunk missing, an empty file): their count and the
+    first with its reason. ``run`` drops such frames with a warning."""
+    out: dict[str, Any] = {}
+    for name, stream in (("cam0", ds.left), ("cam1", ds.right)):
+        if stream is None:
+            continue
+        bad = [(p, why) for p in stream.paths if (why := image_file_problem(p)) is not None]
+        if bad:
+            out[name] = {"count": len(bad), "first": str(bad[0][0]), "reason": bad[0][1]}
+    return out
 
 
 def _checks(ds: Dataset) -> dict[str, Any]:

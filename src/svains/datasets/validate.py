@@ -392,9 +392,38 @@ def png_size(path: Path) -> tuple[int, int] | None:
     """(width, height) from a PNG header without decoding; None for other content."""
     with path.open("rb") as fh:
         head = fh.read(24)
-    if head[:8] == b"\x89PNG\r\n\x1a\n" and len(head) == 24:
+    if head[:8] == _PNG_SIGNATURE and len(head) == 24:
         w, h = struct.unpack(">II", head[16:24])
         return int(w), int(h)
+    return None
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+# How far from a file's end its closing chunk (PNG ``IEND``, JPEG ``FFD9``) is looked for: some
+# writers pad a few bytes after it.
+_END_WINDOW = 64
+
+
+def image_file_problem(path: Path) -> str | None:
+    """Why the image at ``path`` cannot be decoded, read from its first and last bytes only
+    (a PNG or JPEG cut short has no closing chunk; an empty file, or a ``.png`` that is not one);
+    None when it looks whole or its format is not one of those two."""
+    try:
+        size = path.stat().st_size
+        with path.open("rb") as fh:
+            head = fh.read(8)
+            fh.seek(max(0, size - _END_WINDOW))
+            tail = fh.read()
+    except OSError as e:
+        return f"cannot be read ({e.strerror})"
+    if size == 0:
+        return "empty file"
+    if head == _PNG_SIGNATURE:
+        return None if b"IEND" in tail else "no PNG end chunk (cut short?)"
+    if head[:2] == b"\xff\xd8":
+        return None if b"\xff\xd9" in tail else "no JPEG end marker (cut short?)"
+    if path.suffix.lower() == ".png":
+        return "not a PNG (no PNG signature)"
     return None
 
 
