@@ -164,6 +164,22 @@ def test_unreadable_image_names_the_file(ds_dir: Path) -> None:
         ds.left.load(0)
 
 
+def test_an_image_cut_short_is_named_before_the_decoder_prints(
+    ds_dir: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """A PNG cut short: the error says why, and libpng's own "Read Error" lines (on the
+    process's stderr, beside the run's warnings) are not printed: the decoder never sees it."""
+    first = sorted((ds_dir / "mav0/cam0/data").iterdir())[0]
+    ds = load_dataset(ds_dir)
+    whole = ds.left.load(0)
+    first.write_bytes(first.read_bytes()[: first.stat().st_size // 2])
+    with pytest.raises(DatasetError, match=f"unreadable image: .*{re.escape(first.name)}: no PNG "
+                       r"end chunk \(cut short\?\)"):  # fmt: skip
+        ds.left.load(0)
+    assert capfd.readouterr().err == ""
+    assert whole.shape == (24, 32)
+
+
 def test_camera_yaml_without_intrinsics(ds_dir: Path) -> None:
     path = ds_dir / "mav0/cam1/sensor.yaml"
     text = "\n".join(ln for ln in path.read_text().splitlines() if not ln.startswith("intrinsics"))
@@ -275,3 +291,37 @@ def test_an_image_of_another_size_drops_its_pair_with_a_warning(
     assert reader.dropped == 1
     assert re.search(r"stereo pair dropped \(1 so far\): image is 16x12 px, the calibration's "
                      r"resolution is 32x24: .*cam1", caplog.text)  # fmt: skip
+
+
+def _write_features(path: Path, uv: np.ndarray) -> None:
+    rows = [f"{k // 20 * 50_000_000},{k % 20},{u1},{v1},{u2},{v2}"
+            for k, (u1, v1, u2, v2) in enumerate(uv)]  # fmt: skip
+    path.write_text("#timestamp,track_id,u_left,v_left,u_right,v_right\n" + "\n".join(rows) + "\n")
+
+
+def test_feature_columns_swapped_are_refused_and_rows_apart_warned(
+    ds_dir: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """features0 with u_left and u_right crossed ran to the end with only "fused no vision"
+    (a user's probe): refused naming the columns. Pixels rows apart (not a rectified pair) are
+    warned; a right file is read silently, its far points (under 1 px of disparity) aside."""
+    rng = np.random.default_rng(3)
+    n = 100
+    u_l, v = rng.uniform(50, 700, n), rng.uniform(20, 460, n)
+    d = rng.uniform(2.0, 40.0, n)
+    d[:10] = rng.uniform(-0.9, 0.9, 10)  # far points: no say
+    right = np.column_stack([u_l, v, u_l - d, v + rng.normal(0, 0.5, n)])
+    path = ds_dir / "mav0/features0/data.csv"
+    with caplog.at_level(logging.WARNING, logger="svains.datasets.validate"):
+        _write_features(path, right)
+        assert load_dataset(ds_dir).features.uv_left.shape == (n, 2)
+        assert caplog.text == ""
+        _write_features(path, right[:, [0, 1, 2, 3]] + np.array([0.0, 0.0, 0.0, 6.0]))
+        _ = load_dataset(ds_dir).features
+    assert re.search(r"features0/data\.csv: left and right pixels are 6\.\d px apart in rows "
+                     r"\(median of 9\d\)", caplog.text)  # fmt: skip
+    _write_features(path, right[:, [2, 3, 0, 1]])
+    with pytest.raises(DatasetError, match=r"features0/data\.csv: 90 of 90 observations lie at "
+                       r"negative disparity \(u_right right of u_left\): are the left and right "
+                       r"columns swapped\?"):  # fmt: skip
+        _ = load_dataset(ds_dir).features

@@ -14,6 +14,13 @@ def read_grey(path: Path) -> NDArray[np.uint8]:
     """Decode an image file as 8-bit grey (H, W); DatasetError naming the file if unreadable."""
     import cv2  # imported lazily: reading calibration/CSV never needs OpenCV
 
+    from svains.datasets.validate import image_file_problem
+
+    # A file cut short is named here, before the decoder prints its own lines on stderr
+    # (libpng: "Read Error") that a user cannot tell from a crash.
+    problem = image_file_problem(path)
+    if problem is not None:
+        raise DatasetError(f"unreadable image: {path}: {problem}")
     img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     if img is None:
         raise DatasetError(f"unreadable image: {path}")

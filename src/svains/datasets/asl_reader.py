@@ -45,6 +45,7 @@ from svains.datasets.types import (
 )
 from svains.datasets.validate import (
     check_camera_calib,
+    check_feature_disparity,
     check_gps_calib,
     check_gravity,
     check_image_size,
@@ -317,6 +318,7 @@ def read_features(folder: Path, timeshift_cam_imu_s: float = 0.0) -> FeatureStre
     y = read_sensor_yaml(ypath) if ypath.is_file() else {}
     pixel_std = yaml_float(y, "pixel_noise_std", ypath, default=1.0)
     check_number(pixel_std, ypath, "pixel_noise_std", positive=True)
+    check_feature_disparity(uv[:, 0:2], uv[:, 2:4], pixel_std, path)
     return shift_feature_stamps(
         FeatureStream(t_ns=t, track_id=ids, uv_left=uv[:, 0:2], uv_right=uv[:, 2:4],
                       pixel_noise_std=pixel_std),

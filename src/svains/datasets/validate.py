@@ -451,6 +451,39 @@ def check_image_size(stream: ImageStream, calib: CameraCalib, yaml_path: Path) -
         )
 
 
+# Recorded features: observations before a verdict, the share at negative disparity that means
+# the columns are crossed, the median row offset (px, at least 3 pixel noises) that means the
+# pixels are not in a rectified pair (the values of ``frontend.stereo_check`` for images).
+FEATURES_MIN_OBSERVATIONS = 60
+FEATURES_SWAPPED_FRACTION = 0.8
+FEATURES_ROW_OFFSET_PX = 3.0
+
+
+def check_feature_disparity(uv_left: NDArray[np.float64], uv_right: NDArray[np.float64],
+                            pixel_noise_std: float, path: Path) -> None:  # fmt: skip
+    """Recorded stereo features (M, 2) px in the rectified pair: ``DatasetError`` when most
+    observations (of ``|u_left - u_right| >= 1`` px) lie at negative disparity (the right pixel
+    right of the left one: the left and right columns crossed, or cam0 and cam1), a warning
+    when left and right pixels are rows apart (not a rectified pair: a median row offset above
+    ``FEATURES_ROW_OFFSET_PX`` and 3 times the pixel noise ``pixel_noise_std`` px)."""
+    d = uv_left[:, 0] - uv_right[:, 0]
+    seen = np.abs(d) >= 1.0
+    n = int(seen.sum())
+    if n < FEATURES_MIN_OBSERVATIONS:
+        return
+    negative = int((d[seen] < 0).sum())
+    if negative >= FEATURES_SWAPPED_FRACTION * n:
+        raise DatasetError(
+            f"{path}: {negative} of {n} observations lie at negative disparity (u_right right of "
+            "u_left): are the left and right columns swapped? Rows are track_id, u_left, "
+            "v_left, u_right, v_right")  # fmt: skip
+    rows = float(np.median(np.abs(uv_left[seen, 1] - uv_right[seen, 1])))
+    if rows > max(FEATURES_ROW_OFFSET_PX, 3.0 * pixel_noise_std):
+        log.warning("%s: left and right pixels are %.1f px apart in rows (median of %d): "
+                    "features0 is read as a rectified pair, where they share a row", path,
+                    rows, n)  # fmt: skip
+
+
 def check_stereo_sync(left: ImageStream, right: ImageStream, tol_ns: int, where: str) -> None:
     """Left frames find right partners within ``tol_ns``: none is an error, few a warning."""
     if len(left) == 0 or len(right) == 0:
