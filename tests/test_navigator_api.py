@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from svains import Navigator, NavState, RunConfig
-from svains.errors import ConfigError, InitialisationError
+from svains.errors import ClosedError, ConfigError, InitialisationError
 from svains.navigation.event_queue import FRAME
 from svains.navigation.options import InitOptions
 from svains.sensors.types import GpsCalib, Rig
@@ -136,3 +136,81 @@ def test_a_start_from_a_given_state_warns_of_an_accelerometer_in_g(
     text = "over the first 2 s of IMU samples the accelerometer's median magnitude is 1"
     assert (text in caplog.text) is warned
     assert caplog.text.count("accelerometer's median magnitude") == int(warned)  # once
+
+
+def _gps_rig() -> Rig:
+    return Rig(gps=GpsCalib(np.zeros(3), 1.0, 0.5, 0.1))
+
+
+def test_a_non_finite_gps_fix_is_dropped_and_counted() -> None:
+    """A NaN in a fed GPS position or velocity (a user's probe): before, a FilterError raised by
+    a later feed_imu ("gps: non-finite innovation"), or a NaN heading and a non-finite
+    covariance; now dropped and counted as the magnetometer's and sonar's are."""
+    nav = Navigator(RunConfig(), _gps_rig())
+    rng = np.random.default_rng(5)
+    for k in range(int(8.0 * 200)):
+        t = 1_000_000_000 + k * 5_000_000
+        nav.feed_imu(t, 1e-3 * rng.standard_normal(3),
+                     [0.0, 0.0, G] + 1e-2 * rng.standard_normal(3))  # fmt: skip
+        if k % 200 == 100:
+            p, v = 0.3 * rng.standard_normal(3), 0.05 * rng.standard_normal(3)
+            if k // 200 == 3:
+                p[0] = np.nan
+            if k // 200 == 5:
+                v[2] = np.inf
+            nav.feed_gps(t, p, v)
+    res = nav.close()
+    assert res.report["dropped"] == {"gps": 2}
+    assert res.report["measurements"]["gps"]["fused"] >= 4
+    assert np.all(np.isfinite(res.x)) and np.all(np.isfinite(res.P9))
+
+
+def test_feeding_after_close_is_refused_and_an_early_close_leaves_the_run_whole() -> None:
+    nav = Navigator(RunConfig(), Rig())
+    _feed_static(nav, 3.0, np.random.default_rng(6))
+    with pytest.raises(ValueError, match=r"close: until_ns 5 is before \d+ ns, up to which the "
+                       r"estimator has already processed its measurements"):  # fmt: skip
+        nav.close(until_ns=5)
+    res = nav.close()  # before: every later close() raised "cannot propagate backwards"
+    assert res.t_ns[-1] == nav.history.last_ns
+    with pytest.raises(ClosedError, match=r"feed_imu after close\(\): this Navigator's run is "
+                       r"over; make a new Navigator for another"):  # fmt: skip
+        nav.feed_imu(res.t_ns[-1] + 5_000_000, np.zeros(3), [0.0, 0.0, G])
+    with pytest.raises(ClosedError, match=r"a measurement fed after close\(\)"):
+        nav.feed_gps(res.t_ns[-1], np.zeros(3))
+    assert nav.close() is res
+
+
+def test_misused_arguments_get_a_typed_error_naming_them() -> None:
+    with pytest.raises(TypeError, match=r"Navigator: config must be a RunConfig, got dict"):
+        Navigator({"method": "3d"}, Rig())  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="Navigator: rig must be a Rig, got NoneType"):
+        Navigator(RunConfig(), None)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="Navigator: on_output must be callable, got 42"):
+        Navigator(RunConfig(), Rig(), on_output=42)  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match=r"output_period_s must be a number, got '0\.1'"):
+        RunConfig(output_period_s="0.1")  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match=r"an initial_state is given but init\.mode is 'gps'"):
+        Navigator(RunConfig(init=InitOptions(mode="gps")), _gps_rig(),
+                  initial_state=object())  # type: ignore[arg-type]
+    nav = Navigator(RunConfig(method="3d"), _gps_rig())
+    with pytest.raises(ValueError, match=r"feed_imu: gyro_S must hold 3 numbers, got \['a'"):
+        nav.feed_imu(1, ["a", "b", "c"], [0.0, 0.0, G])
+    with pytest.raises(ValueError, match=r"feed_sonar: range_m must be one number, got shape "
+                       r"\(2,\)"):  # fmt: skip
+        nav.feed_sonar(1, np.array([1.0, 2.0]))
+    with pytest.raises(TypeError, match="feed_stereo: the left image must be a numpy array, "
+                       "got NoneType"):  # fmt: skip
+        nav.feed_stereo(1, None, None)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match=r"the right image must be \(H, W\) grey or \(H, W, "
+                       r"3\|4\) colour, got shape \(6,\)"):  # fmt: skip
+        nav.feed_stereo(1, np.zeros((4, 6), np.uint8), np.zeros(6, np.uint8))
+    with pytest.raises(ValueError, match=r"feed_tracks: track_id must hold integers, got "
+                       r"float64 \[1\.7\]"):  # fmt: skip
+        nav.feed_tracks(1, [1.7], [[1.0, 2.0]], [[0.5, 2.0]])
+    assert not nav.queue._heap and nav.history.n == 0
+    # a driver's single-channel frames (H, W, 1) are grey images
+    nav.feed_stereo(5, np.full((4, 6, 1), 7, np.uint8), np.full((4, 6, 1), 7, np.uint8))
+    nav.feed_tracks(6, [1.0, 2.0], [[1.0, 2.0], [3.0, 4.0]], [[0.5, 2.0], [2.5, 4.0]])
+    (_, _, _, first), (_, _, _, second) = sorted(nav.queue._heap)
+    assert first[1].shape == first[2].shape == (4, 6) and second[1].dtype == np.int64

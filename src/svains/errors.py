@@ -31,3 +31,7 @@ class OutputError(SvainsError):
 
 class AlignmentError(SvainsError):
     """A trajectory alignment is undetermined (e.g. se3 on collinear positions)."""
+
+
+class ClosedError(SvainsError):
+    """A ``Navigator`` was fed after ``close()``: a run's estimator serves that run only."""

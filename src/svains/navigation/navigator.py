@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from svains.errors import ConfigError, InitialisationError
+from svains.errors import ClosedError, ConfigError, InitialisationError
 from svains.models.state import BIASED, PAPER
 from svains.navigation.event_queue import FRAME, GPS, MAG, SONAR, EventQueue
 from svains.navigation.fault_handling import ImuFaults, RateLimitedLog
@@ -65,6 +65,13 @@ class Navigator:
         self, config: RunConfig, rig: Rig, *, on_output: OutputCallback | None = None,
         initial_state: InitialState | None = None,
     ) -> None:
+        if not isinstance(config, RunConfig):
+            raise TypeError(f"Navigator: config must be a RunConfig, got {type(config).__name__}"
+                            " (svains.navigation.config_io.from_dict builds one from a mapping)")
+        if not isinstance(rig, Rig):
+            raise TypeError(f"Navigator: rig must be a Rig, got {type(rig).__name__}")
+        if on_output is not None and not callable(on_output):
+            raise TypeError(f"Navigator: on_output must be callable, got {on_output!r}")
         if config.method == "vo":
             raise ConfigError("method vo has no filter: use svains.replay (VO chain) instead")
         if rig.imu_period_s <= 0:
@@ -119,7 +126,10 @@ class Navigator:
 
     def _on_imu(self, t_ns: int, gyro_S: ArrayLike, accel_S: ArrayLike) -> None:
         # The one place IMU samples enter the estimator.
-        if self.status in ("finished", "closed"):
+        if self.status == "closed":
+            raise ClosedError("feed_imu after close(): this Navigator's run is over; make a "
+                              "new Navigator for another")  # fmt: skip
+        if self.status == "finished":  # past the configured duration: the stream may go on
             return
         if self._warn.origin_ns is None:
             self._warn.origin_ns = int(t_ns)  # warnings count seconds from here
@@ -161,9 +171,10 @@ class Navigator:
         ``TypeError`` for another dtype:
         a 12- or 16-bit or float image has no one right conversion, so the caller makes it."""
         if self._takes_frames:
+            left, right = _image("left", left), _image("right", right)
             for name, img in (("left", left), ("right", right)):
-                dtype = getattr(img, "dtype", None)
-                if dtype is not None and dtype != np.uint8:
+                dtype = img.dtype
+                if dtype != np.uint8:
                     raise TypeError(
                         f"feed_stereo: the {name} image is {dtype}, not uint8: scale it to 8 "
                         "bits first (e.g. (img >> 4).astype(np.uint8) for 12-bit data, "
@@ -181,7 +192,12 @@ class Navigator:
         ``uv_right`` (M, 2) px in the rectified pair ``cam0``/``cam1`` define. Ignored by
         ``ins``."""
         if self._takes_frames:
-            ids = np.asarray(track_id, np.int64)
+            raw = np.asarray(track_id)
+            if raw.dtype.kind not in "iu" and not (
+                    raw.dtype.kind == "f" and np.all(raw == np.round(raw))):  # fmt: skip
+                raise ValueError(f"feed_tracks: track_id must hold integers, got {raw.dtype} "
+                                 f"{raw.ravel()[:3].tolist()}")  # fmt: skip
+            ids = raw.astype(np.int64)
             uv_l, uv_r = np.asarray(uv_left, float), np.asarray(uv_right, float)
             m = ids.shape[0] if ids.ndim == 1 else -1
             if m < 0 or uv_l.shape != (m, 2) or uv_r.shape != (m, 2):
@@ -203,10 +219,16 @@ class Navigator:
 
     def feed_sonar(self, t_ns: int, range_m: float) -> None:
         """A sonar range (m) along the sensor's +z axis to flat ground."""
-        self._push(int(t_ns), SONAR, float(range_m))
+        r = np.asarray(range_m, dtype=float) if not isinstance(range_m, float) else range_m
+        if np.ndim(r) != 0:
+            raise ValueError(f"feed_sonar: range_m must be one number, got shape {np.shape(r)}")
+        self._push(int(t_ns), SONAR, float(r))
 
     def _push(self, t_ns: int, kind: int, payload: Any) -> None:
-        if self.status in ("finished", "closed"):
+        if self.status == "closed":
+            raise ClosedError("a measurement fed after close(): this Navigator's run is over; "
+                              "make a new Navigator for another")  # fmt: skip
+        if self.status == "finished":
             return
         if self._end_ns is not None and t_ns > self._end_ns:
             return
@@ -232,6 +254,11 @@ class Navigator:
         configured ``duration_s`` after the start) and return the run's ``RunResult``."""
         if self._result is not None:
             return self._result
+        done = self.queue.horizon_ns
+        if until_ns is not None and done is not None and int(until_ns) < done - 1:
+            # refused before anything changes: a later close() still ends the run
+            raise ValueError(f"close: until_ns {int(until_ns)} is before {done - 1} ns, up to "
+                             "which the estimator has already processed its measurements")
         last = self.history.last_ns
         if self.status != "finished" and last is not None:
             end = last if until_ns is None else min(int(until_ns), last)
@@ -333,7 +360,7 @@ class Navigator:
         """Input stages on every released measurement, before the initial state's gate."""
         cfg = self.config
         if kind == GPS:
-            why = self._checks.gps(payload[0])
+            why = self._checks.gps(*payload)
             if why is not None:
                 self.queue.drop("gps", t, why)
                 return
@@ -418,13 +445,31 @@ class Navigator:
 __all__ = ["NavState", "Navigator", "RunResult"]
 
 
+def _image(name: str, image: Any) -> NDArray[Any]:
+    """A fed image as an array (H, W) or (H, W, 3|4); a driver's single-channel (H, W, 1) is
+    taken as (H, W). ``TypeError`` naming the image for anything else."""
+    a = image if isinstance(image, np.ndarray) else None
+    if a is None:
+        raise TypeError(f"feed_stereo: the {name} image must be a numpy array, got "
+                        f"{type(image).__name__}")  # fmt: skip
+    if a.ndim == 3 and a.shape[2] == 1:
+        a = a[:, :, 0]
+    if not (a.ndim == 2 or (a.ndim == 3 and a.shape[2] in (3, 4))) or min(a.shape[:2]) == 0:
+        raise TypeError(f"feed_stereo: the {name} image must be (H, W) grey or (H, W, 3|4) "
+                        f"colour, got shape {a.shape}")  # fmt: skip
+    return a
+
+
 def _vector(method: str, name: str, value: ArrayLike) -> NDArray[np.float64]:
     """``value`` as a float (3,) array; ``ValueError`` naming ``method`` and ``name`` when it is
     another shape (a numpy broadcast error names neither). Non-finite values pass: the sample
     checks drop them, counted."""
     if type(value) is np.ndarray and value.shape == (3,) and value.dtype == np.float64:
         return value  # the replay's rows: once per IMU sample, so the short way
-    a = np.asarray(value, dtype=float)
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{method}: {name} must hold 3 numbers, got {value!r}") from e
     if a.shape != (3,):
         raise ValueError(f"{method}: {name} must hold 3 values, got shape {a.shape}")
     return a

@@ -13,6 +13,7 @@ from typing import Literal
 
 from svains.errors import ConfigError
 from svains.models.vision_common import ROTATION_MODELS
+from svains.navigation.option_types import check_types
 
 ModelName = Literal["paper", "biased"]
 InitMode = Literal["static", "gps", "groundtruth", "vision"]
@@ -78,6 +79,7 @@ class NoiseOptions:
     static_probability: float = 0.999
 
     def __post_init__(self) -> None:
+        check_types(self, "noise.")
         if not 0 < self.static_probability < 1:
             raise ConfigError(
                 f"noise.static_probability must be in (0, 1), got {self.static_probability}"
@@ -384,6 +386,7 @@ class VisionOptions:
     max_keyframes: int = 500
 
     def __post_init__(self) -> None:
+        check_types(self, "vision.")
         if self.relocalise_min_features < 3 or self.max_keyframes < 1:
             raise ConfigError(
                 "vision.relocalise_min_features must be >= 3 and vision.max_keyframes >= 1, "
@@ -722,6 +725,7 @@ class FaultOptions:
     gps_latency_check: bool = True  # warn of GPS stamps late against the IMU's clock
 
     def __post_init__(self) -> None:
+        check_types(self, "faults.")
         if not self.imu_gap_factor > 1:
             raise ConfigError(f"faults.imu_gap_factor must be > 1, got {self.imu_gap_factor}")
         if not 0 < self.gap_vision_gate_probability < 1:
@@ -808,6 +812,7 @@ class ZuptOptions:
     velocity_std_mps: float = 0.002
 
     def __post_init__(self) -> None:
+        check_types(self, "zupt.")
         for name in ("window_s", "period_s", "velocity_std_mps", "limit_factor"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"zupt.{name} must be positive, got {getattr(self, name)}")
@@ -828,6 +833,7 @@ class SmootherOptions:
     chain_interval_s: float = 1.0
 
     def __post_init__(self) -> None:
+        check_types(self, "smoother.")
         if not self.chain_interval_s > 0:
             raise ConfigError(
                 f"smoother.chain_interval_s must be positive, got {self.chain_interval_s}"
@@ -870,6 +876,7 @@ class RunConfig:
     smoother: SmootherOptions = field(default_factory=SmootherOptions)
 
     def __post_init__(self) -> None:
+        check_types(self, "")
         if self.method not in ("ins", "vo", "lc", "tc", "3d"):
             raise ConfigError(f"method must be ins, vo, lc, tc or 3d, got {self.method!r}")
         if self.model not in ("paper", "biased"):

@@ -57,10 +57,15 @@ class SampleChecks:
             return f"magnetometer repeats the same vector {self._mag_repeats + 1} times (stuck)"
         return None
 
-    def gps(self, p_W_G: F64) -> str | None:
-        """Why the fix at ``p_W_G`` (3,) m is implausible (the same position as the fixes
-        before it, ``GPS_FROZEN_REPEATS`` times), or None."""
+    def gps(self, p_W_G: F64, v_W_G: F64 | None = None) -> str | None:
+        """Why the fix at ``p_W_G`` (3,) m with velocity ``v_W_G`` (3,) m/s (None: position
+        only) is implausible (a non-finite value; the same position as the fixes before it,
+        ``GPS_FROZEN_REPEATS`` times), or None."""
         p = np.asarray(p_W_G, dtype=float)
+        if not np.all(np.isfinite(p)):
+            return "non-finite GPS position"
+        if v_W_G is not None and not np.all(np.isfinite(v_W_G)):
+            return "non-finite GPS velocity"
         same = self._gps_last is not None and np.array_equal(p, self._gps_last)
         self._gps_repeats = self._gps_repeats + 1 if same else 0
         self._gps_last = p.copy()

@@ -43,6 +43,9 @@ class Starter:
         ``max_row_diff_px``: the stereo rows' tolerance of the start's odometry (``vision``)."""
         if given is None and options.mode == "groundtruth":
             raise ConfigError("init.mode groundtruth needs the initial state (initial_state=)")
+        if given is not None and options.mode != "groundtruth":
+            raise ConfigError(f"an initial_state is given but init.mode is {options.mode!r}: set "
+                              "init.mode groundtruth to start from it, or leave it out")
         if given is None and options.mode == "gps" and rig.gps is None:
             raise ConfigError("init.mode gps needs a GPS calibration in the rig")
         self.options = options
