@@ -369,6 +369,8 @@ USAGE_CASES: list[tuple[list[str], str]] = [
     (["compare", "{ds}", "--out", "{tmp}/o", "--gps-until", "-1"], "'--gps-until'"),
     (["frontend", "{ds}", "--out", "{tmp}/o", "--dense", "--dense-method", "foo"],
      "'--dense-method': must be 'sgbm' or 'elas'"),
+    (["run", "{ds}", "--out", "{tmp}/o", "--method", "vo", "--smooth"],
+     "--smooth (smoother.enabled): vo has no filter to smooth"),
     (["run", "{ds}", "--out", "{tmp}/o", "--set", "filter.gate_probability=0"],
      "filter.gate_probability must be a probability in [0.5, 1)"),
 ]
@@ -419,6 +421,10 @@ BAD_INPUT_FILES: list[tuple[str, Callable[[Path], list[str]], str]] = [
     ("run --images without images",
      lambda d: ["run", str(d / "ds"), "--out", str(d / "o"), "--method", "3d", "--images",
                 "--init", "groundtruth"], "image-based vision needs at least 2"),
+    # exit 0 with an empty trajectory before (a user's probe, 2026-12-06)
+    ("run vo --images without images",
+     lambda d: ["run", str(d / "ds"), "--out", str(d / "o"), "--method", "vo", "--images"],
+     "0 stereo pair(s) with images on disk; image-based vision needs at least 2"),
     ("frontend without images",
      lambda d: ["frontend", str(d / "ds"), "--out", str(d / "o")], "0 stereo pair(s)"),
     ("run a missing data set",

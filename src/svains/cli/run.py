@@ -150,6 +150,9 @@ def run(
             **kalibr_switches(calib, imu_calib),
         }  # fmt: skip
         config = build_config(config_file, setting, switches)
+        if config.method == "vo" and config.smoother.enabled:  # it was ignored, files missing
+            raise typer.BadParameter("--smooth (smoother.enabled): vo has no filter to smooth; "
+                                     "ins, lc, tc and 3d do")  # fmt: skip
         ds = load_dataset(dataset, calib=config.replay.calib, imu_calib=config.replay.imu_calib)
         hz = config.replay.synthetic_features_hz
         if hz is not None:

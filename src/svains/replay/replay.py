@@ -211,6 +211,10 @@ def replay(
         # Swapped left and right streams leave every match on the wrong side: refused before
         # any work (``frontend.stereo_check``; rows that do not fit are warned during the run).
         check_stereo_images(ds)
+        n_pairs = stereo_pairs(ds)[0].size if ds.left is not None and ds.right is not None else 0
+        if n_pairs < 2:  # vo too: it wrote an empty trajectory with exit 0
+            raise DatasetError(f"{ds.root}: {n_pairs} stereo pair(s) with images on disk; "
+                               "image-based vision needs at least 2")
     if config.method == "vo":  # stereo only: no IMU needed (KITTI odometry, bare rigs)
         from svains.replay.vo import run as run_vo
 
@@ -219,11 +223,6 @@ def replay(
     if ds.imu is None or len(ds.imu.t_ns) == 0:
         raise DatasetError(f"{ds.name}: no IMU stream (method {config.method} needs one; "
                            "vo and svains frontend run on stereo alone)")  # fmt: skip
-    if config.method != "ins" and config.vision.source == "images":
-        n_pairs = stereo_pairs(ds)[0].size if ds.left is not None and ds.right is not None else 0
-        if n_pairs < 2:
-            raise DatasetError(f"{ds.root}: {n_pairs} stereo pair(s) with images on disk; "
-                               "image-based vision needs at least 2")
     t_imu = np.asarray(ds.imu.t_ns, np.int64)
     t0 = int(t_imu[0]) + int(config.replay.start_s * 1e9)
     span = int(t_imu[-1]) - t0  # ns of IMU from the start (outages count from there)
