@@ -29,7 +29,7 @@ SPEC: dict[str, Any] = {
     "name": "test",
     "scenarios": {"village5": {"duration_s": 5.0, "camera.rate_hz": 5.0,
                                 "camera.render_images": False}},
-    "datasets": {"missing": {"path": "no/such/folder"}},
+    "datasets": {"missing": {"path": "empty"}},  # a folder that holds no data set
     "methods": ["ins", "3d"],
     "seeds": [0, 1, 2],
     "settings": {"init.mode": "groundtruth", "vision.source": "features",
@@ -49,6 +49,7 @@ def campaigns(tmp_path_factory: pytest.TempPathFactory) -> tuple[Any, Path, Path
     """The spec run on a 2-worker local cluster, and the same runs in this process with every
     group's runs in reverse order on one shared data set."""
     root = tmp_path_factory.mktemp("batch")
+    (root / "empty").mkdir()
     spec = parse_spec(SPEC, root)
     dask_dir, seq_dir = root / "dask", root / "seq"
     with dask_client(n_workers=2) as client:
@@ -89,7 +90,7 @@ def test_a_failing_run_records_its_error_and_the_others_finish(
     spec, dask_dir, _ = campaigns
     failed = [r for r in _rows(dask_dir / "summary.csv") if r["status"] == "failed"]
     assert {r["source"] for r in failed} == {"missing"} and len(failed) == 2
-    assert all("data set folder not found" in r["error"] for r in failed)
+    assert all("unrecognised data set" in r["error"] for r in failed)
     task = next(t for t in spec.tasks() if t.source == "missing")
     marker = read_marker(dask_dir, task)
     assert marker is not None and "DatasetError" in marker["traceback"]

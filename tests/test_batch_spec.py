@@ -54,6 +54,39 @@ def test_a_bad_spec_is_refused_with_the_offending_key_named(
         parse_spec(_spec(**changes))
 
 
+def test_a_data_set_path_that_is_not_a_folder_is_refused_on_load(tmp_path: Path) -> None:
+    """Every run of it failed one by one before, after the others' work (a user's probe)."""
+    with pytest.raises(ConfigError, match=r"dataset 'd': path .*/nonexistent_ds is not a "
+                       r"folder"):  # fmt: skip
+        parse_spec(_spec(datasets={"d": {"path": "nonexistent_ds"}}), tmp_path)
+
+
+def test_metrics_no_finished_run_reports_are_named_with_the_closest_keys() -> None:
+    from svains.batch.summary import unknown_metrics
+
+    rows = [{"status": "ok", "ate_m": 0.1, "nees_mean": 9.0, "method": "3d"},
+            {"status": "failed", "ate": None}]
+    assert unknown_metrics(["ate", "nees_mean", "nees"], rows) == {
+        "ate": ["ate_m"], "nees": ["nees_mean"]}
+    assert unknown_metrics(["ate"], rows[1:]) == {}  # nothing finished: nothing to judge
+
+
+def test_a_campaign_with_a_failed_run_exits_1_naming_the_count(tmp_path: Path) -> None:
+    """``svains batch`` exited 0 with every run failed: a script or CI could not tell."""
+    from typer.testing import CliRunner
+
+    from svains.cli.main import app
+
+    (tmp_path / "empty").mkdir()
+    spec = tmp_path / "spec.yaml"
+    spec.write_text("name: x\ndatasets:\n  e: {path: empty}\nmethods: [ins]\n")
+    res = CliRunner().invoke(app, ["batch", str(spec), "--out", str(tmp_path / "c"),
+                                   "--sequential", "--no-figures"])  # fmt: skip
+    assert res.exit_code == 1, res.output
+    assert f"error: 1 of 1 runs failed (their errors: {tmp_path / 'c'}/summary.md)" in res.stderr
+    assert "unrecognised data set" in (tmp_path / "c" / "summary.md").read_text()
+
+
 def test_a_spec_file_that_is_not_a_mapping_names_the_file(tmp_path: Path) -> None:
     p = tmp_path / "s.yaml"
     p.write_text("- just\n- a list\n")
@@ -65,9 +98,10 @@ def test_a_spec_file_that_is_not_a_mapping_names_the_file(tmp_path: Path) -> Non
 
 
 def test_the_campaign_is_the_product_of_sources_seeds_configs_and_methods(tmp_path: Path) -> None:
+    (tmp_path / "data" / "x").mkdir(parents=True)
     spec = parse_spec(_spec(
         configs={"a": {}, "b": {"vision.pixel_noise_scale": 1.0}},
-        datasets={"real": {"path": "data/x"}, "synth": {"path": "/d", "synthetic_features_hz": 5}},
+        datasets={"real": {"path": "data/x"}, "synth": {"path": "/", "synthetic_features_hz": 5}},
     ), tmp_path)  # fmt: skip
     tasks = spec.tasks()
     # scenario and synthetic data set: 2 seeds x 2 configs x 2 methods; real: 2 configs x 2

@@ -203,10 +203,13 @@ def _dataset(name: str, value: Any, base: Path) -> dict[str, Any]:
         raise ConfigError(f"dataset '{name}': needs a 'path'")
     # Resolved on the submitting machine: workers must see the data set at this same path.
     path = Path(str(data["path"])).expanduser()
+    path = path if path.is_absolute() else (base / path).resolve()
+    if not path.is_dir():  # every run of it would fail, one by one, after the others' work
+        raise ConfigError(f"dataset '{name}': path {path} is not a folder")
     hz = data.get("synthetic_features_hz")
     if hz is not None and not (isinstance(hz, int | float) and hz > 0):
         raise ConfigError(f"dataset '{name}': synthetic_features_hz must be positive, got {hz!r}")
-    return {"path": str(path if path.is_absolute() else (base / path).resolve()),
+    return {"path": str(path),
             "synthetic_features_hz": hz}  # fmt: skip
 
 

@@ -10,6 +10,7 @@ Floats are written with ``repr``, so equal runs give equal rows.
 from __future__ import annotations
 
 import csv
+import difflib
 import json
 import math
 from collections.abc import Sequence
@@ -72,6 +73,19 @@ def metric_values(rows: list[dict[str, Any]], key: str) -> np.ndarray:
     vals = [r.get(key) for r in rows if r["status"] == "ok"]
     out = [float(v) for v in vals if isinstance(v, int | float) and not isinstance(v, bool)]
     return np.array([v for v in out if math.isfinite(v)])
+
+
+def unknown_metrics(metrics: Sequence[str], rows: list[dict[str, Any]]) -> dict[str, list[str]]:
+    """The ``metrics`` no finished run's report holds (a misspelt key: ``ate`` for ``ate_m``),
+    each with the report keys closest to it; empty before any run finished."""
+    keys: set[str] = set()
+    for r in rows:
+        if r["status"] == "ok":
+            keys.update(k for k, v in r.items() if isinstance(v, int | float))
+    if not keys:
+        return {}
+    return {m: difflib.get_close_matches(m, sorted(keys), n=3, cutoff=0.5)
+            for m in metrics if m not in keys}  # fmt: skip
 
 
 def _stats_table(groups: dict[GroupKey, list[dict[str, Any]]], key: str) -> list[str]:
@@ -149,6 +163,9 @@ def summary_markdown(
             f"{count['pending']} not run.", "", "## Statistics per method and configuration", ""]
     for key in spec.metrics:
         out += _stats_table(groups, key)
+    for key, close in unknown_metrics(spec.metrics, rows).items():
+        out += [f"Metric `{key}` is in no finished run's report"
+                + (f" (closest: {', '.join(f'`{c}`' for c in close)})" if close else ""), ""]
     if tests:
         out += _nees_table(tests)
     failed = [r for r in rows if r["status"] == "failed"]

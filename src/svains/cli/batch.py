@@ -34,6 +34,7 @@ def batch(
 ) -> None:
     """Run every unfinished run of SPEC into OUT, then write OUT/summary.csv and summary.md."""
     from svains.batch import CampaignProgress, load_spec, run_campaign
+    from svains.batch.summary import unknown_metrics
 
     console = Console()
     probe_writable(out, "--out")  # before any run: a campaign folder that cannot be written
@@ -67,6 +68,13 @@ def batch(
         name = escape(f"{source}/{config}/{method}")
         console.print(f"NEES {name}: {t.overall:.3f} over {t.n_runs} runs, "
                       f"95 % bounds [{lo:.3f}, {hi:.3f}]: {t.verdict}")  # fmt: skip
+    for key, close in unknown_metrics(campaign.metrics, summary.rows).items():
+        console.print(f"[yellow]warning:[/yellow] metric {escape(key)!r} is in no finished "
+                      "run's report" + (f" (closest: {escape(', '.join(close))})" if close
+                                        else ""))  # fmt: skip
+    if summary.count("failed"):  # a script or CI must see that the campaign is not whole
+        fail(f"{summary.count('failed')} of {len(summary.rows)} runs failed (their errors: "
+             f"{out}/summary.md)")
 
 
 def register(app: typer.Typer) -> None:
