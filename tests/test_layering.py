@@ -20,7 +20,7 @@ LAYERS: dict[str, int] = {
     "datasets": 5, "sim": 5, "replay": 6, "evaluation": 7, "batch": 8, "cli": 9,
 }  # fmt: skip
 # Top-level modules every layer may use.
-SHARED = {"errors", "outputs", "threads"}
+SHARED = {"errors", "outputs", "threads", "yaml_io"}
 
 # (importing module or package, imported svains module) -> why it is allowed. Keep it short.
 LAYER_EXCEPTIONS: dict[tuple[str, str], str] = {

@@ -28,6 +28,7 @@ from svains.batch.settings import run_options_from_settings
 from svains.errors import ConfigError
 from svains.evaluation.compare import METHODS
 from svains.sim.config import SimConfig
+from svains.yaml_io import load_yaml
 
 SourceKind = Literal["scenario", "dataset"]
 
@@ -271,10 +272,10 @@ def parse_spec(raw: Any, base: Path = Path(".")) -> CampaignSpec:
 
 
 def load_spec(path: Path | str) -> CampaignSpec:
-    """Read and validate a YAML spec (plain ``yaml.safe_load``: data, no tags, no code)."""
+    """Read and validate a YAML spec (``yaml_io.load_yaml``: data only, no key twice)."""
     p = Path(path)
     try:
-        raw = yaml.safe_load(p.read_text(encoding="utf-8"))
+        raw = load_yaml(p.read_text(encoding="utf-8"))
     except (OSError, yaml.YAMLError) as exc:
         raise ConfigError(f"cannot read campaign spec {p}: {exc}") from exc
     try:

@@ -16,6 +16,7 @@ import yaml
 from numpy.typing import NDArray
 
 from svains.errors import CalibrationError, DatasetError
+from svains.yaml_io import load_yaml
 
 YAML_DIRECTIVE = "%YAML:1.0"
 
@@ -84,9 +85,10 @@ def read_sensor_yaml(path: Path) -> dict[str, Any]:
     """Load a ``%YAML:1.0`` file (the directive, which PyYAML rejects, is stripped)."""
     text = read_text(path)
     if text.lstrip().startswith("%YAML"):
-        text = text.split("\n", 1)[1] if "\n" in text else ""
+        # a blank line in its place keeps the line numbers of errors the file's own
+        text = "\n" + text.split("\n", 1)[1] if "\n" in text else ""
     try:
-        data = yaml.safe_load(text)
+        data = load_yaml(text)
     except yaml.YAMLError as exc:
         raise CalibrationError(f"{path}: invalid YAML: {exc}") from exc
     if data is None:

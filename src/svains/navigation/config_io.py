@@ -16,6 +16,7 @@ import yaml
 from svains.errors import ConfigError
 from svains.navigation.option_types import build
 from svains.navigation.options import RunConfig
+from svains.yaml_io import load_yaml
 
 
 def to_dict(config: Any) -> dict[str, Any]:
@@ -47,7 +48,7 @@ def to_yaml(config: RunConfig, path: Path | None = None, header: str = "") -> st
 def from_yaml(path: Path) -> RunConfig:
     """Read a configuration file (a partial one: missing keys keep their defaults)."""
     try:
-        data = yaml.safe_load(Path(path).read_text(encoding="utf-8")) or {}
+        data = load_yaml(Path(path).read_text(encoding="utf-8")) or {}
     except (OSError, yaml.YAMLError) as exc:
         raise ConfigError(f"cannot read run configuration {path}: {exc}") from exc
     if not isinstance(data, dict):
@@ -78,6 +79,6 @@ def parse_setting(item: str) -> tuple[str, Any]:
         raise ConfigError(f"expected section.key=value, got {item!r}")
     key, text = item.split("=", 1)
     try:
-        return key.strip(), yaml.safe_load(text)
+        return key.strip(), load_yaml(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{key.strip()}: cannot parse {text!r}: {exc}") from exc

@@ -26,6 +26,7 @@ import yaml
 
 from svains.datasets.validate import GRAVITY_RANGE_M_S2
 from svains.errors import ConfigError
+from svains.yaml_io import load_yaml
 
 PAPER_GYRO_STD = math.radians(math.sqrt(50.0))  # rad/s per sample (see module docstring)
 PAPER_ACCEL_STD = math.sqrt(0.5)  # m/s² per sample
@@ -255,7 +256,7 @@ class SimConfig:
     @classmethod
     def from_yaml(cls, path: Path | str) -> SimConfig:
         try:
-            data = yaml.safe_load(Path(path).read_text()) or {}
+            data = load_yaml(Path(path).read_text()) or {}
         except (OSError, yaml.YAMLError) as exc:
             raise ConfigError(f"cannot read simulator config {path}: {exc}") from exc
         if not isinstance(data, dict):
