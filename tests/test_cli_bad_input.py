@@ -402,7 +402,7 @@ BAD_INPUT_FILES: list[tuple[str, Callable[[Path], list[str]], str]] = [
      "se3 alignment is undetermined"),
     ("evaluate zero quaternion",
      lambda d: ["evaluate", str(_tum(d / "a.tum", "0 0 0 0")), str(_tum(d / "b.tum"))],
-     "quaternion norm 0"),
+     "quaternion norm 0: no rotation"),
     ("evaluate missing file",
      lambda d: ["evaluate", str(d / "none.tum"), str(_tum(d / "b.tum"))], "missing file"),
     ("simulate zero gravity config",

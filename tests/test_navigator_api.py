@@ -214,3 +214,23 @@ def test_misused_arguments_get_a_typed_error_naming_them() -> None:
     nav.feed_tracks(6, [1.0, 2.0], [[1.0, 2.0], [3.0, 4.0]], [[0.5, 2.0], [2.5, 4.0]])
     (_, _, _, first), (_, _, _, second) = sorted(nav.queue._heap)
     assert first[1].shape == first[2].shape == (4, 6) and second[1].dtype == np.int64
+
+
+def test_a_gps_start_whose_fixes_all_came_late_says_so() -> None:
+    """Fixes fed 150 ms after their time with the default 0.1 s window: all dropped as late,
+    and the start's error said only that the stream had no fix (a user's probe)."""
+    nav = Navigator(RunConfig(init=InitOptions(mode="gps")), _gps_rig())
+    rng = np.random.default_rng(7)
+    pending: list[int] = []
+    for k in range(int(6.0 * 200)):
+        t = 1_000_000_000 + k * 5_000_000
+        nav.feed_imu(t, 1e-3 * rng.standard_normal(3), [0.0, 0.0, G])
+        if k % 200 == 0:
+            pending.append(t)
+        if pending and t - pending[0] >= 150_000_000:
+            nav.feed_gps(pending.pop(0), np.zeros(3), np.zeros(3))
+    with pytest.raises(InitialisationError, match=r"; 6 gps measurement\(s\) came more than "
+                       r"buffer\.window_s \(0\.1 s\) after the IMU sample of their time and were "
+                       r"dropped: a longer window waits for them"):  # fmt: skip
+        nav.close()
+    assert nav.queue.late == {"gps": 6}

@@ -93,3 +93,29 @@ def test_format_override_and_bad_files(files: dict[str, Path], tmp_path: Path) -
     odd.write_text("1 2 3 4 5\n")
     with pytest.raises(DatasetError, match="first row of 5 fields"):
         read_trajectory(odd)
+
+
+def test_scaled_quaternions_are_normalised_and_a_header_without_hash_is_read(
+    files: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Legal files evo reads (a user's probe): quaternions rounded or scaled (norm 1.01, 2)
+    name one rotation each and are normalised with a warning; an EuRoC csv whose header lacks
+    its '#' (pandas' to_csv) is read. A zero quaternion is still refused."""
+    t, p, q = read_trajectory(files["tum"])
+    scaled = tmp_path / "scaled.tum"
+    write_tum(scaled, t, p, q * np.where(np.arange(t.size) % 2, 1.0, 2.0)[:, None])
+    with caplog.at_level("WARNING", logger="svains.datasets.trajectory"):
+        _, _, q2 = read_trajectory(scaled)
+    np.testing.assert_allclose(q2, q, atol=1e-12)
+    assert "150 quaternion(s) off unit norm by more than 0.01 (line" in caplog.text
+    assert ": 2): normalised" in caplog.text
+    text = files["euroc"].read_text()
+    bare = tmp_path / "bare.csv"
+    bare.write_text(text.lstrip("#"))
+    t3, p3, _ = read_trajectory(bare, fmt="euroc")
+    np.testing.assert_array_equal(t3, t)
+    np.testing.assert_allclose(p3, p, atol=1e-12)
+    zero = tmp_path / "zero.tum"
+    zero.write_text("0.0 1 2 3 0 0 0 0\n")
+    with pytest.raises(DatasetError, match=r"zero\.tum:1: quaternion norm 0: no rotation"):
+        read_trajectory(zero)

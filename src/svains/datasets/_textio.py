@@ -169,7 +169,8 @@ def write_csv(path: Path, header: str | Sequence[str], blocks: Sequence[NDArray[
 def read_csv_rows(path: Path, n_cols: int | tuple[int, ...]) -> tuple[list[list[str]], list[int]]:
     """Split a ``#``-headed CSV into rows of ``n_cols`` fields and their 1-based line numbers.
 
-    Blank lines and ``#`` comment lines are skipped; a row with another field count raises a
+    Blank lines and ``#`` comment lines are skipped, and so is a first line that starts with a
+    letter (a header written without its ``#``); a row with another field count raises a
     DatasetError naming the file and line. ``n_cols`` as a tuple allows several layouts (a
     GPS with or without velocity): the first row picks one and every row must follow it.
     """
@@ -181,6 +182,10 @@ def read_csv_rows(path: Path, n_cols: int | tuple[int, ...]) -> tuple[list[list[
     for k, raw in enumerate(lines, start=1):
         line = raw.strip()
         if not line or line.startswith("#"):
+            continue
+        if not rows and line[0].isalpha():
+            # a header without its '#' (pandas' to_csv writes "timestamp,..."): no row starts
+            # with a letter, and the first one that does could be nothing else
             continue
         fields = [f.strip() for f in line.split(",")]
         if len(fields) not in allowed:

@@ -132,7 +132,7 @@ def _imu_columns(path: Path) -> list[int]:
     one naming all six."""
     with open(path, encoding="utf-8-sig", errors="replace") as fh:
         first = fh.readline().strip()
-    if not first.startswith("#"):
+    if not (first.startswith("#") or first[:1].isalpha()):  # a header, with or without '#'
         return list(range(6))
     names = [f.strip().lower().split(" ")[0] for f in first.lstrip("#").split(",")[1:]]
     order: list[int] = []

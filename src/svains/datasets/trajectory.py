@@ -6,6 +6,7 @@ quaternions between our scalar-first ``q_wxyz`` and TUM's ``qx qy qz qw`` at thi
 
 from __future__ import annotations
 
+import logging
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
 
@@ -17,7 +18,11 @@ from svains.datasets.types import GroundTruth
 from svains.datasets.validate import QUATERNION_NORM_TOL
 from svains.errors import DatasetError
 
+log = logging.getLogger(__name__)
+
 TUM_HEADER = "timestamp[s] tx ty tz qx qy qz qw"
+# Below this norm a quaternion is read as no rotation at all (zeros), not a scaled one.
+MIN_QUATERNION_NORM = 0.1
 
 
 def ns_to_seconds_text(t_ns: int) -> str:
@@ -104,13 +109,18 @@ def read_tum(
         kind = "duplicate" if d[i - 1] == 0 else "non-increasing"
         raise DatasetError(f"{path}:{lines[i]}: {kind} timestamp")
     q_wxyz = np.concatenate([a[:, 6:7], a[:, 3:6]], axis=1)
-    norm_bad = np.flatnonzero(np.abs(np.linalg.norm(q_wxyz, axis=1) - 1.0) > QUATERNION_NORM_TOL)
-    if norm_bad.size:
-        i = int(norm_bad[0])
-        raise DatasetError(
-            f"{path}:{lines[i]}: quaternion norm {np.linalg.norm(q_wxyz[i]):.4g}, expected 1"
-        )
-    return t_ns, a[:, 0:3].copy(), q_wxyz
+    norm = np.linalg.norm(q_wxyz, axis=1)
+    if np.any(norm < MIN_QUATERNION_NORM):
+        i = int(np.flatnonzero(norm < MIN_QUATERNION_NORM)[0])
+        raise DatasetError(f"{path}:{lines[i]}: quaternion norm {norm[i]:.4g}: no rotation")
+    off = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_NORM_TOL)
+    if off.size:
+        # Rounded or scaled quaternions still name one rotation; evo (the oracle) reads them
+        # the same way, normalised.
+        i = int(off[np.argmax(np.abs(norm[off] - 1.0))])
+        log.warning("%s: %d quaternion(s) off unit norm by more than %g (line %d: %.4g): "
+                    "normalised", path, off.size, QUATERNION_NORM_TOL, lines[i], norm[i])
+    return t_ns, a[:, 0:3].copy(), q_wxyz / norm[:, None]
 
 
 def write_groundtruth_tum(path: Path | str, gt: GroundTruth) -> Path:

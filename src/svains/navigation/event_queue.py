@@ -31,6 +31,7 @@ class EventQueue:
         self.max_pending = max_pending
         self.horizon_ns: int | None = None
         self.dropped: dict[str, int] = {}
+        self.late: dict[str, int] = {}  # of the dropped: those that came after their time
         self._heap: list[tuple[int, int, int, Any]] = []
         self._seq = 0
 
@@ -48,7 +49,9 @@ class EventQueue:
         """Queue a measurement; False (dropped, counted) if it is late or the queue is full."""
         name = KIND_NAMES[kind]
         if self.horizon_ns is not None and t_ns < self.horizon_ns:
-            self.drop(name, t_ns, "late: stamped before what was already processed")
+            self.late[name] = self.late.get(name, 0) + 1
+            self.drop(name, t_ns, "late: stamped before what was already processed, more than "
+                      "buffer.window_s behind the newest IMU sample")  # fmt: skip
             return False
         if len(self._heap) >= self.max_pending:
             self.drop(name, t_ns, f"{self.max_pending} measurements already wait for the IMU")

@@ -275,8 +275,13 @@ class Navigator:
                         f"in-flight start from vision: the stream ended before "
                         f"{self.config.init.vision_window_s:g} s of linked stereo frames (the "
                         f"last chain: {len(odo.t_ns)} frames over {odo.span_s():.2f} s)")
+                late = "".join(f"; {n} {kind} measurement(s) came more than buffer.window_s "
+                               f"({self.config.buffer.window_s:g} s) after the IMU sample of "
+                               "their time and were dropped: a longer window waits for them"
+                               for kind, n in self.queue.late.items())  # fmt: skip
                 raise InitialisationError("the stream ended before the initial state was "
-                                          f"decided: {self.starter.waiting_for(self.history)}")
+                                          f"decided: {self.starter.waiting_for(self.history)}"
+                                          f"{late}")  # fmt: skip
             self._finish(end)
         if self.core is None:
             raise ConfigError("no IMU sample was fed: nothing to estimate")

@@ -876,7 +876,6 @@ class RunConfig:
     smoother: SmootherOptions = field(default_factory=SmootherOptions)
 
     def __post_init__(self) -> None:
-        check_types(self, "")
         if self.method not in ("ins", "vo", "lc", "tc", "3d"):
             raise ConfigError(f"method must be ins, vo, lc, tc or 3d, got {self.method!r}")
         if self.model not in ("paper", "biased"):
@@ -885,6 +884,7 @@ class RunConfig:
             raise ConfigError(
                 f"init.mode must be static, gps, groundtruth or vision, got {self.init.mode!r}"
             )
+        check_types(self, "")
         _check_numbers(self, "")
         if not self.output_period_s >= MIN_OUTPUT_PERIOD_S:
             raise ConfigError(f"output_period_s must be at least {MIN_OUTPUT_PERIOD_S} s (outputs "
