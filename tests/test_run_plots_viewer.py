@@ -142,3 +142,25 @@ def test_view_and_plot_never_replace_a_file_without_force(run_dir: Path, tmp_pat
     res = runner.invoke(app, ["plot", str(run_dir), "--out", str(out), "--force"])
     assert res.exit_code == 0, res.output
     assert (out / "measurements.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_plot_with_a_data_set_without_ground_truth_or_of_another_name_still_draws(
+    run_dir: Path, euroc_micro: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A user's probe: --dataset without ground truth wrote nothing (exit 1); another data set
+    than the run's was plotted against without a word; a report.json given for the folder was
+    refused as an '--out' problem."""
+    from dataclasses import replace
+
+    ds = load_dataset(euroc_micro)
+    with caplog.at_level("WARNING", logger="svains.evaluation.plots"):
+        files = plot_run(run_dir, replace(ds, groundtruth=None), tmp_path / "a")
+        assert [f.path.name for f in files] == ["measurements.png"]
+        assert "no ground truth, so no error or NEES plots" in caplog.text
+        assert "was made on the data set" not in caplog.text
+        plot_run(run_dir, replace(ds, name="other"), tmp_path / "b")
+    assert (f"{run_dir} was made on the data set 'euroc_v101_micro', and {ds.root} is 'other'"
+            in caplog.text)  # fmt: skip
+    res = runner.invoke(app, ["plot", str(run_dir / "report.json"), "--out", str(tmp_path / "c")])
+    assert res.exit_code == 2
+    assert f"report.json is a file: give the run's folder ({run_dir})" in res.stderr

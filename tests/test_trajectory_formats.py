@@ -119,3 +119,13 @@ def test_scaled_quaternions_are_normalised_and_a_header_without_hash_is_read(
     zero.write_text("0.0 1 2 3 0 0 0 0\n")
     with pytest.raises(DatasetError, match=r"zero\.tum:1: quaternion norm 0: no rotation"):
         read_trajectory(zero)
+
+
+def test_format_names_the_estimate_when_the_reference_is_a_data_set_folder(
+    files: dict[str, Path], euroc_micro: Path
+) -> None:
+    """``--format tum`` against a data-set folder said "missing file: FOLDER" (a user's probe):
+    the folder is read as a data set whatever --format says."""
+    res = runner.invoke(app, ["evaluate", str(files["tum"]), str(euroc_micro), "--format", "tum"])
+    assert res.exit_code == 0, res.output
+    assert "300 matched poses" in res.output

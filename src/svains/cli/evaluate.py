@@ -49,7 +49,8 @@ def evaluate(
         str | None,
         typer.Option(
             "--format",
-            help="Format of both files (tum, euroc, kitti, bag, dataset); default: detected.",
+            help="Format of both files (tum, euroc, kitti, bag, dataset; a data-set folder "
+            "given as reference is read as one); default: detected.",
         ),
     ] = None,
     ref_format: Annotated[
@@ -78,7 +79,9 @@ def evaluate(
         deltas = delta if delta else [1.0, 5.0]
         rep = evaluate_files(
             est, gt, align=align, delta_m=deltas, max_diff_s=max_diff,  # type: ignore[arg-type]
-            est_format=fmt, ref_format=ref_format or fmt,  # type: ignore[arg-type]
+            # a data-set folder given as reference is read as one whatever --format says
+            est_format=fmt,  # type: ignore[arg-type]
+            ref_format=ref_format or (None if gt.is_dir() else fmt),  # type: ignore[arg-type]
             est_topic=est_topic, ref_topic=ref_topic,
         )  # fmt: skip
     except SvainsError as exc:

@@ -9,7 +9,7 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from svains.cli._common import check_out_file, fail
+from svains.cli._common import check_out_file, fail, usage_error
 from svains.errors import SvainsError
 
 
@@ -29,6 +29,8 @@ def plot(
     from svains.evaluation.plots import plot_run
     from svains.evaluation.run_record import PLOT_NAMES
 
+    if run_dir.is_file():
+        usage_error(f"{run_dir} is a file: give the run's folder ({run_dir.parent})", "RUN_DIR")
     for name in PLOT_NAMES:  # before any work: never replace a file without --force
         check_out_file((out if out is not None else run_dir) / name, force, "--out")
 
@@ -43,6 +45,8 @@ def plot(
                              + (" ..." if len(f.panels) > 3 else "")))  # fmt: skip
     if dataset is None:
         console.print("no --dataset: errors.png and nees.png need its ground truth")
+    elif ds is not None and ds.groundtruth is None:
+        console.print(escape(f"{dataset} has no ground truth: errors.png and nees.png need it"))
 
 
 def register(app: typer.Typer) -> None:

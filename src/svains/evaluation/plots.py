@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,8 +25,9 @@ from matplotlib.figure import Figure
 from scipy.stats import chi2
 
 from svains.datasets.types import Dataset
-from svains.errors import DatasetError
 from svains.evaluation.run_record import RunErrors, RunRecord, read_run, run_errors
+
+log = logging.getLogger(__name__)
 
 _ERR_ROWS = (("position", "m", 1.0), ("velocity", "m/s", 1.0), ("attitude", "deg", 180 / np.pi))
 
@@ -181,6 +183,11 @@ def plot_run(run_dir: Path | str, dataset: Dataset | None, out_dir: Path | str) 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     files = []
+    made_on = rec.report.get("dataset")
+    if dataset is not None and made_on is not None and made_on != dataset.name:
+        log.warning("%s was made on the data set '%s', and %s is '%s': the errors are against "
+                    "another recording's ground truth unless it is the same one renamed",
+                    run_dir, made_on, dataset.root, dataset.name)  # fmt: skip
     if dataset is not None and dataset.groundtruth is not None:
         g = np.asarray(dataset.gravity_W, float)
         up = -g / np.linalg.norm(g)
@@ -191,8 +198,8 @@ def plot_run(run_dir: Path | str, dataset: Dataset | None, out_dir: Path | str) 
         files.append(plot_errors(err, out / "errors.png", sm))
         if np.isfinite(err.nees).any():
             files.append(plot_nees(err, out / "nees.png", smoothed=sm))
-    elif dataset is not None:
-        raise DatasetError(f"{dataset.root}: no ground truth, so no error or NEES plots")
+    elif dataset is not None:  # the measurements' figure needs none
+        log.warning("%s: no ground truth, so no error or NEES plots", dataset.root)
     files.append(plot_measurements(rec, out / "measurements.png"))
     if "time_offset_history" in (rec.report.get("vision") or {}):
         files.append(plot_time_offset(rec.report, out / "time_offset.png",
