@@ -90,6 +90,12 @@ def test_smoothing_is_a_step_after_the_run(village_outage: Path) -> None:
     with pytest.raises(ConfigError, match=r"kept no history to smooth: run it with "
                                           r"smoother\.enabled"):
         smoothed_result(plain)
+    # misuse (a user's probe): "run it with smoother.enabled", an AttributeError
+    with pytest.raises(ConfigError, match="this RunResult is smoothed already"):
+        smoothed_result(sm)
+    with pytest.raises(TypeError, match="smoothed_result takes the RunResult of a finished "
+                       "run"):  # fmt: skip
+        smoothed_result(fwd.history)  # type: ignore[arg-type]
 
 
 def test_bad_smoother_settings_are_refused() -> None:

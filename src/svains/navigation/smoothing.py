@@ -46,6 +46,12 @@ def smoothed_result(result: RunResult) -> RunResult:
     """The smoothed estimates of ``result`` (a run made with ``smoother.enabled``): the same
     times, ``x``, ``std``, ``P9``; its ``report`` holds the forward run's identification keys
     (``method``, GPS-off windows) and ``smoothing`` (wall time, what was kept)."""
+    if not isinstance(result, RunResult):
+        raise TypeError(f"smoothed_result takes the RunResult of a finished run (Navigator."
+                        f"close()), got {type(result).__name__}")  # fmt: skip
+    if "smoothing" in result.report:
+        raise ConfigError("this RunResult is smoothed already: smooth the forward run's "
+                          "RunResult (Navigator.close())")  # fmt: skip
     rec = result.history
     if rec is None:
         raise ConfigError("the run kept no history to smooth: run it with smoother.enabled "

@@ -110,8 +110,10 @@ class SonarCalib:
 class Rig:
     """Everything the estimator knows about the sensors, besides their measurements.
 
-    ``gravity_W`` (3,) m/s²; ``imu_period_s``: the IMU's nominal sample period (sets ω's white
-    noise and the process noise per step; a replay takes the median step of the recording);
+    ``gravity_W`` (3,) m/s²; ``imu_period_s``: the IMU's nominal sample period, used only
+    without an IMU calibration (then it sets a sample's white noise and seeds the guard's
+    spacing; ``imu.rate_hz`` does both when there is one); a replay takes the median step of
+    the recording;
     calibrations ``None`` when the sensor is absent (no IMU calibration: EuRoC ADIS16448 noise,
     identity mount). ``cam0``/``cam1`` define the rectified stereo pair the vision methods use.
     """
