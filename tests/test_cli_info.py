@@ -36,6 +36,7 @@ def test_info_euroc_micro(euroc_micro: Path, tmp_path: Path) -> None:
     summary = json.loads((tmp_path / "i.json").read_text())
     assert summary["missing_images"] == {"cam1": 4}
     assert summary["unreadable_images"] == {}
+    assert summary["stereo_pairs"] == {"pairs": 95, "cam0_unpaired": 0, "cam1_unpaired": 0}
     assert summary["streams"]["imu"]["span_s"] == pytest.approx(145.595, abs=1e-3)
     assert summary["streams"]["groundtruth"]["rate_hz"] == pytest.approx(20.0, rel=1e-3)
 
@@ -76,11 +77,17 @@ def test_info_lists_images_that_cannot_be_decoded(tmp_path: Path) -> None:
     left[1].write_bytes(left[1].read_bytes()[:-20])
     left[2].write_bytes(b"")
     right[0].write_text("not an image")
+    # cam1 stopped two frames early: its last two rows gone (a user's probe: info was silent)
+    csv1 = root / "mav0" / "cam1" / "data.csv"
+    csv1.write_text("\n".join(csv1.read_text().rstrip("\n").split("\n")[:-2]) + "\n")
     res = runner.invoke(app, ["info", str(root), "--json", str(tmp_path / "i.json")],
                         env={"COLUMNS": "400"})  # fmt: skip
     assert res.exit_code == 0, res.output
     assert (f"Unreadable files: 3 image(s) that cannot be decoded, dropped by run (cam0: 2, cam1: "
             f"1; first {left[1]}: no PNG end chunk (cut short?))") in res.output
+    assert "Stereo pairs: 2; without a partner: cam0 2, cam1 0 frame(s)" in res.output
+    assert json.loads((tmp_path / "i.json").read_text())["stereo_pairs"] == {
+        "pairs": 2, "cam0_unpaired": 2, "cam1_unpaired": 0}
     unreadable = json.loads((tmp_path / "i.json").read_text())["unreadable_images"]
     assert unreadable["cam1"] == {"count": 1, "first": str(right[0]),
                                   "reason": "not a PNG (no PNG signature)"}  # fmt: skip

@@ -188,6 +188,9 @@ def test_misused_arguments_get_a_typed_error_naming_them() -> None:
         Navigator(RunConfig(), None)  # type: ignore[arg-type]
     with pytest.raises(TypeError, match="Navigator: on_output must be callable, got 42"):
         Navigator(RunConfig(), Rig(), on_output=42)  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match=r"rig\.gravity_W has magnitude 1 m/s², expected "
+                       r"9\.7-9\.9 \(Earth\)"):  # fmt: skip
+        Navigator(RunConfig(), Rig(gravity_W=(0.0, 0.0, -1.0)))
     with pytest.raises(ConfigError, match=r"output_period_s must be a number, got '0\.1'"):
         RunConfig(output_period_s="0.1")  # type: ignore[arg-type]
     with pytest.raises(ConfigError, match=r"an initial_state is given but init\.mode is 'gps'"):

@@ -40,6 +40,11 @@ def _print(summary: dict[str, Any], console: Console) -> None:
         )
     else:
         console.print("Missing files: none")
+    pairs = summary["stereo_pairs"]
+    if pairs is not None and (pairs["cam0_unpaired"] or pairs["cam1_unpaired"]):
+        console.print(
+            f"[yellow]Stereo pairs:[/yellow] {pairs['pairs']}; without a partner: cam0 "
+            f"{pairs['cam0_unpaired']}, cam1 {pairs['cam1_unpaired']} frame(s) (vision skips them)")
     unreadable = summary["unreadable_images"]
     if unreadable:
         n = sum(u["count"] for u in unreadable.values())

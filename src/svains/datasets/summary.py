@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from svains.datasets.loader import stream_times
+from svains.datasets.loader import stereo_pairs, stream_times
 from svains.datasets.stereo_images import recorded_stereo_check
 from svains.datasets.types import Dataset
 from svains.datasets.validate import gps_course_vs_imu_turn, image_file_problem, mag_frame_turn
@@ -103,9 +103,20 @@ def dataset_summary(ds: Dataset) -> dict[str, Any]:
         "streams": streams,
         "missing_images": dict(ds.missing_images),
         "unreadable_images": _unreadable_images(ds),
+        "stereo_pairs": _stereo_pairs(ds),
         "calibration": calib,
         "checks": _checks(ds),
     }
+
+
+def _stereo_pairs(ds: Dataset) -> dict[str, Any] | None:
+    """Frames the two cameras share (``loader.stereo_pairs``) and those of each without a
+    partner (a camera that stopped early, dropped frames); None without two cameras."""
+    if ds.left is None or ds.right is None:
+        return None
+    t, il, ir = stereo_pairs(ds)
+    return {"pairs": int(t.size), "cam0_unpaired": len(ds.left) - int(np.unique(il).size),
+            "cam1_unpaired": len(ds.right) - int(np.unique(ir).size)}  # fmt: skip
 
 
 def _unreadable_images(ds: Dataset) -> dict[str, Any]:

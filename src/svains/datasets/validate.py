@@ -27,6 +27,7 @@ from svains.datasets.types import (
 )
 from svains.errors import CalibrationError, DatasetError
 from svains.sensors.units import (
+    GRAVITY_RANGE_M_S2,
     accel_units_problem,
     course_turn_problem,
     gps_clock_problem,
@@ -41,7 +42,6 @@ log = logging.getLogger(__name__)
 
 # Earth's surface gravity spans 9.780 (equator) to 9.832 m/s² (poles), minus 0.003 m/s² per km
 # of altitude; the band leaves room for rounding (9.8, 9.81) and local anomalies.
-GRAVITY_RANGE_M_S2 = (9.7, 9.9)
 # Largest |R^T R - I| entry of a rotation read from text (Kalibr writes 1e-9; four-decimal
 # hand-written matrices 1e-4).
 ROTATION_TOL = 1e-3

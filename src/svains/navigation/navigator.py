@@ -43,7 +43,7 @@ from svains.navigation.tracks import TrackOptions
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames, rig_from_calibrations
 from svains.navigation.zupt import StaticTest
 from svains.sensors.types import Rig
-from svains.sensors.units import accel_units_problem
+from svains.sensors.units import GRAVITY_RANGE_M_S2, accel_units_problem
 
 F64 = NDArray[np.float64]
 log = logging.getLogger(__name__)
@@ -74,6 +74,10 @@ class Navigator:
             raise TypeError(f"Navigator: on_output must be callable, got {on_output!r}")
         if config.method == "vo":
             raise ConfigError("method vo has no filter: use svains.replay (VO chain) instead")
+        g = float(np.linalg.norm(rig.gravity_W))
+        if not GRAVITY_RANGE_M_S2[0] <= g <= GRAVITY_RANGE_M_S2[1]:
+            raise ConfigError(f"rig.gravity_W has magnitude {g:.4g} m/s², expected "
+                              f"{GRAVITY_RANGE_M_S2[0]}-{GRAVITY_RANGE_M_S2[1]} (Earth)")
         if rig.imu_period_s <= 0:
             raise ConfigError(f"rig.imu_period_s must be positive, got {rig.imu_period_s}")
         self.config = config

@@ -15,6 +15,8 @@ F64 = NDArray[np.float64]
 # force averages about 1 g (a racing quadrotor's median stays under 2 g); outside this band
 # the column is in another unit (g, mg, ft/s²) or has gravity removed.
 ACCEL_MEDIAN_RANGE_G = (0.5, 3.0)
+# Earth's gravity anywhere on its surface (m/s²): a value outside is a unit or a typing error.
+GRAVITY_RANGE_M_S2 = (9.7, 9.9)
 
 
 def accel_units_problem(accel_S: NDArray[np.float64], g_W: NDArray[np.float64]) -> str | None:
