@@ -232,8 +232,8 @@ def test_a_gps_start_whose_fixes_all_came_late_says_so() -> None:
             pending.append(t)
         if pending and t - pending[0] >= 150_000_000:
             nav.feed_gps(pending.pop(0), np.zeros(3), np.zeros(3))
-    with pytest.raises(InitialisationError, match=r"; 6 gps measurement\(s\) came more than "
-                       r"buffer\.window_s \(0\.1 s\) after the IMU sample of their time and were "
-                       r"dropped: a longer window waits for them"):  # fmt: skip
+    with pytest.raises(InitialisationError, match=r"; dropped for coming more than buffer\."
+                       r"window_s \(0\.1 s\) after the IMU sample of their time: 6 gps "
+                       r"measurement\(s\) \(a longer window waits for them\)"):  # fmt: skip
         nav.close()
     assert nav.queue.late == {"gps": 6}

@@ -120,7 +120,8 @@ def read_tum(
         i = int(off[np.argmax(np.abs(norm[off] - 1.0))])
         log.warning("%s: %d quaternion(s) off unit norm by more than %g (line %d: %.4g): "
                     "normalised", path, off.size, QUATERNION_NORM_TOL, lines[i], norm[i])
-    return t_ns, a[:, 0:3].copy(), q_wxyz / norm[:, None]
+        q_wxyz[off] /= norm[off, None]  # the rest as written: a round trip stays exact
+    return t_ns, a[:, 0:3].copy(), q_wxyz
 
 
 def write_groundtruth_tum(path: Path | str, gt: GroundTruth) -> Path:

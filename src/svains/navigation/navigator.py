@@ -279,10 +279,11 @@ class Navigator:
                         f"in-flight start from vision: the stream ended before "
                         f"{self.config.init.vision_window_s:g} s of linked stereo frames (the "
                         f"last chain: {len(odo.t_ns)} frames over {odo.span_s():.2f} s)")
-                late = "".join(f"; {n} {kind} measurement(s) came more than buffer.window_s "
-                               f"({self.config.buffer.window_s:g} s) after the IMU sample of "
-                               "their time and were dropped: a longer window waits for them"
-                               for kind, n in self.queue.late.items())  # fmt: skip
+                late = "" if not self.queue.late else (
+                    "; dropped for coming more than buffer.window_s "
+                    f"({self.config.buffer.window_s:g} s) after the IMU sample of their time: "
+                    + ", ".join(f"{n} {kind}" for kind, n in self.queue.late.items())
+                    + " measurement(s) (a longer window waits for them)")  # fmt: skip
                 raise InitialisationError("the stream ended before the initial state was "
                                           f"decided: {self.starter.waiting_for(self.history)}"
                                           f"{late}")  # fmt: skip
