@@ -34,11 +34,17 @@ def build_options(
 
 def run_compare(
     dataset: Path, out: Path, methods: list[str], options: Any, figures: bool, console: Console,
-    synthetic_features_hz: float | None = None,
+    synthetic_features_hz: float | None = None, allow_degraded: bool = False,
 ) -> dict[str, Any]:
     """Load, run each method with a progress bar, write compare.json/.md and the figures."""
+    from svains.cli.run_config import effective_config_text
     from svains.datasets.loader import load_dataset
-    from svains.evaluation.compare import compare_owned, run_methods, write_comparison
+    from svains.evaluation.compare import (
+        compare_owned,
+        degraded_note,
+        run_methods,
+        write_comparison,
+    )
     from svains.outputs import replaced_dir
 
     ds = load_dataset(dataset, calib=options.replay.calib, imu_calib=options.replay.imu_calib)
@@ -53,7 +59,8 @@ def run_compare(
         with Progress(console=console, transient=True) as bar:
             tasks = {m: bar.add_task(m, total=1.0) for m in methods}
             results = run_methods(
-                ds, methods, options, stage, lambda m, f: bar.update(tasks[m], completed=f)
+                ds, methods, options, stage, lambda m, f: bar.update(tasks[m], completed=f),
+                config_text=lambda c: effective_config_text(c, dataset),
             )
         reports = write_comparison(stage, results, f"svains compare: {ds.name}")
         figure_names = []
@@ -63,12 +70,17 @@ def run_compare(
             figure_names = [p.name for p in comparison_figures(ds, results, stage)]
     for name in figure_names:
         console.print(f"figure: {out / name}")
-    console.print((out / "compare.md").read_text(encoding="utf-8"), markup=False)
+    console.print((out / "compare.md").read_text(encoding="utf-8"), markup=False, soft_wrap=True)
     failed = [f"{m} ({one_line(r['error'])})" for m, r in reports.items()
               if isinstance(r, dict) and r.get("error")]  # fmt: skip
-    if failed:
+    degraded = [] if allow_degraded else [  # as svains run: vision asked for, none fused
+        f"{m} ({note})" for m, r in reports.items()
+        if isinstance(r, dict) and not r.get("error") and (note := degraded_note(r)) is not None]
+    if failed or degraded:
         # The comparison of the others is written; the run as a whole did not succeed.
-        _common.fail(f"{len(failed)} of {len(reports)} method(s) failed: {'; '.join(failed)}")
+        _common.fail(f"{len(failed) + len(degraded)} of {len(reports)} method(s) failed: "
+                     f"{'; '.join(failed + degraded)}"
+                     + (" (--allow-degraded accepts them)" if degraded else ""))  # fmt: skip
     return reports
 
 
@@ -127,6 +139,10 @@ def compare(
         bool, typer.Option("--force", help="Replace a non-empty --out whole (at the end, only "
                            "if the comparison was written).")
     ] = False,
+    allow_degraded: Annotated[
+        bool, typer.Option("--allow-degraded", help="Exit 0 even when a vision method fused no "
+                           "vision or vo linked no frames (their rows say so).")
+    ] = False,
 ) -> None:
     """Run all methods on DATASET; write DIR/compare.md, DIR/compare.json and the figures."""
     from svains.evaluation.compare import METHODS
@@ -145,7 +161,7 @@ def compare(
                              calib=calib, imu_calib=imu_calib, sonar=sonar,
                              gps_outages=gps_outage, gps_until=gps_until)
         run_compare(dataset, out, names, opts,
-                    figures, Console(), synthetic_features)
+                    figures, Console(), synthetic_features, allow_degraded)
     except SvainsError as exc:
         _common.fail(exc)
 

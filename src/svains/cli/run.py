@@ -213,7 +213,7 @@ def run(
         row(f"{name} fused/rejected", f"{c['fused']}/{c['rejected']}", "")
     for name, v in rep.get("vision", {}).items():
         if name != "time_offset_history":  # per frame: report.json and time_offset.png
-            row(f"vision {name}", str(v), "")
+            row(f"vision {name}", _brief(v), "")
     if rep.get("outage_max_error_m"):
         row("outage max error [m]", ", ".join(f"{e:.2f}" for e in rep["outage_max_error_m"]),
             ", ".join(f"{e:.2f}" for e in (sm or {}).get("outage_max_error_m") or []))
@@ -228,10 +228,29 @@ def run(
                   f"states.csv{logs}, report.json, config.yaml")
     if rerun is not None:
         console.print(f"wrote {rerun} (open with: rerun {rerun})")
+    vo_frames = (rep.get("vo") or {}).get("frames")
+    if vo_frames is not None and vo_frames < 2:  # exit 0 with an empty trajectory before
+        fail(f"vo estimated no motion: {vo_frames} frame(s) linked, trajectory.tum holds no "
+             "pose (svains info and svains frontend show what the images give)")
     if rep.get("vision_degraded") and not allow_degraded:
         # Never silently degraded: the outputs are written, but the run is not what was asked.
         fail(f"{rep['method']} fused no vision update: the run is plain INS (see report.json "
              "vision_gaps; --allow-degraded accepts it)")
+
+
+def _brief(v: object) -> str:
+    """A report value for the table: a check's dict as ``key value`` pairs, numbers to 4
+    significant digits, flags only when set, nested detail left to report.json (a repr of
+    the dict wrapped over 30 lines before)."""
+    if not isinstance(v, dict):
+        return f"{v:.4g}" if isinstance(v, float) else str(v)
+    parts = []
+    for k, x in v.items():
+        if isinstance(x, bool):
+            parts += [k] if x else []
+        elif isinstance(x, int | float | str):
+            parts.append(f"{k} {x:.4g}" if isinstance(x, float) else f"{k} {x}")
+    return ", ".join(parts) if parts else "-"
 
 
 def register(app: typer.Typer) -> None:

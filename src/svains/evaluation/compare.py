@@ -187,8 +187,10 @@ def run_methods(
     options: RunConfig | None = None,
     out_dir: Path | None = None,
     progress: Callable[[str, float], None] | None = None,
+    config_text: Callable[[RunConfig], str] | None = None,
 ) -> dict[str, RunResult]:
-    """Run each method (outputs in ``out_dir/<method>/``); reports gain ``trajectory_metrics``.
+    """Run each method (outputs in ``out_dir/<method>/``, with ``config.yaml`` from
+    ``config_text(effective config)`` when given); reports gain ``trajectory_metrics``.
 
     A method that fails with a library error is logged and reported as ``{"error": message}``.
     """
@@ -203,7 +205,8 @@ def run_methods(
         prog = None if progress is None else (lambda f, m=m: progress(m, f))
         t0 = time.perf_counter()
         try:
-            res = replay(ds, resolve_config(ds, replace(options, method=m)), prog)
+            config = resolve_config(ds, replace(options, method=m))
+            res = replay(ds, config, prog)
         except SvainsError as exc:
             log.error("%s failed: %s", m, exc)
             results[m] = RunResult(
@@ -218,7 +221,8 @@ def run_methods(
         log.info("%s done in %.1f s", m, time.perf_counter() - t0)
         if sub is not None:
             with replaced_dir(sub, run_owned) as stage:  # each method's folder appears whole
-                write_outputs(stage, res)
+                write_outputs(stage, res,
+                              config_text=None if config_text is None else config_text(config))
                 if smoothed is not None:
                     write_smoothed_outputs(stage, smoothed)
                 write_estimated_camchain(stage, ds, res.report)
@@ -256,6 +260,17 @@ def _cell(report: dict[str, Any], key: str, fmt: str) -> str:
         return str(v)
 
 
+def degraded_note(report: dict[str, Any]) -> str | None:
+    """Why a method's row is not what was asked, or None: a vision method that fused no vision
+    (its figures are plain INS), ``vo`` that linked fewer than two frames (no trajectory)."""
+    frames = (report.get("vo") or {}).get("frames")
+    if frames is not None and frames < 2:
+        return f"no motion: {frames} frame(s) linked"
+    if report.get("vision_degraded"):
+        return "no vision fused: plain INS"
+    return None
+
+
 def comparison_markdown(reports: dict[str, dict[str, Any]], title: str) -> str:
     """The ``compare.md`` table (one row per method)."""
     head = "| " + " | ".join(c[0] for c in _COLUMNS) + " |"
@@ -265,7 +280,12 @@ def comparison_markdown(reports: dict[str, dict[str, Any]], title: str) -> str:
         if "error" in rep:
             rows.append(f"| {m} | failed: {rep['error']} |")
             continue
-        rows.append("| " + " | ".join(_cell({**rep, "method": m}, k, f) for _, k, f in _COLUMNS)
+        note = degraded_note(rep)
+        if note is not None and m == "vo":
+            rows.append(f"| {m} | {note} |")
+            continue
+        name = m if note is None else f"{m} ({note})"
+        rows.append("| " + " | ".join(_cell({**rep, "method": name}, k, f) for _, k, f in _COLUMNS)
                     + " |")
         if isinstance(rep.get("smoothed"), dict):
             # The forward-backward estimate of the same run (``--smooth``), on the next row.
