@@ -180,3 +180,45 @@ def test_frame_rows_picks_the_output_pose_at_each_recorded_frame() -> None:
     assert rows is not None
     np.testing.assert_array_equal(rows, [0, 5, 10, 15, 25])
     assert frame_rows(t_out, Dataset(root=Path("memory"), name="none", features=None)) is None
+
+
+def test_runs_without_what_they_were_asked_for_fail_the_comparison(tmp_path: Path) -> None:
+    """A vision method that fused no vision looked like a result (its row was the INS run's)
+    and vo that linked no frames gave a row of dashes, with exit 0 (a user's probe). Now each
+    row says so and the command exits 1 unless --allow-degraded; ``svains run --method vo``
+    too. Each method's folder holds its config.yaml."""
+    import logging
+
+    from typer.testing import CliRunner
+
+    from svains.cli.main import app
+    from svains.evaluation.compare import comparison_markdown, degraded_note
+    from test_datasets_roundtrip import write_full
+
+    assert degraded_note({"method": "vo", "vo": {"frames": 4, "breaks": 3}}) == (
+        "no motion: 4 frame(s), none linked to the one before")
+    assert degraded_note({"method": "vo", "vo": {"frames": 4, "breaks": 2}}) is None
+    assert degraded_note({"method": "tc", "vision_degraded": True}) == "no vision fused: plain INS"
+    md = comparison_markdown({"tc": {"vision_degraded": True, "ate_m": 0.2}}, "t")
+    assert "| tc (no vision fused: plain INS) | 0.200 |" in md
+    write_full(tmp_path / "ds")  # 4 frames of 32x24 noise: every one a tracking break
+    logging.disable(logging.CRITICAL)
+    try:
+        runner = CliRunner()
+        res = runner.invoke(app, ["run", str(tmp_path / "ds"), "--method", "vo", "--images",
+                                  "--out", str(tmp_path / "o")])  # fmt: skip
+        assert res.exit_code == 1
+        assert ("vo estimated no motion: 4 frame(s), none linked to the one before"
+                in res.stderr)  # fmt: skip
+        args = ["compare", str(tmp_path / "ds"), "--methods", "ins,vo", "--images",
+                "--out", str(tmp_path / "c"), "--no-figures"]  # fmt: skip
+        res = runner.invoke(app, args)
+        assert res.exit_code == 1
+        assert ("1 of 2 method(s) failed: vo (no motion: 4 frame(s), none linked to the one "
+                "before) (--allow-degraded accepts them)") in res.stderr
+        assert "| vo | no motion: 4 frame(s)" in (tmp_path / "c" / "compare.md").read_text()
+        assert (tmp_path / "c" / "ins" / "config.yaml").read_text().count("method: ins") == 1
+        res = runner.invoke(app, [*args, "--force", "--allow-degraded"])
+        assert res.exit_code == 0, res.stderr
+    finally:
+        logging.disable(logging.NOTSET)

@@ -128,6 +128,7 @@ def run(
         kalibr_switches,
     )
     from svains.datasets import load_dataset
+    from svains.evaluation.compare import degraded_note
     from svains.evaluation.run import run_method
     from svains.replay import resolve_config
 
@@ -228,10 +229,10 @@ def run(
                   f"states.csv{logs}, report.json, config.yaml")
     if rerun is not None:
         console.print(f"wrote {rerun} (open with: rerun {rerun})")
-    vo_frames = (rep.get("vo") or {}).get("frames")
-    if vo_frames is not None and vo_frames < 2:  # exit 0 with an empty trajectory before
-        fail(f"vo estimated no motion: {vo_frames} frame(s) linked, trajectory.tum holds no "
-             "pose (svains info and svains frontend show what the images give)")
+    note = degraded_note(rep) if rep.get("method") == "vo" else None
+    if note is not None:  # exit 0 with an empty or broken trajectory before
+        fail(f"vo estimated {note} (svains info and svains frontend show what the images "
+             "give)")
     if rep.get("vision_degraded") and not allow_degraded:
         # Never silently degraded: the outputs are written, but the run is not what was asked.
         fail(f"{rep['method']} fused no vision update: the run is plain INS (see report.json "

@@ -260,12 +260,21 @@ def _cell(report: dict[str, Any], key: str, fmt: str) -> str:
         return str(v)
 
 
+def vo_links(report: dict[str, Any]) -> int | None:
+    """How many of a ``vo`` run's frames were linked to the one before (frames after the
+    first, less the tracking breaks); None for the other methods."""
+    vo = report.get("vo")
+    if not isinstance(vo, dict) or "frames" not in vo:
+        return None
+    return max(int(vo["frames"]) - 1 - int(vo.get("breaks", 0)), 0)
+
+
 def degraded_note(report: dict[str, Any]) -> str | None:
     """Why a method's row is not what was asked, or None: a vision method that fused no vision
     (its figures are plain INS), ``vo`` that linked fewer than two frames (no trajectory)."""
-    frames = (report.get("vo") or {}).get("frames")
-    if frames is not None and frames < 2:
-        return f"no motion: {frames} frame(s) linked"
+    linked = vo_links(report)
+    if linked is not None and linked < 1:
+        return f"no motion: {report['vo']['frames']} frame(s), none linked to the one before"
     if report.get("vision_degraded"):
         return "no vision fused: plain INS"
     return None
