@@ -58,6 +58,11 @@ class RotationCheckOptions:
     # smallest best shift warned (and only beyond 4 of its standard deviations)
     offset_range_s: float = 0.3
     offset_step_s: float = 0.0025
+    # beyond that range, shifts out to this far (s, each way) on a coarser step: stamps a second
+    # or more off (KITTI raw's camera 1 s late: ATE 0.28 -> 1.42 m, and no word but IMU bias
+    # alarms), warned when such a shift halves the best misfit of the near ones
+    offset_far_s: float = 3.0
+    offset_far_step_s: float = 0.025
     offset_warn_s: float = 0.015
     # ... and only when that shift explains the turns (misfit per degree of freedom at most
     # this: KITTI raw 0.99, 1.6 with its stamps 50 ms off, 13.4 at 150 ms, where the filter's
@@ -97,6 +102,16 @@ class RotationCheck:
         self._offset_pending: list[tuple[int, int, F64, F64 | None, float]] = []
         self.offset_frames = 0
         self.warned_offset = False
+        # the same sums over the far shifts (``offset_far_s``), frames held until the IMU
+        # reaches their farthest shift
+        m = round(o.offset_far_s / o.offset_far_step_s)
+        far = np.arange(-m, m + 1) * o.offset_far_step_s
+        self._far_shifts_s = far[np.abs(far) > o.offset_range_s]
+        self._far_gg = np.zeros(self._far_shifts_s.size)
+        self._far_gc = np.zeros(self._far_shifts_s.size)
+        self._far_cc = 0.0
+        self._far_pending: list[tuple[int, int, F64, F64 | None, float]] = []
+        self.far_frames = 0
         self.warned_scale = False
 
     def observe_frame(self, tr: StereoTracks | None, ctx: FrameContext) -> None:
@@ -134,6 +149,7 @@ class RotationCheck:
         self.angles_deg.append(float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))))
         self.ratios.append(turn / n_C)
         self._observe_offset(tr.t_prev_ns, tr.t_ns, self.R_C_B.T @ r_C, bg_B, var)
+        self._observe_far(tr.t_prev_ns, tr.t_ns, self.R_C_B.T @ r_C, bg_B, var)
         o = self.options
         lo, hi = o.turn_ratio_band
         if not self.warned_ratio and len(self.ratios) >= o.min_frames:
@@ -186,20 +202,8 @@ class RotationCheck:
             return
         got = self.time_offset()
         if got is None:
-            # The best shift at the edge of those tried: warned when it halves the misfit at
-            # zero (a mount error moves it little: 0.83 for 90° off, 0.99 for 20°).
-            c = self._offset_chi2
-            k = int(np.argmin(c))
-            zero = c.size // 2
-            if k in (0, c.size - 1) and c[zero] - c[k] > 25.0 and c[k] < 0.5 * c[zero]:
-                self.warned_offset = True
-                log.warning(
-                    "the camera's turns match the gyro's best with the IMU more than %.0f ms "
-                    "%s the camera stamps (%d turning frames): are the images stamped on the "
-                    "IMU's clock? Measure the offset and give it as timeshift_cam_imu in the "
-                    "camera calibration", o.offset_range_s * 1e3,
-                    "after" if k > zero else "before", self.offset_frames,
-                )  # fmt: skip
+            if not (self.far_frames < o.min_frames and self._far_pending):
+                self._judge_edge()  # else the far shifts, judged a few seconds on, say how far
             return
         shift, std = got
         fit = self.offset_fit()
@@ -215,6 +219,62 @@ class RotationCheck:
                 abs(shift) * 1e3, "after" if shift > 0 else "before", std * 1e3,
                 self.offset_frames, shift,
             )
+
+    def _judge_edge(self) -> None:
+        """The best near shift at the edge of those tried (and none of the far ones judged):
+        warned when it halves the misfit at zero (a mount error moves it little: 0.83 for 90°
+        off, 0.99 for 20°)."""
+        if self.warned_offset or self.offset_frames < self.options.min_frames:
+            return
+        c = self._offset_chi2
+        k = int(np.argmin(c))
+        zero = c.size // 2
+        if k in (0, c.size - 1) and c[zero] - c[k] > 25.0 and c[k] < 0.5 * c[zero]:
+            self.warned_offset = True
+            log.warning(
+                "the camera's turns match the gyro's best with the IMU more than %.0f ms "
+                "%s the camera stamps (%d turning frames): are the images stamped on the "
+                "IMU's clock? Measure the offset and give it as timeshift_cam_imu in the "
+                "camera calibration", self.options.offset_range_s * 1e3,
+                "after" if k > zero else "before", self.offset_frames,
+            )  # fmt: skip
+
+    def _observe_far(self, t0_ns: int, t1_ns: int, r_B: F64, bg_B: F64 | None,
+                     var: float) -> None:  # fmt: skip
+        """As ``_observe_offset`` over the far shifts; warn once when one of them halves the
+        best misfit of the near shifts (and by more than 25): stamps seconds off."""
+        h, o = self.history, self.options
+        t = h.t_ns
+        reach = int(o.offset_far_s * 1e9)
+        if t.size < 2 or t[0] > t0_ns - reach:
+            return
+        if t[-1] < t1_ns + reach:
+            self._far_pending.append((t0_ns, t1_ns, r_B, bg_B, var))
+            return
+        if h.fault_in(t0_ns - reach, t1_ns + reach):
+            return
+        turns = _gyro_turns(t, h.gyro_B, t0_ns, t1_ns, bg_B, self._far_shifts_s)
+        self._far_gg += np.sum(turns * turns, axis=1) / var
+        self._far_gc += (turns @ r_B) / var
+        self._far_cc += float(r_B @ r_B) / var
+        self.far_frames += 1
+        if self.warned_offset or self.far_frames < o.min_frames or self.offset_frames == 0:
+            return
+        c_far = self._far_cc - self._far_gc**2 / np.maximum(self._far_gg, 1e-300)
+        k = int(np.argmin(c_far))
+        # per frame, so the near sums (over their own frames) and the far ones compare
+        near = float(np.min(self._offset_chi2)) / self.offset_frames
+        best = float(c_far[k]) / self.far_frames
+        if best < 0.5 * near and (near - best) * self.far_frames > 25.0:
+            self.warned_offset = True
+            shift = float(self._far_shifts_s[k])
+            log.warning(
+                "the camera's turns match the gyro's best with the IMU about %.2f s %s the "
+                "camera stamps (%d turning frames): are the images stamped on the IMU's clock? "
+                "Add %+.2f s to timeshift_cam_imu (t_imu = t_cam + shift) in the camera "
+                "calibration, or measure it", abs(shift), "after" if shift > 0 else "before",
+                self.far_frames, shift,
+            )  # fmt: skip
 
     @property
     def _offset_chi2(self) -> F64:
@@ -257,7 +317,7 @@ class RotationCheck:
 
     def _flush_offsets(self) -> None:
         """Judge the frames held for IMU samples past their shifted intervals, now there."""
-        if not self._offset_pending:
+        if not self._offset_pending and not self._far_pending:
             return
         t = self.history.t_ns
         end = int(t[-1]) if t.size else None
@@ -267,6 +327,14 @@ class RotationCheck:
         self._offset_pending = [f for f, d in zip(self._offset_pending, due, strict=True) if not d]
         for t0_ns, t1_ns, r_B, bg_B, var in ready:
             self._observe_offset(t0_ns, t1_ns, r_B, bg_B, var)
+        if self._far_pending and end is not None:
+            far_reach = int(self.options.offset_far_s * 1e9)
+            held, self._far_pending = self._far_pending, []
+            for f in held:
+                if end >= f[1] + far_reach:
+                    self._observe_far(*f)
+                else:
+                    self._far_pending.append(f)
 
     def time_offset(self) -> tuple[float, float] | None:
         """The shift ``δ`` (s) of the IMU's clock against the camera stamps that best matches
@@ -304,6 +372,8 @@ class RotationCheck:
         ``time_offset_ms`` against the gyro and its ``time_offset_std_ms`` (None: none found
         inside ±300 ms) and whether it was warned."""
         self._flush_offsets()
+        if self.time_offset() is None:
+            self._judge_edge()  # the end: far shifts still waiting for samples never come
         a, r = self.angles_deg, self.ratios
         offset, scale = self.time_offset(), self.turn_scale()
         return {"frames": len(a), "median_axis_deg": float(np.median(a)) if a else None,
