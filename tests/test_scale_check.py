@@ -44,9 +44,20 @@ def _rz(yaw: float) -> np.ndarray:
     return so3_exp(np.array([0.0, 0.0, yaw]))
 
 
+def _bobbing(t: np.ndarray) -> tuple[np.ndarray, ...]:
+    """A hovering MAV bobbing up and down at 1.25 Hz (1.1 m/s at most) while it drifts."""
+    a = np.array([0.3, 0.2, 0.14])
+    om = np.array([0.2, 0.3, 2.0 * np.pi * 1.25])
+    p = a * np.sin(om * t[:, None])
+    v = a * om * np.cos(om * t[:, None])
+    acc = -a * om**2 * np.sin(om * t[:, None])
+    return p, v, acc, 0.2 * np.sin(0.3 * t), 0.06 * np.cos(0.3 * t)
+
+
 def _flight(factor: float, seed: int = 0, seconds: float = 40.0, gps: bool = False,
             check: ScaleCheck | None = None, positions_only: bool = False,
-            accel_map: np.ndarray | None = None) -> ScaleCheck:  # fmt: skip
+            accel_map: np.ndarray | None = None, motion=_motion, gps_hz: float = 10.0,
+            gps_velocity_std: float = 0.02) -> ScaleCheck:  # fmt: skip
     """Run ``check`` over a flight whose egomotion translations are ``factor`` times the truth
     (a baseline that long), 5 Hz frames with 2 mm of noise, a 200 Hz IMU with white noise,
     the filter's attitude exact; ``gps`` adds 10 Hz antenna fixes, velocities with 2 cm/s of
@@ -57,18 +68,18 @@ def _flight(factor: float, seed: int = 0, seconds: float = 40.0, gps: bool = Fal
     check = check or ScaleCheck(h, STEREO, G_W, IMU)
     check.history = h
     t_imu = np.arange(0.0, seconds + 0.5, 0.005)
-    _, _, acc, yaw, yaw_rate = _motion(t_imu)
+    _, _, acc, yaw, yaw_rate = motion(t_imu)
     for k, t in enumerate(t_imu):
         f_B = _rz(yaw[k]).T @ (acc[k] - G_W) + rng.normal(0.0, 2e-3 / np.sqrt(0.005), 3)
         if accel_map is not None:
             f_B = accel_map @ f_B
         h.append(round(t * S), np.array([0.0, 0.0, yaw_rate[k]]), f_B)
     t_cam = np.arange(0.0, seconds, 0.2)
-    p, _, _, yaw_c, _ = _motion(t_cam)
+    p, _, _, yaw_c, _ = motion(t_cam)
     R_W_C = [_rz(y) @ R_B_C for y in yaw_c]
     p_W_C = [p[k] + _rz(yaw_c[k]) @ P_B_C for k in range(t_cam.size)]
-    t_gps = np.arange(0.0, seconds + 0.5, 0.1)
-    p_g, v_g, _, yaw_g, yaw_rate_g = _motion(t_gps)
+    t_gps = np.arange(0.0, seconds + 0.5, 1.0 / gps_hz)
+    p_g, v_g, _, yaw_g, yaw_rate_g = motion(t_gps)
     e = np.zeros((0, 2))
     next_fix = 0
     for k, t in enumerate(t_cam):
@@ -85,8 +96,9 @@ def _flight(factor: float, seed: int = 0, seconds: float = 40.0, gps: bool = Fal
             i = next_fix
             lever = _rz(yaw_g[i]) @ np.cross([0.0, 0.0, yaw_rate_g[i]], P_B_G)
             p_W_G = p_g[i] + _rz(yaw_g[i]) @ P_B_G + rng.normal(0, 0.05, 3)
-            v_W_G = None if positions_only else v_g[i] + lever + rng.normal(0, 0.02, 3)
-            check.observe_gps(round(t_gps[i] * S), p_W_G, v_W_G, P_B_G, 0.05, 0.02)
+            v_W_G = (None if positions_only
+                     else v_g[i] + lever + rng.normal(0, gps_velocity_std, 3))  # fmt: skip
+            check.observe_gps(round(t_gps[i] * S), p_W_G, v_W_G, P_B_G, 0.05, gps_velocity_std)
             next_fix += 1
     return check
 
@@ -137,6 +149,22 @@ def test_gps_velocities_measure_the_baseline_and_judge_instead_of_the_imu(
     assert off["warned_gps"] and not off["warned"]  # the GPS judged, the IMU test stood back
     (rec,) = caplog.records
     assert "times as far as the GPS says" in rec.getMessage()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_bobbing_mav_with_1_hz_fixes_reads_its_own_baseline(
+    seed: int, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Fixes at 1 Hz of a MAV bobbing at 1.25 Hz: their velocities drawn linearly between
+    fixes integrated to twice the images' spans, and a simulated MH_03 flight was warned of
+    a baseline 0.47 times its own (a user's probe). The IMU's velocity within the span now
+    gives what the line misses, and each length is taken less what its noise adds."""
+    with caplog.at_level("WARNING", logger="svains.navigation.scale_check"):
+        got = _flight(1.0, seed=seed, seconds=30.0, gps=True, motion=_bobbing, gps_hz=1.0,
+                      gps_velocity_std=0.1).summary()  # fmt: skip
+    assert got["gps_spans"] >= 20
+    assert got["gps_factor"] == pytest.approx(1.0, abs=max(0.05, 3 * got["gps_factor_std"]))
+    assert not got["warned_gps"] and "stereo baseline" not in caplog.text
 
 
 def test_a_broken_chain_makes_no_pair() -> None:

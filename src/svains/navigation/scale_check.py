@@ -162,7 +162,8 @@ class ScaleCheck:
         # velocity: their positions at the ends), the open one and those waiting for fixes
         self._segment: _Span | None = None
         self._seg_pending: list[_Span] = []
-        self._gps_rows: list[tuple[float, float, float, float]] = []
+        # per span: the images' displacement (3,), the GPS's (3,), their variances per axis
+        self._gps_rows: list[tuple[F64, F64, float, float]] = []
         self.warned_gps = False
 
     def observe_gps(self, t_ns: int, p_W_G: F64, v_W_G: F64 | None, p_B_G: F64,
@@ -206,7 +207,14 @@ class ScaleCheck:
             if gap > MAX_FIX_GAP_NS:  # fixes too far apart to say the span's motion
                 continue
             dk = np.diff(knots)[:, None] * 1e-9
-            d_G = np.sum(0.5 * (vk[1:] + vk[:-1]) * dk, axis=0)
+            # What a line between fixes misses of the motion between them, from the IMU: a
+            # MAV bobbing at 0.65 m/s every 0.2 s, fixes at 1 Hz, integrated to twice the
+            # images' spans (a simulated MH_03 flight warned a baseline 0.47 times its own)
+            bracket = np.concatenate([t[t <= a][-1:], inside, t[t >= b][:1]])
+            shape = self._between_fixes(span, bracket)
+            if shape is None:
+                continue
+            d_G = np.sum(0.5 * (vk[1:] + vk[:-1]) * dk, axis=0) + shape
             dur = (b - a) * 1e-9
             var_g = (self.gps_velocity_std * dur) ** 2 / max(inside.size + 1, 1)
             self._gps_row(span, d_G, var_g)
@@ -234,17 +242,22 @@ class ScaleCheck:
         assert self.p_B_G is not None
         lever = (span.end.R_W_B - span.start.R_W_B) @ (self.p_B_G - self.p_B_C)
         d_C = d_G - lever
-        self._gps_rows.append((float(np.linalg.norm(span.D_W)), float(np.linalg.norm(d_C)),
-                               span.var, var_g))  # fmt: skip
+        self._gps_rows.append((np.asarray(span.D_W, float), np.asarray(d_C, float), span.var,
+                               var_g))  # fmt: skip
 
     def gps_factor(self) -> tuple[float, float, float, int] | None:
         """(factor of the images' span lengths over the GPS's, its standard deviation, misfit
         per degree of freedom, spans kept), outliers dropped; None before two moving spans."""
         if len(self._gps_rows) < 2:
             return None
-        rows = np.asarray(self._gps_rows)
-        return fit_factor(rows[:, :1], rows[:, 1:2], rows[:, 2], rows[:, 3],
-                          np.ones(len(rows), bool), 0)
+        var_u = np.array([r[2] for r in self._gps_rows])
+        var_w = np.array([r[3] for r in self._gps_rows])
+        # Lengths, not vectors (a heading the filter has off does not count), each less the
+        # length its noise adds on average (|v + n|² = |v|² + 3σ², of which the across part,
+        # 2σ², lengthens it to first order): a hovering span's GPS length is its noise alone
+        u = np.sqrt(np.maximum([r[0] @ r[0] for r in self._gps_rows] - 2.0 * var_u, 0.0))
+        w = np.sqrt(np.maximum([r[1] @ r[1] for r in self._gps_rows] - 2.0 * var_w, 0.0))
+        return fit_factor(u[:, None], w[:, None], var_u, var_w, np.ones(u.size, bool), 0)
 
     def _judge_gps(self) -> None:
         if not self.warned_gps and _due(len(self._gps_rows), self.options.min_pairs):
@@ -359,32 +372,67 @@ class ScaleCheck:
             self._groups += 1
             self._in_group = 0
 
-    def _imu_change(self, s0: _Span, s1: _Span) -> tuple[F64, F64] | None:
-        """``w`` (3,) m/s: the change of the camera's mean velocity from span ``s0`` to ``s1``
-        by the IMU, and each accelerometer axis's share of it (3 axes, 3 world); None when the
-        history does not hold the samples or has a gap."""
-        h, a = self.history, s0.start
+    def _imu_integrals(self, a: FrameState, end_ns: int) -> tuple[F64, F64, F64, F64] | None:
+        """The IMU from frame ``a`` to ``end_ns``: sample times ``ts`` (N,) s from ``a``, the
+        velocity ``V`` and position ``P`` (N, 12) it integrates to from rest at the first
+        sample (each accelerometer axis's share in world axes, 9 columns, then gravity's 3:
+        linear in them, an axis reversed flips its share) and the attitudes ``R`` (N, 3, 3)
+        from the filter's at ``a``; None when the history does not hold the samples or has a
+        gap."""
+        h = self.history
         t = h.t_ns
-        if t.size < 2 or t[0] > a.t_ns or t[-1] < s1.end.t_ns:
+        if t.size < 2 or t[0] > a.t_ns or t[-1] < end_ns:
             return None
         i0 = max(int(np.searchsorted(t, a.t_ns, side="right")) - 1, 0)
-        i1 = min(int(np.searchsorted(t, s1.end.t_ns)) + 1, t.size)
+        i1 = min(int(np.searchsorted(t, end_ns)) + 1, t.size)
         ts = (t[i0:i1] - a.t_ns) * 1e-9
         if ts.size < 3 or np.max(np.diff(ts)) > self.options.max_imu_gap_s:
             return None
-        if h.fault_in(a.t_ns, s1.end.t_ns):
+        if h.fault_in(a.t_ns, end_ns):
             return None  # samples dropped or missing (bridged): not the IMU's own motion
         w = h.gyro_B[i0:i1] - a.b_g
         f = h.accel_B[i0:i1] - a.b_a
         R = gyro_attitudes(a.R_W_B, w, ts)  # the filter's attitude at ``a``, turned
-        # each accelerometer axis's share of the world acceleration (N, 3 world, 3 axes), then
-        # gravity: the velocity change is linear in them (an axis reversed flips its share)
         shares = R * f[:, None, :]
         acc = np.concatenate([shares.reshape(-1, 9), np.broadcast_to(self.g_W, (ts.size, 3))],
                              axis=1)  # fmt: skip
         dt = np.diff(ts)[:, None]
         V = np.vstack([np.zeros(12), np.cumsum(0.5 * (acc[1:] + acc[:-1]) * dt, axis=0)])
         P = np.vstack([np.zeros(12), np.cumsum(0.5 * (V[1:] + V[:-1]) * dt, axis=0)])
+        return ts, V, P, R
+
+    def _between_fixes(self, span: _Span, fixes_ns: NDArray[np.int64]) -> F64 | None:
+        """What the velocity drawn linearly between the fixes at ``fixes_ns`` (the last at
+        or before the span's start to the first at or after its end) misses of the displacement
+        over ``span`` (3,) m, by the IMU's velocity: ``∫ (V - L) dt`` over the span, ``L`` the
+        line through ``V`` at the fixes. A constant acceleration error (tilt, bias) cancels
+        (its velocity is linear); None without the samples."""
+        a = span.start
+        t0 = int(fixes_ns[0])
+        # the attitude at the fix before the span taken as the span's start's: a rotation of
+        # a fraction of a second turns the (small) correction by as little
+        got = self._imu_integrals(FrameState(t0, a.R_W_B, a.b_g, a.b_a), int(fixes_ns[-1]))
+        if got is None:
+            return None
+        ts, V, _, _ = got
+        V_W = V[:, :9].reshape(-1, 3, 3).sum(axis=2) + V[:, 9:]
+        tf = (fixes_ns - t0) * 1e-9
+        lo, hi = (a.t_ns - t0) * 1e-9, (span.end.t_ns - t0) * 1e-9
+        grid = np.concatenate([[lo], ts[(ts > lo) & (ts < hi)], [hi]])
+        dev = np.stack([np.interp(grid, ts, V_W[:, i])
+                        - np.interp(grid, tf, np.interp(tf, ts, V_W[:, i]))
+                        for i in range(3)], axis=1)  # fmt: skip
+        return np.sum(0.5 * (dev[1:] + dev[:-1]) * np.diff(grid)[:, None], axis=0)
+
+    def _imu_change(self, s0: _Span, s1: _Span) -> tuple[F64, F64] | None:
+        """``w`` (3,) m/s: the change of the camera's mean velocity from span ``s0`` to ``s1``
+        by the IMU, and each accelerometer axis's share of it (3 axes, 3 world); None when the
+        history does not hold the samples or has a gap."""
+        a = s0.start
+        got = self._imu_integrals(a, s1.end.t_ns)
+        if got is None:
+            return None
+        ts, _, P, R = got
         tb = (s0.end.t_ns - a.t_ns) * 1e-9
         tc = (s1.end.t_ns - a.t_ns) * 1e-9
         at = [0.0, tb, tc]
