@@ -148,3 +148,16 @@ def test_tum_spline_follows_the_file() -> None:
     R_file = quat_to_rotmat(q[k])
     angle = np.linalg.norm(so3_log(np.einsum("nji,njk->nik", R_file, s.R_W_B)), axis=1)
     assert angle.max() < 0.02
+
+
+def test_a_trajectory_in_millimetres_is_refused_before_the_world_is_built(tmp_path) -> None:
+    """A TUM file with its positions in millimetres asked for 76 GiB building the world
+    around it (a user's probe); refused naming the speed and the unit."""
+    from svains.datasets.trajectory import read_tum, write_tum
+
+    t, p, q = read_tum(TRAJECTORIES / "euroc_V1_02_medium_groundtruth.tum")
+    write_tum(tmp_path / "mm.tum", t, p * 1000.0, q)
+    with pytest.raises(DatasetError, match=r"mm\.tum: its poses move at up to \d+ m/s over "
+                       r"\d+ m .*positions in millimetres\? TUM files hold metres"):  # fmt: skip
+        tum_trajectory(tmp_path / "mm.tum", duration_s=10.0)
+    tum_trajectory(TRAJECTORIES / "euroc_V1_02_medium_groundtruth.tum", duration_s=10.0)
