@@ -143,3 +143,26 @@ def test_info_prints_the_figures_and_the_problem(kitti_raw: Path, kitti_swapped:
     assert bad.exit_code == 0  # info describes; run refuses
     assert "100.0 % at negative disparity" in bad.stdout
     assert "look swapped" in " ".join(bad.stdout.split())
+
+
+def test_twelve_bit_images_in_16_bit_files_are_warned(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """12-bit values stored in 16-bit PNGs keep 0-15 of their high byte: a nearly black
+    recording, and only "fused no vision" at the end of the run (a user's probe). Warned when
+    the pairs are first looked at (``info``, and before a run); full-range images are not."""
+    import cv2
+
+    from test_datasets_roundtrip import write_full
+
+    root = tmp_path / "ds"
+    write_full(root)
+    with caplog.at_level(logging.WARNING, logger="svains.datasets.stereo_images"):
+        recorded_stereo_check(load_dataset(root))
+        assert "grey level" not in caplog.text
+        rng = np.random.default_rng(1)
+        for png in (root / "mav0").glob("cam*/data/*.png"):
+            cv2.imwrite(str(png), rng.integers(0, 4096, size=(24, 32)).astype(np.uint16))
+        recorded_stereo_check(load_dataset(root))
+    assert "the images reach grey level 15 of 255 at most" in caplog.text
+    assert "12-bit values in 16-bit files?" in caplog.text

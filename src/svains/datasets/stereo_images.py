@@ -3,6 +3,7 @@ pairs spread over the recording, rectified with the data set's calibration, befo
 
 from __future__ import annotations
 
+import logging
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -11,9 +12,14 @@ from svains.datasets.loader import stereo_pairs
 from svains.datasets.types import Dataset
 from svains.errors import DatasetError
 
+log = logging.getLogger(__name__)
+
 if TYPE_CHECKING:  # the front end imports OpenCV: only when a check runs (see below)
     from svains.frontend.stereo_check import StereoCheck
 
+# Images whose brightest pixel is this dark hold next to nothing to track: 12-bit data in a
+# 16-bit PNG keeps 4 bits of its high byte (0-15)
+DARK_PEAK = 31
 PAIRS = 5  # pairs looked at, evenly spread over the recording (about 0.1 s each at 1392x512)
 
 
@@ -33,6 +39,7 @@ def recorded_stereo_check(ds: Dataset, pairs: int = PAIRS) -> StereoCheck | None
     rect = StereoRectifier.from_calibration(ds.cam0, ds.cam1)
     pick = np.unique(np.linspace(0, idx_l.size - 1, min(pairs, idx_l.size)).round().astype(int))
     images = []
+    peak = 0
     for k in pick:
         try:
             left, right = ds.left.load(int(idx_l[k])), ds.right.load(int(idx_r[k]))
@@ -40,6 +47,11 @@ def recorded_stereo_check(ds: Dataset, pairs: int = PAIRS) -> StereoCheck | None
             continue
         if left.shape == right.shape == (ds.cam0.resolution[1], ds.cam0.resolution[0]):
             images.append(rect.rectify_pair(left, right))
+            peak = max(peak, int(left.max()), int(right.max()))
+    if images and peak <= DARK_PEAK:
+        log.warning("%s: the images reach grey level %d of 255 at most (%d stereo pairs looked "
+                    "at): 12-bit values in 16-bit files? svains keeps a 16-bit image's high byte; "
+                    "scale them to the full 16 bits (value << 4)", ds.root, peak, len(images))
     return check_pairs(images)
 
 
