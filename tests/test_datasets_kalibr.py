@@ -126,3 +126,37 @@ def test_imu_yaml_nested_under_imu0_and_bad_noise(tmp_path: Path) -> None:
     p.write_text("gyroscope_noise_density: 0.1\n")
     with pytest.raises(CalibrationError, match="missing field 'gyroscope_random_walk'"):
         read_kalibr_imu(p)
+
+
+def test_a_camchain_of_another_resolution_is_refused_on_load(euroc, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """A camchain for 1392x512 images over EuRoC's 752x480 ones: every pair was dropped one by
+    one during the run, then exit 1 (a user's probe); refused on load as a sensor.yaml's is."""
+    from dataclasses import replace
+
+    other = [replace(c, resolution=(1392, 512)) for c in (euroc.cam0, euroc.cam1)]
+    chain = write_camchain(tmp_path / "chain.yaml", tuple(other), euroc.imu_calib.T_B_S, 0.0)
+    with pytest.raises(CalibrationError, match=r"cam0/data/\d+\.png: image is 752x480 px but "
+                       r".*chain\.yaml field 'resolution' says 1392x512"):  # fmt: skip
+        apply_kalibr(euroc, chain)
+
+
+def test_a_recording_without_an_imu_calibration_is_warned_before_the_run(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A bag with a camchain and no imu.yaml ran on another IMU's noise densities without a
+    word (a simulated bag: ATE 4.8 m against 0.06 m with its own, a user's probe)."""
+    from contextlib import suppress
+    from dataclasses import replace
+
+    from svains.errors import SvainsError
+    from svains.navigation.options import InitOptions, RunConfig
+    from svains.replay import replay, resolve_config
+    from test_datasets_roundtrip import write_full
+
+    write_full(tmp_path / "ds")
+    ds = replace(load_dataset(tmp_path / "ds"), imu_calib=None)
+    # whatever the random streams give after it
+    with caplog.at_level("WARNING", logger="svains.replay.replay"), suppress(SvainsError):
+        replay(ds, resolve_config(ds, RunConfig(init=InitOptions(mode="groundtruth"))))
+    assert ("no IMU calibration, so EuRoC's ADIS16448 noise densities and an IMU at the body "
+            "origin are assumed: give the IMU's Kalibr imu.yaml (--imu-calib)") in caplog.text

@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 from svains.datasets._textio import format_float, read_sensor_yaml, yaml_float
 from svains.datasets.asl_reader import shift_feature_stamps
 from svains.datasets.types import CameraCalib, Dataset, ImageStream, ImuCalib
+from svains.datasets.validate import check_image_size
 from svains.errors import CalibrationError
 
 log = logging.getLogger(__name__)
@@ -249,6 +250,10 @@ def apply_kalibr(
     ]
     out.cam0 = _with_rate(cams[0], out.left, ds.cam0)
     out.cam1 = _with_rate(cams[1], out.right, ds.cam1)
+    # refused here, as a sensor.yaml's is: every pair was dropped one by one during the run
+    for stream, cal in ((out.left, out.cam0), (out.right, out.cam1)):
+        if stream is not None:
+            check_image_size(stream, cal, Path(camchain_path), decode=True)
     out.extras["kalibr_camchain"] = str(camchain_path)
     out.extras["timeshift_cam_imu_ns"] = shift_ns
     return out

@@ -438,12 +438,21 @@ def image_size(path: Path) -> tuple[int, int]:
     return int(img.shape[1]), int(img.shape[0])
 
 
-def check_image_size(stream: ImageStream, calib: CameraCalib, yaml_path: Path) -> None:
+def check_image_size(stream: ImageStream, calib: CameraCalib, yaml_path: Path,
+                     decode: bool = False) -> None:  # fmt: skip
     """The first image has the calibration's ``resolution`` (a PNG header read; other formats
-    are checked when decoded)."""
+    are checked when decoded, or here with ``decode``: a bag's images, a calibration given
+    apart from the recording)."""
     if len(stream) == 0:
         return
-    size = png_size(stream.paths[0])
+    first = stream.paths[0]
+    size = png_size(first) if first.is_file() else None
+    if size is None and decode:
+        try:
+            img = stream.load(0)
+        except DatasetError:
+            return  # an unreadable first image: the run drops it with a warning
+        size = (int(img.shape[1]), int(img.shape[0]))
     if size is not None and size != tuple(calib.resolution):
         raise CalibrationError(
             f"{stream.paths[0]}: image is {size[0]}x{size[1]} px but {yaml_path} field "
