@@ -369,6 +369,8 @@ USAGE_CASES: list[tuple[list[str], str]] = [
     (["compare", "{ds}", "--out", "{tmp}/o", "--gps-until", "-1"], "'--gps-until'"),
     (["frontend", "{ds}", "--out", "{tmp}/o", "--dense", "--dense-method", "foo"],
      "'--dense-method': must be 'sgbm' or 'elas'"),
+    (["frontend", "{ds}", "--out", "{tmp}/o", "--figures", "--figure-frame", "-5"],
+     "'--figure-frame': -1 (the middle frame) or a frame index, got -5"),
     (["run", "{ds}", "--out", "{tmp}/o", "--method", "vo", "--smooth"],
      "--smooth (smoother.enabled): vo has no filter to smooth"),
     (["run", "{ds}", "--out", "{tmp}/o", "--set", "filter.gate_probability=0"],

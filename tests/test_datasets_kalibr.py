@@ -160,3 +160,22 @@ def test_a_recording_without_an_imu_calibration_is_warned_before_the_run(
         replay(ds, resolve_config(ds, RunConfig(init=InitOptions(mode="groundtruth"))))
     assert ("no IMU calibration, so EuRoC's ADIS16448 noise densities and an IMU at the body "
             "origin are assumed: give the IMU's Kalibr imu.yaml (--imu-calib)") in caplog.text
+
+
+def test_the_front_end_takes_a_camchain_too(euroc, euroc_micro: Path, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """``svains frontend`` had no --calib, though a bag without one told the user to pass it
+    (a user's probe): the same frames as with the data set's own calibration."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from svains.cli.main import app
+
+    chain, _ = write_euroc_kalibr(euroc, tmp_path)
+    runner = CliRunner()
+    for name, extra in (("own", []), ("kalibr", ["--calib", str(chain)])):
+        res = runner.invoke(app, ["frontend", str(euroc_micro), "--out", str(tmp_path / name),
+                                  *extra])  # fmt: skip
+        assert res.exit_code == 0, res.output
+    own, kal = (json.loads((tmp_path / n / "report.json").read_text()) for n in ("own", "kalibr"))
+    assert kal["frames"] == own["frames"] > 50

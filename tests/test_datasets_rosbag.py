@@ -146,7 +146,10 @@ def test_topic_selection_refuses_ambiguity_and_wrong_types(ros1_bag: Path) -> No
         type(topics[0])("/a", "sensor_msgs/msg/Image", 3, 20.0, 0.1),
         type(topics[0])("/b", "sensor_msgs/msg/Image", 3, 20.0, 0.1),
     ]
-    with pytest.raises(ConfigError, match="cannot tell the left camera among image topics /a, /b"):
+    # ``run`` has no --left: the hint names convert's option and the camchain's rostopic
+    with pytest.raises(ConfigError, match=r"cannot tell the left camera among image topics /a, "
+                       r"/b: pass --left TOPIC to svains convert, or give it as rostopic of cam0 "
+                       r"in the camchain \(--calib\)"):  # fmt: skip
         select_topics(unnamed)
 
 

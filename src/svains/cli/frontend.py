@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from svains.cli._common import check_out_dir, fail, one_of
+from svains.cli._common import check_out_dir, fail, one_of, usage_error
 from svains.errors import ConfigError, DatasetError, SvainsError
 
 
@@ -35,6 +35,10 @@ def _frontend(
         bool, typer.Option("--force", help="Replace a non-empty --out whole (at the end, only "
                            "if the run finished).")
     ] = False,
+    calib: Annotated[
+        Path | None, typer.Option("--calib", help="Kalibr camchain-imucam.yaml (the cameras' "
+                                  "calibration, for a bag or instead of the data set's).")
+    ] = None,
 ) -> None:
     """Track features, match stereo, estimate egomotion per frame; write frames.csv, report.json."""
     from svains.datasets import load_dataset, stereo_pairs
@@ -44,10 +48,13 @@ def _frontend(
     from svains.frontend.stereo import StereoMatchOptions
     from svains.outputs import atomic_write_text, replaced_dir
 
+    if figure_frame < -1:
+        usage_error(f"-1 (the middle frame) or a frame index, got {figure_frame}",
+                    "--figure-frame")  # fmt: skip
     check_out_dir(out, force, inputs=[dataset])
     console = Console()
     try:
-        ds = load_dataset(dataset)
+        ds = load_dataset(dataset, calib=calib)
         pairs = stereo_pairs(ds)
         if pairs[0].size < 2:
             raise DatasetError(

@@ -127,9 +127,18 @@ def _pick_stereo(cands: list[str], given: dict[str, str | None]) -> dict[str, st
         elif len(cands) > 0:
             raise ConfigError(
                 f"cannot tell the {role} camera among image topics {', '.join(cands)}: "
-                f"pass --{role} TOPIC"
+                f"{_choose(role)}"
             )
     return out
+
+
+def _choose(role: str) -> str:
+    """How a user names the topic of ``role``: ``svains convert`` takes it as an option, every
+    command as the ``rostopic`` of the Kalibr file that calibrates that sensor."""
+    where = {"left": "cam0 in the camchain (--calib)", "right": "cam1 in the camchain (--calib)",
+             "imu": "the imu.yaml (--imu-calib)"}.get(role)  # fmt: skip
+    return f"pass --{role} TOPIC to svains convert" + (
+        f", or give it as rostopic of {where}" if where else "")
 
 
 def select_topics(
@@ -170,7 +179,7 @@ def select_topics(
         if len(cands) == 1:
             out[role] = cands[0]
         elif len(cands) > 1:
-            raise ConfigError(f"several {role} topics ({', '.join(cands)}): pass --{role} TOPIC")
+            raise ConfigError(f"several {role} topics ({', '.join(cands)}): {_choose(role)}")
     images = [t.name for t in topics if t.msgtype in ROLE_TYPES["left"]]
     images = [n for n in images if n not in (out.get("left"), out.get("right"))]
     if "left" in roles and ("left" not in out or "right" not in out):
