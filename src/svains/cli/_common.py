@@ -259,7 +259,7 @@ def gps_outages(values: list[str] | None) -> list[str] | None:
 
 GpsOutageOption = Annotated[
     list[str] | None,
-    typer.Option("--gps-outage", help="START:DURATION [s from the first IMU sample fed] "
+    typer.Option("--gps-outage", help="START:DURATION \\[s from the first IMU sample fed] "
                  "without GPS; repeatable.", callback=gps_outages),
 ]
 GpsUntilOption = Annotated[

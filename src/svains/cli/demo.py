@@ -25,7 +25,7 @@ def demo(
     out: Annotated[Path, typer.Option("--out", help="Output folder (data set + comparison).")],
     seed: Annotated[int, typer.Option("--seed", help="Simulator seed.")] = 0,
     duration: Annotated[
-        float, typer.Option("--duration", help="Flight length [s].", callback=positive_finite)
+        float, typer.Option("--duration", help="Flight length \\[s].", callback=positive_finite)
     ] = 110.0,
     camera_rate: Annotated[
         float, typer.Option("--camera-rate", help="Stereo rate [Hz], up to 20.",

@@ -35,13 +35,16 @@ def run(
         Path | None,
         typer.Option("--config", help="Run configuration YAML (e.g. a previous OUT/config.yaml)."),
     ] = None,
-    method: Annotated[str | None, typer.Option("--method", help="ins, tc, 3d, lc or vo.")] = None,
+    method: Annotated[
+        str | None, typer.Option("--method", help="ins, tc, 3d, lc or vo (default: ins).")
+    ] = None,
     model: Annotated[
-        str | None, typer.Option("--model", help="paper (eq. 14 state) or biased (+ IMU biases).")
+        str | None,
+        typer.Option("--model", help="paper (eq. 14 state) or biased (+ IMU biases; the default)."),
     ] = None,
     init: Annotated[
-        str | None, typer.Option("--init", help="static, gps (in flight), vision (in flight "
-                                 "from stereo and IMU) or groundtruth.")
+        str | None, typer.Option("--init", help="static (the default), gps (in flight), vision (in "
+                                 "flight from stereo and IMU) or groundtruth.")
     ] = None,
     gps: Annotated[bool | None, typer.Option("--gps/--no-gps", help="Fuse GPS.")] = None,
     mag: Annotated[bool | None, typer.Option("--mag/--no-mag", help="Fuse magnetometer.")] = None,
@@ -101,7 +104,7 @@ def run(
     rerun: Annotated[
         Path | None,
         typer.Option("--rerun", help="After the run, save a rerun recording (.rrd; needs "
-                     "svains[viz])."),
+                     "svains\\[viz])."),
     ] = None,
     rerun_spawn: Annotated[
         bool, typer.Option("--rerun-spawn", help="After the run, open the rerun viewer.")
