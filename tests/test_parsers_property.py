@@ -401,3 +401,43 @@ def test_property_helpers_fail_on_untyped_errors() -> None:
     only_typed_errors(calls.append, 1)
     assert calls == [1]
     assert accepted(lambda v: 2 * v, 21) == 42
+
+
+def test_a_large_table_is_read_by_numpy_alike_and_its_errors_keep_their_lines(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Above FAST_TABLE_BYTES a numeric CSV goes through numpy's C reader (a 600 s features0:
+    9.3 s and 0.96 GB before, 3.3 s and 0.23 GB now): the same arrays bit for bit as the
+    careful reader, and a bad row still named by its line, found by the careful reader or
+    counted for the error alone."""
+    from svains.datasets import _textio
+    from svains.errors import DatasetError
+
+    rng = np.random.default_rng(9)
+    n = 30_000
+    t = 1_403_715_273_262_142_976 + np.arange(n, dtype=np.int64) * 5_000_000
+    a = rng.normal(size=(n, 6)) * [1, 1, 1, 9, 9, 9]
+    rows = [f"{ti},{','.join(repr(float(v)) for v in r)}" for ti, r in zip(t, a, strict=True)]
+    path = tmp_path / "data.csv"
+    header = "#timestamp [ns],w_x,w_y,w_z,a_x,a_y,a_z\n\n"  # and a blank line: row k on line k+3
+    path.write_text(header + "\n".join(rows) + "\n")
+    assert path.stat().st_size > _textio.FAST_TABLE_BYTES
+    fast_t, fast_a, lines = _textio.read_numeric_table(path, 7)
+    assert isinstance(lines, _textio.DataLines)  # numpy read it: no list of line numbers made
+    monkeypatch.setattr(_textio, "FAST_TABLE_BYTES", 1 << 60)
+    slow_t, slow_a, _ = _textio.read_numeric_table(path, 7)
+    np.testing.assert_array_equal(fast_t, slow_t)
+    np.testing.assert_array_equal(fast_a, slow_a)
+    assert lines[0] == 3 and lines[n - 1] == n + 2
+    monkeypatch.undo()
+    bad = list(rows)
+    bad[20_000] = f"{t[20_000]},nan,{','.join(repr(float(v)) for v in a[20_000][1:])}"
+    path.write_text(header + "\n".join(bad) + "\n")
+    with pytest.raises(DatasetError, match=r"data\.csv:20003: NaN or infinite value"):
+        _textio.read_numeric_table(path, 7)
+    late = list(rows)
+    late[25_000] = f"{t[24_000]},{','.join(repr(float(v)) for v in a[25_000])}"
+    path.write_text(header + "\n".join(late) + "\n")
+    with pytest.raises(DatasetError, match=rf"data\.csv:25003: non-increasing timestamp "
+                       rf"{t[24_000]} after {t[24_999]}"):  # fmt: skip
+        _textio.read_numeric_table(path, 7)

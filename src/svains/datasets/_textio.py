@@ -7,6 +7,7 @@ timestamps are parsed as Python ints (int64 ns exceed float64's 53-bit mantissa)
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -204,6 +205,80 @@ def read_csv_rows(path: Path, n_cols: int | tuple[int, ...]) -> tuple[list[list[
     return rows, line_no
 
 
+class DataLines(Sequence[int]):
+    """The 1-based line numbers of a CSV's data rows (those ``read_csv_rows`` keeps), found
+    only when an error message asks for one: a table read whole by ``read_numeric_table``
+    never needs them otherwise."""
+
+    def __init__(self, path: Path, n_rows: int) -> None:
+        self.path, self.n_rows = path, n_rows
+        self._lines: list[int] | None = None
+
+    def __len__(self) -> int:
+        return self.n_rows
+
+    def __getitem__(self, i):  # type: ignore[no-untyped-def,override]
+        if self._lines is None:
+            lines = read_text(self.path).replace("\r\n", "\n").replace("\r", "\n").split("\n")
+            keep = []
+            for k, raw in enumerate(lines, start=1):
+                line = raw.strip()
+                if line and not line.startswith("#") and not (not keep and line[0].isalpha()):
+                    keep.append(k)
+            self._lines = keep
+        return self._lines[i]
+
+
+# Above this size a numeric CSV is parsed by numpy's C reader first (a 600 s simulated flight's
+# 106 MB features0: 9.3 s and 0.96 GB as Python lists of strings); any row it cannot read, or a
+# value the checks refuse, sends the file through ``read_csv_rows`` for the error's line.
+FAST_TABLE_BYTES = 1 << 20
+
+
+def read_numeric_table(
+    path: Path, n_cols: int | tuple[int, ...], strict: bool = True, min_rows: int = 1
+) -> tuple[NDArray[np.int64], NDArray[np.float64], Sequence[int]]:
+    """A stream's ``data.csv``: integer-ns stamps (N,) (strictly increasing, or with ``strict``
+    False non-decreasing), the other columns as float64 (N, n_cols - 1), and the rows' line
+    numbers (N); every error names the file and line (see ``read_csv_rows``)."""
+    try:
+        big = path.stat().st_size > FAST_TABLE_BYTES
+    except OSError:
+        big = False  # the careful reader names what is wrong with the file
+    got = _fast_table(path, n_cols) if big else None
+    if got is not None:
+        t, a = got
+        lines: Sequence[int] = DataLines(path, t.size)
+        if t.size >= min_rows and np.all(np.isfinite(a)):
+            check_timestamps(path, t, lines, strict)
+            return t, a, lines
+    rows, line_list = read_csv_rows(path, n_cols)
+    t = parse_timestamps(path, rows, line_list, strict=strict)
+    from svains.datasets.validate import check_rows
+
+    check_rows(t, path, min_rows)
+    return t, parse_floats(path, rows, line_list, slice(1, None)), line_list
+
+
+def _fast_table(path: Path, n_cols: int | tuple[int, ...]
+                ) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:  # fmt: skip
+    """numpy's reading of a plain numeric CSV (``#`` comments, int64 stamps, floats), or None
+    when it cannot read it whole (any odd row: the careful reader then names it)."""
+    for n in (n_cols,) if isinstance(n_cols, int) else tuple(n_cols):
+        dtype = np.dtype([("t", np.int64)] + [(f"c{i}", np.float64) for i in range(n - 1)])
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")  # "input contained no data": the careful way
+                table = np.loadtxt(path, dtype=dtype, delimiter=",", comments="#", ndmin=1,
+                                   encoding="utf-8-sig")  # fmt: skip
+        except (ValueError, OverflowError, UnicodeDecodeError, UserWarning):
+            continue
+        values = np.stack([table[f"c{i}"] for i in range(n - 1)], axis=1) if n > 1 else (
+            np.zeros((table.size, 0)))
+        return np.asarray(table["t"], np.int64), values
+    return None
+
+
 def parse_timestamps(
     path: Path, rows: list[list[str]], line_no: list[int], strict: bool = True
 ) -> NDArray[np.int64]:
@@ -221,6 +296,14 @@ def parse_timestamps(
                     f"{path}:{k}: malformed timestamp {r[0]!r} (expected integer nanoseconds)"
                 ) from None
         raise
+    check_timestamps(path, t, line_no, strict)
+    return t
+
+
+def check_timestamps(path: Path, t: NDArray[np.int64], line_no: Sequence[int],
+                     strict: bool = True) -> None:  # fmt: skip
+    """DatasetError naming the line of the first stamp of ``t`` (N,) that does not increase
+    (``strict``; else that decreases), or when they are not nanoseconds (``check_time_unit``)."""
     d = np.diff(t)
     bad = np.flatnonzero(d <= 0) if strict else np.flatnonzero(d < 0)
     if bad.size:
@@ -233,7 +316,6 @@ def parse_timestamps(
             else f"{path}:{line_no[i]}: decreasing timestamp {t[i]} after {t[i - 1]}"
         )
     check_time_unit(path, t, line_no)
-    return t
 
 
 # Timestamps must be integer nanoseconds: spacings below this (50 kHz) are no sensor's, so the
@@ -244,7 +326,7 @@ STRAY_ROW_SPACINGS = 10_000
 STRAY_ROW_MIN_NS = 3600 * 10**9
 
 
-def check_time_unit(path: Path, t: NDArray[np.int64], line_no: list[int]) -> None:
+def check_time_unit(path: Path, t: NDArray[np.int64], line_no: Sequence[int]) -> None:
     """DatasetError naming the file (and line) when the stamps ``t`` (N,) of a sorted stream are
     not nanoseconds or one row lies far outside the others (see the constants)."""
     u = np.unique(t)

@@ -21,6 +21,7 @@ from svains.datasets._textio import (
     parse_floats,
     parse_timestamps,
     read_csv_rows,
+    read_numeric_table,
     read_sensor_yaml,
     yaml_float,
     yaml_T_BS,
@@ -53,7 +54,6 @@ from svains.datasets.validate import (
     check_mag_calib,
     check_number,
     check_quaternions,
-    check_rows,
     check_sonar_calib,
     check_stereo_rig,
     check_stereo_sync,
@@ -97,11 +97,8 @@ def _table(
 ) -> tuple[np.ndarray, np.ndarray]:
     """``data.csv`` of a numeric stream: (t_ns (N,), values (N, n_cols - 1)), N >= min_rows
     (``n_cols`` a tuple: the layout the first row picks, ``_textio.read_csv_rows``)."""
-    path = folder / "data.csv"
-    rows, lines = read_csv_rows(path, n_cols)
-    t = parse_timestamps(path, rows, lines, strict=strict)
-    check_rows(t, path, min_rows)
-    return t, parse_floats(path, rows, lines, slice(1, None))
+    t, values, _ = read_numeric_table(folder / "data.csv", n_cols, strict, min_rows)
+    return t, values
 
 
 def read_imu(folder: Path) -> tuple[ImuStream, ImuCalib]:
@@ -296,16 +293,14 @@ def read_features(folder: Path, timeshift_cam_imu_s: float = 0.0) -> FeatureStre
     stamps move to the IMU clock by cam0's ``timeshift_cam_imu_s`` (s) here, as the images'
     do in ``read_camera``."""
     path = folder / "data.csv"
-    rows, lines = read_csv_rows(path, 6)
-    t = parse_timestamps(path, rows, lines, strict=False)
-    check_rows(t, path)
-    ids_f = parse_floats(path, rows, lines, slice(1, 2))[:, 0]
+    t, values, lines = read_numeric_table(path, 6, strict=False)
+    ids_f = values[:, 0]
     not_int = (ids_f != np.round(ids_f)) | (np.abs(ids_f) >= 2.0**53)
     if np.any(not_int):
         k = lines[int(np.flatnonzero(not_int)[0])]
         raise DatasetError(f"{path}:{k}: track_id must be an integer (below 2^53)")
     ids = ids_f.astype(np.int64)
-    uv = parse_floats(path, rows, lines, slice(2, 6))
+    uv = values[:, 1:5]
     if t.size > 1:
         order = np.lexsort((ids, t))
         dup = np.flatnonzero((np.diff(t[order]) == 0) & (np.diff(ids[order]) == 0))
