@@ -211,3 +211,14 @@ def test_image_messages_decode_to_grey() -> None:
     np.testing.assert_array_equal(decode_compressed(png.tobytes()), grey)
     with pytest.raises(DatasetError, match="image encoding 'bayer_rggb8' is not supported"):
         decode_raw("bayer_rggb8", 4, 6, 6, grey.tobytes())
+
+
+def test_a_folder_that_is_no_bag_says_so(tmp_path: Path) -> None:
+    """``svains convert`` on an ASL folder said "Expected metadata file … does not exist"."""
+    from svains.datasets.rosbag import bag_topics
+    from svains.errors import DatasetError
+
+    (tmp_path / "mav0").mkdir()
+    with pytest.raises(DatasetError, match=r"a folder without a ROS2 metadata\.yaml, so not a "
+                       r"bag \(an ASL/EuRoC or KITTI data set is read as it is"):  # fmt: skip
+        bag_topics(tmp_path)

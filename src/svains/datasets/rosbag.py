@@ -78,6 +78,9 @@ def _reader(path: Path) -> Any:
 
     if not path.exists():
         raise DatasetError(f"bag not found: {path}")
+    if path.is_dir() and not is_bag(path):
+        raise DatasetError(f"{path}: a folder without a ROS2 metadata.yaml, so not a bag "
+                           "(an ASL/EuRoC or KITTI data set is read as it is: svains info, run)")
     # ROS1 bags embed their message definitions; ROS2 ones fall back to this store.
     return AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
 

@@ -213,8 +213,9 @@ def replay(
         check_stereo_images(ds)
         n_pairs = stereo_pairs(ds)[0].size if ds.left is not None and ds.right is not None else 0
         if n_pairs < 2:  # vo too: it wrote an empty trajectory with exit 0
-            raise DatasetError(f"{ds.root}: {n_pairs} stereo pair(s) with images on disk; "
-                               "image-based vision needs at least 2")
+            where = "in the bag" if ds.root.is_file() else "with images on disk"
+            raise DatasetError(f"{ds.root}: {n_pairs} stereo pair(s) {where}; image-based "
+                               "vision needs at least 2")  # fmt: skip
     if config.method == "vo":  # stereo only: no IMU needed (KITTI odometry, bare rigs)
         from svains.replay.vo import run as run_vo
 
