@@ -167,6 +167,13 @@ def write_csv(path: Path, header: str | Sequence[str], blocks: Sequence[NDArray[
     path.write_text("#" + head + "\n" + body + ("\n" if body else ""))
 
 
+def _is_data_line(line: str, first: bool) -> bool:
+    """Whether a stripped CSV line is a data row: not blank, not a ``#`` comment, and not, as
+    the ``first`` row, a header written without its '#' (pandas' to_csv writes "timestamp,...":
+    no row starts with a letter, and the first one that does could be nothing else)."""
+    return bool(line) and not line.startswith("#") and not (first and line[0].isalpha())
+
+
 def read_csv_rows(path: Path, n_cols: int | tuple[int, ...]) -> tuple[list[list[str]], list[int]]:
     """Split a ``#``-headed CSV into rows of ``n_cols`` fields and their 1-based line numbers.
 
@@ -182,11 +189,7 @@ def read_csv_rows(path: Path, n_cols: int | tuple[int, ...]) -> tuple[list[list[
     lines = read_text(path).replace("\r\n", "\n").replace("\r", "\n").split("\n")
     for k, raw in enumerate(lines, start=1):
         line = raw.strip()
-        if not line or line.startswith("#"):
-            continue
-        if not rows and line[0].isalpha():
-            # a header without its '#' (pandas' to_csv writes "timestamp,..."): no row starts
-            # with a letter, and the first one that does could be nothing else
+        if not _is_data_line(line, first=not rows):
             continue
         fields = [f.strip() for f in line.split(",")]
         if len(fields) not in allowed:
@@ -220,10 +223,9 @@ class DataLines(Sequence[int]):
     def __getitem__(self, i):  # type: ignore[no-untyped-def,override]
         if self._lines is None:
             lines = read_text(self.path).replace("\r\n", "\n").replace("\r", "\n").split("\n")
-            keep = []
+            keep: list[int] = []
             for k, raw in enumerate(lines, start=1):
-                line = raw.strip()
-                if line and not line.startswith("#") and not (not keep and line[0].isalpha()):
+                if _is_data_line(raw.strip(), first=not keep):
                     keep.append(k)
             self._lines = keep
         return self._lines[i]
