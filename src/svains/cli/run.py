@@ -121,9 +121,9 @@ def run(
 ) -> None:
     """Run METHOD over DATASET; write trajectory.tum, trajectory_euroc.csv, pose_covariance.csv,
     states.csv, updates.csv, tracks.csv (vision), report.json and the effective config.yaml into
-    OUT (with --smooth also trajectory_smoothed.tum, trajectory_smoothed_euroc.csv and
-    pose_covariance_smoothed.csv); with --rerun/--rerun-spawn, then a rerun recording of the
-    run."""
+    OUT (with --smooth also trajectory_smoothed.tum, trajectory_smoothed_euroc.csv,
+    pose_covariance_smoothed.csv and states_smoothed.csv); with --rerun/--rerun-spawn, then a
+    rerun recording of the run."""
     from svains.cli.run_config import (
         build_config,
         effective_config_text,
@@ -227,7 +227,8 @@ def run(
     console.print(table)
     logs = "".join(f", {n}" for n in ("updates.csv", "tracks.csv", "trajectory_smoothed.tum",
                                       "trajectory_smoothed_euroc.csv",
-                                      "pose_covariance_smoothed.csv") if (out / n).is_file())
+                                      "pose_covariance_smoothed.csv", "states_smoothed.csv")
+                   if (out / n).is_file())  # fmt: skip
     console.print(f"wrote {out}/trajectory.tum, trajectory_euroc.csv, pose_covariance.csv, "
                   f"states.csv{logs}, report.json, config.yaml")
     if rerun is not None:
