@@ -179,3 +179,29 @@ def test_the_front_end_takes_a_camchain_too(euroc, euroc_micro: Path, tmp_path: 
         assert res.exit_code == 0, res.output
     own, kal = (json.loads((tmp_path / n / "report.json").read_text()) for n in ("own", "kalibr"))
     assert kal["frames"] == own["frames"] > 50
+
+
+def test_radtan_coefficients_under_an_equidistant_name_are_warned(
+    euroc, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:  # type: ignore[no-untyped-def]
+    """A camchain saying ``equidistant`` over radial-tangential coefficients (a Kalibr slip:
+    KITTI raw ran to 1.79 m instead of 0.28 m with only bias and GPS warnings, a user's probe)
+    is warned; real fisheye coefficients (small) and a rectilinear lens fitted as equidistant
+    (k1 near +1/3) are not."""
+    from dataclasses import replace
+
+    cams = (euroc.cam0, euroc.cam1)
+    slip = tuple(replace(c, distortion_model="equidistant") for c in cams)
+    fisheye = tuple(replace(c, distortion_model="equidistant",
+                            distortion=np.array([0.0034, 0.0007, -0.0020, 0.0002]))
+                    for c in cams)  # fmt: skip
+    rectilinear = tuple(replace(c, distortion_model="equidistant",
+                                distortion=np.array([0.33, 0.13, 0.05, 0.02])) for c in cams)
+    with caplog.at_level("WARNING", logger="svains.datasets.validate"):
+        for i, chain in enumerate((fisheye, rectilinear)):
+            read_camchain(write_camchain(tmp_path / f"ok{i}.yaml", chain,
+                                         euroc.imu_calib.T_B_S, 0.0))  # fmt: skip
+        assert "look like radial-tangential" not in caplog.text
+        read_camchain(write_camchain(tmp_path / "slip.yaml", slip, euroc.imu_calib.T_B_S, 0.0))
+    assert caplog.text.count("equidistant (fisheye) coefficients") == 2
+    assert "cam0's equidistant (fisheye) coefficients [-2.8341e-01" in caplog.text

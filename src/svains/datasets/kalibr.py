@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 from svains.datasets._textio import format_float, read_sensor_yaml, yaml_float
 from svains.datasets.asl_reader import shift_feature_stamps
 from svains.datasets.types import CameraCalib, Dataset, ImageStream, ImuCalib
-from svains.datasets.validate import check_image_size
+from svains.datasets.validate import check_camera_calib, check_image_size
 from svains.errors import CalibrationError
 
 log = logging.getLogger(__name__)
@@ -112,11 +112,13 @@ def _camera(cam: dict[str, Any], name: str, path: Path, T_I_C: F64) -> CameraCal
         raise CalibrationError(
             f"{path}: {name} needs intrinsics [fu, fv, pu, pv] and resolution [w, h]"
         )
-    return CameraCalib(
+    cal = CameraCalib(
         name=name, T_B_C=T_I_C, rate_hz=0.0, resolution=(int(res[0]), int(res[1])),
         intrinsics=intr, distortion_model=dist_model,
         distortion=coeffs if coeffs.size else np.zeros(4),
     )  # fmt: skip
+    check_camera_calib(cal, Path(path))  # as a sensor.yaml's: intrinsics order, lens model
+    return cal
 
 
 def read_camchain(path: Path | str) -> KalibrChain:
