@@ -209,3 +209,46 @@ def test_georeferenced_positions_keep_their_millimetres(tmp_path: Path) -> None:
     for name in ("states.csv", "euroc.csv"):
         row = (tmp_path / name).read_text().splitlines()[1].split(",")
         np.testing.assert_allclose([float(v) for v in row[1:4]], x[0, 0:3], rtol=0, atol=1e-6)
+
+
+def test_a_symlinked_out_keeps_its_link_and_fills_the_folder_it_points_to(
+    tmp_path: Path,
+) -> None:
+    """An output on another disk through a symlink (a user's probe): the link was swapped for a
+    real folder and itself left hidden in a .svains-tmp-old-* sibling."""
+    target = tmp_path / "bigdisk" / "realout"
+    target.mkdir(parents=True)
+    (target / "notes.txt").write_text("mine\n")
+    link = tmp_path / "out"
+    link.symlink_to(target, target_is_directory=True)
+    with replaced_dir(link, owned=lambda name: name == "report.json") as stage:
+        (stage / "report.json").write_text("{}\n")
+    assert link.is_symlink() and link.resolve() == target.resolve()
+    assert sorted(p.name for p in target.iterdir()) == ["notes.txt", "report.json"]
+    assert _no_temporaries(tmp_path) and _no_temporaries(target.parent)
+
+
+def test_sigterm_unwinds_like_ctrl_c_one_line_and_no_staging_left(tmp_path: Path) -> None:
+    """kill, CI timeouts and docker stop send SIGTERM, whose default handler skipped the
+    cleanup: staging folders of 5-25 MB piled up beside the output (a user's probe). Now one
+    line, exit 143, nothing left."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    exe = Path(sys.executable).with_name("svains")
+    if not exe.is_file():
+        pytest.skip("svains entry point not installed next to this python")
+    out = tmp_path / "sim"
+    proc = subprocess.Popen([str(exe), "simulate", "--duration", "600", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    deadline = time.monotonic() + 60
+    while _no_temporaries(tmp_path):
+        assert time.monotonic() < deadline and proc.poll() is None, "no staging folder made"
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143
+    assert err.strip().splitlines()[-1] == "error: terminated (SIGTERM)"
+    assert _no_temporaries(tmp_path) and not out.exists()

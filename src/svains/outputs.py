@@ -102,6 +102,11 @@ def replaced_dir(
     raised as :class:`OutputError` naming the path under ``dst``.
     """
     final = Path(dst)
+    if final.is_symlink():
+        # the link is the user's (an output on another disk): replace the folder it points to,
+        # beside which the staging folder is made, and keep the link (it was swapped for a
+        # real folder before, the link itself left hidden in a .svains-tmp-old-* sibling)
+        final = final.resolve()
     if holds_working_dir(final):
         raise OutputError(f"cannot replace {final}: it is the current folder or holds it")
     if final.exists() and not final.is_dir():

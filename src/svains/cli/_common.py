@@ -19,8 +19,10 @@ from __future__ import annotations
 import logging
 import math
 import os
+import signal
 import sys
 import tempfile
+import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
@@ -183,6 +185,17 @@ def check_out_file(out: Path | None, force: bool, option: str) -> None:
 # --- the command group -----------------------------------------------------------------------
 
 
+class Terminated(BaseException):
+    """SIGTERM received: unwinds like Ctrl-C (``finally`` blocks run), past ``except Exception``."""
+
+
+EXIT_TERMINATED = 143  # 128 + SIGTERM, as a shell reports a process it terminated
+
+
+def _terminated(signum: int, frame: object) -> None:
+    raise Terminated
+
+
 class OneLineErrorGroup(TyperGroup):
     """Typer group whose every failure ends as one ``error:`` line and a documented exit code.
 
@@ -201,6 +214,10 @@ class OneLineErrorGroup(TyperGroup):
     ) -> Any:
         if not standalone_mode:
             return super().main(args, prog_name, complete_var, standalone_mode, **extra)
+        if threading.current_thread() is threading.main_thread():
+            # SIGTERM (kill, timeouts, docker stop, Slurm) as Ctrl-C: staging folders are
+            # removed and outputs kept whole (the default handler left .svains-tmp-* behind)
+            signal.signal(signal.SIGTERM, _terminated)
         try:
             rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
         except typer.TyperException as exc:  # click's ClickException family
@@ -212,6 +229,9 @@ class OneLineErrorGroup(TyperGroup):
         except (typer.Abort, KeyboardInterrupt):
             print_error("interrupted")
             sys.exit(EXIT_INTERRUPTED)
+        except Terminated:
+            print_error("terminated (SIGTERM)")
+            sys.exit(EXIT_TERMINATED)
         except (SvainsError, OSError) as exc:
             print_error(str(exc))
             sys.exit(EXIT_BAD_INPUT)
@@ -223,6 +243,8 @@ class OneLineErrorGroup(TyperGroup):
                 "run with --verbose for the traceback)"
             )
             sys.exit(EXIT_BAD_INPUT)
+        if rv == EXIT_INTERRUPTED:  # typer returns Ctrl-C as this code, having said nothing
+            print_error("interrupted")
         sys.exit(rv if isinstance(rv, int) else EXIT_OK)
 
 

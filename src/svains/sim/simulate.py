@@ -226,10 +226,17 @@ def simulate(config: SimConfig, out_dir: Path | str, overwrite: bool = False) ->
     if (out / "mav0").exists() and not overwrite:
         raise OutputError(f"{out} already holds a data set (mav0/); overwrite it explicitly")
     scene = build_scene(config)
-    with staging_dir(out) as stage:
-        streams = _write_dataset(scene, stage)
-        write_marker(stage / "mav0", streams, writer="svains simulate")
-        replace_dir(stage / "mav0", out / "mav0")
+    created = not out.exists()
+    try:
+        with staging_dir(out) as stage:
+            streams = _write_dataset(scene, stage)
+            write_marker(stage / "mav0", streams, writer="svains simulate")
+            replace_dir(stage / "mav0", out / "mav0")
+    except BaseException:
+        # interrupted (Ctrl-C, SIGTERM) or failed: a folder made for this data set goes too
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()
+        raise
     log.info("simulated %s (%.1f s) into %s", scene.config.scenario, scene.config.duration_s, out)
     return out
 
