@@ -237,3 +237,20 @@ def test_a_gps_start_whose_fixes_all_came_late_says_so() -> None:
                        r"measurement\(s\) \(a longer window waits for them\)"):  # fmt: skip
         nav.close()
     assert nav.queue.late == {"gps": 6}
+
+
+@pytest.mark.parametrize(("settings", "warned"), [
+    ({"use_gps": False}, True),
+    ({"gps_outages": ((0.0, 15.0),)}, True),
+    ({"gps_until_s": 0.0}, True),
+    ({"gps_outages": ((5.0, 10.0),)}, False),
+    ({}, False),
+])  # fmt: skip
+def test_a_gps_start_without_gps_fused_there_is_warned(
+    settings: dict, warned: bool, caplog: pytest.LogCaptureFixture
+) -> None:
+    """``--init gps --no-gps`` started from the fixes without a word (a user's probe)."""
+    with caplog.at_level("WARNING", logger="svains.navigation.navigator"):
+        Navigator(RunConfig(init=InitOptions(mode="gps"), **settings), _gps_rig())
+    assert ("init.mode gps takes the start from the GPS fixes, though the run fuses none "
+            "there" in caplog.text) is warned  # fmt: skip

@@ -96,6 +96,13 @@ class Navigator:
         self._window_ns = round(config.buffer.window_s * 1e9)
         if self._window_ns < 0:
             raise ConfigError(f"buffer.window_s must be >= 0, got {config.buffer.window_s}")
+        gps_at_start = config.use_gps and not (
+            any(a <= 0.0 < a + d for a, d in config.gps_outages)
+            or (config.gps_until_s is not None and config.gps_until_s <= 0.0))
+        if config.init.mode == "gps" and not gps_at_start:
+            log.warning("init.mode gps takes the start from the GPS fixes, though the run fuses "
+                        "none there (no GPS, or an outage from 0 s): the start is GPS-aided, "
+                        "the rest is not")  # fmt: skip
         self.starter = Starter(config.init, rig, self.layout, initial_state,
                                gps_fused=config.use_gps and rig.gps is not None,
                                max_row_diff_px=config.vision.max_row_diff_px)
