@@ -254,3 +254,16 @@ def test_a_gps_start_without_gps_fused_there_is_warned(
         Navigator(RunConfig(init=InitOptions(mode="gps"), **settings), _gps_rig())
     assert ("init.mode gps takes the start from the GPS fixes, though the run fuses none "
             "there" in caplog.text) is warned  # fmt: skip
+
+
+def test_the_reported_output_rate_is_the_one_written() -> None:
+    """An output period below the IMU's spacing writes at the IMU's rate; the report said
+    1000 Hz for 1 ms on a 100 Hz stream (a user's probe)."""
+    nav = Navigator(RunConfig(output_period_s=0.001), Rig())
+    rng = np.random.default_rng(8)
+    for k in range(int(4.0 * 100)):  # a 100 Hz IMU
+        nav.feed_imu(1_000_000_000 + k * 10_000_000, 1e-3 * rng.standard_normal(3),
+                     [0.0, 0.0, G] + 1e-2 * rng.standard_normal(3))  # fmt: skip
+    res = nav.close()
+    assert res.report["states_rate_hz"] == pytest.approx(100.0, rel=0.01)
+    assert np.median(np.diff(res.t_ns)) == 10_000_000
