@@ -8,6 +8,7 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -229,8 +230,9 @@ def run(
                                       "trajectory_smoothed_euroc.csv",
                                       "pose_covariance_smoothed.csv", "states_smoothed.csv")
                    if (out / n).is_file())  # fmt: skip
-    console.print(f"wrote {out}/trajectory.tum, trajectory_euroc.csv, pose_covariance.csv, "
-                  f"states.csv{logs}, report.json, config.yaml")
+    # one line whatever the width (a log grepped for a path must find it whole)
+    console.print(escape(f"wrote {out}/trajectory.tum, trajectory_euroc.csv, pose_covariance.csv, "
+                         f"states.csv{logs}, report.json, config.yaml"), soft_wrap=True)
     if rerun is not None:
         console.print(f"wrote {rerun} (open with: rerun {rerun})")
     note = degraded_note(rep) if rep.get("method") == "vo" else None
