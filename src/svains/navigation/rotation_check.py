@@ -40,6 +40,9 @@ from svains.sensors.types import ImuCalib
 log = logging.getLogger(__name__)
 
 F64 = NDArray[np.float64]
+# a turning frame: t0_ns, t1_ns, the camera's turn (3,) rad in body axes, gyro bias or None,
+# the turns' noise variance
+_Frame = tuple[int, int, F64, "F64 | None", float]
 
 
 @dataclass(frozen=True)
@@ -91,28 +94,29 @@ class RotationCheck:
         self.warned_ratio = False
         o = self.options
         n = round(o.offset_range_s / o.offset_step_s)
-        self._shifts_s = np.arange(-n, n + 1) * o.offset_step_s
+        self._near = _ShiftSums(np.arange(-n, n + 1) * o.offset_step_s)
         # per shift, over the counted frames (each term over the frame's noise): the gyro's
         # turn squared, its product with the camera's, and the camera's turn squared
-        self._gg = np.zeros(self._shifts_s.size)
-        self._gc = np.zeros(self._shifts_s.size)
-        self._cc = 0.0
-        # frames whose shifted intervals reach past the IMU samples held so far (the frame is
-        # fused ``buffer.window_s`` after its stamp): judged on a later frame
-        self._offset_pending: list[tuple[int, int, F64, F64 | None, float]] = []
-        self.offset_frames = 0
         self.warned_offset = False
-        # the same sums over the far shifts (``offset_far_s``), frames held until the IMU
-        # reaches their farthest shift
+        # the same sums over the far shifts (``offset_far_s``), beyond the near ones
         m = round(o.offset_far_s / o.offset_far_step_s)
         far = np.arange(-m, m + 1) * o.offset_far_step_s
-        self._far_shifts_s = far[np.abs(far) > o.offset_range_s]
-        self._far_gg = np.zeros(self._far_shifts_s.size)
-        self._far_gc = np.zeros(self._far_shifts_s.size)
-        self._far_cc = 0.0
-        self._far_pending: list[tuple[int, int, F64, F64 | None, float]] = []
-        self.far_frames = 0
+        self._far = _ShiftSums(far[np.abs(far) > o.offset_range_s])
         self.warned_scale = False
+
+    @property
+    def offset_frames(self) -> int:
+        """Turning frames in the near shifts' sums."""
+        return self._near.frames
+
+    @property
+    def far_frames(self) -> int:
+        """Turning frames in the far shifts' sums."""
+        return self._far.frames
+
+    @property
+    def _offset_pending(self) -> list[_Frame]:
+        return self._near.pending
 
     def observe_frame(self, tr: StereoTracks | None, ctx: FrameContext) -> None:
         """``observe`` with the filter's gyro bias at the frame (none for the paper state)."""
@@ -180,21 +184,9 @@ class RotationCheck:
         """Add the frame's misfit, for each tried shift ``δ``, between the camera's turn
         ``r_B`` (3,) rad (body axes) and the gyro's over ``[t0 + δ, t1 + δ]``, weighted by the
         frame's noise ``var``; warn once when the best shift is clearly not zero."""
-        h, o = self.history, self.options
-        t = h.t_ns
-        lo, hi = t0_ns + int(self._shifts_s[0] * 1e9), t1_ns + int(self._shifts_s[-1] * 1e9)
-        if t.size < 2 or t[0] > lo:
-            return  # the samples before the interval are gone
-        if t[-1] < hi:
-            self._offset_pending.append((t0_ns, t1_ns, r_B, bg_B, var))
+        o = self.options
+        if not self._near.add(self.history, (t0_ns, t1_ns, r_B, bg_B, var)):
             return
-        if h.fault_in(lo, hi):
-            return  # a shifted interval over dropped or missing samples
-        turns = _gyro_turns(t, h.gyro_B, t0_ns, t1_ns, bg_B, self._shifts_s)
-        self._gg += np.sum(turns * turns, axis=1) / var
-        self._gc += (turns @ r_B) / var
-        self._cc += float(r_B @ r_B) / var
-        self.offset_frames += 1
         if self.offset_frames < o.min_frames:
             return
         self._judge_scale()
@@ -202,7 +194,7 @@ class RotationCheck:
             return
         got = self.time_offset()
         if got is None:
-            if not (self.far_frames < o.min_frames and self._far_pending):
+            if not (self.far_frames < o.min_frames and self._far.pending):
                 self._judge_edge()  # else the far shifts, judged a few seconds on, say how far
             return
         shift, std = got
@@ -243,31 +235,19 @@ class RotationCheck:
                      var: float) -> None:  # fmt: skip
         """As ``_observe_offset`` over the far shifts; warn once when one of them halves the
         best misfit of the near shifts (and by more than 25): stamps seconds off."""
-        h, o = self.history, self.options
-        t = h.t_ns
-        reach = int(o.offset_far_s * 1e9)
-        if t.size < 2 or t[0] > t0_ns - reach:
+        o = self.options
+        if not self._far.add(self.history, (t0_ns, t1_ns, r_B, bg_B, var)):
             return
-        if t[-1] < t1_ns + reach:
-            self._far_pending.append((t0_ns, t1_ns, r_B, bg_B, var))
-            return
-        if h.fault_in(t0_ns - reach, t1_ns + reach):
-            return
-        turns = _gyro_turns(t, h.gyro_B, t0_ns, t1_ns, bg_B, self._far_shifts_s)
-        self._far_gg += np.sum(turns * turns, axis=1) / var
-        self._far_gc += (turns @ r_B) / var
-        self._far_cc += float(r_B @ r_B) / var
-        self.far_frames += 1
         if self.warned_offset or self.far_frames < o.min_frames or self.offset_frames == 0:
             return
-        c_far = self._far_cc - self._far_gc**2 / np.maximum(self._far_gg, 1e-300)
+        c_far = self._far.chi2
         k = int(np.argmin(c_far))
         # per frame, so the near sums (over their own frames) and the far ones compare
         near = float(np.min(self._offset_chi2)) / self.offset_frames
         best = float(c_far[k]) / self.far_frames
         if best < 0.5 * near and (near - best) * self.far_frames > 25.0:
             self.warned_offset = True
-            shift = float(self._far_shifts_s[k])
+            shift = float(self._far.shifts_s[k])
             log.warning(
                 "the camera's turns match the gyro's best with the IMU about %.2f s %s the "
                 "camera stamps (%d turning frames): are the images stamped on the IMU's clock? "
@@ -281,7 +261,7 @@ class RotationCheck:
         """Misfit (S,) per shift between the camera's turns and the gyro's scaled by the best
         common factor at that shift (``Σ |c|² - (Σ g·c)² / Σ |g|²``): a camera that turns a
         few per cent more or less than the gyro (a focal length off) does not pull the shift."""
-        return self._cc - self._gc**2 / np.maximum(self._gg, 1e-300)
+        return self._near.chi2
 
     def turn_scale(self) -> tuple[float, float] | None:
         """How far the camera turns per radian of the gyro's turn at the best shift, and its
@@ -291,8 +271,8 @@ class RotationCheck:
             return None
         k = int(np.argmin(self._offset_chi2))
         fit = self.offset_fit() or 0.0
-        scale = float(self._gc[k] / self._gg[k])
-        return scale, float(np.sqrt(max(fit, 1.0) / self._gg[k]))
+        gg = self._near.gg[k]
+        return float(self._near.gc[k] / gg), float(np.sqrt(max(fit, 1.0) / gg))
 
     def _judge_scale(self) -> None:
         """Warn once when the camera turns clearly more or less than the gyro (a few per cent
@@ -317,24 +297,13 @@ class RotationCheck:
 
     def _flush_offsets(self) -> None:
         """Judge the frames held for IMU samples past their shifted intervals, now there."""
-        if not self._offset_pending and not self._far_pending:
-            return
         t = self.history.t_ns
-        end = int(t[-1]) if t.size else None
-        reach = int(self._shifts_s[-1] * 1e9)
-        due = [end is not None and end >= f[1] + reach for f in self._offset_pending]
-        ready = [f for f, d in zip(self._offset_pending, due, strict=True) if d]
-        self._offset_pending = [f for f, d in zip(self._offset_pending, due, strict=True) if not d]
-        for t0_ns, t1_ns, r_B, bg_B, var in ready:
-            self._observe_offset(t0_ns, t1_ns, r_B, bg_B, var)
-        if self._far_pending and end is not None:
-            far_reach = int(self.options.offset_far_s * 1e9)
-            held, self._far_pending = self._far_pending, []
-            for f in held:
-                if end >= f[1] + far_reach:
-                    self._observe_far(*f)
-                else:
-                    self._far_pending.append(f)
+        if not t.size:
+            return
+        for frame in self._near.ready(int(t[-1])):
+            self._observe_offset(*frame)
+        for frame in self._far.ready(int(t[-1])):
+            self._observe_far(*frame)
 
     def time_offset(self) -> tuple[float, float] | None:
         """The shift ``δ`` (s) of the IMU's clock against the camera stamps that best matches
@@ -352,7 +321,7 @@ class RotationCheck:
         if not curv > 0.0:
             return None
         step = self.options.offset_step_s
-        shift = self._shifts_s[k] + 0.5 * step * (c[k - 1] - c[k + 1]) / curv
+        shift = self._near.shifts_s[k] + 0.5 * step * (c[k - 1] - c[k + 1]) / curv
         # chi-square curvature: d²χ²/dδ² = 2 / σ², scaled by the misfit per degree of freedom
         # when above 1 (turns the noise does not explain: a gyro bias the filter has wrong)
         scale = max(self.offset_fit() or 0.0, 1.0)
@@ -389,6 +358,56 @@ class RotationCheck:
 
 
 _NO_SHIFT = np.zeros(1)
+
+
+class _ShiftSums:
+    """Per shift ``δ`` of ``shifts_s`` (S,) s, over the turning frames added: the gyro's turn
+    over ``[t0 + δ, t1 + δ]`` squared (``gg``), its product with the camera's (``gc``), and the
+    camera's turn squared (``cc``), each over the frame's noise; frames whose farthest shifted
+    interval the IMU has not reached yet wait in ``pending``."""
+
+    def __init__(self, shifts_s: F64) -> None:
+        self.shifts_s = shifts_s
+        self.gg = np.zeros(shifts_s.size)
+        self.gc = np.zeros(shifts_s.size)
+        self.cc = 0.0
+        self.frames = 0
+        self.pending: list[_Frame] = []
+
+    def _span_ns(self, frame: _Frame) -> tuple[int, int]:
+        return frame[0] + int(self.shifts_s[0] * 1e9), frame[1] + int(self.shifts_s[-1] * 1e9)
+
+    def add(self, h: ImuHistory, frame: _Frame) -> bool:
+        """Add ``frame`` (t0_ns, t1_ns, camera turn (3,) rad in body axes, gyro bias or None,
+        noise variance); False when it waits for samples, or cannot be judged (the samples
+        before it gone, or a shifted interval over dropped or missing ones)."""
+        t0_ns, t1_ns, r_B, bg_B, var = frame
+        t = h.t_ns
+        lo, hi = self._span_ns(frame)
+        if t.size < 2 or t[0] > lo:
+            return False
+        if t[-1] < hi:
+            self.pending.append(frame)
+            return False
+        if h.fault_in(lo, hi):
+            return False
+        turns = _gyro_turns(t, h.gyro_B, t0_ns, t1_ns, bg_B, self.shifts_s)
+        self.gg += np.sum(turns * turns, axis=1) / var
+        self.gc += (turns @ r_B) / var
+        self.cc += float(r_B @ r_B) / var
+        self.frames += 1
+        return True
+
+    def ready(self, end_ns: int) -> list[_Frame]:
+        """The pending frames the IMU samples up to ``end_ns`` now cover (taken out)."""
+        ready = [f for f in self.pending if end_ns >= self._span_ns(f)[1]]
+        self.pending = [f for f in self.pending if end_ns < self._span_ns(f)[1]]
+        return ready
+
+    @property
+    def chi2(self) -> F64:
+        """Misfit (S,) per shift at the best common scale: ``cc - gc² / gg``."""
+        return self.cc - self.gc**2 / np.maximum(self.gg, 1e-300)
 
 
 def _gyro_turns(t_ns: NDArray[np.int64], gyro_B: F64, t0_ns: int, t1_ns: int,
