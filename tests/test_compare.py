@@ -69,6 +69,28 @@ def test_gps_outage_detected_and_max_error_inside() -> None:
     assert [o["error_max_m"] for o in report["gps_outages"]] == [pytest.approx(err)]
 
 
+def test_outage_report_counts_a_start_without_fixes_and_a_run_without_any() -> None:
+    gt = _truth()
+    xs = np.zeros((len(gt.t_ns), 13))
+    xs[:, 0:3] = gt.p_W_B + np.array([0.5, 0.0, 0.0])
+    std = np.full((len(gt.t_ns), 12), 0.1)
+    # GPS only from 8 s on: 0-8 s is an outage too, not "position with GPS".
+    late = (np.arange(8, 21, 1.0) * 1e9).astype(np.int64)
+    xs[gt.t_ns < 8e9, 0] += 2.0
+    rep = gps_outage_report(gt.t_ns, xs, std, late, gt)
+    (first,) = rep["gps_outages"]
+    assert first["from_start"] is True and "to_end" not in first
+    assert first["start_s"] == 0.0 and first["duration_s"] == pytest.approx(8.0)
+    assert first["error_max_m"] == pytest.approx(2.5)
+    assert rep["position_rmse_with_gps_m"] == pytest.approx(0.5)
+    # No fix at all (``--gps-outage`` over the whole run): no RMSE "with GPS", one outage.
+    none = gps_outage_report(gt.t_ns, xs, std, np.zeros(0, np.int64), gt)
+    assert none["position_rmse_with_gps_m"] is None
+    (whole,) = none["gps_outages"]
+    assert whole["from_start"] is True and whole["to_end"] is True
+    assert whole["duration_s"] == pytest.approx(20.0, abs=1e-6)
+
+
 def _run_at(gt: GroundTruth, p_W_B: np.ndarray, method: str) -> RunResult:
     r = _run(gt, np.zeros(3), method)
     r.x[:, 0:3] = p_W_B

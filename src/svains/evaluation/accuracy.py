@@ -354,8 +354,9 @@ def gps_outage_report(
 ) -> dict[str, Any]:
     """Position error while GPS is available, and its growth over each GPS outage.
 
-    An outage is a gap longer than ``min_gap_s`` between consecutive GPS fixes, or from the
-    last fix to the end of the run (``--gps-until``; ``"to_end": true``). Returns
+    An outage is a gap longer than ``min_gap_s`` between consecutive GPS fixes, from the start
+    of the run to the first fix (``"from_start": true``) or from the last fix to the end of the
+    run (``--gps-until``; ``"to_end": true``); without any fix the whole run is one. Returns
     ``position_rmse_with_gps_m`` (logged states outside outages) and ``gps_outages``: for each,
     start/end (s from the first state), position error at the start and at the end, its maximum,
     and the filter's 3σ position bound (norm of the 3σ per axis) at the end.
@@ -365,13 +366,20 @@ def gps_outage_report(
     err = np.linalg.norm(p - x[inside, 0:3], axis=1)
     sig3 = 3.0 * np.linalg.norm(std[inside, 0:3], axis=1)
     g = np.asarray(gps_t_ns, dtype=np.int64)
-    gaps = np.flatnonzero(np.diff(g) > int(min_gap_s * 1e9))
-    windows = [(int(g[k]), int(g[k + 1]), False) for k in gaps]
-    if g.size and len(t) and int(t[-1]) - int(g[-1]) > int(min_gap_s * 1e9):
-        windows.append((int(g[-1]), int(t[-1]) + 1, True))  # no fix from the last one on
+    gap_ns = int(min_gap_s * 1e9)
+    gaps = np.flatnonzero(np.diff(g) > gap_ns)
+    windows = [(int(g[k]), int(g[k + 1]), {}) for k in gaps]
+    if len(t) and not g.size:
+        # Not one fix fused (e.g. ``--gps-outage`` over the whole run): all of it is outage.
+        windows.append((int(t[0]), int(t[-1]) + 1, {"from_start": True, "to_end": True}))
+    elif len(t):
+        if int(g[0]) - int(t[0]) > gap_ns:
+            windows.insert(0, (int(t[0]), int(g[0]), {"from_start": True}))
+        if int(t[-1]) - int(g[-1]) > gap_ns:
+            windows.append((int(g[-1]), int(t[-1]) + 1, {"to_end": True}))
     in_outage = np.zeros(len(t), dtype=bool)
     outages = []
-    for a, b, to_end in windows:
+    for a, b, marks in windows:
         sel = (t >= a) & (t < b)
         if not sel.any():
             continue
@@ -386,7 +394,7 @@ def gps_outage_report(
                 "error_max_m": float(e.max()),
                 "growth_m": float(e[-1] - e[0]),
                 "bound_3sigma_end_m": float(sig3[sel][-1]),
-                **({"to_end": True} if to_end else {}),
+                **marks,
             }
         )
     ok = ~in_outage
