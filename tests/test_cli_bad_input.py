@@ -375,6 +375,10 @@ USAGE_CASES: list[tuple[list[str], str]] = [
      "--smooth (smoother.enabled): vo has no filter to smooth"),
     (["run", "{ds}", "--out", "{tmp}/o", "--set", "filter.gate_probability=0"],
      "filter.gate_probability must be a probability in [0.5, 1)"),
+    # `--out=~/x`: no shell expands that '~'; a folder named '~' was made (probe 5, 2026-12-06).
+    (["run", "{ds}", "--out=~/svains-o"], "starts with a '~' the shell did not expand"),
+    (["evaluate", "{tmp}/a.tum", "{tmp}/a.tum", "--json=~/x.json"],
+     "write '--json ~/…' with a space"),
 ]
 
 

@@ -136,6 +136,15 @@ def _probe_writable(folder: Path, out: Path, option: str) -> None:
         usage_error(f"{out} cannot be written: {exc.strerror or exc} ({folder})", option)
 
 
+def _refuse_unexpanded_home(out: Path, option: str) -> None:
+    """A path starting with a literal ``~`` (``--out=~/x``: the shell expands ``~`` only at the
+    start of a word) would create a folder named ``~``; refused with the two spellings that
+    work (a folder really named ``~`` is still reachable as ``./~``)."""
+    if out.parts and out.parts[0] == "~":
+        usage_error(f"{out} starts with a '~' the shell did not expand (it does not after "
+                    f"'='); write '{option} ~/…' with a space, or $HOME/…", option)  # fmt: skip
+
+
 def check_out_dir(
     out: Path, force: bool, option: str = "--out", inputs: Sequence[Path] = (),
     replaced_whole: bool = True,
@@ -144,6 +153,7 @@ def check_out_dir(
     file, cannot be created or written, or is not empty without ``force``; and, for an output
     that replaces its folder whole (``replaced_whole``), when it is the working folder (or holds
     it) or holds one of ``inputs``."""
+    _refuse_unexpanded_home(out, option)
     if out.exists() and not out.is_dir():
         usage_error(f"{out} exists and is not a folder", option)
     base = _nearest_existing(out)
@@ -170,6 +180,7 @@ def check_out_file(out: Path | None, force: bool, option: str) -> None:
     existing file without ``force`` (usage error, exit 2)."""
     if out is None:
         return
+    _refuse_unexpanded_home(out, option)
     if out.is_dir():
         usage_error(f"{out} is a folder", option)
     base = _nearest_existing(out.parent)
