@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import subprocess
 import sys
 import time
@@ -21,6 +22,7 @@ from svains.batch.consistency import chi2_average_bounds
 from svains.batch.driver import dask_client, data_groups
 from svains.batch.store import read_marker, read_nees, read_report, run_dir, write_result
 from svains.batch.task import TIMING_KEYS, run_group
+from svains.errors import ConfigError
 
 # Dask clusters and 30 s of simulated flights (3 seeds x 5 s, on Dask and in this process).
 pytestmark = pytest.mark.slow
@@ -133,6 +135,30 @@ def test_a_second_run_skips_the_finished_runs_and_retries_the_failed_ones(
     assert (dask_dir / "nees_village5_default_3d.png").stat().st_size > 0
 
 
+def test_a_second_campaign_on_the_same_folder_is_refused_while_the_first_runs(
+    campaigns: tuple[Any, Path, Path],
+) -> None:
+    spec, dask_dir, _ = campaigns
+    # Another process holds the lock (as a running `svains batch` does); nothing is run.
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from pathlib import Path; "
+         "from svains.batch.driver import campaign_lock\n"
+         "with campaign_lock(Path(sys.argv[1])):\n print('held', flush=True); sys.stdin.read()",
+         str(dask_dir)],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        before = (dask_dir / "summary.csv").stat().st_mtime_ns
+        with pytest.raises(ConfigError, match=rf"in use by another campaign \(pid {holder.pid}\)"):
+            run_campaign(spec, dask_dir, sequential=True, figures=False)
+        assert (dask_dir / "summary.csv").stat().st_mtime_ns == before
+    finally:
+        holder.communicate("")
+    # Released when its holder ends: the folder is usable again.
+    assert run_campaign(spec, dask_dir, sequential=True, figures=False).count("ok") == 6
+
+
 # --- a separate scheduler and worker on 127.0.0.1 ----------------------------------------------
 
 
@@ -196,3 +222,52 @@ def test_svains_batch_sends_a_campaign_to_a_running_scheduler(
     assert "1 of 1 runs finished, 0 failed" in done.stdout
     (row,) = _rows(out / "summary.csv")
     assert row["status"] == "ok" and row["seed"] == "4" and float(row["ate_m"]) > 0
+
+
+@pytest.mark.parametrize("when", ["cluster starting", "runs going"])
+def test_ctrl_c_stops_a_local_campaign_in_one_line(tmp_path: Path, when: str) -> None:
+    """Ctrl-C reaches the terminal's whole process group, Dask's workers included: one
+    ``error: interrupted``, exit 130, none of Dask's tracebacks or warnings, no process left
+    (a user's probe, 2026-12-06: tracebacks from workers and an ``atexit`` assertion)."""
+    import signal
+
+    import yaml
+
+    spec = {**SPEC, "methods": ["3d"], "seeds": [0, 1], "datasets": {},
+            "scenarios": {"village": {"duration_s": 20.0, "camera.rate_hz": 5.0,
+                                      "camera.render_images": False}}}  # fmt: skip
+    spec_path = tmp_path / "spec.yaml"
+    spec_path.write_text(yaml.safe_dump(spec))
+    out = tmp_path / "out"
+    svains = Path(sys.executable).with_name("svains")
+    proc = subprocess.Popen(
+        [str(svains), "batch", str(spec_path), "--out", str(out), "--workers", "2"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60.0
+        lock = out / ".svains-batch.lock"  # taken just before the cluster starts
+        while not lock.exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.3 if when == "cluster starting" else 8.0)
+        os.killpg(proc.pid, signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=90)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    text = stdout + stderr
+    assert proc.returncode == 130, text
+    assert stderr.strip().splitlines()[-1] == "error: interrupted", text
+    assert "Traceback" not in text and "distributed" not in text, text
+    # No worker left running (an exited one may stay a zombie until init reaps it).
+    deadline = time.monotonic() + 10.0
+    while True:
+        left = subprocess.run(["ps", "-o", "pid=,stat=", "--sid", str(proc.pid)],
+                              capture_output=True, text=True).stdout.split("\n")  # fmt: skip
+        running = [ln for ln in left if ln.strip() and "Z" not in ln.split()[-1]]
+        if not running or time.monotonic() > deadline:
+            break
+        time.sleep(0.2)
+    assert not running, f"processes left in the group: {running}"

@@ -10,8 +10,12 @@ so an interrupted campaign resumes where it stopped.
 
 from __future__ import annotations
 
+import fcntl
 import logging
 import os
+import signal
+import subprocess
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -72,18 +76,85 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
         with client:
             yield client
         return
-    with (
-        LocalCluster(
+    # Ctrl-C reaches every process of the terminal's group: workers that took it too would stop
+    # on their own, racing the cluster's shutdown (Dask's tracebacks and warnings). SIGINT is
+    # ignored while the cluster starts, so its worker processes inherit "ignored" and keep it;
+    # a Ctrl-C meanwhile is seen by a sentinel (`sleep`, killed by it) and raised once the
+    # cluster is up, inside the block that closes it.
+    main = threading.current_thread() is threading.main_thread()
+    sentinel = _ctrl_c_sentinel() if main else None
+    handler = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    try:
+        cluster = LocalCluster(
             n_workers=n_workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-            host="127.0.0.1", dashboard_address=None, silence_logs=logging.WARNING,
-            env=WORKER_ENV,
+            host="127.0.0.1", dashboard_address=None, env=WORKER_ENV,
+            # The workers' own logs: only the fatal. What fails in a run is in its result, and
+            # a worker stopped mid-run by Ctrl-C would log its lost scheduler.
+            silence_logs=logging.CRITICAL,
             # No dashboard; the scheduler's remaining HTTP routes (health, metrics) on a free
             # loopback port instead of the fixed 8787.
             scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
-        ) as cluster,
-        Client(cluster, timeout=timeout_s) as client,
-    ):  # fmt: skip
-        yield client
+        )  # fmt: skip
+    finally:
+        if main:
+            signal.signal(signal.SIGINT, handler)
+        interrupted = _end_sentinel(sentinel)
+    logging.getLogger("distributed").setLevel(logging.WARNING)  # this process: lost workers
+    with cluster:
+        try:
+            if interrupted:
+                raise KeyboardInterrupt
+            with Client(cluster, timeout=timeout_s) as client:
+                yield client
+        except BaseException as exc:
+            if not isinstance(exc, Exception):  # Ctrl-C, SIGTERM: the user stopped the campaign
+                # and the workers killed mid-run are expected, not worth Dask's warnings.
+                logging.getLogger("distributed").setLevel(logging.CRITICAL)
+            raise
+
+
+def _ctrl_c_sentinel() -> subprocess.Popen[bytes] | None:
+    """A ``sleep`` in this process group with SIGINT at its default: it ends when a Ctrl-C
+    reaches the group (None where no ``sleep`` runs)."""
+    try:
+        return subprocess.Popen(["sleep", "3600"], stdin=subprocess.DEVNULL,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+    except OSError:
+        return None
+
+
+def _end_sentinel(sentinel: subprocess.Popen[bytes] | None) -> bool:
+    """Stop ``sentinel``; True when a Ctrl-C had ended it."""
+    if sentinel is None:
+        return False
+    interrupted = sentinel.poll() == -signal.SIGINT
+    sentinel.kill()
+    sentinel.wait()
+    return interrupted
+
+
+LOCK_NAME = ".svains-batch.lock"
+
+
+@contextmanager
+def campaign_lock(out_dir: Path) -> Iterator[None]:
+    """Hold ``out_dir``'s campaign lock (an advisory ``flock`` on ``LOCK_NAME``, released by the
+    kernel however the process ends): a second campaign on the same folder would redo the runs
+    this one has not written yet. Raises ``ConfigError`` naming the holder's pid when taken."""
+    path = out_dir / LOCK_NAME
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+            raise ConfigError(f"{out_dir} is in use by another campaign (pid {holder}); wait "
+                              "for it to end, or choose another --out") from None  # fmt: skip
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)
 
 
 def _lost(group: Sequence[Task], exc: BaseException) -> list[TaskResult]:
@@ -148,6 +219,15 @@ def run_campaign(
     ``sequential``; then aggregate every finished run into its tables and figures."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    with campaign_lock(out_dir):
+        return _run_locked(spec, out_dir, scheduler, n_workers, sequential, client, progress,
+                           figures)  # fmt: skip
+
+
+def _run_locked(
+    spec: CampaignSpec, out_dir: Path, scheduler: str | None, n_workers: int | None,
+    sequential: bool, client: Client | None, progress: ProgressFn | None, figures: bool,
+) -> CampaignSummary:  # fmt: skip
     write_atomic(out_dir / "spec.yaml", yaml.safe_dump(spec.raw, sort_keys=False))
     tasks = spec.tasks()
     todo = [t for t in tasks if not is_finished(out_dir, t)]
