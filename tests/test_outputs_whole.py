@@ -252,3 +252,33 @@ def test_sigterm_unwinds_like_ctrl_c_one_line_and_no_staging_left(tmp_path: Path
     assert proc.returncode == 143
     assert err.strip().splitlines()[-1] == "error: terminated (SIGTERM)"
     assert _no_temporaries(tmp_path) and not out.exists()
+
+
+def test_a_non_ascii_path_under_an_ascii_locale_runs_and_prints(
+    dataset: Path, tmp_path: Path
+) -> None:
+    """LANG=C without Python's UTF-8 mode: the tables' "m/s²" crashed `info` and the data set's
+    non-ASCII name crashed writing `config.yaml`, both as "a bug in svains" (a user's probe)."""
+    import shutil
+    import subprocess
+    import sys
+
+    exe = Path(sys.executable).with_name("svains")
+    if not exe.is_file():
+        pytest.skip("svains entry point not installed next to this python")
+    named = tmp_path / "données"
+    shutil.copytree(dataset, named)
+    env = {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0",
+           "PYTHONCOERCECLOCALE": "0", "PYTHONIOENCODING": ""}  # fmt: skip
+    info = subprocess.run([str(exe), "info", str(named)], capture_output=True, env=env)
+    assert info.returncode == 0, info.stderr
+    assert b"m/s?" in info.stdout and "données".encode() in info.stdout  # the name's own bytes
+    out = tmp_path / "sortie_é"
+    run = subprocess.run(
+        [str(exe), "run", str(named), "--method", "ins", "--init", "groundtruth",
+         "--duration", "2", "--out", str(out)], capture_output=True, env=env,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    config = (out / "config.yaml").read_bytes()
+    assert "données".encode() in config
+    config.decode("utf-8")  # valid UTF-8, as every file the project writes

@@ -58,9 +58,11 @@ def _output_error(final: Path, exc: OSError, stage: Path | None = None) -> Outpu
 
 
 def atomic_write_text(path: Path | str, text: str, encoding: str = "utf-8") -> Path:
-    """Write ``text`` to ``path`` atomically (temporary file, then rename)."""
+    """Write ``text`` to ``path`` atomically (temporary file, then rename). Undecodable bytes
+    that Python kept of a file name as surrogates (a non-ASCII path under a non-UTF-8 locale)
+    are written back as those bytes."""
     with atomic_path(path) as tmp:
-        tmp.write_text(text, encoding=encoding)
+        tmp.write_text(text, encoding=encoding, errors="surrogateescape")
     return Path(path)
 
 

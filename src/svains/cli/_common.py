@@ -16,6 +16,8 @@ reported on one line too, with exit code 1; ``svains --verbose`` shows its trace
 
 from __future__ import annotations
 
+import codecs
+import io
 import logging
 import math
 import os
@@ -207,6 +209,24 @@ def _terminated(signum: int, frame: object) -> None:
     raise Terminated
 
 
+_STRICT_ERRORS = ("strict", "surrogateescape")
+_OUTPUT_ERRORS = "svains-output"
+
+
+def _output_errors(exc: UnicodeError) -> tuple[str | bytes, int]:
+    """Codec error handler of the command line's output: a file name's undecodable bytes (kept
+    as surrogates) back as those bytes, any other character the locale cannot encode as "?"."""
+    if not isinstance(exc, UnicodeEncodeError):
+        raise exc
+    part = exc.object[exc.start : exc.end]
+    if all(0xDC80 <= ord(c) <= 0xDCFF for c in part):
+        return bytes(ord(c) - 0xDC00 for c in part), exc.end
+    return "?" * len(part), exc.end
+
+
+codecs.register_error(_OUTPUT_ERRORS, _output_errors)
+
+
 class OneLineErrorGroup(TyperGroup):
     """Typer group whose every failure ends as one ``error:`` line and a documented exit code.
 
@@ -225,6 +245,11 @@ class OneLineErrorGroup(TyperGroup):
     ) -> Any:
         if not standalone_mode:
             return super().main(args, prog_name, complete_var, standalone_mode, **extra)
+        for stream in (sys.stdout, sys.stderr):
+            # A terminal or pipe in a non-UTF-8 locale (LANG=C without Python's UTF-8 mode)
+            # cannot encode the tables' "m/s²" or "σ": shown as "?" rather than a crash.
+            if isinstance(stream, io.TextIOWrapper) and stream.errors in _STRICT_ERRORS:
+                stream.reconfigure(errors=_OUTPUT_ERRORS)
         if threading.current_thread() is threading.main_thread():
             # SIGTERM (kill, timeouts, docker stop, Slurm) as Ctrl-C: staging folders are
             # removed and outputs kept whole (the default handler left .svains-tmp-* behind)
