@@ -165,3 +165,27 @@ def test_a_frozen_sample_is_kept_when_the_check_is_off() -> None:
     g[1000:1003], a[1000:1003] = g[999], a[999]
     verdicts = _run(_guard(options=ImuGuardOptions(drop_frozen=False)), t, g, a)
     assert all(v.accepted for v in verdicts)
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("triad", ["gyro", "accel"])
+def test_one_triad_held_is_dropped_after_a_few_repeats(triad: str) -> None:
+    """One of the two sensors hung, the other alive (a user's probe on the real EuRoC IMU: the
+    gyro held 3 s took `3d` 173 m off, unnoticed, as only a six-channel hold was caught)."""
+    folder = DATA / "euroc_v101_micro/mav0/imu0"
+    if not folder.is_dir():
+        pytest.fail(f"real data missing: {folder} (CI provides ../shared)")
+    imu, calib = read_imu(folder)
+    g, a = imu.gyro_B.copy(), imu.accel_B.copy()
+    k, n = 12_000, 600  # 3 s at 200 Hz, in flight
+    held = g if triad == "gyro" else a
+    held[k : k + n] = held[k - 1]
+    guard = ImuGuard.from_calib(calib)
+    verdicts = _run(guard, imu.t_ns[: k + 2 * n], g[: k + 2 * n], a[: k + 2 * n])
+    dropped = [i for i, v in enumerate(verdicts) if not v.accepted]
+    run = ImuGuardOptions().frozen_triad_run
+    # The first repeats are kept (the true values, as far as anyone can tell), then every
+    # held sample is dropped, and the first live one ends a gap.
+    assert dropped == list(range(k + run - 1, k + n))
+    assert {verdicts[i].reason for i in dropped} == {"frozen"}
+    assert verdicts[k + n].kind == "gap"

@@ -22,8 +22,12 @@ Thresholds (``ImuGuardOptions``), each from a model or a measurement:
 - **dead output**: all six channels exactly zero (a level IMU reads gravity, noise never gives
   six exact zeros), or **frozen**: all six exactly equal to the last accepted sample's (a hung
   sensor or a driver repeating its last message with new stamps; noise never repeats six
-  values: none of EuRoC V1_01's 29,120 samples nor KITTI raw's 597 does). Off with
-  ``drop_frozen=False`` for a coarsely quantised IMU at rest.
+  values: none of EuRoC V1_01's 29,120 samples nor KITTI raw's 597 does), or one triad (the
+  gyro's or the accelerometer's three axes) equal to the last accepted one's in
+  ``frozen_triad_run`` samples in a row (one sensor of the two hung: a gyro held 3 s on the real
+  EuRoC IMU took ``3d`` 173 m off; noise repeats three values in a row about never, and the
+  first repeats, still the true values, are kept). Off with ``drop_frozen=False`` for a
+  coarsely quantised IMU at rest.
 - **gap**: accepted samples further apart than ``gap_factor`` times the median observed spacing
   (the rate in ``sensor.yaml`` is nominal only: KITTI raw's OXTS, nominally 100 Hz, has a median
   spacing of 40 ms and gaps up to 250 ms, which must not be flagged sample after sample).
@@ -68,6 +72,7 @@ class ImuGuardOptions:
     spacing_window: int = 64  # accepted spacings in the running median
     max_consecutive_drops: int = 5  # spike drops in a row before the new level is accepted
     drop_frozen: bool = True  # drop a sample equal on all six channels to the last accepted
+    frozen_triad_run: int = 5  # one triad equal to the last accepted this many times: frozen
 
 
 @dataclass(frozen=True)
@@ -123,6 +128,7 @@ class ImuGuard:
         self._since_median = 0
         self._last: tuple[int, Vec3, Vec3] | None = None  # last accepted (t_ns, gyro, accel)
         self._streak = 0
+        self._triad_repeats = [0, 0]  # samples in a row whose gyro / accel equals the last kept
         self.counts = _Counters()
 
     @classmethod
@@ -154,8 +160,14 @@ class ImuGuard:
         if not any(values):
             return "zeros"
         last = self._last
-        if self.options.drop_frozen and last is not None and values == last[1] + last[2]:
-            return "frozen"
+        if self.options.drop_frozen and last is not None:
+            if values == last[1] + last[2]:
+                return "frozen"
+            run = self._triad_repeats
+            run[0] = run[0] + 1 if g == last[1] else 0
+            run[1] = run[1] + 1 if a == last[2] else 0
+            if max(run) >= self.options.frozen_triad_run:
+                return "frozen"
         if max(map(abs, g)) >= self._gyro_sat or max(map(abs, a)) >= self._accel_sat:
             return "saturated"
         if last is not None and self._is_spike(t_ns, g, a):
