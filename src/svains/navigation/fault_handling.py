@@ -156,11 +156,30 @@ class ImuFaults:
         self._gaps: list[_Gap] = []
         # a long gap (start, end) whose first sample after it awaits its mean
         self._pending: tuple[int, int] | None = None
+        # the sample before a possible spike, until the sample after it decides
+        self._suspect_ns: int | None = None
         self.last_fault_ns: int | None = None  # the latest dropped sample or gap end
 
-    def accept(self, t_ns: int, gyro_S: ArrayLike, accel_S: ArrayLike, history: ImuHistory) -> bool:
-        """Whether the sample at ``t_ns`` enters ``history`` (queues the gap it ends, if any)."""
+    def accept(self, t_ns: int, gyro_S: ArrayLike, accel_S: ArrayLike, history: ImuHistory,
+               used_until_ns: int | None = None) -> bool:  # fmt: skip
+        """Whether the sample at ``t_ns`` enters ``history`` (queues the gap it ends, if any).
+        ``used_until_ns``: the estimator has processed up to this time (None: nothing yet); a
+        spike the guard recognises only now is removed from ``history`` if it has not been
+        used, i.e. if the estimator has not passed the sample before it."""
         verdict = self.guard.check(t_ns, gyro_S, accel_S)
+        self._suspect_ns = None if verdict.kind == "drop" else self.guard.suspect_from_ns()
+        if verdict.retract_previous and history.n >= 2:
+            spike_ns = int(history.t_ns[-1])
+            before_ns = int(history.t_ns[-2])
+            if used_until_ns is None or used_until_ns <= before_ns:
+                history.drop_last()
+                history.mark_fault(before_ns, t_ns)
+                self.last_fault_ns = spike_ns
+                self._warn.warn("imu-spike", spike_ns, "IMU sample dropped (spike, seen from "
+                                "the sample after it), bridged by its neighbours")  # fmt: skip
+            else:
+                self._warn.warn("imu-spike-late", spike_ns, "IMU spike found after the "
+                                "estimator had used it: kept")  # fmt: skip
         if verdict.kind in ("drop", "gap"):
             self.last_fault_ns = t_ns
             last = history.last_ns
@@ -228,9 +247,12 @@ class ImuFaults:
 
     @property
     def hold_ns(self) -> int | None:
-        """While the end of a long gap awaits its window mean: the gap's start, which the
-        filter must not propagate past yet (None otherwise)."""
-        return None if self._pending is None else self._pending[0]
+        """The time the filter must not propagate past yet (None: no limit): a long gap's start
+        while its end awaits its window mean, and the sample before a possible spike until the
+        next sample tells whether it was one."""
+        holds = [h for h in (None if self._pending is None else self._pending[0],
+                             self._suspect_ns) if h is not None]  # fmt: skip
+        return min(holds) if holds else None
 
     def _sample_std(self) -> tuple[float, float] | None:
         """One sample's white noise (accel m/s², gyro rad/s) at the observed spacing (None

@@ -24,15 +24,24 @@ Thresholds (``ImuGuardOptions``), each from a model or a measurement:
   sensor or a driver repeating its last message with new stamps; noise never repeats six
   values: none of EuRoC V1_01's 29,120 samples nor KITTI raw's 597 does), or one triad (the
   gyro's or the accelerometer's three axes) equal to the last accepted one's in
-  ``frozen_triad_run`` samples in a row (one sensor of the two hung: a gyro held 3 s on the real
-  EuRoC IMU took ``3d`` 173 m off; noise repeats three values in a row about never, and the
-  first repeats, still the true values, are kept). Off with ``drop_frozen=False`` for a
-  coarsely quantised IMU at rest.
+  ``frozen_triad_run`` samples in a row after it had changed in each of the ``live_run``
+  samples before (one sensor of the two hung: a gyro held 3 s on the real EuRoC IMU took ``3d``
+  173 m off; a live, noisy triad repeats its three values about never, and the first repeats,
+  still the true values, are kept; a triad that was not changing, e.g. a noise-free simulated
+  accelerometer, is not judged). Off with ``drop_frozen=False`` for a coarsely quantised IMU
+  at rest.
 - **gap**: accepted samples further apart than ``gap_factor`` times the median observed spacing
   (the rate in ``sensor.yaml`` is nominal only: KITTI raw's OXTS, nominally 100 Hz, has a median
   spacing of 40 ms and gaps up to 250 ms, which must not be flagged sample after sample).
 - **re-anchoring**: after ``max_consecutive_drops`` spike drops in a row the new level is taken
   as real (a hard landing is not a spike), so a step change cannot lock the IMU out.
+- **a spike found by the sample after it**: after a longer spacing the motion allowance lets a
+  spike through (KITTI raw's OXTS, 70 ms: 40 + 70 m/s²), and the good sample after it could be
+  the one dropped. When the last accepted sample is beyond floor and noise (no motion
+  allowance) from both the one before it and the new one, and those two agree, it was the
+  spike: the verdict asks to ``retract_previous`` (the caller removes it if the estimator
+  has not used it yet) and the sample is judged against the one before. (KITTI raw with one
+  100 m/s² sample 70 ms after the one before: `ins` ended 76 m off, GPS blamed and shut out.)
 """
 
 from __future__ import annotations
@@ -73,6 +82,7 @@ class ImuGuardOptions:
     max_consecutive_drops: int = 5  # spike drops in a row before the new level is accepted
     drop_frozen: bool = True  # drop a sample equal on all six channels to the last accepted
     frozen_triad_run: int = 5  # one triad equal to the last accepted this many times: frozen
+    live_run: int = 20  # ... if it had changed at each of this many samples before
 
 
 @dataclass(frozen=True)
@@ -83,6 +93,7 @@ class Verdict:
     kind: VerdictKind
     reason: DropReason | None = None
     gap_s: float = 0.0
+    retract_previous: bool = False  # the last accepted sample was a spike: remove it
 
     @property
     def accepted(self) -> bool:
@@ -127,8 +138,12 @@ class ImuGuard:
         self._median_s: float | None = None  # cached median of ``_spacings``
         self._since_median = 0
         self._last: tuple[int, Vec3, Vec3] | None = None  # last accepted (t_ns, gyro, accel)
+        self._prev: tuple[int, Vec3, Vec3] | None = None  # the one accepted before it
+        self._retract = False  # the sample being judged shows ``_last`` was a spike
         self._streak = 0
         self._triad_repeats = [0, 0]  # samples in a row whose gyro / accel equals the last kept
+        self._triad_live = [0, 0]  # accepted samples in a row whose gyro / accel changed
+        self._triad_armed = [False, False]  # the repeat run began on a live triad
         self.counts = _Counters()
 
     @classmethod
@@ -163,25 +178,36 @@ class ImuGuard:
         if self.options.drop_frozen and last is not None:
             if values == last[1] + last[2]:
                 return "frozen"
-            run = self._triad_repeats
-            run[0] = run[0] + 1 if g == last[1] else 0
-            run[1] = run[1] + 1 if a == last[2] else 0
-            if max(run) >= self.options.frozen_triad_run:
-                return "frozen"
+            run, armed = self._triad_repeats, self._triad_armed
+            for i, same in enumerate((g == last[1], a == last[2])):
+                if not same:
+                    run[i] = 0
+                    continue
+                if run[i] == 0:
+                    armed[i] = self._triad_live[i] >= self.options.live_run
+                run[i] += 1
+                if armed[i] and run[i] >= self.options.frozen_triad_run:
+                    return "frozen"
         if max(map(abs, g)) >= self._gyro_sat or max(map(abs, a)) >= self._accel_sat:
             return "saturated"
-        if last is not None and self._is_spike(t_ns, g, a):
+        if last is not None and self._last_was_spike(t_ns, g, a):
+            self._retract = True  # judged from the sample before the spike, which it agrees with
+            return None
+        if last is not None and self._is_spike(t_ns, g, a, last):
             self._streak += 1
             if self._streak <= self.options.max_consecutive_drops:
                 return "spike"
             self.counts.reanchored += 1  # a persistent new level is motion, not a spike
         return None
 
-    def _is_spike(self, t_ns: int, g: Vec3, a: Vec3) -> bool:
-        assert self._last is not None
+    def _is_spike(
+        self, t_ns: int, g: Vec3, a: Vec3, ref: tuple[int, Vec3, Vec3], motion: bool = True
+    ) -> bool:
+        """Whether (g, a) at ``t_ns`` jumped from the sample ``ref`` beyond the bound (without
+        the motion allowance when not ``motion``)."""
         o = self.options
-        t0, g0, a0 = self._last
-        dt = max((t_ns - t0) * 1e-9, 0.0)
+        t0, g0, a0 = ref
+        dt = max((t_ns - t0) * 1e-9, 0.0) if motion else 0.0
         spacing = self.median_spacing_s() or dt or 1.0
         # per-sample noise std at the observed spacing: density / sqrt(spacing)
         k = o.spike_sigma * math.sqrt(6.0 / spacing)
@@ -190,10 +216,34 @@ class ImuGuard:
         jump_a = math.dist(a, a0)
         return jump_a > accel_bound or math.dist(g, g0) > gyro_bound
 
+    def suspect_from_ns(self) -> int | None:
+        """When the last accepted sample jumped from the one before beyond floor and noise
+        alone (a spike, if the next sample goes back): that one's stamp, before which the
+        estimator should stay until the next sample decides; None otherwise."""
+        last, prev = self._last, self._prev
+        if last is None or prev is None or not self._is_spike(*last, prev, motion=False):
+            return None
+        return prev[0]
+
+    def _last_was_spike(self, t_ns: int, g: Vec3, a: Vec3) -> bool:
+        """Whether the last accepted sample stands alone: beyond floor and noise from both the
+        one before it and the sample at ``t_ns``, which agree with each other."""
+        last, prev = self._last, self._prev
+        if last is None or prev is None or self._streak:
+            return False
+        return (self._is_spike(t_ns, g, a, last, motion=False)
+                and self._is_spike(last[0], last[1], last[2], prev, motion=False)
+                and not self._is_spike(t_ns, g, a, prev))  # fmt: skip
+
     def _accept(self, t_ns: int, g: Vec3, a: Vec3) -> Verdict:
         self._streak = 0
         self.counts.accepted += 1
-        verdict = Verdict("accept")
+        retract, self._retract = self._retract, False
+        if retract:  # the last accepted sample was a spike: judged from the one before it
+            self.counts.accepted -= 1
+            self.counts.dropped["spike"] += 1
+            self._last, self._prev = self._prev, None
+        verdict = Verdict("accept", retract_previous=retract)
         if self._last is not None:
             dt = (t_ns - self._last[0]) * 1e-9
             median = self.median_spacing_s()
@@ -202,13 +252,17 @@ class ImuGuard:
                 c.gaps += 1
                 c.gap_total_s += dt
                 c.longest_gap_s = max(c.longest_gap_s, dt)
-                verdict = Verdict("gap", gap_s=dt)
+                verdict = Verdict("gap", gap_s=dt, retract_previous=retract)
             else:
                 self._spacings.append(dt)  # gaps stay out of the median
                 self._since_median += 1
                 if self._since_median >= _MEDIAN_EVERY or len(self._spacings) < _MEDIAN_EVERY:
                     self._median_s, self._since_median = None, 0  # recomputed when next asked
-        self._last = (t_ns, g, a)
+        if self._last is not None:
+            live = self._triad_live
+            live[0] = live[0] + 1 if g != self._last[1] else 0
+            live[1] = live[1] + 1 if a != self._last[2] else 0
+        self._prev, self._last = self._last, (t_ns, g, a)
         return verdict
 
     def summary(self) -> dict[str, object]:

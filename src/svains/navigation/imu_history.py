@@ -90,6 +90,13 @@ class ImuHistory:
         self._raw[k, 3:6] = accel_S
         self.n = k + 1
 
+    def drop_last(self) -> None:
+        """Remove the newest sample (a spike found by the sample after it). The estimator must
+        not have propagated past the sample before it."""
+        if self.n:
+            self.n -= 1
+            self._done = min(self._done, self.n)
+
     def mark_fault(self, start_ns: int, end_ns: int) -> None:
         """Note that the samples of ``[start_ns, end_ns]`` are missing or were dropped (the
         newest 1024 spans are kept)."""

@@ -149,7 +149,7 @@ class Navigator:
             self.queue.drop("imu", t_ns, "stamp not after the previous IMU sample")
             return
         if self.imu_faults is not None and not self.imu_faults.accept(
-            t_ns, gyro_S, accel_S, self.history
+            t_ns, gyro_S, accel_S, self.history, self.queue.horizon_ns
         ):
             return  # dropped: propagation bridges it from its neighbours
         self.history.append(t_ns, gyro_S, accel_S)
