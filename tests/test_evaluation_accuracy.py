@@ -263,3 +263,18 @@ def test_report_carries_nees_blocks() -> None:
         {"position": 1.0, "velocity": 0.0, "roll_pitch": 0.0, "yaw": 0.25}, abs=1e-9
     )
     assert accuracy_report(t_ns, x, P9, None)["nees_blocks"] is None
+
+
+def test_no_mag_keeps_the_magnetometer_out_of_the_start_too() -> None:
+    """``--no-mag`` (the advice for a disturbed magnetometer) still gave the static start its
+    heading from it (a user's probe: yaw 37.6° off, no word)."""
+    st, _ = static_dataset(seed=2)
+    p0 = np.array([1.0, 2.0, 0.5])
+    t_gps = np.arange(0, 3_000_000_000, 200_000_000, dtype=np.int64)
+    st.gps = GpsStream(t_gps, np.tile(p0, (len(t_gps), 1)), np.zeros((len(t_gps), 3)))
+    st.gps_calib = GpsCalib(np.zeros(3), 5.0, 0.05, 0.05)
+    used = run_method(st, "ins", RunOptions(duration_s=1.0))
+    assert used.report["init"]["heading"] == "magnetometer"
+    left_out = run_method(st, "ins", RunOptions(duration_s=1.0, use_mag=False))
+    assert "arbitrary" in left_out.report["init"]["heading"]
+    assert left_out.report["measurements"].get("mag", {}).get("fused", 0) == 0

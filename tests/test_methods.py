@@ -105,3 +105,26 @@ def test_correlated_pixels_fuse_every_pixel_in_both_pairs_without_counting_it_tw
     assert rep["vision"]["frames_correlation_dropped"] == 0
     assert rep["ate_m"] < 0.75 * default["ate_m"], (rep["ate_m"], default["ate_m"])
     assert rep["nees_blocks"]["position"] < 3.0, rep["nees_blocks"]
+
+
+def test_vo_tracking_breaks_are_warned(
+    village_denied: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Breaks (frames without a motion, bridged at the last one) were only a count in
+    `report.json` (a user's probe: KITTI raw at every 10th pair, 3 breaks, 74 % of the path off,
+    exit 0 and not a word)."""
+    import svains.replay.vo as vo
+
+    frames = vo._frame_tracks
+
+    def losing_two(*args: object, **kw: object):  # type: ignore[no-untyped-def]
+        for k, (t, tr) in enumerate(frames(*args, **kw)):  # type: ignore[arg-type]
+            yield t, (replace(tr, egomotion=None) if tr is not None and k in (20, 40) else tr)
+
+    monkeypatch.setattr(vo, "_frame_tracks", losing_two)
+    opts = RunOptions(init=InitOptions(mode="groundtruth"))
+    opts = replace(opts, vision=replace(opts.vision, source="features"))
+    with caplog.at_level("WARNING"):
+        res = vo.run(load_dataset(village_denied), opts)
+    assert res.report["vo"]["breaks"] == 2
+    assert "vo: tracking broke at 2 of" in caplog.text

@@ -40,6 +40,28 @@ def test_static_start_without_magnetometer_levels_and_widens_yaw() -> None:
     assert up_B @ init.P[6:9, 6:9] @ up_B == pytest.approx(0.5**2, rel=1e-6)
 
 
+def test_static_start_takes_the_fixes_at_rest_with_their_noise() -> None:
+    """The static start's position: the mean of the fixes at rest, uncertain by a fix's noise
+    (a user's probe: the first fix alone, 5 m off on a 1.4 m receiver, was taken with the
+    option's 0.1 m; the right fixes after it were refused as jumps and `ins` ended 1.5 km off)."""
+    from svains.datasets.types import GpsStream
+
+    ds, _ = static_dataset()
+    rng = np.random.default_rng(4)
+    t_fix = np.arange(0.0, 3.0, 1.0)  # at rest: 0, 1, 2 s (static_s 2 s takes the first three)
+    p_fix = np.array([10.0, -4.0, 2.0]) + rng.normal(0.0, 1.4, (t_fix.size, 3))
+    ds.gps = GpsStream((t_fix * 1e9).astype(np.int64), p_fix, np.zeros_like(p_fix))
+    ds.gps_calib = GpsCalib(np.zeros(3), 1.0, 1.4, 0.1)
+    init = initialise(ds, BIASED, InitOptions(static_s=2.0))
+    np.testing.assert_allclose(init.x[0:3], p_fix.mean(axis=0), atol=1e-12)
+    assert init.info["position"] == "mean of the 3 GPS fixes at rest"
+    np.testing.assert_allclose(np.sqrt(np.diag(init.P)[0:3]), 1.4, rtol=1e-9)
+    # A receiver better than the option's figure keeps the option's.
+    ds.gps_calib = GpsCalib(np.zeros(3), 1.0, 0.02, 0.1)
+    init = initialise(ds, BIASED, InitOptions(static_s=2.0, position_std=0.1))
+    np.testing.assert_allclose(np.sqrt(np.diag(init.P)[0:3]), 0.1, rtol=1e-9)
+
+
 def test_static_start_without_heading_or_gps_defines_a_local_yaw() -> None:
     # Nothing fixes the world's yaw: the start defines it, so its std is a small gauge value.
     ds, q = static_dataset(with_mag=False)

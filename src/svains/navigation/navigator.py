@@ -389,9 +389,9 @@ class Navigator:
             if why is not None:  # neither the start's heading nor the filter may use it
                 self.queue.drop("mag", t, why)
                 return
-            self.starter.add_mag(t, payload)
             if not (cfg.use_mag and self.rig.mag is not None):
-                return
+                return  # nor the start's heading: --no-mag is the advice for a disturbed one
+            self.starter.add_mag(t, payload)
             if not self._rate_ok(MAG, t, cfg.max_mag_rate_hz):
                 return
         elif kind == SONAR:
