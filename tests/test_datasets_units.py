@@ -207,3 +207,26 @@ def test_an_imu_stream_faster_than_its_declared_rate_is_warned(
         load_dataset(root)
     assert ("imu0/data.csv: samples come at 200 Hz but sensor.yaml declares rate_hz 100: each "
             "sample is given the noise of a 100 Hz sensor, 2x too little variance") in caplog.text
+
+
+@pytest.mark.parametrize(("scale", "fragment"), [(0.0, "integrate to 0 m"),
+                                                 (3.6, "260 % off")])
+def test_gps_velocities_that_are_not_the_positions_are_left_out(
+    kitti_copy: Path, scale: float, fragment: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Velocity columns of zeros (or in km/h) beside sound positions were fused: `ins` ended
+    152 m off, the positions blamed (a user's probe). Now warned and left out, as for a
+    position-only receiver; the positions are used."""
+    assert np.isfinite(load_dataset(kitti_copy).gps.v_W_G).all()  # as shipped: 0.6 % off
+    path = kitti_copy / "mav0/gps0/data.csv"
+    lines = path.read_text().splitlines()
+    out = [lines[0]]
+    for ln in lines[1:]:
+        t, *v = ln.split(",")
+        out.append(",".join([t, *v[:3], *(repr(scale * float(x)) for x in v[3:])]))
+    path.write_text("\n".join(out) + "\n")
+    with caplog.at_level("WARNING"):
+        ds = load_dataset(kitti_copy)
+    assert "gps0/data.csv: the velocities integrate to" in caplog.text and fragment in caplog.text
+    assert "the velocities are left out, the positions used" in caplog.text
+    assert np.isnan(ds.gps.v_W_G).all() and np.isfinite(ds.gps.p_W_G).all()
