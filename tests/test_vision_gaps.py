@@ -38,3 +38,16 @@ def test_a_gap_in_the_middle_and_times_outside_the_run() -> None:
     assert rep["vision_fused_frames"] == 6
     with pytest.raises(ValueError, match="before it starts"):
         vision_gap_report(fused, 10 * S, 0)
+
+
+def test_the_gap_limit_follows_the_streams_longer_spacings() -> None:
+    from svains.navigation.vision_gaps import vision_gap_limit_s
+
+    assert vision_gap_limit_s([], 2.0) == 2.0
+    assert vision_gap_limit_s([S // 5] * 31, 2.0) == 2.0  # 5 Hz: the floor
+    assert vision_gap_limit_s([5 * S] * 31, 2.0) == pytest.approx(12.5)  # every 25th frame
+    # Alternating 0.2 s / 5 s (a user's probe): the same limit with 15 or 16 long spacings in
+    # the window (the median flipped between 0.2 and 2.6 s: 2 s, then 6.5 s)
+    for n_long in (15, 16):
+        spacings = [S // 5] * (31 - n_long) + [5 * S] * n_long
+        assert vision_gap_limit_s(spacings, 2.0) == pytest.approx(12.5)

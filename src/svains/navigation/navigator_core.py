@@ -37,13 +37,10 @@ from svains.navigation.outputs import NavState, RunResult, UpdateRecord, WorldFr
 from svains.navigation.smoothing import history_recorder
 from svains.navigation.vision import LcUpdater, PixelUpdater, make_vision_updater
 from svains.navigation.vision_clones import next_reference_ns
-from svains.navigation.vision_gaps import vision_gap_report
+from svains.navigation.vision_gaps import vision_gap_limit_s, vision_gap_report
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames
 from svains.navigation.zupt import StaticTest, zero_velocity_block
 from svains.sensors.types import Rig
-
-# A stretch without fused vision is warned past this many of the stream's frame spacings.
-VISION_GAP_SPACINGS = 2.5
 
 
 class Core:
@@ -469,15 +466,14 @@ class Core:
 
     def _check_vision_gap(self, t: int) -> None:
         """Warn once per stretch without fused vision longer than ``faults.vision_max_gap_s``,
-        or than 2.5 frame spacings (the median of the last 30) where frames come further apart
-        (a user's every 25th frame, 5 s: a warning at every frame said nothing)."""
+        or than 2.5 frame spacings (``vision_gaps.vision_gap_limit_s``, of the last 31) where
+        frames come further apart (a user's every 25th frame, 5 s: a warning at every frame
+        said nothing)."""
         if self.config.method == "ins" or self._vision_warned_gap:
             return
         since = self._vision_fused_t[-1] if self._vision_fused_t else self.t0_ns
         gap_s = (t - since) * 1e-9
-        limit = self.config.faults.vision_max_gap_s
-        if self._frame_spacing:
-            limit = max(limit, VISION_GAP_SPACINGS * 1e-9 * float(np.median(self._frame_spacing)))
+        limit = vision_gap_limit_s(self._frame_spacing, self.config.faults.vision_max_gap_s)
         if gap_s > limit:
             self._vision_warned_gap = True
             self._warn.warn("vision-gap", t, f"{self.config.method}: no vision fused for "

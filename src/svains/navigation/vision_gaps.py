@@ -20,6 +20,23 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 DEFAULT_MAX_GAP_S = 2.0  # s, a configurable default: several frames at any usual camera rate
+# A stretch without fused vision is warned past this many of the stream's longer frame
+# spacings: their GAP_SPACING_PERCENTILE-th percentile, so frames that alternate between 0.2 s
+# and 5 s apart count 5 s as usual, not whichever of the two the median lands on (a user's
+# probe: no warning for 83 s, then one at every 5 s spacing).
+VISION_GAP_SPACINGS = 2.5
+GAP_SPACING_PERCENTILE = 80.0
+
+
+def vision_gap_limit_s(spacings_ns: ArrayLike, floor_s: float = DEFAULT_MAX_GAP_S) -> float:
+    """The longest stretch (s) without fused vision that is not warned: ``floor_s``, or
+    ``VISION_GAP_SPACINGS`` of the recent frame spacings ``spacings_ns`` (ns) where frames come
+    further apart."""
+    dt = np.asarray(spacings_ns, dtype=float)
+    if dt.size == 0:
+        return float(floor_s)
+    usual = float(np.percentile(dt, GAP_SPACING_PERCENTILE)) * 1e-9
+    return max(float(floor_s), VISION_GAP_SPACINGS * usual)
 
 
 def vision_gap_report(
