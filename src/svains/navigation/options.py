@@ -177,14 +177,16 @@ class VisionOptions:
     ``pixel_noise_std`` px (None: the features0 value, 1 px for images; a replay resolves it)
     times ``pixel_noise_scale`` (None: ``noise_scale()``, 1 with clones, 2 for the approximate
     motion models); ``feature_gate_probability`` per-feature chi-square(4) gate (None: off);
-    ``max_features`` per frame (evenly subsampled; None: all), ``max_features_short`` in a frame
-    at most ``short_gap_s`` (s; None: none is short) after the one before, with shared pixels
-    (``features_for_gap``); ``rotation`` is the motion model between frames: "clone" (default:
-    the pose at k-1 cloned into the state, exact relative motion, ``navigation.vision_clones``),
-    "linear" (paper eq. 18), "exp" or "imu" (relative motion from the IMU samples between the
-    frames: ``models.vision_imu``); ``shared_pixels`` (clones, ``tc``/``3d``; opt-in, see the
-    comment at the field): every frame takes the two-view model (``two_view``, each feature's
-    point marginalised over its 8 pixels at k-1 and k) and each feature's pixels enter both
+    ``max_features`` per frame fused by the pixel models of ``tc``/``3d`` (evenly subsampled;
+    None: all; ``lc`` and ``vo`` fuse the egomotion of every tracked feature, whatever it says),
+    ``max_features_short`` in a frame at most ``short_gap_s`` (s; None: none is short) after the
+    one before, with shared pixels (``features_for_gap``); ``rotation`` is the motion model
+    between frames: "clone" (default: the pose at k-1 cloned into the state, exact relative
+    motion, ``navigation.vision_clones``), "linear" (paper eq. 18), "exp" or "imu" (relative
+    motion from the IMU samples between the frames: ``models.vision_imu``); ``shared_pixels``
+    (clones, ``tc``/``3d``; opt-in, see the comment at the field): every frame takes the
+    two-view model (``two_view``, each feature's point marginalised over its 8 pixels at k-1
+    and k) and each feature's pixels enter both
     frame pairs they belong to (k-1 -> k and k -> k+1), each time at twice their variance: a
     pixel's information is split between its two updates, so none is counted twice and none is
     left out (``vision_pixels.SHARED_PIXEL_VARIANCE``). ``correlated_pixels`` (opt-in; clones,
