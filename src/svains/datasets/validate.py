@@ -364,6 +364,35 @@ def frame_jitter_problem(t_ns: NDArray[np.int64]) -> str | None:
             "smooth them onto the camera's rate")
 
 
+# An IMU clipped at its full scale with no range in its sensor.yaml (``clipping_range``): an axis
+# whose largest magnitude is held for CLIP_MIN_RUN samples in a row, CLIP_MIN_SAMPLES in all (a
+# noisy reading never repeats its extreme; EuRoC V1_01 and KITTI raw: no axis does). The range
+# found is given to the IMU guard, which drops the clipped samples (a user's probe: a gyro
+# clipped at 0.5 rad/s, undeclared, took `3d` 23.9 m off on EuRoC; declared, 1.87 m).
+CLIP_MIN_RUN = 3
+CLIP_MIN_SAMPLES = 10
+
+
+def clipping_range(values: NDArray[np.float64]) -> float | None:
+    """The full scale (N, 3) readings seem clipped at (the largest magnitude, held), or None."""
+    v = np.abs(np.asarray(values, dtype=float))
+    if v.shape[0] < CLIP_MIN_SAMPLES or not np.isfinite(v).all():
+        return None
+    top = float(v.max())
+    if top <= 0.0:
+        return None
+    at_top = v == top
+    if int(at_top.sum()) < CLIP_MIN_SAMPLES:
+        return None
+    for axis in range(v.shape[1]):
+        hit = at_top[:, axis].astype(np.int8)
+        # longest run of consecutive samples at the top on this axis
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], hit, [0]])))
+        if edges.size and int(np.max(edges[1::2] - edges[::2])) >= CLIP_MIN_RUN:
+            return top
+    return None
+
+
 def check_gps_position_units(p_W_G: NDArray[np.float64], path: Path) -> None:
     """Position-only fixes ``p_W_G`` (N, 3): a horizontal axis whose median step from fix to
     fix is below ``GPS_POSITION_STEP_RATIO`` times the height's (``GPS_MIN_HEIGHT_STEP_M`` or
@@ -432,6 +461,27 @@ def check_mag_against_gyro(ds: Dataset, path: Path) -> None:
         raise DatasetError(f"{path}: {problem}")
 
 
+def _find_clipping(ds: Dataset, path: Path) -> None:
+    """Warn of, and declare to the guard (``ds.imu_calib``), a full scale the IMU's readings
+    show but its calibration does not give."""
+    assert ds.imu is not None and ds.imu_calib is not None
+    found = {}
+    for name, values, declared in (("gyroscope", ds.imu.gyro_B, ds.imu_calib.gyro_range),
+                                   ("accelerometer", ds.imu.accel_B, ds.imu_calib.accel_range)):
+        top = None if declared is not None else clipping_range(values)
+        if top is not None:
+            found[name] = top
+            unit = "rad/s" if name == "gyroscope" else "m/s²"
+            log.warning("%s: the %s's readings are held at ±%.4g %s (runs of %d or more "
+                        "samples): clipped at its full scale? Taken as its range, the clipped "
+                        "samples dropped; give %s_range in sensor.yaml", path, name, top, unit,
+                        CLIP_MIN_RUN, name)  # fmt: skip
+    if found:
+        c = ds.imu_calib
+        ds.imu_calib = replace(c, gyro_range=found.get("gyroscope", c.gyro_range),
+                               accel_range=found.get("accelerometer", c.accel_range))  # fmt: skip
+
+
 def vet_streams(ds: Dataset) -> None:
     """The units, clocks and frames a reader cannot see in a file's syntax, for every format:
     the IMU's specific force (``check_accel_units``), GPS positions against its velocities
@@ -450,6 +500,7 @@ def vet_streams(ds: Dataset) -> None:
         check_accel_units(ds.imu.accel_B, ds.gravity_W, where("imu0"))
         if ds.imu_calib is not None:
             check_imu_rate(ds.imu.t_ns, ds.imu_calib.rate_hz, where("imu0"))
+            _find_clipping(ds, where("imu0"))
     if ds.gps is not None and ds.gps.has_velocity.all():
         check_gps_units(ds.gps.t_ns, ds.gps.p_W_G, ds.gps.v_W_G, where("gps0"))
         c = ds.gps_calib
