@@ -44,3 +44,24 @@ def test_the_block_reads_the_velocity_of_every_sigma_point() -> None:
     np.testing.assert_array_equal(b.h(X), X[:, 3:6])
     np.testing.assert_array_equal(b.z, np.zeros(3))
     np.testing.assert_allclose(b.R, np.full(3, 0.002**2))
+
+
+def test_a_gentle_start_ends_the_starts_rest_though_its_block_means_stay_steady() -> None:
+    """A robot setting off at 0.2 m/s² keeps its block means within the limits: the start's
+    updates went on while it drove (a user's probe: one accepted at 1 m/s). The specific force
+    integrated since the start against its static mean tells."""
+    seconds = 12.0
+    gentle = _history(lambda t: np.array([0.2 if t >= 6.0 else 0.0, 0.0, 0.0]), seconds)
+    rest = _history(lambda t: np.zeros(3), seconds, seed=1)
+    for h in (gentle, rest):  # the block test cannot tell them apart
+        test = StaticTest(ZuptOptions(), InitOptions(), G)
+        assert all(test.at_rest(h, int(s * 1e9)) for s in np.arange(1.0, seconds, 0.5))
+    moving = StaticTest(ZuptOptions(), InitOptions(), G)
+    resting = StaticTest(ZuptOptions(), InitOptions(), G)
+    assert not moving.moved_since_start(gentle, int(1.0e9))  # the static interval not complete
+    assert not any(resting.moved_since_start(rest, int(s * 1e9)) for s in np.arange(2, 12, 0.1))
+    assert not moving.moved_since_start(gentle, int(5.9e9))
+    # ... caught well before it reaches a walking pace (0.2 m/s² x 3 s = 0.6 m/s)
+    first = next(s for s in np.arange(6.0, 12.0, 0.1)
+                 if moving.moved_since_start(gentle, int(s * 1e9)))  # fmt: skip
+    assert first < 9.0

@@ -338,6 +338,10 @@ class Core:
             # to 0 and the accelerometer bias to 1 m/s², the run lost).
             return
         rest = self._zupt.at_rest(self.ins.history, t)
+        if rest and not self.config.zupt.after_start and self._zupt.moved_since_start(
+            self.ins.history, t
+        ):
+            rest = False  # set off gently: the block test alone would go on
         if not rest:
             if rest is not None and not self.config.zupt.after_start:
                 self._zupt = None  # the start's rest is over

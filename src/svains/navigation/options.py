@@ -812,10 +812,16 @@ class ZuptOptions:
     # static drift over 4.6 s (``bench/euroc_static_drift.py``): 4.67 / 4.49 / 2.89 mm with
     # 0.05 / 0.01 / 0.002 m/s.
     velocity_std_mps: float = 0.002
+    # The start's rest also ends once the specific force since the start, less its static mean,
+    # integrates past motion_sigmas x its block means' spread x sqrt(block x elapsed), and at
+    # least motion_floor_mps (a gentle start passes the block test; ``zupt.StaticTest``).
+    motion_sigmas: float = 4.0
+    motion_floor_mps: float = 0.05
 
     def __post_init__(self) -> None:
         check_types(self, "zupt.")
-        for name in ("window_s", "period_s", "velocity_std_mps", "limit_factor"):
+        for name in ("window_s", "period_s", "velocity_std_mps", "limit_factor",
+                     "motion_sigmas", "motion_floor_mps"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"zupt.{name} must be positive, got {getattr(self, name)}")
 

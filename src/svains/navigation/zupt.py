@@ -10,17 +10,28 @@ EuRoC MAV's 0.5 s windows reach 0.30 m/s², the start's whole limit, while takin
 0.7 m/s² and more) and the specific force is gravity's magnitude. A constant-velocity
 motion passes that test too; the chi-square gate of the update then refuses it wherever the
 filter knows it moves (OpenVINS tests its zero-velocity hypothesis the same way).
+
+A gentle start passes it as well: a robot setting off at 0.1-0.75 m/s² keeps its block means
+within the limits, and the start's updates went on while it drove (a user's probe: one accepted
+at 1 m/s, the accelerometer bias pulled to absorb the motion). So the start's rest also ends
+when the specific force, integrated since the start against its mean over the static interval
+(``InitOptions.static_s``), has gained more velocity than its block means' spread allows
+(``moved_since_start``): ``motion_sigmas`` times the block deviation times √(block · elapsed),
+at least ``motion_floor_mps``.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import NDArray
 
 from svains.models.zero_velocity import body_velocity
 from svains.navigation.base import MeasurementBlock
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.options import InitOptions, ZuptOptions
 from svains.navigation.platform_noise import block_deviation, block_means
+
+F64 = NDArray[np.float64]
 
 
 class StaticTest:
@@ -30,6 +41,39 @@ class StaticTest:
         self.options = options
         self.init = init
         self.gravity_mps2 = float(gravity_mps2)
+        # the static interval's mean specific force (body) and block deviation, once complete
+        self._reference: tuple[int, F64, float] | None = None
+
+    def moved_since_start(self, history: ImuHistory, t_ns: int) -> bool:
+        """Whether the specific force since the first sample (``history``'s, the start's rest)
+        up to ``t_ns``, less its mean over the static interval, integrates to more velocity
+        than the block means' spread explains (False until the static interval is complete, or
+        once the samples of the start are gone)."""
+        t = history.t_ns
+        if t.size < 4 or history.dropped:
+            return False
+        if self._reference is None:
+            end = int(t[0]) + int(self.init.static_s * 1e9)
+            if t_ns < end:
+                return False
+            k = int(np.searchsorted(t, end, "right"))
+            acc = history.accel_B[:k]
+            dt_s = max(1e-9, float(np.median(np.diff(t[:k]))) * 1e-9)
+            n_block = max(1, round(self.init.block_s / dt_s))
+            if k // n_block < 2:
+                return False
+            dev = block_deviation(block_means(acc, n_block))
+            self._reference = (int(t[0]), acc.mean(axis=0), dev)
+        t0, f_ref, dev = self._reference
+        k1 = int(np.searchsorted(t, t_ns, "right"))
+        f = history.accel_B[:k1]
+        dt = np.diff(t[:k1]) * 1e-9
+        dv = np.sum((0.5 * (f[1:] + f[:-1]) - f_ref) * dt[:, None], axis=0)
+        elapsed = (t_ns - t0) * 1e-9
+        o = self.options
+        limit = max(o.motion_floor_mps,
+                    o.motion_sigmas * dev * float(np.sqrt(self.init.block_s * elapsed)))
+        return bool(np.linalg.norm(dv) > limit)
 
     def at_rest(self, history: ImuHistory, t_ns: int) -> bool | None:
         """The samples in ``(t_ns - window_s, t_ns]``: block means (rotated to the body frame)
