@@ -515,12 +515,10 @@ def vet_streams(ds: Dataset) -> None:
             ds.gps = replace(ds.gps, v_W_G=np.full_like(ds.gps.v_W_G, np.nan))
     elif ds.gps is not None:  # position-only: the fixes' own steps, per axis
         check_gps_position_units(ds.gps.p_W_G, where("gps0"))
-    for folder, frames in (("cam0", ds.left), ("features0", ds.features)):
-        if frames is not None and len(frames.t_ns):
-            jitter = frame_jitter_problem(frames.t_ns)
-            if jitter is not None:
-                log.warning("%s: %s", where(folder), jitter)
-                break  # the features' frames are the images' when both are there
+    if ds.left is not None and len(ds.left.t_ns):  # (features0 is read when first used)
+        jitter = frame_jitter_problem(ds.left.t_ns)
+        if jitter is not None:
+            log.warning("%s: %s", where("cam0"), jitter)
     if ds.imu is None or len(ds.imu.t_ns) == 0:
         return
     t0, t1 = int(ds.imu.t_ns[0]), int(ds.imu.t_ns[-1])

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import logging
 from collections.abc import Callable
 from typing import Any
 
@@ -35,12 +36,15 @@ from svains.navigation.ins import InsFilter, default_imu_calib
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import NavState, RunResult, UpdateRecord, WorldFrame
 from svains.navigation.smoothing import history_recorder
+from svains.navigation.sonar_anchor import anchor_height
 from svains.navigation.vision import LcUpdater, PixelUpdater, make_vision_updater
 from svains.navigation.vision_clones import next_reference_ns
 from svains.navigation.vision_gaps import vision_gap_limit_s, vision_gap_report
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames
 from svains.navigation.zupt import StaticTest, zero_velocity_block
 from svains.sensors.types import Rig
+
+log = logging.getLogger(__name__)
 
 
 class Core:
@@ -57,6 +61,10 @@ class Core:
         self.layout = ins.layout
         self.init_info = init_info
         self.t0_ns = int(ins.t_ns)
+        # a start at the local origin (no GPS position): its height comes from the first range
+        self._sonar_anchor = (rig.sonar is not None and config.use_sonar
+                              and init_info.get("mode") in ("static", "vision")
+                              and "position" not in init_info)  # fmt: skip
         self.end_ns: int | None = None
         self._emit = emit
         self._source = source
@@ -237,6 +245,8 @@ class Core:
                 blocks.append(ins.mag_block(self.rig.mag, payload))
             elif kind == SONAR:
                 assert self.rig.sonar is not None
+                if self._sonar_anchor:
+                    self._anchor_height(t, payload)
                 blocks.append(ins.sonar_block(self.rig.sonar, payload))
             elif kind == FRAME:
                 has_frame = True
@@ -317,6 +327,21 @@ class Core:
         self._warn.warn("heading-turn", t, f"the heading was {np.degrees(error.angle_rad):.1f}° "
                         f"off (± {np.degrees(error.std_rad):.1f}°, from the GPS velocities "
                         f"over {error.steps} fixes): the state is turned{hint}")  # fmt: skip
+
+    def _anchor_height(self, t: int, range_m: float) -> None:
+        """Once, at the first sonar range after a start at the local origin: the local frame's
+        height from it (``navigation.sonar_anchor``), logged and reported in ``init``."""
+        self._sonar_anchor = False
+        assert self.rig.sonar is not None
+        ukf = self.ins.ukf
+        got = anchor_height(ukf.x, ukf.P, ukf.manifold, self.rig.sonar,
+                            np.asarray(self.rig.gravity_W, float), float(range_m))  # fmt: skip
+        if got is None:
+            return
+        ukf.x, shift = got[0], got[1]
+        self.init_info["height_from_sonar_m"] = shift
+        log.info("%.3f s into the run: the start's height set from the first sonar range "
+                 "(moved %+.3f m along up)", (t - self.t0_ns) * 1e-9, shift)  # fmt: skip
 
     def _zero_velocity(self, t: int) -> None:
         """A zero-velocity update when the IMU shows the platform at rest (``navigation.zupt``);
