@@ -85,8 +85,9 @@ def run_accuracy(result: RunResult, dataset: Dataset) -> dict[str, Any]:
         # No covariance (VO): NEES and the 3σ coverage are not defined.
         out["nees_mean"] = None
         out["nees_blocks"] = None
-        out.pop("nees_blocks_dof", None)
-        out.pop("position_within_3sigma", None)
+        for key in ("nees_blocks_dof", "position_within_3sigma", "nees_start_anchored",
+                    "nees_blocks_start_anchored"):
+            out.pop(key, None)
     if dataset.groundtruth is not None and dataset.gps is not None and result.gps_used:
         outages = gps_outage_report(
             result.t_ns, result.x, result.std, fused_gps_times(result, dataset.gps.t_ns),

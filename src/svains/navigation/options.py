@@ -815,8 +815,8 @@ class ZuptOptions:
     # The start's rest also ends once the specific force since the start, less its static mean,
     # integrates past motion_sigmas x its block means' spread x sqrt(block x elapsed), and at
     # least motion_floor_mps (a gentle start passes the block test; ``zupt.StaticTest``).
-    motion_sigmas: float = 4.0
-    motion_floor_mps: float = 0.05
+    motion_sigmas: float = 4.0  # the gained velocity's limit, in its noise's std
+    motion_floor_mps: float = 0.05  # m/s, the limit's floor
 
     def __post_init__(self) -> None:
         check_types(self, "zupt.")
