@@ -70,24 +70,38 @@ LEAN_ROWS = np.arange(DV.start, DTH.stop)
 NAV9 = slice(0, 9)  # δp, δv, δθ in the tangent space (``models.state``)
 
 
+# A kind that keeps recurring is warned at doubling intervals, up to this many base intervals
+# (a GPS jump to the end of a run said the same line every second: 20 lines, a saturating IMU
+# 129: a user's probe); quiet for EPISODE_GAP base intervals, it starts over (warned at once).
+MAX_BACKOFF = 64
+EPISODE_GAP = 10
+
+
 class RateLimitedLog:
-    """Warnings at most once per ``interval_ns`` of data time per kind; the rest are counted.
-    Each is stamped in seconds from ``origin_ns`` (the first IMU sample fed, set by the
-    Navigator: the time ``--start`` and ``--gps-outage`` count in) when it is set."""
+    """Warnings at most once per ``interval_ns`` of data time per kind, the interval doubling
+    while the kind keeps recurring (``MAX_BACKOFF``, ``EPISODE_GAP``); the rest are counted.
+    Each is stamped in seconds from ``origin_ns`` (the first IMU sample fed, set by the Navigator: the time
+    ``--start`` and ``--gps-outage`` count in) when it is set."""
 
     def __init__(self, interval_s: float) -> None:
         self._interval_ns = int(interval_s * 1e9)
-        self._last: dict[str, int] = {}
+        self._last: dict[str, int] = {}  # the last warning's time per kind
+        self._seen: dict[str, int] = {}  # the last event's time per kind, warned or not
+        self._factor: dict[str, int] = {}  # the current interval in base intervals
         self._suppressed: dict[str, int] = {}
         self.origin_ns: int | None = None
 
     def warn(self, kind: str, t_ns: int, message: str) -> None:
-        last = self._last.get(kind)
-        if last is not None and t_ns - last < self._interval_ns:
+        last, seen = self._last.get(kind), self._seen.get(kind)
+        factor = self._factor.get(kind, 1)
+        self._seen[kind] = t_ns
+        new_episode = seen is None or t_ns - seen > EPISODE_GAP * self._interval_ns
+        if not new_episode and last is not None and t_ns - last < factor * self._interval_ns:
             self._suppressed[kind] = self._suppressed.get(kind, 0) + 1
             return
         more = self._suppressed.pop(kind, 0)
         self._last[kind] = t_ns
+        self._factor[kind] = 1 if new_episode else min(2 * factor, MAX_BACKOFF)
         tail = f" ({more} more since the last warning)" if more else ""
         log.warning("%s: %s%s", self.when(t_ns), message, tail)
 
