@@ -80,8 +80,8 @@ EPISODE_GAP = 10
 class RateLimitedLog:
     """Warnings at most once per ``interval_ns`` of data time per kind, the interval doubling
     while the kind keeps recurring (``MAX_BACKOFF``, ``EPISODE_GAP``); the rest are counted.
-    Each is stamped in seconds from ``origin_ns`` (the first IMU sample fed, set by the Navigator: the time
-    ``--start`` and ``--gps-outage`` count in) when it is set."""
+    Each is stamped in seconds from ``origin_ns`` (the first IMU sample fed, set by the
+    Navigator: the time ``--start`` and ``--gps-outage`` count in) when it is set."""
 
     def __init__(self, interval_s: float) -> None:
         self._interval_ns = int(interval_s * 1e9)
