@@ -248,3 +248,15 @@ def test_a_triad_that_never_changed_is_not_frozen() -> None:
     a = np.tile([0.0, 0.0, 9.81], (t.size, 1))
     verdicts = _run(_guard(), t, g, a)
     assert all(v.accepted for v in verdicts)
+
+
+def test_a_deadbanded_gyro_at_exact_zeros_is_not_frozen() -> None:
+    """Yaw-rate sensors read exact zeros below a threshold: a third of a car's samples were
+    dropped as a hung gyro, with the live accelerometer (a user's probe: ins 33 m off)."""
+    t, _, a = _clean(10.0)
+    rng = np.random.default_rng(2)
+    g = np.zeros((t.size, 3))
+    turning = t < 4_000_000_000  # a turn, then straight on: below the deadband, exact zeros
+    g[turning] = [0.0, 0.0, 0.3] + 1e-3 * rng.standard_normal((int(turning.sum()), 3))
+    verdicts = _run(_guard(), t, g, a)
+    assert all(v.accepted for v in verdicts)

@@ -164,7 +164,8 @@ class ImuFaults:
         self._options = options
         self._warn = warn
         self._densities = (rig.imu.accel_noise_density, rig.imu.gyro_noise_density)
-        guard_options = ImuGuardOptions(gap_factor=options.imu_gap_factor)
+        guard_options = ImuGuardOptions(gap_factor=options.imu_gap_factor,
+                                        drop_frozen=options.imu_drop_frozen)  # fmt: skip
         self.guard = ImuGuard.from_calib(rig.imu, guard_options)
         # gaps not yet crossed in full by the filter, or crossed less than _AFTER_GAP_NS ago
         self._gaps: list[_Gap] = []

@@ -28,8 +28,8 @@ Thresholds (``ImuGuardOptions``), each from a model or a measurement:
   samples before (one sensor of the two hung: a gyro held 3 s on the real EuRoC IMU took ``3d``
   173 m off; a live, noisy triad repeats its three values about never, and the first repeats,
   still the true values, are kept; a triad that was not changing, e.g. a noise-free simulated
-  accelerometer, is not judged). Off with ``drop_frozen=False`` for a coarsely quantised IMU
-  at rest.
+  accelerometer, or one held at exact zeros, a deadband, is not judged). Off with
+  ``drop_frozen=False`` (``faults.imu_drop_frozen``) for a coarsely quantised IMU at rest.
 - **gap**: accepted samples further apart than ``gap_factor`` times the median observed spacing
   (the rate in ``sensor.yaml`` is nominal only: KITTI raw's OXTS, nominally 100 Hz, has a median
   spacing of 40 ms and gaps up to 250 ms, which must not be flagged sample after sample).
@@ -179,7 +179,10 @@ class ImuGuard:
             if values == last[1] + last[2]:
                 return "frozen"
             run, armed = self._triad_repeats, self._triad_armed
-            for i, same in enumerate((g == last[1], a == last[2])):
+            # A triad held at exact zeros is a deadband (a yaw-rate sensor not turning), not a
+            # hang: only a held non-zero triad is judged (a user's probe: a deadbanded gyro had
+            # a third of its samples dropped with the live accelerometer, ins 33 m off).
+            for i, same in enumerate((g == last[1] and any(g), a == last[2] and any(a))):
                 if not same:
                     run[i] = 0
                     continue

@@ -698,6 +698,7 @@ class FaultOptions:
 
     imu_guard: bool = True
     imu_gap_factor: float = 10.0  # median IMU spacings: a longer spacing is a gap
+    imu_drop_frozen: bool = True  # drop held IMU readings (off for a coarse IMU at rest)
     gap_vision_iterations: int = 3  # vision update linearisations in and 1 s after a gap
     gap_vision_gate_probability: float = 0.9999999  # the vision update's gate there
     gap_vision_two_view: bool = True  # tc/3d there: each point marginalised over both frames
