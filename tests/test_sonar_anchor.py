@@ -50,9 +50,24 @@ def test_a_vision_start_without_gps_fuses_the_sonar(tmp_path: Path) -> None:
     cfg = SimConfig()
     cfg = replace(cfg, duration_s=8.0, seed=2,
                   camera=replace(cfg.camera, rate_hz=5.0, render_images=False))  # fmt: skip
-    ds = load_dataset(simulate(cfg, tmp_path / "ds"))
+    root = simulate(cfg, tmp_path / "ds")
     opts = RunOptions(init=InitOptions(mode="vision"), use_gps=False)
-    r = run_method(ds, "3d", opts).report
+    res = run_method(load_dataset(root), "3d", opts)
+    r = res.report
     assert r["init"]["height_from_sonar_m"] == pytest.approx(2.0, abs=0.3)
     sonar = r["measurements"]["sonar"]
     assert sonar["rejected"] <= 2 and sonar["fused"] >= 70
+    # One no-echo reading among the first ranges (a user's probe: it set the height for the
+    # whole run, 599 of 600 ranges refused): the median of the first five is taken.
+    csv = root / "mav0/sonar0/data.csv"
+    lines = csv.read_text().splitlines()
+    head, first = lines[0], lines[1:]
+    for j, ln in enumerate(first):  # the first two fused after the start (10 Hz of 20 Hz)
+        if 50_000_000 < int(ln.split(",")[0]) - int(res.t_ns[0]) <= 200_000_000:
+            first[j] = ",".join([ln.split(",")[0], "5.0"])
+    csv.write_text("\n".join([head, *first]) + "\n")
+    bad = run_method(load_dataset(root), "3d", opts).report
+    assert bad["init"]["height_from_sonar_m"] == pytest.approx(r["init"]["height_from_sonar_m"],
+                                                               abs=0.05)  # fmt: skip
+    assert bad["measurements"]["sonar"]["fused"] >= sonar["fused"] - 2
+    assert bad["ate_rmse_m"] == pytest.approx(r["ate_rmse_m"], rel=0.05)

@@ -36,7 +36,7 @@ from svains.navigation.ins import InsFilter, default_imu_calib
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import NavState, RunResult, UpdateRecord, WorldFrame
 from svains.navigation.smoothing import history_recorder
-from svains.navigation.sonar_anchor import anchor_height
+from svains.navigation.sonar_anchor import ANCHOR_AGREE_M, ANCHOR_RANGES, anchor_height
 from svains.navigation.vision import LcUpdater, PixelUpdater, make_vision_updater
 from svains.navigation.vision_clones import next_reference_ns
 from svains.navigation.vision_gaps import vision_gap_limit_s, vision_gap_report
@@ -61,10 +61,11 @@ class Core:
         self.layout = ins.layout
         self.init_info = init_info
         self.t0_ns = int(ins.t_ns)
-        # a start at the local origin (no GPS position): its height comes from the first range
+        # a start at the local origin (no GPS position): its height comes from the first ranges
         self._sonar_anchor = (rig.sonar is not None and config.use_sonar
                               and init_info.get("mode") in ("static", "vision")
                               and "position" not in init_info)  # fmt: skip
+        self._first_ranges: list[float] = []
         self.end_ns: int | None = None
         self._emit = emit
         self._source = source
@@ -247,6 +248,8 @@ class Core:
                 assert self.rig.sonar is not None
                 if self._sonar_anchor:
                     self._anchor_height(t, payload)
+                    if self._sonar_anchor:
+                        continue  # the first ranges set the height: not fused against 0 m
                 blocks.append(ins.sonar_block(self.rig.sonar, payload))
             elif kind == FRAME:
                 has_frame = True
@@ -329,18 +332,39 @@ class Core:
                         f"over {error.steps} fixes): the state is turned{hint}")  # fmt: skip
 
     def _anchor_height(self, t: int, range_m: float) -> None:
-        """Once, at the first sonar range after a start at the local origin: the local frame's
-        height from it (``navigation.sonar_anchor``), logged and reported in ``init``."""
-        self._sonar_anchor = False
+        """Once, after a start at the local origin: the local frame's height from the median of
+        the first ``ANCHOR_RANGES`` sonar ranges (one no-echo or near-echo reading first set
+        the height for the whole run: a user's probe), when most of them agree with it
+        (``navigation.sonar_anchor``); logged and reported in ``init``."""
         assert self.rig.sonar is not None
+        self._first_ranges.append(float(range_m))
+        if len(self._first_ranges) < ANCHOR_RANGES:
+            return
+        self._sonar_anchor = False
+        ranges = np.asarray(self._first_ranges)
+        median = float(np.median(ranges))
+        if np.sum(np.abs(ranges - median) <= ANCHOR_AGREE_M) <= ANCHOR_RANGES // 2:
+            self._warn.warn("sonar-anchor", t, "the first sonar ranges disagree "
+                            f"({', '.join(f'{r:.2f}' for r in ranges)} m): the start's height "
+                            "is not taken from them")  # fmt: skip
+            return
         ukf = self.ins.ukf
         got = anchor_height(ukf.x, ukf.P, ukf.manifold, self.rig.sonar,
-                            np.asarray(self.rig.gravity_W, float), float(range_m))  # fmt: skip
+                            np.asarray(self.rig.gravity_W, float), median)  # fmt: skip
         if got is None:
             return
         ukf.x, shift = got[0], got[1]
+        # The frame moved, not the body: what was kept in the old heights moves with it (the
+        # estimates logged since the start, a result's first states; keyframes stored).
+        # Outputs already handed to an online caller keep the old heights.
+        dp_W = shift * -np.asarray(self.rig.gravity_W, float) / np.linalg.norm(self.rig.gravity_W)
+        for x in self._log_x:
+            x[0:3] += dp_W
+        reloc = getattr(self._updater, "relocaliser", None)
+        if reloc is not None:
+            reloc.memory.shift(dp_W)
         self.init_info["height_from_sonar_m"] = shift
-        log.info("%.3f s into the run: the start's height set from the first sonar range "
+        log.info("%.3f s into the run: the start's height set from the first sonar ranges "
                  "(moved %+.3f m along up)", (t - self.t0_ns) * 1e-9, shift)  # fmt: skip
 
     def _zero_velocity(self, t: int) -> None:

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -138,6 +138,11 @@ class KeyframeMemory:
             self.keyframes = self.keyframes[::2]
             self.spacing_ns *= 2
         return True
+
+    def shift(self, dp_W: F64) -> None:
+        """Move every stored pose by ``dp_W`` (3,) m: the world itself moved (a local start's
+        height taken from the sonar, ``navigation.sonar_anchor``)."""
+        self.keyframes = [replace(k, p_W_B=k.p_W_B + dp_W) for k in self.keyframes]
 
     @property
     def n_bytes(self) -> int:

@@ -7,7 +7,8 @@ body that starts 2.8 m above that ground contradicts every range, the gate refus
 the run goes on without the sonar, unwarned (a user's probe: sonar 0 of 600 fused; at 1 Hz
 frames the wider prediction let it in late, 2.8 m at once, NEES 2180). The first range after
 such a start moves the local frame along the up axis instead, where the ground truly is
-(``anchor_height``): the height of a local frame is as free as its origin.
+(``anchor_height``, with the median of the first ranges): the height of a local frame is as
+free as its origin.
 """
 
 from __future__ import annotations
@@ -27,6 +28,11 @@ log = logging.getLogger(__name__)
 F64 = NDArray[np.float64]
 # a shift is made when the range misses by more than this many standard deviations
 ANCHOR_SIGMAS = 3.0
+# the start's height from the median of the first ANCHOR_RANGES ranges, when more than half of
+# them lie within ANCHOR_AGREE_M of it (a resting or hovering start; one no-echo reading first
+# set the height for the whole run, the sonar then refused 599 of 600: a user's probe)
+ANCHOR_RANGES = 5
+ANCHOR_AGREE_M = 0.2
 
 
 def anchor_height(
