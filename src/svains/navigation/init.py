@@ -222,16 +222,17 @@ def _from_static(dataset: InitData, layout: StateLayout, o: InitOptions) -> Init
     x[Q] = quat_normalize(rotmat_to_quat(R_W_B))
     position_std = o.position_std
     if dataset.gps is not None and dataset.gps_calib is not None and len(dataset.gps.t_ns):
-        # The fixes of the static interval (at least the first): their mean, uncertain by a
-        # fix's noise (GPS errors are correlated over seconds, so not divided by their count).
-        # With the option's 0.1 m a first fix 5 m off (a 1.4 m receiver) was taken as exact:
-        # the right fixes after it were refused as jumps and `ins` ended 1.5 km off.
+        # The fixes of the static interval (at least the first): their median (one fix off
+        # among three does not move it), uncertain by a fix's noise (GPS errors are correlated
+        # over seconds, so not divided by their count). With the option's 0.1 m a first fix 5 m
+        # off (a 1.4 m receiver) was taken as exact: the right fixes after it were refused as
+        # jumps and `ins` ended 1.5 km off.
         in_static = dataset.gps.t_ns - int(imu.t_ns[0]) <= int(o.static_s * 1e9)
         in_static[0] = True
-        x[P] = dataset.gps.p_W_G[in_static].mean(axis=0) - R_W_B @ dataset.gps_calib.p_B_G
+        x[P] = np.median(dataset.gps.p_W_G[in_static], axis=0) - R_W_B @ dataset.gps_calib.p_B_G
         position_std = max(position_std, dataset.gps_calib.position_noise_std)
         n_fixes = int(in_static.sum())
-        info["position"] = f"mean of the {n_fixes} GPS fixes at rest" if n_fixes > 1 else (
+        info["position"] = f"median of the {n_fixes} GPS fixes at rest" if n_fixes > 1 else (
             "first GPS fix")
     if layout.biased:
         x[BG] = bg
