@@ -183,11 +183,13 @@ class ImuFaults:
         used, i.e. if the estimator has not passed the sample before it."""
         verdict = self.guard.check(t_ns, gyro_S, accel_S)
         self._suspect_ns = None if verdict.kind == "drop" else self.guard.suspect_from_ns()
-        if verdict.retract_previous and history.n >= 2:
-            spike_ns = int(history.t_ns[-1])
-            before_ns = int(history.t_ns[-2])
+        n = verdict.retract_previous
+        if n and history.n >= n + 1:
+            spike_ns = int(history.t_ns[-n])
+            before_ns = int(history.t_ns[-n - 1])
             if used_until_ns is None or used_until_ns <= before_ns:
-                history.drop_last()
+                for _ in range(n):
+                    history.drop_last()
                 history.mark_fault(before_ns, t_ns)
                 self.last_fault_ns = spike_ns
                 self._warn.warn("imu-spike", spike_ns, "IMU sample dropped (spike, seen from "

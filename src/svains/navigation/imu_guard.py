@@ -39,9 +39,10 @@ Thresholds (``ImuGuardOptions``), each from a model or a measurement:
   spike through (KITTI raw's OXTS, 70 ms: 40 + 70 m/s²), and the good sample after it could be
   the one dropped. When the last accepted sample is beyond floor and noise (no motion
   allowance) from both the one before it and the new one, and those two agree, it was the
-  spike: the verdict asks to ``retract_previous`` (the caller removes it if the estimator
-  has not used it yet) and the sample is judged against the one before. (KITTI raw with one
-  100 m/s² sample 70 ms after the one before: `ins` ended 76 m off, GPS blamed and shut out.)
+  spike (or the last two, ``MAX_SPIKE_RUN``): the verdict asks to ``retract_previous`` them
+  (the caller removes them if the estimator has not used them yet) and the sample is judged
+  against the one before. (KITTI raw with one 100 m/s² sample 70 ms after the one before:
+  `ins` ended 76 m off, GPS blamed and shut out.)
 """
 
 from __future__ import annotations
@@ -63,6 +64,7 @@ VerdictKind = Literal["accept", "drop", "gap"]
 DropReason = Literal["nonfinite", "zeros", "frozen", "saturated", "spike"]
 DROP_REASONS: tuple[DropReason, ...] = ("nonfinite", "zeros", "frozen", "saturated", "spike")
 _MEDIAN_EVERY = 16  # accepted spacings between two recomputations of the running median
+MAX_SPIKE_RUN = 2  # samples a spike found by the sample after it may last
 
 
 @dataclass(frozen=True)
@@ -93,7 +95,7 @@ class Verdict:
     kind: VerdictKind
     reason: DropReason | None = None
     gap_s: float = 0.0
-    retract_previous: bool = False  # the last accepted sample was a spike: remove it
+    retract_previous: int = 0  # the last accepted samples (this many) were a spike: remove them
 
     @property
     def accepted(self) -> bool:
@@ -138,8 +140,10 @@ class ImuGuard:
         self._median_s: float | None = None  # cached median of ``_spacings``
         self._since_median = 0
         self._last: tuple[int, Vec3, Vec3] | None = None  # last accepted (t_ns, gyro, accel)
-        self._prev: tuple[int, Vec3, Vec3] | None = None  # the one accepted before it
-        self._retract = False  # the sample being judged shows ``_last`` was a spike
+        # the last accepted samples, newest last: a spike of up to MAX_SPIKE_RUN and the one
+        # before it
+        self._recent: deque[tuple[int, Vec3, Vec3]] = deque(maxlen=MAX_SPIKE_RUN + 1)
+        self._retract = 0  # the sample being judged shows the last this many were a spike
         self._streak = 0
         self._triad_repeats = [0, 0]  # samples in a row whose gyro / accel equals the last kept
         self._triad_live = [0, 0]  # accepted samples in a row whose gyro / accel changed
@@ -193,8 +197,9 @@ class ImuGuard:
                     return "frozen"
         if max(map(abs, g)) >= self._gyro_sat or max(map(abs, a)) >= self._accel_sat:
             return "saturated"
-        if last is not None and self._last_was_spike(t_ns, g, a):
-            self._retract = True  # judged from the sample before the spike, which it agrees with
+        run = self._spike_run_before(t_ns, g, a)
+        if run:
+            self._retract = run  # judged from the sample before the spike, which it agrees with
             return None
         if last is not None and self._is_spike(t_ns, g, a, last):
             self._streak += 1
@@ -219,33 +224,51 @@ class ImuGuard:
         jump_a = math.dist(a, a0)
         return jump_a > accel_bound or math.dist(g, g0) > gyro_bound
 
-    def suspect_from_ns(self) -> int | None:
-        """When the last accepted sample jumped from the one before beyond floor and noise
-        alone (a spike, if the next sample goes back): that one's stamp, before which the
-        estimator should stay until the next sample decides; None otherwise."""
-        last, prev = self._last, self._prev
-        if last is None or prev is None or not self._is_spike(*last, prev, motion=False):
-            return None
-        return prev[0]
+    def _suspects(self) -> int:
+        """How many of the last accepted samples (up to ``MAX_SPIKE_RUN``, the longest such)
+        all jumped beyond floor and noise alone from the one before them: a spike, if the next
+        sample goes back."""
+        r = self._recent
+        for n in range(min(MAX_SPIKE_RUN, len(r) - 1), 0, -1):
+            base = r[-n - 1]
+            if all(self._is_spike(*r[-k], base, motion=False) for k in range(1, n + 1)):
+                return n
+        return 0
 
-    def _last_was_spike(self, t_ns: int, g: Vec3, a: Vec3) -> bool:
-        """Whether the last accepted sample stands alone: beyond floor and noise from both the
-        one before it and the sample at ``t_ns``, which agree with each other."""
-        last, prev = self._last, self._prev
-        if last is None or prev is None or self._streak:
-            return False
-        return (self._is_spike(t_ns, g, a, last, motion=False)
-                and self._is_spike(last[0], last[1], last[2], prev, motion=False)
-                and not self._is_spike(t_ns, g, a, prev))  # fmt: skip
+    def suspect_from_ns(self) -> int | None:
+        """While the last accepted samples may be a spike (``_suspects``): the stamp of the one
+        before them, past which the estimator should not go until a later sample decides;
+        None otherwise."""
+        n = self._suspects()
+        return self._recent[-n - 1][0] if n else None
+
+    def _spike_run_before(self, t_ns: int, g: Vec3, a: Vec3) -> int:
+        """How many of the last accepted samples (0: none) were a spike: beyond floor and noise
+        from the one before them and from the sample at ``t_ns``, which agrees with that one
+        (a spike two samples long passed one-sample tests: KITTI raw, ins 8.3 m off)."""
+        if self._streak:
+            return 0
+        r = self._recent
+        for n in range(1, min(MAX_SPIKE_RUN, len(r) - 1) + 1):
+            base = r[-n - 1]
+            if (all(self._is_spike(*r[-k], base, motion=False) for k in range(1, n + 1))
+                    and self._is_spike(t_ns, g, a, r[-1], motion=False)
+                    and not self._is_spike(t_ns, g, a, base)):  # fmt: skip
+                return n
+        return 0
 
     def _accept(self, t_ns: int, g: Vec3, a: Vec3) -> Verdict:
         self._streak = 0
         self.counts.accepted += 1
-        retract, self._retract = self._retract, False
-        if retract:  # the last accepted sample was a spike: judged from the one before it
-            self.counts.accepted -= 1
-            self.counts.dropped["spike"] += 1
-            self._last, self._prev = self._prev, None
+        retract, self._retract = self._retract, 0
+        if retract:  # the last accepted samples were a spike: judged from the one before them
+            self.counts.accepted -= retract
+            self.counts.dropped["spike"] += retract
+            for _ in range(retract):
+                self._recent.pop()
+            self._last = self._recent[-1]
+            self._recent.clear()
+            self._recent.append(self._last)
         verdict = Verdict("accept", retract_previous=retract)
         if self._last is not None:
             dt = (t_ns - self._last[0]) * 1e-9
@@ -265,7 +288,8 @@ class ImuGuard:
             live = self._triad_live
             live[0] = live[0] + 1 if g != self._last[1] else 0
             live[1] = live[1] + 1 if a != self._last[2] else 0
-        self._prev, self._last = self._last, (t_ns, g, a)
+        self._last = (t_ns, g, a)
+        self._recent.append(self._last)
         return verdict
 
     def summary(self) -> dict[str, object]:
