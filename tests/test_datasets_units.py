@@ -270,3 +270,18 @@ def test_an_imu_clipped_below_an_undeclared_range_is_found(
         ds = load_dataset(kitti_copy)
     assert "the gyroscope's readings are held at ±0.2 rad/s" in caplog.text
     assert ds.imu_calib.gyro_range == 0.2 and ds.imu_calib.accel_range is None
+
+
+def test_a_quantised_gyros_repeated_peak_is_no_full_scale() -> None:
+    """A 16-bit gyro (70 mdps steps) repeats its peak rate for a few samples in a slow turn:
+    read as clipped, its peak then taken as the range (a user's probe)."""
+    from svains.datasets.validate import clipping_range
+
+    rng = np.random.default_rng(6)
+    t = np.arange(0.0, 60.0, 0.005)
+    step = np.radians(0.07)
+    w = 0.6 * np.sin(0.5 * t) + 2e-4 * rng.standard_normal(t.size)
+    quantised = np.round(w / step) * step
+    assert clipping_range(np.column_stack([quantised, 0 * t, 0 * t])) is None
+    noisy = 0.6 * np.sin(0.5 * t) + 0.01 * rng.standard_normal(t.size)
+    assert clipping_range(np.column_stack([np.clip(noisy, -0.5, 0.5), 0 * t, 0 * t])) == 0.5

@@ -385,12 +385,21 @@ def clipping_range(values: NDArray[np.float64]) -> float | None:
     if int(at_top.sum()) < CLIP_MIN_SAMPLES:
         return None
     for axis in range(v.shape[1]):
-        hit = at_top[:, axis].astype(np.int8)
-        # longest run of consecutive samples at the top on this axis
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], hit, [0]])))
-        if edges.size and int(np.max(edges[1::2] - edges[::2])) >= CLIP_MIN_RUN:
+        top_run = _longest_run(at_top[:, axis])
+        # a quantised reading repeats values anywhere (a turn's flat peak too): the top must be
+        # held longer than any other value is (a user's probe: a 16-bit gyro's peak rate,
+        # repeated for a few samples, read as a full scale)
+        x = np.asarray(values, dtype=float)[:, axis]
+        same = np.concatenate([[False], x[1:] == x[:-1]]) & ~at_top[:, axis]
+        if top_run >= CLIP_MIN_RUN and top_run > 2 * (_longest_run(same) + 1):
             return top
     return None
+
+
+def _longest_run(flags: NDArray[np.bool_]) -> int:
+    """The longest run of True in ``flags`` (N,)."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(np.int8), [0]])))
+    return int(np.max(edges[1::2] - edges[::2])) if edges.size else 0
 
 
 def check_gps_position_units(p_W_G: NDArray[np.float64], path: Path) -> None:

@@ -50,8 +50,10 @@ class EventQueue:
         name = KIND_NAMES[kind]
         if self.horizon_ns is not None and t_ns < self.horizon_ns:
             self.late[name] = self.late.get(name, 0) + 1
-            self.drop(name, t_ns, "late: stamped before what was already processed, more than "
-                      "buffer.window_s behind the newest IMU sample")  # fmt: skip
+            late_ms = (self.horizon_ns - t_ns) * 1e-6
+            self.drop(name, t_ns, f"late: stamped {late_ms:.0f} ms before what was already "
+                      "processed, beyond buffer.window_s behind the newest IMU sample (add "
+                      "that much to the window to keep it)")  # fmt: skip
             return False
         if len(self._heap) >= self.max_pending:
             self.drop(name, t_ns, f"{self.max_pending} measurements already wait for the IMU")

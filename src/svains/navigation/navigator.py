@@ -16,6 +16,7 @@ in the order GPS, magnetometer, sonar, vision frame, output tick. Output ticks l
 
 from __future__ import annotations
 
+import collections
 import logging
 import time
 from collections import deque
@@ -90,6 +91,9 @@ class Navigator:
         # state: the static and in-flight starts refuse a wrong unit themselves.
         self._units_checked = config.init.mode != "groundtruth"
         self.queue = EventQueue(config.buffer.max_pending)
+        # the stamps of the last frames fed: a frame fed twice (a driver's repeated message)
+        # paired with itself and broke every link after it, silently (a user's probe)
+        self._frame_stamps: collections.deque[int] = collections.deque(maxlen=64)
         self._checks = SampleChecks(
             None if rig.mag is None else float(np.linalg.norm(rig.mag.m_W))
         )
@@ -194,7 +198,14 @@ class Navigator:
             # Copied by default: drivers reuse their image buffers while the pair waits.
             pair = (np.array(left, np.uint8, copy=True), np.array(right, np.uint8, copy=True)) \
                 if copy else (np.asarray(left, np.uint8), np.asarray(right, np.uint8))
-            self._push(int(t_ns), FRAME, ("images", *pair))
+            if np.array_equal(pair[0], pair[1]):
+                # One camera's image sent twice (a driver or a launch file publishing cam0 on
+                # both topics): zero disparity everywhere, all points at infinity (a user's
+                # probe: ATE 0.16 -> 0.83 m with every 4th pair so, not a word).
+                self.queue.drop("frame", int(t_ns), "the left and right images are identical")
+                return
+            if self._new_frame(int(t_ns)):
+                self._push(int(t_ns), FRAME, ("images", *pair))
 
     def feed_tracks(
         self, t_ns: int, track_id: ArrayLike, uv_left: ArrayLike, uv_right: ArrayLike
@@ -216,7 +227,15 @@ class Navigator:
                     f"feed_tracks: track_id (M,), uv_left and uv_right (M, 2) expected, got "
                     f"{ids.shape}, {uv_l.shape}, {uv_r.shape}"
                 )
-            self._push(int(t_ns), FRAME, ("features", ids, uv_l, uv_r))
+            finite = np.isfinite(uv_l).all(axis=1) & np.isfinite(uv_r).all(axis=1)
+            if not finite.all():
+                # NaN or inf pixels (a tracker's lost features) were fused as numbers, with
+                # numpy's warnings at best (a user's probe): dropped, counted.
+                self.queue.drop("feature", int(t_ns), f"{int((~finite).sum())} of {m} "
+                                "features with non-finite pixels")  # fmt: skip
+                ids, uv_l, uv_r = ids[finite], uv_l[finite], uv_r[finite]
+            if self._new_frame(int(t_ns)):
+                self._push(int(t_ns), FRAME, ("features", ids, uv_l, uv_r))
 
     def feed_gps(self, t_ns: int, p_W_G: ArrayLike, v_W_G: ArrayLike | None = None) -> None:
         """A GPS fix: antenna position ``p_W_G`` (3,) m and velocity ``v_W_G`` (3,) m/s (None:
@@ -234,6 +253,15 @@ class Navigator:
         if np.ndim(r) != 0:
             raise ValueError(f"feed_sonar: range_m must be one number, got shape {np.shape(r)}")
         self._push(int(t_ns), SONAR, float(r))
+
+    def _new_frame(self, t_ns: int) -> bool:
+        """Whether no frame with the stamp ``t_ns`` was fed lately (else dropped, counted)."""
+        if t_ns in self._frame_stamps:
+            self.queue.drop("frame", t_ns, "a second frame with the same stamp; the first is "
+                            "kept")  # fmt: skip
+            return False
+        self._frame_stamps.append(t_ns)
+        return True
 
     def _push(self, t_ns: int, kind: int, payload: Any) -> None:
         if self.status == "closed":

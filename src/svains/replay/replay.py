@@ -2,8 +2,8 @@
 
 The streams are merged lazily in time order (ties: GPS, magnetometer, sonar, frame, IMU: a
 measurement is fed before the IMU sample stamped with it, so even a zero reordering window
-keeps it). Every stream the data set has is fed (GPS also under ``use_gps: false``: the static
-start takes its position from the first fix); the configuration decides what is fused. Stereo
+keeps it). Every stream the data set has is fed (GPS also under ``use_gps: false``, for an
+``init.mode: gps`` start); the configuration decides what is used. Stereo
 pairs are decoded one ahead on a thread (PNG decoding releases the GIL). The run is limited to
 ``SVAINS_THREADS`` threads per numerical library (``svains.threads``, default 1), entered once.
 """
