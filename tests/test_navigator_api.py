@@ -3,6 +3,7 @@ bad configurations, copies of fed images, outputs."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -319,3 +320,20 @@ def test_non_finite_pixels_and_identical_stereo_images_are_dropped(
     assert "the left and right images are identical" in caplog.text
     queued = [e for e in nav.queue._heap if e[0] == 1_000]  # the frame, waiting for the IMU
     assert len(queued) == 1 and queued[0][3][1].tolist() == [1]  # the finite feature only
+
+
+def test_measurements_on_another_clock_are_named_at_close(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Frames stamped an hour ahead were never used: a pure INS run, one "no vision fused"
+    line (a user's probe). close() names what was left and how far after the last IMU sample."""
+    nav = Navigator(RunConfig(method="3d"), Rig(imu_period_s=0.005))
+    rng = np.random.default_rng(3)
+    hour = 3_600_000_000_000
+    for k in range(5):
+        nav.feed_tracks(1_000_000_000 + k * 200_000_000 + hour, [1], [[1.0, 2.0]], [[0.5, 2.0]])
+    _feed_static(nav, 3.0, rng)
+    with caplog.at_level("WARNING"):
+        nav.close()
+    assert re.search(r"5 frame stamped up to 3597\.\d s after the last IMU sample were never "
+                     r"used: on another clock", caplog.text)  # fmt: skip

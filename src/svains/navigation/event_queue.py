@@ -62,6 +62,10 @@ class EventQueue:
         self._seq += 1
         return True
 
+    def pending_after(self, t_ns: int) -> list[tuple[int, str]]:
+        """``(t_ns, stream)`` of the waiting measurements stamped after ``t_ns``."""
+        return [(t, KIND_NAMES[kind]) for t, kind, _, _ in self._heap if t > t_ns]
+
     def release(self, horizon_ns: int) -> list[tuple[int, int, Any]]:
         """``(t_ns, kind, payload)`` of every item stamped before ``horizon_ns``, in order."""
         out = []

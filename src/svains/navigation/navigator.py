@@ -48,6 +48,8 @@ from svains.sensors.units import GRAVITY_RANGE_M_S2, accel_units_problem
 
 F64 = NDArray[np.float64]
 log = logging.getLogger(__name__)
+# measurements this long after the last IMU sample at close() are on another clock
+UNUSED_AFTER_NS = 1_000_000_000
 
 _UNITS_SPAN_NS = 2_000_000_000  # IMU samples judged for the accelerometer's unit
 
@@ -323,6 +325,8 @@ class Navigator:
                                           f"decided: {self.starter.waiting_for(self.history)}"
                                           f"{late}")  # fmt: skip
             self._finish(end)
+            if until_ns is None:
+                self._warn_unused_after(end)
         if self.core is None:
             raise ConfigError("no IMU sample was fed: nothing to estimate")
         self.status = "closed"
@@ -389,6 +393,19 @@ class Navigator:
             elif ev[1] == FRAME and self._source is not None:
                 self._source.discard(ev[0])
         return kept
+
+    def _warn_unused_after(self, end_ns: int) -> None:
+        """Warn of measurements stamped more than a second after the last IMU sample: never
+        used, most likely on another clock (a user's probe: frames an hour ahead made a pure
+        INS run, with one "no vision fused" line)."""
+        later = self.queue.pending_after(end_ns + UNUSED_AFTER_NS)
+        if not later:
+            return
+        counts = collections.Counter(kind for _, kind in later)
+        log.warning("%s stamped up to %.1f s after the last IMU sample were never used: on "
+                    "another clock than the IMU's? (every stream is stamped on the IMU's "
+                    "clock)", ", ".join(f"{n} {k}" for k, n in counts.items()),
+                    (max(t for t, _ in later) - end_ns) * 1e-9)  # fmt: skip
 
     def _finish(self, end_ns: int) -> None:
         assert self.core is not None
