@@ -285,3 +285,21 @@ def test_a_quantised_gyros_repeated_peak_is_no_full_scale() -> None:
     assert clipping_range(np.column_stack([quantised, 0 * t, 0 * t])) is None
     noisy = 0.6 * np.sin(0.5 * t) + 0.01 * rng.standard_normal(t.size)
     assert clipping_range(np.column_stack([np.clip(noisy, -0.5, 0.5), 0 * t, 0 * t])) == 0.5
+
+
+def test_a_camera_changing_or_drifting_rate_is_no_jitter_and_drops_are_not_either() -> None:
+    """Exact hardware stamps at a rate that changes (30 -> 25 -> 20 Hz) or drifts were warned
+    as jitter (a user's probe); dropped frames neither; jitter with drops still is."""
+    from svains.datasets.validate import frame_jitter_problem
+
+    rng = np.random.default_rng(8)
+    steps = np.concatenate([np.full(200, 1 / 30), np.full(200, 1 / 25), np.full(200, 1 / 20)])
+    assert frame_jitter_problem((np.cumsum(steps) * 1e9).astype(np.int64)) is None
+    drift = 0.030 + 0.010 * np.sin(np.linspace(0.0, 6.0, 600))
+    assert frame_jitter_problem((np.cumsum(drift) * 1e9).astype(np.int64)) is None
+    t = np.arange(600) / 20.0
+    keep = rng.random(600) > 0.3
+    assert frame_jitter_problem((t[keep] * 1e9).astype(np.int64)) is None
+    jittered = t + rng.uniform(-0.01, 0.01, t.size)
+    why = frame_jitter_problem((jittered[keep] * 1e9).astype(np.int64))
+    assert why is not None and 4.0 < float(why.split("about ")[1].split(" ms")[0]) < 8.0

@@ -334,12 +334,13 @@ def gps_velocity_problem(
 
 # Camera stamps jittered around a regular rate (``frame_jitter_problem``): judged only where at
 # least JITTER_REGULAR_FRACTION of the spacings lie within JITTER_BAND of their median (a
-# camera at a fixed rate; keyframes chosen seconds apart are irregular by design); the stamps'
-# own jitter, from the spread of those spacings (robust, / √2: each spacing differences two
-# stamps), warned above JITTER_WARN_S and JITTER_WARN_FRACTION of the period. KITTI raw's
-# camera (207 ms) jitters by 0.12 ms; stamps jittered by ±20 ms took `3d` from 0.28 to
-# 1.66 m without a word (a user's probe).
-JITTER_REGULAR_FRACTION = 0.8
+# camera at a fixed, or slowly changing, rate; keyframes chosen seconds apart are irregular by
+# design). Each spacing less its whole number of periods (dropped frames) leaves the stamps'
+# own jitter, differenced: differenced again, a rate that changes (30 -> 25 -> 20 Hz) or drifts
+# cancels and jitter does not (robust spread / √6); warned above JITTER_WARN_S and
+# JITTER_WARN_FRACTION of the period. KITTI raw's camera (207 ms) jitters by 0.12 ms; stamps
+# jittered by ±20 ms took `3d` from 0.28 to 1.66 m without a word (a user's probe).
+JITTER_REGULAR_FRACTION = 0.5
 JITTER_BAND = 0.3
 JITTER_WARN_S = 0.002
 JITTER_WARN_FRACTION = 0.01
@@ -352,10 +353,12 @@ def frame_jitter_problem(t_ns: NDArray[np.int64]) -> str | None:
     if dt.size < 20:
         return None
     period = float(np.median(dt))
-    regular = dt[np.abs(dt - period) <= JITTER_BAND * period]
-    if period <= 0 or regular.size < JITTER_REGULAR_FRACTION * dt.size:
+    if period <= 0 or np.mean(np.abs(dt - period) <= JITTER_BAND * period) < (
+            JITTER_REGULAR_FRACTION):  # fmt: skip
         return None
-    jitter = 1.4826 * float(np.median(np.abs(regular - np.median(regular)))) / math.sqrt(2.0)
+    residual = dt - np.maximum(1.0, np.round(dt / period)) * period
+    d = np.diff(residual)
+    jitter = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(6.0)
     if jitter <= max(JITTER_WARN_S, JITTER_WARN_FRACTION * period):
         return None
     return (f"the frame stamps scatter by about {jitter * 1e3:.1f} ms (robust std) around a "
