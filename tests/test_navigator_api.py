@@ -337,3 +337,16 @@ def test_measurements_on_another_clock_are_named_at_close(
         nav.close()
     assert re.search(r"5 frame stamped up to 3597\.\d s after the last IMU sample were never "
                      r"used: on another clock", caplog.text)  # fmt: skip
+
+
+@pytest.mark.parametrize(("step", "unit"), [(5_000, "microseconds"), (5, "milliseconds")])
+def test_imu_stamps_in_another_unit_are_named(step: int, unit: str) -> None:
+    """Stamps in µs or ms fed online were blamed on a short static start (a user's probe)."""
+    nav = Navigator(RunConfig(), Rig(imu_period_s=0.005))
+    rng = np.random.default_rng(1)
+    with pytest.raises(ConfigError, match=rf"feed_imu: timestamps advance by a median {step} "
+                       rf"per sample, .* they look like {unit} \(feed_\* take integer "
+                       r"nanoseconds\)"):  # fmt: skip
+        for k in range(40):
+            nav.feed_imu(10**9 + k * step, 1e-3 * rng.standard_normal(3),
+                         [0.0, 0.0, G] + 1e-2 * rng.standard_normal(3))

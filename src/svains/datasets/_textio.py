@@ -17,6 +17,7 @@ import yaml
 from numpy.typing import NDArray
 
 from svains.errors import CalibrationError, DatasetError
+from svains.sensors.units import time_unit_problem
 from svains.yaml_io import load_yaml
 
 YAML_DIRECTIVE = "%YAML:1.0"
@@ -320,10 +321,9 @@ def check_timestamps(path: Path, t: NDArray[np.int64], line_no: Sequence[int],
     check_time_unit(path, t, line_no)
 
 
-# Timestamps must be integer nanoseconds: spacings below this (50 kHz) are no sensor's, so the
-# file was stamped in µs, ms or s; a step this many median spacings (and at least an hour) past
-# the previous row is a stray row (a corrupted or misplaced stamp), not a pause.
-MIN_MEDIAN_SPACING_NS = 20_000
+# Timestamps must be integer nanoseconds (``sensors.units.time_unit_problem``); a step this many
+# median spacings (and at least an hour) past the previous row is a stray row (a corrupted or
+# misplaced stamp), not a pause.
 STRAY_ROW_SPACINGS = 10_000
 STRAY_ROW_MIN_NS = 3600 * 10**9
 
@@ -336,15 +336,9 @@ def check_time_unit(path: Path, t: NDArray[np.int64], line_no: Sequence[int]) ->
         return
     d = np.diff(u)
     med = float(np.median(d))
-    if med < MIN_MEDIAN_SPACING_NS:
-        guess = next((unit for unit, scale in (("microseconds", 1e3), ("milliseconds", 1e6),
-                                               ("seconds", 1e9))
-                      if 1e-3 <= med * scale * 1e-9 <= 10.0), "another unit")  # fmt: skip
-        raise DatasetError(
-            f"{path}: timestamps advance by a median {med:g} per row, {1e9 / med:.3g} Hz if "
-            f"nanoseconds: they look like {guess} (the ASL layout stamps in integer "
-            "nanoseconds)"
-        )
+    unit = time_unit_problem(med)
+    if unit is not None:
+        raise DatasetError(f"{path}: {unit} (the ASL layout stamps in integer nanoseconds)")
     far = np.flatnonzero((d > STRAY_ROW_SPACINGS * med) & (d > STRAY_ROW_MIN_NS))
     if far.size:
         k = int(np.searchsorted(t, u[far[0] + 1]))

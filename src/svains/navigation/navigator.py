@@ -44,7 +44,7 @@ from svains.navigation.tracks import TrackOptions
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames, rig_from_calibrations
 from svains.navigation.zupt import StaticTest
 from svains.sensors.types import Rig
-from svains.sensors.units import GRAVITY_RANGE_M_S2, accel_units_problem
+from svains.sensors.units import GRAVITY_RANGE_M_S2, accel_units_problem, time_unit_problem
 
 F64 = NDArray[np.float64]
 log = logging.getLogger(__name__)
@@ -52,6 +52,7 @@ log = logging.getLogger(__name__)
 UNUSED_AFTER_NS = 1_000_000_000
 
 _UNITS_SPAN_NS = 2_000_000_000  # IMU samples judged for the accelerometer's unit
+_UNIT_SAMPLES = 20  # IMU samples whose spacing judges the stamps' unit
 
 OutputCallback = Callable[[NavState], None]
 
@@ -159,6 +160,11 @@ class Navigator:
         ):
             return  # dropped: propagation bridges it from its neighbours
         self.history.append(t_ns, gyro_S, accel_S)
+        if self.history.n == _UNIT_SAMPLES and not self.history.dropped:  # judged once
+            # stamps in µs or ms were blamed on a short static start (a user's probe)
+            unit = time_unit_problem(float(np.median(np.diff(self.history.t_ns))))
+            if unit is not None:
+                raise ConfigError(f"feed_imu: {unit} (feed_* take integer nanoseconds)")
         if not self._units_checked:
             self._check_units()
         horizon_ns = t_ns - self._window_ns

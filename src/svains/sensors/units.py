@@ -297,3 +297,21 @@ def gps_clock_problem(shift_s: float, cosine: float, given: float, n: int) -> st
             f"{-shift_s:.1f} in gps0/sensor.yaml (the run's latency check finds what remains)"
         )
     return None
+
+
+# Timestamps are integer nanoseconds: spacings below this (50 kHz) are no sensor's, so the
+# stream was stamped in µs, ms or s (``time_unit_problem``; files and the Navigator alike).
+MIN_MEDIAN_SPACING_NS = 20_000
+
+
+def time_unit_problem(median_spacing: float) -> str | None:
+    """Why stamps whose median step is ``median_spacing`` (in the stamps' unit) cannot be
+    nanoseconds (None when they can)."""
+    med = float(median_spacing)
+    if not 0 < med < MIN_MEDIAN_SPACING_NS:
+        return None
+    guess = next((unit for unit, scale in (("microseconds", 1e3), ("milliseconds", 1e6),
+                                           ("seconds", 1e9))
+                  if 1e-3 <= med * scale * 1e-9 <= 10.0), "another unit")  # fmt: skip
+    return (f"timestamps advance by a median {med:g} per sample, {1e9 / med:.3g} Hz if "
+            f"nanoseconds: they look like {guess}")
