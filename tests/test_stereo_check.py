@@ -166,3 +166,28 @@ def test_twelve_bit_images_in_16_bit_files_are_warned(
         recorded_stereo_check(load_dataset(root))
     assert "the images reach grey level 15 of 255 at most" in caplog.text
     assert "12-bit values in 16-bit files?" in caplog.text
+
+
+def test_a_dead_camera_and_one_camera_written_twice_are_named(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """An all-black right camera ended a run with "fused no vision" and "textureless" counts;
+    cam0's image written as cam1's too put every point at infinity (users' probes)."""
+    import cv2
+
+    from test_datasets_roundtrip import write_full
+
+    root = tmp_path / "ds"
+    write_full(root)
+    with caplog.at_level(logging.WARNING, logger="svains.datasets.stereo_images"):
+        recorded_stereo_check(load_dataset(root))
+        assert "uniform" not in caplog.text and "same image" not in caplog.text
+        for png in (root / "mav0").glob("cam1/data/*.png"):
+            cv2.imwrite(str(png), np.zeros((24, 32), np.uint8))
+        recorded_stereo_check(load_dataset(root))
+        assert "cam1's images are uniform (grey-level std below 0.5" in caplog.text
+        assert "cam0's images are uniform" not in caplog.text
+        for png in (root / "mav0").glob("cam0/data/*.png"):
+            shutil.copy(png, root / "mav0/cam1/data" / png.name)
+        recorded_stereo_check(load_dataset(root))
+    assert "cam0 and cam1 hold the same image in" in caplog.text

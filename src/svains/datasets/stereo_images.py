@@ -21,6 +21,7 @@ if TYPE_CHECKING:  # the front end imports OpenCV: only when a check runs (see b
 # 16-bit PNG keeps 4 bits of its high byte (0-15)
 DARK_PEAK = 31
 PAIRS = 5  # pairs looked at, evenly spread over the recording (about 0.1 s each at 1392x512)
+UNIFORM_STD = 0.5  # grey levels: a camera's images this flat show nothing
 
 
 def recorded_stereo_check(ds: Dataset, pairs: int = PAIRS) -> StereoCheck | None:
@@ -40,6 +41,8 @@ def recorded_stereo_check(ds: Dataset, pairs: int = PAIRS) -> StereoCheck | None
     pick = np.unique(np.linspace(0, idx_l.size - 1, min(pairs, idx_l.size)).round().astype(int))
     images = []
     peak = 0
+    spread = [0.0, 0.0]  # the largest grey-level std of each camera's pairs looked at
+    identical = 0
     for k in pick:
         try:
             left, right = ds.left.load(int(idx_l[k])), ds.right.load(int(idx_r[k]))
@@ -48,6 +51,19 @@ def recorded_stereo_check(ds: Dataset, pairs: int = PAIRS) -> StereoCheck | None
         if left.shape == right.shape == (ds.cam0.resolution[1], ds.cam0.resolution[0]):
             images.append(rect.rectify_pair(left, right))
             peak = max(peak, int(left.max()), int(right.max()))
+            spread = [max(spread[0], float(left.std())), max(spread[1], float(right.std()))]
+            identical += int(np.array_equal(left, right))
+    for cam, (own, other) in enumerate((spread, spread[::-1])):
+        if images and own < UNIFORM_STD and other >= UNIFORM_STD:
+            # a dead, covered or capped camera: the run ends without fused vision, and only
+            # "textureless" counts said why (a user's probe)
+            log.warning("%s: cam%d's images are uniform (grey-level std below %g in the %d "
+                        "stereo pairs looked at): a dead, covered or capped camera?", ds.root,
+                        cam, UNIFORM_STD, len(images))  # fmt: skip
+    if identical:
+        log.warning("%s: cam0 and cam1 hold the same image in %d of %d stereo pairs looked at "
+                    "(one camera written twice?): such pairs are dropped", ds.root, identical,
+                    len(images))  # fmt: skip
     if images and peak <= DARK_PEAK:
         log.warning("%s: the images reach grey level %d of 255 at most (%d stereo pairs looked "
                     "at): 12-bit values in 16-bit files? svains keeps a 16-bit image's high byte; "
