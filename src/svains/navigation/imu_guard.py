@@ -139,10 +139,13 @@ class ImuGuard:
         self._spacings: deque[float] = deque(maxlen=o.spacing_window)
         self._median_s: float | None = None  # cached median of ``_spacings``
         self._since_median = 0
-        self._last: tuple[int, Vec3, Vec3] | None = None  # last accepted (t_ns, gyro, accel)
-        # the last accepted samples, newest last: a spike of up to MAX_SPIKE_RUN and the one
-        # before it
+        # the last accepted samples (t_ns, gyro, accel), newest last: a spike of up to
+        # MAX_SPIKE_RUN and the one before it
         self._recent: deque[tuple[int, Vec3, Vec3]] = deque(maxlen=MAX_SPIKE_RUN + 1)
+        # the lengths n of the runs of last accepted samples that all jumped beyond floor and
+        # noise from the one before them (a spike, if the next sample goes back); kept up to
+        # date by ``_accept`` for the next check and for ``suspect_from_ns``
+        self._suspect_runs: list[int] = []
         self._retract = 0  # the sample being judged shows the last this many were a spike
         self._streak = 0
         self._triad_repeats = [0, 0]  # samples in a row whose gyro / accel equals the last kept
@@ -224,38 +227,37 @@ class ImuGuard:
         jump_a = math.dist(a, a0)
         return jump_a > accel_bound or math.dist(g, g0) > gyro_bound
 
-    def _suspects(self) -> int:
-        """How many of the last accepted samples (up to ``MAX_SPIKE_RUN``, the longest such)
-        all jumped beyond floor and noise alone from the one before them: a spike, if the next
-        sample goes back."""
+    @property
+    def _last(self) -> tuple[int, Vec3, Vec3] | None:
+        """The last accepted sample (t_ns, gyro, accel), None before any."""
+        return self._recent[-1] if self._recent else None
+
+    def _runs_of_suspects(self) -> list[int]:
+        """The run lengths n (ascending, up to ``MAX_SPIKE_RUN``) whose last n accepted samples
+        all jumped beyond floor and noise alone from the one before them."""
         r = self._recent
-        for n in range(min(MAX_SPIKE_RUN, len(r) - 1), 0, -1):
-            base = r[-n - 1]
-            if all(self._is_spike(*r[-k], base, motion=False) for k in range(1, n + 1)):
-                return n
-        return 0
+        return [n for n in range(1, min(MAX_SPIKE_RUN, len(r) - 1) + 1)
+                if all(self._is_spike(*r[-k], r[-n - 1], motion=False)
+                       for k in range(1, n + 1))]  # fmt: skip
 
     def suspect_from_ns(self) -> int | None:
-        """While the last accepted samples may be a spike (``_suspects``): the stamp of the one
-        before them, past which the estimator should not go until a later sample decides;
-        None otherwise."""
-        n = self._suspects()
-        return self._recent[-n - 1][0] if n else None
+        """While the last accepted samples may be a spike (the longest such run): the stamp of
+        the one before them, past which the estimator should not go until a later sample
+        decides; None otherwise."""
+        runs = self._suspect_runs
+        return self._recent[-runs[-1] - 1][0] if runs else None
 
     def _spike_run_before(self, t_ns: int, g: Vec3, a: Vec3) -> int:
         """How many of the last accepted samples (0: none) were a spike: beyond floor and noise
         from the one before them and from the sample at ``t_ns``, which agrees with that one
         (a spike two samples long passed one-sample tests: KITTI raw, ins 8.3 m off)."""
-        if self._streak:
+        if self._streak or not self._suspect_runs:
             return 0
         r = self._recent
-        for n in range(1, min(MAX_SPIKE_RUN, len(r) - 1) + 1):
-            base = r[-n - 1]
-            if (all(self._is_spike(*r[-k], base, motion=False) for k in range(1, n + 1))
-                    and self._is_spike(t_ns, g, a, r[-1], motion=False)
-                    and not self._is_spike(t_ns, g, a, base)):  # fmt: skip
-                return n
-        return 0
+        if not self._is_spike(t_ns, g, a, r[-1], motion=False):
+            return 0
+        return next((n for n in self._suspect_runs if not self._is_spike(t_ns, g, a, r[-n - 1])),
+                    0)  # fmt: skip
 
     def _accept(self, t_ns: int, g: Vec3, a: Vec3) -> Verdict:
         self._streak = 0
@@ -266,9 +268,9 @@ class ImuGuard:
             self.counts.dropped["spike"] += retract
             for _ in range(retract):
                 self._recent.pop()
-            self._last = self._recent[-1]
+            base = self._recent[-1]
             self._recent.clear()
-            self._recent.append(self._last)
+            self._recent.append(base)
         verdict = Verdict("accept", retract_previous=retract)
         if self._last is not None:
             dt = (t_ns - self._last[0]) * 1e-9
@@ -284,12 +286,13 @@ class ImuGuard:
                 self._since_median += 1
                 if self._since_median >= _MEDIAN_EVERY or len(self._spacings) < _MEDIAN_EVERY:
                     self._median_s, self._since_median = None, 0  # recomputed when next asked
-        if self._last is not None:
+        last = self._last
+        if last is not None:
             live = self._triad_live
-            live[0] = live[0] + 1 if g != self._last[1] else 0
-            live[1] = live[1] + 1 if a != self._last[2] else 0
-        self._last = (t_ns, g, a)
-        self._recent.append(self._last)
+            live[0] = live[0] + 1 if g != last[1] else 0
+            live[1] = live[1] + 1 if a != last[2] else 0
+        self._recent.append((t_ns, g, a))
+        self._suspect_runs = self._runs_of_suspects()
         return verdict
 
     def summary(self) -> dict[str, object]:

@@ -357,7 +357,7 @@ class Core:
         # The frame moved, not the body: what was kept in the old heights moves with it (the
         # estimates logged since the start, a result's first states; keyframes stored).
         # Outputs already handed to an online caller keep the old heights.
-        dp_W = shift * -np.asarray(self.rig.gravity_W, float) / np.linalg.norm(self.rig.gravity_W)
+        dp_W = shift * self._up_W
         for x in self._log_x:
             x[0:3] += dp_W
         reloc = getattr(self._updater, "relocaliser", None)

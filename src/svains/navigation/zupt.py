@@ -43,6 +43,10 @@ class StaticTest:
         self.gravity_mps2 = float(gravity_mps2)
         # the static interval's mean specific force (body) and block deviation, once complete
         self._reference: tuple[int, F64, float] | None = None
+        # the velocity gained against that mean (m/s, (3,)) over the rows before ``_rows_done``
+        # (rows up to the filter's time are final: each call adds only the rows since the last)
+        self._gained = np.zeros(3)
+        self._rows_done = 0
 
     def moved_since_start(self, history: ImuHistory, t_ns: int) -> bool:
         """Whether the specific force since the first sample (``history``'s, the start's rest)
@@ -66,9 +70,13 @@ class StaticTest:
             self._reference = (int(t[0]), acc.mean(axis=0), dev)
         t0, f_ref, dev = self._reference
         k1 = int(np.searchsorted(t, t_ns, "right"))
-        f = history.accel_B[:k1]
-        dt = np.diff(t[:k1]) * 1e-9
-        dv = np.sum((0.5 * (f[1:] + f[:-1]) - f_ref) * dt[:, None], axis=0)
+        k0 = max(self._rows_done - 1, 0)  # from the last row added, for its interval's end
+        if k1 - k0 >= 2:
+            f = history.accel_B[k0:k1]
+            dt = np.diff(t[k0:k1]) * 1e-9
+            self._gained += np.sum((0.5 * (f[1:] + f[:-1]) - f_ref) * dt[:, None], axis=0)
+            self._rows_done = k1
+        dv = self._gained
         elapsed = (t_ns - t0) * 1e-9
         o = self.options
         limit = max(o.motion_floor_mps,
