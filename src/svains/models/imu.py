@@ -214,8 +214,40 @@ def held_intervals(
     return (factor * h_imu_s < D) & (D <= MAX_HELD_INTERVAL_S)
 
 
+# Fewer regular triples than this leave a stream's chord residual unmeasured.
+MIN_CHORD_TRIPLES = 20
+
+
+def chord_residual_variance(
+    t_s: F64, x: F64, h_imu_s: float, factor: float = MISSING_SAMPLE_FACTOR
+) -> float:
+    """Per-axis variance of each sample's departure from the chord of its two neighbours,
+    ``x_k − (x_{k−1} + x_{k+1})/2``, over the triples of ``x`` (N, 3) at ``t_s`` (N,) s whose two
+    intervals are both regular (at most ``factor`` periods ``h_imu_s``); NaN when fewer than
+    ``MIN_CHORD_TRIPLES``.
+
+    It is what a missing sample leaves unknown: the trapezoid across the hole misses ``h e_k``
+    of the integral. White noise gives 1.5 σ²/h; a vibrating airframe far more (its vibration
+    is signal between samples that no noise density describes).
+    """
+    t = np.asarray(t_s, dtype=float)
+    v = np.asarray(x, dtype=float)
+    if len(t) < 3:
+        return float("nan")
+    d = np.diff(t)
+    ok = (d[:-1] <= factor * h_imu_s) & (d[1:] <= factor * h_imu_s)
+    if int(np.count_nonzero(ok)) < MIN_CHORD_TRIPLES:
+        return float("nan")
+    e = v[1:-1][ok] - 0.5 * (v[:-2][ok] + v[2:][ok])
+    return float(np.mean(e * e))
+
+
 def white_noise_duration_s(
-    dt_s: F64, interval_s: F64, h_imu_s: float, factor: float = MISSING_SAMPLE_FACTOR
+    dt_s: F64,
+    interval_s: F64,
+    h_imu_s: float,
+    factor: float = MISSING_SAMPLE_FACTOR,
+    missing_sample_s: float = 0.0,
 ) -> float:
     """Duration (s) that sets the white-noise terms of ``process_noise`` over steps ``dt_s``.
 
@@ -225,12 +257,22 @@ def white_noise_duration_s(
     whole interval D it starts, so its white noise (variance σ²/h) enters the increment as
     σ² D² / h instead of σ² D: the step counts ``dt · D / h``. Equal to ``sum(dt_s)`` on a
     regular stream, and on dropouts longer than ``MAX_HELD_INTERVAL_S``. ``dt_s`` (N,) step
-    lengths, ``interval_s`` (N,) the IMU interval holding each.
+    lengths, ``interval_s`` (N,) the IMU interval holding each. ``missing_sample_s`` (s): the
+    white-noise duration one missing sample is worth, ``h² var(e) / σ²`` with the stream's
+    chord residual ``var(e)`` (0: the white noise alone); a held step counts at least its length
+    plus its share of the interval's missing samples.
     """
     dt = np.asarray(dt_s, dtype=float)
     D = np.asarray(interval_s, dtype=float)
     held = held_intervals(D, h_imu_s, factor)
-    return float(np.sum(np.where(held, dt * D / h_imu_s, dt)))
+    per_step = dt * D / h_imu_s
+    if missing_sample_s > 0.0:
+        # A hole in a stream that keeps every sample: each missing sample is worth
+        # ``missing_sample_s`` of white noise (the chord residual, ``chord_residual_variance``),
+        # shared among the steps of its interval by length.
+        missing = np.maximum(np.rint(D / h_imu_s) - 1.0, 1.0)
+        per_step = np.maximum(per_step, dt + dt / np.maximum(D, 1e-12) * missing * missing_sample_s)
+    return float(np.sum(np.where(held, per_step, dt)))
 
 
 def process_noise(
@@ -239,11 +281,14 @@ def process_noise(
     duration_s: float,
     h_imu_s: float,
     white_duration_s: float | None = None,
+    accel_white_duration_s: float | None = None,
 ) -> F64:
     """Tangent-space process noise ``Q`` (ndx, ndx) accumulated over ``duration_s``.
 
     ``white_duration_s`` (default ``duration_s``): the white-noise terms' duration, longer where
     the recording lacks samples (``white_noise_duration_s``); random walks use ``duration_s``.
+    ``accel_white_duration_s`` (default ``white_duration_s``): the accelerometer's, where it
+    differs from the gyro's.
 
     Accelerometer white noise integrates into v and p with the exact double-integrator
     covariance (T, T²/2, T³/3); gyro white noise gives the attitude random walk σ² T. In the
@@ -256,7 +301,8 @@ def process_noise(
     Qm = np.zeros((layout.ndx, layout.ndx))
     # Missing samples scale the white terms: variance grows by white_duration / duration.
     r = 1.0 if white_duration_s is None or T <= 0 else white_duration_s / T
-    qa = noise.accel_noise_density**2 * r
+    ra = r if accel_white_duration_s is None or T <= 0 else accel_white_duration_s / T
+    qa = noise.accel_noise_density**2 * ra
     eye = np.eye(3)
     Qm[DP, DP] = qa * T**3 / 3.0 * eye
     Qm[DP, DV] = Qm[DV, DP] = qa * T**2 / 2.0 * eye

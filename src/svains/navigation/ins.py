@@ -22,6 +22,7 @@ from svains.models.imu import (
     ImuChunk,
     ImuModel,
     ImuNoise,
+    chord_residual_variance,
     held_intervals,
     omega_white_variance,
     process_noise,
@@ -37,6 +38,9 @@ from svains.navigation.imu_history import ImuHistory
 from svains.navigation.init import InitialState
 from svains.navigation.options import FilterOptions, NoiseOptions
 from svains.sensors.types import GpsCalib, ImuCalib, MagCalib, Rig, SonarCalib
+
+# IMU samples before a hole whose chord residual prices its missing samples (1.3 s at 200 Hz).
+CHORD_WINDOW = 256
 
 F64 = NDArray[np.float64]
 
@@ -240,10 +244,33 @@ class InsFilter:
         t_imu = self.t_imu
         k = np.searchsorted(t_imu, tt[1:])  # the IMU sample ending each step's interval
         interval_ns = t_imu[k] - t_imu[k - 1]
-        if not np.any(held_intervals(interval_ns * 1e-9, self._h_imu)):
+        held = held_intervals(interval_ns * 1e-9, self._h_imu)
+        if not np.any(held):
             return self._noise(span_ns)
-        white_s = white_noise_duration_s(np.diff(tt) * 1e-9, interval_ns * 1e-9, self._h_imu)
-        return process_noise(self.layout, self.noise, span_ns * 1e-9, self._h_imu, white_s)
+        gyro_s, accel_s = self._missing_sample_s(int(k[np.argmax(held)]))
+        dt_s, interval_s = np.diff(tt) * 1e-9, interval_ns * 1e-9
+        white_g = white_noise_duration_s(dt_s, interval_s, self._h_imu, missing_sample_s=gyro_s)
+        white_a = white_noise_duration_s(dt_s, interval_s, self._h_imu, missing_sample_s=accel_s)
+        return process_noise(
+            self.layout, self.noise, span_ns * 1e-9, self._h_imu, white_g, white_a
+        )
+
+    def _missing_sample_s(self, k: int) -> tuple[float, float]:
+        """White-noise durations (s), gyro and accelerometer, that one sample missing before
+        IMU sample ``k`` is worth: the chord residual of the ``CHORD_WINDOW`` samples before it
+        (``models.imu.chord_residual_variance``) over the noise density; 0 where unmeasured."""
+        lo = max(0, k - CHORD_WINDOW)
+        t_s = (self.t_imu[lo:k] - self.t_imu[lo]) * 1e-9
+        h = self._h_imu
+        out = []
+        for x, density in (
+            (self.gyro_B[lo:k], self.noise.gyro_noise_density),
+            (self.accel_B[lo:k], self.noise.accel_noise_density),
+        ):
+            var_e = chord_residual_variance(t_s, x, h)
+            ok = np.isfinite(var_e) and density > 0.0
+            out.append(h * h * var_e / density**2 if ok else 0.0)
+        return out[0], out[1]
 
     def add_omega_white(self) -> None:
         """Paper model: add ω̂'s gyro white noise to P while a vision updater inspects the filter
