@@ -123,6 +123,35 @@ def test_inputs_of_the_wrong_shape_are_refused_naming_the_argument() -> None:
     assert not nav.queue._heap and nav.history.n == 0
 
 
+def test_stamps_that_are_not_whole_nanoseconds_are_refused_naming_the_call() -> None:
+    """Seconds as floats were truncated to a few nanoseconds and dropped as repeats, one
+    warning each (a user's probe); whole numbers of any numeric type are stamps."""
+    rig = Rig(gps=GpsCalib(np.zeros(3), 1.0, 1.0, 0.1))
+    nav = Navigator(RunConfig(method="3d"), rig)
+    hint = r"got 12\.345 \(a time in seconds\? pass round\(t_s \* 1e9\)\)"
+    with pytest.raises(ValueError, match=r"feed_imu: t_ns must be integer nanoseconds, " + hint):
+        nav.feed_imu(12.345, [0.0, 0.0, 0.0], [0.0, 0.0, G])
+    with pytest.raises(ValueError, match=r"feed_gps: t_ns must be integer nanoseconds, " + hint):
+        nav.feed_gps(np.float64(12.345), [0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"feed_sonar: t_ns must be integer nanoseconds, got nan"):
+        nav.feed_sonar(float("nan"), 2.0)
+    with pytest.raises(ValueError, match=r"feed_mag: t_ns must be integer nanoseconds, got True"):
+        nav.feed_mag(True, [0.2, 0.0, -0.4])
+    with pytest.raises(ValueError, match=r"feed_tracks: t_ns must be integer nanoseconds, got '1'"):
+        nav.feed_tracks("1", [1], [[0.0, 0.0]], [[0.0, 0.0]])
+    with pytest.raises(ValueError, match=r"feed_stereo: t_ns must be integer nanoseconds"):
+        nav.feed_stereo(0.5, np.zeros((4, 4), np.uint8), np.ones((4, 4), np.uint8))
+    assert not nav.queue._heap and nav.history.n == 0
+    # Whole numbers pass whatever their type: a pandas column of float nanoseconds, numpy ints.
+    rng = np.random.default_rng(5)
+    stamps = (1_000_000_000, np.int64(1_005_000_000), 1.01e9, np.float32(1.015e9), 1_020_000_000)
+    for t in stamps:
+        nav.feed_imu(t, rng.normal(0.0, 1e-3, 3), rng.normal([0.0, 0.0, G], 1e-2))
+    assert nav.queue.dropped == {}
+    assert nav.history.t_ns.tolist()[:4] == [1_000_000_000, 1_005_000_000, 1_010_000_000,
+                                             1_015_000_000]
+
+
 @pytest.mark.parametrize(("scale", "warned"), [(1.0, False), (1 / G, True)])
 def test_a_start_from_a_given_state_warns_of_an_accelerometer_in_g(
     scale: float, warned: bool, caplog: pytest.LogCaptureFixture

@@ -139,7 +139,7 @@ class Navigator:
         """One IMU sample: ``gyro_S`` rad/s and ``accel_S`` specific force m/s² in the IMU frame
         S (``rig.imu.T_B_S`` rotates them to the body). Stamps must increase (duplicates and
         backward stamps are dropped, counted and warned about)."""
-        self._on_imu(int(t_ns), _vector("feed_imu", "gyro_S", gyro_S),
+        self._on_imu(_stamp("feed_imu", t_ns), _vector("feed_imu", "gyro_S", gyro_S),
                      _vector("feed_imu", "accel_S", accel_S))
 
     def _on_imu(self, t_ns: int, gyro_S: ArrayLike, accel_S: ArrayLike) -> None:
@@ -194,6 +194,7 @@ class Navigator:
         ``TypeError`` for another dtype:
         a 12- or 16-bit or float image has no one right conversion, so the caller makes it."""
         if self._takes_frames:
+            t_ns = _stamp("feed_stereo", t_ns)
             left, right = _image("left", left), _image("right", right)
             for name, img in (("left", left), ("right", right)):
                 dtype = img.dtype
@@ -210,10 +211,10 @@ class Navigator:
                 # One camera's image sent twice (a driver or a launch file publishing cam0 on
                 # both topics): zero disparity everywhere, all points at infinity (a user's
                 # probe: ATE 0.16 -> 0.83 m with every 4th pair so, not a word).
-                self.queue.drop("frame", int(t_ns), "the left and right images are identical")
+                self.queue.drop("frame", t_ns, "the left and right images are identical")
                 return
-            if self._new_frame(int(t_ns)):
-                self._push(int(t_ns), FRAME, ("images", *pair))
+            if self._new_frame(t_ns):
+                self._push(t_ns, FRAME, ("images", *pair))
 
     def feed_tracks(
         self, t_ns: int, track_id: ArrayLike, uv_left: ArrayLike, uv_right: ArrayLike
@@ -222,6 +223,7 @@ class Navigator:
         ``uv_right`` (M, 2) px in the rectified pair ``cam0``/``cam1`` define. Ignored by
         ``ins``."""
         if self._takes_frames:
+            t_ns = _stamp("feed_tracks", t_ns)
             raw = np.asarray(track_id)
             if raw.dtype.kind not in "iu" and not (
                     raw.dtype.kind == "f" and np.all(raw == np.round(raw))):  # fmt: skip
@@ -239,28 +241,28 @@ class Navigator:
             if not finite.all():
                 # NaN or inf pixels (a tracker's lost features) were fused as numbers, with
                 # numpy's warnings at best (a user's probe): dropped, counted.
-                self.queue.drop("feature", int(t_ns), f"{int((~finite).sum())} of {m} "
+                self.queue.drop("feature", t_ns, f"{int((~finite).sum())} of {m} "
                                 "features with non-finite pixels")  # fmt: skip
                 ids, uv_l, uv_r = ids[finite], uv_l[finite], uv_r[finite]
-            if self._new_frame(int(t_ns)):
-                self._push(int(t_ns), FRAME, ("features", ids, uv_l, uv_r))
+            if self._new_frame(t_ns):
+                self._push(t_ns, FRAME, ("features", ids, uv_l, uv_r))
 
     def feed_gps(self, t_ns: int, p_W_G: ArrayLike, v_W_G: ArrayLike | None = None) -> None:
         """A GPS fix: antenna position ``p_W_G`` (3,) m and velocity ``v_W_G`` (3,) m/s (None:
         position only) in the world frame."""
         v = None if v_W_G is None else _vector("feed_gps", "v_W_G", v_W_G)
-        self._push(int(t_ns), GPS, (_vector("feed_gps", "p_W_G", p_W_G), v))
+        self._push(_stamp("feed_gps", t_ns), GPS, (_vector("feed_gps", "p_W_G", p_W_G), v))
 
     def feed_mag(self, t_ns: int, m_S: ArrayLike) -> None:
         """A magnetometer sample ``m_S`` (3,) Gauss in its sensor frame."""
-        self._push(int(t_ns), MAG, _vector("feed_mag", "m_S", m_S))
+        self._push(_stamp("feed_mag", t_ns), MAG, _vector("feed_mag", "m_S", m_S))
 
     def feed_sonar(self, t_ns: int, range_m: float) -> None:
         """A sonar range (m) along the sensor's +z axis to flat ground."""
         r = np.asarray(range_m, dtype=float) if not isinstance(range_m, float) else range_m
         if np.ndim(r) != 0:
             raise ValueError(f"feed_sonar: range_m must be one number, got shape {np.shape(r)}")
-        self._push(int(t_ns), SONAR, float(r))
+        self._push(_stamp("feed_sonar", t_ns), SONAR, float(r))
 
     def _new_frame(self, t_ns: int) -> bool:
         """Whether no frame with the stamp ``t_ns`` was fed lately (else dropped, counted)."""
@@ -526,6 +528,25 @@ def _image(name: str, image: Any) -> NDArray[Any]:
         raise TypeError(f"feed_stereo: the {name} image must be (H, W) grey or (H, W, 3|4) "
                         f"colour, got shape {a.shape}")  # fmt: skip
     return a
+
+
+def _stamp(method: str, t_ns: object) -> int:
+    """``t_ns`` as int nanoseconds; ``ValueError`` naming ``method`` for a stamp that is not a
+    whole number (seconds or milliseconds as floats were truncated to repeats of a few
+    nanoseconds and dropped one by one: a user's probe)."""
+    if type(t_ns) is int:
+        return t_ns  # the replay's stamps: once per sample, so the short way
+    if isinstance(t_ns, (bool, np.bool_)):
+        raise ValueError(f"{method}: t_ns must be integer nanoseconds, got {t_ns!r}")
+    if isinstance(t_ns, (int, np.integer)):
+        return int(t_ns)
+    if not isinstance(t_ns, (float, np.floating)):
+        raise ValueError(f"{method}: t_ns must be integer nanoseconds, got {t_ns!r}")
+    f = float(t_ns)
+    if not np.isfinite(f) or f != round(f):
+        hint = " (a time in seconds? pass round(t_s * 1e9))" if np.isfinite(f) else ""
+        raise ValueError(f"{method}: t_ns must be integer nanoseconds, got {f!r}{hint}")
+    return int(f)
 
 
 def _vector(method: str, name: str, value: ArrayLike) -> NDArray[np.float64]:
