@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from svains.errors import ClosedError, ConfigError, InitialisationError
 from svains.models.state import BIASED, PAPER
+from svains.navigation.clock_steps import ClockSteps
 from svains.navigation.event_queue import FRAME, GPS, MAG, SONAR, EventQueue
 from svains.navigation.fault_handling import ImuFaults, RateLimitedLog
 from svains.navigation.imu_history import ImuHistory
@@ -114,6 +115,7 @@ class Navigator:
                                gps_fused=config.use_gps and rig.gps is not None,
                                max_row_diff_px=config.vision.max_row_diff_px)
         self._warn = RateLimitedLog(config.faults.warn_interval_s)
+        self.clock = ClockSteps()
         # A rig without an IMU calibration is guarded with the default one the filter uses: a
         # non-finite sample fed online would otherwise reach the filter and end the run.
         guarded = rig if rig.imu is not None else replace(rig, imu=default_imu_calib())
@@ -139,7 +141,9 @@ class Navigator:
         """One IMU sample: ``gyro_S`` rad/s and ``accel_S`` specific force m/s² in the IMU frame
         S (``rig.imu.T_B_S`` rotates them to the body). Stamps must increase (duplicates and
         backward stamps are dropped, counted and warned about)."""
-        self._on_imu(_stamp("feed_imu", t_ns), _vector("feed_imu", "gyro_S", gyro_S),
+        t_ns = self.clock.imu(_stamp("feed_imu", t_ns), self.history.last_ns,
+                              self._imu_period_ns, self._warn.origin_ns)
+        self._on_imu(t_ns, _vector("feed_imu", "gyro_S", gyro_S),
                      _vector("feed_imu", "accel_S", accel_S))
 
     def _on_imu(self, t_ns: int, gyro_S: ArrayLike, accel_S: ArrayLike) -> None:
@@ -194,7 +198,7 @@ class Navigator:
         ``TypeError`` for another dtype:
         a 12- or 16-bit or float image has no one right conversion, so the caller makes it."""
         if self._takes_frames:
-            t_ns = _stamp("feed_stereo", t_ns)
+            t_ns = self.clock.other(_stamp("feed_stereo", t_ns))
             left, right = _image("left", left), _image("right", right)
             for name, img in (("left", left), ("right", right)):
                 dtype = img.dtype
@@ -223,7 +227,7 @@ class Navigator:
         ``uv_right`` (M, 2) px in the rectified pair ``cam0``/``cam1`` define. Ignored by
         ``ins``."""
         if self._takes_frames:
-            t_ns = _stamp("feed_tracks", t_ns)
+            t_ns = self.clock.other(_stamp("feed_tracks", t_ns))
             raw = np.asarray(track_id)
             if raw.dtype.kind not in "iu" and not (
                     raw.dtype.kind == "f" and np.all(raw == np.round(raw))):  # fmt: skip
@@ -251,18 +255,18 @@ class Navigator:
         """A GPS fix: antenna position ``p_W_G`` (3,) m and velocity ``v_W_G`` (3,) m/s (None:
         position only) in the world frame."""
         v = None if v_W_G is None else _vector("feed_gps", "v_W_G", v_W_G)
-        self._push(_stamp("feed_gps", t_ns), GPS, (_vector("feed_gps", "p_W_G", p_W_G), v))
+        self._push(self.clock.other(_stamp("feed_gps", t_ns)), GPS, (_vector("feed_gps", "p_W_G", p_W_G), v))
 
     def feed_mag(self, t_ns: int, m_S: ArrayLike) -> None:
         """A magnetometer sample ``m_S`` (3,) Gauss in its sensor frame."""
-        self._push(_stamp("feed_mag", t_ns), MAG, _vector("feed_mag", "m_S", m_S))
+        self._push(self.clock.other(_stamp("feed_mag", t_ns)), MAG, _vector("feed_mag", "m_S", m_S))
 
     def feed_sonar(self, t_ns: int, range_m: float) -> None:
         """A sonar range (m) along the sensor's +z axis to flat ground."""
         r = np.asarray(range_m, dtype=float) if not isinstance(range_m, float) else range_m
         if np.ndim(r) != 0:
             raise ValueError(f"feed_sonar: range_m must be one number, got shape {np.shape(r)}")
-        self._push(_stamp("feed_sonar", t_ns), SONAR, float(r))
+        self._push(self.clock.other(_stamp("feed_sonar", t_ns)), SONAR, float(r))
 
     def _new_frame(self, t_ns: int) -> bool:
         """Whether no frame with the stamp ``t_ns`` was fed lately (else dropped, counted)."""
@@ -339,7 +343,16 @@ class Navigator:
             raise ConfigError("no IMU sample was fed: nothing to estimate")
         self.status = "closed"
         self._result = self.core.result(time.perf_counter() - self._wall0, self.queue.dropped)
+        if self.clock.steps:
+            self._result.report["clock_steps"] = list(self.clock.steps)
         return self._result
+
+    def _imu_period_ns(self) -> int:
+        """The IMU's sample spacing: the median of the last samples' (the rig's before)."""
+        t = self.history.t_ns[-17:]
+        if t.size >= 3:
+            return int(np.median(np.diff(t)))
+        return round(self.rig.imu_period_s * 1e9)
 
     # ---- processing ---------------------------------------------------------------------
     def _advance(self, horizon_ns: int) -> None:
