@@ -11,8 +11,7 @@ import pytest
 from svains.datasets import load_dataset
 from svains.navigation.clock_steps import ClockSteps
 from svains.navigation.navigator import Navigator
-from svains.navigation.options import RunConfig
-from svains.navigation.options import InitOptions
+from svains.navigation.options import InitOptions, RunConfig
 from svains.replay.replay import (
     feed,
     groundtruth_start,
@@ -29,15 +28,27 @@ def test_imu_stamps_go_on_from_the_last_sample_and_others_take_the_nearest_shift
     period = 5_000_000
     last = None
     out = []
-    for t in (100 * S, 100 * S + period, 90 * S + 2 * period, 90 * S + 3 * period):
-        last = clock.imu(t, last, lambda: period, 100 * S)
-        out.append(last)
-    assert out == [100 * S, 100 * S + period, 100 * S + 2 * period, 100 * S + 3 * period]
+    for t in (100 * S, 100 * S + period, 90 * S + 2 * period, 90 * S + 3 * period,
+              90 * S + 4 * period):
+        t_run = clock.imu(t, last, lambda: period, 100 * S)
+        out.append(t_run)
+        last = max(last or t_run, t_run)
+    # The first sample far back is held out (the caller drops it) until the next confirms the
+    # step; the confirmed one goes on from the last sample.
+    assert out == [100 * S, 100 * S + period, 90 * S + 2 * period, 100 * S + 3 * period,
+                   100 * S + 4 * period]
     assert clock.steps == [pytest.approx({"at_s": 0.005, "back_s": 10.0 - 0.005})]
+    # A single stale sample far back, then the clock going on: no step.
+    lone = ClockSteps()
+    assert lone.imu(100 * S, None, lambda: period, 100 * S) == 100 * S
+    assert lone.imu(90 * S, 100 * S, lambda: period, 100 * S) == 90 * S
+    assert lone.imu(100 * S + period, 100 * S, lambda: period, 100 * S) == 100 * S + period
+    assert lone.imu(90 * S + period, 100 * S + period, lambda: period, 100 * S) == 90 * S + period
+    assert lone.steps == []
     # A frame stamped before the step and delivered late keeps its stamp; one stamped after it
     # on the stepped clock is carried like the IMU.
     assert clock.other(100 * S + period) == 100 * S + period
-    assert clock.other(90 * S + 3 * period) == 100 * S + 3 * period
+    assert clock.other(90 * S + 4 * period) == 100 * S + 4 * period
     # A step back within STEP_BACK_S is an out-of-order sample: left for the caller to drop.
     late = clock.imu(90 * S + 2 * period, 100 * S + 3 * period, lambda: period, 100 * S)
     assert late == 100 * S + 2 * period
@@ -70,9 +81,10 @@ def test_every_stream_stepped_back_mid_run_gives_the_clean_run(
     assert len(steps) == 1 and "stepped back 4.99" in steps[0]
     assert stepped.report["clock_steps"] == [pytest.approx({"at_s": 15.0, "back_s": 4.99},
                                                            abs=0.02)]
-    # One magnetometer sample stamped on the stepped clock came before the IMU told of the
-    # step: dropped as late, the only measurement lost.
-    assert clean.report.get("dropped") is None and stepped.report["dropped"] == {"mag": 1}
+    # The first IMU sample and the magnetometer samples stamped on the stepped clock that came
+    # before the IMU's next sample confirmed the step: dropped, the only measurements lost.
+    assert clean.report.get("dropped") is None
+    assert stepped.report["dropped"] == {"imu": 1, "mag": 2}
     assert stepped.report["vision"]["frames_fused"] == clean.report["vision"]["frames_fused"]
     np.testing.assert_array_equal(stepped.t_ns, clean.t_ns)
     err = np.linalg.norm(stepped.x[:, :3] - clean.x[:, :3], axis=1)

@@ -3,8 +3,9 @@
 Fed online, a host clock that goes back 10 s made every IMU sample of the next 10 s look older
 than the last one: they were dropped, the filter's time stood still while the vehicle moved,
 vision was then refused as a jump and the run diverged (a user's probe: 514 m). A step back of
-more than ``STEP_BACK_S`` between two IMU samples is taken for a clock step instead: later IMU
-stamps are shifted to go on from the last sample, one warning says so, and every other stream's
+more than ``STEP_BACK_S`` that the next IMU sample confirms (a single stale sample is dropped)
+is taken for a clock step instead: later IMU stamps are shifted to go on from the last
+sample, one warning says so, and every other stream's
 stamp takes whichever shift seen so far (none, or the steps' sums) puts it nearest the IMU's
 time: a measurement stamped before the step and delivered late keeps its stamp, one stamped
 after it on the same stepped clock is carried like the IMU. Smaller steps back stay what they
@@ -30,6 +31,7 @@ class ClockSteps:
         self.shift_ns = 0  # applied to IMU stamps now
         self._shifts = [0]  # every shift in force at some time, oldest first
         self._imu_now_ns: int | None = None
+        self._candidate_ns: int | None = None  # a first sample far back, raw stamp
         self.steps: list[dict[str, float]] = []
 
     def imu(
@@ -39,8 +41,16 @@ class ClockSteps:
         (run clock), ``period_ns()`` the sample spacing to leave after it, ``origin_ns`` the
         run's first stamp (for the warning)."""
         t = t_ns + self.shift_ns
-        if last_ns is not None and t < last_ns - self._step_ns:
-            back_ns = last_ns - t
+        if last_ns is None or t >= last_ns - self._step_ns:
+            self._candidate_ns = None
+        elif self._candidate_ns is None or not 0 < t_ns - self._candidate_ns <= 3 * period_ns():
+            # The first sample far back: a stray (a stale message) until the next one follows
+            # it on the same clock; the caller drops it as out of order.
+            self._candidate_ns = t_ns
+        else:
+            # the held-out first sample goes one period after the last: the step's size
+            back_ns = last_ns - (self._candidate_ns + self.shift_ns)
+            self._candidate_ns = None
             step_ns = back_ns + period_ns()
             self.shift_ns += step_ns
             self._shifts.append(self.shift_ns)

@@ -255,7 +255,8 @@ class Navigator:
         """A GPS fix: antenna position ``p_W_G`` (3,) m and velocity ``v_W_G`` (3,) m/s (None:
         position only) in the world frame."""
         v = None if v_W_G is None else _vector("feed_gps", "v_W_G", v_W_G)
-        self._push(self.clock.other(_stamp("feed_gps", t_ns)), GPS, (_vector("feed_gps", "p_W_G", p_W_G), v))
+        p = _vector("feed_gps", "p_W_G", p_W_G)
+        self._push(self.clock.other(_stamp("feed_gps", t_ns)), GPS, (p, v))
 
     def feed_mag(self, t_ns: int, m_S: ArrayLike) -> None:
         """A magnetometer sample ``m_S`` (3,) Gauss in its sensor frame."""
