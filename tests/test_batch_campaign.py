@@ -234,7 +234,9 @@ def test_ctrl_c_stops_a_local_campaign_in_one_line(tmp_path: Path, when: str) ->
     import yaml
 
     spec = {**SPEC, "methods": ["3d"], "seeds": [0, 1], "datasets": {},
-            "scenarios": {"village": {"duration_s": 20.0, "camera.rate_hz": 5.0,
+            # long enough to be running at the interrupt on a fast, idle machine (at 20 s
+            # both runs once ended within the 8 s: a failure of the test's own timing)
+            "scenarios": {"village": {"duration_s": 120.0, "camera.rate_hz": 5.0,
                                       "camera.render_images": False}}}  # fmt: skip
     spec_path = tmp_path / "spec.yaml"
     spec_path.write_text(yaml.safe_dump(spec))

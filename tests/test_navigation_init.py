@@ -28,16 +28,28 @@ def test_static_start_recovers_attitude_and_gyro_bias() -> None:
     assert np.all(np.linalg.eigvalsh(init.P) > 0)
 
 
-def test_static_start_without_magnetometer_levels_and_widens_yaw() -> None:
+@pytest.mark.parametrize("from_gps", [True, False])
+def test_static_start_without_magnetometer_levels_and_widens_yaw(from_gps: bool) -> None:
+    """With GPS fused and no magnetometer the start's heading defines a local frame until the
+    GPS velocities give it (``heading_from_gps``, ``navigation.heading_wait``: yaw σ as
+    without GPS), or is taken arbitrary with ``yaw_std_unknown``."""
+    from svains.navigation.init import HEADING_FROM_GPS
+
     ds, q = static_dataset(with_mag=False)
     ds.gps_calib = GpsCalib(np.zeros(3), 1.0, 10.0, 0.1)  # GPS fused: the heading is unknown
-    init = initialise(ds, PAPER, InitOptions())
+    o = InitOptions(heading_from_gps=from_gps)
+    init = initialise(ds, PAPER, o)
     R = quat_to_rotmat(init.x[6:10])
     # Gravity direction right, heading arbitrary: the body z axis matches the truth's.
     np.testing.assert_allclose(R[2], quat_to_rotmat(q)[2], atol=5e-3)
-    assert "arbitrary" in init.info["heading"]
     up_B = R.T @ [0, 0, 1.0]
-    assert up_B @ init.P[6:9, 6:9] @ up_B == pytest.approx(0.5**2, rel=1e-6)
+    yaw_var = up_B @ init.P[6:9, 6:9] @ up_B
+    if from_gps:
+        assert init.info["heading"] == HEADING_FROM_GPS
+        assert yaw_var == pytest.approx(o.yaw_std_local**2, rel=1e-6)
+    else:
+        assert "arbitrary" in init.info["heading"]
+        assert yaw_var == pytest.approx(0.5**2, rel=1e-6)
 
 
 def test_static_start_takes_the_fixes_at_rest_with_their_noise() -> None:

@@ -85,12 +85,16 @@ class HeadingCheck:
         return v - (v @ self.up_W) * self.up_W
 
     def before_update(self, t_ns: int, v_pred_W: F64, v_gps_W: F64, yaw_std_rad: float,
-                      v_var: float = 0.0, usable: bool = True) -> HeadingError | None:  # fmt: skip
+                      v_var: float = 0.0, usable: bool = True,
+                      acquire: bool = False) -> HeadingError | None:  # fmt: skip
         """At a GPS fix, before its update: the filter's predicted velocity ``v_pred_W`` (3,)
         and its variance per axis ``v_var`` (m²/s²), the fix's ``v_gps_W`` (3,) m/s, the
         filter's yaw standard deviation. ``usable`` False: the interval since the previous fix
         or this fix's velocity cannot be compared (an IMU gap bridged in it, a GPS velocity the
-        recovery switched off): the windows start again. A heading error to mend now, or None."""
+        recovery switched off): the windows start again. ``acquire``: the filter runs in a
+        local frame whose heading is sought (a start with neither magnetometer nor course):
+        any sure and fitting estimate is returned, however small. A heading error to mend now,
+        or None."""
         o = self.options
         v_pred, v_gps = np.asarray(v_pred_W, float), np.asarray(v_gps_W, float)
         prev = self._prev
@@ -108,11 +112,13 @@ class HeadingCheck:
                             self._var_v + float(v_var)))  # fmt: skip
         # Velocities (a vision method's, held to the camera's motion in the body frame, turn
         # with the heading) and velocity changes (the IMU's, which turn with it too).
-        tests = (self._rotation(self._fixes, yaw_std_rad), self._rotation(self._steps, yaw_std_rad))
+        tests = (self._rotation(self._fixes, yaw_std_rad, acquire),
+                 self._rotation(self._steps, yaw_std_rad, acquire))
         found = [e for e in tests if e is not None]
         # The GPS velocity must disagree now too: a filter that has come round mends itself.
         d = self._fixes[-1][1] - self._fixes[-1][0]
-        if not found or float(d @ d) / self._fixes[-1][2] <= chi2.ppf(o.fit_probability, 2):
+        if not found or (not acquire and float(d @ d) / self._fixes[-1][2]
+                         <= chi2.ppf(o.fit_probability, 2)):  # fmt: skip
             return None
         error = min(found, key=lambda e: e.std_rad)
         self._steps.clear()
@@ -121,8 +127,8 @@ class HeadingCheck:
                            "std_deg": math.degrees(error.std_rad)})  # fmt: skip
         return error
 
-    def _rotation(self, rows: deque[tuple[F64, F64, float]],
-                  yaw_std_rad: float) -> HeadingError | None:  # fmt: skip
+    def _rotation(self, rows: deque[tuple[F64, F64, float]], yaw_std_rad: float,
+                  acquire: bool = False) -> HeadingError | None:  # fmt: skip
         """The turn about the vertical mapping the filter's vectors of ``rows`` onto the GPS's,
         when the window is full and the turn is sure, large and fits (module docstring)."""
         o = self.options
@@ -138,7 +144,8 @@ class HeadingCheck:
         std = math.sqrt(float(np.mean(var)) / energy)
         if std > math.radians(o.max_std_deg):
             return None
-        if abs(angle) < max(math.radians(o.min_error_deg), 4.0 * std, 4.0 * yaw_std_rad):
+        if not acquire and abs(angle) < max(math.radians(o.min_error_deg), 4.0 * std,
+                                            4.0 * yaw_std_rad):  # fmt: skip
             return None
         c, s = math.cos(angle), math.sin(angle)
         turned = c * ps + s * np.cross(self.up_W, ps)  # Rodrigues about up (ps ⟂ up)
@@ -168,23 +175,25 @@ def yaw_std(ukf: UKF, up_W: F64) -> float:
     return math.sqrt(max(float(u_B @ ukf.P[DTH, DTH] @ u_B), 0.0))
 
 
-def _rz(up: F64, angle: float) -> F64:
+def rotation_about(up: F64, angle: float) -> F64:
     """Rotation (3, 3) by ``angle`` about the unit axis ``up``."""
     K = np.array([[0.0, -up[2], up[1]], [up[2], 0.0, -up[0]], [-up[1], up[0], 0.0]])
     return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * K @ K
 
 
 def turn_heading(ukf: UKF, error: HeadingError, up_W: F64, v_W: F64 | None = None,
-                 v_std: float = 0.0) -> None:  # fmt: skip
+                 v_std: float = 0.0, pivot_W: F64 | None = None) -> None:  # fmt: skip
     """Turn the state by ``error.angle_rad`` about ``up_W`` through the current position:
     attitude and velocity, and each pose clone rigidly (its position about the current one, its
     attitude), so the motion since each clone stays as it was. The covariance follows the map
     (world-frame position and velocity errors turn; body-frame attitude errors do not) and gains
     the turn's own uncertainty ``error.std_rad``, common to every turned part. ``v_W`` (3,)
     m/s: the velocity is set to it instead, with ``v_std`` per axis and no correlation (an
-    INS's velocity error, GPS-corrected since the start, is no rotation of its velocity)."""
+    INS's velocity error, GPS-corrected since the start, is no rotation of its velocity).
+    ``pivot_W`` (3,) m: turn the whole frame about this point instead, the current position
+    too (a local frame whose origin is the start's position, ``Core``'s heading wait)."""
     up = np.asarray(up_W, dtype=float) / np.linalg.norm(up_W)
-    Rz = _rz(up, error.angle_rad)
+    Rz = rotation_about(up, error.angle_rad)
     q_z = np.array([math.cos(0.5 * error.angle_rad), *(math.sin(0.5 * error.angle_rad) * up)])
     x = ukf.x.copy()
     n = ukf.P.shape[0]
@@ -195,9 +204,14 @@ def turn_heading(ukf: UKF, error: HeadingError, up_W: F64, v_W: F64 | None = Non
     J[DV, DV] = Rz
     a[DV] = np.cross(up, x[V])
     a[DTH] = quat_to_rotmat(x[Q]).T @ up
+    if pivot_W is not None:
+        pivot = np.asarray(pivot_W, dtype=float)
+        x[POS] = pivot + Rz @ (x[POS] - pivot)
+        J[DP, DP] = Rz
+        a[DP] = np.cross(up, x[POS] - pivot)
     manifold = ukf.manifold
     if isinstance(manifold, CloneManifold):
-        p = x[POS].copy()
+        p = x[POS].copy() if pivot_W is None else np.asarray(pivot_W, dtype=float)
         for i in range(manifold.n_clones):
             cp, cq = manifold.columns(i)
             x[cp] = p + Rz @ (x[cp] - p)
@@ -205,7 +219,8 @@ def turn_heading(ukf: UKF, error: HeadingError, up_W: F64, v_W: F64 | None = Non
             t = manifold.tangent(i)
             tp, tq = slice(t.start, t.start + 3), slice(t.start + 3, t.start + 6)
             J[tp, tp] = Rz
-            J[tp, DP] = np.eye(3) - Rz
+            if pivot_W is None:  # turned about the current position, which they follow
+                J[tp, DP] = np.eye(3) - Rz
             a[tp] = np.cross(up, x[cp] - p)
             a[tq] = quat_to_rotmat(x[cq]).T @ up
     P = J @ ukf.P @ J.T + error.std_rad**2 * np.outer(a, a)

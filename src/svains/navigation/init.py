@@ -31,6 +31,9 @@ log = logging.getLogger(__name__)
 # At rest the specific force is gravity plus the accelerometer's bias and scale error; a
 # consumer MEMS part stays within a few percent, a unit mistake (g, gravity removed) does not.
 STATIC_GRAVITY_TOL = 0.25
+# ``InitialState.info["heading"]`` of a start whose heading the GPS velocities will give
+# (``InitOptions.heading_from_gps``): it runs in a local frame until then.
+HEADING_FROM_GPS = "none (local frame until the GPS velocities give it)"
 
 
 @dataclass
@@ -212,7 +215,12 @@ def _from_static(dataset: InitData, layout: StateLayout, o: InitOptions) -> Init
         gps_fused = getattr(dataset, "gps_fused", None)  # a Dataset has no such field
         if gps_fused is None:
             gps_fused = dataset.gps_calib is not None
-        if gps_fused:
+        if gps_fused and o.heading_from_gps:
+            yaw_std = o.yaw_std_local
+            info["heading"] = HEADING_FROM_GPS
+            log.warning("no magnetometer in the static interval: the heading is taken from the "
+                        "GPS velocities once the vehicle moves; GPS fixes wait for it")
+        elif gps_fused:
             info["heading"] = "none (arbitrary yaw)"
             log.warning("no magnetometer in the static interval: heading starts arbitrary")
         else:

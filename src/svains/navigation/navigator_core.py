@@ -19,6 +19,7 @@ import numpy as np
 
 from svains.filter.ukf import UpdateStats
 from svains.models.state import BA, BG, DV, Q, V
+from svains.models.state import P as POS
 from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.course_check import CourseCheck, MagTurnCheck
 from svains.navigation.event_queue import FRAME, GPS, MAG, SONAR, TICK
@@ -32,9 +33,12 @@ from svains.navigation.fault_handling import (
 )
 from svains.navigation.gps_latency import GpsLatencyCheck
 from svains.navigation.heading_check import HeadingCheck, turn_heading, yaw_std
+from svains.navigation.heading_check import rotation_about as turn_matrix
+from svains.navigation.heading_wait import HEADING_WAIT_MAX_S, turn_logged, widen_yaw
+from svains.navigation.init import HEADING_FROM_GPS
 from svains.navigation.ins import InsFilter, default_imu_calib
 from svains.navigation.options import RunConfig
-from svains.navigation.outputs import NavState, RunResult, UpdateRecord, WorldFrame
+from svains.navigation.outputs import FrameTurn, NavState, RunResult, UpdateRecord, WorldFrame
 from svains.navigation.smoothing import history_recorder
 from svains.navigation.sonar_anchor import ANCHOR_AGREE_M, ANCHOR_RANGES, anchor_height
 from svains.navigation.vision import LcUpdater, PixelUpdater, make_vision_updater
@@ -109,6 +113,7 @@ class Core:
             if config.zupt.enabled and start_rest else None
         )
         self._next_zupt_ns = self.t0_ns
+        self._resting = self._zupt is not None  # the IMU's rest test, as last said
         self.history = history_recorder(config, ins) if config.smoother.enabled else None
         # the GPS frame and the gyro's unit against each other (files are checked on load)
         self._course_check = CourseCheck(ins.history, rig.gravity_W) if gps_used else None
@@ -128,6 +133,16 @@ class Core:
             and config.faults.heading_check else None
         )  # fmt: skip
         self._heading_fixes: list[Any] = []  # (t, v_W_G) of this group's GPS velocities
+        # A static start without a heading source runs in a local frame about its position
+        # until the GPS velocities give the heading; fixes wait (``navigation.heading_wait``).
+        self._heading_wait = init_info.get("heading") == HEADING_FROM_GPS
+        self._heading_pivot = np.array(ins.ukf.x[POS], dtype=float)
+        self._heading_wait_from: int | None = None  # first fix held after setting off
+        self.gps_held_heading = 0
+        self.frame_turns: list[FrameTurn] = []
+        if self._heading_wait and self._heading_check is None:
+            self._end_heading_wait(self.t0_ns, "the heading check is off or the GPS velocities "
+                                   "unused")  # fmt: skip
         self._mag_off = False  # after a heading turn the magnetometer, which held it, is off
         # the magnetometer's axes against the IMU's (files are checked on load)
         self._mag_turn = (MagTurnCheck(ins.history, rig.mag.T_B_S[:3, :3])
@@ -229,6 +244,8 @@ class Core:
                     self._recovery is not None and self._recovery.rate_off("gps", t))
                 if self._heading_check is not None and payload[1] is not None:
                     self._check_heading(t, payload[1], use_v)
+                if self._heading_wait and self._hold_for_heading(t):
+                    continue
                 if self._recovery is not None and self._recovery.reset_pending:
                     v = payload[1] if use_v else None
                     self._recovery.reset_from_gps(ins.ukf, self.rig.gps, payload[0], v)
@@ -309,10 +326,14 @@ class Core:
         fault_ns = None if self._imu_faults is None else self._imu_faults.last_fault_ns
         usable = use_v and (fault_ns is None or fault_ns < self._heading_check.last_fix_ns)
         v_var = float(np.trace(ukf.P[DV, DV])) / 3.0
+        acquire = self._heading_wait
         error = self._heading_check.before_update(t, ukf.x[V], v_W_G, yaw_std(ukf, self._up_W),
-                                                  v_var, usable)  # fmt: skip
+                                                  v_var, usable, acquire)  # fmt: skip
         self._heading_fixes.append((t, np.asarray(v_W_G, float)))
         if error is None:
+            return
+        if acquire:
+            self._heading_found(t, error)
             return
         # The fix's velocity replaces the turned one (it is the reference the turn was found
         # against; an INS's velocity error is no rotation of its velocity).
@@ -330,6 +351,61 @@ class Core:
         self._warn.warn("heading-turn", t, f"the heading was {np.degrees(error.angle_rad):.1f}° "
                         f"off (± {np.degrees(error.std_rad):.1f}°, from the GPS velocities "
                         f"over {error.steps} fixes): the state is turned{hint}")  # fmt: skip
+
+    def _hold_for_heading(self, t: int) -> bool:
+        """While a local start waits for its heading: a fix while the IMU's rest test holds is
+        fused (at rest the local frame and the world agree at the body: no heading in it), and
+        the frame's pivot follows the body; once it moved, each fix is held out (counted),
+        until ``HEADING_WAIT_MAX_S`` after the first: then the wait ends
+        (``_end_heading_wait``) and it is fused."""
+        if self._heading_wait_from is None:
+            if self._zupt is not None and self._resting:
+                self._heading_pivot = np.array(self.ins.ukf.x[POS], dtype=float)
+                return False
+            self._heading_wait_from = t
+        if self._heading_wait_from is not None and (
+                t - self._heading_wait_from) * 1e-9 > HEADING_WAIT_MAX_S:  # fmt: skip
+            self._end_heading_wait(t, f"the GPS velocities gave none over "
+                                   f"{HEADING_WAIT_MAX_S:g} s of motion")  # fmt: skip
+            return False
+        self.gps_held_heading += 1
+        return True
+
+    def _heading_found(self, t: int, error: Any) -> None:
+        """The local frame's heading found: the state, the estimates logged so far and the
+        stored keyframes turned into the world about the start's position."""
+        pivot = self._heading_pivot
+        turn_heading(self.ins.ukf, error, self._up_W, pivot_W=pivot)
+        turn_logged(self._log_x, self._log_std, self._log_P9, error, self._up_W, pivot)
+        self.frame_turns.append(FrameTurn(t, error.angle_rad, error.std_rad, self._up_W.copy(),
+                                          pivot.copy()))  # fmt: skip
+        reloc = getattr(self._updater, "relocaliser", None)
+        if reloc is not None:
+            half = 0.5 * error.angle_rad
+            q_z = np.array([np.cos(half), *(np.sin(half) * self._up_W)])
+            reloc.memory.turn(turn_matrix(self._up_W, error.angle_rad), q_z, pivot)
+        self._heading_wait = False
+        at_s = (t - self.t0_ns) * 1e-9
+        self.init_info["heading_found_s"] = round(at_s, 3)
+        self.init_info["heading_turn_deg"] = round(float(np.degrees(error.angle_rad)), 3)
+        self.init_info["heading_std_deg"] = round(float(np.degrees(error.std_rad)), 3)
+        if self.gps_held_heading:
+            self.init_info["gps_fixes_held"] = self.gps_held_heading
+        log.info("%.3f s into the run: heading from the GPS velocities over %d fixes, the "
+                 "local frame turned by %.1f° (± %.1f°) into the world; %d fix(es) held until "
+                 "then", at_s, error.steps, np.degrees(error.angle_rad),
+                 np.degrees(error.std_rad), self.gps_held_heading)  # fmt: skip
+
+    def _end_heading_wait(self, t: int, why: str) -> None:
+        """No heading from the GPS: the start's heading becomes an arbitrary one (its yaw
+        widened to ``init.yaw_std_unknown``) and fixes are fused, warned."""
+        self._heading_wait = False
+        widen_yaw(self.ins.ukf, self._up_W, self.config.init.yaw_std_unknown)
+        self.init_info["heading"] = "none (arbitrary yaw)"
+        self._warn.warn("heading-wait", t, f"no heading for the local start ({why}): GPS "
+                        f"fixes are fused with an arbitrary heading (standard deviation "
+                        f"{np.degrees(self.config.init.yaw_std_unknown):.1f}°) from now on; a "
+                        "magnetometer would give one")  # fmt: skip
 
     def _anchor_height(self, t: int, range_m: float) -> None:
         """Once, after a start at the local origin: the local frame's height from the median of
@@ -391,6 +467,8 @@ class Core:
             self.ins.history, t
         ):
             rest = False  # set off gently: the block test alone would go on
+        if rest is not None:
+            self._resting = bool(rest)
         if not rest:
             if rest is not None and not self.config.zupt.after_start:
                 self._zupt = None  # the start's rest is over
@@ -577,6 +655,7 @@ class Core:
             self.updates, self.update_log, getattr(self._source, "track_log", None),
             world_frame=self._world_frame(),
             gps_used=bool(cfg.use_gps and self.rig.gps is not None), history=self.history,
+            frame_turns=list(self.frame_turns),
         )  # fmt: skip
         duration = (t[-1] - t[0]) * 1e-9
         t_imu = self.ins.t_imu
@@ -602,6 +681,8 @@ class Core:
             report["gps_outage_fixes_skipped"] = self.gps_outage_skipped
         if self.held_skipped:
             report["mag_held_skipped"] = self.held_skipped
+        if self.gps_held_heading:
+            report["gps_held_for_heading"] = self.gps_held_heading
         if self._course_check is not None:
             report["gps_course_check"] = self._course_check.summary()
         if self._gps_latency is not None:

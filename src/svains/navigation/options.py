@@ -124,6 +124,13 @@ class InitOptions:
     # 7.5° (RMS 2.2°) while the MAV was at rest (ground truth: 0.19°); 0.27° (0.16°) with this.
     yaw_std_local: float = 0.02
     course_min_speed_mps: float = 3.0  # GPS start without magnetometer: heading from the course
+    # A static start with GPS fused and no magnetometer:
+    # True runs in a local frame (yaw σ ``yaw_std_local``) holding the GPS fixes out until
+    # their velocities against the filter's give the heading, then turns the frame and what
+    # it logged (``navigation.navigator_core``); False takes an arbitrary heading with
+    # ``yaw_std_unknown`` and fuses the fixes at once (a UKF cannot carry a heading known to
+    # ±180°: a user's probe, NEES 1650).
+    heading_from_gps: bool = True
     # ``vision`` (in flight, no GPS needed): stereo odometry over the first ``vision_window_s``
     # s against the IMU gives gravity and the velocity (``navigation.vision_start``); the fit's
     # gravity magnitude must lie within ``vision_max_g_error`` (relative) of the data set's.

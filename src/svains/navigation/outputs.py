@@ -92,6 +92,18 @@ class TrackLog:
         return out
 
 
+@dataclass(frozen=True)
+class FrameTurn:
+    """The world frame turned at ``t_ns`` by ``angle_rad`` (standard deviation ``std_rad``)
+    about the unit vertical ``up_W`` (3,) through ``pivot_W`` (3,) m."""
+
+    t_ns: int
+    angle_rad: float
+    std_rad: float
+    up_W: F64
+    pivot_W: F64
+
+
 @dataclass
 class RunResult:
     """Logged estimates: ``t_ns`` (T,), ``x`` (T, nx), ``std`` (T, ndx) tangent std devs,
@@ -118,5 +130,8 @@ class RunResult:
     gps_used: bool = False
     has_covariance: bool = True
     history: RtsRecorder | None = field(default=None, repr=False)
+    # The world frame turned at these times, the estimates logged before each too
+    # (``navigation.heading_wait``): a smoother's corrections of those are the old frame's.
+    frame_turns: list[FrameTurn] = field(default_factory=list, repr=False)
     # The smoothed estimates (``navigation.smoothing.smoothed_result``), once computed.
     smoothed: RunResult | None = field(default=None, repr=False)

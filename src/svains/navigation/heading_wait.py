@@ -1,0 +1,100 @@
+"""A static start without a heading source, held in a local frame until GPS gives the heading.
+
+With GPS fused and no magnetometer, the static start used to take an arbitrary heading with a
+standard deviation of 28.6° (``init.yaw_std_unknown``). The true error can be anything up to
+180°, which no UKF carries: the start's zero-velocity updates on a drone drifting at rest and
+the first fixes while moving pulled the wrong heading in (σ 28.6° → 7.5° in 4 s with the error
+at 163°), and the run stayed overconfident (a user's probe: NEES 1650 over a 40 s flight).
+
+Instead (``init.heading_from_gps``) the start's heading defines a local frame, as without GPS
+(its yaw error zero by construction), about the start's position, which the fixes at rest set.
+The fixes wait while the vehicle moves; ``HeadingCheck`` in its acquire mode compares their
+velocities with the filter's, and once the rotation between the two frames is known to its
+``max_std_deg`` the state is turned into the world about the start's position with that
+uncertainty (``turn_heading`` with ``pivot_W``), and so is everything kept in the local frame
+so far: the logged estimates (``turn_logged``) and the stored keyframes. Fixes are fused from
+then on. Should no heading come within ``HEADING_WAIT_MAX_S`` of motion (velocities that never
+fit one rotation), the old start is taken: the yaw widened to ``yaw_std_unknown`` (``widen_yaw``)
+and the fixes fused, warned.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from svains.filter.ukf import UKF
+from svains.geometry.rotation import quat_multiply, quat_normalize, quat_to_rotmat
+from svains.models.state import DTH
+from svains.navigation.heading_check import HeadingError, rotation_about
+from svains.navigation.outputs import FrameTurn
+
+F64 = NDArray[np.float64]
+
+# The longest wait (s) for the heading after the vehicle set off.
+HEADING_WAIT_MAX_S = 30.0
+
+
+def turn_logged(
+    log_x: list[F64], log_std: list[F64], log_P9: list[F64], error: HeadingError, up_W: F64,
+    pivot_W: F64,
+) -> None:
+    """Turn logged estimates (in place) by ``error.angle_rad`` about the vertical ``up_W``
+    through ``pivot_W`` (3,) m: position, velocity and attitude of each ``x`` (nx,), their
+    ``P9`` (9, 9: p, v, δθ_B) by the map plus the turn's own uncertainty ``error.std_rad``, and
+    the first nine tangent standard deviations of ``std`` from it."""
+    up = np.asarray(up_W, dtype=float) / np.linalg.norm(up_W)
+    pivot = np.asarray(pivot_W, dtype=float)
+    Rz = rotation_about(up, error.angle_rad)
+    q_z = np.array([math.cos(0.5 * error.angle_rad), *(math.sin(0.5 * error.angle_rad) * up)])
+    J = np.eye(9)
+    J[0:3, 0:3] = Rz
+    J[3:6, 3:6] = Rz
+    for x, std, P9 in zip(log_x, log_std, log_P9, strict=True):
+        x[0:3] = pivot + Rz @ (x[0:3] - pivot)
+        x[3:6] = Rz @ x[3:6]
+        x[6:10] = quat_normalize(quat_multiply(q_z, x[6:10]))
+        a = np.concatenate([np.cross(up, x[0:3] - pivot), np.cross(up, x[3:6]),
+                            quat_to_rotmat(x[6:10]).T @ up])  # fmt: skip
+        P = J @ P9 @ J.T + error.std_rad**2 * np.outer(a, a)
+        P9[:] = 0.5 * (P + P.T)
+        std[0:9] = np.sqrt(np.maximum(np.diag(P9), 0.0))
+
+
+def forward_in_old_frames(x_fwd: F64, P9: F64, t_ns: F64, turns: list[FrameTurn]) -> F64:
+    """The forward means ``x_fwd`` (N, nx; ``P9`` (N, 9, 9) their covariances) with those
+    logged before each frame turn taken back into the frame they were made in (a copy): a
+    smoother's corrections of them are that frame's (``turn_smoothed`` turns the corrected
+    ones on)."""
+    out = np.array(x_fwd, dtype=float, copy=True)
+    for turn in reversed(turns):
+        rows = np.flatnonzero(np.asarray(t_ns) < turn.t_ns)
+        back = HeadingError(-turn.angle_rad, 0.0, 0)
+        turn_logged([out[i] for i in rows], [np.zeros(9) for _ in rows],
+                    [np.array(P9[i], dtype=float) for i in rows], back, turn.up_W,
+                    turn.pivot_W)  # fmt: skip
+    return out
+
+
+def turn_smoothed(x: F64, std: F64, P9: F64, t_ns: F64, turns: list[FrameTurn]) -> None:
+    """Turn the smoothed estimates (in place: ``x`` (N, nx), ``std`` (N, ndx), ``P9``
+    (N, 9, 9)) made before each frame turn into the frame after it, with its uncertainty."""
+    for turn in turns:
+        rows = np.flatnonzero(np.asarray(t_ns) < turn.t_ns)
+        error = HeadingError(turn.angle_rad, turn.std_rad, 0)
+        turn_logged([x[i] for i in rows], [std[i] for i in rows], [P9[i] for i in rows], error,
+                    turn.up_W, turn.pivot_W)  # fmt: skip
+
+
+def widen_yaw(ukf: UKF, up_W: F64, yaw_std_rad: float) -> None:
+    """Give the heading (the attitude error about the vertical) the standard deviation
+    ``yaw_std_rad`` where it has less, uncorrelated with the rest."""
+    up = np.asarray(up_W, dtype=float) / np.linalg.norm(up_W)
+    n = ukf.P.shape[0]
+    u = np.zeros(n)
+    u[DTH] = quat_to_rotmat(ukf.x[6:10]).T @ up
+    have = float(u @ ukf.P @ u)
+    if have < yaw_std_rad**2:
+        ukf.P = ukf.P + (yaw_std_rad**2 - have) * np.outer(u, u)
