@@ -119,3 +119,39 @@ def test_the_window_keeps_the_last_samples(n: int) -> None:
         for st in ukf.update_blocks([M], contribution_of="mag"):
             shares.observe(st, ())
     assert len(shares.take("mag")) == 5
+
+
+def test_a_smoother_crosses_the_updates_taken_back() -> None:
+    """Un-fusing is an instant's change, as an update is: the smoother's chain is not cut, and
+    on a linear model every smoothed epoch, the ones that had the samples in them too, equals
+    that of a run that never fused them (it was a cut: a false lean alarm on a clean flight
+    stepped the smoothed trajectory by 15 cm: a user's probe)."""
+    from svains.filter.rts import RtsRecorder, smooth
+
+    runs = []
+    for with_mag in (True, False):
+        u = _ukf()
+        rec = RtsRecorder()
+        u.recorder = rec
+        rec.start(u.x, u.P)
+        u.update_blocks([A])
+        rec.mark(1, u.x, u.P)
+        shares = LeanShares(("mag",), window=5)
+        if with_mag:
+            for k in range(3):
+                z = [0.9 + 0.1 * k, 0.1]
+                for st in u.update_blocks([_block("mag", [2, 3], z)], contribution_of="mag"):
+                    shares.observe(st, ())
+        rec.mark(2, u.x, u.P)  # the samples are in this epoch's forward estimate
+        if with_mag:
+            unfuse(u, shares.take("mag"))
+        u.update_blocks([_block("b", [0, 2], [0.1, 0.3])])
+        rec.mark(3, u.x, u.P, last=True)
+        runs.append((rec, smooth(rec), u))
+    (rec, s, u), (_, s_ref, u_ref) = runs
+    assert rec.cuts == 0
+    np.testing.assert_allclose(u.x, u_ref.x, atol=1e-12)
+    x_s = s.x + s.eps  # Euclidean: the smoothed means
+    np.testing.assert_allclose(x_s, s_ref.x + s_ref.eps, atol=1e-10)
+    np.testing.assert_allclose(s.P, s_ref.P, atol=1e-10)
+    assert np.abs(s.x[1] - s_ref.x[1]).max() > 0.3  # the forward epoch 2 had the samples

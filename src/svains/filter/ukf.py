@@ -294,6 +294,12 @@ class UKF:
         self.last_gain_T, self.last_innovation_solve = gain
         return UpdateStats(name, True, float(nis), nz, float(gate))
 
+    def set_posterior(self, x: F64, P: F64) -> None:
+        """Replace the estimate at this instant as an update does (symmetrised), the recorder
+        and observers told so: for a change that is no prediction, such as updates taken
+        back (``navigation.unfuse``), which a smoother then bridges instead of cutting."""
+        self._set_posterior(x, P)
+
     def _set_posterior(self, x: F64, P: F64) -> None:
         """Take an accepted update's mean and covariance (symmetrised), telling the recorder."""
         x_prior, P_prior = self.x, self.P

@@ -16,8 +16,8 @@ made after the sample (a copy of the pose by then) gets the pose's share instead
 sample moved the pose by 0.4° and the clone of 0.5 s before by 0.03° (the images had pinned
 the clone; the pose's recent turn was what the magnetometer could move). First-order: exact
 for a linear model without process noise between the samples and the undo
-(``tests/test_unfuse.py``). A smoother (``--smooth``) sees the change as a reset of the state
-and cuts its chain there (``smoothed.chain_cuts``).
+(``tests/test_unfuse.py``). A smoother (``--smooth``) takes the change as it takes an update:
+its backward pass crosses it (``UKF.set_posterior``).
 """
 
 from __future__ import annotations
@@ -100,5 +100,8 @@ def unfuse(ukf: UKF, shares: list[Share], clone_times: tuple[int, ...] = ()) -> 
     x = m.retract(ukf.x[None, :], d[None, :])[0]
     P = ukf.P.copy()
     P[:k, :k] += dP
-    ukf.x, ukf.P = x, 0.5 * (P + P.T)
+    # an instant's change, as an update is: a smoother bridges it (it was a cut: the smoothed
+    # trajectory stepped 15 cm there and the 40 s before lost most of their smoothing, on a
+    # clean flight's false alarm: a user's probe)
+    ukf.set_posterior(x, P)
     return d
