@@ -205,3 +205,81 @@ def test_radtan_coefficients_under_an_equidistant_name_are_warned(
         read_camchain(write_camchain(tmp_path / "slip.yaml", slip, euroc.imu_calib.T_B_S, 0.0))
     assert caplog.text.count("equidistant (fisheye) coefficients") == 2
     assert "cam0's equidistant (fisheye) coefficients [-2.8341e-01" in caplog.text
+
+
+def _edited_chain(euroc, tmp_path: Path, edit) -> Path:  # type: ignore[no-untyped-def]
+    """The EuRoC camchain with the text ``edit``-ed (a function of the file's text)."""
+    chain, _ = write_euroc_kalibr(euroc, tmp_path)
+    chain.write_text(edit(chain.read_text()))
+    return chain
+
+
+def test_a_rounded_rotation_is_made_a_rotation_and_said(
+    euroc, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:  # type: ignore[no-untyped-def]
+    """Rounded to 3 decimals (|R^T R - I| near 1e-3) a rotation was used as it was (EuRoC from
+    synthetic features 0.0099 -> 0.0359 m, NEES 56; a user's probe): now the nearest rotation,
+    warned with the size; the Kalibr reader and sensor.yaml share one tolerance."""
+    import re
+
+    def rounded(text: str) -> str:
+        return re.sub(r"-?\d+\.\d+(e-?\d+)?", lambda m: f"{float(m.group(0)):.3f}", text)
+
+    chain = _edited_chain(euroc, tmp_path, rounded)
+    with caplog.at_level("WARNING"):
+        ch = read_camchain(chain)
+    assert "rotation is not orthonormal (|R^T R - I| = " in caplog.text
+    assert "the nearest rotation is used" in caplog.text
+    for c in ch.cameras:
+        R = c.T_B_C[:3, :3]
+        np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-12)
+        np.testing.assert_allclose(R, euroc.cam0.T_B_C[:3, :3] if c.name == "cam0"
+                                   else euroc.cam1.T_B_C[:3, :3], atol=2e-3)  # fmt: skip
+    # a rotation off by 1e-2 is refused with its size
+    p = tmp_path / "bad.yaml"
+    p.write_text("cam0:\n  T_cam_imu: [[1.01, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]\n"
+                 "  intrinsics: [1, 1, 1, 1]\n  resolution: [4, 4]\n")  # fmt: skip
+    with pytest.raises(CalibrationError, match=r"not orthonormal \(\|R\^T R - I\| = 0\.0201 > "):
+        read_camchain(p)
+
+
+def test_a_timeshift_in_milliseconds_written_as_seconds_is_refused(euroc, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    chain = _edited_chain(euroc, tmp_path, lambda t: t.replace(
+        "timeshift_cam_imu: 0", "timeshift_cam_imu: 20", 1))
+    with pytest.raises(CalibrationError, match=r"cam0.timeshift_cam_imu' is 20 s, more than 1 s: "
+                       "milliseconds written as seconds"):  # fmt: skip
+        read_camchain(chain)
+
+
+def test_a_camera_only_camchain_is_placed_through_the_data_sets_cam0(
+    euroc, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:  # type: ignore[no-untyped-def]
+    """Kalibr's camera-only camchain.yaml (no T_cam_imu) put cam0 at the IMU with no rotation,
+    silently (a rig turned 90° against the IMU: 210 m from images; a user's probe)."""
+    p, _ = write_euroc_kalibr(euroc, tmp_path)
+    kept, skip = [], 0
+    for ln in p.read_text().splitlines():  # drop each T_cam_imu and its four rows
+        if ln.strip() == "T_cam_imu:":
+            skip = 4
+        elif skip:
+            skip -= 1
+        else:
+            kept.append(ln)
+    p.write_text("\n".join(kept) + "\n")
+    text = p.read_text()
+    assert "T_cam_imu" not in text and "T_cn_cnm1" in text
+    with caplog.at_level("WARNING"):
+        ds = apply_kalibr(euroc, p, None)
+    assert "no camera-IMU transform (T_cam_imu; a camera-only camchain)" in caplog.text
+    np.testing.assert_allclose(ds.cam0.T_B_C, euroc.cam0.T_B_C, atol=1e-9)
+    np.testing.assert_allclose(ds.cam1.T_B_C, euroc.cam1.T_B_C, atol=1e-6)
+
+
+def test_extrinsics_in_millimetres_are_refused_through_a_camchain(euroc, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """The same baseline check as a sensor.yaml's (it ran 452 m off from images)."""
+    mm = [c.__class__(**{**c.__dict__, "T_B_C": np.block([[c.T_B_C[:3, :3], 1000 * c.T_B_C[:3, 3:]],
+                                                          [np.zeros((1, 3)), np.ones((1, 1))]])})
+          for c in (euroc.cam0, euroc.cam1)]  # fmt: skip
+    p = write_camchain(tmp_path / "mm.yaml", mm, T_B_I=euroc.imu_calib.T_B_S)
+    with pytest.raises(CalibrationError, match=r"baseline of 110\.\d m, expected < 20 m"):
+        apply_kalibr(euroc, p, None)

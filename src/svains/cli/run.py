@@ -227,8 +227,12 @@ def run(
         row("outage max error [m]", ", ".join(f"{e:.2f}" for e in rep["outage_max_error_m"]),
             ", ".join(f"{e:.2f}" for e in (sm or {}).get("outage_max_error_m") or []))
     if sm is not None:
-        row("history kept [MB]", "-", f"{sm['history_mb']:.3g} "
-            f"({sm['history_mb_per_hour']:.3g} per hour of data)")
+        per_hour = sm["history_mb_per_hour"]
+        row("history kept [MB]", "-", f"{sm['history_mb']:.3g}" + (
+            "" if per_hour is None else f" ({per_hour:.3g} per hour of data)"))
+        if sm.get("chain_cuts"):
+            row("smoother chain cuts", "-", f"{sm['chain_cuts']} (the smoothing does not "
+                "reach across a reset of the state)")
     console.print(table)
     logs = "".join(f", {n}" for n in ("updates.csv", "tracks.csv", "trajectory_smoothed.tum",
                                       "trajectory_smoothed_euroc.csv",

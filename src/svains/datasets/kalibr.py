@@ -29,7 +29,13 @@ from numpy.typing import NDArray
 from svains.datasets._textio import format_float, read_sensor_yaml, yaml_float
 from svains.datasets.asl_reader import shift_feature_stamps
 from svains.datasets.types import CameraCalib, Dataset, ImageStream, ImuCalib
-from svains.datasets.validate import check_camera_calib, check_image_size
+from svains.datasets.validate import (
+    check_camera_calib,
+    check_image_size,
+    check_stereo_rig,
+    check_timeshift,
+    make_orthonormal,
+)
 from svains.errors import CalibrationError
 
 log = logging.getLogger(__name__)
@@ -60,6 +66,8 @@ class KalibrChain:
     cameras: tuple[CameraCalib, ...]
     timeshift_cam_imu_s: float
     rostopics: tuple[str | None, ...]
+    # cam0 came with a camera-IMU transform (False: a plain camchain, cam0 at identity)
+    has_imu_transform: bool = True
 
 
 def _matrix4(node: Any, key: str, path: Path) -> F64:
@@ -71,9 +79,7 @@ def _matrix4(node: Any, key: str, path: Path) -> F64:
         raise CalibrationError(f"{path}: '{key}' must be a 4x4 matrix (4 rows of 4)") from None
     if not np.all(np.isfinite(T)) or not np.allclose(T[3], [0, 0, 0, 1]):
         raise CalibrationError(f"{path}: '{key}' is not a homogeneous transform: last row {T[3]}")
-    R = T[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) <= 0:
-        raise CalibrationError(f"{path}: '{key}' rotation is not orthonormal (R R^T != I)")
+    make_orthonormal(T, path, key)  # the tolerance and projection of sensor.yaml's T_BS
     return T
 
 
@@ -125,7 +131,9 @@ def read_camchain(path: Path | str) -> KalibrChain:
     """Parse a Kalibr ``camchain-imucam.yaml`` (or a plain ``camchain.yaml``, or OpenVINS'
     ``kalibr_imucam_chain.yaml`` with ``T_imu_cam``); cameras ``cam0``, ``cam1``, ... in order.
 
-    A plain camchain without any IMU transform puts the IMU at cam0 (``T_I_C0`` = identity).
+    A plain camchain without any IMU transform puts the IMU at cam0 (``T_I_C0`` = identity,
+    ``has_imu_transform`` False; ``apply_kalibr`` then places the cameras through the data
+    set's cam0). A ``timeshift_cam_imu`` beyond ``MAX_TIMESHIFT_S`` is refused.
     """
     path = Path(path)
     y = read_sensor_yaml(path)
@@ -156,7 +164,9 @@ def read_camchain(path: Path | str) -> KalibrChain:
         topics.append(str(c["rostopic"]) if "rostopic" in c else None)
         if i == 0:
             shift = yaml_float(c, "timeshift_cam_imu", path, default=0.0)
-    return KalibrChain(tuple(cams), shift, tuple(topics))
+            check_timeshift(shift, path, f"{name}.timeshift_cam_imu")
+    has_imu = any(k in y[names[0]] for k in ("T_cam_imu", "T_imu_cam"))
+    return KalibrChain(tuple(cams), shift, tuple(topics), has_imu)
 
 
 def read_kalibr_imu(path: Path | str) -> tuple[ImuCalib, str | None]:
@@ -238,6 +248,17 @@ def apply_kalibr(
     if len(chain.cameras) > 2:
         log.warning("%s: %d cameras, using cam0 and cam1", camchain_path, len(chain.cameras))
     T_B_I = out.imu_calib.T_B_S if out.imu_calib is not None else np.eye(4)
+    if not chain.has_imu_transform:
+        # A camera-only camchain: cam0 at the IMU with no rotation was taken silently (a rig
+        # turned 90°: 210 m from images, 858 m from features, a user's probe). The cameras go
+        # where the data set's cam0 is, the camchain giving their intrinsics and cam1's place.
+        if ds.cam0 is None:
+            raise CalibrationError(
+                f"{camchain_path}: no camera-IMU transform (T_cam_imu) and the data set has no "
+                "cam0 T_BS to place the cameras with: give Kalibr's camchain-imucam.yaml")
+        log.warning("%s: no camera-IMU transform (T_cam_imu; a camera-only camchain): the "
+                    "cameras are placed through the data set's cam0 T_BS", camchain_path)
+        T_B_I = ds.cam0.T_B_C
     # The data set's own sensor.yaml offset (if any) was applied at read time: replace it.
     applied_s = ds.cam0.timeshift_cam_imu_s if ds.cam0 is not None else 0.0
     shift_ns = round((chain.timeshift_cam_imu_s - applied_s) * 1e9)
@@ -252,6 +273,8 @@ def apply_kalibr(
     ]
     out.cam0 = _with_rate(cams[0], out.left, ds.cam0)
     out.cam1 = _with_rate(cams[1], out.right, ds.cam1)
+    # the baseline's size, as for a sensor.yaml (extrinsics in mm ran to 452 m: a user's probe)
+    check_stereo_rig(out.cam0, out.cam1, Path(camchain_path), Path(camchain_path))
     # refused here, as a sensor.yaml's is: every pair was dropped one by one during the run
     for stream, cal in ((out.left, out.cam0), (out.right, out.cam1)):
         if stream is not None:

@@ -96,6 +96,11 @@ class ScaleCheckOptions:
     # way, beyond ``mismatch_fit``, are warned as such (a lost filter under faults: 3-16)
     axis_ratio: float = 3.0
     mismatch_fit: float = 100.0
+    # a factor this many times ``warn`` (``warn_gps``) from 1 and beyond 4 of its deviations
+    # is warned however poor the fit (the fit's test above left misfits of 3-100 unsaid: cam1
+    # turned 0.2° on the body bends every depth, factor 1.38 ± 0.07 at misfit 16, GPS 1.15 ±
+    # 0.009 at 78, the run 40x worse and the GPS refused as multipath: a user's probe)
+    poor_fit_factor: float = 2.0
     # the accelerometer's factor reads 0.99-1.03 with the right baseline on the shared and
     # rendered data (tilt and bias errors the windows leave): added to its deviation
     floor: float = 0.01
@@ -272,12 +277,34 @@ class ScaleCheck:
         o = self.options
         return not (n < o.min_pairs or fit > o.max_fit or off < warn or off <= 4.0 * std)
 
+    def _would_warn_poor_fit(self, got: tuple[float, float, float, int], warn: float) -> bool:
+        """The factor ``got`` is ``poor_fit_factor`` x ``warn`` or more from 1 and beyond 4 of
+        its deviations, from enough rows that fit poorly (beyond ``max_fit``)."""
+        k, std, fit, n = got
+        off = abs(k - 1.0)
+        o = self.options
+        return (n >= o.min_pairs and fit > o.max_fit and off >= o.poor_fit_factor * warn
+                and off > 4.0 * std)  # fmt: skip
+
     def _warn(self, got: tuple[float, float, float, int] | None, warn: float, by: str,
               unit: str) -> bool:  # fmt: skip
         """Warn (once: the caller keeps the flag) when the factor ``got`` is ``warn`` or more
-        from 1 and beyond 4 of its deviations, from enough rows that fit; whether it did."""
-        if got is None or not self._would_warn(got, warn):
+        from 1 and beyond 4 of its deviations, from enough rows that fit (or clearly off from
+        rows that fit poorly: ``_would_warn_poor_fit``); whether it did."""
+        if got is None:
             return False
+        if not self._would_warn(got, warn):
+            if not self._would_warn_poor_fit(got, warn):
+                return False
+            k, std, fit, n = got
+            log.warning(
+                "the camera moves %.3f ± %.3f times as far as %s (%d %s), and the factor varies "
+                "from one to the next (misfit %.0f per degree of freedom): a depth-dependent "
+                "error of the stereo calibration? cam1's rotation on the body (a fraction of "
+                "a degree bends every depth), the intrinsics, or the baseline (the calibration "
+                "gives %.4f m)", k, std, by, n, unit, fit, self.baseline_m,
+            )  # fmt: skip
+            return True
         k, std, _, n = got
         log.warning(
             "the camera moves %.3f ± %.3f times as far as %s (%d %s): is the stereo baseline "
@@ -518,7 +545,9 @@ class ScaleCheck:
             return
         if not self.warned:
             got = self.factor()
-            if got is not None and self._would_warn(got, self.options.warn):
+            warn = self.options.warn
+            if got is not None and (self._would_warn(got, warn)
+                                    or self._would_warn_poor_fit(got, warn)):  # fmt: skip
                 # Confirmed against the windows' own scatter before warning: on the paper's
                 # noisy IMU the misfit's curvature understates the spread (simulated village
                 # flights with the right baseline, 18 pairs: deviations 2x what it says).
