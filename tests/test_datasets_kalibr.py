@@ -283,3 +283,18 @@ def test_extrinsics_in_millimetres_are_refused_through_a_camchain(euroc, tmp_pat
     p = write_camchain(tmp_path / "mm.yaml", mm, T_B_I=euroc.imu_calib.T_B_S)
     with pytest.raises(CalibrationError, match=r"baseline of 110\.\d m, expected < 20 m"):
         apply_kalibr(euroc, p, None)
+
+
+def test_cameras_of_two_resolutions_are_refused_on_load(euroc) -> None:  # type: ignore[no-untyped-def]
+    """One rectification maps one size: a smaller cam1 (its intrinsics scaled to it) had every
+    pair dropped one by one, the message quoting cam0's size (a user's probe)."""
+    import dataclasses
+
+    from svains.datasets.validate import check_stereo_rig
+
+    small = dataclasses.replace(euroc.cam1, resolution=(640, 400),
+                                intrinsics=np.asarray(euroc.cam1.intrinsics) * (640 / 752))
+    check_stereo_rig(euroc.cam0, euroc.cam1, Path("c0"), Path("c1"))
+    with pytest.raises(CalibrationError, match=r"cam0 is 752x480 px and cam1 640x400 px: svains "
+                       r"rectifies a pair of one size"):  # fmt: skip
+        check_stereo_rig(euroc.cam0, small, Path("c0"), Path("c1"))

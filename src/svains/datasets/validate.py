@@ -256,7 +256,18 @@ def check_quaternions(t_ns: NDArray[np.int64], q_wxyz: NDArray[np.float64], path
 
 
 def check_stereo_rig(cam0: CameraCalib, cam1: CameraCalib, path0: Path, path1: Path) -> None:
-    """The right camera sits a baseline away from the left one (``MIN_BASELINE_M``)."""
+    """The right camera sits a baseline away from the left one (``MIN_BASELINE_M``), and both
+    have one resolution (the rectification maps one size: a smaller cam1 had every pair
+    dropped one by one, the message quoting cam0's size, and the run ended an INS: a user's
+    probe)."""
+    r0 = tuple(int(v) for v in cam0.resolution)
+    r1 = tuple(int(v) for v in cam1.resolution)
+    if r0 != r1:
+        raise CalibrationError(
+            f"{path0}, {path1}: cam0 is {r0[0]}x{r0[1]} px and cam1 {r1[0]}x{r1[1]} px: svains "
+            "rectifies a pair of one size; resize one camera's images to the other's (and "
+            "scale its intrinsics fu, fv, cu, cv by the same factor)"
+        )
     R_B_C0, p_B_C0 = cam0.T_B_C[:3, :3], cam0.T_B_C[:3, 3]
     p_C0_C1 = R_B_C0.T @ (cam1.T_B_C[:3, 3] - p_B_C0)
     b = float(np.linalg.norm(p_C0_C1))

@@ -260,8 +260,8 @@ class RotationCheck:
         if self.offset_frames < o.min_frames:
             return
         self._judge_scale()
-        if self.warned_offset:
-            return
+        if self.warned_offset or self.warned:
+            return  # told, or a mount told wrong (its turns' axes say nothing of the stamps)
         got = self.time_offset()
         if got is None:
             if not (self.far_frames < o.min_frames and self._far.pending):
@@ -286,7 +286,7 @@ class RotationCheck:
         """The best near shift at the edge of those tried (and none of the far ones judged):
         warned when it halves the misfit at zero (a mount error moves it little: 0.83 for 90°
         off, 0.99 for 20°)."""
-        if self.warned_offset or self.offset_frames < self.options.min_frames:
+        if self.warned_offset or self.warned or self.offset_frames < self.options.min_frames:
             return
         c = self._offset_chi2
         k = int(np.argmin(c))
@@ -308,7 +308,8 @@ class RotationCheck:
         o = self.options
         if not self._far.add(self.history, (t0_ns, t1_ns, r_B, bg_B, var)):
             return
-        if self.warned_offset or self.far_frames < o.min_frames or self.offset_frames == 0:
+        if (self.warned_offset or self.warned or self.far_frames < o.min_frames
+                or self.offset_frames == 0):  # fmt: skip
             return
         c_far = self._far.chi2
         k = int(np.argmin(c_far))
@@ -350,7 +351,8 @@ class RotationCheck:
         o = self.options
         got = self.turn_scale()
         fit = self.offset_fit()
-        if self.warned_scale or self.warned_ratio or got is None or fit is None:
+        if (self.warned_scale or self.warned_ratio or self.warned or got is None
+                or fit is None):  # fmt: skip
             return
         scale, std = got
         off = abs(scale - 1.0)

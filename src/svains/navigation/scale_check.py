@@ -154,6 +154,8 @@ class ScaleCheck:
         self._groups = 0
         self._in_group = 0
         self.warned = False
+        # set by ``VisionChecks`` once the mount is told wrong: no warnings of its own then
+        self.stand_down = False
         # GPS: the antenna's lever arm (None: no GPS velocity seen), the fixes' velocities,
         # spans waiting for a fix past their end, and per span (|D_W|, |D_GPS|, variance)
         self.p_B_G: F64 | None = None
@@ -291,7 +293,7 @@ class ScaleCheck:
         """Warn (once: the caller keeps the flag) when the factor ``got`` is ``warn`` or more
         from 1 and beyond 4 of its deviations, from enough rows that fit (or clearly off from
         rows that fit poorly: ``_would_warn_poor_fit``); whether it did."""
-        if got is None:
+        if got is None or self.stand_down:
             return False
         if not self._would_warn(got, warn):
             if not self._would_warn_poor_fit(got, warn):
@@ -515,7 +517,7 @@ class ScaleCheck:
         """Warn once of an accelerometer axis that fits reversed (a mirrored axis: a driver's
         sign, a left-handed frame), or of velocity changes that fit no way at all."""
         o = self.options
-        if self.warned_axis or len(self._u) < 2 * o.min_pairs:
+        if self.warned_axis or self.stand_down or len(self._u) < 2 * o.min_pairs:
             return
         fits = self.axis_fits()
         if fits is None or not fits["as_is"] > o.max_fit:
