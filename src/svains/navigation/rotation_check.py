@@ -308,15 +308,18 @@ class RotationCheck:
         o = self.options
         if not self._far.add(self.history, (t0_ns, t1_ns, r_B, bg_B, var)):
             return
-        if (self.warned_offset or self.warned or self.far_frames < o.min_frames
-                or self.offset_frames == 0):  # fmt: skip
+        if self.warned_offset or self.far_frames < o.min_frames or self.offset_frames == 0:
             return
         c_far = self._far.chi2
         k = int(np.argmin(c_far))
         # per frame, so the near sums (over their own frames) and the far ones compare
         near = float(np.min(self._offset_chi2)) / self.offset_frames
         best = float(c_far[k]) / self.far_frames
-        if best < 0.5 * near and (near - best) * self.far_frames > 25.0:
+        # After the axes were told wrong only a shift that explains the turns counts: stamps
+        # seconds off move the axes too (told first), a wrong mount's best far shift does not
+        # (it named "+1.83 s" as a second cause: a user's probe).
+        explains = not self.warned or best / 3.0 <= o.offset_max_fit
+        if best < 0.5 * near and (near - best) * self.far_frames > 25.0 and explains:
             self.warned_offset = True
             shift = float(self._far.shifts_s[k])
             log.warning(
