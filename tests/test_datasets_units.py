@@ -5,6 +5,7 @@ unit (``sensors.units``). The corpus of one-line CLI errors is in ``test_cli_bad
 from __future__ import annotations
 
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -303,3 +304,23 @@ def test_a_camera_changing_or_drifting_rate_is_no_jitter_and_drops_are_not_eithe
     jittered = t + rng.uniform(-0.01, 0.01, t.size)
     why = frame_jitter_problem((jittered[keep] * 1e9).astype(np.int64))
     assert why is not None and 4.0 < float(why.split("about ")[1].split(" ms")[0]) < 8.0
+
+
+def test_gravity_with_the_wrong_sign_is_told_from_the_ground_truth() -> None:
+    """``gravity_W`` [0, 0, +9.81] (a z-down world) passed the size check alone: 50 m off from a
+    ground-truth start, a static start upside down (a user's probe). The reference's attitudes
+    turn the IMU's specific force, averaged over the run, up; against gravity_W it is 180°."""
+    from dataclasses import replace
+
+    from _ins_truth import make_dataset
+    from svains.datasets.validate import gravity_reference_problem
+
+    ds = make_dataset(20.0)
+    assert gravity_reference_problem(ds) is None
+    flipped = replace(ds, gravity_W=-np.asarray(ds.gravity_W))
+    said = gravity_reference_problem(flipped)
+    assert said is not None
+    assert re.search(r"1[78]\d° from up \(-gravity_W \[0.0, 0.0, -9.81\]\)", said)
+    assert "z-down world?" in said
+    # no reference, nothing to say
+    assert gravity_reference_problem(replace(flipped, groundtruth=None)) is None

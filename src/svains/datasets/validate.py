@@ -547,6 +547,43 @@ def _find_clipping(ds: Dataset, path: Path) -> None:
                                accel_range=found.get("accelerometer", c.accel_range))  # fmt: skip
 
 
+# The ground truth's attitudes put the IMU's mean specific force this far (deg) from up
+# (-gravity_W) or more: gravity_W or the reference in another frame (warned).
+GRAVITY_REFERENCE_WARN_DEG = 30.0
+
+
+def gravity_reference_problem(ds: Dataset, samples: int = 4000) -> str | None:
+    """Whether the IMU's specific force, turned into the world by the ground truth's attitude
+    at each sample and averaged over the run (the run's mean acceleration is small against
+    gravity), points against ``gravity_W`` as it must; a sentence naming the angle when it is
+    ``GRAVITY_REFERENCE_WARN_DEG`` or more off, else None. ``gravity_W`` [0, 0, +9.81] (a
+    z-down world) was accepted with only its size checked: 50 m off from a ground-truth start,
+    a static one upside down against the reference (a user's probe)."""
+    from svains.geometry.rotation import quat_to_rotmat
+
+    gt, imu = ds.groundtruth, ds.imu
+    if gt is None or imu is None or len(gt.t_ns) < 2 or len(imu.t_ns) < 2:
+        return None
+    inside = (imu.t_ns >= gt.t_ns[0]) & (imu.t_ns <= gt.t_ns[-1])
+    idx = np.flatnonzero(inside)
+    if idx.size < 100:
+        return None
+    idx = idx[np.linspace(0, idx.size - 1, min(samples, idx.size)).astype(int)]
+    j = np.clip(np.searchsorted(gt.t_ns, imu.t_ns[idx]), 0, len(gt.t_ns) - 1)
+    R = quat_to_rotmat(gt.q_W_B_wxyz[j])
+    f_W = np.einsum("nij,nj->i", R, imu.accel_B[idx]) / idx.size
+    up = -np.asarray(ds.gravity_W, float)
+    cos = float(f_W @ up) / max(float(np.linalg.norm(f_W) * np.linalg.norm(up)), 1e-12)
+    angle = math.degrees(math.acos(min(1.0, max(-1.0, cos))))
+    if angle < GRAVITY_REFERENCE_WARN_DEG:
+        return None
+    up_txt = (np.round(up, 3) + 0.0).tolist()  # + 0.0: no "-0.0"
+    return (f"the ground truth's attitudes turn the IMU's mean specific force "
+            f"{angle:.0f}° from up (-gravity_W {up_txt}): gravity_W with the wrong sign (a "
+            "z-down world? svains's world has z up, gravity [0, 0, -9.81]) or a reference in "
+            "another frame")
+
+
 def vet_streams(ds: Dataset) -> None:
     """The units, clocks and frames a reader cannot see in a file's syntax, for every format:
     the IMU's specific force (``check_accel_units``), GPS positions against its velocities
@@ -563,6 +600,9 @@ def vet_streams(ds: Dataset) -> None:
 
     if ds.imu is not None:
         check_accel_units(ds.imu.accel_B, ds.gravity_W, where("imu0"))
+        upside = gravity_reference_problem(ds)
+        if upside is not None:
+            log.warning("%s: %s", ds.root / "mav0" / "body.yaml", upside)
         if ds.imu_calib is not None:
             check_imu_rate(ds.imu.t_ns, ds.imu_calib.rate_hz, where("imu0"))
             _find_clipping(ds, where("imu0"))
