@@ -103,3 +103,29 @@ def test_info_help() -> None:
     res = runner.invoke(app, ["info", "--help"])
     assert res.exit_code == 0
     assert "dataset" in res.output.lower() and "--json" in res.output
+
+
+def test_info_reads_a_camchain_and_shows_the_mount_and_the_refusal(
+    euroc_micro: Path, tmp_path: Path
+) -> None:
+    """``info --calib`` shows the cameras as ``run --calib`` reads them: where each looks on
+    the body, cam1's place in cam0's axes; a rig ``run`` refuses (cam1 left of cam0) is said
+    (it was hidden: info printed a baseline and exit 0, a user's probe)."""
+    from _kalibr_files import write_euroc_kalibr
+    from svains.datasets import load_dataset
+    from svains.datasets.kalibr import write_camchain
+
+    ds = load_dataset(euroc_micro)
+    chain, _ = write_euroc_kalibr(ds, tmp_path / "k")
+    res = runner.invoke(app, ["info", str(euroc_micro), "--calib", str(chain)],
+                        env={"COLUMNS": "200"})  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert re.search(r"cam1 at \[\+0\.110, [-+]0\.000, \+0\.001\] m in cam0's axes", res.output)
+    assert re.search(r"on the body: at \[-0\.022, -0\.065, \+0\.010\] m, looking along", res.output)
+    assert "timeshift_cam_imu 0 ms" in res.output
+    swapped = write_camchain(tmp_path / "swapped.yaml", [ds.cam1, ds.cam0],
+                             T_B_I=ds.imu_calib.T_B_S)  # fmt: skip
+    res = runner.invoke(app, ["info", str(euroc_micro), "--calib", str(swapped)],
+                        env={"COLUMNS": "200"})  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert "stereo pair: refused: stereo rectification: cam1 must be right of cam0" in res.output

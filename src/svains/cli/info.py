@@ -19,6 +19,10 @@ def _f(v: Any, fmt: str) -> str:
     return "-" if v is None else format(v, fmt)
 
 
+def _vec(v: Any) -> str:
+    return "[" + ", ".join(f"{float(x):+.3f}" for x in v) + "]"
+
+
 def _print(summary: dict[str, Any], console: Console) -> None:
     console.print(f"[bold]{summary['name']}[/bold]  ({summary['root']})")
     t = Table(title="Streams (times from the earliest sample)")
@@ -67,10 +71,17 @@ def _print(summary: dict[str, Any], console: Console) -> None:
                 f"[{', '.join(f'{d:.3g}' for d in c['distortion'])}]"
             )
         )
+        if "z_C_in_B" in c:
+            console.print(escape(
+                f"  on the body: at {_vec(c['p_B_C'])} m, looking along {_vec(c['z_C_in_B'])}, "
+                f"right along {_vec(c['x_C_in_B'])} (body axes), timeshift_cam_imu "
+                f"{1e3 * c['timeshift_cam_imu_s']:g} ms"))  # fmt: skip
     if "baseline_m" in cams:
         console.print(
             f"stereo baseline (from T_BS of cam0/cam1): {cams['baseline_m']:.4f} m, relative "
             f"rotation {cams['relative_rotation_deg']:.3f} deg"
+            + (f"; cam1 at {_vec(cams['p_C0_C1'])} m in cam0's axes (+x: right of it)"
+               if "p_C0_C1" in cams else "")
         )
     if "imu" in cal:
         i = cal["imu"]
@@ -101,7 +112,9 @@ def _print(summary: dict[str, Any], console: Console) -> None:
             f"({c['gyro_turn_deg']:.0f}° by the gyro; +1: the field turns against the body, as "
             "it must)"
         )
-    if "stereo_pair" in checks:
+    if "stereo_pair" in checks and "refused" in checks["stereo_pair"]:
+        console.print(escape(f"stereo pair: refused: {checks['stereo_pair']['refused']}"))
+    elif "stereo_pair" in checks:
         c = checks["stereo_pair"]
         console.print(escape(
             f"stereo pair: {c['matches']} left-right matches over {c['pairs']} pairs, "
@@ -145,6 +158,14 @@ def info(
         Path | None, typer.Option("--json", help="Also write the summary as JSON.")
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace an existing --json.")] = False,
+    calib: Annotated[
+        Path | None,
+        typer.Option("--calib", help="Kalibr camchain-imucam.yaml: the cameras as run --calib "
+                     "would read them."),
+    ] = None,
+    imu_calib: Annotated[
+        Path | None, typer.Option("--imu-calib", help="Kalibr imu.yaml (noise densities).")
+    ] = None,
 ) -> None:
     """Describe a data set: streams, counts, rates, time span, gaps, missing files, calibration."""
     from svains.datasets import load_dataset
@@ -156,7 +177,8 @@ def info(
     console = Console()
     try:
         bag = is_bag(dataset)
-        summary = _print_bag(dataset, console) if bag else dataset_summary(load_dataset(dataset))
+        summary = (_print_bag(dataset, console) if bag else
+                   dataset_summary(load_dataset(dataset, calib=calib, imu_calib=imu_calib)))
     except SvainsError as exc:
         fail(exc)
     if not bag:

@@ -53,11 +53,16 @@ def _cameras(ds: Dataset) -> dict[str, Any]:
             "distortion_model": cal.distortion_model,
             "distortion": cal.distortion.tolist(),
             "p_B_C": cal.T_B_C[:3, 3].tolist(),
+            # where the camera looks on the body: its z (optical) and x (right) axes
+            "z_C_in_B": cal.T_B_C[:3, 2].tolist(),
+            "x_C_in_B": cal.T_B_C[:3, 0].tolist(),
+            "timeshift_cam_imu_s": cal.timeshift_cam_imu_s,
             "rate_hz": cal.rate_hz,
         }
     if ds.cam0 is not None and ds.cam1 is not None:
         T_C0_C1 = np.linalg.inv(ds.cam0.T_B_C) @ ds.cam1.T_B_C
         cams["baseline_m"] = float(np.linalg.norm(T_C0_C1[:3, 3]))
+        cams["p_C0_C1"] = T_C0_C1[:3, 3].tolist()  # cam1 in cam0's axes: +x for a right camera
         cos = np.clip((np.trace(T_C0_C1[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
         cams["relative_rotation_deg"] = float(np.degrees(np.arccos(cos)))
     return cams
@@ -153,7 +158,8 @@ def _checks(ds: Dataset) -> dict[str, Any]:
         out["mag_turn_vs_gyro"] = {"cosine": turn[0], "turns": turn[1], "gyro_turn_deg": turn[2]}
     try:
         stereo = recorded_stereo_check(ds)
-    except SvainsError:  # a calibration rectification refuses: a run says so in one line
+    except SvainsError as exc:  # what a run refuses with, said here too (was hidden)
+        out["stereo_pair"] = {"refused": str(exc)}
         stereo = None
     if stereo is not None:
         out["stereo_pair"] = {**stereo.summary(), "problem": stereo.problem()}
