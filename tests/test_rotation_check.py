@@ -292,3 +292,24 @@ def test_a_camera_a_few_degrees_off_on_the_body_is_found_and_warned(
         assert "vision.estimate_extrinsics=true" in caplog.text
     else:
         assert caplog.text == ""
+
+
+@pytest.mark.parametrize(("camera_scale", "warned"), [(0.85, True), (0.97, False)])
+def test_a_turn_scale_far_off_in_turns_that_fit_poorly_names_the_lens_model(
+    camera_scale: float, warned: bool, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A fisheye read as radtan: the camera turned 0.85 times as far at misfit 180, unsaid (the
+    scale test wants turns that fit), and the mount and the accelerometer's axes were blamed
+    instead (a user's probe). Turns that fit poorly (``offset_max_fit`` set below this flight's
+    own misfit) with a scale 10 % or more off name the lens model; the mount is not blamed
+    where no rotation maps the turns."""
+    h, frames = _flight(so3_exp(np.radians(3.0) * np.array([1.0, 0.0, 0.0])) @ R_B_C, seed=8,
+                        camera_scale=camera_scale)  # fmt: skip
+    check = RotationCheck(h, R_B_C, DENSITY, RotationCheckOptions(offset_max_fit=1e-6))
+    with caplog.at_level("WARNING", logger="svains.navigation.rotation_check"):
+        for tr in frames:
+            check.observe(tr, None)
+    s = check.summary()
+    assert s["warned_turn_scale"] is warned and check.warned_lens is warned
+    assert not s["warned_mount"]
+    assert ("is the lens model right (distortion_model" in caplog.text) is warned

@@ -45,10 +45,11 @@ class VisionChecks:
             if ego is not None:
                 tr = dataclasses.replace(tr, egomotion=ego)
         self.rotation.observe_frame(tr, ctx)
-        # A mount told wrong (the turns' axes) or a gyro's unit: the scale check's velocity
-        # changes, seen through that mount, would add a second, wrong cause (a reversed axis,
-        # the baseline: a user's probe), so it stands down.
-        self.scale.stand_down = self.rotation.warned or self.rotation.warned_ratio
+        # A mount told wrong (the turns' axes), a gyro's unit or a lens model: the scale
+        # check's velocity changes, seen through them, would add a second, wrong cause (a
+        # reversed axis, the baseline: a user's probe), so it stands down.
+        r = self.rotation
+        self.scale.stand_down = r.warned or r.warned_ratio or r.warned_lens
         self.scale.observe_frame(tr, ctx)
 
     def summary(self) -> dict[str, Any]:
