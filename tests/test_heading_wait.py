@@ -144,3 +144,20 @@ def test_the_smoother_turns_what_it_smoothed_before_the_heading_was_found(
     assert rep["nees_mean"] < 12.0
     # the smoothed covariance before the turn carries the turn's heading uncertainty
     assert np.all(sm.std[before][:, 6:9].max(axis=1) >= 0.9 * turn.std_rad)
+
+
+@pytest.mark.realdata  # a trajectory of ../shared/data/trajectories
+def test_position_only_fixes_end_the_wait_at_once(
+    resting_drone: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Without GPS velocities the heading check has nothing to turn by: the wait ends at the
+    first fix (the arbitrary heading of before, warned) instead of holding 30 s of fixes."""
+    from dataclasses import replace
+
+    ds = load_dataset(resting_drone)
+    ds = replace(ds, gps=replace(ds.gps, v_W_G=np.full_like(ds.gps.v_W_G, np.nan)))
+    with caplog.at_level("WARNING"):
+        res = run_method(ds, "ins", RunOptions())
+    assert res.report["init"]["heading"] == "none (arbitrary yaw)"
+    assert "gps_held_for_heading" not in res.report
+    assert "no heading for the local start (the GPS gives no velocities)" in caplog.text

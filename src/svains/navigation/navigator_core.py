@@ -244,6 +244,9 @@ class Core:
                     self._recovery is not None and self._recovery.rate_off("gps", t))
                 if self._heading_check is not None and payload[1] is not None:
                     self._check_heading(t, payload[1], use_v)
+                if self._heading_wait and payload[1] is None:
+                    # position-only fixes give the heading check nothing to turn by
+                    self._end_heading_wait(t, "the GPS gives no velocities")
                 if self._heading_wait and self._hold_for_heading(t):
                     continue
                 if self._recovery is not None and self._recovery.reset_pending:
