@@ -100,7 +100,10 @@ class HeadingCheck:
         prev = self._prev
         if not usable or prev is None or (t_ns - prev[0]) * 1e-9 > o.max_step_s:
             self._steps.clear()
-            self._fixes.clear()
+            if not acquire or not usable:
+                # (the velocities themselves do not need short steps: a GPS below 0.5 Hz gave
+                # a local start no heading at all, a user's probe)
+                self._fixes.clear()
             if not usable:
                 return None
         else:

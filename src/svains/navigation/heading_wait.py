@@ -33,8 +33,9 @@ from svains.navigation.outputs import FrameTurn
 
 F64 = NDArray[np.float64]
 
-# The longest wait (s) for the heading after the vehicle set off.
-HEADING_WAIT_MAX_S = 30.0
+# The longest wait (s) for the heading after the vehicle set off (30 s of fixes held cost a
+# slow robot or a 0.2 Hz GPS 3-4 m: a user's probe).
+HEADING_WAIT_MAX_S = 10.0
 
 
 def turn_logged(

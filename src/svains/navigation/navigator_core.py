@@ -32,7 +32,7 @@ from svains.navigation.fault_handling import (
     whitened_correction,
 )
 from svains.navigation.gps_latency import GpsLatencyCheck
-from svains.navigation.heading_check import HeadingCheck, turn_heading, yaw_std
+from svains.navigation.heading_check import HeadingCheck, HeadingError, turn_heading, yaw_std
 from svains.navigation.heading_check import rotation_about as turn_matrix
 from svains.navigation.heading_wait import HEADING_WAIT_MAX_S, turn_logged, widen_yaw
 from svains.navigation.init import HEADING_FROM_GPS
@@ -247,7 +247,7 @@ class Core:
                 if self._heading_wait and payload[1] is None:
                     # position-only fixes give the heading check nothing to turn by
                     self._end_heading_wait(t, "the GPS gives no velocities")
-                if self._heading_wait and self._hold_for_heading(t):
+                if self._heading_wait and self._hold_for_heading(t, payload[1]):
                     continue
                 if self._recovery is not None and self._recovery.reset_pending:
                     v = payload[1] if use_v else None
@@ -355,19 +355,24 @@ class Core:
                         f"off (± {np.degrees(error.std_rad):.1f}°, from the GPS velocities "
                         f"over {error.steps} fixes): the state is turned{hint}")  # fmt: skip
 
-    def _hold_for_heading(self, t: int) -> bool:
-        """While a local start waits for its heading: a fix while the IMU's rest test holds is
-        fused (at rest the local frame and the world agree at the body: no heading in it), and
-        the frame's pivot follows the body; once it moved, each fix is held out (counted),
-        until ``HEADING_WAIT_MAX_S`` after the first: then the wait ends
-        (``_end_heading_wait``) and it is fused."""
-        if self._heading_wait_from is None:
-            if self._zupt is not None and self._resting:
+    def _hold_for_heading(self, t: int, v_W_G: Any) -> bool:
+        """While a local start waits for its heading: a fix that shows the vehicle still
+        (horizontal GPS speed within 3σ of its velocity noise) is fused (at rest the local frame
+        and the world agree at the body), and the frame's pivot follows the body; a fix that
+        shows it moving is held out (counted), until ``HEADING_WAIT_MAX_S`` after the first
+        held; then the wait ends (``_end_heading_wait``) and it is fused. The IMU's rest test
+        is not asked: it ended on a vehicle parked for a minute, and the fixes were held while
+        it stood (a user's probe)."""
+        assert self.rig.gps is not None
+        v = np.asarray(v_W_G, dtype=float)
+        v_h = v - (v @ self._up_W) * self._up_W
+        if float(np.linalg.norm(v_h)) <= 3.0 * self.rig.gps.velocity_noise_std:
+            if self._heading_wait_from is None:
                 self._heading_pivot = np.array(self.ins.ukf.x[POS], dtype=float)
-                return False
+            return False
+        if self._heading_wait_from is None:
             self._heading_wait_from = t
-        if self._heading_wait_from is not None and (
-                t - self._heading_wait_from) * 1e-9 > HEADING_WAIT_MAX_S:  # fmt: skip
+        if (t - self._heading_wait_from) * 1e-9 > HEADING_WAIT_MAX_S:
             self._end_heading_wait(t, f"the GPS velocities gave none over "
                                    f"{HEADING_WAIT_MAX_S:g} s of motion")  # fmt: skip
             return False
@@ -401,14 +406,23 @@ class Core:
 
     def _end_heading_wait(self, t: int, why: str) -> None:
         """No heading from the GPS: the start's heading becomes an arbitrary one (its yaw
-        widened to ``init.yaw_std_unknown``) and fixes are fused, warned."""
+        widened to ``init.yaw_std_unknown``, and so are the estimates logged so far, by a turn
+        of 0° with that uncertainty) and fixes are fused, warned."""
         self._heading_wait = False
-        widen_yaw(self.ins.ukf, self._up_W, self.config.init.yaw_std_unknown)
+        std = self.config.init.yaw_std_unknown
+        widen_yaw(self.ins.ukf, self._up_W, std)
+        if self._log_x:
+            # the logged rows were the local frame's with a yaw σ of a known heading: as
+            # world-frame rows they hold an arbitrary heading too (they read 52-105σ off)
+            zero = HeadingError(0.0, std, 0)
+            pivot = self._heading_pivot
+            turn_logged(self._log_x, self._log_std, self._log_P9, zero, self._up_W, pivot)
+            self.frame_turns.append(FrameTurn(t, 0.0, std, self._up_W.copy(), pivot.copy()))
         self.init_info["heading"] = "none (arbitrary yaw)"
         self._warn.warn("heading-wait", t, f"no heading for the local start ({why}): GPS "
                         f"fixes are fused with an arbitrary heading (standard deviation "
-                        f"{np.degrees(self.config.init.yaw_std_unknown):.1f}°) from now on; a "
-                        "magnetometer would give one")  # fmt: skip
+                        f"{np.degrees(std):.1f}°) from now on; a magnetometer would give "
+                        "one")  # fmt: skip
 
     def _anchor_height(self, t: int, range_m: float) -> None:
         """Once, after a start at the local origin: the local frame's height from the median of

@@ -124,6 +124,9 @@ class RotationCheck:
         # Σ g cᵀ / var and Σ |g|² / var over the counted frames: the gyro's turn g and the
         # camera's c in body axes through the calibration (the mount's least squares)
         self._H = np.zeros((3, 3))
+        # Σ (|g|² I - g gᵀ) / var: the information on a small rotation δ of the mount (a turn
+        # g is moved by δ × g): none about the axis every turn shares
+        self._info = np.zeros((3, 3))
         self._gg = 0.0
         self._cc = 0.0
         self._mount_frames = 0
@@ -180,6 +183,7 @@ class RotationCheck:
         self.ratios.append(turn / n_C)
         c_B = self.R_C_B.T @ r_C
         self._H += np.outer(r_B, c_B) / var
+        self._info += (float(r_B @ r_B) * np.eye(3) - np.outer(r_B, r_B)) / var
         self._gg += float(r_B @ r_B) / var
         self._cc += float(c_B @ c_B) / var
         self._mount_frames += 1
@@ -223,12 +227,19 @@ class RotationCheck:
         D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(U @ Vt)))])
         R = U @ D @ Vt  # argmin Σ |R c - g|² / var
         r = so3_log(R)
-        angle = float(np.linalg.norm(r))
         misfit = self._gg + self._cc - 2.0 * float(np.trace(R @ self._H.T))
         fit = misfit / max(3 * self._mount_frames - 3, 1)
-        # a rotation about an axis across the turns moves each by |g|·δ: σ² ≈ 3/2 / Σ|g|²/var
-        std = float(np.sqrt(1.5 * max(fit, 1.0) / self._gg))
+        # Only the directions the turns inform: turns about one axis tell nothing of a mount
+        # rotation about it, and its component is noise (a drone turning about body y read a
+        # right mount 2-3.6° ± 0.2° off about y, warned: a user's probe).
+        lam, V = np.linalg.eigh(self._info)
+        seen = lam >= MOUNT_MIN_INFO * max(float(lam[-1]), 1e-300)
+        r = V[:, seen] @ (V[:, seen].T @ r)
+        angle = float(np.linalg.norm(r))
         axis = r / angle if angle > 0.0 else np.zeros(3)
+        u = axis if angle > 0.0 else V[:, -1]
+        var_u = float(np.sum((V[:, seen].T @ u) ** 2 / lam[seen]))
+        std = float(np.sqrt(var_u * max(fit, 1.0)))
         return float(np.degrees(angle)), float(np.degrees(std)), axis, float(fit)
 
     def _judge_mount(self) -> None:
@@ -455,6 +466,9 @@ class RotationCheck:
 
 
 _NO_SHIFT = np.zeros(1)
+# A direction of mount rotation counts as seen by the turns when its information is at least
+# this fraction of the best-seen direction's.
+MOUNT_MIN_INFO = 0.1
 
 
 class _ShiftSums:
