@@ -19,7 +19,7 @@ from svains.models.state import BIASED, DTH
 from svains.navigation.heading_check import HeadingError, turn_heading
 from svains.navigation.heading_wait import turn_logged, widen_yaw
 from svains.navigation.init import HEADING_FROM_GPS
-from svains.navigation.options import InitOptions, RunOptions
+from svains.navigation.options import InitOptions, RunConfig, RunOptions
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -161,3 +161,25 @@ def test_position_only_fixes_end_the_wait_at_once(
     assert res.report["init"]["heading"] == "none (arbitrary yaw)"
     assert "gps_held_for_heading" not in res.report
     assert "no heading for the local start (the GPS gives no velocities)" in caplog.text
+
+
+@pytest.mark.realdata  # a trajectory of ../shared/data/trajectories
+def test_an_online_caller_is_told_the_heading_is_not_known_yet(resting_drone: Path) -> None:
+    """The states handed out before the heading is found are the local frame's: they say so
+    (``NavState.heading_known``), those after it do not (a user's probe: world-labelled states
+    148° off with σ 0.64°, then a silent 139° jump)."""
+    from svains.navigation.navigator import Navigator
+    from svains.replay.replay import feed, measurements, resolve_config, rig_from_dataset
+
+    ds = load_dataset(resting_drone)
+    config = resolve_config(ds, RunConfig(method="ins", duration_s=12.0))
+    states = []
+    nav = Navigator(config, rig_from_dataset(ds), on_output=states.append)
+    for t, kind, payload in measurements(ds, config, int(ds.imu.t_ns[0])):
+        feed(nav, kind, t, payload)
+    res = nav.close()
+    found_ns = res.t_ns[0] + round(res.report["init"]["heading_found_s"] * 1e9)
+    before = [s for s in states if s.t_ns < found_ns]
+    after = [s for s in states if s.t_ns > found_ns]
+    assert len(before) > 10 and len(after) > 10
+    assert not any(s.heading_known for s in before) and all(s.heading_known for s in after)

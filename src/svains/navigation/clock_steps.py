@@ -55,11 +55,13 @@ class ClockSteps:
             self.shift_ns += step_ns
             self._shifts.append(self.shift_ns)
             at_s = (last_ns - (origin_ns if origin_ns is not None else last_ns)) * 1e-9
-            self.steps.append({"at_s": round(at_s, 6), "back_s": round(back_ns * 1e-9, 9)})
+            # the step: how far the new clock's first sample sits behind where it was due (one
+            # period after the last; "1.195 s" was said of a 1.2 s step: a user's probe)
+            self.steps.append({"at_s": round(at_s, 6), "back_s": round(step_ns * 1e-9, 9)})
             log.warning(
                 "%.3f s into the run: the IMU clock stepped back %.3f s (a clock reset or a "
                 "driver restart?): later stamps of every stream on that clock are shifted "
-                "%+.3f s to go on from the last sample", at_s, back_ns * 1e-9,
+                "%+.3f s to go on from the last sample", at_s, step_ns * 1e-9,
                 step_ns * 1e-9)  # fmt: skip
             t = t_ns + self.shift_ns
         self._imu_now_ns = t if self._imu_now_ns is None else max(self._imu_now_ns, t)

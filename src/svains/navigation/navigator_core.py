@@ -644,7 +644,8 @@ class Core:
         # The navigation block only (pose clones, when the state holds any, are left out).
         nx, ndx = self.layout.nx, self.layout.ndx
         x, P = self.ins.ukf.x, self.ins.ukf.P
-        return NavState.from_state(self.ins.t_ns, x[:nx], P[:ndx, :ndx], self.layout)
+        return NavState.from_state(self.ins.t_ns, x[:nx], P[:ndx, :ndx], self.layout,
+                                   not self._heading_wait)  # fmt: skip
 
     def _log(self, last: bool = False) -> None:
         ins = self.ins

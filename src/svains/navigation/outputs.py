@@ -29,7 +29,10 @@ class NavState:
     rad/s body rate; ``bg_B``, ``ba_B`` (3,) gyro (rad/s) and accelerometer (m/s²) biases,
     ``None`` in the paper model (no bias states); ``P`` (ndx, ndx) tangent covariance of
     (δp, δv, δθ, δω[, δbg, δba]) (δθ: body-frame attitude error, rad; see
-    ``docs/conventions.md``).
+    ``docs/conventions.md``). ``heading_known`` False: a static start without magnetometer
+    still waiting for the GPS to give its heading (``init.heading_from_gps``): the state is
+    in the start's local frame, its yaw (and the direction of the motion since) not the
+    world's whatever ``P`` says; it turns into the world when the heading is found.
     """
 
     t_ns: int
@@ -40,6 +43,7 @@ class NavState:
     bg_B: F64 | None
     ba_B: F64 | None
     P: F64
+    heading_known: bool = True
 
     @property
     def T_W_B(self) -> F64:
@@ -50,11 +54,12 @@ class NavState:
         return T
 
     @classmethod
-    def from_state(cls, t_ns: int, x: F64, P_: F64, layout: StateLayout) -> NavState:
+    def from_state(cls, t_ns: int, x: F64, P_: F64, layout: StateLayout,
+                   heading_known: bool = True) -> NavState:  # fmt: skip
         x = np.array(x, dtype=float)
         return cls(
             int(t_ns), x[P], x[V], x[Q], x[W], x[BG] if layout.biased else None,
-            x[BA] if layout.biased else None, np.array(P_, dtype=float),
+            x[BA] if layout.biased else None, np.array(P_, dtype=float), heading_known,
         )  # fmt: skip
 
 
