@@ -7,15 +7,17 @@ the first fixes while moving pulled the wrong heading in (σ 28.6° → 7.5° in
 at 163°), and the run stayed overconfident (a user's probe: NEES 1650 over a 40 s flight).
 
 Instead (``init.heading_from_gps``) the start's heading defines a local frame, as without GPS
-(its yaw error zero by construction), about the start's position, which the fixes at rest set.
-The fixes wait while the vehicle moves; ``HeadingCheck`` in its acquire mode compares their
-velocities with the filter's, and once the rotation between the two frames is known to its
-``max_std_deg`` the state is turned into the world about the start's position with that
-uncertainty (``turn_heading`` with ``pivot_W``), and so is everything kept in the local frame
-so far: the logged estimates (``turn_logged``) and the stored keyframes. Fixes are fused from
-then on. Should no heading come within ``HEADING_WAIT_MAX_S`` of motion (velocities that never
-fit one rotation), the old start is taken: the yaw widened to ``yaw_std_unknown`` (``widen_yaw``)
-and the fixes fused, warned.
+(its yaw error zero by construction), about the start's position. A fix that shows the vehicle
+standing (horizontal speed within 3σ of the GPS's velocity noise) is fused and the frame's
+pivot follows it; fixes that show it moving wait. ``HeadingCheck`` in its acquire mode compares
+their velocities with the filter's, and once the rotation between the two frames is known to
+its ``max_std_deg`` the state is turned into the world about the pivot with that uncertainty
+(``turn_heading`` with ``pivot_W``), and so is everything kept in the local frame so far: the
+logged estimates (``turn_logged``) and the stored keyframes. Fixes are fused from then on.
+Should no heading come within ``HEADING_WAIT_MAX_S`` of held fixes (a slow vehicle, velocities
+that never fit one rotation), or the fixes carry no velocity, the old start is taken: the yaw,
+and the logged estimates' too, widened to ``yaw_std_unknown`` (``widen_yaw``, a turn by 0°) and
+the fixes fused, warned.
 """
 
 from __future__ import annotations
