@@ -46,6 +46,7 @@ products per span.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,6 +70,10 @@ MODEL_STD_MPS2 = 0.02
 MAX_FIX_GAP_NS = 3_000_000_000  # fixes further apart say nothing of the motion between
 CHI2_999 = {1: 10.83, 3: 16.27}  # chi-square 0.999 quantiles by dof
 CHI2_MEDIAN = {1: 0.455, 3: 2.366}  # and medians
+
+
+# no factor to corroborate with (``ScaleCheck._warn``): nothing is
+_NONE = (math.nan, math.inf, math.nan, 0)
 
 
 @dataclass(frozen=True)
@@ -269,7 +274,7 @@ class ScaleCheck:
     def _judge_gps(self) -> None:
         if not self.warned_gps and _due(len(self._gps_rows), self.options.min_pairs):
             self.warned_gps = self._warn(self.gps_factor(), self.options.warn_gps, "the GPS says",
-                                         "spans")  # fmt: skip
+                                         "spans", corroborate=self.factor() or _NONE)  # fmt: skip
 
     def _would_warn(self, got: tuple[float, float, float, int], warn: float) -> bool:
         """The factor ``got`` is ``warn`` or more from 1 and beyond 4 of its deviations, from
@@ -289,15 +294,23 @@ class ScaleCheck:
                 and off > 4.0 * std)  # fmt: skip
 
     def _warn(self, got: tuple[float, float, float, int] | None, warn: float, by: str,
-              unit: str) -> bool:  # fmt: skip
+              unit: str,
+              corroborate: tuple[float, float, float, int] | None = None) -> bool:  # fmt: skip
         """Warn (once: the caller keeps the flag) when the factor ``got`` is ``warn`` or more
         from 1 and beyond 4 of its deviations, from enough rows that fit (or clearly off from
-        rows that fit poorly: ``_would_warn_poor_fit``); whether it did."""
+        rows that fit poorly: ``_would_warn_poor_fit``, and then, given ``corroborate``, only
+        when that other factor is off the same way beyond 2 of its deviations: GPS velocities
+        5 m/s off read the camera 0.44 times as far as the GPS, a fault of the GPS, not of
+        the cameras: a fault bench's case); whether it did."""
         if got is None or self.stand_down:
             return False
         if not self._would_warn(got, warn):
             if not self._would_warn_poor_fit(got, warn):
                 return False
+            if corroborate is not None:
+                kc, sc = corroborate[0], corroborate[1]
+                if not ((got[0] - 1.0) * (kc - 1.0) > 0.0 and abs(kc - 1.0) > 2.0 * sc):
+                    return False
             k, std, fit, n = got
             log.warning(
                 "the camera moves %.3f ± %.3f times as far as %s (%d %s), and the factor varies "
