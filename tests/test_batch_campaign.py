@@ -273,3 +273,32 @@ def test_ctrl_c_stops_a_local_campaign_in_one_line(tmp_path: Path, when: str) ->
             break
         time.sleep(0.2)
     assert not running, f"processes left in the group: {running}"
+
+
+def test_a_ctrl_c_lost_while_dask_is_imported_still_stops_the_campaign(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A Ctrl-C landing in a weakref callback during Dask's import is reported by Python as
+    ignored, and the campaign ran to its end (Python 3.13, the test above's "cluster starting"
+    case, once). The handler records it; the client is never made."""
+    import builtins
+    import signal
+
+    from svains.batch.driver import dask_client
+
+    real_import = builtins.__import__
+
+    def importing(name: str, *args: object, **kwargs: object) -> object:
+        if name == "dask.distributed":
+            try:
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.2)  # the handler runs here
+            except KeyboardInterrupt:
+                pass  # what a weakref callback's "Exception ignored" does to it
+        return real_import(name, *args, **kwargs)
+
+    before = signal.getsignal(signal.SIGINT)
+    monkeypatch.setattr(builtins, "__import__", importing)
+    with pytest.raises(KeyboardInterrupt), dask_client(n_workers=1):
+        pytest.fail("the cluster was started after the Ctrl-C")
+    assert signal.getsignal(signal.SIGINT) is before

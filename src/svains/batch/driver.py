@@ -20,7 +20,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import yaml
 
@@ -62,13 +62,31 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
                 timeout_s: float = 30.0) -> Iterator[Client]:  # fmt: skip
     """A client of the cluster at ``scheduler``, or of a new local cluster on 127.0.0.1 with
     ``n_workers`` processes (default: one per core) of one thread each; closed on exit."""
-    from dask.distributed import Client, LocalCluster
+    main = threading.current_thread() is threading.main_thread()
+    # A Ctrl-C while Dask is imported can land in a weakref callback, where Python reports the
+    # KeyboardInterrupt as ignored and goes on: the campaign then ran to its end (Python 3.13,
+    # a test's interrupt 0.3 s after the lock). Until the cluster is up the handler also
+    # records it, and the record is checked.
+    pressed = threading.Event()
 
+    def _record(signum: int, frame: object) -> None:
+        pressed.set()
+        raise KeyboardInterrupt
+
+    original = signal.signal(signal.SIGINT, _record) if main else None
+    try:
+        from dask.distributed import Client, LocalCluster
+    except BaseException:
+        _restore_sigint(main, original)
+        raise
     if not logging.getLogger().isEnabledFor(logging.INFO):
         # distributed installs its own INFO handler on import; a local scheduler would log every
         # connection. Follow the application's level instead.
         logging.getLogger("distributed").setLevel(logging.WARNING)
     if scheduler:
+        _restore_sigint(main, original)
+        if pressed.is_set():
+            raise KeyboardInterrupt
         try:
             client = Client(scheduler, timeout=timeout_s)
         except (OSError, TimeoutError, ValueError) as exc:
@@ -81,10 +99,11 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
     # ignored while the cluster starts, so its worker processes inherit "ignored" and keep it;
     # a Ctrl-C meanwhile is seen by a sentinel (`sleep`, killed by it) and raised once the
     # cluster is up, inside the block that closes it.
-    main = threading.current_thread() is threading.main_thread()
-    sentinel = _ctrl_c_sentinel() if main else None
-    handler = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    sentinel = None
     try:
+        sentinel = _ctrl_c_sentinel() if main else None
+        if main:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
         cluster = LocalCluster(
             n_workers=n_workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
             host="127.0.0.1", dashboard_address=None, env=WORKER_ENV,
@@ -96,9 +115,8 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
             scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
         )  # fmt: skip
     finally:
-        if main:
-            signal.signal(signal.SIGINT, handler)
-        interrupted = _end_sentinel(sentinel)
+        _restore_sigint(main, original)
+        interrupted = _end_sentinel(sentinel) or pressed.is_set()
     logging.getLogger("distributed").setLevel(logging.WARNING)  # this process: lost workers
     with cluster:
         try:
@@ -111,6 +129,14 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
                 # and the workers killed mid-run are expected, not worth Dask's warnings.
                 logging.getLogger("distributed").setLevel(logging.CRITICAL)
             raise
+
+
+def _restore_sigint(main: bool, original: Any) -> None:
+    """Give SIGINT back its handler from before ``dask_client`` (Python's default when it
+    had none from Python)."""
+    if main:
+        signal.signal(signal.SIGINT, original if original is not None
+                      else signal.default_int_handler)  # fmt: skip
 
 
 def _ctrl_c_sentinel() -> subprocess.Popen[bytes] | None:
