@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from scipy.stats import chi2
 
 from svains.filter.ukf import UKF
-from svains.geometry.rotation import quat_multiply, quat_normalize, quat_to_rotmat
+from svains.geometry.rotation import quat_exp, quat_multiply, quat_normalize, quat_to_rotmat
 from svains.models.clones import CloneManifold
 from svains.models.state import DP, DTH, DV, Q, V
 from svains.models.state import P as POS
@@ -178,12 +178,6 @@ def yaw_std(ukf: UKF, up_W: F64) -> float:
     return math.sqrt(max(float(u_B @ ukf.P[DTH, DTH] @ u_B), 0.0))
 
 
-def rotation_about(up: F64, angle: float) -> F64:
-    """Rotation (3, 3) by ``angle`` about the unit axis ``up``."""
-    K = np.array([[0.0, -up[2], up[1]], [up[2], 0.0, -up[0]], [-up[1], up[0], 0.0]])
-    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * K @ K
-
-
 def turn_heading(ukf: UKF, error: HeadingError, up_W: F64, v_W: F64 | None = None,
                  v_std: float = 0.0, pivot_W: F64 | None = None) -> None:  # fmt: skip
     """Turn the state by ``error.angle_rad`` about ``up_W`` through the current position:
@@ -196,8 +190,8 @@ def turn_heading(ukf: UKF, error: HeadingError, up_W: F64, v_W: F64 | None = Non
     ``pivot_W`` (3,) m: turn the whole frame about this point instead, the current position
     too (a local frame whose origin is the start's position, ``Core``'s heading wait)."""
     up = np.asarray(up_W, dtype=float) / np.linalg.norm(up_W)
-    Rz = rotation_about(up, error.angle_rad)
-    q_z = np.array([math.cos(0.5 * error.angle_rad), *(math.sin(0.5 * error.angle_rad) * up)])
+    q_z = quat_exp(error.angle_rad * up)
+    Rz = quat_to_rotmat(q_z)
     x = ukf.x.copy()
     n = ukf.P.shape[0]
     J = np.eye(n)

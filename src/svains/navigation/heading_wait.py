@@ -22,15 +22,13 @@ the fixes fused, warned.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numpy.typing import NDArray
 
 from svains.filter.ukf import UKF
-from svains.geometry.rotation import quat_multiply, quat_normalize, quat_to_rotmat
+from svains.geometry.rotation import quat_exp, quat_multiply, quat_normalize, quat_to_rotmat
 from svains.models.state import DTH
-from svains.navigation.heading_check import HeadingError, rotation_about
+from svains.navigation.heading_check import HeadingError
 from svains.navigation.outputs import FrameTurn
 
 F64 = NDArray[np.float64]
@@ -41,43 +39,43 @@ HEADING_WAIT_MAX_S = 10.0
 
 
 def turn_logged(
-    log_x: list[F64], log_std: list[F64], log_P9: list[F64], error: HeadingError, up_W: F64,
-    pivot_W: F64,
+    log_x: list[F64], log_std: list[F64] | None, log_P9: list[F64] | None,
+    error: HeadingError, up_W: F64, pivot_W: F64,
 ) -> None:
     """Turn logged estimates (in place) by ``error.angle_rad`` about the vertical ``up_W``
     through ``pivot_W`` (3,) m: position, velocity and attitude of each ``x`` (nx,), their
     ``P9`` (9, 9: p, v, δθ_B) by the map plus the turn's own uncertainty ``error.std_rad``, and
-    the first nine tangent standard deviations of ``std`` from it."""
+    the first nine tangent standard deviations of ``std`` from it (both None: the means
+    alone)."""
     up = np.asarray(up_W, dtype=float) / np.linalg.norm(up_W)
     pivot = np.asarray(pivot_W, dtype=float)
-    Rz = rotation_about(up, error.angle_rad)
-    q_z = np.array([math.cos(0.5 * error.angle_rad), *(math.sin(0.5 * error.angle_rad) * up)])
+    q_z = quat_exp(error.angle_rad * up)
+    Rz = quat_to_rotmat(q_z)
     J = np.eye(9)
     J[0:3, 0:3] = Rz
     J[3:6, 3:6] = Rz
-    for x, std, P9 in zip(log_x, log_std, log_P9, strict=True):
+    for i, x in enumerate(log_x):
         x[0:3] = pivot + Rz @ (x[0:3] - pivot)
         x[3:6] = Rz @ x[3:6]
         x[6:10] = quat_normalize(quat_multiply(q_z, x[6:10]))
+        if log_P9 is None or log_std is None:
+            continue
         a = np.concatenate([np.cross(up, x[0:3] - pivot), np.cross(up, x[3:6]),
                             quat_to_rotmat(x[6:10]).T @ up])  # fmt: skip
-        P = J @ P9 @ J.T + error.std_rad**2 * np.outer(a, a)
-        P9[:] = 0.5 * (P + P.T)
-        std[0:9] = np.sqrt(np.maximum(np.diag(P9), 0.0))
+        P = J @ log_P9[i] @ J.T + error.std_rad**2 * np.outer(a, a)
+        log_P9[i][:] = 0.5 * (P + P.T)
+        log_std[i][0:9] = np.sqrt(np.maximum(np.diag(log_P9[i]), 0.0))
 
 
-def forward_in_old_frames(x_fwd: F64, P9: F64, t_ns: F64, turns: list[FrameTurn]) -> F64:
-    """The forward means ``x_fwd`` (N, nx; ``P9`` (N, 9, 9) their covariances) with those
-    logged before each frame turn taken back into the frame they were made in (a copy): a
-    smoother's corrections of them are that frame's (``turn_smoothed`` turns the corrected
-    ones on)."""
+def forward_in_old_frames(x_fwd: F64, t_ns: F64, turns: list[FrameTurn]) -> F64:
+    """The forward means ``x_fwd`` (N, nx) with those logged before each frame turn taken
+    back into the frame they were made in (a copy): a smoother's corrections of them are that
+    frame's (``turn_smoothed`` turns the corrected ones on)."""
     out = np.array(x_fwd, dtype=float, copy=True)
     for turn in reversed(turns):
         rows = np.flatnonzero(np.asarray(t_ns) < turn.t_ns)
         back = HeadingError(-turn.angle_rad, 0.0, 0)
-        turn_logged([out[i] for i in rows], [np.zeros(9) for _ in rows],
-                    [np.array(P9[i], dtype=float) for i in rows], back, turn.up_W,
-                    turn.pivot_W)  # fmt: skip
+        turn_logged([out[i] for i in rows], None, None, back, turn.up_W, turn.pivot_W)
     return out
 
 

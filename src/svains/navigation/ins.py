@@ -145,6 +145,7 @@ class InsFilter:
         self._k_next_abs = k + 1 + self.history.dropped
         self._u = (self.gyro_B[k], self.accel_B[k], self.alpha_B[k])
         self._q_cache: dict[int, F64] = {}
+        self._chord_cache: tuple[int, tuple[float, float]] = (-1, (0.0, 0.0))
 
     # The IMU received so far (views: they grow with the history).
     @property
@@ -259,6 +260,9 @@ class InsFilter:
         """White-noise durations (s), gyro and accelerometer, that one sample missing before
         IMU sample ``k`` is worth: the chord residual of the ``CHORD_WINDOW`` samples before it
         (``models.imu.chord_residual_variance``) over the noise density; 0 where unmeasured."""
+        key = k + self.history.dropped  # the hole's sample, absolute: asked again by each
+        if self._chord_cache[0] == key:  # chunk a frame or tick splits its interval into
+            return self._chord_cache[1]
         lo = max(0, k - CHORD_WINDOW)
         t_s = (self.t_imu[lo:k] - self.t_imu[lo]) * 1e-9
         h = self._h_imu
@@ -270,6 +274,7 @@ class InsFilter:
             var_e = chord_residual_variance(t_s, x, h)
             ok = np.isfinite(var_e) and density > 0.0
             out.append(h * h * var_e / density**2 if ok else 0.0)
+        self._chord_cache = (key, (out[0], out[1]))
         return out[0], out[1]
 
     def add_omega_white(self) -> None:

@@ -33,7 +33,6 @@ from svains.navigation.fault_handling import (
 )
 from svains.navigation.gps_latency import GpsLatencyCheck
 from svains.navigation.heading_check import HeadingCheck, HeadingError, turn_heading, yaw_std
-from svains.navigation.heading_check import rotation_about as turn_matrix
 from svains.navigation.heading_wait import HEADING_WAIT_MAX_S, turn_logged, widen_yaw
 from svains.navigation.init import HEADING_FROM_GPS
 from svains.navigation.ins import InsFilter, default_imu_calib
@@ -113,7 +112,6 @@ class Core:
             if config.zupt.enabled and start_rest else None
         )
         self._next_zupt_ns = self.t0_ns
-        self._resting = self._zupt is not None  # the IMU's rest test, as last said
         self.history = history_recorder(config, ins) if config.smoother.enabled else None
         # the GPS frame and the gyro's unit against each other (files are checked on load)
         self._course_check = CourseCheck(ins.history, rig.gravity_W) if gps_used else None
@@ -382,16 +380,8 @@ class Core:
     def _heading_found(self, t: int, error: Any) -> None:
         """The local frame's heading found: the state, the estimates logged so far and the
         stored keyframes turned into the world about the start's position."""
-        pivot = self._heading_pivot
-        turn_heading(self.ins.ukf, error, self._up_W, pivot_W=pivot)
-        turn_logged(self._log_x, self._log_std, self._log_P9, error, self._up_W, pivot)
-        self.frame_turns.append(FrameTurn(t, error.angle_rad, error.std_rad, self._up_W.copy(),
-                                          pivot.copy()))  # fmt: skip
-        reloc = getattr(self._updater, "relocaliser", None)
-        if reloc is not None:
-            half = 0.5 * error.angle_rad
-            q_z = np.array([np.cos(half), *(np.sin(half) * self._up_W)])
-            reloc.memory.turn(turn_matrix(self._up_W, error.angle_rad), q_z, pivot)
+        turn_heading(self.ins.ukf, error, self._up_W, pivot_W=self._heading_pivot)
+        self._turn_kept(t, error)
         self._heading_wait = False
         at_s = (t - self.t0_ns) * 1e-9
         self.init_info["heading_found_s"] = round(at_s, 3)
@@ -404,6 +394,18 @@ class Core:
                  "then", at_s, error.steps, np.degrees(error.angle_rad),
                  np.degrees(error.std_rad), self.gps_held_heading)  # fmt: skip
 
+    def _turn_kept(self, t: int, error: HeadingError) -> None:
+        """Turn what the run kept in the local frame (the estimates logged so far, for a
+        smoother too, and the stored keyframes) as the state was: by ``error`` about the
+        heading wait's pivot."""
+        pivot = self._heading_pivot
+        turn_logged(self._log_x, self._log_std, self._log_P9, error, self._up_W, pivot)
+        self.frame_turns.append(FrameTurn(t, error.angle_rad, error.std_rad, self._up_W.copy(),
+                                          pivot.copy()))  # fmt: skip
+        reloc = getattr(self._updater, "relocaliser", None)
+        if reloc is not None:
+            reloc.memory.turn(error.angle_rad * self._up_W, pivot)
+
     def _end_heading_wait(self, t: int, why: str) -> None:
         """No heading from the GPS: the start's heading becomes an arbitrary one (its yaw
         widened to ``init.yaw_std_unknown``, and so are the estimates logged so far, by a turn
@@ -414,10 +416,7 @@ class Core:
         if self._log_x:
             # the logged rows were the local frame's with a yaw σ of a known heading: as
             # world-frame rows they hold an arbitrary heading too (they read 52-105σ off)
-            zero = HeadingError(0.0, std, 0)
-            pivot = self._heading_pivot
-            turn_logged(self._log_x, self._log_std, self._log_P9, zero, self._up_W, pivot)
-            self.frame_turns.append(FrameTurn(t, 0.0, std, self._up_W.copy(), pivot.copy()))
+            self._turn_kept(t, HeadingError(0.0, std, 0))
         self.init_info["heading"] = "none (arbitrary yaw)"
         self._warn.warn("heading-wait", t, f"no heading for the local start ({why}): GPS "
                         f"fixes are fused with an arbitrary heading (standard deviation "
@@ -484,8 +483,6 @@ class Core:
             self.ins.history, t
         ):
             rest = False  # set off gently: the block test alone would go on
-        if rest is not None:
-            self._resting = bool(rest)
         if not rest:
             if rest is not None and not self.config.zupt.after_start:
                 self._zupt = None  # the start's rest is over

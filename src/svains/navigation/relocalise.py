@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from svains.errors import FilterError
-from svains.geometry.rotation import quat_multiply, quat_normalize, quat_to_rotmat
+from svains.geometry.rotation import quat_exp, quat_multiply, quat_normalize, quat_to_rotmat
 from svains.models.state import DP, DTH
 from svains.models.state import P as P_SLICE
 from svains.models.state import Q as Q_SLICE
@@ -144,11 +144,13 @@ class KeyframeMemory:
         height taken from the sonar, ``navigation.sonar_anchor``)."""
         self.keyframes = [replace(k, p_W_B=k.p_W_B + dp_W) for k in self.keyframes]
 
-    def turn(self, R_z: F64, q_z_wxyz: F64, pivot_W: F64) -> None:
-        """Turn every stored pose by ``R_z`` (3, 3; ``q_z_wxyz`` the same rotation) about
+    def turn(self, theta_W: F64, pivot_W: F64) -> None:
+        """Turn every stored pose by the rotation vector ``theta_W`` (3,) rad about
         ``pivot_W`` (3,) m: the world frame turned (a local start's heading found from the GPS,
         ``navigation.heading_wait``). The pose covariances (position turned with it) keep
         their size; the turn's own uncertainty is the state's."""
+        q_z_wxyz = quat_exp(theta_W)
+        R_z = quat_to_rotmat(q_z_wxyz)
         pivot = np.asarray(pivot_W, dtype=float)
         J = np.eye(6)
         J[:3, :3] = R_z

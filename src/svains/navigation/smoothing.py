@@ -75,7 +75,7 @@ def smoothed_result(result: RunResult) -> RunResult:
     # Estimates logged before a frame turn (a local start's heading found) were smoothed in
     # the frame they were made in: corrected there, then turned with the turn's uncertainty.
     turns = result.frame_turns
-    x_fwd = (forward_in_old_frames(result.x, result.P9, result.t_ns, turns) if turns
+    x_fwd = (forward_in_old_frames(result.x, result.t_ns, turns) if turns
              else np.asarray(result.x, dtype=float))  # fmt: skip
     x = nav.retract(x_fwd, dX)
     P9 = np.array(s.P)
