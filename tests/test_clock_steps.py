@@ -37,7 +37,9 @@ def test_imu_stamps_go_on_from_the_last_sample_and_others_take_the_nearest_shift
     # step; the confirmed one goes on from the last sample.
     assert out == [100 * S, 100 * S + period, 90 * S + 2 * period, 100 * S + 3 * period,
                    100 * S + 4 * period]
-    assert clock.steps == [pytest.approx({"at_s": 0.005, "back_s": 10.0})]
+    (step,) = clock.steps
+    assert step["stream"] == "imu"
+    assert step["at_s"] == pytest.approx(0.005) and step["back_s"] == pytest.approx(10.0)
     # A single stale sample far back, then the clock going on: no step.
     lone = ClockSteps()
     assert lone.imu(100 * S, None, lambda: period, 100 * S) == 100 * S
@@ -47,20 +49,62 @@ def test_imu_stamps_go_on_from_the_last_sample_and_others_take_the_nearest_shift
     assert lone.steps == []
     # A frame stamped before the step and delivered late keeps its stamp; one stamped after it
     # on the stepped clock is carried like the IMU.
-    assert clock.other(100 * S + period) == 100 * S + period
-    assert clock.other(90 * S + 4 * period) == 100 * S + 4 * period
+    assert clock.other(100 * S + period, "frame") == 100 * S + period
+    assert clock.other(90 * S + 4 * period, "gps") == 100 * S + 4 * period
     # A step back within STEP_BACK_S is an out-of-order sample: left for the caller to drop.
     late = clock.imu(90 * S + 2 * period, 100 * S + 3 * period, lambda: period, 100 * S)
     assert late == 100 * S + 2 * period
     assert len(clock.steps) == 1
 
 
-def _run(ds, config, step_at_s: float | None, back_s: float = 5.0):
+def test_a_stream_whose_clock_alone_steps_back_goes_on_from_its_last_stamp() -> None:
+    """A camera driver restarted while the IMU's clock went on: every later frame was late,
+    dropped one by one, and the run went on as a pure INS (a user's probe: 151 m)."""
+    clock = ClockSteps()
+    period, frame = 5_000_000, 200_000_000
+    imu_t = 100 * S
+    clock.imu(imu_t, None, lambda: period, 100 * S)
+
+    def imu_to(t_ns: int) -> None:
+        nonlocal imu_t
+        while imu_t + period <= t_ns:
+            imu_t = clock.imu(imu_t + period, imu_t, lambda: period, 100 * S)
+
+    out = []
+    for raw in [100 * S + k * frame for k in range(1, 6)] + [
+            95 * S + k * frame for k in range(6, 9)]:  # fmt: skip
+        imu_to(raw if raw >= 100 * S else raw + 5 * S)  # fed as stamped by the IMU clock
+        out.append(clock.other(raw, "frame"))
+    # The first frame far back is held out (left for the queue to drop as late) until the next
+    # confirms the step; from then the frames go on one spacing after the last.
+    assert out[:6] == [100 * S + k * frame for k in range(1, 6)] + [95 * S + 6 * frame]
+    assert out[6:] == [100 * S + 7 * frame, 100 * S + 8 * frame]
+    (step,) = clock.steps
+    assert step["stream"] == "frame" and step["back_s"] == pytest.approx(5.0)
+    # another stream on the IMU's clock is untouched
+    assert clock.other(imu_t, "gps") == imu_t
+    # A single stale frame far back, then the stream going on: no step.
+    assert clock.other(90 * S, "frame") == 95 * S  # the stream's shift, 5 s back: late
+    assert clock.other(95 * S + 9 * frame, "frame") == 100 * S + 9 * frame
+    assert len(clock.steps) == 1
+    # Far back from its last but not behind the IMU's time (frames fed ahead, then one from
+    # before): no step.
+    ahead = ClockSteps()
+    ahead.imu(100 * S, None, lambda: period, 100 * S)
+    ahead.other(103 * S, "frame")
+    ahead.other(100 * S + frame, "frame")
+    assert ahead.other(100 * S + 2 * frame, "frame") == 100 * S + 2 * frame
+    assert ahead.steps == []
+
+
+def _run(ds, config, step_at_s: float | None, back_s: float = 5.0,
+         streams: tuple[int, ...] | None = None):
     init = groundtruth_start(ds, config, None)
     nav = Navigator(config, rig_from_dataset(ds), initial_state=init)
     t0 = init.t_ns
     for t, kind, payload in measurements(ds, config, t0):
-        if step_at_s is not None and t > t0 + step_at_s * S:
+        if step_at_s is not None and t > t0 + step_at_s * S and (
+                streams is None or kind in streams):  # fmt: skip
             t -= round(back_s * S)
         feed(nav, kind, t, payload)
     return nav.close()
@@ -90,3 +134,34 @@ def test_every_stream_stepped_back_mid_run_gives_the_clean_run(
     np.testing.assert_array_equal(stepped.t_ns, clean.t_ns)
     err = np.linalg.norm(stepped.x[:, :3] - clean.x[:, :3], axis=1)
     assert err.max() < 0.01
+
+
+def test_the_camera_clock_alone_stepped_back_mid_run_gives_the_clean_run(
+    village_30s: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The camera's clock back 5 s at 15 s, the IMU's steady: every later frame was dropped as
+    late, the run went on as a pure INS (a user's probe: 151 m on EuRoC)."""
+    ds = load_dataset(village_30s)
+    config = resolve_config(ds, RunConfig(method="3d", use_gps=False, duration_s=25.0,
+                                          init=InitOptions(mode="groundtruth")))
+    frame_kind = 3  # replay's stream order: GPS, MAG, SONAR, FRAME, IMU
+    init = groundtruth_start(ds, config, None)
+    nav = Navigator(config, rig_from_dataset(ds), initial_state=init)
+    lost = min(t for t, kind, _ in measurements(ds, config, init.t_ns)
+               if kind == frame_kind and t > init.t_ns + 15 * S)  # fmt: skip
+    for t, kind, payload in measurements(ds, config, init.t_ns):
+        if not (kind == frame_kind and t == lost):
+            feed(nav, kind, t, payload)
+    clean = nav.close()  # but for the frame the step costs
+    with caplog.at_level(logging.WARNING):
+        stepped = _run(ds, config, 15.0, streams=(frame_kind,))
+    steps = [r.getMessage() for r in caplog.records if "clock stepped back" in r.getMessage()]
+    assert len(steps) == 1 and "the frame clock stepped back 5.000 s while the IMU's went on" \
+        in steps[0]
+    (step,) = stepped.report["clock_steps"]
+    assert step["stream"] == "frame" and step["at_s"] == pytest.approx(15.0, abs=0.3)
+    # the first frame of the new clock is lost (held out until the next confirms the step)
+    assert stepped.report["dropped"] == {"frame": 1}
+    assert stepped.report["vision"]["frames_fused"] == clean.report["vision"]["frames_fused"]
+    np.testing.assert_array_equal(stepped.t_ns, clean.t_ns)
+    np.testing.assert_allclose(stepped.x, clean.x, atol=1e-9)

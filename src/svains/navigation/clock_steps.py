@@ -10,17 +10,39 @@ stamp takes whichever shift seen so far (none, or the steps' sums) puts it neare
 time: a measurement stamped before the step and delivered late keeps its stamp, one stamped
 after it on the same stepped clock is carried like the IMU. Smaller steps back stay what they
 were: out-of-order samples, dropped and counted. A step forward is a gap (its own handling).
+
+A clock of one other stream alone stepping back (a camera driver restarted, the IMU's steady)
+made every later frame "late": dropped one by one, the run went on as a pure INS and diverged (a
+user's probe: 151 m). Such a stream's step is taken the same way, per stream: a stamp more than
+``STEP_BACK_S`` before the stream's last, confirmed by the stream's next, while the IMU's clock
+went on (no IMU step pending, the stamps far behind the IMU's time), shifts that stream's later
+stamps to lag the IMU's time as they did before the step, with a warning naming the stream.
 """
 
 from __future__ import annotations
 
 import logging
+from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 log = logging.getLogger(__name__)
 
 # An IMU stamp this far before the last sample is a clock stepping back, not a late sample.
 STEP_BACK_S = 1.0
+
+
+@dataclass
+class _Stream:
+    """One non-IMU stream's own clock: its shift (ns), last stamp on the run's clock, its
+    recent lags behind the IMU's time when fed (ns), and a first stamp far back awaiting
+    confirmation (raw ns) with its lag."""
+
+    shift_ns: int = 0
+    last_ns: int | None = None
+    lags_ns: deque[int] = field(default_factory=lambda: deque(maxlen=9))
+    candidate_ns: int | None = None
+    candidate_lag_ns: int = 0
 
 
 class ClockSteps:
@@ -32,7 +54,9 @@ class ClockSteps:
         self._shifts = [0]  # every shift in force at some time, oldest first
         self._imu_now_ns: int | None = None
         self._candidate_ns: int | None = None  # a first sample far back, raw stamp
-        self.steps: list[dict[str, float]] = []
+        self.steps: list[dict[str, float | str]] = []
+        self._streams: dict[str, _Stream] = {}
+        self._origin_ns: int | None = None
 
     def imu(
         self, t_ns: int, last_ns: int | None, period_ns: Callable[[], int], origin_ns: int | None
@@ -57,7 +81,8 @@ class ClockSteps:
             at_s = (last_ns - (origin_ns if origin_ns is not None else last_ns)) * 1e-9
             # the step: how far the new clock's first sample sits behind where it was due (one
             # period after the last; "1.195 s" was said of a 1.2 s step: a user's probe)
-            self.steps.append({"at_s": round(at_s, 6), "back_s": round(step_ns * 1e-9, 9)})
+            self.steps.append({"stream": "imu", "at_s": round(at_s, 6),
+                               "back_s": round(step_ns * 1e-9, 9)})
             log.warning(
                 "%.3f s into the run: the IMU clock stepped back %.3f s (a clock reset or a "
                 "driver restart?): later stamps of every stream on that clock are shifted "
@@ -65,10 +90,51 @@ class ClockSteps:
                 step_ns * 1e-9)  # fmt: skip
             t = t_ns + self.shift_ns
         self._imu_now_ns = t if self._imu_now_ns is None else max(self._imu_now_ns, t)
+        if self._origin_ns is None:
+            self._origin_ns = origin_ns if origin_ns is not None else t
         return t
 
-    def other(self, t_ns: int) -> int:
-        """A camera/GPS/magnetometer/sonar stamp on the run's clock."""
+    def other(self, t_ns: int, stream: str) -> int:
+        """A camera/GPS/magnetometer/sonar stamp on the run's clock; ``stream`` names its clock
+        (a step of that stream's alone is carried across the same way as the IMU's)."""
+        s = self._streams.get(stream)
+        if s is None:
+            s = self._streams[stream] = _Stream()
+        t = self._nearest(t_ns + s.shift_ns)
+        if s.last_ns is None or t >= s.last_ns - self._step_ns:
+            s.candidate_ns = None
+        elif (s.candidate_ns is None or t_ns <= s.candidate_ns
+              or self._candidate_ns is not None  # the IMU's clock steps too: its own handling
+              or self._imu_now_ns is None or t >= self._imu_now_ns - self._step_ns):
+            # far back from the stream's last: a stale message until the next one follows it
+            s.candidate_ns = t_ns
+            s.candidate_lag_ns = 0 if self._imu_now_ns is None else self._imu_now_ns - t
+            return t
+        else:
+            # The stamps go on lagging the IMU's time as before the step (a spacing from the
+            # last stamp would not do: irregular keyframes, a user's probe).
+            assert self._imu_now_ns is not None
+            lags = sorted(s.lags_ns)
+            before = lags[len(lags) // 2] if lags else 0
+            step_ns = (s.candidate_lag_ns + self._imu_now_ns - t) // 2 - before
+            s.shift_ns += step_ns
+            s.candidate_ns = None
+            at_s = (s.last_ns - (self._origin_ns if self._origin_ns is not None
+                                 else s.last_ns)) * 1e-9
+            self.steps.append({"stream": stream, "at_s": round(at_s, 6),
+                               "back_s": round(step_ns * 1e-9, 9)})
+            log.warning(
+                "%.3f s into the run: the %s clock stepped back %.3f s while the IMU's went on "
+                "(a driver restart?): its later stamps are shifted %+.3f s to keep to the "
+                "IMU's", at_s, stream, step_ns * 1e-9, step_ns * 1e-9)  # fmt: skip
+            t = self._nearest(t_ns + s.shift_ns)
+        if self._imu_now_ns is not None:
+            s.lags_ns.append(self._imu_now_ns - t)
+        s.last_ns = t if s.last_ns is None else max(s.last_ns, t)
+        return t
+
+    def _nearest(self, t_ns: int) -> int:
+        """``t_ns`` with whichever IMU shift seen so far puts it nearest the IMU's time."""
         if len(self._shifts) == 1 or self._imu_now_ns is None:
             return t_ns
         now = self._imu_now_ns

@@ -198,7 +198,7 @@ class Navigator:
         ``TypeError`` for another dtype:
         a 12- or 16-bit or float image has no one right conversion, so the caller makes it."""
         if self._takes_frames:
-            t_ns = self.clock.other(_stamp("feed_stereo", t_ns))
+            t_ns = self.clock.other(_stamp("feed_stereo", t_ns), "frame")
             left, right = _image("left", left), _image("right", right)
             for name, img in (("left", left), ("right", right)):
                 dtype = img.dtype
@@ -227,7 +227,7 @@ class Navigator:
         ``uv_right`` (M, 2) px in the rectified pair ``cam0``/``cam1`` define. Ignored by
         ``ins``."""
         if self._takes_frames:
-            t_ns = self.clock.other(_stamp("feed_tracks", t_ns))
+            t_ns = self.clock.other(_stamp("feed_tracks", t_ns), "frame")
             raw = np.asarray(track_id)
             if raw.dtype.kind not in "iu" and not (
                     raw.dtype.kind == "f" and np.all(raw == np.round(raw))):  # fmt: skip
@@ -256,18 +256,19 @@ class Navigator:
         position only) in the world frame."""
         v = None if v_W_G is None else _vector("feed_gps", "v_W_G", v_W_G)
         p = _vector("feed_gps", "p_W_G", p_W_G)
-        self._push(self.clock.other(_stamp("feed_gps", t_ns)), GPS, (p, v))
+        self._push(self.clock.other(_stamp("feed_gps", t_ns), "gps"), GPS, (p, v))
 
     def feed_mag(self, t_ns: int, m_S: ArrayLike) -> None:
         """A magnetometer sample ``m_S`` (3,) Gauss in its sensor frame."""
-        self._push(self.clock.other(_stamp("feed_mag", t_ns)), MAG, _vector("feed_mag", "m_S", m_S))
+        t_ns = self.clock.other(_stamp("feed_mag", t_ns), "mag")
+        self._push(t_ns, MAG, _vector("feed_mag", "m_S", m_S))
 
     def feed_sonar(self, t_ns: int, range_m: float) -> None:
         """A sonar range (m) along the sensor's +z axis to flat ground."""
         r = np.asarray(range_m, dtype=float) if not isinstance(range_m, float) else range_m
         if np.ndim(r) != 0:
             raise ValueError(f"feed_sonar: range_m must be one number, got shape {np.shape(r)}")
-        self._push(self.clock.other(_stamp("feed_sonar", t_ns)), SONAR, float(r))
+        self._push(self.clock.other(_stamp("feed_sonar", t_ns), "sonar"), SONAR, float(r))
 
     def _new_frame(self, t_ns: int) -> bool:
         """Whether no frame with the stamp ``t_ns`` was fed lately (else dropped, counted)."""
