@@ -130,26 +130,62 @@ def test_a_missing_sample_is_priced_by_the_chord_residual() -> None:
     one_hole = (np.array([2 * h]), np.array([2 * h]))
     # White noise alone (chord residual 1.5 σ²/h ⇒ 1.5 h of white noise): the held sample's
     # 4 h already covers it, as before.
-    assert white_noise_duration_s(*one_hole, h, missing_sample_s=1.5 * h) == pytest.approx(4 * h)
+    assert white_noise_duration_s(*one_hole, h, hole_s=np.array([1.5 * h])) == pytest.approx(
+        4 * h)
     # A vibrating airframe: the missing sample is worth 300 h of white noise on top of the step.
-    assert white_noise_duration_s(*one_hole, h, missing_sample_s=300 * h) == pytest.approx(302 * h)
+    assert white_noise_duration_s(*one_hole, h, hole_s=np.array([300 * h])) == pytest.approx(
+        302 * h)
     # Split by a frame time inside the hole, the pieces add up to the same.
     pieces = white_noise_duration_s(
-        np.array([0.3 * h, 1.7 * h]), np.array([2 * h, 2 * h]), h, missing_sample_s=300 * h
+        np.array([0.3 * h, 1.7 * h]), np.array([2 * h, 2 * h]), h,
+        hole_s=np.array([300 * h, 300 * h]),
     )
     assert pieces == pytest.approx(302 * h)
-    # Three samples missing: three times the price.
+    # Three samples missing: what they are worth together.
     D = np.array([4 * h])
-    three = white_noise_duration_s(D, D, h, missing_sample_s=300 * h)
-    assert three == pytest.approx(4 * h + 900 * h)
+    three = white_noise_duration_s(D, D, h, hole_s=np.array([2000 * h]))
+    assert three == pytest.approx(4 * h + 2000 * h)
     # A regular stream is untouched.
     dt = np.full(5, h)
-    assert white_noise_duration_s(dt, dt, h, missing_sample_s=300 * h) == pytest.approx(5 * h)
+    assert white_noise_duration_s(dt, dt, h, hole_s=np.full(5, 300 * h)) == pytest.approx(5 * h)
 
 
-def _vibrating_hole_filter(amplitude: float):
+@pytest.mark.parametrize("m", [1, 2, 5, 10])
+def test_the_chord_residual_across_m_missing_samples(m: int) -> None:
+    """The trapezoid across m missing samples misses h S, S = Σ x_j − (m/2)(x_0 + x_{m+1}):
+    white noise gives σ² (m + m²/2); a coherent vibration its own sum; windows holding an
+    irregular interval are left out."""
+    from svains.models.imu import chord_residual_variance
+
+    h = 0.005
+    rng = np.random.default_rng(11)
+    t = np.arange(40000) * h
+    sigma = 0.03
+    white = rng.normal(0.0, sigma, (t.size, 3))
+    assert chord_residual_variance(t, white, h, missing=m) == pytest.approx(
+        sigma**2 * (m + m * m / 2), rel=0.04)
+    A, f = 2.0, 37.0
+    vib = A * np.sin(2 * np.pi * f * t[:, None] + np.array([0.0, 1.0, 2.0]))
+    # each window's integral error, brute force: every sample's trapezoid against the chord's
+    n = 3000
+    full = np.stack([h * (vib[i:i + m + 2].sum(0) - 0.5 * (vib[i] + vib[i + m + 1]))
+                     for i in range(n)])  # fmt: skip
+    across = np.stack([(m + 1) * h * 0.5 * (vib[i] + vib[i + m + 1]) for i in range(n)])
+    brute = np.mean((full - across) ** 2) / h**2
+    assert chord_residual_variance(t[: n + m + 1], vib[: n + m + 1], h, missing=m) == \
+        pytest.approx(brute, rel=1e-9)
+    # a window across a hole is left out: a spike between two holes does not count
+    spiky = white.copy()
+    spiky[1000] = 50.0
+    keep = np.ones(t.size, bool)
+    keep[999] = keep[1001] = False
+    assert chord_residual_variance(t[keep][: 1000 + m + 5], spiky[keep][: 1000 + m + 5], h,
+                                   missing=m) < 3 * sigma**2 * (m + m * m / 2)  # fmt: skip
+
+
+def _vibrating_hole_filter(amplitude: float, missing: int = 1):
     """An InsFilter on the analytic flight at 200 Hz with a 37 Hz vibration of ``amplitude``
-    m/s² on the accelerometer and one sample missing at 2 s."""
+    m/s² on the accelerometer and ``missing`` samples missing at 2 s."""
     from svains.datasets.types import ImuStream
     from svains.navigation.init import initialise
     from svains.navigation.ins import InsFilter
@@ -161,35 +197,44 @@ def _vibrating_hole_filter(amplitude: float):
     t_s = (imu.t_ns - imu.t_ns[0]) * 1e-9
     accel = imu.accel_B + amplitude * np.sin(2 * np.pi * 37.0 * t_s[:, None] + [0.0, 1.0, 2.0])
     hole = 400
-    keep = np.arange(imu.t_ns.size) != hole
+    keep = (np.arange(imu.t_ns.size) < hole) | (np.arange(imu.t_ns.size) >= hole + missing)
     ds = replace(ds, imu=ImuStream(imu.t_ns[keep], imu.gyro_B[keep], accel[keep]))
     init = initialise(ds, BIASED, InitOptions(mode="groundtruth"))
     init.P *= 1e-12  # the growth across the hole is then the process noise alone
     ins = InsFilter(history_from_dataset(ds), rig_from_dataset(ds), BIASED, init,
                     FilterOptions(), NoiseOptions())
-    return ins, int(imu.t_ns[hole - 1]), int(imu.t_ns[hole + 1]), accel
+    return ins, int(imu.t_ns[hole - 1]), int(imu.t_ns[hole + missing]), accel
 
 
-@pytest.mark.parametrize("amplitude", [0.0, 2.0])
-def test_a_hole_in_a_vibrating_stream_costs_the_velocity_what_it_hides(amplitude) -> None:
-    """Across one missing sample the velocity variance grows by at least h² var(e) per axis
-    (the integral the trapezoid misses); a quiet stream keeps the white-noise price."""
+@pytest.mark.parametrize(("amplitude", "missing"), [(0.0, 1), (2.0, 1), (2.0, 2), (2.0, 6)])
+def test_a_hole_in_a_vibrating_stream_costs_the_velocity_what_it_hides(
+    amplitude: float, missing: int
+) -> None:
+    """Across m missing samples the velocity variance grows by h² var(S) per axis (the integral
+    the trapezoid across them misses, ``chord_residual_variance(…, missing=m)``), not m times
+    one sample's (a coherent vibration misses more or less than that); a quiet stream keeps
+    the white-noise price."""
     from svains.models.imu import chord_residual_variance
 
-    ins, t_before, t_after, accel = _vibrating_hole_filter(amplitude)
+    ins, t_before, t_after, accel = _vibrating_hole_filter(amplitude, missing)
     h = 0.005
-    # The same span of two regular steps just before: what the hole adds is the difference.
-    ins.propagate_to(t_before - int(2 * h * 1e9))
+    n_steps = missing + 1
+    # The same span of regular steps just before: what the hole adds is the difference.
+    ins.propagate_to(t_before - int(n_steps * h * 1e9))
     var0 = np.diag(ins.ukf.P)[DV].copy()
     ins.propagate_to(t_before)
     var1 = np.diag(ins.ukf.P)[DV].copy()
     ins.propagate_to(t_after)
     extra = (np.diag(ins.ukf.P)[DV] - var1) - (var1 - var0)
-    white = ins.noise.accel_noise_density**2 * 2 * h  # the held sample's 4 h against 2 h
+    # the held sample's (m + 1)² h against (m + 1) h
+    white = ins.noise.accel_noise_density**2 * n_steps * (n_steps - 1) * h
     t_s = np.arange(accel.shape[0]) * h
-    var_e = chord_residual_variance(t_s[144:400], accel[144:400], h)
+    var_s = chord_residual_variance(t_s[144:400], accel[144:400], h, missing=missing)
     if amplitude == 0.0:
         np.testing.assert_allclose(extra, white, rtol=0.2)
     else:
-        assert h * h * var_e > 100 * white
-        np.testing.assert_allclose(extra, h * h * var_e, rtol=0.05)
+        assert h * h * var_s > 100 * white
+        np.testing.assert_allclose(extra, h * h * var_s, rtol=0.05)
+        one = chord_residual_variance(t_s[144:400], accel[144:400], h)
+        if missing > 1:  # the 37 Hz vibration: 4-6x what pricing each sample alike gives
+            assert var_s / (missing * one) > 2.0

@@ -219,26 +219,35 @@ MIN_CHORD_TRIPLES = 20
 
 
 def chord_residual_variance(
-    t_s: F64, x: F64, h_imu_s: float, factor: float = MISSING_SAMPLE_FACTOR
+    t_s: F64, x: F64, h_imu_s: float, factor: float = MISSING_SAMPLE_FACTOR, missing: int = 1
 ) -> float:
-    """Per-axis variance of each sample's departure from the chord of its two neighbours,
-    ``x_k − (x_{k−1} + x_{k+1})/2``, over the triples of ``x`` (N, 3) at ``t_s`` (N,) s whose two
-    intervals are both regular (at most ``factor`` periods ``h_imu_s``); NaN when fewer than
-    ``MIN_CHORD_TRIPLES``.
+    """Per-axis variance of what the chord across ``missing`` samples misses, over the windows
+    of ``x`` (N, 3) at ``t_s`` (N,) s whose ``missing + 1`` intervals are all regular (at most
+    ``factor`` periods ``h_imu_s``); NaN when fewer than ``MIN_CHORD_TRIPLES`` windows.
 
-    It is what a missing sample leaves unknown: the trapezoid across the hole misses ``h e_k``
-    of the integral. White noise gives 1.5 σ²/h; a vibrating airframe far more (its vibration
-    is signal between samples that no noise density describes).
+    For a window x_0 … x_{m+1} the residual is ``S = Σ_{j=1..m} x_j − (m/2)(x_0 + x_{m+1})``:
+    the trapezoid across a hole of m samples misses ``h S`` of the integral. One missing sample
+    gives each sample's departure from its neighbours' mean, ``x_k − (x_{k−1} + x_{k+1})/2``.
+    White noise gives σ²/h (m + m²/2); a vibrating airframe far more, and growing faster than m
+    (its vibration is signal between samples that no noise density describes, and coherent
+    over several: a probe's real EuRoC holes of 10 cost 4x m times the one-sample price).
     """
     t = np.asarray(t_s, dtype=float)
     v = np.asarray(x, dtype=float)
-    if len(t) < 3:
+    m = int(missing)
+    if m < 1:
+        raise ValueError(f"missing must be >= 1, got {missing}")
+    n_win = len(t) - m - 1
+    if n_win < 1:
         return float("nan")
-    d = np.diff(t)
-    ok = (d[:-1] <= factor * h_imu_s) & (d[1:] <= factor * h_imu_s)
+    irregular = np.concatenate([[0], np.cumsum(np.diff(t) > factor * h_imu_s)])
+    ok = irregular[m + 1:] - irregular[: n_win] == 0  # no irregular interval in the window
     if int(np.count_nonzero(ok)) < MIN_CHORD_TRIPLES:
         return float("nan")
-    e = v[1:-1][ok] - 0.5 * (v[:-2][ok] + v[2:][ok])
+    c = np.concatenate([np.zeros((1, v.shape[1])), np.cumsum(v, axis=0)])
+    inner = c[m + 1: m + 1 + n_win] - c[1: 1 + n_win]  # x_1 + … + x_m of each window
+    e = inner - 0.5 * m * (v[:n_win] + v[m + 1: m + 1 + n_win])
+    e = e[ok]
     return float(np.mean(e * e))
 
 
@@ -247,7 +256,7 @@ def white_noise_duration_s(
     interval_s: F64,
     h_imu_s: float,
     factor: float = MISSING_SAMPLE_FACTOR,
-    missing_sample_s: float = 0.0,
+    hole_s: F64 | None = None,
 ) -> float:
     """Duration (s) that sets the white-noise terms of ``process_noise`` over steps ``dt_s``.
 
@@ -257,21 +266,22 @@ def white_noise_duration_s(
     whole interval D it starts, so its white noise (variance σ²/h) enters the increment as
     σ² D² / h instead of σ² D: the step counts ``dt · D / h``. Equal to ``sum(dt_s)`` on a
     regular stream, and on dropouts longer than ``MAX_HELD_INTERVAL_S``. ``dt_s`` (N,) step
-    lengths, ``interval_s`` (N,) the IMU interval holding each. ``missing_sample_s`` (s): the
-    white-noise duration one missing sample is worth, ``h² var(e) / σ²`` with the stream's
-    chord residual ``var(e)`` (0: the white noise alone); a held step counts at least its length
-    plus its share of the interval's missing samples.
+    lengths, ``interval_s`` (N,) the IMU interval holding each. ``hole_s`` (N,) s: the
+    white-noise duration the missing samples of each step's interval are worth together,
+    ``h² var(S) / σ²`` with the stream's chord residual across them ``var(S)``
+    (``chord_residual_variance``; None: the white noise alone); a held step counts at least
+    its length plus its share of its interval's.
     """
     dt = np.asarray(dt_s, dtype=float)
     D = np.asarray(interval_s, dtype=float)
     held = held_intervals(D, h_imu_s, factor)
     per_step = dt * D / h_imu_s
-    if missing_sample_s > 0.0:
-        # A hole in a stream that keeps every sample: each missing sample is worth
-        # ``missing_sample_s`` of white noise (the chord residual, ``chord_residual_variance``),
-        # shared among the steps of its interval by length.
-        missing = np.maximum(np.rint(D / h_imu_s) - 1.0, 1.0)
-        per_step = np.maximum(per_step, dt + dt / np.maximum(D, 1e-12) * missing * missing_sample_s)
+    if hole_s is not None:
+        # A hole in a stream that keeps every sample: its missing samples are worth ``hole_s``
+        # of white noise (the chord residual across them), shared among the steps of its
+        # interval by length.
+        worth = np.asarray(hole_s, dtype=float)
+        per_step = np.maximum(per_step, dt + dt / np.maximum(D, 1e-12) * worth)
     return float(np.sum(np.where(held, per_step, dt)))
 
 

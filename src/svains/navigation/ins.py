@@ -19,6 +19,7 @@ from svains.filter.sigma_points import MerweScaledSigmaPoints
 from svains.filter.ukf import UKF, UpdateStats
 from svains.models.gps import gps_position, gps_position_velocity
 from svains.models.imu import (
+    MIN_CHORD_TRIPLES,
     ImuChunk,
     ImuModel,
     ImuNoise,
@@ -145,7 +146,7 @@ class InsFilter:
         self._k_next_abs = k + 1 + self.history.dropped
         self._u = (self.gyro_B[k], self.accel_B[k], self.alpha_B[k])
         self._q_cache: dict[int, F64] = {}
-        self._chord_cache: tuple[int, tuple[float, float]] = (-1, (0.0, 0.0))
+        self._chord_cache: dict[tuple[int, int], tuple[float, float]] = {}
 
     # The IMU received so far (views: they grow with the history).
     @property
@@ -248,33 +249,47 @@ class InsFilter:
         held = held_intervals(interval_ns * 1e-9, self._h_imu)
         if not np.any(held):
             return self._noise(span_ns)
-        gyro_s, accel_s = self._missing_sample_s(int(k[np.argmax(held)]))
         dt_s, interval_s = np.diff(tt) * 1e-9, interval_ns * 1e-9
-        white_g = white_noise_duration_s(dt_s, interval_s, self._h_imu, missing_sample_s=gyro_s)
-        white_a = white_noise_duration_s(dt_s, interval_s, self._h_imu, missing_sample_s=accel_s)
+        missing = np.maximum(np.rint(interval_s / self._h_imu).astype(np.int64) - 1, 1)
+        gyro_s, accel_s = np.zeros(dt_s.size), np.zeros(dt_s.size)
+        first = int(k[np.argmax(held)])
+        for m in np.unique(missing[held]):
+            at = held & (missing == m)
+            gyro_s[at], accel_s[at] = self._hole_s(first, int(m))
+        white_g = white_noise_duration_s(dt_s, interval_s, self._h_imu, hole_s=gyro_s)
+        white_a = white_noise_duration_s(dt_s, interval_s, self._h_imu, hole_s=accel_s)
         return process_noise(
             self.layout, self.noise, span_ns * 1e-9, self._h_imu, white_g, white_a
         )
 
-    def _missing_sample_s(self, k: int) -> tuple[float, float]:
-        """White-noise durations (s), gyro and accelerometer, that one sample missing before
-        IMU sample ``k`` is worth: the chord residual of the ``CHORD_WINDOW`` samples before it
-        (``models.imu.chord_residual_variance``) over the noise density; 0 where unmeasured."""
-        key = k + self.history.dropped  # the hole's sample, absolute: asked again by each
-        if self._chord_cache[0] == key:  # chunk a frame or tick splits its interval into
-            return self._chord_cache[1]
+    def _hole_s(self, k: int, missing: int) -> tuple[float, float]:
+        """White-noise durations (s), gyro and accelerometer, that ``missing`` samples missing
+        before IMU sample ``k`` are worth together: the chord residual across as many samples
+        in the ``CHORD_WINDOW`` samples before it (``models.imu.chord_residual_variance``) over
+        the noise density; 0 where unmeasured. A hole too long for the window takes the
+        longest measured one's price times the squared ratio (the chord's error through its
+        two end samples grows so)."""
+        key = (k + self.history.dropped, missing)  # the hole's sample, absolute: asked again
+        cached = self._chord_cache.get(key)  # by each chunk a frame or tick splits it into
+        if cached is not None:
+            return cached
         lo = max(0, k - CHORD_WINDOW)
         t_s = (self.t_imu[lo:k] - self.t_imu[lo]) * 1e-9
         h = self._h_imu
+        # the longest hole the window measures: MIN_CHORD_TRIPLES windows of missing + 2
+        m = min(missing, max(1, k - lo - 1 - MIN_CHORD_TRIPLES))
+        grow = (missing / m) ** 2
         out = []
         for x, density in (
             (self.gyro_B[lo:k], self.noise.gyro_noise_density),
             (self.accel_B[lo:k], self.noise.accel_noise_density),
         ):
-            var_e = chord_residual_variance(t_s, x, h)
-            ok = np.isfinite(var_e) and density > 0.0
-            out.append(h * h * var_e / density**2 if ok else 0.0)
-        self._chord_cache = (key, (out[0], out[1]))
+            var_s = chord_residual_variance(t_s, x, h, missing=m)
+            ok = np.isfinite(var_s) and density > 0.0
+            out.append(grow * h * h * var_s / density**2 if ok else 0.0)
+        if len(self._chord_cache) > 64:
+            self._chord_cache.clear()
+        self._chord_cache[key] = (out[0], out[1])
         return out[0], out[1]
 
     def add_omega_white(self) -> None:
