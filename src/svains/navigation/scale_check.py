@@ -177,6 +177,7 @@ class ScaleCheck:
         # per span: the images' displacement (3,), the GPS's (3,), their variances per axis
         self._gps_rows: list[tuple[F64, F64, float, float]] = []
         self.warned_gps = False
+        self.gps_contradicted: dict[str, float] | None = None  # the accelerometer cleared it
 
     def observe_gps(self, t_ns: int, p_W_G: F64, v_W_G: F64 | None, p_B_G: F64,
                     position_std: float, velocity_std: float) -> None:  # fmt: skip
@@ -272,9 +273,14 @@ class ScaleCheck:
         return fit_factor(u[:, None], w[:, None], var_u, var_w, np.ones(u.size, bool), 0)
 
     def _judge_gps(self) -> None:
-        if not self.warned_gps and _due(len(self._gps_rows), self.options.min_pairs):
-            self.warned_gps = self._warn(self.gps_factor(), self.options.warn_gps, "the GPS says",
-                                         "spans", corroborate=self.factor() or _NONE)  # fmt: skip
+        n, o = len(self._gps_rows), self.options
+        if self.warned_gps or not _due(n, o.min_pairs):
+            return
+        accel = self.factor() or _NONE
+        if accel[3] < o.min_pairs and n < 2 * o.min_pairs:
+            return  # the accelerometer's say first, while it may come (``_contradicted``)
+        self.warned_gps = self._warn(self.gps_factor(), o.warn_gps, "the GPS says", "spans",
+                                     corroborate=accel)  # fmt: skip
 
     def _would_warn(self, got: tuple[float, float, float, int], warn: float) -> bool:
         """The factor ``got`` is ``warn`` or more from 1 and beyond 4 of its deviations, from
@@ -293,6 +299,27 @@ class ScaleCheck:
         return (n >= o.min_pairs and fit > o.max_fit and off >= o.poor_fit_factor * warn
                 and off > 4.0 * std)  # fmt: skip
 
+    def _contradicted(self, got: tuple[float, float, float, int],
+                      other: tuple[float, float, float, int]) -> bool:  # fmt: skip
+        """Whether ``other`` (the accelerometer's factor, from enough span pairs that fit)
+        clears the scale (within 2 of its deviations of 1) and disagrees with ``got`` beyond 2
+        of their joint deviations: two metric references at odds say nothing of the baseline
+        (a correct simulated V2_02 flight: the GPS's spans 0.933 ± 0.016, a 4σ draw of its
+        1 Hz velocities, the accelerometer's 0.993 ± 0.011; a baseline really off moves both).
+        Noted once in ``gps_contradicted``."""
+        k, std = got[0], got[1]
+        kc, sc, fit_c, n_c = other
+        o = self.options
+        if n_c < o.min_pairs or not fit_c <= o.max_fit:
+            return False
+        if not (abs(kc - 1.0) <= 2.0 * sc and abs(k - kc) > 2.0 * math.hypot(std, sc)):
+            return False
+        if self.gps_contradicted is None:
+            self.gps_contradicted = {"gps_factor": round(k, 4), "accel_factor": round(kc, 4)}
+            log.info("the GPS's spans read the camera %.3f ± %.3f times as far, the "
+                     "accelerometer %.3f ± %.3f: the baseline is not blamed", k, std, kc, sc)
+        return True
+
     def _warn(self, got: tuple[float, float, float, int] | None, warn: float, by: str,
               unit: str,
               corroborate: tuple[float, float, float, int] | None = None) -> bool:  # fmt: skip
@@ -303,6 +330,8 @@ class ScaleCheck:
         5 m/s off read the camera 0.44 times as far as the GPS, a fault of the GPS, not of
         the cameras: a fault bench's case); whether it did."""
         if got is None or self.stand_down:
+            return False
+        if corroborate is not None and self._contradicted(got, corroborate):
             return False
         if not self._would_warn(got, warn):
             if not self._would_warn_poor_fit(got, warn):
@@ -603,7 +632,8 @@ class ScaleCheck:
                 "gps_factor": None if gps is None else gps[0],
                 "gps_factor_std": None if gps is None else gps[1],
                 "gps_fit": None if gps is None else gps[2],
-                "warned_gps": self.warned_gps}  # fmt: skip
+                "warned_gps": self.warned_gps,
+                "gps_contradicted": self.gps_contradicted}  # fmt: skip
 
 
 def _due(n: int, min_pairs: int) -> bool:
