@@ -21,6 +21,7 @@ from svains.datasets.asl_reader import read_camera, read_imu
 from svains.navigation.options import VisionOptions
 from svains.navigation.vision import tune_for_frames
 from svains.sensors.types import Rig
+from svains.threads import limit_threads
 
 DEFAULT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "euroc_v101_micro"
 
@@ -49,16 +50,17 @@ def main(root: Path, seconds: float) -> int:
 
     nav = Navigator(config, rig, on_output=show)
     k = 0  # next image pair
-    for t, gyro, accel in zip(imu.t_ns, imu.gyro_B, imu.accel_B, strict=True):
-        if t > t_end:
-            break
-        while k < common.size and common[k] <= t:  # images stamped up to this IMU sample
-            img_l = cv2.imread(str(left.paths[il[k]]), cv2.IMREAD_GRAYSCALE)
-            img_r = cv2.imread(str(right.paths[ir[k]]), cv2.IMREAD_GRAYSCALE)
-            nav.feed_stereo(int(common[k]), img_l, img_r)
-            k += 1
-        nav.feed_imu(int(t), gyro, accel)
-    result = nav.close()
+    with limit_threads():  # small matrices: one BLAS thread is fastest (docs/python-api.md)
+        for t, gyro, accel in zip(imu.t_ns, imu.gyro_B, imu.accel_B, strict=True):
+            if t > t_end:
+                break
+            while k < common.size and common[k] <= t:  # images stamped up to this IMU sample
+                img_l = cv2.imread(str(left.paths[il[k]]), cv2.IMREAD_GRAYSCALE)
+                img_r = cv2.imread(str(right.paths[ir[k]]), cv2.IMREAD_GRAYSCALE)
+                nav.feed_stereo(int(common[k]), img_l, img_r)
+                k += 1
+            nav.feed_imu(int(t), gyro, accel)
+        result = nav.close()
     vision = result.report.get("vision", {})
     print(f"{len(printed)} poses; {vision.get('frames_fused', 0)} stereo frames fused; "
           f"front end {vision.get('frontend_status', {})}")

@@ -138,9 +138,11 @@ def test_topic_selection_refuses_ambiguity_and_wrong_types(ros1_bag: Path) -> No
     with pytest.raises(ConfigError, match=r"several imu topics \(/imu0, /imu1\): pass --imu"):
         select_topics(doubled)
     assert select_topics(doubled, {"imu": "/imu1"})["imu"] == "/imu1"
-    with pytest.raises(ConfigError, match="--imu /cam0/image_raw: type sensor_msgs/msg/Image"):
+    with pytest.raises(ConfigError,
+                       match=r"/cam0/image_raw \(the imu topic\): type sensor_msgs/msg/Image"):
         select_topics(topics, {"imu": "/cam0/image_raw"})
-    with pytest.raises(ConfigError, match="--gt /nope: no such topic"):
+    with pytest.raises(ConfigError,
+                       match=r"/nope \(the gt topic\): no such topic in the bag \(its topics: "):
         select_topics(topics, {"gt": "/nope"})
     unnamed = [t for t in topics if "image" not in t.name] + [
         type(topics[0])("/a", "sensor_msgs/msg/Image", 3, 20.0, 0.1),

@@ -88,7 +88,7 @@ def test_format_override_and_bad_files(files: dict[str, Path], tmp_path: Path) -
     res = runner.invoke(
         app, ["evaluate", str(files["bag"]), str(files["ref"]), "--est-topic", "/x"]
     )
-    assert res.exit_code == 1 and "--gt /x: no such topic" in res.output
+    assert res.exit_code == 1 and "/x (the gt topic): no such topic in the bag" in res.output
     odd = tmp_path / "odd.txt"
     odd.write_text("1 2 3 4 5\n")
     with pytest.raises(DatasetError, match="first row of 5 fields"):

@@ -136,8 +136,9 @@ def compare(
                            "a 'smoothed' row per method and the *_smoothed files.")
     ] = False,
     force: Annotated[
-        bool, typer.Option("--force", help="Replace a non-empty --out whole (at the end, only "
-                           "if the comparison was written).")
+        bool, typer.Option("--force", help="Write over a non-empty --out: its outputs "
+                           "replaced at the end, only if the comparison was written; other "
+                           "files kept.")
     ] = False,
     allow_degraded: Annotated[
         bool, typer.Option("--allow-degraded", help="Exit 0 even when a vision method fused no "

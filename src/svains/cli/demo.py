@@ -52,7 +52,7 @@ def demo(
     ] = False,
 ) -> None:
     """Village flight (IMU 100 Hz, GPS 1 Hz with four 10 s outages, magnetometer, sonar, stereo)
-    simulated into OUT/dataset, then ``svains compare`` into OUT/compare."""
+    simulated into OUT/dataset, then svains compare into OUT/compare."""
     from svains.sim import SimConfig, simulate
 
     check_out_dir(out, force, replaced_whole=False)

@@ -32,8 +32,8 @@ def _frontend(
         int, typer.Option("--figure-frame", help="Frame index of fig. 8 (-1: middle).")
     ] = -1,
     force: Annotated[
-        bool, typer.Option("--force", help="Replace a non-empty --out whole (at the end, only "
-                           "if the run finished).")
+        bool, typer.Option("--force", help="Write over a non-empty --out: its outputs "
+                           "replaced at the end, only if the run finished; other files kept.")
     ] = False,
     calib: Annotated[
         Path | None, typer.Option("--calib", help="Kalibr camchain-imucam.yaml (the cameras' "

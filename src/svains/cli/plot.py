@@ -1,4 +1,4 @@
-"""``svains plot RUN_DIR --dataset D``: per-axis errors with ±3σ, NEES and fused/rejected plots."""
+"""``svains plot RUN_DIR --dataset D``: errors with ±3σ, NEES, fused/rejected, time offset."""
 
 from __future__ import annotations
 
@@ -24,7 +24,8 @@ def plot(
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace existing PNGs.")] = False,
 ) -> None:
-    """Write errors.png, nees.png and measurements.png for a run."""
+    """Write errors.png, nees.png and measurements.png for a run (and time_offset.png when the
+    run estimated the camera-IMU time offset)."""
     from svains.datasets import load_dataset
     from svains.evaluation.plots import plot_run
     from svains.evaluation.run_record import PLOT_NAMES

@@ -111,8 +111,8 @@ def run(
         bool, typer.Option("--rerun-spawn", help="After the run, open the rerun viewer.")
     ] = False,
     force: Annotated[
-        bool, typer.Option("--force", help="Replace a non-empty --out whole (at the end, only "
-                           "if the run finished).")
+        bool, typer.Option("--force", help="Write over a non-empty --out: its outputs "
+                           "replaced at the end, only if the run finished; other files kept.")
     ] = False,
     allow_degraded: Annotated[
         bool,
@@ -123,7 +123,8 @@ def run(
     """Run METHOD over DATASET; write trajectory.tum, trajectory_euroc.csv, pose_covariance.csv,
     states.csv, updates.csv, tracks.csv (vision), report.json and the effective config.yaml into
     OUT (with --smooth also trajectory_smoothed.tum, trajectory_smoothed_euroc.csv,
-    pose_covariance_smoothed.csv and states_smoothed.csv); with --rerun/--rerun-spawn, then a
+    pose_covariance_smoothed.csv and states_smoothed.csv; camchain_estimated.yaml where the
+    camera's extrinsics or time offset were estimated); with --rerun/--rerun-spawn, then a
     rerun recording of the run."""
     from svains.cli.run_config import (
         build_config,
@@ -236,7 +237,8 @@ def run(
     console.print(table)
     logs = "".join(f", {n}" for n in ("updates.csv", "tracks.csv", "trajectory_smoothed.tum",
                                       "trajectory_smoothed_euroc.csv",
-                                      "pose_covariance_smoothed.csv", "states_smoothed.csv")
+                                      "pose_covariance_smoothed.csv", "states_smoothed.csv",
+                                      "camchain_estimated.yaml")
                    if (out / n).is_file())  # fmt: skip
     # one line whatever the width (a log grepped for a path must find it whole)
     console.print(escape(f"wrote {out}/trajectory.tum, trajectory_euroc.csv, pose_covariance.csv, "

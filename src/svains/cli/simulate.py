@@ -71,7 +71,7 @@ def register(app: typer.Typer) -> None:
         pixel noise) and the ground truth at the IMU rate with kinematics.csv, landmarks.csv
         and scenario.yaml (the full configuration) beside it. The data set appears whole or
         not at all (written under a temporary name, then renamed), with the completion marker
-        ``mav0/svains_complete.yaml``.
+        mav0/svains_complete.yaml.
         """
         from svains.sim.config import ImuConfig, SimConfig
         from svains.sim.simulate import simulate

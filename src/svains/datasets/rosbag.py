@@ -164,10 +164,12 @@ def select_topics(
         if not name:
             continue
         if name not in by_name:
-            raise ConfigError(f"--{role} {name}: no such topic in the bag")
+            # named by topic and role: convert takes --gt, evaluate --ref-topic/--est-topic
+            raise ConfigError(f"{name} (the {role} topic): no such topic in the bag (its "
+                              f"topics: {', '.join(sorted(by_name)) or 'none'})")  # fmt: skip
         if by_name[name].msgtype not in ROLE_TYPES[role]:
             raise ConfigError(
-                f"--{role} {name}: type {by_name[name].msgtype} is not one of "
+                f"{name} (the {role} topic): type {by_name[name].msgtype} is not one of "
                 f"{', '.join(ROLE_TYPES[role])}"
             )
         out[role] = name
