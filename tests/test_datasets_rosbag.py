@@ -135,7 +135,7 @@ def test_info_lists_topics_types_counts_and_rates(ros1_bag: Path, tmp_path: Path
 def test_topic_selection_refuses_ambiguity_and_wrong_types(ros1_bag: Path) -> None:
     topics = bag_topics(ros1_bag)
     doubled = [*topics, type(topics[0])("/imu1", "sensor_msgs/msg/Imu", 5, 200.0, 0.02)]
-    with pytest.raises(ConfigError, match=r"several imu topics \(/imu0, /imu1\): pass --imu"):
+    with pytest.raises(ConfigError, match=r"several imu topics \(/imu0, /imu1\): pass --topic"):
         select_topics(doubled)
     assert select_topics(doubled, {"imu": "/imu1"})["imu"] == "/imu1"
     with pytest.raises(ConfigError,
@@ -148,9 +148,10 @@ def test_topic_selection_refuses_ambiguity_and_wrong_types(ros1_bag: Path) -> No
         type(topics[0])("/a", "sensor_msgs/msg/Image", 3, 20.0, 0.1),
         type(topics[0])("/b", "sensor_msgs/msg/Image", 3, 20.0, 0.1),
     ]
-    # ``run`` has no --left: the hint names convert's option and the camchain's rostopic
+    # the hint names --topic, convert's option and the camchain's rostopic
     with pytest.raises(ConfigError, match=r"cannot tell the left camera among image topics /a, "
-                       r"/b: pass --left TOPIC to svains convert, or give it as rostopic of cam0 "
+                       r"/b: pass --topic left=TOPIC \(svains convert: --left TOPIC\), or give it "
+                       r"as rostopic of cam0 "
                        r"in the camchain \(--calib\)"):  # fmt: skip
         select_topics(unnamed)
 
@@ -224,3 +225,37 @@ def test_a_folder_that_is_no_bag_says_so(tmp_path: Path) -> None:
     with pytest.raises(DatasetError, match=r"a folder without a ROS2 metadata\.yaml, so not a "
                        r"bag \(an ASL/EuRoC or KITTI data set is read as it is"):  # fmt: skip
         bag_topics(tmp_path)
+
+
+def test_ambiguous_topics_are_chosen_with_topic_on_info_run_and_compare(
+    euroc, tmp_path: Path  # type: ignore[no-untyped-def]
+) -> None:
+    """Image topics named neither cam0/left nor cam1/right: `svains info` says how to choose,
+    and `--topic ROLE=TOPIC` chooses on info and run (the docs named options that only
+    `convert` has: a user's probe), kept in config.yaml; a bad item is a usage error."""
+    t_end = int(euroc.left.t_ns[0]) + 600_000_000
+    bag = write_bag(euroc, tmp_path / "odd.bag", "ros1",
+                    topics={"left": "/front/a", "right": "/front/b"}, t_end_ns=t_end)  # fmt: skip
+    runner = CliRunner()
+    res = runner.invoke(app, ["info", str(bag)], terminal_width=200)
+    assert res.exit_code == 0, res.output
+    assert "pass --topic left=TOPIC" in res.output
+    chosen = ["--topic", "left=/front/a", "--topic", "right=/front/b"]
+    res = runner.invoke(app, ["info", str(bag), *chosen, "--json", str(tmp_path / "i.json")],
+                        terminal_width=200)  # fmt: skip
+    assert res.exit_code == 0, res.output
+    roles = json.loads((tmp_path / "i.json").read_text())["roles"]
+    assert roles["left"] == "/front/a" and roles["right"] == "/front/b"
+    out = tmp_path / "run"
+    res = runner.invoke(app, ["run", str(bag), "--method", "ins", "--init", "groundtruth",
+                              "--no-gps", "--no-mag", "--out", str(out), *chosen],
+                        terminal_width=200)  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert "topics: left=/front/a,right=/front/b" in (out / "config.yaml").read_text()
+    res = runner.invoke(app, ["run", str(bag), "--method", "ins", "--out", str(tmp_path / "x"),
+                              "--topic", "lefty=/front/a"], terminal_width=200)  # fmt: skip
+    assert res.exit_code == 2 and "unknown role 'lefty'" in res.output
+    assert not (tmp_path / "x").exists()
+    folder = runner.invoke(app, ["info", str(euroc.root), "--topic", "left=/front/a"],
+                           terminal_width=200)  # fmt: skip
+    assert folder.exit_code == 1 and "is not a bag" in folder.output

@@ -19,16 +19,22 @@ def build_options(
     settings: list[str] | None, config_file: Path | None = None,
     calib: Path | None = None, imu_calib: Path | None = None, sonar: bool | None = None,
     gps_outages: list[str] | None = None, gps_until: float | None = None,
+    topic: list[str] | None = None,
 ) -> Any:
     """``RunConfig`` from the command-line switches (``settings``: ``--set`` items; ``calib``,
     ``imu_calib``: Kalibr files, kept absolute in ``replay``; ``gps_outages``: START:DURATION
     texts)."""
-    from svains.cli.run_config import build_config, gps_off_switches, kalibr_switches
+    from svains.cli.run_config import (
+        build_config,
+        gps_off_switches,
+        kalibr_switches,
+        topic_switches,
+    )
 
     switches = {"model": model, "init.mode": init, "use_gps": gps, "use_mag": mag,
                 "use_sonar": sonar, "duration_s": duration, "vision.source": source,
                 **gps_off_switches(gps_outages, gps_until),
-                **kalibr_switches(calib, imu_calib)}  # fmt: skip
+                **kalibr_switches(calib, imu_calib), **topic_switches(topic)}  # fmt: skip
     return build_config(config_file, settings, switches)
 
 
@@ -39,6 +45,7 @@ def run_compare(
     """Load, run each method with a progress bar, write compare.json/.md and the figures."""
     from svains.cli.run_config import effective_config_text
     from svains.datasets.loader import load_dataset
+    from svains.datasets.rosbag import parse_topic_roles
     from svains.evaluation.compare import (
         compare_owned,
         degraded_note,
@@ -47,7 +54,8 @@ def run_compare(
     )
     from svains.outputs import replaced_dir
 
-    ds = load_dataset(dataset, calib=options.replay.calib, imu_calib=options.replay.imu_calib)
+    ds = load_dataset(dataset, calib=options.replay.calib, imu_calib=options.replay.imu_calib,
+                      topics=parse_topic_roles(options.replay.topics))
     if synthetic_features_hz is not None:
         from svains.replay.synthetic import with_synthetic_features
 
@@ -131,6 +139,7 @@ def compare(
         Path | None, typer.Option("--calib", help="Kalibr camchain-imucam.yaml.")
     ] = None,
     imu_calib: Annotated[Path | None, typer.Option("--imu-calib", help="Kalibr imu.yaml.")] = None,
+    topic: Annotated[list[str] | None, typer.Option("--topic", help=_common.TOPIC_HELP)] = None,
     smooth: Annotated[
         bool, typer.Option("--smooth", help="Also smooth each filter run forward-backward (RTS): "
                            "a 'smoothed' row per method and the *_smoothed files.")
@@ -160,7 +169,7 @@ def compare(
                     *(["smoother.enabled=true"] if smooth else []), *(setting or [])]
         opts = build_options(model, init, gps, mag, duration, source, settings,
                              calib=calib, imu_calib=imu_calib, sonar=sonar,
-                             gps_outages=gps_outage, gps_until=gps_until)
+                             gps_outages=gps_outage, gps_until=gps_until, topic=topic)
         run_compare(dataset, out, names, opts,
                     figures, Console(), synthetic_features, allow_degraded)
     except SvainsError as exc:

@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from svains.cli._common import check_out_file, fail
+from svains.cli._common import TOPIC_HELP, check_out_file, fail
 from svains.errors import SvainsError
 
 
@@ -124,9 +124,10 @@ def _print(summary: dict[str, Any], console: Console) -> None:
         ))  # fmt: skip
 
 
-def _print_bag(path: Path, console: Console) -> dict[str, Any]:
-    """Print the topics of a bag and the roles ``svains convert``/``run`` would give them;
-    return them as JSON-ready data."""
+def _print_bag(path: Path, console: Console,
+               given: dict[str, str | None] | None = None) -> dict[str, Any]:  # fmt: skip
+    """Print the topics of a bag and the roles ``svains convert``/``run`` would give them
+    (``given``: ``--topic`` roles); return them as JSON-ready data."""
     from dataclasses import asdict
 
     from svains.datasets.rosbag import bag_topics, select_topics
@@ -140,7 +141,7 @@ def _print_bag(path: Path, console: Console) -> dict[str, Any]:
         t.add_row(escape(x.name), x.msgtype, str(x.count), _f(x.rate_hz, ".2f"), f"{x.span_s:.3f}")
     console.print(t)
     try:
-        roles = select_topics(topics)
+        roles = select_topics(topics, given)
     except SvainsError as exc:  # ambiguous: say so, the listing above is still the answer
         console.print(escape(f"auto-detection: {exc}"))
         return {**out, "roles": None, "auto_detection": str(exc)}
@@ -166,19 +167,23 @@ def info(
     imu_calib: Annotated[
         Path | None, typer.Option("--imu-calib", help="Kalibr imu.yaml (noise densities).")
     ] = None,
+    topic: Annotated[list[str] | None, typer.Option("--topic", help=TOPIC_HELP)] = None,
 ) -> None:
     """Describe a data set: streams, counts, rates, time span, gaps, missing files, calibration."""
+    from svains.cli.run_config import topic_switches
     from svains.datasets import load_dataset
-    from svains.datasets.rosbag import is_bag
+    from svains.datasets.rosbag import is_bag, parse_topic_roles
     from svains.datasets.summary import dataset_summary
     from svains.outputs import atomic_write_text
 
     check_out_file(json_out, force, "--json")
+    topics = parse_topic_roles(topic_switches(topic)["replay.topics"])
     console = Console()
     try:
         bag = is_bag(dataset)
-        summary = (_print_bag(dataset, console) if bag else
-                   dataset_summary(load_dataset(dataset, calib=calib, imu_calib=imu_calib)))
+        summary = (_print_bag(dataset, console, topics) if bag else
+                   dataset_summary(load_dataset(dataset, calib=calib, imu_calib=imu_calib,
+                                                topics=topics)))  # fmt: skip
     except SvainsError as exc:
         fail(exc)
     if not bag:

@@ -13,6 +13,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from svains.cli._common import (
+    TOPIC_HELP,
     GpsOutageOption,
     GpsUntilOption,
     SonarOption,
@@ -97,6 +98,7 @@ def run(
         typer.Option("--imu-calib", help="Kalibr imu.yaml replacing the data set's IMU noise "
                      "(config key replay.imu_calib)."),
     ] = None,
+    topic: Annotated[list[str] | None, typer.Option("--topic", help=TOPIC_HELP)] = None,
     smooth: Annotated[
         bool | None,
         typer.Option("--smooth/--no-smooth", help="Also smooth the run forward-backward (RTS) "
@@ -131,8 +133,10 @@ def run(
         effective_config_text,
         gps_off_switches,
         kalibr_switches,
+        topic_switches,
     )
     from svains.datasets import load_dataset
+    from svains.datasets.rosbag import parse_topic_roles
     from svains.evaluation.compare import degraded_note
     from svains.evaluation.run import run_method
     from svains.replay import resolve_config
@@ -153,13 +157,14 @@ def run(
             "vision.source": {None: None, True: "features", False: "images"}[features],
             **gps_off_switches(gps_outage, gps_until),
             "replay.synthetic_features_hz": synthetic_features,
-            **kalibr_switches(calib, imu_calib),
+            **kalibr_switches(calib, imu_calib), **topic_switches(topic),
         }  # fmt: skip
         config = build_config(config_file, setting, switches)
         if config.method == "vo" and config.smoother.enabled:  # it was ignored, files missing
             raise typer.BadParameter("--smooth (smoother.enabled): vo has no filter to smooth; "
                                      "ins, lc, tc and 3d do")  # fmt: skip
-        ds = load_dataset(dataset, calib=config.replay.calib, imu_calib=config.replay.imu_calib)
+        ds = load_dataset(dataset, calib=config.replay.calib, imu_calib=config.replay.imu_calib,
+                          topics=parse_topic_roles(config.replay.topics))
         hz = config.replay.synthetic_features_hz
         if hz is not None:
             from svains.replay.synthetic import with_synthetic_features

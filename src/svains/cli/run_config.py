@@ -39,6 +39,21 @@ def kalibr_switches(calib: Path | None, imu_calib: Path | None) -> dict[str, str
     }
 
 
+def topic_switches(topic: list[str] | None) -> dict[str, str | None]:
+    """The ``replay.topics`` switch from ``--topic ROLE=TOPIC`` (repeatable), checked: a usage
+    error (exit 2) names a malformed item."""
+    from svains.datasets.rosbag import parse_topic_roles
+
+    if not topic:
+        return {"replay.topics": None}
+    text = ",".join(t.strip() for t in topic)
+    try:
+        parse_topic_roles(text)
+    except ConfigError as exc:
+        usage_error(str(exc).removeprefix("replay.topics (--topic): "), "--topic")
+    return {"replay.topics": text}
+
+
 def build_config(
     config_file: Path | None, settings: list[str] | None, switches: dict[str, Any]
 ) -> Any:

@@ -14,7 +14,7 @@ from svains.datasets.kitti import is_kitti, read_kitti
 from svains.datasets.stereo_sync import match_stereo
 from svains.datasets.types import Dataset, ImageStream
 from svains.datasets.validate import vet_streams
-from svains.errors import DatasetError
+from svains.errors import ConfigError, DatasetError
 
 log = logging.getLogger(__name__)
 U8 = NDArray[np.uint8]
@@ -44,6 +44,9 @@ def load_dataset(
     p = Path(path)
     if not p.exists():
         raise DatasetError(f"data set folder not found: {p}")
+    if topics and not is_bag(p):
+        raise ConfigError(f"replay.topics (--topic) names a bag's topics; {p} is not a bag "
+                          "(.bag, .db3, .mcap)")  # fmt: skip
     if is_bag(p):
         ds = read_bag(p, topics, hints=kalibr_topics(calib, imu_calib))
         if calib is None and ds.left is not None:

@@ -136,12 +136,36 @@ def _pick_stereo(cands: list[str], given: dict[str, str | None]) -> dict[str, st
 
 
 def _choose(role: str) -> str:
-    """How a user names the topic of ``role``: ``svains convert`` takes it as an option, every
-    command as the ``rostopic`` of the Kalibr file that calibrates that sensor."""
+    """How a user names the topic of ``role``: ``svains run``/``compare``/``info`` take
+    ``--topic ROLE=TOPIC``, ``svains convert`` ``--ROLE TOPIC``, every command the ``rostopic``
+    of the Kalibr file that calibrates that sensor."""
     where = {"left": "cam0 in the camchain (--calib)", "right": "cam1 in the camchain (--calib)",
              "imu": "the imu.yaml (--imu-calib)"}.get(role)  # fmt: skip
-    return f"pass --{role} TOPIC to svains convert" + (
+    return f"pass --topic {role}=TOPIC (svains convert: --{role} TOPIC)" + (
         f", or give it as rostopic of {where}" if where else "")
+
+
+def parse_topic_roles(text: str | None) -> dict[str, str | None] | None:
+    """Topic per role from ``"imu=/imu0,left=/cam0/image_raw"`` (``replay.topics``,
+    ``--topic``); None for None or empty. ``ConfigError`` naming an unknown role, a role given
+    twice or an item without ``=``."""
+    if not text or not text.strip():
+        return None
+    out: dict[str, str | None] = {}
+    for item in text.split(","):
+        role, eq, topic = item.strip().partition("=")
+        role, topic = role.strip(), topic.strip()
+        if not eq or not role or not topic:
+            raise ConfigError(f"replay.topics (--topic): {item.strip()!r} is not ROLE=TOPIC "
+                              f"(roles: {', '.join(ROLES)})")  # fmt: skip
+        if role not in ROLES:
+            raise ConfigError(f"replay.topics (--topic): unknown role {role!r} in "
+                              f"{item.strip()!r} (roles: {', '.join(ROLES)})")  # fmt: skip
+        if role in out:
+            raise ConfigError(f"replay.topics (--topic): the {role} topic given twice "
+                              f"({out[role]}, {topic})")  # fmt: skip
+        out[role] = topic
+    return out
 
 
 def select_topics(

@@ -602,12 +602,15 @@ class ReplayOptions:
     """How ``svains run`` replays a data set (ignored by the Navigator itself): skip the first
     ``start_s`` seconds of the recording; simulate ``features0`` along the ground truth at
     ``synthetic_features_hz`` (None: off); ``calib`` (Kalibr camchain-imucam.yaml) and
-    ``imu_calib`` (Kalibr imu.yaml) paths replace the data set's calibration (None: its own)."""
+    ``imu_calib`` (Kalibr imu.yaml) paths replace the data set's calibration (None: its own);
+    ``topics``: a bag's topic per role where auto-detection is ambiguous,
+    ``"imu=/imu0,left=/cam0/image_raw"`` (roles imu, left, right, gps, gt; ``--topic``)."""
 
     start_s: float = 0.0
     synthetic_features_hz: float | None = None
     calib: str | None = None
     imu_calib: str | None = None
+    topics: str | None = None
 
 
 @dataclass(frozen=True)
