@@ -324,3 +324,25 @@ def test_gps_spans_the_accelerometer_contradicts_do_not_blame_the_baseline(
                                      "accel_factor": pytest.approx(1.0, abs=0.02)}
     assert [r.levelname for r in caplog.records] == ["INFO"]
     assert "the baseline is not blamed" in caplog.records[0].getMessage()
+
+
+@pytest.mark.parametrize(("fits_seen", "warned_at"), [
+    # KITTI raw, focal lengths 10 % off (a user's probe): x flipped 4 times better at 20 pairs,
+    # worse from 21 on: a reversed axis was warned though the IMU was right
+    ([(13.4, 3.0), (8.7, 9.7), (8.1, 6.1), (7.7, 13.7), (9.1, 11.7), (7.5, 42.9)], None),
+    # KITTI raw with a_x really reversed: better all along, 3 times better from 26 pairs
+    ([(5.7, 2.7), (6.7, 2.6), (7.2, 3.5), (8.5, 3.4), (6.7, 2.7), (6.7, 2.7), (9.9, 2.2),
+      (11.3, 3.4), (28.6, 2.9), (10.3, 3.0)], 29),
+])
+def test_a_reversed_axis_is_warned_once_its_flip_has_fitted_better_for_a_while(
+    fits_seen: list[tuple[float, float]], warned_at: int | None
+) -> None:
+    check = ScaleCheck(ImuHistory(), STEREO, G_W, IMU)
+    n0 = 2 * check.options.min_pairs
+    for k, (as_is, x) in enumerate(fits_seen):
+        check._u = [np.zeros(3)] * (n0 + k)
+        check.axis_fits = lambda f=(as_is, x): {"as_is": f[0], "x": f[1], "y": 50.0, "z": 60.0}
+        check._judge_axes()
+        if check.warned_axis:
+            break
+    assert (n0 + k if check.warned_axis else None) == warned_at

@@ -49,7 +49,7 @@ class VisionChecks:
         # check's velocity changes, seen through them, would add a second, wrong cause (a
         # reversed axis, the baseline: a user's probe), so it stands down.
         r = self.rotation
-        self.scale.stand_down = r.warned or r.warned_ratio or r.warned_lens
+        self.scale.stand_down = r.warned or r.warned_ratio or r.warned_lens or r.warned_scale
         self.scale.observe_frame(tr, ctx)
 
     def summary(self) -> dict[str, Any]:
