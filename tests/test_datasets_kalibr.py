@@ -11,7 +11,7 @@ import pytest
 from _kalibr_files import write_euroc_kalibr
 from svains.datasets import load_dataset
 from svains.datasets.kalibr import apply_kalibr, read_camchain, read_kalibr_imu, write_camchain
-from svains.errors import CalibrationError
+from svains.errors import CalibrationError, DatasetError
 from svains.frontend.rectify import StereoRectifier
 
 
@@ -298,3 +298,28 @@ def test_cameras_of_two_resolutions_are_refused_on_load(euroc) -> None:  # type:
     with pytest.raises(CalibrationError, match=r"cam0 is 752x480 px and cam1 640x400 px: svains "
                        r"rectifies a pair of one size"):  # fmt: skip
         check_stereo_rig(euroc.cam0, small, Path("c0"), Path("c1"))
+
+
+def test_a_folder_without_sensor_yaml_takes_its_calibration_from_kalibr(
+    euroc, euroc_micro: Path, tmp_path: Path  # type: ignore[no-untyped-def]
+) -> None:
+    """Tables and images alone, the calibration a Kalibr pair (the own-sensor page's promise:
+    a user's probe found the folder's own calibration demanded first); without the pair the
+    missing sensor.yaml is still an error naming it."""
+    chain, imu = write_euroc_kalibr(euroc, tmp_path / "kalibr")
+    bare = tmp_path / "bare" / "mav0"
+    for name in ("cam0", "cam1", "imu0"):
+        (bare / name).mkdir(parents=True)
+        (bare / name / "data.csv").symlink_to(euroc_micro / "mav0" / name / "data.csv")
+    for name in ("cam0", "cam1"):
+        (bare / name / "data").symlink_to(euroc_micro / "mav0" / name / "data")
+    ds = load_dataset(bare.parent, calib=chain, imu_calib=imu)
+    full = apply_kalibr(euroc, chain, imu)
+    assert ds.cam0 is not None and ds.cam1 is not None and ds.imu_calib is not None
+    np.testing.assert_array_equal(ds.left.t_ns, full.left.t_ns)
+    np.testing.assert_allclose(ds.cam0.T_B_C, full.cam0.T_B_C, atol=1e-12)
+    np.testing.assert_allclose(ds.cam1.T_B_C, full.cam1.T_B_C, atol=1e-12)
+    assert ds.imu_calib.gyro_noise_density == full.imu_calib.gyro_noise_density
+    with pytest.raises(DatasetError, match=r"missing file: .*imu0/sensor.yaml \(the IMU's "
+                       r"calibration; or give a Kalibr imu.yaml: --imu-calib\)"):
+        load_dataset(bare.parent, calib=chain)  # the IMU's calibration from nowhere

@@ -101,9 +101,17 @@ def _table(
     return t, values
 
 
-def read_imu(folder: Path) -> tuple[ImuStream, ImuCalib]:
+def read_imu(folder: Path, replaced: bool = False) -> tuple[ImuStream, ImuCalib | None]:
+    """IMU folder: (samples, calibration); ``replaced``: a Kalibr imu.yaml replaces the
+    calibration, so a folder without ``sensor.yaml`` gives None."""
     t, a = _table(folder, 7, min_rows=2)
     ypath = folder / "sensor.yaml"
+    if not ypath.exists():
+        if not replaced:
+            raise DatasetError(f"missing file: {ypath} (the IMU's calibration; or give a "
+                               "Kalibr imu.yaml: --imu-calib)")  # fmt: skip
+        a = a[:, _imu_columns(folder / "data.csv")]
+        return ImuStream(t_ns=t, gyro_B=a[:, 0:3], accel_B=a[:, 3:6]), None
     y = read_sensor_yaml(ypath)
     calib = ImuCalib(
         T_B_S=yaml_T_BS(y, ypath),
@@ -201,11 +209,19 @@ def read_image_list(folder: Path) -> tuple[ImageStream, np.ndarray, int]:
     return ImageStream(t_ns=t[keep], paths=paths, loader=read_grey), t, int((~keep).sum())
 
 
-def read_camera(folder: Path) -> tuple[ImageStream, CameraCalib, int]:
-    """Camera folder: (images present on disk, calibration, number of listed-but-absent files).
+def read_camera(folder: Path, replaced: bool = False
+                ) -> tuple[ImageStream, CameraCalib | None, int]:  # fmt: skip
+    """Camera folder: (images present on disk, calibration, number of listed-but-absent files);
+    ``replaced``: a Kalibr camchain replaces the calibration, so a folder without
+    ``sensor.yaml`` gives None (the stamps as recorded).
 
     Stamps move to the IMU clock once, here: t_imu = t_cam + ``timeshift_cam_imu``."""
     stream, t, n_missing = read_image_list(folder)
+    if not (folder / "sensor.yaml").exists():
+        if not replaced:
+            raise DatasetError(f"missing file: {folder / 'sensor.yaml'} (the camera's "
+                               "calibration; or give a Kalibr camchain: --calib)")  # fmt: skip
+        return stream, None, n_missing
     calib = read_camera_calib(folder, t)
     check_image_size(stream, calib, folder / "sensor.yaml")
     return shift_image_stamps(stream, calib.timeshift_cam_imu_s), calib, n_missing
@@ -365,8 +381,10 @@ def _check_stereo(ds: Dataset, mav0: Path) -> None:
         check_stereo_sync(ds.left, ds.right, ds.stereo_tol_ns, where)
 
 
-def read_asl(path: Path) -> Dataset:
-    """Read an ASL data set (root folder or its ``mav0``); absent streams stay ``None``."""
+def read_asl(path: Path, replaced: frozenset[str] = frozenset()) -> Dataset:
+    """Read an ASL data set (root folder or its ``mav0``); absent streams stay ``None``.
+    ``replaced``: the calibrations Kalibr files replace (``"cameras"``, ``"imu"``), whose
+    ``sensor.yaml`` may then be absent (its calibration None until they are applied)."""
     mav0 = find_mav0(path)
     if mav0 is None:
         raise DatasetError(f"{path}: not an ASL data set (no mav0/ or stream folders)")
@@ -385,11 +403,11 @@ def read_asl(path: Path) -> Dataset:
     else:
         ds.gravity_W = np.array(DEFAULT_GRAVITY_W)
     if (mav0 / "imu0").is_dir():
-        ds.imu, ds.imu_calib = read_imu(mav0 / "imu0")
+        ds.imu, ds.imu_calib = read_imu(mav0 / "imu0", "imu" in replaced)
     missing: dict[str, int] = {}
     for cam, attr in (("cam0", "left"), ("cam1", "right")):
         if (mav0 / cam).is_dir():
-            stream, calib, n_missing = read_camera(mav0 / cam)
+            stream, calib, n_missing = read_camera(mav0 / cam, "cameras" in replaced)
             setattr(ds, attr, stream)
             setattr(ds, cam, calib)
             if n_missing:

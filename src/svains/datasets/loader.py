@@ -56,7 +56,9 @@ def load_dataset(
     elif is_tumvi(p):
         ds = read_tumvi(p)
     elif find_mav0(p) is not None:
-        ds = read_asl(p)
+        # a sensor.yaml the Kalibr files replace may be absent (a folder of tables and images)
+        ds = read_asl(p, frozenset({*(["cameras"] if calib is not None else []),
+                                    *(["imu"] if imu_calib is not None else [])}))
     elif is_kitti(p):
         ds = read_kitti(p)
     else:
