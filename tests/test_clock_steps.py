@@ -165,3 +165,76 @@ def test_the_camera_clock_alone_stepped_back_mid_run_gives_the_clean_run(
     assert stepped.report["vision"]["frames_fused"] == clean.report["vision"]["frames_fused"]
     np.testing.assert_array_equal(stepped.t_ns, clean.t_ns)
     np.testing.assert_allclose(stepped.x, clean.x, atol=1e-9)
+
+
+def _feed(events: list[tuple[str, int]]) -> tuple[ClockSteps, list[tuple[str, int, int]]]:
+    """``events``: ("imu", raw) or (stream, raw) in the order a driver feeds them; the other
+    streams' (stream, raw, run-clock) stamps."""
+    clock, last, out = ClockSteps(), None, []
+    for kind, raw in events:
+        if kind == "imu":
+            t = clock.imu(raw, last, lambda: 5_000_000, 100 * S)
+            last = t if last is None or t > last else last
+        else:
+            out.append((kind, raw, clock.other(raw, kind)))
+    return clock, out
+
+
+def _imu(t_from: int, t_to: int, step_back: int = 0, after: int | None = None
+         ) -> list[tuple[str, int]]:  # fmt: skip
+    return [("imu", t - (step_back if after is not None and t > after else 0))
+            for t in range(t_from, t_to, 5_000_000)]
+
+
+def test_a_stream_step_little_over_a_second_is_taken_and_stale_messages_are_not() -> None:
+    """A user's probe: a 1 Hz GPS stepping back 1.5 s and frames fed 0.3 s ahead of the IMU
+    stepping back 1.2 s were missed (every later stamp late), two stale frames re-sent from 10 s
+    before were taken for a step (the stream 10 s ahead from then), and every clock stepping
+    with frames fed ahead of the IMU was reported twice."""
+    frame = 50_000_000
+    # (a) GPS 1 Hz, its clock alone back 1.5 s after 110 s
+    ev: list[tuple[str, int]] = []
+    for k in range(21):
+        t = 100 * S + k * S
+        ev += _imu(t - S + 5_000_000 if k else t, t + 5_000_000)
+        ev.append(("gps", t if t <= 110 * S else t - 1_500_000_000))
+    clock, out = _feed(ev)
+    assert [(s["stream"], s["back_s"]) for s in clock.steps] == [("gps", pytest.approx(1.5))]
+    assert [t_run - (100 * S + k * S) for k, (_, _, t_run) in enumerate(out)][12:] == [0] * 9
+    # (b) frames fed 0.3 s ahead of the IMU, their clock alone back 1.2 s after 105 s
+    ev, imu_t = [], 100 * S
+    for k in range(200):
+        tf = 100 * S + k * frame
+        while imu_t <= tf - 300_000_000:
+            ev.append(("imu", imu_t))
+            imu_t += 5_000_000
+        ev.append(("frame", tf if tf <= 105 * S else tf - 1_200_000_000))
+    clock, out = _feed(ev)
+    assert [(s["stream"], s["back_s"]) for s in clock.steps] == [("frame", pytest.approx(1.2))]
+    assert {t_run - (100 * S + k * frame) for k, (_, _, t_run) in enumerate(out)
+            if k > 110} == {0}  # fmt: skip
+    # (c) two stale frames 10 s old re-sent in a burst, the stream otherwise steady
+    ev, imu_t = [], 100 * S
+    for k in range(200):
+        tf = 100 * S + k * frame
+        while imu_t <= tf:
+            ev.append(("imu", imu_t))
+            imu_t += 5_000_000
+        if k == 100:
+            ev += [("frame", tf - 10 * S), ("frame", tf - 10 * S + frame)]
+        ev.append(("frame", tf))
+    clock, out = _feed(ev)
+    assert clock.steps == []
+    assert {t_run - raw for _, raw, t_run in out[105:]} == {0}
+    # (d) every clock back 10 s after 105 s, frames fed 0.2 s ahead of the IMU: one step
+    ev, imu_t = [], 100 * S
+    for k in range(200):
+        tf = 100 * S + k * frame
+        while imu_t <= tf - 200_000_000:
+            ev.append(("imu", imu_t if imu_t <= 105 * S else imu_t - 10 * S))
+            imu_t += 5_000_000
+        ev.append(("frame", tf if tf <= 105 * S else tf - 10 * S))
+    clock, out = _feed(ev)
+    assert [(s["stream"], s["back_s"]) for s in clock.steps] == [("imu", pytest.approx(10.0))]
+    assert {t_run - (100 * S + k * frame) for k, (_, _, t_run) in enumerate(out)
+            if k > 110} == {0}  # fmt: skip

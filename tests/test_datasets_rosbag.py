@@ -150,10 +150,16 @@ def test_topic_selection_refuses_ambiguity_and_wrong_types(ros1_bag: Path) -> No
     ]
     # the hint names --topic, convert's option and the camchain's rostopic
     with pytest.raises(ConfigError, match=r"cannot tell the left camera among image topics /a, "
-                       r"/b: pass --topic left=TOPIC \(svains convert: --left TOPIC\), or give it "
-                       r"as rostopic of cam0 "
-                       r"in the camchain \(--calib\)"):  # fmt: skip
+                       r"/b: pass --topic left=TOPIC \(run, compare, info, frontend; svains "
+                       r"convert: --left TOPIC\), or give it as rostopic of cam0 in the "
+                       r"camchain \(--calib\)"):  # fmt: skip
         select_topics(unnamed)
+    # a role given against the calibration's rostopic (cam0's intrinsics on the right images)
+    hints = {"left": "/a", "right": "/b"}
+    with pytest.raises(ConfigError, match=r"/b \(the left topic\): the calibration's rostopic "
+                       r"makes it the right topic"):  # fmt: skip
+        select_topics(unnamed, {"left": "/b", "right": "/a"}, hints)
+    assert select_topics(unnamed, {"left": "/a"}, hints)["right"] == "/b"
 
 
 def test_broken_bag_is_a_dataset_error(tmp_path: Path) -> None:

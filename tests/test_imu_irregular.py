@@ -183,9 +183,11 @@ def test_the_chord_residual_across_m_missing_samples(m: int) -> None:
                                    missing=m) < 3 * sigma**2 * (m + m * m / 2)  # fmt: skip
 
 
-def _vibrating_hole_filter(amplitude: float, missing: int = 1):
+def _vibrating_hole_filter(amplitude: float, missing: int = 1, drops: tuple[int, ...] = (),
+                           broadband: bool = False):  # fmt: skip
     """An InsFilter on the analytic flight at 200 Hz with a 37 Hz vibration of ``amplitude``
-    m/s² on the accelerometer and ``missing`` samples missing at 2 s."""
+    m/s² on the accelerometer (``broadband``: a random one, AR(1) at 0.9, of that std) and
+    ``missing`` samples missing at 2 s; ``drops``: single samples missing before it."""
     from svains.datasets.types import ImuStream
     from svains.navigation.init import initialise
     from svains.navigation.ins import InsFilter
@@ -196,8 +198,17 @@ def _vibrating_hole_filter(amplitude: float, missing: int = 1):
     imu = ds.imu
     t_s = (imu.t_ns - imu.t_ns[0]) * 1e-9
     accel = imu.accel_B + amplitude * np.sin(2 * np.pi * 37.0 * t_s[:, None] + [0.0, 1.0, 2.0])
+    if broadband:
+        rng = np.random.default_rng(8)
+        e = rng.normal(0.0, amplitude * np.sqrt(1 - 0.81), (t_s.size, 3))
+        vib = np.zeros_like(e)
+        for k in range(1, t_s.size):
+            vib[k] = 0.9 * vib[k - 1] + e[k]
+        accel = imu.accel_B + vib
     hole = 400
     keep = (np.arange(imu.t_ns.size) < hole) | (np.arange(imu.t_ns.size) >= hole + missing)
+    for k in drops:
+        keep[k] = False
     ds = replace(ds, imu=ImuStream(imu.t_ns[keep], imu.gyro_B[keep], accel[keep]))
     init = initialise(ds, BIASED, InitOptions(mode="groundtruth"))
     init.P *= 1e-12  # the growth across the hole is then the process noise alone
@@ -238,3 +249,24 @@ def test_a_hole_in_a_vibrating_stream_costs_the_velocity_what_it_hides(
         one = chord_residual_variance(t_s[144:400], accel[144:400], h)
         if missing > 1:  # the 37 Hz vibration: 4-6x what pricing each sample alike gives
             assert var_s / (missing * one) > 2.0
+
+
+def test_a_long_hole_after_earlier_drops_is_priced_from_the_runs_the_window_has() -> None:
+    """A hole of 60 samples whose 256 samples before hold four single drops: no regular run
+    of 62 samples, and it was priced as white noise alone (0.001x its cost, a user's
+    probe); now from the longest hole those runs measure, times the squared ratio."""
+    from svains.models.imu import chord_residual_variance
+
+    h, missing = 0.005, 60
+    ins, t_before, t_after, accel = _vibrating_hole_filter(
+        2.0, missing, drops=(190, 240, 290, 340), broadband=True)
+    n_steps = missing + 1
+    ins.propagate_to(t_before - int(n_steps * h * 1e9))
+    var0 = np.diag(ins.ukf.P)[DV].copy()
+    ins.propagate_to(t_before)
+    var1 = np.diag(ins.ukf.P)[DV].copy()
+    ins.propagate_to(t_after)
+    extra = (np.diag(ins.ukf.P)[DV] - var1) - (var1 - var0)
+    t_s = np.arange(accel.shape[0]) * h
+    actual = h * h * chord_residual_variance(t_s[:400], accel[:400], h, missing=missing)
+    assert 0.5 < extra.mean() / actual < 3.0, extra.mean() / actual

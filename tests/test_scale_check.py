@@ -346,3 +346,32 @@ def test_a_reversed_axis_is_warned_once_its_flip_has_fitted_better_for_a_while(
         if check.warned_axis:
             break
     assert (n0 + k if check.warned_axis else None) == warned_at
+
+
+def test_the_accelerometer_contradicts_the_gps_only_beyond_its_own_reading() -> None:
+    """The V2_02 false alarm (GPS 0.933 ± 0.016, accelerometer 0.993 ± 0.011) is contradicted;
+    a baseline 4 % short read 0.96 by the GPS while the accelerometer reads 0.99 (its own
+    0.99-1.03 with a right baseline) is not, and stays warned (a user's probe: vetoed)."""
+    check = ScaleCheck(ImuHistory(), STEREO, G_W, IMU)
+    assert check._contradicted((0.933, 0.016, 1.19, 24), (0.993, 0.011, 1.4, 50))
+    assert not check._contradicted((0.96, 0.005, 1.0, 30), (0.99, 0.012, 1.0, 30))
+    assert not check._contradicted((0.933, 0.016, 1.19, 24), (0.993, 0.011, 1.4, 5))  # too few
+    assert check.gps_contradicted == {"gps_factor": 0.933, "accel_factor": 0.993}
+
+
+def test_flips_that_keep_changing_place_leave_the_mismatch_to_be_warned(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A misfit of 400 whose best flip alternates between x and y names no axis; it was left
+    unsaid altogether while each flip awaited its confirmation (a user's probe)."""
+    check = ScaleCheck(ImuHistory(), STEREO, G_W, IMU)
+    n0 = 2 * check.options.min_pairs
+    with caplog.at_level("WARNING", logger="svains.navigation.scale_check"):
+        for k in range(12):
+            check._u = [np.zeros(3)] * (n0 + k)
+            x, y = (100.0, 120.0) if k % 2 else (120.0, 100.0)
+            check.axis_fits = lambda x=x, y=y: {"as_is": 400.0, "x": x, "y": y, "z": 500.0}
+            check._judge_axes()
+    assert check.warned_axis is None and check.warned_mismatch
+    (rec,) = caplog.records
+    assert "do not fit the images'" in rec.getMessage()

@@ -141,7 +141,8 @@ def _choose(role: str) -> str:
     of the Kalibr file that calibrates that sensor."""
     where = {"left": "cam0 in the camchain (--calib)", "right": "cam1 in the camchain (--calib)",
              "imu": "the imu.yaml (--imu-calib)"}.get(role)  # fmt: skip
-    return f"pass --topic {role}=TOPIC (svains convert: --{role} TOPIC)" + (
+    return (f"pass --topic {role}=TOPIC (run, compare, info, frontend; svains convert: --{role} "
+            "TOPIC)") + (
         f", or give it as rostopic of {where}" if where else "")
 
 
@@ -197,6 +198,14 @@ def select_topics(
                 f"{', '.join(ROLE_TYPES[role])}"
             )
         out[role] = name
+        # a topic given for one role that the calibration's rostopic gives another: the
+        # calibration would follow the wrong images (cam0's on the right camera: a user's
+        # probe, silent)
+        other = [r for r, n in (hints or {}).items() if n == name and r != role]
+        if other:
+            raise ConfigError(f"{name} (the {role} topic): the calibration's rostopic makes it "
+                              f"the {other[0]} topic; give the roles the calibration gives, "
+                              "or fix its rostopic")  # fmt: skip
     for role, name in (hints or {}).items():
         ok = name in by_name and by_name[name].msgtype in ROLE_TYPES[role]
         if role not in out and ok and name not in out.values():

@@ -13,10 +13,12 @@ were: out-of-order samples, dropped and counted. A step forward is a gap (its ow
 
 A clock of one other stream alone stepping back (a camera driver restarted, the IMU's steady)
 made every later frame "late": dropped one by one, the run went on as a pure INS and diverged (a
-user's probe: 151 m). Such a stream's step is taken the same way, per stream: a stamp more than
-``STEP_BACK_S`` before the stream's last, confirmed by the stream's next, while the IMU's clock
-went on (no IMU step pending, the stamps far behind the IMU's time), shifts that stream's later
-stamps to lag the IMU's time as they did before the step, with a warning naming the stream.
+user's probe: 151 m). Such a stream's step is taken the same way, per stream: a stamp before the
+stream's last that lags the IMU's time by more than ``STEP_BACK_S`` more than the stream's
+stamps did, confirmed by the stream's next lagging alike (fed as it comes: stale messages
+re-sent in a burst do not), while the IMU's clock went on (no IMU step pending), shifts that
+stream's later stamps to lag the IMU's time as they did before the step, with a warning naming
+the stream. A stream's step that the IMU's own step then explains is undone (one step).
 """
 
 from __future__ import annotations
@@ -35,14 +37,31 @@ STEP_BACK_S = 1.0
 @dataclass
 class _Stream:
     """One non-IMU stream's own clock: its shift (ns), last stamp on the run's clock, its
-    recent lags behind the IMU's time when fed (ns), and a first stamp far back awaiting
-    confirmation (raw ns) with its lag."""
+    recent lags behind the IMU's time when fed and spacings (ns), a first stamp far back
+    awaiting confirmation (raw ns) with its lag, and its last step (ns, the IMU's time then,
+    its report entry) while the IMU's own step may still explain it."""
 
     shift_ns: int = 0
     last_ns: int | None = None
     lags_ns: deque[int] = field(default_factory=lambda: deque(maxlen=9))
+    spacings_ns: deque[int] = field(default_factory=lambda: deque(maxlen=9))
     candidate_ns: int | None = None
     candidate_lag_ns: int = 0
+    last_step: tuple[int, int, dict[str, float | str]] | None = None
+
+
+def _median(values: deque[int]) -> int | None:
+    return sorted(values)[len(values) // 2] if values else None
+
+
+# A confirming stamp's lag behind the IMU's time agrees with the first's within half the
+# stream's spacing, at least this (ns): stamps fed as they come (a real step) lag alike; stale
+# messages re-sent in a burst lag less by their spacing (a user's probe took two for a step).
+LAG_AGREE_MIN_NS = 10_000_000
+# A stream's step is judged against the median lag of at least this many stamps before it.
+MIN_LAGS = 3
+# A stream's step the IMU's own step explains (the same size, this soon before it) is undone.
+RECONCILE_NS = 5_000_000_000
 
 
 class ClockSteps:
@@ -89,6 +108,8 @@ class ClockSteps:
                 "%+.3f s to go on from the last sample", at_s, step_ns * 1e-9,
                 step_ns * 1e-9)  # fmt: skip
             t = t_ns + self.shift_ns
+            if self._imu_now_ns is not None:
+                self._reconcile(step_ns, self._imu_now_ns)
         self._imu_now_ns = t if self._imu_now_ns is None else max(self._imu_now_ns, t)
         if self._origin_ns is None:
             self._origin_ns = origin_ns if origin_ns is not None else t
@@ -101,37 +122,64 @@ class ClockSteps:
         if s is None:
             s = self._streams[stream] = _Stream()
         t = self._nearest(t_ns + s.shift_ns)
-        if s.last_ns is None or t >= s.last_ns - self._step_ns:
+        now = self._imu_now_ns
+        before = _median(s.lags_ns)
+        # Back before its own last stamp, and lagging the IMU's time by more than a step more
+        # than it did (not merely more than a step behind the IMU: a 1 Hz GPS stepping 1.5 s,
+        # frames fed 0.3 s ahead stepping 1.2 s, were missed: a user's probe).
+        # (its confirmation may lie past the last: a 1 Hz GPS stepping 1.5 s)
+        back = (now is not None and before is not None and s.last_ns is not None
+                and len(s.lags_ns) >= MIN_LAGS
+                and (t < s.last_ns or s.candidate_ns is not None)
+                and (now - t) - before > self._step_ns)  # fmt: skip
+        if not back:
             s.candidate_ns = None
-        elif (s.candidate_ns is None or t_ns <= s.candidate_ns
-              or self._candidate_ns is not None  # the IMU's clock steps too: its own handling
-              or self._imu_now_ns is None or t >= self._imu_now_ns - self._step_ns):
-            # far back from the stream's last: a stale message until the next one follows it
-            s.candidate_ns = t_ns
-            s.candidate_lag_ns = 0 if self._imu_now_ns is None else self._imu_now_ns - t
-            return t
         else:
+            assert now is not None and before is not None and s.last_ns is not None
+            lag = now - t
+            agree = max(LAG_AGREE_MIN_NS, (_median(s.spacings_ns) or 0) // 2)
+            if (s.candidate_ns is None or t_ns <= s.candidate_ns
+                    or abs(lag - s.candidate_lag_ns) > agree
+                    or self._candidate_ns is not None):  # the IMU's clock steps too  # fmt: skip
+                # a stale message until the next one follows it, fed as it comes
+                s.candidate_ns, s.candidate_lag_ns = t_ns, lag
+                return t
             # The stamps go on lagging the IMU's time as before the step (a spacing from the
             # last stamp would not do: irregular keyframes, a user's probe).
-            assert self._imu_now_ns is not None
-            lags = sorted(s.lags_ns)
-            before = lags[len(lags) // 2] if lags else 0
-            step_ns = (s.candidate_lag_ns + self._imu_now_ns - t) // 2 - before
+            step_ns = (s.candidate_lag_ns + lag) // 2 - before
             s.shift_ns += step_ns
             s.candidate_ns = None
             at_s = (s.last_ns - (self._origin_ns if self._origin_ns is not None
                                  else s.last_ns)) * 1e-9
-            self.steps.append({"stream": stream, "at_s": round(at_s, 6),
-                               "back_s": round(step_ns * 1e-9, 9)})
+            entry: dict[str, float | str] = {"stream": stream, "at_s": round(at_s, 6),
+                                             "back_s": round(step_ns * 1e-9, 9)}
+            self.steps.append(entry)
+            s.last_step = (step_ns, now, entry)
             log.warning(
                 "%.3f s into the run: the %s clock stepped back %.3f s while the IMU's went on "
                 "(a driver restart?): its later stamps are shifted %+.3f s to keep to the "
                 "IMU's", at_s, stream, step_ns * 1e-9, step_ns * 1e-9)  # fmt: skip
             t = self._nearest(t_ns + s.shift_ns)
-        if self._imu_now_ns is not None:
-            s.lags_ns.append(self._imu_now_ns - t)
+        if now is not None:
+            s.lags_ns.append(now - t)
+        if s.last_ns is not None and t > s.last_ns:
+            s.spacings_ns.append(t - s.last_ns)
         s.last_ns = t if s.last_ns is None else max(s.last_ns, t)
         return t
+
+    def _reconcile(self, step_ns: int, now_ns: int) -> None:
+        """Undo a stream's step that the IMU's step of ``step_ns`` now explains (every clock
+        stepped, the stream's stamps fed ahead of the IMU's: reported twice, once as that
+        stream's alone, a user's probe)."""
+        for name, s in self._streams.items():
+            if s.last_step is None:
+                continue
+            size, at_ns, entry = s.last_step
+            if now_ns - at_ns <= RECONCILE_NS and abs(size - step_ns) <= self._step_ns // 2:
+                s.shift_ns -= size
+                s.last_step = None
+                self.steps.remove(entry)
+                log.info("the %s clock's step was the IMU's: one step", name)
 
     def _nearest(self, t_ns: int) -> int:
         """``t_ns`` with whichever IMU shift seen so far puts it nearest the IMU's time."""

@@ -266,9 +266,9 @@ class InsFilter:
         """White-noise durations (s), gyro and accelerometer, that ``missing`` samples missing
         before IMU sample ``k`` are worth together: the chord residual across as many samples
         in the ``CHORD_WINDOW`` samples before it (``models.imu.chord_residual_variance``) over
-        the noise density; 0 where unmeasured. A hole too long for the window takes the
-        longest measured one's price times the squared ratio (the chord's error through its
-        two end samples grows so)."""
+        the noise density; 0 where unmeasured. A hole too long for the window (or its regular
+        runs) takes the longest measured one's price times the squared ratio (the chord's
+        error through its two end samples grows so)."""
         key = (k + self.history.dropped, missing)  # the hole's sample, absolute: asked again
         cached = self._chord_cache.get(key)  # by each chunk a frame or tick splits it into
         if cached is not None:
@@ -276,17 +276,24 @@ class InsFilter:
         lo = max(0, k - CHORD_WINDOW)
         t_s = (self.t_imu[lo:k] - self.t_imu[lo]) * 1e-9
         h = self._h_imu
-        # the longest hole the window measures: MIN_CHORD_TRIPLES windows of missing + 2
+        # the longest hole the window measures (MIN_CHORD_TRIPLES regular runs of m + 2
+        # samples): halved until it does, a window broken by earlier drops measuring shorter
+        # ones only (a hole of 60 after three single drops was priced as white noise alone,
+        # 0.001x its cost: a user's probe)
         m = min(missing, max(1, k - lo - 1 - MIN_CHORD_TRIPLES))
-        grow = (missing / m) ** 2
         out = []
         for x, density in (
             (self.gyro_B[lo:k], self.noise.gyro_noise_density),
             (self.accel_B[lo:k], self.noise.accel_noise_density),
         ):
-            var_s = chord_residual_variance(t_s, x, h, missing=m)
-            ok = np.isfinite(var_s) and density > 0.0
-            out.append(grow * h * h * var_s / density**2 if ok else 0.0)
+            got, at = float("nan"), m
+            while True:
+                got = chord_residual_variance(t_s, x, h, missing=at)
+                if np.isfinite(got) or at == 1:
+                    break
+                at //= 2
+            ok = np.isfinite(got) and density > 0.0
+            out.append((missing / at) ** 2 * h * h * got / density**2 if ok else 0.0)
         if len(self._chord_cache) > 64:
             self._chord_cache.clear()
         self._chord_cache[key] = (out[0], out[1])
