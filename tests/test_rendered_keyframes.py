@@ -61,10 +61,12 @@ def test_3d_keeps_keyframes_seconds_apart_linked_through_the_image_front_end(
     res = run_method(keyframes, "3d", RunConfig(use_gps=False, use_mag=False,
                                                 vision=VisionOptions(source="images")))
     rep = res.report
-    # Measured 0.172 m, NEES 2.95, 41 of 47 frames fused, 3 of them relocalised by ORB
+    # Measured 0.278 m, NEES 3.38, 41 of 47 frames fused, 3 of them relocalised by ORB
     # descriptors against keyframes 12-19 s older (``navigation.relocalise``); without the
-    # relocalisation (``vision.relocalise=false``) 0.281 m, NEES 6.07, 38 fused.
-    assert rep["ate_rmse_m"] < 0.25, rep["ate_rmse_m"]
+    # relocalisation (``vision.relocalise=false``) 0.359 m, NEES 3.92, 38 fused. (0.172 and
+    # 0.281 m on the renderer's textures before 2026-12-06, drawn 0.5-3.5 texels off at their
+    # coarser levels; the bench's six runs: 0.275 → 0.272 m.)
+    assert rep["ate_rmse_m"] < 0.32, rep["ate_rmse_m"]
     assert rep["nees_mean"] < 9.0, rep["nees_mean"]
     assert rep["vision"]["frames_fused"] >= 39
     assert rep["vision"]["frames_relocalised"] >= 2
