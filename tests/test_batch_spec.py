@@ -44,6 +44,10 @@ def _spec(**changes: Any) -> dict[str, Any]:
         ({"replicates": 3}, "either 'seeds'"),
         ({"seeds": [1, 1]}, "lists a seed twice"),
         ({"datasets": {"d": {"path": "x", "rate": 5}}}, "dataset 'd': unknown key 'rate'"),
+        ({"datasets": {"d": {"path": ".", "calib": "nope.yaml"}}},
+         "dataset 'd': calib"),
+        ({"datasets": {"d": {"path": ".", "topics": "lefty=/a"}}},
+         "dataset 'd': replay.topics (--topic): unknown role 'lefty'"),
         ({"scenarios": {"bad name": {}}}, "name 'bad name' must match"),
     ],
 )  # fmt: skip
@@ -57,7 +61,7 @@ def test_a_bad_spec_is_refused_with_the_offending_key_named(
 def test_a_data_set_path_that_is_not_a_folder_is_refused_on_load(tmp_path: Path) -> None:
     """Every run of it failed one by one before, after the others' work (a user's probe)."""
     with pytest.raises(ConfigError, match=r"dataset 'd': path .*/nonexistent_ds is not a "
-                       r"folder"):  # fmt: skip
+                       r"folder or a bag"):  # fmt: skip
         parse_spec(_spec(datasets={"d": {"path": "nonexistent_ds"}}), tmp_path)
 
 
@@ -198,3 +202,32 @@ def test_svains_batch_names_a_bad_key_and_exits_1(tmp_path: Path) -> None:
     res = CliRunner().invoke(app, ["batch", str(p), "--out", str(tmp_path / "o")])
     assert res.exit_code == 1
     assert "rotaton" in res.output and not (tmp_path / "o").exists()
+
+
+def test_a_bag_with_its_kalibr_files_and_topics_runs_in_a_campaign(
+    euroc_micro: Path, tmp_path: Path
+) -> None:
+    """A campaign's data set may be a bag with its Kalibr files and topics, as `svains run`
+    takes them (`path` had to be a folder; no calibration or topic could be given: a user's
+    probe); a spec without them keeps its task ids."""
+    from typer.testing import CliRunner
+
+    from _kalibr_files import write_euroc_kalibr
+    from svains.cli.main import app
+    from svains.datasets import load_dataset
+    from svains.datasets.rosbag_writer import write_bag
+
+    ds = load_dataset(euroc_micro)
+    write_euroc_kalibr(ds, tmp_path / "kalibr")
+    write_bag(ds, tmp_path / "odd.bag", "ros1", topics={"left": "/a", "right": "/b"},
+              t_end_ns=int(ds.left.t_ns[0]) + 1_000_000_000)  # fmt: skip
+    plain = parse_spec(_spec(datasets={"e": {"path": str(euroc_micro)}}), tmp_path)
+    assert plain.datasets["e"] == {"path": str(euroc_micro), "synthetic_features_hz": None}
+    spec = tmp_path / "spec.yaml"
+    spec.write_text("name: bag\ndatasets:\n  b: {path: odd.bag, calib: kalibr/camchain-imucam"
+                    ".yaml, imu_calib: kalibr/imu.yaml, topics: {left: /a, right: /b}}\n"
+                    "methods: [3d]\nsettings: {init.mode: groundtruth, replay.duration_s: 0.8, "
+                    "fusion.use_gps: false, fusion.use_mag: false}\n")  # fmt: skip
+    res = CliRunner().invoke(app, ["batch", str(spec), "--out", str(tmp_path / "c"),
+                                   "--sequential", "--no-figures"])  # fmt: skip
+    assert res.exit_code == 0, res.output + res.stderr

@@ -34,7 +34,7 @@ SourceKind = Literal["scenario", "dataset"]
 
 _SPEC_KEYS = ("name", "description", "scenarios", "datasets", "methods", "seeds", "replicates",
               "settings", "configs", "metrics")  # fmt: skip
-_DATASET_KEYS = ("path", "synthetic_features_hz")
+_DATASET_KEYS = ("path", "synthetic_features_hz", "calib", "imu_calib", "topics")
 _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 # Columns of summary.md when the spec does not list its own ``metrics``.
 DEFAULT_METRICS: tuple[str, ...] = (
@@ -48,7 +48,8 @@ class Task:
     """One run: ``method`` with the dotted run ``settings`` of config ``config`` on data source
     ``source``, a simulator scenario (``data``: its nested ``SimConfig`` overrides, simulated
     with ``seed``) or a data set (``data``: ``path``, absolute, and ``synthetic_features_hz``,
-    features simulated with ``seed``). Plain data only: it travels to Dask workers."""
+    features simulated with ``seed``; ``calib``, ``imu_calib``, ``topics`` when given). Plain
+    data only: it travels to Dask workers."""
 
     source: str
     kind: SourceKind
@@ -202,16 +203,40 @@ def _dataset(name: str, value: Any, base: Path) -> dict[str, Any]:
                           f"(known: {', '.join(_DATASET_KEYS)})")  # fmt: skip
     if "path" not in data:
         raise ConfigError(f"dataset '{name}': needs a 'path'")
+    from svains.datasets.rosbag import is_bag, parse_topic_roles
+
     # Resolved on the submitting machine: workers must see the data set at this same path.
-    path = Path(str(data["path"])).expanduser()
-    path = path if path.is_absolute() else (base / path).resolve()
-    if not path.is_dir():  # every run of it would fail, one by one, after the others' work
-        raise ConfigError(f"dataset '{name}': path {path} is not a folder")
+    path = _resolved(data["path"], base)
+    if not (path.is_dir() or is_bag(path)):  # every run would fail, one by one, after the rest
+        raise ConfigError(f"dataset '{name}': path {path} is not a folder or a bag")
     hz = data.get("synthetic_features_hz")
     if hz is not None and not (isinstance(hz, int | float) and hz > 0):
         raise ConfigError(f"dataset '{name}': synthetic_features_hz must be positive, got {hz!r}")
-    return {"path": str(path),
-            "synthetic_features_hz": hz}  # fmt: skip
+    out: dict[str, Any] = {"path": str(path), "synthetic_features_hz": hz}
+    # Kalibr files and bag topics (as svains run's --calib, --imu-calib, --topic), kept only
+    # when given: the task ids of specs without them stay as they were
+    for key in ("calib", "imu_calib"):
+        if data.get(key) is not None:
+            f = _resolved(data[key], base)
+            if not f.is_file():
+                raise ConfigError(f"dataset '{name}': {key} {f} is not a file")
+            out[key] = str(f)
+    topics = data.get("topics")
+    if isinstance(topics, dict):
+        topics = ",".join(f"{k}={v}" for k, v in topics.items())
+    if topics is not None:
+        try:
+            parse_topic_roles(str(topics))
+        except ConfigError as exc:
+            raise ConfigError(f"dataset '{name}': {exc}") from None
+        out["topics"] = str(topics)
+    return out
+
+
+def _resolved(value: Any, base: Path) -> Path:
+    """A spec's path: ``~`` expanded, relative ones from the spec's folder."""
+    path = Path(str(value)).expanduser()
+    return path if path.is_absolute() else (base / path).resolve()
 
 
 def _seeds(raw: dict[str, Any]) -> tuple[tuple[int, ...] | None, int | None]:

@@ -68,7 +68,11 @@ def task_dataset(task: Task, tmp: Path) -> Dataset:
     if task.kind == "scenario":
         cfg = SimConfig.from_dict({**task.data, "seed": task.seed})
         return load_dataset(simulate(cfg, tmp / "data"))
-    ds = load_dataset(task.data["path"])
+    from svains.datasets.rosbag import parse_topic_roles
+
+    ds = load_dataset(task.data["path"], calib=task.data.get("calib"),
+                      imu_calib=task.data.get("imu_calib"),
+                      topics=parse_topic_roles(task.data.get("topics")))
     hz = task.data.get("synthetic_features_hz")
     if hz is None:
         return ds
