@@ -74,6 +74,25 @@ def test_swapped_images_are_refused_by_run_and_frontend_in_one_line(
         assert not (tmp_path / "r").exists()
 
 
+def test_swapped_euroc_streams_are_told_swapped_by_their_rows(
+    euroc_micro: Path, tmp_path: Path
+) -> None:
+    """EuRoC's two cameras differ (distortion, rotation): their streams crossed, each
+    rectified with the other's calibration, leave rows 25.6 px apart and only 4.5 % of the
+    matches negative, told "check T_BS" and run degraded (a user's probe); exchanged, the rows
+    fit: refused as swapped."""
+    swapped = _swapped_copy(euroc_micro, tmp_path / "euroc")
+    check = recorded_stereo_check(load_dataset(swapped))
+    assert check is not None and check.negative_fraction < 0.2 and check.row_offset_px > 10.0
+    assert check.swapped_rows_px is not None and check.swapped_rows_px < 1.0
+    assert check.swapped and "look swapped: rectified as given" in (check.problem() or "")
+    res = runner.invoke(app, ["run", str(swapped), "--method", "3d", "--images", "--no-gps",
+                              "--no-mag", "--out", str(tmp_path / "r")])  # fmt: skip
+    assert res.exit_code == 1 and "is the left camera's stream in cam1?" in res.stderr
+    own = recorded_stereo_check(load_dataset(euroc_micro))
+    assert own is not None and own.swapped_rows_px is None  # rows fit: not looked at
+
+
 def test_online_a_swapped_pair_is_warned_once_and_gives_no_tracks(
     kitti_raw: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

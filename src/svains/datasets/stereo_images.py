@@ -32,7 +32,7 @@ def recorded_stereo_check(ds: Dataset, pairs: int = PAIRS) -> StereoCheck | None
     # Imported here, not with the module: OpenCV starts its BLAS threads when loaded, and a
     # process that forks workers after that (a campaign, a process pool) leaves them hung.
     from svains.frontend.rectify import StereoRectifier
-    from svains.frontend.stereo_check import check_pairs
+    from svains.frontend.stereo_check import ROW_OFFSET_WARN_PX, check_pairs
 
     _, idx_l, idx_r = stereo_pairs(ds)
     if idx_l.size == 0:
@@ -40,6 +40,7 @@ def recorded_stereo_check(ds: Dataset, pairs: int = PAIRS) -> StereoCheck | None
     rect = StereoRectifier.from_calibration(ds.cam0, ds.cam1)
     pick = np.unique(np.linspace(0, idx_l.size - 1, min(pairs, idx_l.size)).round().astype(int))
     images = []
+    raw = []
     peak = 0
     spread = [0.0, 0.0]  # the largest grey-level std of each camera's pairs looked at
     identical = 0
@@ -50,6 +51,7 @@ def recorded_stereo_check(ds: Dataset, pairs: int = PAIRS) -> StereoCheck | None
             continue
         if left.shape == right.shape == (ds.cam0.resolution[1], ds.cam0.resolution[0]):
             images.append(rect.rectify_pair(left, right))
+            raw.append((left, right))
             peak = max(peak, int(left.max()), int(right.max()))
             spread = [max(spread[0], float(left.std())), max(spread[1], float(right.std()))]
             identical += int(np.array_equal(left, right))
@@ -68,7 +70,14 @@ def recorded_stereo_check(ds: Dataset, pairs: int = PAIRS) -> StereoCheck | None
         log.warning("%s: the images reach grey level %d of 255 at most (%d stereo pairs looked "
                     "at): 12-bit values in 16-bit files? svains keeps a 16-bit image's high byte; "
                     "scale them to the full 16 bits (value << 4)", ds.root, peak, len(images))
-    return check_pairs(images)
+    check = check_pairs(images)
+    if check.decided and not check.swapped and check.row_offset_px > ROW_OFFSET_WARN_PX:
+        # rows that do not fit: the streams exchanged, each rectified with the other's
+        # calibration, give exactly that where the two cameras' calibrations differ
+        other = check_pairs([rect.rectify_pair(r, lft) for lft, r in raw])
+        if other.decided:
+            check.swapped_rows_px = other.row_offset_px
+    return check
 
 
 def check_stereo_images(ds: Dataset) -> StereoCheck | None:
