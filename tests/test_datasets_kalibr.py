@@ -323,3 +323,30 @@ def test_a_folder_without_sensor_yaml_takes_its_calibration_from_kalibr(
     with pytest.raises(DatasetError, match=r"missing file: .*imu0/sensor.yaml \(the IMU's "
                        r"calibration; or give a Kalibr imu.yaml: --imu-calib\)"):
         load_dataset(bare.parent, calib=chain)  # the IMU's calibration from nowhere
+
+
+def test_a_camchain_at_odds_with_itself_is_warned(
+    euroc, tmp_path: Path, caplog: pytest.LogCaptureFixture  # type: ignore[no-untyped-def]
+) -> None:
+    """cam1's T_cam_imu (used) and its T_cn_cnm1, and cam1's timeshift against cam0's, were
+    never compared: a camchain half edited by hand ran on one of them without a word."""
+    chain, _ = write_euroc_kalibr(euroc, tmp_path / "k")
+    text = chain.read_text()
+    with caplog.at_level("WARNING", logger="svains.datasets.kalibr"):
+        read_camchain(chain)
+    assert caplog.records == []  # Kalibr's own: both agree
+    lines = text.splitlines()
+    at = lines.index("  T_cn_cnm1:") + 1  # cam1's first row: its x translation 5 mm more
+    row = lines[at].rstrip("]").split(", ")
+    row[-1] = repr(float(row[-1]) - 0.005)
+    lines[at] = ", ".join(row) + "]"
+    lines[-1] = "  timeshift_cam_imu: 0.004"  # cam1's, 4 ms against cam0's 0
+    odd = tmp_path / "odd.yaml"
+    odd.write_text("\n".join(lines) + "\n")
+    with caplog.at_level("WARNING", logger="svains.datasets.kalibr"):
+        got = read_camchain(odd)
+    msgs = [r.getMessage() for r in caplog.records]
+    assert any("cam1's T_cam_imu and its T_cn_cnm1 disagree by 0.00° and 5.0 mm: T_cam_imu is "
+               "used" in m for m in msgs), msgs
+    assert any("cam1.timeshift_cam_imu 4.00 ms differs from cam0's 0.00 ms" in m for m in msgs)
+    np.testing.assert_allclose(got.cameras[1].T_B_C, read_camchain(chain).cameras[1].T_B_C)

@@ -160,13 +160,43 @@ def read_camchain(path: Path | str) -> KalibrChain:
             T_I_C = np.eye(4)
         else:
             raise CalibrationError(f"{path}: {name} has none of T_cam_imu, T_imu_cam, T_cn_cnm1")
+        if i > 0 and "T_cn_cnm1" in c and ("T_cam_imu" in c or "T_imu_cam" in c):
+            _check_chain(T_I_C, cams[-1].T_B_C, _matrix4(c["T_cn_cnm1"], f"{name}.T_cn_cnm1",
+                                                          path), name, path)  # fmt: skip
         cams.append(_camera(c, name, path, T_I_C))
         topics.append(str(c["rostopic"]) if "rostopic" in c else None)
         if i == 0:
             shift = yaml_float(c, "timeshift_cam_imu", path, default=0.0)
             check_timeshift(shift, path, f"{name}.timeshift_cam_imu")
+        elif "timeshift_cam_imu" in c:
+            own = yaml_float(c, "timeshift_cam_imu", path)
+            if abs(own - shift) > TIMESHIFT_AGREE_S:
+                # the pair is taken as triggered together: cam0's offset moves both
+                log.warning("%s: %s.timeshift_cam_imu %.2f ms differs from cam0's %.2f ms: "
+                            "cam0's is applied to both (a stereo pair shares one stamp)", path,
+                            name, own * 1e3, shift * 1e3)  # fmt: skip
     has_imu = any(k in y[names[0]] for k in ("T_cam_imu", "T_imu_cam"))
     return KalibrChain(tuple(cams), shift, tuple(topics), has_imu)
+
+
+# A camera's T_cam_imu and its T_cn_cnm1 chained onto the camera before agree this closely, and
+# cameras' timeshifts (Kalibr writes both from one solution: they agree to its print precision).
+CHAIN_AGREE_DEG = 0.05
+CHAIN_AGREE_M = 1e-3
+TIMESHIFT_AGREE_S = 1e-3
+
+
+def _check_chain(T_I_C: F64, T_I_Cprev: F64, T_cn_cnm1: F64, name: str, path: Path) -> None:
+    """Warn when ``name``'s T_cam_imu (``T_I_C``, used) and its T_cn_cnm1 chained onto the
+    camera before disagree (a camchain edited by hand, half of it from another calibration)."""
+    chained = T_I_Cprev @ np.linalg.inv(T_cn_cnm1)
+    D = np.linalg.inv(chained) @ T_I_C
+    angle = float(np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))))
+    dist = float(np.linalg.norm(D[:3, 3]))
+    if angle > CHAIN_AGREE_DEG or dist > CHAIN_AGREE_M:
+        log.warning("%s: %s's T_cam_imu and its T_cn_cnm1 disagree by %.2f° and %.1f mm: "
+                    "T_cam_imu is used; is one of them from another calibration?", path, name,
+                    angle, dist * 1e3)  # fmt: skip
 
 
 def read_kalibr_imu(path: Path | str) -> tuple[ImuCalib, str | None]:
