@@ -47,7 +47,7 @@ def _spec(**changes: Any) -> dict[str, Any]:
         ({"datasets": {"d": {"path": ".", "calib": "nope.yaml"}}},
          "dataset 'd': calib"),
         ({"datasets": {"d": {"path": ".", "topics": "lefty=/a"}}},
-         "dataset 'd': replay.topics (--topic): unknown role 'lefty'"),
+         "dataset 'd': topics name a bag's topics"),
         ({"scenarios": {"bad name": {}}}, "name 'bad name' must match"),
     ],
 )  # fmt: skip
@@ -223,6 +223,19 @@ def test_a_bag_with_its_kalibr_files_and_topics_runs_in_a_campaign(
               t_end_ns=int(ds.left.t_ns[0]) + 1_000_000_000)  # fmt: skip
     plain = parse_spec(_spec(datasets={"e": {"path": str(euroc_micro)}}), tmp_path)
     assert plain.datasets["e"] == {"path": str(euroc_micro), "synthetic_features_hz": None}
+    # topics: one spelling whatever the order or form (the task id must not hang on it); on a
+    # folder, or a role left empty, refused when the spec loads, not run by run
+    forms = [{"right": "/b", "left": "/a"}, {"left": "/a", "right": "/b"}, ["left=/a", "right=/b"],
+             "right=/b,left=/a"]  # fmt: skip
+    spelled = {parse_spec(_spec(datasets={"b": {"path": "odd.bag", "topics": f}}),
+                          tmp_path).datasets["b"]["topics"] for f in forms}  # fmt: skip
+    assert spelled == {"left=/a,right=/b"}
+    for data, message in (
+        ({"path": str(euroc_micro), "topics": {"left": "/a"}}, "topics name a bag's topics"),
+        ({"path": "odd.bag", "topics": {"left": None}}, "the left topic is empty"),
+    ):
+        with pytest.raises(ConfigError, match=re.escape(message)):
+            parse_spec(_spec(datasets={"b": data}), tmp_path)
     spec = tmp_path / "spec.yaml"
     spec.write_text("name: bag\ndatasets:\n  b: {path: odd.bag, calib: kalibr/camchain-imucam"
                     ".yaml, imu_calib: kalibr/imu.yaml, topics: {left: /a, right: /b}}\n"

@@ -367,3 +367,45 @@ def test_the_gyro_turn_keeps_the_coning_term_of_a_turn_about_a_moving_axis() -> 
     fixed = np.tile([0.0, 0.0, 0.6], (n, 1))
     got = _gyro_turns(t_ns, fixed, int(t_ns[0]), int(t_ns[-1]), None, np.array([0.0, 0.01]))
     np.testing.assert_allclose(got[0], [0.0, 0.0, 0.6 * 0.65], atol=1e-12)
+
+
+@pytest.mark.parametrize("gyro_scale", [1.0, float(np.degrees(1.0))])
+def test_turns_about_a_moving_axis_read_right_and_a_deg_s_gyro_only_its_ratio(
+    gyro_scale: float, caplog: pytest.LogCaptureFixture
+) -> None:
+    """MAV-like turns (0.9 rad/s about an axis circling at 0.8 Hz, 0.3 rad/s about z), frames
+    0.2 s apart, a right mount: nothing warned and the mount read right; a gyro in deg/s warns
+    its ratio (57) alone: the second-order term, 57² too big there, bent the axes 40° and the
+    ratio to 75, and the axis test asked whether T_BS was inverted (a user's probe)."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    h, dt, frame, n_frames = ImuHistory(capacity=16384), 0.005, 0.2, 40
+    tt = np.arange(0.0, n_frames * frame + 0.5, dt)
+    w = np.stack([0.9 * np.cos(2 * np.pi * 0.8 * tt), 0.9 * np.sin(2 * np.pi * 0.8 * tt),
+                  np.full(tt.size, 0.3)], axis=1)  # fmt: skip
+    for k, t in enumerate(tt):
+        h.append(round(t * 1e9), w[k] * gyro_scale, np.array([0.0, 0.0, 9.81]))
+    per, e = round(frame / dt), np.zeros((0, 2))
+    check = RotationCheck(h, R_B_C, DENSITY)
+    with caplog.at_level("WARNING", logger="svains.navigation.rotation_check"):
+        for f in range(n_frames):
+            R = Rotation.identity()
+            for k in range(f * per, (f + 1) * per):
+                for j in range(10):
+                    a = (j + 0.5) / 10
+                    R = R * Rotation.from_rotvec(((1 - a) * w[k] + a * w[k + 1]) * dt / 10)
+            R_Ck_Ckm1 = (R_B_C.T @ R.as_matrix() @ R_B_C).T @ so3_exp(
+                rng.normal(0.0, np.radians(0.02), 3))
+            ego = Egomotion(R_Ck_Ckm1, np.zeros(3), np.eye(6) * np.radians(0.02) ** 2)
+            check.observe(StereoTracks(round(f * frame * 1e9), round((f + 1) * frame * 1e9),
+                                       np.zeros(0, np.int64), e, e, e, e, np.zeros((0, 3)),
+                                       np.zeros(0, bool), ego), None)  # fmt: skip
+    s = check.summary()
+    assert not s["warned"] and not s["warned_mount"]
+    if gyro_scale == 1.0:
+        assert caplog.text == "" and s["mount_error_deg"] < 0.1
+        assert abs(s["median_turn_ratio"] - 1.0) < 0.01
+    else:
+        assert s["warned_turn_ratio"] and abs(s["median_turn_ratio"] - 57.3) < 1.0
+        assert caplog.text.count("WARNING") == 1 and "is the gyro in rad/s" in caplog.text

@@ -210,3 +210,32 @@ def test_a_dead_camera_and_one_camera_written_twice_are_named(
             shutil.copy(png, root / "mav0/cam1/data" / png.name)
         recorded_stereo_check(load_dataset(root))
     assert "cam0 and cam1 hold the same image in" in caplog.text
+
+
+def test_a_wrong_cam1_pitch_is_not_told_swapped(euroc_micro: Path, tmp_path: Path) -> None:
+    """cam1's T_BS turned 3° about its x axis leaves rows 23 px apart as given and 2.5 px with
+    the images exchanged: told and refused as swapped (a user's probe) where the rig's T_BS is
+    what is wrong; crossed streams fit exchanged to 0.1 px."""
+    import yaml
+
+    mav = tmp_path / "pitched" / "mav0"
+    mav.mkdir(parents=True)
+    for item in (euroc_micro / "mav0").iterdir():
+        if item.name != "cam1":
+            (mav / item.name).symlink_to(item)
+    (mav / "cam1").mkdir()
+    for item in (euroc_micro / "mav0" / "cam1").iterdir():
+        if item.name != "sensor.yaml":
+            (mav / "cam1" / item.name).symlink_to(item)
+    text = (euroc_micro / "mav0" / "cam1" / "sensor.yaml").read_text()
+    y = yaml.safe_load(text.split("\n", 1)[1] if text.startswith("%YAML") else text)
+    T = np.array(y["T_BS"]["data"], float).reshape(4, 4)
+    a = np.radians(-3.0)
+    Rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    T[:3, :3] = T[:3, :3] @ Rx
+    y["T_BS"]["data"] = T.ravel().tolist()
+    (mav / "cam1" / "sensor.yaml").write_text(yaml.safe_dump(y))
+    check = recorded_stereo_check(load_dataset(mav.parent))
+    assert check is not None and check.row_offset_px > 10.0
+    assert not check.swapped
+    assert "rectification does not fit the images" in (check.problem() or "")

@@ -203,7 +203,7 @@ def _dataset(name: str, value: Any, base: Path) -> dict[str, Any]:
                           f"(known: {', '.join(_DATASET_KEYS)})")  # fmt: skip
     if "path" not in data:
         raise ConfigError(f"dataset '{name}': needs a 'path'")
-    from svains.datasets.rosbag import is_bag, parse_topic_roles
+    from svains.datasets.rosbag import ROLES, is_bag, parse_topic_roles
 
     # Resolved on the submitting machine: workers must see the data set at this same path.
     path = _resolved(data["path"], base)
@@ -222,14 +222,23 @@ def _dataset(name: str, value: Any, base: Path) -> dict[str, Any]:
                 raise ConfigError(f"dataset '{name}': {key} {f} is not a file")
             out[key] = str(f)
     topics = data.get("topics")
-    if isinstance(topics, dict):
-        topics = ",".join(f"{k}={v}" for k, v in topics.items())
     if topics is not None:
+        if not is_bag(path):  # every run would fail on it, one by one
+            raise ConfigError(f"dataset '{name}': topics name a bag's topics; {path} is not a "
+                              "bag")  # fmt: skip
+        if isinstance(topics, dict):
+            bad = [k for k, v in topics.items() if not isinstance(v, str) or not v.strip()]
+            if bad:
+                raise ConfigError(f"dataset '{name}': topics: the {bad[0]} topic is empty")
+            topics = ",".join(f"{k}={v}" for k, v in topics.items())
+        elif isinstance(topics, list):  # as --topic given several times
+            topics = ",".join(str(t) for t in topics)
         try:
-            parse_topic_roles(str(topics))
+            roles = parse_topic_roles(str(topics)) or {}
         except ConfigError as exc:
             raise ConfigError(f"dataset '{name}': {exc}") from None
-        out["topics"] = str(topics)
+        # one spelling per choice, in the roles' order: the task ids do not hang on the order
+        out["topics"] = ",".join(f"{r}={roles[r]}" for r in ROLES if r in roles)
     return out
 
 

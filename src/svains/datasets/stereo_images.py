@@ -75,7 +75,7 @@ def recorded_stereo_check(ds: Dataset, pairs: int = PAIRS) -> StereoCheck | None
         # rows that do not fit: the streams exchanged, each rectified with the other's
         # calibration, give exactly that where the two cameras' calibrations differ
         other = check_pairs([rect.rectify_pair(r, lft) for lft, r in raw])
-        if other.decided:
+        if other.decided and other.negative_fraction < 0.2:  # exchanged, in order
             check.swapped_rows_px = other.row_offset_px
     return check
 

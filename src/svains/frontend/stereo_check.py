@@ -40,6 +40,9 @@ MIN_MATCHES = 60  # matches before a verdict (both ways)
 MIN_PAIRS = 3  # pairs before a verdict: one view of a fence or a shop window could mislead
 SWAPPED_FRACTION = 0.8  # of the matches at negative disparity: swapped
 ROW_OFFSET_WARN_PX = 3.0  # median |v_L - v_R| above which rectification does not fit
+# the rows of the pairs rectified with the two images exchanged fit this well for crossed
+# streams (EuRoC: 0.1 px); cam1's T_BS 3° off about x left 2.5 px exchanged, not a swap
+SWAPPED_ROWS_FIT_PX = 1.0
 
 
 @dataclass
@@ -96,7 +99,8 @@ class StereoCheck:
         calibrations differ: EuRoC's streams swapped left rows 25.6 px apart and 4.5 % of the
         matches negative, told only "check T_BS": a user's probe)."""
         return (self.swapped_rows_px is not None and self.row_offset_px > ROW_OFFSET_WARN_PX
-                and self.swapped_rows_px <= ROW_OFFSET_WARN_PX)  # fmt: skip
+                and self.swapped_rows_px <= min(SWAPPED_ROWS_FIT_PX,
+                                                0.2 * self.row_offset_px))  # fmt: skip
 
     def problem(self) -> str | None:
         """One line saying what is wrong with the pair, or None."""

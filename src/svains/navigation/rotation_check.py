@@ -203,7 +203,7 @@ class RotationCheck:
         # Camera stamps off the IMU's clock move the turns' axes too: that is told first (the
         # stamps' test counts only frames whose shifted intervals the history holds).
         judged = self.offset_frames >= o.min_frames or len(self.angles_deg) >= 2 * o.min_frames
-        if (not self.warned and not self.warned_offset and judged
+        if (not self.warned and not self.warned_offset and not self.warned_ratio and judged
                 and len(self.angles_deg) >= o.min_frames):  # fmt: skip
             median = float(np.median(self.angles_deg))
             if median > o.max_median_deg:
@@ -554,8 +554,13 @@ def _gyro_turns(t_ns: NDArray[np.int64], gyro_B: F64, t0_ns: int, t1_ns: int,
 
     th_s, th_e = at(theta, shifts_s), at(theta, end + shifts_s)
     # the window's own turn: θ measured from its start, θ(t) - θ(t_s)
-    return first + 0.5 * ((at(cum, end + shifts_s) - at(cum, shifts_s))
-                          - np.cross(th_s, th_e - th_s))  # fmt: skip
+    second = first + 0.5 * ((at(cum, end + shifts_s) - at(cum, shifts_s))
+                            - np.cross(th_s, th_e - th_s))  # fmt: skip
+    # The series holds for turns well below π: beyond, the first order is kept (a gyro read in
+    # deg/s turns 57 times as far, where the second order bent the axes 40-50° and the ratio
+    # to 69-76: a user's probe)
+    big = np.linalg.norm(first, axis=1) > 0.5 * np.pi
+    return np.where(big[:, None], first, second)
 
 
 def rotation_check(history: ImuHistory | None, R_B_C: F64,
