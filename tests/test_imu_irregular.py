@@ -217,6 +217,17 @@ def _vibrating_hole_filter(amplitude: float, missing: int = 1, drops: tuple[int,
     return ins, int(imu.t_ns[hole - 1]), int(imu.t_ns[hole + missing]), accel
 
 
+def _hole_growth(ins, t_before: int, t_after: int, n_steps: int, h: float):  # type: ignore[no-untyped-def]
+    """The velocity variance (3,) a hole of ``n_steps`` intervals adds: its growth less that
+    of the same span of regular steps just before it."""
+    ins.propagate_to(t_before - int(n_steps * h * 1e9))
+    var0 = np.diag(ins.ukf.P)[DV].copy()
+    ins.propagate_to(t_before)
+    var1 = np.diag(ins.ukf.P)[DV].copy()
+    ins.propagate_to(t_after)
+    return (np.diag(ins.ukf.P)[DV] - var1) - (var1 - var0)
+
+
 @pytest.mark.parametrize(("amplitude", "missing"), [(0.0, 1), (2.0, 1), (2.0, 2), (2.0, 6)])
 def test_a_hole_in_a_vibrating_stream_costs_the_velocity_what_it_hides(
     amplitude: float, missing: int
@@ -230,13 +241,7 @@ def test_a_hole_in_a_vibrating_stream_costs_the_velocity_what_it_hides(
     ins, t_before, t_after, accel = _vibrating_hole_filter(amplitude, missing)
     h = 0.005
     n_steps = missing + 1
-    # The same span of regular steps just before: what the hole adds is the difference.
-    ins.propagate_to(t_before - int(n_steps * h * 1e9))
-    var0 = np.diag(ins.ukf.P)[DV].copy()
-    ins.propagate_to(t_before)
-    var1 = np.diag(ins.ukf.P)[DV].copy()
-    ins.propagate_to(t_after)
-    extra = (np.diag(ins.ukf.P)[DV] - var1) - (var1 - var0)
+    extra = _hole_growth(ins, t_before, t_after, n_steps, h)
     # the held sample's (m + 1)² h against (m + 1) h
     white = ins.noise.accel_noise_density**2 * n_steps * (n_steps - 1) * h
     t_s = np.arange(accel.shape[0]) * h
@@ -260,13 +265,7 @@ def test_a_long_hole_after_earlier_drops_is_priced_from_the_runs_the_window_has(
     h, missing = 0.005, 60
     ins, t_before, t_after, accel = _vibrating_hole_filter(
         2.0, missing, drops=(190, 240, 290, 340), broadband=True)
-    n_steps = missing + 1
-    ins.propagate_to(t_before - int(n_steps * h * 1e9))
-    var0 = np.diag(ins.ukf.P)[DV].copy()
-    ins.propagate_to(t_before)
-    var1 = np.diag(ins.ukf.P)[DV].copy()
-    ins.propagate_to(t_after)
-    extra = (np.diag(ins.ukf.P)[DV] - var1) - (var1 - var0)
+    extra = _hole_growth(ins, t_before, t_after, missing + 1, h)
     t_s = np.arange(accel.shape[0]) * h
     actual = h * h * chord_residual_variance(t_s[:400], accel[:400], h, missing=missing)
     assert 0.5 < extra.mean() / actual < 3.0, extra.mean() / actual

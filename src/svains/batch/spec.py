@@ -203,7 +203,7 @@ def _dataset(name: str, value: Any, base: Path) -> dict[str, Any]:
                           f"(known: {', '.join(_DATASET_KEYS)})")  # fmt: skip
     if "path" not in data:
         raise ConfigError(f"dataset '{name}': needs a 'path'")
-    from svains.datasets.rosbag import ROLES, is_bag, parse_topic_roles
+    from svains.datasets.rosbag import is_bag, parse_topic_roles, topic_roles_text
 
     # Resolved on the submitting machine: workers must see the data set at this same path.
     path = _resolved(data["path"], base)
@@ -237,8 +237,8 @@ def _dataset(name: str, value: Any, base: Path) -> dict[str, Any]:
             roles = parse_topic_roles(str(topics)) or {}
         except ConfigError as exc:
             raise ConfigError(f"dataset '{name}': {exc}") from None
-        # one spelling per choice, in the roles' order: the task ids do not hang on the order
-        out["topics"] = ",".join(f"{r}={roles[r]}" for r in ROLES if r in roles)
+        # one spelling per choice: the task ids do not hang on the order
+        out["topics"] = topic_roles_text(roles)
     return out
 
 

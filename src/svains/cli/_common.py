@@ -58,10 +58,6 @@ def fail(exc: BaseException | str, code: int = EXIT_BAD_INPUT) -> NoReturn:
     raise typer.Exit(code)
 
 
-TOPIC_HELP = ("ROLE=TOPIC: a bag's topic for a role (imu, left, right, gps, gt) when "
-              "auto-detection is ambiguous; repeatable (config key replay.topics).")
-
-
 def usage_error(message: str, option: str | None = None) -> NoReturn:
     """Stop with a usage error (exit 2) naming ``option`` when given."""
     raise typer.BadParameter(message, param_hint=f"'{option}'" if option else None)
@@ -319,6 +315,11 @@ def gps_outages(values: list[str] | None) -> list[str] | None:
     return values
 
 
+TopicOption = Annotated[
+    list[str] | None,
+    typer.Option("--topic", help="ROLE=TOPIC: a bag's topic for a role (imu, left, right, gps, "
+                 "gt) when auto-detection is ambiguous; repeatable (config key replay.topics)."),
+]
 GpsOutageOption = Annotated[
     list[str] | None,
     typer.Option("--gps-outage", help="START:DURATION \\[s from the first IMU sample fed] "

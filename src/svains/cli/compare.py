@@ -139,7 +139,7 @@ def compare(
         Path | None, typer.Option("--calib", help="Kalibr camchain-imucam.yaml.")
     ] = None,
     imu_calib: Annotated[Path | None, typer.Option("--imu-calib", help="Kalibr imu.yaml.")] = None,
-    topic: Annotated[list[str] | None, typer.Option("--topic", help=_common.TOPIC_HELP)] = None,
+    topic: _common.TopicOption = None,
     smooth: Annotated[
         bool, typer.Option("--smooth", help="Also smooth each filter run forward-backward (RTS): "
                            "a 'smoothed' row per method and the *_smoothed files.")

@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from svains.cli._common import TOPIC_HELP, check_out_dir, fail, one_of, usage_error
+from svains.cli._common import TopicOption, check_out_dir, fail, one_of, usage_error
 from svains.errors import ConfigError, DatasetError, SvainsError
 
 
@@ -39,12 +39,11 @@ def _frontend(
         Path | None, typer.Option("--calib", help="Kalibr camchain-imucam.yaml (the cameras' "
                                   "calibration, for a bag or instead of the data set's).")
     ] = None,
-    topic: Annotated[list[str] | None, typer.Option("--topic", help=TOPIC_HELP)] = None,
+    topic: TopicOption = None,
 ) -> None:
     """Track features, match stereo, estimate egomotion per frame; write frames.csv, report.json."""
-    from svains.cli.run_config import topic_switches
+    from svains.cli.run_config import topic_roles
     from svains.datasets import load_dataset, stereo_pairs
-    from svains.datasets.rosbag import parse_topic_roles
     from svains.datasets.stereo_images import check_stereo_images
     from svains.frontend.pipeline import FrontendOptions
     from svains.frontend.run import frame_rows, run_frontend, summarize
@@ -55,7 +54,7 @@ def _frontend(
         usage_error(f"-1 (the middle frame) or a frame index, got {figure_frame}",
                     "--figure-frame")  # fmt: skip
     check_out_dir(out, force, inputs=[dataset])
-    topics = parse_topic_roles(topic_switches(topic)["replay.topics"])
+    topics = topic_roles(topic)
     console = Console()
     try:
         ds = load_dataset(dataset, calib=calib, topics=topics)

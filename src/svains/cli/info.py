@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from svains.cli._common import TOPIC_HELP, check_out_file, fail
+from svains.cli._common import TopicOption, check_out_file, fail
 from svains.errors import SvainsError
 
 
@@ -167,17 +167,17 @@ def info(
     imu_calib: Annotated[
         Path | None, typer.Option("--imu-calib", help="Kalibr imu.yaml (noise densities).")
     ] = None,
-    topic: Annotated[list[str] | None, typer.Option("--topic", help=TOPIC_HELP)] = None,
+    topic: TopicOption = None,
 ) -> None:
     """Describe a data set: streams, counts, rates, time span, gaps, missing files, calibration."""
-    from svains.cli.run_config import topic_switches
+    from svains.cli.run_config import topic_roles
     from svains.datasets import load_dataset
-    from svains.datasets.rosbag import is_bag, parse_topic_roles
+    from svains.datasets.rosbag import is_bag
     from svains.datasets.summary import dataset_summary
     from svains.outputs import atomic_write_text
 
     check_out_file(json_out, force, "--json")
-    topics = parse_topic_roles(topic_switches(topic)["replay.topics"])
+    topics = topic_roles(topic)
     console = Console()
     try:
         bag = is_bag(dataset)

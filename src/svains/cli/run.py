@@ -13,10 +13,10 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from svains.cli._common import (
-    TOPIC_HELP,
     GpsOutageOption,
     GpsUntilOption,
     SonarOption,
+    TopicOption,
     check_out_dir,
     fail,
     non_negative_finite,
@@ -98,7 +98,7 @@ def run(
         typer.Option("--imu-calib", help="Kalibr imu.yaml replacing the data set's IMU noise "
                      "(config key replay.imu_calib)."),
     ] = None,
-    topic: Annotated[list[str] | None, typer.Option("--topic", help=TOPIC_HELP)] = None,
+    topic: TopicOption = None,
     smooth: Annotated[
         bool | None,
         typer.Option("--smooth/--no-smooth", help="Also smooth the run forward-backward (RTS) "

@@ -39,19 +39,23 @@ def kalibr_switches(calib: Path | None, imu_calib: Path | None) -> dict[str, str
     }
 
 
-def topic_switches(topic: list[str] | None) -> dict[str, str | None]:
-    """The ``replay.topics`` switch from ``--topic ROLE=TOPIC`` (repeatable), checked: a usage
+def topic_roles(topic: list[str] | None) -> dict[str, str | None] | None:
+    """The roles of ``--topic ROLE=TOPIC`` (repeatable; None: not given), checked: a usage
     error (exit 2) names a malformed item."""
     from svains.datasets.rosbag import parse_topic_roles
 
-    if not topic:
-        return {"replay.topics": None}
-    text = ",".join(t.strip() for t in topic)
     try:
-        parse_topic_roles(text)
+        return parse_topic_roles(",".join(t.strip() for t in topic or ()))
     except ConfigError as exc:
         usage_error(str(exc).removeprefix("replay.topics (--topic): "), "--topic")
-    return {"replay.topics": text}
+
+
+def topic_switches(topic: list[str] | None) -> dict[str, str | None]:
+    """The ``replay.topics`` switch from ``--topic`` (``topic_roles``), in one spelling."""
+    from svains.datasets.rosbag import topic_roles_text
+
+    roles = topic_roles(topic)
+    return {"replay.topics": None if roles is None else topic_roles_text(roles)}
 
 
 def build_config(

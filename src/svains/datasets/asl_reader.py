@@ -105,13 +105,14 @@ def read_imu(folder: Path, replaced: bool = False) -> tuple[ImuStream, ImuCalib 
     """IMU folder: (samples, calibration); ``replaced``: a Kalibr imu.yaml replaces the
     calibration, so a folder without ``sensor.yaml`` gives None."""
     t, a = _table(folder, 7, min_rows=2)
+    a = a[:, _imu_columns(folder / "data.csv")]
+    stream = ImuStream(t_ns=t, gyro_B=a[:, 0:3], accel_B=a[:, 3:6])
     ypath = folder / "sensor.yaml"
     if not ypath.exists():
         if not replaced:
             raise DatasetError(f"missing file: {ypath} (the IMU's calibration; or give a "
                                "Kalibr imu.yaml: --imu-calib)")  # fmt: skip
-        a = a[:, _imu_columns(folder / "data.csv")]
-        return ImuStream(t_ns=t, gyro_B=a[:, 0:3], accel_B=a[:, 3:6]), None
+        return stream, None
     y = read_sensor_yaml(ypath)
     calib = ImuCalib(
         T_B_S=yaml_T_BS(y, ypath),
@@ -126,8 +127,7 @@ def read_imu(folder: Path, replaced: bool = False) -> tuple[ImuStream, ImuCalib 
         ),
     )
     check_imu_calib(calib, ypath)
-    a = a[:, _imu_columns(folder / "data.csv")]
-    return ImuStream(t_ns=t, gyro_B=a[:, 0:3], accel_B=a[:, 3:6]), calib
+    return stream, calib
 
 
 def _imu_columns(path: Path) -> list[int]:

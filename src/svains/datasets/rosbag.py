@@ -169,6 +169,11 @@ def parse_topic_roles(text: str | None) -> dict[str, str | None] | None:
     return out
 
 
+def topic_roles_text(roles: dict[str, str | None]) -> str:
+    """``roles`` (``parse_topic_roles``) as one spelling, in the roles' order."""
+    return ",".join(f"{r}={roles[r]}" for r in ROLES if roles.get(r))
+
+
 def select_topics(
     topics: list[TopicInfo],
     given: dict[str, str | None] | None = None,

@@ -32,7 +32,7 @@ def recorded_stereo_check(ds: Dataset, pairs: int = PAIRS) -> StereoCheck | None
     # Imported here, not with the module: OpenCV starts its BLAS threads when loaded, and a
     # process that forks workers after that (a campaign, a process pool) leaves them hung.
     from svains.frontend.rectify import StereoRectifier
-    from svains.frontend.stereo_check import ROW_OFFSET_WARN_PX, check_pairs
+    from svains.frontend.stereo_check import ROW_OFFSET_WARN_PX, SWAPPED_FRACTION, check_pairs
 
     _, idx_l, idx_r = stereo_pairs(ds)
     if idx_l.size == 0:
@@ -75,7 +75,7 @@ def recorded_stereo_check(ds: Dataset, pairs: int = PAIRS) -> StereoCheck | None
         # rows that do not fit: the streams exchanged, each rectified with the other's
         # calibration, give exactly that where the two cameras' calibrations differ
         other = check_pairs([rect.rectify_pair(r, lft) for lft, r in raw])
-        if other.decided and other.negative_fraction < 0.2:  # exchanged, in order
+        if other.decided and other.negative_fraction < 1.0 - SWAPPED_FRACTION:  # in order
             check.swapped_rows_px = other.row_offset_px
     return check
 

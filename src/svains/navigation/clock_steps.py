@@ -97,11 +97,9 @@ class ClockSteps:
             step_ns = back_ns + period_ns()
             self.shift_ns += step_ns
             self._shifts.append(self.shift_ns)
-            at_s = (last_ns - (origin_ns if origin_ns is not None else last_ns)) * 1e-9
             # the step: how far the new clock's first sample sits behind where it was due (one
             # period after the last; "1.195 s" was said of a 1.2 s step: a user's probe)
-            self.steps.append({"stream": "imu", "at_s": round(at_s, 6),
-                               "back_s": round(step_ns * 1e-9, 9)})
+            at_s = self._record("imu", last_ns, step_ns)["at_s"]
             log.warning(
                 "%.3f s into the run: the IMU clock stepped back %.3f s (a clock reset or a "
                 "driver restart?): later stamps of every stream on that clock are shifted "
@@ -124,10 +122,10 @@ class ClockSteps:
         t = self._nearest(t_ns + s.shift_ns)
         now = self._imu_now_ns
         before = _median(s.lags_ns)
-        # Back before its own last stamp, and lagging the IMU's time by more than a step more
-        # than it did (not merely more than a step behind the IMU: a 1 Hz GPS stepping 1.5 s,
-        # frames fed 0.3 s ahead stepping 1.2 s, were missed: a user's probe).
-        # (its confirmation may lie past the last: a 1 Hz GPS stepping 1.5 s)
+        # Back before its own last stamp (its confirmation may lie past it), and lagging the
+        # IMU's time by more than a step more than it did (not merely more than a step behind
+        # the IMU: a 1 Hz GPS stepping 1.5 s, frames fed 0.3 s ahead stepping 1.2 s, were
+        # missed: a user's probe).
         back = (now is not None and before is not None and s.last_ns is not None
                 and len(s.lags_ns) >= MIN_LAGS
                 and (t < s.last_ns or s.candidate_ns is not None)
@@ -149,11 +147,8 @@ class ClockSteps:
             step_ns = (s.candidate_lag_ns + lag) // 2 - before
             s.shift_ns += step_ns
             s.candidate_ns = None
-            at_s = (s.last_ns - (self._origin_ns if self._origin_ns is not None
-                                 else s.last_ns)) * 1e-9
-            entry: dict[str, float | str] = {"stream": stream, "at_s": round(at_s, 6),
-                                             "back_s": round(step_ns * 1e-9, 9)}
-            self.steps.append(entry)
+            entry = self._record(stream, s.last_ns, step_ns)
+            at_s = float(entry["at_s"])
             s.last_step = (step_ns, now, entry)
             log.warning(
                 "%.3f s into the run: the %s clock stepped back %.3f s while the IMU's went on "
@@ -166,6 +161,16 @@ class ClockSteps:
             s.spacings_ns.append(t - s.last_ns)
         s.last_ns = t if s.last_ns is None else max(s.last_ns, t)
         return t
+
+    def _record(self, stream: str, last_ns: int, step_ns: int) -> dict[str, float | str]:
+        """The report's entry (appended to ``steps``) of ``stream``'s step of ``step_ns`` after
+        its stamp ``last_ns`` (run clock)."""
+        origin = self._origin_ns if self._origin_ns is not None else last_ns
+        entry: dict[str, float | str] = {"stream": stream,
+                                         "at_s": round((last_ns - origin) * 1e-9, 6),
+                                         "back_s": round(step_ns * 1e-9, 9)}  # fmt: skip
+        self.steps.append(entry)
+        return entry
 
     def _reconcile(self, step_ns: int, now_ns: int) -> None:
         """Undo a stream's step that the IMU's step of ``step_ns`` now explains (every clock

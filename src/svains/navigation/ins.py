@@ -286,12 +286,11 @@ class InsFilter:
             (self.gyro_B[lo:k], self.noise.gyro_noise_density),
             (self.accel_B[lo:k], self.noise.accel_noise_density),
         ):
-            got, at = float("nan"), m
-            while True:
-                got = chord_residual_variance(t_s, x, h, missing=at)
-                if np.isfinite(got) or at == 1:
-                    break
+            at = m
+            got = chord_residual_variance(t_s, x, h, missing=at)
+            while not np.isfinite(got) and at > 1:
                 at //= 2
+                got = chord_residual_variance(t_s, x, h, missing=at)
             ok = np.isfinite(got) and density > 0.0
             out.append((missing / at) ** 2 * h * h * got / density**2 if ok else 0.0)
         if len(self._chord_cache) > 64:
