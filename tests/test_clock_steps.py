@@ -238,3 +238,103 @@ def test_a_stream_step_little_over_a_second_is_taken_and_stale_messages_are_not(
     assert [(s["stream"], s["back_s"]) for s in clock.steps] == [("imu", pytest.approx(10.0))]
     assert {t_run - (100 * S + k * frame) for k, (_, _, t_run) in enumerate(out)
             if k > 110} == {0}  # fmt: skip
+
+
+def test_no_step_after_an_imu_dropout_and_none_for_a_fast_stream_stale_burst() -> None:
+    """A reviewer's cases: frames fed in order across a 2 s IMU dropout with one pair swapped
+    after it were taken for a 1.75 s step (their lags were measured while the IMU's time stood
+    still); two stale samples of a 100 Hz magnetometer re-sent back to back (their lags one
+    10 ms spacing apart) were taken for a 10 s step."""
+    frame, mag = 50_000_000, 10_000_000
+    for swap in (120, 121, 122, 123):
+        ev: list[tuple[str, int]] = []
+        imu_t = 100 * S
+        order = list(range(200))
+        order[swap], order[swap + 1] = order[swap + 1], order[swap]
+        for k in order:
+            tf = 100 * S + k * frame
+            while imu_t <= tf:
+                if not 104 * S < imu_t < 106 * S:
+                    ev.append(("imu", imu_t))
+                imu_t += 5_000_000
+            ev.append(("frame", tf))
+        clock, out = _feed(ev)
+        assert clock.steps == [] and {t_run - raw for _, raw, t_run in out} == {0}
+    ev, imu_t = [], 100 * S
+    for k in range(600):
+        tm = 100 * S + k * mag
+        while imu_t <= tm:
+            ev.append(("imu", imu_t))
+            imu_t += 5_000_000
+        if k == 300:
+            ev += [("mag", tm - 10 * S), ("mag", tm - 10 * S + mag)]
+        ev.append(("mag", tm))
+    clock, out = _feed(ev)
+    assert clock.steps == [] and {t_run - raw for _, raw, t_run in out[305:]} == {0}
+
+
+@pytest.mark.parametrize(("spacing_s", "back_s"), [(2.0, 1.5), (7.0, 5.0)])
+def test_a_slow_stream_stepping_back_less_than_its_spacing(spacing_s: float,
+                                                           back_s: float) -> None:
+    """A 0.5 Hz GPS back 1.5 s, frames 7 s apart back 5 s: never before their last stamp, they
+    were missed and every later stamp lagged by the step (dropped as late). A delivery delay of
+    the same size (stamps right, spacing kept) is not a step."""
+    spacing, back = round(spacing_s * S), round(back_s * S)
+    for delayed in (False, True):
+        # (feed time, event): the IMU every 5 ms, each GPS stamp when it is delivered
+        timed = [(t, ("imu", t)) for t in range(100 * S, 100 * S + 16 * spacing, 5_000_000)]
+        for k in range(15):
+            t = 100 * S + k * spacing
+            if delayed:  # delivered `back` late from the 8th stamp on, stamped right
+                timed.append((t + (back if k > 6 else 0) + 1, ("gps", t)))
+            else:
+                timed.append((t + 1, ("gps", t if k <= 6 else t - back)))
+        ev = [e for _, e in sorted(timed)]
+        clock, out = _feed(ev)
+        if delayed:
+            assert clock.steps == [] and {t_run - raw for _, raw, t_run in out} == {0}
+        else:
+            assert [(s["stream"], s["back_s"]) for s in clock.steps] == [
+                ("gps", pytest.approx(back_s))]
+            # the first stamp after the step is held out (dropped as late), the rest carried
+            assert [t_run - (100 * S + k * spacing) for k, (_, _, t_run) in enumerate(out)
+                    if k != 7] == [0] * 14  # fmt: skip
+
+
+def test_a_camera_step_found_with_the_imu_fed_in_batches() -> None:
+    """The camera's clock alone back 5 s, frames at 20 Hz, the IMU delivered in 100 ms batches
+    (a batching driver): consecutive frames' lags differ by a spacing, and the step was never
+    confirmed (every later frame dropped as late)."""
+    frame = 50_000_000
+    for batch in (50_000_000, 100_000_000):
+        ev: list[tuple[str, int]] = []
+        imu_t = 100 * S
+        for k in range(300):
+            tf = 100 * S + k * frame
+            while imu_t <= (tf - 100 * S) // batch * batch + 100 * S:
+                ev.append(("imu", imu_t))
+                imu_t += 5_000_000
+            ev.append(("frame", tf if tf <= 105 * S else tf - 5 * S))
+        clock, out = _feed(ev)
+        assert [(s["stream"], s["back_s"]) for s in clock.steps] == [
+            ("frame", pytest.approx(5.0))]
+        assert {t_run - (100 * S + k * frame) for k, (_, _, t_run) in enumerate(out)
+                if k > 102} == {0}  # fmt: skip
+
+
+@pytest.mark.parametrize(("imu_at_s", "imu_back_s", "steps"), [
+    (105.2, 5.0, [("imu", 5.0)]),  # every clock stepped, frames first: one step
+    (112.0, 5.0, [("frame", 5.0), ("imu", 5.0)]),  # 7 s later: the IMU's own
+    (105.2, 2.0, [("frame", 5.0), ("imu", 2.0)]),  # another size: the IMU's own
+])
+def test_a_stream_step_the_imu_step_explains_is_undone_only_then(
+        imu_at_s: float, imu_back_s: float, steps: list[tuple[str, float]]) -> None:
+    frame = 50_000_000
+    imu_at, imu_back = round(imu_at_s * S), round(imu_back_s * S)
+    timed = [(t, ("imu", t if t <= imu_at else t - imu_back))
+             for t in range(100 * S, 120 * S, 5_000_000)]
+    timed += [(t + 1, ("frame", t if t <= 105 * S else t - 5 * S))
+              for t in range(100 * S, 120 * S, frame)]
+    clock, _ = _feed([e for _, e in sorted(timed)])
+    assert [(s["stream"], s["back_s"]) for s in clock.steps] == [
+        (name, pytest.approx(back)) for name, back in steps]

@@ -13,12 +13,15 @@ were: out-of-order samples, dropped and counted. A step forward is a gap (its ow
 
 A clock of one other stream alone stepping back (a camera driver restarted, the IMU's steady)
 made every later frame "late": dropped one by one, the run went on as a pure INS and diverged (a
-user's probe: 151 m). Such a stream's step is taken the same way, per stream: a stamp before the
-stream's last that lags the IMU's time by more than ``STEP_BACK_S`` more than the stream's
-stamps did, confirmed by the stream's next lagging alike (fed as it comes: stale messages
-re-sent in a burst do not), while the IMU's clock went on (no IMU step pending), shifts that
-stream's later stamps to lag the IMU's time as they did before the step, with a warning naming
-the stream. A stream's step that the IMU's own step then explains is undone (one step).
+user's probe: 151 m). Such a stream's step is taken the same way, per stream: a stamp that lags
+the IMU's time by more than ``STEP_BACK_S`` more than the stream's stamps did, and is either
+before the stream's last or (a regular stream slower than the step) that much short of its
+spacing, confirmed by the stream's next stamp lagging alike after the IMU's time went on (stale
+messages re-sent in a burst do not; a delivery delay keeps the spacing), while the IMU's clock
+is not stepping, shifts that stream's later stamps to go on as before the step (a regular
+stream one spacing after its last stamp, others lagging the IMU's time as before), with a
+warning naming the stream. A stream's step that the IMU's own step then explains is undone (one
+step); the lags taken while an IMU gap held the IMU's time still are forgotten.
 """
 
 from __future__ import annotations
@@ -45,8 +48,8 @@ class _Stream:
     last_ns: int | None = None
     lags_ns: deque[int] = field(default_factory=lambda: deque(maxlen=9))
     spacings_ns: deque[int] = field(default_factory=lambda: deque(maxlen=9))
-    candidate_ns: int | None = None
-    candidate_lag_ns: int = 0
+    # a first stamp far back: raw, its lag, the IMU's time then, the stamp on the run's clock
+    candidate: tuple[int, int, int, int] | None = None
     last_step: tuple[int, int, dict[str, float | str]] | None = None
 
 
@@ -54,9 +57,17 @@ def _median(values: deque[int]) -> int | None:
     return sorted(values)[len(values) // 2] if values else None
 
 
-# A confirming stamp's lag behind the IMU's time agrees with the first's within half the
-# stream's spacing, at least this (ns): stamps fed as they come (a real step) lag alike; stale
-# messages re-sent in a burst lag less by their spacing (a user's probe took two for a step).
+def _spread(values: deque[int]) -> int:
+    return max(values) - min(values) if values else 0
+
+
+_PENDING = -1  # a stream's stamp held out as a step's first (steps are positive)
+
+
+# A confirming stamp's lag behind the IMU's time agrees with the first's within the spread of
+# the stream's lags before, at least this (ns): stamps fed as they come (a real step) lag alike
+# (an IMU fed in 100 ms batches spreads them); a regular stream's spacings within a tenth of
+# their median, at least this, make it regular.
 LAG_AGREE_MIN_NS = 10_000_000
 # A stream's step is judged against the median lag of at least this many stamps before it.
 MIN_LAGS = 3
@@ -108,6 +119,13 @@ class ClockSteps:
             t = t_ns + self.shift_ns
             if self._imu_now_ns is not None:
                 self._reconcile(step_ns, self._imu_now_ns)
+        if self._imu_now_ns is not None and t - self._imu_now_ns > self._step_ns:
+            # An IMU gap: the other streams' lags, taken while its time stood still, say
+            # nothing of their clocks (a frame out of order after the gap was taken for a
+            # step: a user's probe).
+            for other in self._streams.values():
+                other.lags_ns.clear()
+                other.candidate = None
         self._imu_now_ns = t if self._imu_now_ns is None else max(self._imu_now_ns, t)
         if self._origin_ns is None:
             self._origin_ns = origin_ns if origin_ns is not None else t
@@ -121,46 +139,71 @@ class ClockSteps:
             s = self._streams[stream] = _Stream()
         t = self._nearest(t_ns + s.shift_ns)
         now = self._imu_now_ns
-        before = _median(s.lags_ns)
-        # Back before its own last stamp (its confirmation may lie past it), and lagging the
-        # IMU's time by more than a step more than it did (not merely more than a step behind
-        # the IMU: a 1 Hz GPS stepping 1.5 s, frames fed 0.3 s ahead stepping 1.2 s, were
-        # missed: a user's probe).
-        back = (now is not None and before is not None and s.last_ns is not None
-                and len(s.lags_ns) >= MIN_LAGS
-                and (t < s.last_ns or s.candidate_ns is not None)
-                and (now - t) - before > self._step_ns)  # fmt: skip
-        if not back:
-            s.candidate_ns = None
+        if now is not None and len(s.lags_ns) >= MIN_LAGS and s.last_ns is not None:
+            step = self._stream_step(s, t_ns, t, now)
+            if step == _PENDING:
+                return t  # held out: a stale message until the next stamp confirms a step
+            if step:
+                assert s.last_ns is not None
+                s.shift_ns += step
+                entry = self._record(stream, s.last_ns, step)
+                s.last_step = (step, now, entry)
+                log.warning(
+                    "%.3f s into the run: the %s clock stepped back %.3f s while the IMU's went "
+                    "on (a driver restart?): its later stamps are shifted %+.3f s to keep to the "
+                    "IMU's", float(entry["at_s"]), stream, step * 1e-9, step * 1e-9)  # fmt: skip
+                t = self._nearest(t_ns + s.shift_ns)
         else:
-            assert now is not None and before is not None and s.last_ns is not None
-            lag = now - t
-            agree = max(LAG_AGREE_MIN_NS, (_median(s.spacings_ns) or 0) // 2)
-            if (s.candidate_ns is None or t_ns <= s.candidate_ns
-                    or abs(lag - s.candidate_lag_ns) > agree
-                    or self._candidate_ns is not None):  # the IMU's clock steps too  # fmt: skip
-                # a stale message until the next one follows it, fed as it comes
-                s.candidate_ns, s.candidate_lag_ns = t_ns, lag
-                return t
-            # The stamps go on lagging the IMU's time as before the step (a spacing from the
-            # last stamp would not do: irregular keyframes, a user's probe).
-            step_ns = (s.candidate_lag_ns + lag) // 2 - before
-            s.shift_ns += step_ns
-            s.candidate_ns = None
-            entry = self._record(stream, s.last_ns, step_ns)
-            at_s = float(entry["at_s"])
-            s.last_step = (step_ns, now, entry)
-            log.warning(
-                "%.3f s into the run: the %s clock stepped back %.3f s while the IMU's went on "
-                "(a driver restart?): its later stamps are shifted %+.3f s to keep to the "
-                "IMU's", at_s, stream, step_ns * 1e-9, step_ns * 1e-9)  # fmt: skip
-            t = self._nearest(t_ns + s.shift_ns)
+            s.candidate = None
         if now is not None:
             s.lags_ns.append(now - t)
         if s.last_ns is not None and t > s.last_ns:
             s.spacings_ns.append(t - s.last_ns)
         s.last_ns = t if s.last_ns is None else max(s.last_ns, t)
         return t
+
+    def _stream_step(self, s: _Stream, t_ns: int, t: int, now: int) -> int:
+        """The step (ns) ``s``'s stamp ``t_ns`` (``t`` on the run's clock, the IMU's time
+        ``now``) confirms, 0 for none, ``_PENDING`` while it is held out as a candidate.
+
+        A step is a stamp lagging the IMU's time by more than ``STEP_BACK_S`` more than the
+        stream's stamps did, and either back before the stream's last stamp or, for a stream
+        slower than its step (a 0.5 Hz GPS back 1.5 s), that much closer to it than the
+        stream's spacing (a delivery delay keeps the spacing: not a step); confirmed by the
+        stream's next stamp lagging alike after the IMU's time went on (stale messages re-sent
+        in a burst come with none between them), while the IMU's own clock is not stepping."""
+        assert s.last_ns is not None
+        before = _median(s.lags_ns)
+        assert before is not None
+        lag = now - t
+        growth = lag - before
+        # how much the stream's lags vary when nothing happens (an IMU fed in batches)
+        agree = max(LAG_AGREE_MIN_NS, _spread(s.lags_ns))
+        spacing = _median(s.spacings_ns) or 0
+        regular = _spread(s.spacings_ns) <= max(LAG_AGREE_MIN_NS, spacing // 10)
+        c = s.candidate
+        if growth <= self._step_ns:
+            s.candidate = None
+            return 0
+        if c is not None and t_ns > c[0]:
+            if now == c[2]:
+                return _PENDING  # no IMU sample between: a burst, not yet a confirmation
+            if abs(lag - c[1]) <= agree and self._candidate_ns is None:
+                s.candidate = None
+                # A regular stream's first stamp after the step was due one spacing after its
+                # last; others (irregular keyframes, a user's probe) go on lagging the IMU's
+                # time as before the step.
+                by_lag = (c[1] + lag) // 2 - before
+                by_spacing = s.last_ns + spacing - c[3]
+                return by_spacing if regular and abs(by_spacing - by_lag) <= agree else by_lag
+        # The stamp's shortfall from the stream's spacing, for a regular stream (a delivery
+        # delay keeps the spacing and is not a step).
+        shortfall = spacing - (t - s.last_ns)
+        if t < s.last_ns or (regular and abs(shortfall - growth) <= agree + _spread(s.spacings_ns)):
+            s.candidate = (t_ns, lag, now, t)
+            return _PENDING
+        s.candidate = None
+        return 0
 
     def _record(self, stream: str, last_ns: int, step_ns: int) -> dict[str, float | str]:
         """The report's entry (appended to ``steps``) of ``stream``'s step of ``step_ns`` after
