@@ -233,6 +233,10 @@ def test_a_bag_with_its_kalibr_files_and_topics_runs_in_a_campaign(
     for data, message in (
         ({"path": str(euroc_micro), "topics": {"left": "/a"}}, "topics name a bag's topics"),
         ({"path": "odd.bag", "topics": {"left": None}}, "the left topic is empty"),
+        *(({"path": "odd.bag", "topics": empty}, "dataset 'b': topics is empty")
+          for empty in ("", "  ", {}, [])),
+        ({"path": "odd.bag", "topics": {"left": "/a,right=/c"}},
+         "the left topic '/a,right=/c' is not one topic"),
     ):
         with pytest.raises(ConfigError, match=re.escape(message)):
             parse_spec(_spec(datasets={"b": data}), tmp_path)

@@ -105,6 +105,19 @@ def test_info_help() -> None:
     assert "dataset" in res.output.lower() and "--json" in res.output
 
 
+@pytest.mark.parametrize("module", ["svains", "svains.cli.main"])
+def test_the_command_runs_as_a_module(module: str, tmp_path: Path) -> None:
+    """``python -m svains`` said "no module named svains.__main__", and ``-m svains.cli.main``
+    did nothing and exited 0 (a user's probe)."""
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-m", module, "run", str(tmp_path / "none")],
+                         capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert res.returncode == 1
+    assert res.stderr.strip() == f"error: data set folder not found: {tmp_path / 'none'}"
+
+
 def test_info_reads_a_camchain_and_shows_the_mount_and_the_refusal(
     euroc_micro: Path, tmp_path: Path
 ) -> None:

@@ -323,6 +323,14 @@ def test_a_folder_without_sensor_yaml_takes_its_calibration_from_kalibr(
     with pytest.raises(DatasetError, match=r"missing file: .*imu0/sensor.yaml \(the IMU's "
                        r"calibration; or give a Kalibr imu.yaml: --imu-calib\)"):
         load_dataset(bare.parent, calib=chain)  # the IMU's calibration from nowhere
+    # cam0's own sensor.yaml with a 5 ms offset, cam1's absent: both streams end on the
+    # camchain's clock (the right one was moved by cam0's offset too, 5 ms from its pair).
+    (bare / "cam0" / "sensor.yaml").write_text(
+        (euroc_micro / "mav0" / "cam0" / "sensor.yaml").read_text()
+        + "\ntimeshift_cam_imu: 0.005\n")  # fmt: skip
+    half = load_dataset(bare.parent, calib=chain, imu_calib=imu)
+    np.testing.assert_array_equal(half.left.t_ns, full.left.t_ns)
+    np.testing.assert_array_equal(half.right.t_ns, full.right.t_ns)
 
 
 def test_a_camchain_at_odds_with_itself_is_warned(

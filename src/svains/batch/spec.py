@@ -230,13 +230,21 @@ def _dataset(name: str, value: Any, base: Path) -> dict[str, Any]:
             bad = [k for k, v in topics.items() if not isinstance(v, str) or not v.strip()]
             if bad:
                 raise ConfigError(f"dataset '{name}': topics: the {bad[0]} topic is empty")
+            # a topic with "," or "=" would be read as more roles ({left: "/a,right=/c"})
+            odd = [k for k, v in topics.items() if "," in v or "=" in v]
+            if odd:
+                raise ConfigError(f"dataset '{name}': topics: the {odd[0]} topic "
+                                  f"{topics[odd[0]]!r} is not one topic")  # fmt: skip
             topics = ",".join(f"{k}={v}" for k, v in topics.items())
         elif isinstance(topics, list):  # as --topic given several times
             topics = ",".join(str(t) for t in topics)
         try:
-            roles = parse_topic_roles(str(topics)) or {}
+            roles = parse_topic_roles(str(topics))
         except ConfigError as exc:
             raise ConfigError(f"dataset '{name}': {exc}") from None
+        if not roles:  # an empty key would change the task ids and choose nothing
+            raise ConfigError(f"dataset '{name}': topics is empty (leave the key out to let the "
+                              "bag's topics be found by type)")  # fmt: skip
         # one spelling per choice: the task ids do not hang on the order
         out["topics"] = topic_roles_text(roles)
     return out

@@ -289,11 +289,16 @@ def apply_kalibr(
         log.warning("%s: no camera-IMU transform (T_cam_imu; a camera-only camchain): the "
                     "cameras are placed through the data set's cam0 T_BS", camchain_path)
         T_B_I = ds.cam0.T_B_C
-    # The data set's own sensor.yaml offset (if any) was applied at read time: replace it.
-    applied_s = ds.cam0.timeshift_cam_imu_s if ds.cam0 is not None else 0.0
-    shift_ns = round((chain.timeshift_cam_imu_s - applied_s) * 1e9)
+    # Each camera's own sensor.yaml offset (if it has one) was applied at read time: replace it
+    # (a folder with one camera's sensor.yaml and not the other's moved them apart: a
+    # reviewer's case).
+    def applied_s(cam: CameraCalib | None) -> float:
+        return cam.timeshift_cam_imu_s if cam is not None else 0.0
+
+    shift_ns = round((chain.timeshift_cam_imu_s - applied_s(ds.cam0)) * 1e9)
     out.left = _shift_images(ds.left, shift_ns)
-    out.right = _shift_images(ds.right, shift_ns)
+    out.right = _shift_images(ds.right,
+                              round((chain.timeshift_cam_imu_s - applied_s(ds.cam1)) * 1e9))
     _shift_features(ds, out, shift_ns)
     cams = [
         dataclasses.replace(

@@ -1,0 +1,5 @@
+"""``python -m svains``: the ``svains`` command."""
+
+from svains.cli.main import main
+
+main()
