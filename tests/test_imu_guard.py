@@ -239,7 +239,9 @@ def test_spikes_after_long_spacings_leave_a_real_gps_ins_run_as_it_was(
         return dict(json.loads((out / "report.json").read_text()))
 
     clean, spiked = ins(kitti_raw, tmp_path / "clean"), ins(copy, tmp_path / "spiked")
-    assert spiked["imu_faults"]["dropped"]["spike"] == 5
+    # the two-sample one repeats its 100.0 exactly: a railed axis, dropped as saturated
+    dropped = spiked["imu_faults"]["dropped"]
+    assert (dropped["spike"], dropped["saturated"]) == (3, 2)
     assert spiked["ate_rmse_m"] == pytest.approx(clean["ate_rmse_m"], rel=0.02)
     assert spiked["nees_mean"] < 1.1 * clean["nees_mean"]
 
@@ -263,3 +265,33 @@ def test_a_deadbanded_gyro_at_exact_zeros_is_not_frozen() -> None:
     g[turning] = [0.0, 0.0, 0.3] + 1e-3 * rng.standard_normal((int(turning.sum()), 3))
     verdicts = _run(_guard(), t, g, a)
     assert all(v.accepted for v in verdicts)
+
+
+@pytest.mark.parametrize(("axis", "value"), [(5, 10 * 9.80665), (2, math.radians(100.0)),
+                                              (5, 50.0)])
+def test_an_axis_railed_at_an_undeclared_full_scale_is_dropped_whole(axis: int,
+                                                                    value: float) -> None:
+    """One axis pinned at 10 g, 100 deg/s or 50 m/s² for 0.5 s with no full scale in the
+    calibration: the frozen test needs a whole triad, the 16 g / 2000 deg/s guesses were not
+    reached, and most samples were fused (a user's probe: KITTI raw `3d` 15-277 m off). The
+    rail's first sample is retracted by the second; a live axis reaching new extremes is not
+    a rail."""
+    t, g, a = _clean(5.0)
+    values = np.hstack([g, a])
+    rail = slice(200, 250)
+    values[rail, axis] = value
+    verdicts = _run(_guard(), t, values[:, :3], values[:, 3:])
+    kept: list[int] = []  # the samples left in the estimator's history
+    for k, v in enumerate(verdicts):
+        del kept[len(kept) - v.retract_previous:]
+        if v.accepted:
+            kept.append(k)
+    assert kept == [*range(200), *range(250, t.size)]
+    assert all(v.reason in ("saturated", "spike") for v in verdicts[201:250])
+    assert sum(v.reason == "saturated" for v in verdicts[200:250]) >= 49
+    # the same level reached gradually by a live axis (noise on it): accepted
+    ramp = np.linspace(values[190, axis], value, 10)
+    values[190:200, axis] = ramp
+    values[rail, axis] = value + 0.01 * np.random.default_rng(1).standard_normal(50)
+    live = _run(_guard(), t, values[:, :3], values[:, 3:])
+    assert all(v.accepted for v in live[:250])  # (its fall back at 250 is a spike)

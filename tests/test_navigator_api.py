@@ -344,9 +344,15 @@ def test_non_finite_pixels_and_identical_stereo_images_are_dropped(
                         [[0.5, 2.0], [2.5, 4.0], [4.5, np.inf]])  # fmt: skip
         img = np.zeros((4, 6), np.uint8)
         nav.feed_stereo(2_000, img, img.copy())
-    assert nav.queue.dropped == {"feature": 1, "frame": 1}
+        img = np.arange(24, dtype=np.uint8).reshape(4, 6)
+        nav.feed_stereo(3_000, img, img.copy())
+    assert nav.queue.dropped == {"feature": 1, "frame": 2}
     assert "2 of 3 features with non-finite pixels" in caplog.text
-    assert "the left and right images are identical" in caplog.text
+    # a blank pair (a covered camera) said so, not taken for one image sent twice
+    assert ("the left and right images are identical: both blank, every pixel 0 (a camera "
+            "covered, off or not yet exposed?)") in caplog.text
+    assert "the left and right images are identical (one camera's image sent twice?)" \
+        in caplog.text
     queued = [e for e in nav.queue._heap if e[0] == 1_000]  # the frame, waiting for the IMU
     assert len(queued) == 1 and queued[0][3][1].tolist() == [1]  # the finite feature only
 

@@ -192,7 +192,8 @@ class ImuFaults:
                     history.drop_last()
                 history.mark_fault(before_ns, t_ns)
                 self.last_fault_ns = spike_ns
-                self._warn.warn("imu-spike", spike_ns, "IMU sample dropped (spike, seen from "
+                why = verdict.reason if verdict.kind == "drop" else "spike"
+                self._warn.warn(f"imu-{why}", spike_ns, f"IMU sample dropped ({why}, seen from "
                                 "the sample after it), bridged by its neighbours")  # fmt: skip
             else:
                 self._warn.warn("imu-spike-late", spike_ns, "IMU spike found after the "

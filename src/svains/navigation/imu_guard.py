@@ -30,6 +30,13 @@ Thresholds (``ImuGuardOptions``), each from a model or a measurement:
   still the true values, are kept; a triad that was not changing, e.g. a noise-free simulated
   accelerometer, or one held at exact zeros, a deadband, is not judged). Off with
   ``drop_frozen=False`` (``faults.imu_drop_frozen``) for a coarsely quantised IMU at rest.
+- **railed axis**: one axis holding exactly the value of the sample before, beyond
+  ``rail_factor`` times every value it showed while changing and beyond a floor
+  (``rail_floor_accel`` 2 g, ``rail_floor_gyro`` 1 rad/s): a reading clipped at a full scale
+  the calibration does not give (a user's probe: an accelerometer pinned at 10 g, or at 50 m/s²
+  with the gyro at 5 rad/s, for 0.5 s took KITTI raw ``3d`` 15-277 m off). The first sample of
+  the rail is retracted with the second (``retract_previous``); the rail's later samples are
+  dropped while the axis keeps its value. A live axis repeats a new extreme about never.
 - **gap**: accepted samples further apart than ``gap_factor`` times the median observed spacing
   (the rate in ``sensor.yaml`` is nominal only: KITTI raw's OXTS, nominally 100 Hz, has a median
   spacing of 40 ms and gaps up to 250 ms, which must not be flagged sample after sample).
@@ -85,6 +92,9 @@ class ImuGuardOptions:
     drop_frozen: bool = True  # drop a sample equal on all six channels to the last accepted
     frozen_triad_run: int = 5  # one triad equal to the last accepted this many times: frozen
     live_run: int = 20  # ... if it had changed at each of this many samples before
+    rail_factor: float = 1.5  # an axis held beyond this many times its live extremes: railed
+    rail_floor_accel: float = 2.0 * 9.80665  # m/s², ...and beyond this
+    rail_floor_gyro: float = 1.0  # rad/s, ...and beyond this
 
 
 @dataclass(frozen=True)
@@ -151,6 +161,12 @@ class ImuGuard:
         self._triad_repeats = [0, 0]  # samples in a row whose gyro / accel equals the last kept
         self._triad_live = [0, 0]  # accepted samples in a row whose gyro / accel changed
         self._triad_armed = [False, False]  # the repeat run began on a live triad
+        # railed axes: the largest |value| each axis showed while changing, the previous
+        # sample's values (any verdict), each axis's railed value while it holds it
+        self._live_max = [0.0] * 6
+        self._prev_seen: Vec3 | None = None
+        self._rail: list[float | None] = [None] * 6
+        self._rail_retract = 0
         self.counts = _Counters()
 
     @classmethod
@@ -172,8 +188,35 @@ class ImuGuard:
         reason = self._fault(int(t_ns), g, a)
         if reason is not None:
             self.counts.dropped[reason] += 1
-            return Verdict("drop", reason)
+            retract, self._rail_retract = self._rail_retract, 0
+            if retract:  # the rail's first sample, accepted before the second showed it
+                self._recent.pop()
+                self.counts.accepted -= 1
+                self.counts.dropped[reason] += 1
+                self._suspect_runs = self._runs_of_suspects()
+            return Verdict("drop", reason, retract_previous=retract)
         return self._accept(int(t_ns), g, a)
+
+    def _railed(self, values: Vec3) -> bool:
+        """Whether an axis of ``values`` holds a railed value (see the module); keeps the
+        previous sample and each axis's rail, and asks to retract the rail's first sample
+        when it was the last accepted one."""
+        o = self.options
+        prev, self._prev_seen = self._prev_seen, values
+        railed = False
+        for i, v in enumerate(values):
+            floor = o.rail_floor_gyro if i < 3 else o.rail_floor_accel
+            held = (v != 0.0 and prev is not None and v == prev[i]
+                    and abs(v) >= max(floor, o.rail_factor * self._live_max[i]))  # fmt: skip
+            if held and self._rail[i] is None:
+                last = self._last
+                if last is not None and (last[1] + last[2])[i] == v and self._retract == 0:
+                    self._rail_retract = 1
+            self._rail[i] = v if held or self._rail[i] == v else None
+            railed |= self._rail[i] is not None
+        if not railed:
+            self._rail_retract = 0
+        return railed
 
     def _fault(self, t_ns: int, g: Vec3, a: Vec3) -> DropReason | None:
         values = g + a
@@ -198,7 +241,8 @@ class ImuGuard:
                 run[i] += 1
                 if armed[i] and run[i] >= self.options.frozen_triad_run:
                     return "frozen"
-        if max(map(abs, g)) >= self._gyro_sat or max(map(abs, a)) >= self._accel_sat:
+        if self._railed(values) or (max(map(abs, g)) >= self._gyro_sat
+                                    or max(map(abs, a)) >= self._accel_sat):  # fmt: skip
             return "saturated"
         run = self._spike_run_before(t_ns, g, a)
         if run:
@@ -291,6 +335,10 @@ class ImuGuard:
             live = self._triad_live
             live[0] = live[0] + 1 if g != last[1] else 0
             live[1] = live[1] + 1 if a != last[2] else 0
+            # the last sample's values on the axes that changed since were live, not a rail
+            for i, (v, v0) in enumerate(zip(g + a, last[1] + last[2], strict=True)):
+                if v != v0:
+                    self._live_max[i] = max(self._live_max[i], abs(v0))
         self._recent.append((t_ns, g, a))
         self._suspect_runs = self._runs_of_suspects()
         return verdict

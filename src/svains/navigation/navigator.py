@@ -215,7 +215,11 @@ class Navigator:
                 # One camera's image sent twice (a driver or a launch file publishing cam0 on
                 # both topics): zero disparity everywhere, all points at infinity (a user's
                 # probe: ATE 0.16 -> 0.83 m with every 4th pair so, not a word).
-                self.queue.drop("frame", t_ns, "the left and right images are identical")
+                lo, hi = int(pair[0].min()), int(pair[0].max())
+                self.queue.drop("frame", t_ns, "the left and right images are identical"
+                                + (f": both blank, every pixel {lo} (a camera covered, off or "
+                                   "not yet exposed?)" if lo == hi else
+                                   " (one camera's image sent twice?)"))  # fmt: skip
                 return
             if self._new_frame(t_ns):
                 self._push(t_ns, FRAME, ("images", *pair))
