@@ -293,6 +293,7 @@ class ConsistencyMonitor:
     resets: int = 0
     _sensors: dict[str, _SensorTrack] = field(default_factory=dict)
     jumps: int = 0
+    filter_moved: int = 0  # refused frames whose camera carried on (``note_filter_moved``)
     bias_shifts: int = 0
     rate_drops: int = 0
     holds: int = 0
@@ -508,6 +509,22 @@ class ConsistencyMonitor:
                 if name in o.anchor_sensors and s.jump_ns is not None
                 and s.jump_residual is not None and t_ns - s.jump_ns <= hold}  # fmt: skip
 
+    def tests_jumps(self, sensor: str) -> bool:
+        """Whether ``sensor``'s rejections are tested for jumps of the sensor."""
+        return self._may_jump(sensor)
+
+    def note_filter_moved(self, sensor: str, t_ns: int) -> None:
+        """``sensor``'s update refused at ``t_ns`` is the filter's error, not a jump of the
+        sensor (a vision frame whose camera carried on its motion while the filter's prediction
+        left it, ``navigation.camera_continuity``): as after an IMU fault, and a jump already
+        taken for the sensor's is withdrawn. Call before observing that update."""
+        self._last_imu_fault_ns = int(t_ns)
+        s = self._sensors.get(sensor)
+        if s is not None and s.jump_ns is not None:
+            s.jump_ns = None
+        self.filter_moved += 1
+        self._events.append({"t_ns": int(t_ns), "kind": "filter_moved", "sensors": [sensor]})
+
     def note_imu_fault(self, t_ns: int) -> None:
         """An IMU fault (a dropped sample, a gap) at ``t_ns``: a jump of an anchor sensor right
         after it may be the filter's own error, so it is not taken for the sensor's."""
@@ -705,6 +722,7 @@ class ConsistencyMonitor:
             "inflations": self.inflations,
             "resets": self.resets,
             "jumps": self.jumps,
+            "filter_moved": self.filter_moved,
             "bias_shifts": self.bias_shifts,
             "rate_drops": self.rate_drops,
             "holds": self.holds,

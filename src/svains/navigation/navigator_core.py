@@ -21,6 +21,7 @@ from svains.filter.ukf import UpdateStats
 from svains.models.state import BA, BG, DV, Q, V
 from svains.models.state import P as POS
 from svains.navigation.base import FrameContext, MeasurementBlock
+from svains.navigation.camera_continuity import CameraContinuity, measured_motion, predicted_motion
 from svains.navigation.course_check import CourseCheck, MagTurnCheck
 from svains.navigation.event_queue import FRAME, GPS, MAG, SONAR, TICK
 from svains.navigation.fault_handling import (
@@ -102,6 +103,7 @@ class Core:
         self._vision_warned_gap = False
         # the last frames' spacings (ns): a gap is judged against the stream's own rate
         self._frame_spacing: collections.deque[int] = collections.deque(maxlen=31)
+        self._continuity = CameraContinuity()
         self._next_keep_ns = self.t0_ns  # when ``_keep_imu`` runs next
         # An in-flight start (``init.mode`` gps or vision) has no start's rest to hold: a car
         # cruising passes the IMU's rest test, and with the wide velocity of a start from
@@ -528,6 +530,9 @@ class Core:
             w = whitened_correction(ins.ukf, *prior, LEAN_ROWS)
             if w is not None:
                 stats = dataclasses.replace(stats, whitened=w)
+        if (stats is not None and self._recovery is not None
+                and self._recovery.monitor.tests_jumps(cfg.method)):  # fmt: skip
+            self._judge_continuity(updater, ctx, stats, t)
         if hasattr(updater, "after_frame"):
             updater.after_frame(ctx)  # pose clones (rotation="clone")
         if stats is not None:
@@ -535,6 +540,31 @@ class Core:
         if self._t_prev_frame is not None:
             self._frame_spacing.append(t - self._t_prev_frame)
         self._t_prev_frame = t
+
+    def _judge_continuity(
+        self, updater: PixelUpdater | LcUpdater, ctx: FrameContext, stats: UpdateStats, t: int
+    ) -> None:
+        """A refused frame whose camera carried on the motion the last fused frame agreed on,
+        while the filter's prediction left it, is the filter's error (an IMU fault the IMU
+        checks missed), not a jump of the camera (``navigation.camera_continuity``)."""
+        tr = updater.last_tracks
+        if stats.accepted:
+            self._continuity.fused(t, predicted_motion(ctx, updater.clones, updater.rig, tr))
+            return
+        if tr is None or not self._continuity.may_judge(t, (tr.t_ns - tr.t_prev_ns) * 1e-9):
+            return
+        ego = updater.last_egomotion()
+        predicted = predicted_motion(ctx, updater.clones, updater.rig, tr)
+        if ego is None or predicted is None:
+            return
+        measured, std = measured_motion(ego, (tr.t_ns - tr.t_prev_ns) * 1e-9)
+        if self._continuity.filter_moved(measured, std, predicted):
+            assert self._recovery is not None
+            self._recovery.monitor.note_filter_moved(self.config.method, t)
+            self._warn.warn("vision-filter-moved", t, f"{self.config.method}: the frame's camera "
+                            "motion carries on the last fused frame's and the filter's "
+                            "prediction left it: the filter is off (an IMU fault the IMU checks "
+                            "missed?), not the camera")  # fmt: skip
 
     def _vision_apply(
         self, bridging: bool, long: bool = False

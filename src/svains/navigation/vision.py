@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from svains.errors import DatasetError
 from svains.filter.ukf import UpdateStats
-from svains.frontend.types import StereoTracks
+from svains.frontend.types import Egomotion, StereoTracks
 from svains.models.vision_clone import predict_egomotion_clone
 from svains.models.vision_common import ImuIncrement
 from svains.models.vision_lc import predict_egomotion_lc
@@ -83,6 +83,11 @@ class LcUpdater:
         self.relocaliser = (Relocaliser(options, self.clones, source, self.rig)
                             if options.relocalise and self.clones is not None else None)
         self._fused_before = 0
+        self.last_tracks: StereoTracks | None = None  # the last frame's (``camera_continuity``)
+
+    def last_egomotion(self) -> Egomotion | None:
+        """The egomotion the last frame's tracks carry (None without one)."""
+        return None if self.last_tracks is None else self.last_tracks.egomotion
 
     def measurement(self, tr: StereoTracks) -> tuple[F64, F64] | None:
         """``z`` (6,) (rotation vector rad, translation m) and its covariance (6, 6): the front
@@ -100,6 +105,7 @@ class LcUpdater:
         c = self.counters
         c.frames += 1
         tr, inc = tracks_with_prior(self.source, self._prior, ctx)
+        self.last_tracks = tr
         if self.checks is not None:
             self.checks.observe_frame(tr, ctx)
         if tr is None or tr.egomotion is None or tr.t_ns <= tr.t_prev_ns:

@@ -174,6 +174,7 @@ class PixelUpdater:
         self._noise_known = known
         # The last tracks' egomotion (``_egomotion_of``): a frame may need it twice.
         self._egomotion_memo: tuple[StereoTracks, Egomotion | None] | None = None
+        self.last_tracks: StereoTracks | None = None  # the last frame's (``camera_continuity``)
         self._fused: tuple[int, I64] | None = None  # (frame time, track ids) of the last update
         # Track ids and disparities (px) at the k-1 frame of the last tracks (``_near``).
         self._disparity_before: tuple[I64, F64] = (np.zeros(0, np.int64), np.zeros(0))
@@ -359,9 +360,14 @@ class PixelUpdater:
         """Fuse the frame at ``ctx.t_ns`` (see the module docstring)."""
         self.counters.frames += 1
         tr, inc = tracks_with_prior(self.source, self._prior, ctx)
+        self.last_tracks = tr
         if self.checks is not None:
             self.checks.observe_frame(tr, ctx)
         return self._fuse(ctx, tr, inc)
+
+    def last_egomotion(self) -> Egomotion | None:
+        """The egomotion of the last frame's tracks (computed once; None without one)."""
+        return None if self.last_tracks is None else self._egomotion_of(self.last_tracks)
 
     def _fuse(
         self, ctx: FrameContext, tr: StereoTracks | None, inc: ImuIncrement | None,
