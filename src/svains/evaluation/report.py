@@ -91,5 +91,6 @@ def evaluate_files(
     t_e, p_e, q_e = load_trajectory(est_path, est_format, est_topic)
     t_r, p_r, q_r = load_trajectory(ref_path, ref_format, ref_topic)
     a = ate(t_e, p_e, q_e, t_r, p_r, q_r, align=align, max_diff_s=max_diff_s)
-    r = rpe(t_e, p_e, q_e, t_r, p_r, q_r, delta_m=delta_m, max_diff_s=max_diff_s)
+    r = rpe(t_e, p_e, q_e, t_r, p_r, q_r, delta_m=delta_m, max_diff_s=max_diff_s,
+            warn_ambiguous=False)  # said once, by the ATE's
     return EvaluationReport(str(est_path), str(ref_path), a, r)
