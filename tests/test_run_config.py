@@ -116,6 +116,12 @@ def test_effective_config_reproduces_the_run_byte_for_byte(village_gps: Path,
     _cli(["run", str(village_gps), "--config", str(a / "config.yaml"), "--out", str(b)])
     assert (a / "trajectory.tum").read_bytes() == (b / "trajectory.tum").read_bytes()
     assert (a / "config.yaml").read_text() == (b / "config.yaml").read_text()
+    # A run made without --smooth is smoothed in place by re-running its own config (the
+    # smoothing page's recipe): the forward estimate is the run's to the byte.
+    _cli(["run", str(village_gps), "--config", str(b / "config.yaml"), "--smooth",
+          "--out", str(b), "--force"])
+    assert (a / "trajectory.tum").read_bytes() == (b / "trajectory.tum").read_bytes()
+    assert (b / "trajectory_smoothed.tum").read_bytes() != (b / "trajectory.tum").read_bytes()
     tum = np.loadtxt(a / "trajectory.tum")
     t_imu0 = np.loadtxt(village_gps / "mav0" / "imu0" / "data.csv", delimiter=",")[0, 0] * 1e-9
     assert tum[0, 0] >= t_imu0 + 0.5  # --start skipped the first half second
