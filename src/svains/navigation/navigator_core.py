@@ -559,8 +559,11 @@ class Core:
             return
         measured, std = measured_motion(ego, (tr.t_ns - tr.t_prev_ns) * 1e-9)
         if self._continuity.filter_moved(measured, std, predicted):
-            assert self._recovery is not None
+            assert self._recovery is not None and self._continuity.agreed_ns is not None
             self._recovery.monitor.note_filter_moved(self.config.method, t)
+            # The IMU's samples since the last fused frame are suspect: the calibration checks
+            # leave them out (they named a camera clock 300 ms off for such a burst).
+            self.ins.history.mark_fault(self._continuity.agreed_ns, t)
             self._warn.warn("vision-filter-moved", t, f"{self.config.method}: the frame's camera "
                             "motion carries on the last fused frame's and the filter's "
                             "prediction left it: the filter is off (an IMU fault the IMU checks "
