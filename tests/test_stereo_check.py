@@ -124,6 +124,38 @@ def test_online_the_right_order_is_judged_once_and_tracks_go_on(kitti_raw: Path)
     assert fe.stats.status == "ok"
     assert fe.stereo_check.decided and not fe.stereo_check.swapped
     assert fe.stereo_check.pairs == 3  # judged, then no longer looked at
+    for k in range(5, 40):
+        fe.process(int(ds.left.t_ns[il[k]]), ds.left.load(int(il[k])), ds.right.load(int(ir[k])))
+    assert "rechecks" not in fe.stereo_check.summary()
+
+
+def test_online_streams_crossed_mid_run_are_told_after_frames_without_motion(
+    kitti_raw: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The pairs crossed from frame 12 on (a driver restarted, its devices enumerated the other
+    way): "no consensus" frame after frame and nothing else was said (a user's probe: 166
+    frames lost, 235 m). After RECHECK_AFTER frames without a motion the pairs are looked at
+    again: warned once, then no tracks, as for streams crossed from the start; a run in the
+    right order is never looked at again."""
+    from svains.frontend.pipeline import RECHECK_AFTER
+
+    ds = load_dataset(kitti_raw)
+    assert ds.left is not None and ds.right is not None and ds.cam0 and ds.cam1
+    _, il, ir = stereo_pairs(ds)
+    fe = StereoFrontend.from_calibration(ds.cam0, ds.cam1)
+    statuses = []
+    with caplog.at_level(logging.WARNING, logger="svains.frontend.pipeline"):
+        for k in range(30):
+            left, right = ds.left.load(int(il[k])), ds.right.load(int(ir[k]))
+            fe.process(int(ds.left.t_ns[il[k]]), *((right, left) if k >= 12 else (left, right)))
+            statuses.append(fe.stats.status)
+    assert set(statuses[2:12]) == {"ok"}
+    first = statuses.index("swapped")
+    assert 12 + RECHECK_AFTER <= first <= 12 + RECHECK_AFTER + 3
+    assert set(statuses[first:]) == {"swapped"}
+    assert caplog.text.count("stereo pair (looked at again after 5 frames in a row without a "
+                             "motion): the left and right images look swapped") == 1
+    assert fe.stereo_check.summary()["rechecks"] == 1
 
 
 def test_rows_that_do_not_agree_are_named(euroc_micro: Path) -> None:

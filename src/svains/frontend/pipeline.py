@@ -51,6 +51,11 @@ _WARN_EVERY = 100
 # room's view and 500 keyframes stay under 45 MB.
 KEYFRAME_ORB_FEATURES = 1000
 CHECK_MAX_PAIRS = 10  # good pairs the stereo check may look at before it gives up undecided
+# Frames in a row without a motion after which the pairs are looked at again, and at most how
+# often (frames): streams crossed mid-run.
+RECHECK_AFTER = 5
+RECHECK_EVERY = 100
+NO_MOTION_STATUSES = frozenset({"no_consensus", "implausible", "contradicts_prior"})
 
 
 @dataclass
@@ -106,6 +111,9 @@ class StereoFrontend:
         # first good pairs, warned once; a swapped pair gives no tracks.
         self.stereo_check = StereoCheck()
         self._swapped = False
+        self._frames_seen = 0
+        self._no_motion = 0  # frames in a row without a motion (``_watch_stereo``)
+        self._rechecked_at = -RECHECK_EVERY
         warm_up(self.rig)  # compiled RANSAC kernels loaded now, not on the first frame
 
     @property
@@ -179,6 +187,7 @@ class StereoFrontend:
         o = self.options
         tm: dict[str, float] = {}
         t0 = time.perf_counter()
+        self._watch_stereo(self.stats.status)
         self.stats = FrameStats(t_ns=int(t_ns), timings_ms=tm)
         shape = (self.rig.height, self.rig.width)
         gl, gr = as_grey(img_left_raw, shape), as_grey(img_right_raw, shape)
@@ -369,6 +378,19 @@ class StereoFrontend:
                      "inliers", t_ns, best.t_prev_ns, int(best.inlier.sum()))  # fmt: skip
         return best
 
+    def _watch_stereo(self, status: str) -> None:
+        """After ``RECHECK_AFTER`` frames in a row without a motion (``status``: the last
+        frame's), look at the pairs again (``stereo_check``, at most every ``RECHECK_EVERY``
+        frames): streams crossed mid-run (a driver restarted, its devices enumerated the other
+        way) gave "no consensus" frame after frame and nothing else (a user's probe, KITTI raw
+        with the pairs crossed from frame 13: 166 frames lost, 235 m, not a word)."""
+        self._frames_seen += 1
+        self._no_motion = self._no_motion + 1 if status in NO_MOTION_STATUSES else 0
+        if (self._no_motion >= RECHECK_AFTER and self.stereo_check.decided and not self._swapped
+                and self._frames_seen - self._rechecked_at >= RECHECK_EVERY):  # fmt: skip
+            self._rechecked_at = self._frames_seen
+            self.stereo_check = StereoCheck(rechecks=self.stereo_check.rechecks + 1)
+
     def _check_stereo(self, left: U8, right: U8, gl: U8, gr: U8) -> None:
         """Pool one pair into ``stereo_check`` (rectified ``left``/``right``, or the raw ``gl``/
         ``gr`` rectified here when the front end tracks on raw images); warn once decided."""
@@ -379,7 +401,9 @@ class StereoFrontend:
             return
         problem = self.stereo_check.problem()
         if problem is not None:
-            log.warning("stereo pair: %s", problem)
+            again = (f" (looked at again after {RECHECK_AFTER} frames in a row without a motion)"
+                     if self.stereo_check.rechecks else "")  # fmt: skip
+            log.warning("stereo pair%s: %s", again, problem)
         self._swapped = self.stereo_check.swapped
 
     def _detect(self, left: U8, uv_have: F64, tm: dict[str, float]) -> F64:

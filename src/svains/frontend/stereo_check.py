@@ -58,6 +58,7 @@ class StereoCheck:
     # the median row offset (px) of the same pairs with the raw images swapped before
     # rectification, where the rows as given did not fit (None: not looked at)
     swapped_rows_px: float | None = None
+    rechecks: int = 0  # looks again after frames without a motion (``pipeline._watch_stereo``)
 
     def add_pair(self, left: U8, right: U8, detector: DetectorOptions) -> None:
         """Pool one rectified pair (H, W) uint8."""
@@ -126,6 +127,8 @@ class StereoCheck:
                                        "row_offset_px": self.row_offset_px}  # fmt: skip
         if self.swapped_rows_px is not None:
             out["swapped_row_offset_px"] = self.swapped_rows_px
+        if self.rechecks:
+            out["rechecks"] = self.rechecks
         return out
 
 
