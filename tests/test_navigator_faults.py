@@ -3,6 +3,7 @@ recovery and the vision-gap report keys, on a short simulated GPS-aided flight."
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -547,3 +548,12 @@ def test_frames_seconds_apart_are_not_each_warned_as_a_vision_gap(
     with caplog.at_level("WARNING", logger="svains.navigation.fault_handling"):
         run_method(ds, "3d", with_settings(cfg, {"vision.min_features": 100000}))
     assert any("no vision fused" in r.getMessage() for r in caplog.records)
+    # ...saying what became of the frames since (a user's probe: only "no vision fused for
+    # 13.8 s" on keyframes that matched nothing)
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="svains.navigation.fault_handling"):
+        run_method(ds, "3d", with_settings(RunConfig(method="3d", init=InitOptions(
+            mode="groundtruth")), {"vision.min_features": 100000}))  # fmt: skip
+    said = [r.getMessage() for r in caplog.records if "no vision fused" in r.getMessage()]
+    assert len(said) == 1 and re.search(r"the estimate is inertial only \(([2-9]) frames "
+                                        r"since; \1 without an update\)$", said[0]), said

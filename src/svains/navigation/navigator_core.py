@@ -51,6 +51,10 @@ from svains.sensors.types import Rig
 log = logging.getLogger(__name__)
 
 
+# The front end's per-frame statuses as the vision gap's warning says them.
+_STATUS_WORDS = {"first": "first frame", "contradicts_prior": "contradicting the IMU"}
+
+
 class Core:
     """Filter, vision updater, counters and the log of estimates (see the module docstring)."""
 
@@ -100,6 +104,10 @@ class Core:
                                    clone_times=self._clone_times)
                           if config.faults.consistency else None)  # fmt: skip
         self._vision_fused_t: list[int] = []
+        # since the last fused frame: the filter's outcome per frame, and the front end's
+        # status counts then (why vision stopped, said with the gap's warning)
+        self._since_fused: collections.Counter[str] = collections.Counter()
+        self._status_at_fused: dict[str, int] = {}
         self._vision_warned_gap = False
         # the last frames' spacings (ns): a gap is judged against the stream's own rate
         self._frame_spacing: collections.deque[int] = collections.deque(maxlen=31)
@@ -537,6 +545,9 @@ class Core:
             updater.after_frame(ctx)  # pose clones (rotation="clone")
         if stats is not None:
             self._record(stats, cfg.method, t)
+        if stats is None or not stats.accepted:
+            self._since_fused["refused by the filter" if stats is not None
+                              else "without an update"] += 1  # fmt: skip
         if self._t_prev_frame is not None:
             self._frame_spacing.append(t - self._t_prev_frame)
         self._t_prev_frame = t
@@ -640,6 +651,8 @@ class Core:
             self._recovery.observe(stats, key, t)
         if key == self.config.method and stats.accepted:
             self._vision_fused_t.append(t)
+            self._since_fused.clear()
+            self._status_at_fused = dict(getattr(self._source, "status_counts", None) or {})
             self._vision_warned_gap = False
 
     def _check_vision_gap(self, t: int) -> None:
@@ -655,7 +668,24 @@ class Core:
         if gap_s > limit:
             self._vision_warned_gap = True
             self._warn.warn("vision-gap", t, f"{self.config.method}: no vision fused for "
-                            f"{gap_s:.1f} s: the estimate is inertial only")  # fmt: skip
+                            f"{gap_s:.1f} s: the estimate is inertial only"
+                            f"{self._gap_reasons()}")  # fmt: skip
+
+    def _gap_reasons(self) -> str:
+        """What became of the frames since the last fused one: the filter's outcome and the
+        front end's statuses (a user's probe: keyframes seconds apart on a car matched nothing,
+        and only "no vision fused for 13.8 s" was said)."""
+        parts = [f"{n} {what}" for what, n in sorted(self._since_fused.items())]
+        counts = getattr(self._source, "status_counts", None) or {}
+        front = {k: v - self._status_at_fused.get(k, 0) for k, v in counts.items()}
+        front = {k: v for k, v in front.items() if v > 0 and k != "ok"}
+        if front:
+            said = (f"{v} {_STATUS_WORDS.get(k, k.replace('_', ' '))}"
+                    for k, v in sorted(front.items()))  # fmt: skip
+            parts.append("front end: " + ", ".join(said))
+        n = sum(self._since_fused.values())
+        return f" ({n} frame{'s' if n != 1 else ''} since; {'; '.join(parts)})" if n else \
+            " (no frame since)"
 
     def _fault_report(self, t_start_ns: int, t_end_ns: int) -> dict[str, Any]:
         """``imu_faults``, ``recovery`` and, for vision methods, the ``vision_gaps`` keys."""
