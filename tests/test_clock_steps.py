@@ -186,6 +186,22 @@ def _imu(t_from: int, t_to: int, step_back: int = 0, after: int | None = None
             for t in range(t_from, t_to, 5_000_000)]
 
 
+def _stale_burst(stream: str, spacing: int, n: int) -> list[tuple[str, int]]:
+    """``n`` stamps of ``stream`` ``spacing`` ns apart, fed as they come between 200 Hz IMU
+    samples, with two stale ones from 10 s before re-sent back to back halfway."""
+    ev: list[tuple[str, int]] = []
+    imu_t = 100 * S
+    for k in range(n):
+        t = 100 * S + k * spacing
+        while imu_t <= t:
+            ev.append(("imu", imu_t))
+            imu_t += 5_000_000
+        if k == n // 2:
+            ev += [(stream, t - 10 * S), (stream, t - 10 * S + spacing)]
+        ev.append((stream, t))
+    return ev
+
+
 def test_a_stream_step_little_over_a_second_is_taken_and_stale_messages_are_not() -> None:
     """A user's probe: a 1 Hz GPS stepping back 1.5 s and frames fed 0.3 s ahead of the IMU
     stepping back 1.2 s were missed (every later stamp late), two stale frames re-sent from 10 s
@@ -214,16 +230,7 @@ def test_a_stream_step_little_over_a_second_is_taken_and_stale_messages_are_not(
     assert {t_run - (100 * S + k * frame) for k, (_, _, t_run) in enumerate(out)
             if k > 110} == {0}  # fmt: skip
     # (c) two stale frames 10 s old re-sent in a burst, the stream otherwise steady
-    ev, imu_t = [], 100 * S
-    for k in range(200):
-        tf = 100 * S + k * frame
-        while imu_t <= tf:
-            ev.append(("imu", imu_t))
-            imu_t += 5_000_000
-        if k == 100:
-            ev += [("frame", tf - 10 * S), ("frame", tf - 10 * S + frame)]
-        ev.append(("frame", tf))
-    clock, out = _feed(ev)
+    clock, out = _feed(_stale_burst("frame", frame, 200))
     assert clock.steps == []
     assert {t_run - raw for _, raw, t_run in out[105:]} == {0}
     # (d) every clock back 10 s after 105 s, frames fed 0.2 s ahead of the IMU: one step
@@ -260,16 +267,7 @@ def test_no_step_after_an_imu_dropout_and_none_for_a_fast_stream_stale_burst() -
             ev.append(("frame", tf))
         clock, out = _feed(ev)
         assert clock.steps == [] and {t_run - raw for _, raw, t_run in out} == {0}
-    ev, imu_t = [], 100 * S
-    for k in range(600):
-        tm = 100 * S + k * mag
-        while imu_t <= tm:
-            ev.append(("imu", imu_t))
-            imu_t += 5_000_000
-        if k == 300:
-            ev += [("mag", tm - 10 * S), ("mag", tm - 10 * S + mag)]
-        ev.append(("mag", tm))
-    clock, out = _feed(ev)
+    clock, out = _feed(_stale_burst("mag", mag, 600))
     assert clock.steps == [] and {t_run - raw for _, raw, t_run in out[305:]} == {0}
 
 

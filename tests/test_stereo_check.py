@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import logging
 import shutil
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -93,19 +95,29 @@ def test_swapped_euroc_streams_are_told_swapped_by_their_rows(
     assert own is not None and own.swapped_rows_px is None  # rows fit: not looked at
 
 
+def _online(kitti_raw: Path) -> tuple[StereoFrontend, Callable[[int], tuple[int, Any, Any]]]:
+    """A front end for KITTI raw's cameras and its k-th pair (stamp, left, right)."""
+    ds = load_dataset(kitti_raw)
+    assert ds.left is not None and ds.right is not None and ds.cam0 and ds.cam1
+    left, right = ds.left, ds.right
+    _, il, ir = stereo_pairs(ds)
+
+    def pair(k: int) -> tuple[int, Any, Any]:
+        return int(left.t_ns[il[k]]), left.load(int(il[k])), right.load(int(ir[k]))
+
+    return StereoFrontend.from_calibration(ds.cam0, ds.cam1), pair
+
+
 def test_online_a_swapped_pair_is_warned_once_and_gives_no_tracks(
     kitti_raw: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    ds = load_dataset(kitti_raw)
-    assert ds.left is not None and ds.right is not None and ds.cam0 and ds.cam1
-    _, il, ir = stereo_pairs(ds)
-    fe = StereoFrontend.from_calibration(ds.cam0, ds.cam1)
+    fe, pair = _online(kitti_raw)
     statuses = []
     with caplog.at_level(logging.WARNING, logger="svains.frontend.pipeline"):
         for k in range(6):
             # The right camera's image handed in as the left one, and the other way round.
-            tracks = fe.process(int(ds.left.t_ns[il[k]]), ds.right.load(int(ir[k])),
-                                ds.left.load(int(il[k])))  # fmt: skip
+            t, left, right = pair(k)
+            tracks = fe.process(t, right, left)
             statuses.append(fe.stats.status)
             if k >= 2:
                 assert tracks is None
@@ -115,17 +127,14 @@ def test_online_a_swapped_pair_is_warned_once_and_gives_no_tracks(
 
 
 def test_online_the_right_order_is_judged_once_and_tracks_go_on(kitti_raw: Path) -> None:
-    ds = load_dataset(kitti_raw)
-    assert ds.left is not None and ds.right is not None and ds.cam0 and ds.cam1
-    _, il, ir = stereo_pairs(ds)
-    fe = StereoFrontend.from_calibration(ds.cam0, ds.cam1)
+    fe, pair = _online(kitti_raw)
     for k in range(5):
-        fe.process(int(ds.left.t_ns[il[k]]), ds.left.load(int(il[k])), ds.right.load(int(ir[k])))
+        fe.process(*pair(k))
     assert fe.stats.status == "ok"
     assert fe.stereo_check.decided and not fe.stereo_check.swapped
     assert fe.stereo_check.pairs == 3  # judged, then no longer looked at
     for k in range(5, 40):
-        fe.process(int(ds.left.t_ns[il[k]]), ds.left.load(int(il[k])), ds.right.load(int(ir[k])))
+        fe.process(*pair(k))
     assert "rechecks" not in fe.stereo_check.summary()
 
 
@@ -139,15 +148,12 @@ def test_online_streams_crossed_mid_run_are_told_after_frames_without_motion(
     right order is never looked at again."""
     from svains.frontend.pipeline import RECHECK_AFTER
 
-    ds = load_dataset(kitti_raw)
-    assert ds.left is not None and ds.right is not None and ds.cam0 and ds.cam1
-    _, il, ir = stereo_pairs(ds)
-    fe = StereoFrontend.from_calibration(ds.cam0, ds.cam1)
+    fe, pair = _online(kitti_raw)
     statuses = []
     with caplog.at_level(logging.WARNING, logger="svains.frontend.pipeline"):
         for k in range(30):
-            left, right = ds.left.load(int(il[k])), ds.right.load(int(ir[k]))
-            fe.process(int(ds.left.t_ns[il[k]]), *((right, left) if k >= 12 else (left, right)))
+            t, left, right = pair(k)
+            fe.process(t, *((right, left) if k >= 12 else (left, right)))
             statuses.append(fe.stats.status)
     assert set(statuses[2:12]) == {"ok"}
     first = statuses.index("swapped")
