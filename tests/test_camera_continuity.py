@@ -37,6 +37,10 @@ def test_the_camera_carrying_on_blames_the_filter_a_camera_that_stops_does_not()
     # a stuck or replayed view: the camera measures no motion, the filter drives on
     still = np.zeros(6)
     assert not agreed.filter_moved(still, STD, agreed.agreed + 0.01)
+    # a stuck view as a hover ends: the camera measures no motion, the filter sets off
+    hover = CameraContinuity()
+    hover.fused(10 * S, np.zeros(6))
+    assert not hover.filter_moved(np.zeros(6), STD, np.array([0, 0, 0, 0, 0, -1.5]))
     # both moved alike (the motion changed, or both are off): nothing concluded
     assert not agreed.filter_moved(predicted, STD, predicted)
     # a prediction off by less than the camera's noise: nothing concluded

@@ -336,3 +336,22 @@ def test_a_stream_step_the_imu_step_explains_is_undone_only_then(
     clock, _ = _feed([e for _, e in sorted(timed)])
     assert [(s["stream"], s["back_s"]) for s in clock.steps] == [
         (name, pytest.approx(back)) for name, back in steps]
+
+
+@pytest.mark.parametrize("lost", [0, 1, 3, 6])
+def test_a_stalled_pipeline_delivering_its_backlog_is_no_step(lost: int) -> None:
+    """A reviewer's case: a 20 Hz camera delivered 0.3 s late, its pipeline stalled 2 s (the
+    next ``lost`` frames lost), then the backlog in a burst 5 ms apart: taken for steps of
+    -50 to -300 ms (the burst's lags passed as agreeing, the lost frames' span as the step),
+    every later frame shifted. Stamps right, delivered late: nothing to shift."""
+    ms = 1_000_000
+    timed = [(t, ("imu", t)) for t in range(100 * S, 116 * S, 5 * ms)]
+    delivered = 0
+    for k in range(1, 300):
+        if 61 <= k < 61 + lost:
+            continue
+        raw = 100 * S + k * 50 * ms
+        delivered = max(delivered + (2000 * ms if k == 60 else 5 * ms), raw + 300 * ms)
+        timed.append((delivered + 1, ("frame", raw)))
+    clock, out = _feed([e for _, e in sorted(timed)])
+    assert clock.steps == [] and {t_run - raw for _, raw, t_run in out} == {0}

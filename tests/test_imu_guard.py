@@ -295,3 +295,25 @@ def test_an_axis_railed_at_an_undeclared_full_scale_is_dropped_whole(axis: int,
     values[rail, axis] = value + 0.01 * np.random.default_rng(1).standard_normal(50)
     live = _run(_guard(), t, values[:, :3], values[:, 3:])
     assert all(v.accepted for v in live[:250])  # (its fall back at 250 is a spike)
+
+
+def test_a_held_or_noise_free_axis_is_no_rail_and_a_2g_sensors_rail_is() -> None:
+    """A reviewer's cases: an accelerometer sampled at 100 Hz and published at 400 Hz (each
+    value four times) through a 3.2 g landing, and a noise-free gyro stepping into a 1.2 rad/s
+    turn, were dropped as railed (300 samples: the whole turn); a ±2 g sensor pinned at its
+    +32767 LSB (19.61 m/s²) was under the 2 g floor."""
+    t, g, a = _clean(5.0)
+    held = a.copy()
+    held[::4, 2] = 9.81 + 0.05 * np.random.default_rng(3).standard_normal(held[::4].shape[0])
+    held[200:212:4, 2] = 3.2 * 9.80665
+    held[:, 2] = np.repeat(held[::4, 2], 4)[: t.size]  # each value four times
+    assert all(v.accepted for v in _run(_guard(), t, g, held)[:300])
+    still = np.zeros_like(g)
+    still[200:350, 2] = 1.2  # noise-free: exact values
+    assert all(v.accepted for v in _run(_guard(), t, still, a))
+    lsb = 2 * 9.80665 / 32768
+    pinned = a.copy()
+    pinned[:, 0] = np.round(pinned[:, 0] / lsb) * lsb  # a 16-bit ±2 g axis, live
+    pinned[200:225, 0] = 32767 * lsb
+    verdicts = _run(_guard(), t, g, pinned)
+    assert sum(v.reason == "saturated" for v in verdicts[200:225]) >= 23

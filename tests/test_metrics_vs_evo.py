@@ -444,3 +444,6 @@ def test_pairs_at_max_diff_are_warned_as_decided_by_rounding(
         associate(est, ref, 0.015)
         associate(est, ref, 0.01, warn_ambiguous=False)
     assert "decided by rounding" not in caplog.text
+    # one pose on each side (the test indexed the one before past the start: IndexError)
+    one = to_trajectory(t_ref[:1], np.zeros((1, 3)), np.tile([1.0, 0, 0, 0], (1, 1)))
+    assert associate(one, one, 0.01)[2].tolist() == [0]

@@ -164,6 +164,34 @@ def test_online_streams_crossed_mid_run_are_told_after_frames_without_motion(
     assert fe.stereo_check.summary()["rechecks"] == 1
 
 
+def test_a_recheck_in_a_dark_stretch_does_not_stop_later_ones(
+    kitti_raw: Path, caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A reviewer's case: a recheck made in a dark, blurred stretch pools its pairs and stays
+    undecided; every later recheck waited for it to decide, so streams crossed afterwards were
+    never told, and the report showed the undecided recheck instead of the first check."""
+    import cv2
+
+    from svains.frontend import pipeline
+
+    monkeypatch.setattr(pipeline, "RECHECK_EVERY", 20)
+    fe, pair = _online(kitti_raw)
+    with caplog.at_level(logging.WARNING, logger="svains.frontend.pipeline"):
+        for k in range(70):
+            t, left, right = pair(k)
+            if 10 <= k < 30:  # dark and blurred, above the textureless floor
+                left, right = (cv2.GaussianBlur((im * 0.25).astype(np.uint8), (0, 0), 12)
+                               for im in (left, right))  # fmt: skip
+            fe.process(t, *((right, left) if k >= 40 else (left, right)))
+            if k == 29:
+                undecided = fe.stereo_check
+                assert undecided.rechecks == 1 and not undecided.decided
+                report = fe.stereo_check_report().summary()
+                assert report["matches"] > 0 and report["rechecks"] == 1  # the first check's
+    assert fe.stats.status == "swapped"
+    assert caplog.text.count("the left and right images look swapped") == 1
+
+
 def test_rows_that_do_not_agree_are_named(euroc_micro: Path) -> None:
     ds = load_dataset(euroc_micro)
     assert ds.left is not None and ds.right is not None and ds.cam0 and ds.cam1

@@ -217,8 +217,9 @@ def _warn_ambiguous_pairs(t_short_ns: NDArray[np.int64], t_long_ns: NDArray[np.i
     kept 1157 of its 1448 poses, the same in exact nanoseconds 578, a user's probe)."""
     if t_long_ns.size == 0 or t_short_ns.size == 0 or np.any(np.diff(t_long_ns) < 0):
         return
-    k = np.clip(np.searchsorted(t_long_ns, t_short_ns), 1, max(t_long_ns.size - 1, 1))
-    d = np.minimum(np.abs(t_long_ns[k] - t_short_ns), np.abs(t_short_ns - t_long_ns[k - 1]))
+    k = np.searchsorted(t_long_ns, t_short_ns)
+    up, low = np.minimum(k, t_long_ns.size - 1), np.maximum(k - 1, 0)
+    d = np.minimum(np.abs(t_long_ns[up] - t_short_ns), np.abs(t_short_ns - t_long_ns[low]))
     n = int(np.sum(np.abs(d - round(max_diff_s * 1e9)) <= AMBIGUOUS_NS))
     if n >= max(2, AMBIGUOUS_SHARE * t_short_ns.size):
         log.warning("%d of %d poses are %g s from their nearest in time to within 1 us: "

@@ -17,6 +17,7 @@ against the last good one.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Sequence
@@ -114,6 +115,7 @@ class StereoFrontend:
         self._frames_seen = 0
         self._no_motion = 0  # frames in a row without a motion (``_watch_stereo``)
         self._rechecked_at = -RECHECK_EVERY
+        self._decided_check: StereoCheck | None = None  # the last decided, while rechecking
         warm_up(self.rig)  # compiled RANSAC kernels loaded now, not on the first frame
 
     @property
@@ -386,10 +388,23 @@ class StereoFrontend:
         with the pairs crossed from frame 13: 166 frames lost, 235 m, not a word)."""
         self._frames_seen += 1
         self._no_motion = self._no_motion + 1 if status in NO_MOTION_STATUSES else 0
-        if (self._no_motion >= RECHECK_AFTER and self.stereo_check.decided and not self._swapped
+        check = self.stereo_check
+        # a check that decided, or gave up undecided (a dark stretch: a later swap is told)
+        done = check.decided or check.pairs >= CHECK_MAX_PAIRS
+        if (self._no_motion >= RECHECK_AFTER and done and not self._swapped
                 and self._frames_seen - self._rechecked_at >= RECHECK_EVERY):  # fmt: skip
             self._rechecked_at = self._frames_seen
-            self.stereo_check = StereoCheck(rechecks=self.stereo_check.rechecks + 1)
+            if check.decided:
+                self._decided_check = check
+            self.stereo_check = StereoCheck(rechecks=check.rechecks + 1)
+
+    def stereo_check_report(self) -> StereoCheck:
+        """The check the report shows: the latest that decided (a recheck that did not, in a
+        dark stretch, keeps the one before), with the count of rechecks."""
+        check = self.stereo_check
+        if check.decided or self._decided_check is None:
+            return check
+        return dataclasses.replace(self._decided_check, rechecks=check.rechecks)
 
     def _check_stereo(self, left: U8, right: U8, gl: U8, gr: U8) -> None:
         """Pool one pair into ``stereo_check`` (rectified ``left``/``right``, or the raw ``gl``/

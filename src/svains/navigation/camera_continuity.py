@@ -11,7 +11,8 @@ The frame's own motion tells them apart. Per second, the camera motion the last 
 agreed on (the filter's prediction after that update), the motion the refused frame measures
 (its egomotion) and the motion the filter predicts for it: a stuck or replayed camera measures
 a motion unlike the one before while the filter's prediction carries on; after a missed IMU
-fault the camera's motion carries on and the prediction left it. Only over short frames
+fault the camera's motion carries on and the prediction left it. A camera that measures no
+motion is never taken to carry one on (a stuck view at a hover's end). Only over short frames
 (``MAX_GAP_S``, where the motion cannot change much) and soon after the fused frame
 (``MAX_SINCE_FUSED_S``); elsewhere nothing is concluded.
 """
@@ -83,10 +84,15 @@ class CameraContinuity:
 
     def filter_moved(self, measured: F64, measured_std: F64, predicted: F64) -> bool:
         """Whether the refused frame's measured motion carries on the agreed one while the
-        filter's prediction left it (see the module): in some block the prediction moved more
-        than ``RATIO`` times as far as the measurement (and beyond its noise), and in none did
-        the measurement move farther than the prediction."""
+        filter's prediction left it (see the module): the camera measures a motion, in some
+        block the prediction moved more than ``RATIO`` times as far as the measurement (and
+        beyond its noise), and in none did the measurement move farther than the prediction."""
         assert self.agreed is not None
+        # A camera that measures no motion carries nothing on: a stuck view while the vehicle
+        # sets off would look continuous with a hover (a reviewer's case).
+        if not any(np.linalg.norm(measured[b]) > 3.0 * std
+                   for b, std in zip((slice(0, 3), slice(3, 6)), measured_std, strict=True)):
+            return False
         left = False
         for block, std in zip((slice(0, 3), slice(3, 6)), measured_std, strict=True):
             d_cam = float(np.linalg.norm(measured[block] - self.agreed[block]))

@@ -61,8 +61,6 @@ def _spread(values: deque[int]) -> int:
     return max(values) - min(values) if values else 0
 
 
-_PENDING = -1  # a stream's stamp held out as a step's first (steps are positive)
-
 
 # A confirming stamp's lag behind the IMU's time agrees with the first's within the spread of
 # the stream's lags before, at least this (ns): stamps fed as they come (a real step) lag alike
@@ -141,7 +139,7 @@ class ClockSteps:
         now = self._imu_now_ns
         if now is not None and len(s.lags_ns) >= MIN_LAGS and s.last_ns is not None:
             step = self._stream_step(s, t_ns, t, now)
-            if step == _PENDING:
+            if step is None:
                 return t  # held out: a stale message until the next stamp confirms a step
             if step:
                 assert s.last_ns is not None
@@ -162,23 +160,26 @@ class ClockSteps:
         s.last_ns = t if s.last_ns is None else max(s.last_ns, t)
         return t
 
-    def _stream_step(self, s: _Stream, t_ns: int, t: int, now: int) -> int:
+    def _stream_step(self, s: _Stream, t_ns: int, t: int, now: int) -> int | None:
         """The step (ns) ``s``'s stamp ``t_ns`` (``t`` on the run's clock, the IMU's time
-        ``now``) confirms, 0 for none, ``_PENDING`` while it is held out as a candidate.
+        ``now``) confirms, 0 for none, None while it is held out as a candidate.
 
         A step is a stamp lagging the IMU's time by more than ``STEP_BACK_S`` more than the
-        stream's stamps did, and either back before the stream's last stamp or, for a stream
-        slower than its step (a 0.5 Hz GPS back 1.5 s), that much closer to it than the
-        stream's spacing (a delivery delay keeps the spacing: not a step); confirmed by the
-        stream's next stamp lagging alike after the IMU's time went on (stale messages re-sent
-        in a burst come with none between them), while the IMU's own clock is not stepping."""
+        stream's stamps did, and either back before the stream's last stamp or, for a regular
+        stream slower than its step (a 0.5 Hz GPS back 1.5 s), more than ``STEP_BACK_S`` short
+        of its spacing after it, as much as its lag grew (a delivery delay or a stalled
+        pipeline keeps the spacing: not a step); confirmed by the stream's next stamp lagging
+        alike after the IMU's time went on (stale messages re-sent in a burst come with none
+        between them), while the IMU's own clock is not stepping; a step of more than
+        ``STEP_BACK_S`` only."""
         assert s.last_ns is not None
         before = _median(s.lags_ns)
         assert before is not None
         lag = now - t
         growth = lag - before
-        # how much the stream's lags vary when nothing happens (an IMU fed in batches)
-        agree = max(LAG_AGREE_MIN_NS, _spread(s.lags_ns))
+        # how much the stream's lags vary when nothing happens (an IMU fed in batches), at
+        # most half a step (a stalled pipeline's backlog spreads them by seconds)
+        agree = min(max(LAG_AGREE_MIN_NS, _spread(s.lags_ns)), self._step_ns // 2)
         spacing = _median(s.spacings_ns) or 0
         regular = _spread(s.spacings_ns) <= max(LAG_AGREE_MIN_NS, spacing // 10)
         c = s.candidate
@@ -187,7 +188,7 @@ class ClockSteps:
             return 0
         if c is not None and t_ns > c[0]:
             if now == c[2]:
-                return _PENDING  # no IMU sample between: a burst, not yet a confirmation
+                return None  # no IMU sample between: a burst, not yet a confirmation
             if abs(lag - c[1]) <= agree and self._candidate_ns is None:
                 s.candidate = None
                 # A regular stream's first stamp after the step was due one spacing after its
@@ -195,13 +196,14 @@ class ClockSteps:
                 # time as before the step.
                 by_lag = (c[1] + lag) // 2 - before
                 by_spacing = s.last_ns + spacing - c[3]
-                return by_spacing if regular and abs(by_spacing - by_lag) <= agree else by_lag
-        # The stamp's shortfall from the stream's spacing, for a regular stream (a delivery
-        # delay keeps the spacing and is not a step).
+                step = by_spacing if regular and abs(by_spacing - by_lag) <= agree else by_lag
+                return step if step > self._step_ns else 0
+        # The stamp's shortfall from the stream's spacing, for a regular stream.
         shortfall = spacing - (t - s.last_ns)
-        if t < s.last_ns or (regular and abs(shortfall - growth) <= agree + _spread(s.spacings_ns)):
+        if t < s.last_ns or (regular and shortfall > self._step_ns
+                             and abs(shortfall - growth) <= agree):  # fmt: skip
             s.candidate = (t_ns, lag, now, t)
-            return _PENDING
+            return None
         s.candidate = None
         return 0
 

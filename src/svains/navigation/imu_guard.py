@@ -30,9 +30,10 @@ Thresholds (``ImuGuardOptions``), each from a model or a measurement:
   still the true values, are kept; a triad that was not changing, e.g. a noise-free simulated
   accelerometer, or one held at exact zeros, a deadband, is not judged). Off with
   ``drop_frozen=False`` (``faults.imu_drop_frozen``) for a coarsely quantised IMU at rest.
-- **railed axis**: one axis holding exactly the value of the sample before, beyond
-  ``rail_factor`` times every value it showed while changing and beyond a floor
-  (``rail_floor_accel`` 2 g, ``rail_floor_gyro`` 1 rad/s): a reading clipped at a full scale
+- **railed axis**: one axis that changed at each of its last ``live_run`` samples holding
+  exactly the value of the sample before, beyond ``rail_factor`` times every value it showed
+  while changing and beyond a floor (``rail_floor_accel`` 1.9 g: a ±2 g sensor's rail,
+  ``rail_floor_gyro`` 1 rad/s): a reading clipped at a full scale
   the calibration does not give (a user's probe: an accelerometer pinned at 10 g, or at 50 m/s²
   with the gyro at 5 rad/s, for 0.5 s took KITTI raw ``3d`` 15-277 m off). The first sample of
   the rail is retracted with the second (``retract_previous``); the rail's later samples are
@@ -93,7 +94,7 @@ class ImuGuardOptions:
     frozen_triad_run: int = 5  # one triad equal to the last accepted this many times: frozen
     live_run: int = 20  # ... if it had changed at each of this many samples before
     rail_factor: float = 1.5  # an axis held beyond this many times its live extremes: railed
-    rail_floor_accel: float = 2.0 * 9.80665  # m/s², ...and beyond this
+    rail_floor_accel: float = 1.9 * 9.80665  # m/s², ...and beyond this (a ±2 g sensor's rail)
     rail_floor_gyro: float = 1.0  # rad/s, ...and beyond this
 
 
@@ -164,6 +165,7 @@ class ImuGuard:
         # railed axes: the largest |value| each axis showed while changing, the previous
         # sample's values (any verdict), each axis's railed value while it holds it
         self._live_max = [0.0] * 6
+        self._axis_live = [0] * 6  # accepted samples in a row that changed each axis
         self._prev_seen: Vec3 | None = None
         self._rail: list[float | None] = [None] * 6
         self._rail_retract = 0
@@ -186,6 +188,7 @@ class ImuGuard:
         # Plain floats: this runs once per IMU sample, where numpy's per-call cost dominates.
         g, a = _floats(gyro_B), _floats(accel_B)
         reason = self._fault(int(t_ns), g, a)
+        self._prev_seen = g + a  # whatever the verdict (``_railed``)
         if reason is not None:
             self.counts.dropped[reason] += 1
             retract, self._rail_retract = self._rail_retract, 0
@@ -198,15 +201,18 @@ class ImuGuard:
         return self._accept(int(t_ns), g, a)
 
     def _railed(self, values: Vec3) -> bool:
-        """Whether an axis of ``values`` holds a railed value (see the module); keeps the
-        previous sample and each axis's rail, and asks to retract the rail's first sample
+        """Whether an axis of ``values`` holds a railed value (see the module) against the
+        previous sample's; keeps each axis's rail, and asks to retract the rail's first sample
         when it was the last accepted one."""
         o = self.options
-        prev, self._prev_seen = self._prev_seen, values
+        prev = self._prev_seen
         railed = False
         for i, v in enumerate(values):
             floor = o.rail_floor_gyro if i < 3 else o.rail_floor_accel
+            # an axis that changed at each of its last ``live_run`` samples (a sample-and-hold
+            # sensor repeating each value, or a noise-free simulated one, is not judged)
             held = (v != 0.0 and prev is not None and v == prev[i]
+                    and self._axis_live[i] >= o.live_run
                     and abs(v) >= max(floor, o.rail_factor * self._live_max[i]))  # fmt: skip
             if held and self._rail[i] is None:
                 last = self._last
@@ -339,6 +345,9 @@ class ImuGuard:
             for i, (v, v0) in enumerate(zip(g + a, last[1] + last[2], strict=True)):
                 if v != v0:
                     self._live_max[i] = max(self._live_max[i], abs(v0))
+                    self._axis_live[i] += 1
+                else:
+                    self._axis_live[i] = 0
         self._recent.append((t_ns, g, a))
         self._suspect_runs = self._runs_of_suspects()
         return verdict

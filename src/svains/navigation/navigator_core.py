@@ -108,6 +108,9 @@ class Core:
         # status counts then (why vision stopped, said with the gap's warning)
         self._since_fused: collections.Counter[str] = collections.Counter()
         self._status_at_fused: dict[str, int] = {}
+        # frames dropped before they reach the core (the Navigator's queue: blank, late, ...)
+        self.frames_dropped: Callable[[], int] = lambda: 0
+        self._dropped_at_fused = 0
         self._vision_warned_gap = False
         # the last frames' spacings (ns): a gap is judged against the stream's own rate
         self._frame_spacing: collections.deque[int] = collections.deque(maxlen=31)
@@ -653,6 +656,7 @@ class Core:
             self._vision_fused_t.append(t)
             self._since_fused.clear()
             self._status_at_fused = dict(getattr(self._source, "status_counts", None) or {})
+            self._dropped_at_fused = self.frames_dropped()
             self._vision_warned_gap = False
 
     def _check_vision_gap(self, t: int) -> None:
@@ -675,7 +679,11 @@ class Core:
         """What became of the frames since the last fused one: the filter's outcome and the
         front end's statuses (a user's probe: keyframes seconds apart on a car matched nothing,
         and only "no vision fused for 13.8 s" was said)."""
-        parts = [f"{n} {what}" for what, n in sorted(self._since_fused.items())]
+        since = collections.Counter(self._since_fused)
+        dropped = self.frames_dropped() - self._dropped_at_fused
+        if dropped > 0:
+            since["dropped before the filter (see the warnings above)"] = dropped
+        parts = [f"{n} {what}" for what, n in sorted(since.items())]
         counts = getattr(self._source, "status_counts", None) or {}
         front = {k: v - self._status_at_fused.get(k, 0) for k, v in counts.items()}
         front = {k: v for k, v in front.items() if v > 0 and k != "ok"}
@@ -683,7 +691,7 @@ class Core:
             said = (f"{v} {_STATUS_WORDS.get(k, k.replace('_', ' '))}"
                     for k, v in sorted(front.items()))  # fmt: skip
             parts.append("front end: " + ", ".join(said))
-        n = sum(self._since_fused.values())
+        n = sum(since.values())
         return f" ({n} frame{'s' if n != 1 else ''} since; {'; '.join(parts)})" if n else \
             " (no frame since)"
 

@@ -47,8 +47,9 @@ def stereo_check_summary(source: object) -> dict[str, Any]:
     """``{"stereo_check": {...}}`` of an image source's front end (``frontend.stereo_check``:
     left and right swapped, rows that do not agree), empty for other sources."""
     frontend = getattr(source, "frontend", None)
-    check = getattr(frontend, "stereo_check", None)
-    return {} if check is None else {"stereo_check": check.summary()}
+    if frontend is None or getattr(frontend, "stereo_check", None) is None:
+        return {}
+    return {"stereo_check": frontend.stereo_check_report().summary()}
 
 
 def _logged(log: TrackLog, tracks: StereoTracks | None) -> StereoTracks | None:
