@@ -234,3 +234,20 @@ def test_gps_timeshift_moves_fixes_to_the_imu_clock_and_round_trips(tmp_path: Pa
     with pytest.raises(CalibrationError, match=r"gps0/sensor\.yaml: field 'timeshift_gps_imu' "
                        r"must be finite, is nan"):  # fmt: skip
         load_dataset(tmp_path / "a")
+
+
+def test_csv_written_in_chunks_is_the_same_file(tmp_path: Path,
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """``write_csv`` formats ``CSV_CHUNK_ROWS`` rows at a time (a simulated hour of features
+    built as one string took 10 GB): the file is the same whatever the chunk."""
+    from svains.datasets import _textio
+
+    rng = np.random.default_rng(0)
+    blocks = [np.arange(1001, dtype=np.int64) * 5, rng.standard_normal((1001, 2)),
+              np.array(["a", "b"] * 500 + ["c"])]  # fmt: skip
+    _textio.write_csv(tmp_path / "whole.csv", "t,x,y,s", blocks)
+    monkeypatch.setattr(_textio, "CSV_CHUNK_ROWS", 7)
+    _textio.write_csv(tmp_path / "chunks.csv", ["t", "x", "y", "s"], blocks)
+    text = (tmp_path / "chunks.csv").read_text()
+    assert text == (tmp_path / "whole.csv").read_text()
+    assert text.count("\n") == 1002 and text.startswith("#t,x,y,s\n0,")

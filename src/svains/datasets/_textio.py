@@ -142,12 +142,18 @@ def yaml_T_BS(data: dict[str, Any], path: Path, required: bool = True) -> NDArra
     return T.reshape(4, 4)
 
 
+# Rows formatted at a time by ``write_csv``: memory in proportion to a chunk, not the file (a
+# simulated hour of features, 9 M rows, built as one string took 10 GB: a user's probe).
+CSV_CHUNK_ROWS = 50_000
+
+
 def write_csv(path: Path, header: str | Sequence[str], blocks: Sequence[NDArray[Any]]) -> None:
     """Write a ``#``-headed CSV from column blocks (1-D or 2-D, same length).
 
-    Integer blocks are written as integers, float blocks with exact ``repr``, string blocks as is.
+    Integer blocks are written as integers, float blocks with exact ``repr``, string blocks as is;
+    ``CSV_CHUNK_ROWS`` rows at a time.
     """
-    cols: list[list[str]] = []
+    arrays: list[NDArray[Any]] = []
     n: int | None = None
     for block in blocks:
         arr = np.asarray(block)
@@ -157,15 +163,18 @@ def write_csv(path: Path, header: str | Sequence[str], blocks: Sequence[NDArray[
             n = arr.shape[0]
         elif arr.shape[0] != n:
             raise ValueError(f"{path.name}: column blocks have {n} and {arr.shape[0]} rows")
-        if arr.dtype.kind in "iu":
-            cols += [[str(v) for v in arr[:, j].tolist()] for j in range(arr.shape[1])]
-        elif arr.dtype.kind == "f":
-            cols += [[repr(v) for v in arr[:, j].tolist()] for j in range(arr.shape[1])]
-        else:
-            cols += [[str(v) for v in arr[:, j].tolist()] for j in range(arr.shape[1])]
+        arrays.append(arr)
     head = header if isinstance(header, str) else ",".join(header)
-    body = "\n".join(",".join(row) for row in zip(*cols, strict=True)) if cols else ""
-    path.write_text("#" + head + "\n" + body + ("\n" if body else ""))
+    with path.open("w") as f:
+        f.write("#" + head + "\n")
+        for start in range(0, n or 0, CSV_CHUNK_ROWS):
+            cols: list[list[str]] = []
+            for arr in arrays:
+                part = arr[start : start + CSV_CHUNK_ROWS]
+                fmt = repr if part.dtype.kind == "f" else str
+                cols += [[fmt(v) for v in part[:, j].tolist()] for j in range(part.shape[1])]
+            if cols:
+                f.write("\n".join(",".join(row) for row in zip(*cols, strict=True)) + "\n")
 
 
 def _is_data_line(line: str, first: bool) -> bool:

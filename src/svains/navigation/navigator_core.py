@@ -51,6 +51,9 @@ from svains.sensors.types import Rig
 log = logging.getLogger(__name__)
 
 
+# A given start faster than this (m/s, and than 3 of its standard deviations) is not at rest.
+START_REST_SPEED_MPS = 0.1
+
 # The front end's per-frame statuses as the vision gap's warning says them.
 _STATUS_WORDS = {"first": "first frame", "contradicts_prior": "contradicting the IMU"}
 
@@ -119,7 +122,14 @@ class Core:
         # An in-flight start (``init.mode`` gps or vision) has no start's rest to hold: a car
         # cruising passes the IMU's rest test, and with the wide velocity of a start from
         # position-only fixes the gate let "v = 0" in (KITTI raw: 4.7 m/s zeroed, NEES 3.6e4).
-        start_rest = config.zupt.after_start or config.init.mode not in ("gps", "vision")
+        # A given start (the ground truth, a Navigator's initial state) moving is none either:
+        # straight flight at constant velocity passes the rest test, and one zero velocity let
+        # in as the gate widened took a GPS-denied `ins` 214 m off (a user's probe).
+        v0_mps = float(np.linalg.norm(ins.ukf.x[V]))
+        v0_std = float(np.sqrt(max(float(np.trace(ins.ukf.P[DV, DV])) / 3.0, 0.0)))
+        moving = v0_mps > max(START_REST_SPEED_MPS, 3.0 * v0_std)
+        start_rest = config.zupt.after_start or (
+            config.init.mode not in ("gps", "vision") and not moving)
         self._zupt = (
             StaticTest(config.zupt, config.init, float(np.linalg.norm(rig.gravity_W)))
             if config.zupt.enabled and start_rest else None
