@@ -40,6 +40,7 @@ RATIO = 3.0
 MAX_GAP_S = 1.0
 # ...and refused at most this long (s) after the last fused frame.
 MAX_SINCE_FUSED_S = 1.5
+_BLOCKS = (slice(0, 3), slice(3, 6))  # of a motion (6,): rotation, translation
 
 
 def predicted_motion(
@@ -62,7 +63,7 @@ def measured_motion(ego: Egomotion, dt_s: float) -> tuple[F64, F64]:
     """The egomotion per second (6,) and its standard deviation per block (rotation,
     translation) per second."""
     z = np.concatenate([so3_log(ego.R_Ck_Ckm1), ego.p_Ck_Ckm1]) / dt_s
-    std = np.sqrt([np.trace(ego.cov[:3, :3]), np.trace(ego.cov[3:, 3:])]) / dt_s
+    std = np.sqrt([np.trace(ego.cov[b, b]) for b in _BLOCKS]) / dt_s
     return z, std
 
 
@@ -91,10 +92,10 @@ class CameraContinuity:
         # A camera that measures no motion carries nothing on: a stuck view while the vehicle
         # sets off would look continuous with a hover (a reviewer's case).
         if not any(np.linalg.norm(measured[b]) > 3.0 * std
-                   for b, std in zip((slice(0, 3), slice(3, 6)), measured_std, strict=True)):
+                   for b, std in zip(_BLOCKS, measured_std, strict=True)):
             return False
         left = False
-        for block, std in zip((slice(0, 3), slice(3, 6)), measured_std, strict=True):
+        for block, std in zip(_BLOCKS, measured_std, strict=True):
             d_cam = float(np.linalg.norm(measured[block] - self.agreed[block]))
             d_filter = float(np.linalg.norm(predicted[block] - self.agreed[block]))
             if d_cam > d_filter + 3.0 * std:

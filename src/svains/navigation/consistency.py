@@ -350,7 +350,7 @@ class ConsistencyMonitor:
             s.last_accepted_ns = int(t_ns)
             s.jump_ns = None
             return
-        if (self._may_jump(sensor) and s.consecutive_rejections == 0
+        if (self.tests_jumps(sensor) and s.consecutive_rejections == 0
                 and s.last_accepted_ns is not None
                 and t_ns - s.last_accepted_ns <= int(o.jump_window_s * 1e9)
                 and np.isfinite(gate) and nis >= o.jump_factor * gate
@@ -489,7 +489,7 @@ class ConsistencyMonitor:
             worst = speed if worst is None else max(worst, speed)
         return worst
 
-    def _may_jump(self, sensor: str) -> bool:
+    def tests_jumps(self, sensor: str) -> bool:
         """Whether a rejection of ``sensor`` is tested for a jump of the sensor: an anchor
         (GPS), or a vision sensor where it may call for a recovery alone (GPS-denied)."""
         o = self.options
@@ -509,10 +509,6 @@ class ConsistencyMonitor:
                 if name in o.anchor_sensors and s.jump_ns is not None
                 and s.jump_residual is not None and t_ns - s.jump_ns <= hold}  # fmt: skip
 
-    def tests_jumps(self, sensor: str) -> bool:
-        """Whether ``sensor``'s rejections are tested for jumps of the sensor."""
-        return self._may_jump(sensor)
-
     def note_filter_moved(self, sensor: str, t_ns: int) -> None:
         """``sensor``'s update refused at ``t_ns`` is the filter's error, not a jump of the
         sensor (a vision frame whose camera carried on its motion while the filter's prediction
@@ -520,7 +516,7 @@ class ConsistencyMonitor:
         taken for the sensor's is withdrawn. Call before observing that update."""
         self._last_imu_fault_ns = int(t_ns)
         s = self._sensors.get(sensor)
-        if s is not None and s.jump_ns is not None:
+        if s is not None:
             s.jump_ns = None
         self.filter_moved += 1
         self._events.append({"t_ns": int(t_ns), "kind": "filter_moved", "sensors": [sensor]})
@@ -609,7 +605,7 @@ class ConsistencyMonitor:
                 f"row, its position running off at {speed:.2g} m/s against its own velocity "
                 "(a wandering solution?): its updates are rejected until they agree again",
                 tuple(anchors))
-        if alone and all(self._may_jump(n) and self._sensors[n].jump_ns is not None
+        if alone and all(self.tests_jumps(n) and self._sensors[n].jump_ns is not None
                          for n in bad):  # fmt: skip
             # GPS-denied: a camera that jumps (frozen, blocked, replayed) is no lost filter.
             s = self._sensors[bad[0]]

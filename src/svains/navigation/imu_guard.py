@@ -193,12 +193,17 @@ class ImuGuard:
             self.counts.dropped[reason] += 1
             retract, self._rail_retract = self._rail_retract, 0
             if retract:  # the rail's first sample, accepted before the second showed it
-                self._recent.pop()
-                self.counts.accepted -= 1
-                self.counts.dropped[reason] += 1
+                self._forget_last(retract, reason)
                 self._suspect_runs = self._runs_of_suspects()
             return Verdict("drop", reason, retract_previous=retract)
         return self._accept(int(t_ns), g, a)
+
+    def _forget_last(self, n: int, reason: DropReason) -> None:
+        """The last ``n`` accepted samples counted dropped for ``reason`` instead."""
+        self.counts.accepted -= n
+        self.counts.dropped[reason] += n
+        for _ in range(n):
+            self._recent.pop()
 
     def _railed(self, values: Vec3) -> bool:
         """Whether an axis of ``values`` holds a railed value (see the module) against the
@@ -220,8 +225,6 @@ class ImuGuard:
                     self._rail_retract = 1
             self._rail[i] = v if held or self._rail[i] == v else None
             railed |= self._rail[i] is not None
-        if not railed:
-            self._rail_retract = 0
         return railed
 
     def _fault(self, t_ns: int, g: Vec3, a: Vec3) -> DropReason | None:
@@ -314,10 +317,7 @@ class ImuGuard:
         self.counts.accepted += 1
         retract, self._retract = self._retract, 0
         if retract:  # the last accepted samples were a spike: judged from the one before them
-            self.counts.accepted -= retract
-            self.counts.dropped["spike"] += retract
-            for _ in range(retract):
-                self._recent.pop()
+            self._forget_last(retract, "spike")
             base = self._recent[-1]
             self._recent.clear()
             self._recent.append(base)

@@ -396,9 +396,8 @@ class Navigator:
             init.info["imu_noise"] = decided
         ins = InsFilter(self.history, self.rig, self.layout, init, self.config.filter, noise)
         self.core = Core(self.config, self.rig, ins, init.info, self._source, self._emit,
-                         self.imu_faults, self._warn)  # fmt: skip
-        self.core.frames_dropped = lambda: sum(self.queue.dropped.get(s, 0)
-                                               for s in ("frame", "feature"))
+                         self.imu_faults, self._warn,
+                         lambda: sum(self.queue.dropped.get(s, 0) for s in ("frame", "feature")))
         if self.config.duration_s is not None:
             static_s = self.config.init.static_s
             if init.info.get("mode") == "static" and self.config.duration_s < static_s:

@@ -43,7 +43,11 @@ from svains.navigation.smoothing import history_recorder
 from svains.navigation.sonar_anchor import ANCHOR_AGREE_M, ANCHOR_RANGES, anchor_height
 from svains.navigation.vision import LcUpdater, PixelUpdater, make_vision_updater
 from svains.navigation.vision_clones import next_reference_ns
-from svains.navigation.vision_gaps import vision_gap_limit_s, vision_gap_report
+from svains.navigation.vision_gaps import (
+    FramesSinceFused,
+    vision_gap_limit_s,
+    vision_gap_report,
+)
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames
 from svains.navigation.zupt import StaticTest, zero_velocity_block
 from svains.sensors.types import Rig
@@ -54,9 +58,6 @@ log = logging.getLogger(__name__)
 # A given start faster than this (m/s, and than 3 of its standard deviations) is not at rest.
 START_REST_SPEED_MPS = 0.1
 
-# The front end's per-frame statuses as the vision gap's warning says them.
-_STATUS_WORDS = {"first": "first frame", "contradicts_prior": "contradicting the IMU"}
-
 
 class Core:
     """Filter, vision updater, counters and the log of estimates (see the module docstring)."""
@@ -65,7 +66,10 @@ class Core:
         self, config: RunConfig, rig: Rig, ins: InsFilter, init_info: dict[str, object],
         source: FeatureFrames | ImageFrames | None, emit: Callable[[NavState], None],
         imu_faults: ImuFaults | None = None, warn: RateLimitedLog | None = None,
+        frames_dropped: Callable[[], int] = lambda: 0,
     ) -> None:
+        """``frames_dropped``: how many frames were dropped before they reached the core so
+        far (the Navigator's queue: blank, late, ...), for the vision gap's warning."""
         self.config = config
         self.rig = rig
         self.ins = ins
@@ -107,13 +111,8 @@ class Core:
                                    clone_times=self._clone_times)
                           if config.faults.consistency else None)  # fmt: skip
         self._vision_fused_t: list[int] = []
-        # since the last fused frame: the filter's outcome per frame, and the front end's
-        # status counts then (why vision stopped, said with the gap's warning)
-        self._since_fused: collections.Counter[str] = collections.Counter()
-        self._status_at_fused: dict[str, int] = {}
-        # frames dropped before they reach the core (the Navigator's queue: blank, late, ...)
-        self.frames_dropped: Callable[[], int] = lambda: 0
-        self._dropped_at_fused = 0
+        self._since_fused = FramesSinceFused()  # why vision stopped, with the gap's warning
+        self._frames_dropped = frames_dropped
         self._vision_warned_gap = False
         # the last frames' spacings (ns): a gap is judged against the stream's own rate
         self._frame_spacing: collections.deque[int] = collections.deque(maxlen=31)
@@ -559,8 +558,7 @@ class Core:
         if stats is not None:
             self._record(stats, cfg.method, t)
         if stats is None or not stats.accepted:
-            self._since_fused["refused by the filter" if stats is not None
-                              else "without an update"] += 1  # fmt: skip
+            self._since_fused.not_fused(refused=stats is not None)
         if self._t_prev_frame is not None:
             self._frame_spacing.append(t - self._t_prev_frame)
         self._t_prev_frame = t
@@ -575,13 +573,16 @@ class Core:
         if stats.accepted:
             self._continuity.fused(t, predicted_motion(ctx, updater.clones, updater.rig, tr))
             return
-        if tr is None or not self._continuity.may_judge(t, (tr.t_ns - tr.t_prev_ns) * 1e-9):
+        if tr is None:
+            return
+        dt_s = (tr.t_ns - tr.t_prev_ns) * 1e-9
+        if not self._continuity.may_judge(t, dt_s):
             return
         ego = updater.last_egomotion()
         predicted = predicted_motion(ctx, updater.clones, updater.rig, tr)
         if ego is None or predicted is None:
             return
-        measured, std = measured_motion(ego, (tr.t_ns - tr.t_prev_ns) * 1e-9)
+        measured, std = measured_motion(ego, dt_s)
         if self._continuity.filter_moved(measured, std, predicted):
             assert self._recovery is not None and self._continuity.agreed_ns is not None
             self._recovery.monitor.note_filter_moved(self.config.method, t)
@@ -664,9 +665,7 @@ class Core:
             self._recovery.observe(stats, key, t)
         if key == self.config.method and stats.accepted:
             self._vision_fused_t.append(t)
-            self._since_fused.clear()
-            self._status_at_fused = dict(getattr(self._source, "status_counts", None) or {})
-            self._dropped_at_fused = self.frames_dropped()
+            self._since_fused.fused(self._status_counts(), self._frames_dropped())
             self._vision_warned_gap = False
 
     def _check_vision_gap(self, t: int) -> None:
@@ -681,29 +680,14 @@ class Core:
         limit = vision_gap_limit_s(self._frame_spacing, self.config.faults.vision_max_gap_s)
         if gap_s > limit:
             self._vision_warned_gap = True
+            reasons = self._since_fused.reasons(self._status_counts(), self._frames_dropped())
             self._warn.warn("vision-gap", t, f"{self.config.method}: no vision fused for "
                             f"{gap_s:.1f} s: the estimate is inertial only"
-                            f"{self._gap_reasons()}")  # fmt: skip
+                            f"{reasons}")  # fmt: skip
 
-    def _gap_reasons(self) -> str:
-        """What became of the frames since the last fused one: the filter's outcome and the
-        front end's statuses (a user's probe: keyframes seconds apart on a car matched nothing,
-        and only "no vision fused for 13.8 s" was said)."""
-        since = collections.Counter(self._since_fused)
-        dropped = self.frames_dropped() - self._dropped_at_fused
-        if dropped > 0:
-            since["dropped before the filter (see the warnings above)"] = dropped
-        parts = [f"{n} {what}" for what, n in sorted(since.items())]
-        counts = getattr(self._source, "status_counts", None) or {}
-        front = {k: v - self._status_at_fused.get(k, 0) for k, v in counts.items()}
-        front = {k: v for k, v in front.items() if v > 0 and k != "ok"}
-        if front:
-            said = (f"{v} {_STATUS_WORDS.get(k, k.replace('_', ' '))}"
-                    for k, v in sorted(front.items()))  # fmt: skip
-            parts.append("front end: " + ", ".join(said))
-        n = sum(since.values())
-        return f" ({n} frame{'s' if n != 1 else ''} since; {'; '.join(parts)})" if n else \
-            " (no frame since)"
+    def _status_counts(self) -> dict[str, int]:
+        """The image front end's per-frame status counts so far (none for recorded features)."""
+        return getattr(self._source, "status_counts", None) or {}
 
     def _fault_report(self, t_start_ns: int, t_end_ns: int) -> dict[str, Any]:
         """``imu_faults``, ``recovery`` and, for vision methods, the ``vision_gaps`` keys."""

@@ -10,10 +10,15 @@ asked for vision and fused none (``vision_degraded``) exits non-zero unless ``--
 - ``vision_gap_fraction``: fraction of the run's span inside ``vision_gaps``;
 - ``vision_fused_frames``: number of fused vision updates;
 - ``vision_degraded``: vision was asked for and none was fused.
+
+:class:`FramesSinceFused` says, with the warning, what became of the frames since the last fused
+one.
 """
 
 from __future__ import annotations
 
+from collections import Counter
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -63,3 +68,45 @@ def vision_gap_report(
         "vision_fused_frames": int(t.size),
         "vision_degraded": bool(t.size == 0),
     }
+
+
+# The front end's per-frame statuses as the vision gap's warning says them.
+_STATUS_WORDS = {"first": "first frame", "contradicts_prior": "contradicting the IMU"}
+
+
+@dataclass
+class FramesSinceFused:
+    """The filter's outcome of each frame since the last fused one, and, at that one, the front
+    end's status counts and the count of frames dropped before the filter (a user's probe:
+    keyframes seconds apart on a car matched nothing, and only "no vision fused for 13.8 s" was
+    said)."""
+
+    outcomes: Counter[str] = field(default_factory=Counter)
+    status_at_fused: dict[str, int] = field(default_factory=dict)
+    dropped_at_fused: int = 0
+
+    def fused(self, status_counts: dict[str, int], dropped: int) -> None:
+        """A frame fused; ``status_counts`` and ``dropped``: the totals so far."""
+        self.outcomes.clear()
+        self.status_at_fused, self.dropped_at_fused = dict(status_counts), dropped
+
+    def not_fused(self, refused: bool) -> None:
+        """A frame refused by the filter, or (``refused`` false) without an update."""
+        self.outcomes["refused by the filter" if refused else "without an update"] += 1
+
+    def reasons(self, status_counts: dict[str, int], dropped: int) -> str:
+        """`` (N frames since; ...)`` for the warning, from the totals so far."""
+        since = Counter(self.outcomes)
+        if dropped > self.dropped_at_fused:
+            since["dropped before the filter (see the warnings above)"] = (
+                dropped - self.dropped_at_fused)
+        parts = [f"{n} {what}" for what, n in sorted(since.items())]
+        front = {k: v - self.status_at_fused.get(k, 0) for k, v in status_counts.items()}
+        said = [f"{v} {_STATUS_WORDS.get(k, k.replace('_', ' '))}"
+                for k, v in sorted(front.items()) if v > 0 and k != "ok"]  # fmt: skip
+        if said:
+            parts.append("front end: " + ", ".join(said))
+        n = sum(since.values())
+        return f" ({n} frame{'s' if n != 1 else ''} since; {'; '.join(parts)})" if n else \
+            " (no frame since)"
+
