@@ -138,30 +138,41 @@ def test_online_the_right_order_is_judged_once_and_tracks_go_on(kitti_raw: Path)
     assert "rechecks" not in fe.stereo_check.summary()
 
 
-def test_online_streams_crossed_mid_run_are_told_after_frames_without_motion(
+def test_online_streams_crossed_mid_run_are_exchanged_back_after_frames_without_motion(
     kitti_raw: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     """The pairs crossed from frame 12 on (a driver restarted, its devices enumerated the other
     way): "no consensus" frame after frame and nothing else was said (a user's probe: 166
     frames lost, 235 m). After RECHECK_AFTER frames without a motion the pairs are looked at
-    again: warned once, then no tracks, as for streams crossed from the start; a run in the
-    right order is never looked at again."""
+    again: the first check found them in order, so they are warned once and exchanged back,
+    and the tracks go on; crossed once more, they are exchanged again; a run in the right
+    order is never looked at again."""
     from svains.frontend.pipeline import RECHECK_AFTER
 
     fe, pair = _online(kitti_raw)
-    statuses = []
+    statuses, n_tracked = [], []
     with caplog.at_level(logging.WARNING, logger="svains.frontend.pipeline"):
-        for k in range(30):
+        for k in range(80):
             t, left, right = pair(k)
-            fe.process(t, *((right, left) if k >= 12 else (left, right)))
+            crossed = 12 <= k < 50 or k >= 60
+            tracks = fe.process(t, *((right, left) if crossed else (left, right)))
             statuses.append(fe.stats.status)
+            n_tracked.append(0 if tracks is None else int(tracks.inlier.sum()))
     assert set(statuses[2:12]) == {"ok"}
     first = statuses.index("swapped")
     assert 12 + RECHECK_AFTER <= first <= 12 + RECHECK_AFTER + 3
-    assert set(statuses[first:]) == {"swapped"}
-    assert caplog.text.count("stereo pair (looked at again after 5 frames in a row without a "
-                             "motion): the left and right images look swapped") == 1
-    assert fe.stereo_check.summary()["rechecks"] == 1
+    assert statuses.count("swapped") == 1  # the frame that decided the recheck
+    # exchanged back: the frames after the exchange track again, with a motion
+    assert statuses[first + 3:50].count("ok") >= 50 - first - 6
+    assert min(n_tracked[first + 3:50]) > 20
+    # the streams put back in order at frame 50 look crossed to the exchanged front end: no
+    # recheck before RECHECK_EVERY frames, so frames 50-59 are lost, and at 60 the streams
+    # cross again and match the exchange
+    assert statuses[60:].count("ok") >= 18
+    assert caplog.text.count("the left and right images look swapped") == 1
+    assert "exchanged back from the next pair on" in caplog.text
+    summary = fe.stereo_check_report().summary()
+    assert summary["rechecks"] == 1 and summary["exchanges"] == 1
 
 
 def test_a_recheck_in_a_dark_stretch_does_not_stop_later_ones(
@@ -188,8 +199,9 @@ def test_a_recheck_in_a_dark_stretch_does_not_stop_later_ones(
                 assert undecided.rechecks == 1 and not undecided.decided
                 report = fe.stereo_check_report().summary()
                 assert report["matches"] > 0 and report["rechecks"] == 1  # the first check's
-    assert fe.stats.status == "swapped"
+    assert fe.stats.status == "ok"  # exchanged back after the later recheck
     assert caplog.text.count("the left and right images look swapped") == 1
+    assert fe.stereo_check_report().summary()["exchanges"] == 1
 
 
 def test_rows_that_do_not_agree_are_named(euroc_micro: Path) -> None:

@@ -109,9 +109,11 @@ class StereoFrontend:
         # relocalisation work on it after ``process`` returned).
         self._frame: tuple[int, Pyramid, Pyramid, F64 | None] | None = None
         # Left and right swapped, rows that do not agree (``stereo_check``): judged on the
-        # first good pairs, warned once; a swapped pair gives no tracks.
+        # first good pairs, warned once; a swapped pair gives no tracks. Streams crossed after
+        # a first check found them in order are exchanged back (``_exchange``).
         self.stereo_check = StereoCheck()
         self._swapped = False
+        self._exchange = False
         self._frames_seen = 0
         self._no_motion = 0  # frames in a row without a motion (``_watch_stereo``)
         self._rechecked_at = -RECHECK_EVERY
@@ -192,6 +194,8 @@ class StereoFrontend:
         self._watch_stereo(self.stats.status)
         self.stats = FrameStats(t_ns=int(t_ns), timings_ms=tm)
         shape = (self.rig.height, self.rig.width)
+        if self._exchange:
+            img_left_raw, img_right_raw = img_right_raw, img_left_raw
         gl, gr = as_grey(img_left_raw, shape), as_grey(img_right_raw, shape)
         if gl is None or gr is None:
             why = image_problem(img_left_raw, shape) or image_problem(img_right_raw, shape)
@@ -226,8 +230,10 @@ class StereoFrontend:
             log.info("frame %d: textureless (black, saturated or blank)", t_ns)
             self.stats.status = "textureless"
             return None if self._ref is None else self._empty(t_ns, "textureless")
-        if not self.stereo_check.decided and self.stereo_check.pairs < CHECK_MAX_PAIRS:
-            self._check_stereo(left, right, gl, gr)
+        check = self.stereo_check
+        if (not check.decided and check.pairs < CHECK_MAX_PAIRS
+                and self._check_stereo(left, right, gl, gr)):  # this pair crossed, the next not
+            return None if self._ref is None else self._empty(t_ns, "swapped")
         if self._swapped:
             self.stats.status = "swapped"
             return None
@@ -396,7 +402,8 @@ class StereoFrontend:
             self._rechecked_at = self._frames_seen
             if check.decided:
                 self._decided_check = check
-            self.stereo_check = StereoCheck(rechecks=check.rechecks + 1)
+            self.stereo_check = StereoCheck(rechecks=check.rechecks + 1,
+                                            exchanges=check.exchanges)  # fmt: skip
 
     def stereo_check_report(self) -> StereoCheck:
         """The check the report shows: the latest that decided (a recheck that did not, in a
@@ -406,20 +413,35 @@ class StereoFrontend:
             return check
         return dataclasses.replace(self._decided_check, rechecks=check.rechecks)
 
-    def _check_stereo(self, left: U8, right: U8, gl: U8, gr: U8) -> None:
+    def _check_stereo(self, left: U8, right: U8, gl: U8, gr: U8) -> bool:
         """Pool one pair into ``stereo_check`` (rectified ``left``/``right``, or the raw ``gl``/
-        ``gr`` rectified here when the front end tracks on raw images); warn once decided."""
+        ``gr`` rectified here when the front end tracks on raw images); warn once decided. True
+        when a recheck found the streams crossed and exchanged them from the next pair on."""
         if self._geo is not None:
             left, right = self.rectifier.rectify_pair(gl, gr)
-        self.stereo_check.add_pair(left, right, self.options.detector)
-        if not self.stereo_check.decided:
-            return
-        problem = self.stereo_check.problem()
+        check = self.stereo_check
+        check.add_pair(left, right, self.options.detector)
+        if not check.decided:
+            return False
+        problem = check.problem()
+        if check.rechecks and check.swapped:
+            # The first check found the streams in order, so the calibration is right and the
+            # streams crossed since (a driver restarted, its devices enumerated the other way):
+            # exchanged back, the run goes on (a user's probe: KITTI raw crossed from frame 13,
+            # 166 frames without tracks, 235 m GPS-denied).
+            self._exchange = not self._exchange
+            check.exchanges += 1
+            log.warning("stereo pair (looked at again after %d frames in a row without a "
+                        "motion): %s; the first check found them in order, so the two streams "
+                        "are exchanged back from the next pair on", RECHECK_AFTER,
+                        problem)  # fmt: skip
+            return True
         if problem is not None:
             again = (f" (looked at again after {RECHECK_AFTER} frames in a row without a motion)"
-                     if self.stereo_check.rechecks else "")  # fmt: skip
+                     if check.rechecks else "")  # fmt: skip
             log.warning("stereo pair%s: %s", again, problem)
-        self._swapped = self.stereo_check.swapped
+        self._swapped = check.swapped
+        return False
 
     def _detect(self, left: U8, uv_have: F64, tm: dict[str, float]) -> F64:
         """New corners (M, 2) rectified px away from the features ``uv_have`` (N, 2) rectified px

@@ -59,6 +59,7 @@ class StereoCheck:
     # rectification, where the rows as given did not fit (None: not looked at)
     swapped_rows_px: float | None = None
     rechecks: int = 0  # looks again after frames without a motion (``pipeline._watch_stereo``)
+    exchanges: int = 0  # streams crossed mid-run and exchanged back (``pipeline._check_stereo``)
 
     def add_pair(self, left: U8, right: U8, detector: DetectorOptions) -> None:
         """Pool one rectified pair (H, W) uint8."""
@@ -129,6 +130,8 @@ class StereoCheck:
             out["swapped_row_offset_px"] = self.swapped_rows_px
         if self.rechecks:
             out["rechecks"] = self.rechecks
+        if self.exchanges:
+            out["exchanges"] = self.exchanges
         return out
 
 
