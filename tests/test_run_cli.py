@@ -91,6 +91,12 @@ def test_run_vision_method_reports_vision_counters(
         ]
     )
     assert set(rep) >= INS_KEYS
+    # the estimator's time and the user's: loading, evaluation and writing included
+    assert rep["wall_end_to_end_s"] > rep["wall_s"] > 0
+    assert rep["realtime_factor_end_to_end"] < rep["realtime_factor"]
+    assert rep["realtime_factor_end_to_end"] == pytest.approx(
+        rep["data_duration_s"] / rep["wall_end_to_end_s"])
+    assert "realtime_factor_end_to_end" in printed
     v = rep["vision"]
     assert v["source"] == "features"
     # frame_stride=2 on 5 Hz frames over 6 s: about 15 frames, nearly all fused.

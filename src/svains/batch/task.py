@@ -32,7 +32,8 @@ from svains.threads import limit_threads
 log = logging.getLogger(__name__)
 
 # report.json keys that measure the machine, not the run: they differ between any two runs.
-TIMING_KEYS: tuple[str, ...] = ("wall_s", "realtime_factor")
+TIMING_KEYS: tuple[str, ...] = ("wall_s", "realtime_factor", "wall_end_to_end_s",
+                                "realtime_factor_end_to_end")
 
 
 @dataclass

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 from typing import Annotated
 
@@ -26,7 +27,8 @@ from svains.cli._common import (
 from svains.errors import SvainsError
 
 _SHOWN = ("ate_rmse_m", "position_rmse_m", "velocity_rmse_mps", "attitude_rmse_deg", "nees_mean",
-          "wall_s", "realtime_factor")  # fmt: skip
+          "wall_s", "realtime_factor", "wall_end_to_end_s",
+          "realtime_factor_end_to_end")  # fmt: skip
 
 
 def run(
@@ -141,6 +143,7 @@ def run(
     from svains.evaluation.run import run_method
     from svains.replay import resolve_config
 
+    started_s = time.perf_counter()
     check_out_dir(out, force, inputs=[dataset])
     console = Console()
     for name, value, known in (("--model", model, ("paper", "biased")),
@@ -180,7 +183,7 @@ def run(
             task = bar.add_task("run", total=1.0)
             result = run_method(
                 ds, None, config, out_dir=out, progress=lambda f: bar.update(task, completed=f),
-                config_text=effective_config_text(config, dataset),
+                config_text=effective_config_text(config, dataset), started_s=started_s,
             )
         if rerun is not None or rerun_spawn:
             from svains.evaluation.viewer import write_recording
@@ -210,7 +213,7 @@ def run(
 
     for key in _SHOWN:
         # The smoothed column's wall_s is the backward pass's; it has no real-time factor.
-        other = None if key == "realtime_factor" else (sm or {}).get(key)
+        other = None if key.startswith(("realtime_factor", "wall_end")) else (sm or {}).get(key)
         row(key, fmt(rep.get(key)), fmt(other))
         if key == "nees_mean" and rep.get("nees_blocks"):
             row("nees_blocks p/v/rp/yaw", blocks(rep), blocks(sm or {}))

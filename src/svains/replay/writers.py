@@ -56,10 +56,11 @@ def _json_default(o: object) -> object:
 
 
 def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None = None,
-                  config_text: str | None = None) -> None:
+                  config_text: str | None = None, report: bool = True) -> None:
     """Write the output files into ``out_dir`` (created if needed), ``config.yaml`` from
-    ``config_text`` when given, ``report.json`` last; ``layout`` defaults to the one whose state
-    size matches ``result.x``."""
+    ``config_text`` when given, ``report.json`` last (``report=False``: not at all, for a caller
+    that writes more files and then ``write_report``); ``layout`` defaults to the one whose
+    state size matches ``result.x``."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     if layout is None:
@@ -82,9 +83,14 @@ def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None =
         (out_dir / "tracks.csv").unlink(missing_ok=True)
     if config_text is not None:
         atomic_write_text(out_dir / "config.yaml", config_text)
-    atomic_write_text(
-        out_dir / "report.json", json.dumps(result.report, indent=2, default=_json_default) + "\n"
-    )
+    if report:
+        write_report(out_dir, result.report)
+
+
+def write_report(out_dir: Path, report: dict) -> None:
+    """``report.json`` (the last file of a run: a folder with one holds a complete run)."""
+    atomic_write_text(Path(out_dir) / "report.json",
+                      json.dumps(report, indent=2, default=_json_default) + "\n")
 
 
 def _layout_of(result: RunResult) -> StateLayout:
