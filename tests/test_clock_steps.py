@@ -271,6 +271,32 @@ def test_no_step_after_an_imu_dropout_and_none_for_a_fast_stream_stale_burst() -
     assert clock.steps == [] and {t_run - raw for _, raw, t_run in out[305:]} == {0}
 
 
+@pytest.mark.parametrize("camera_in_gap", [False, True])
+def test_a_camera_clock_step_inside_an_imu_dropout_is_carried(camera_in_gap: bool) -> None:
+    """A review's case, a USB reset: the IMU drops out 104-106 s and the camera's driver
+    restarts in it, its clock 5 s back from 105 s on (frames still coming in the gap, or none).
+    Every lag was forgotten at the gap, so the stepped stamps became the new normal: no step,
+    every later frame 5 s behind the IMU, dropped as late. The lags from before the gap
+    still tell the stream's clock."""
+    frame = 50_000_000
+    ev: list[tuple[str, int]] = []
+    imu_t = 100 * S
+    for k in range(300):
+        tf = 100 * S + k * frame
+        while imu_t <= tf:
+            if not 104 * S < imu_t < 106 * S:
+                ev.append(("imu", imu_t))
+            imu_t += 5_000_000
+        if camera_in_gap or not 104 * S < tf < 106 * S:
+            ev.append(("frame", tf if tf <= 105 * S else tf - 5 * S))
+    clock, out = _feed(ev)
+    assert [st["back_s"] for st in clock.steps] == [5.0]
+    stepped = [(raw, t) for _, raw, t in out if raw + 5 * S >= 106 * S and raw < 104 * S
+               and t != raw]  # fmt: skip
+    # every stepped frame after the gap but the one held until the next confirmed the step
+    assert len(stepped) == 59 and all(t == raw + 5 * S for raw, t in stepped)
+
+
 @pytest.mark.parametrize(("spacing_s", "back_s"), [(2.0, 1.5), (7.0, 5.0)])
 def test_a_slow_stream_stepping_back_less_than_its_spacing(spacing_s: float,
                                                            back_s: float) -> None:

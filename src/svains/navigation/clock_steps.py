@@ -21,7 +21,8 @@ messages re-sent in a burst do not; a delivery delay keeps the spacing), while t
 is not stepping, shifts that stream's later stamps to go on as before the step (a regular
 stream one spacing after its last stamp, others lagging the IMU's time as before), with a
 warning naming the stream. A stream's step that the IMU's own step then explains is undone (one
-step); the lags taken while an IMU gap held the IMU's time still are forgotten.
+step); the lags taken while an IMU gap held the IMU's time still are forgotten, those from
+before the gap kept.
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ class _Stream:
     shift_ns: int = 0
     last_ns: int | None = None
     lags_ns: deque[int] = field(default_factory=lambda: deque(maxlen=9))
+    lags_at_ns: deque[int] = field(default_factory=lambda: deque(maxlen=9))  # the IMU's time
     spacings_ns: deque[int] = field(default_factory=lambda: deque(maxlen=9))
     # a first stamp far back: raw, its lag, the IMU's time then, the stamp on the run's clock
     candidate: tuple[int, int, int, int] | None = None
@@ -117,13 +119,19 @@ class ClockSteps:
             t = t_ns + self.shift_ns
             if self._imu_now_ns is not None:
                 self._reconcile(step_ns, self._imu_now_ns)
-        if self._imu_now_ns is not None and t - self._imu_now_ns > self._step_ns:
-            # An IMU gap: the other streams' lags, taken while its time stood still, say
-            # nothing of their clocks (a frame out of order after the gap was taken for a
-            # step: a user's probe).
+        stood = self._imu_now_ns
+        if stood is not None and t - stood > self._step_ns:
+            # An IMU gap: the other streams' lags taken while its time stood still say nothing
+            # of their clocks (a frame out of order after the gap was taken for a step: a
+            # user's probe); those from before it still do (a camera clock stepping back in
+            # the gap, a USB reset, was missed when they went too: a review).
             for other in self._streams.values():
-                other.lags_ns.clear()
-                other.candidate = None
+                kept = [(lag, at) for lag, at in zip(other.lags_ns, other.lags_at_ns,
+                                                     strict=True) if at != stood]  # fmt: skip
+                other.lags_ns = deque((lag for lag, _ in kept), maxlen=9)
+                other.lags_at_ns = deque((at for _, at in kept), maxlen=9)
+                if other.candidate is not None and other.candidate[2] == stood:
+                    other.candidate = None
         self._imu_now_ns = t if self._imu_now_ns is None else max(self._imu_now_ns, t)
         if self._origin_ns is None:
             self._origin_ns = origin_ns if origin_ns is not None else t
@@ -154,7 +162,13 @@ class ClockSteps:
         else:
             s.candidate = None
         if now is not None:
+            if s.lags_at_ns and s.lags_at_ns[-1] == now:
+                # one lag per IMU time: the stamps of an IMU gap (its time standing still)
+                # would push every lag from before it out
+                s.lags_ns.pop()
+                s.lags_at_ns.pop()
             s.lags_ns.append(now - t)
+            s.lags_at_ns.append(now)
         if s.last_ns is not None and t > s.last_ns:
             s.spacings_ns.append(t - s.last_ns)
         s.last_ns = t if s.last_ns is None else max(s.last_ns, t)
