@@ -397,7 +397,9 @@ class StereoFrontend:
         check = self.stereo_check
         # a check that decided, or gave up undecided (a dark stretch: a later swap is told)
         done = check.decided or check.pairs >= CHECK_MAX_PAIRS
-        if (self._no_motion >= RECHECK_AFTER and done and not self._swapped
+        # crossed streams (no tracks) are looked at again too: a driver restarted may have
+        # put them in order (a review: 50 frames lost after the order came back)
+        if ((self._no_motion >= RECHECK_AFTER or self._swapped) and done
                 and self._frames_seen - self._rechecked_at >= RECHECK_EVERY):  # fmt: skip
             self._rechecked_at = self._frames_seen
             if check.decided:
@@ -424,22 +426,31 @@ class StereoFrontend:
         if not check.decided:
             return False
         problem = check.problem()
-        if check.rechecks and check.swapped:
+        if check.rechecks and check.swapped and not self._swapped:
             # The first check found the streams in order, so the calibration is right and the
             # streams crossed since (a driver restarted, its devices enumerated the other way):
             # exchanged back, the run goes on (a user's probe: KITTI raw crossed from frame 13,
             # 166 frames without tracks, 235 m GPS-denied).
             self._exchange = not self._exchange
             check.exchanges += 1
+            self._rechecked_at = -RECHECK_EVERY  # crossed again (a restart undone): told soon
             log.warning("stereo pair (looked at again after %d frames in a row without a "
                         "motion): %s; the first check found them in order, so the two streams "
                         "are exchanged back from the next pair on", RECHECK_AFTER,
                         problem)  # fmt: skip
             return True
-        if problem is not None:
+        if check.rechecks and self._swapped:
+            # crossed from the start (said then), looked at again while no tracks are given
+            if not check.swapped:
+                log.warning("stereo pair (looked at again): the left and right images are in "
+                            "order now: tracked again%s",
+                            "" if problem is None else f"; but {problem}")  # fmt: skip
+        elif problem is not None:
             again = (f" (looked at again after {RECHECK_AFTER} frames in a row without a motion)"
                      if check.rechecks else "")  # fmt: skip
             log.warning("stereo pair%s: %s", again, problem)
+        if check.swapped:
+            self._rechecked_at = self._frames_seen  # looked at again RECHECK_EVERY frames on
         self._swapped = check.swapped
         return False
 
