@@ -129,3 +129,26 @@ def test_format_names_the_estimate_when_the_reference_is_a_data_set_folder(
     res = runner.invoke(app, ["evaluate", str(files["tum"]), str(euroc_micro), "--format", "tum"])
     assert res.exit_code == 0, res.output
     assert "300 matched poses" in res.output
+
+
+def test_a_reference_folder_needs_only_its_ground_truth(
+    files: dict[str, Path], euroc_micro: Path, tmp_path: Path
+) -> None:
+    """A Kalibr-calibrated ASL folder (no ``sensor.yaml`` files) as the reference was refused
+    for its IMU's calibration, and ``evaluate`` has no ``--imu-calib`` (a user's probe): a
+    reference folder is read for its ground truth alone."""
+    mav = tmp_path / "kalibr" / "mav0"
+    mav.mkdir(parents=True)
+    for name in ("imu0", "cam0", "cam1"):  # the streams without their sensor.yaml
+        (mav / name).mkdir()
+        (mav / name / "data.csv").symlink_to(euroc_micro / "mav0" / name / "data.csv")
+    (mav / "state_groundtruth_estimate0").symlink_to(
+        euroc_micro / "mav0" / "state_groundtruth_estimate0")
+    res = runner.invoke(app, ["evaluate", str(files["tum"]), str(tmp_path / "kalibr")])
+    assert res.exit_code == 0, res.output
+    assert "300 matched poses" in res.output
+    t, p, q = read_trajectory(tmp_path / "kalibr", fmt="dataset")
+    t0, p0, q0 = read_trajectory(euroc_micro, fmt="dataset")
+    np.testing.assert_array_equal(t, t0)
+    np.testing.assert_array_equal(p, p0)
+    np.testing.assert_array_equal(q, q0)

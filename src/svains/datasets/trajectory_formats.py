@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,6 +21,9 @@ from numpy.typing import NDArray
 from svains.datasets._textio import parse_floats, parse_timestamps, read_csv_rows
 from svains.datasets.trajectory import read_tum
 from svains.errors import DatasetError
+
+if TYPE_CHECKING:
+    from svains.sensors.types import GroundTruth
 
 log = logging.getLogger(__name__)
 
@@ -115,6 +118,9 @@ def read_trajectory(
 
         ds = read_bag(p, {"gt": topic}, roles=("gt",))
     else:
+        gt = _asl_groundtruth(p)
+        if gt is not None:
+            return gt.t_ns, gt.p_W_B, gt.q_W_B_wxyz
         from svains.datasets.loader import load_dataset
 
         ds = load_dataset(p)
@@ -122,3 +128,17 @@ def read_trajectory(
         what = "bag has no pose topic" if fmt == "bag" else "data set has no ground truth"
         raise DatasetError(f"{p}: {what}")
     return ds.groundtruth.t_ns, ds.groundtruth.p_W_B, ds.groundtruth.q_W_B_wxyz
+
+
+def _asl_groundtruth(p: Path) -> GroundTruth | None:
+    """An ASL folder's ground truth read alone (None for other layouts): a reference needs
+    no sensor calibration (a Kalibr-calibrated folder without ``sensor.yaml`` files was refused
+    by ``evaluate`` for its IMU's: a user's probe)."""
+    from svains.datasets.asl_reader import find_mav0, read_groundtruth
+    from svains.datasets.tumvi import is_tumvi
+
+    if not p.is_dir() or is_tumvi(p):
+        return None
+    mav0 = find_mav0(p)
+    folder = None if mav0 is None else mav0 / "state_groundtruth_estimate0"
+    return read_groundtruth(folder) if folder is not None and folder.is_dir() else None
