@@ -65,8 +65,40 @@ def test_malformed_number_names_file_and_line(ds_dir: Path) -> None:
 def test_malformed_timestamp(ds_dir: Path) -> None:
     path = ds_dir / "mav0/sonar0/data.csv"
     _edit_line(path, 2, "12.5e9,1.0")
-    with pytest.raises(DatasetError, match=r"sonar0/data\.csv:2: malformed timestamp '12.5e9'"):
+    with pytest.raises(DatasetError,
+                       match=r"sonar0/data\.csv:2: malformed timestamp '12.5e9'") as e:
         load_dataset(ds_dir)
+    assert "looks like seconds" not in str(e.value)
+
+
+def test_decimal_seconds_stamps_are_named_with_their_nanoseconds(ds_dir: Path) -> None:
+    """A user's export in seconds with decimals got only "expected integer nanoseconds"."""
+    path = ds_dir / "mav0/sonar0/data.csv"
+    _edit_line(path, 2, "1700000000.250000,1.0")
+    with pytest.raises(DatasetError, match=r"sonar0/data\.csv:2: malformed timestamp "
+                       r"'1700000000\.250000' \(expected integer nanoseconds; 1700000000\.250000 "
+                       r"looks like seconds with decimals: write integer nanoseconds, "
+                       r"1700000000250000000 here\)"):  # fmt: skip
+        load_dataset(ds_dir)
+
+
+def test_stream_folders_under_other_names_are_named(
+    ds_dir: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """``imu/``, ``left/``, ``right/`` (a user's export): ``info`` listed the ground truth alone
+    and said nothing of the folders it did not read."""
+    mav = ds_dir / "mav0"
+    for old, new in (("imu0", "imu"), ("cam0", "left"), ("cam1", "right")):
+        (mav / old).rename(mav / new)
+    (mav / "leica0").mkdir()  # EuRoC's own, not read and not named
+    with caplog.at_level(logging.WARNING, logger="svains.datasets.asl_reader"):
+        ds = load_dataset(ds_dir)
+    assert ds.imu is None and ds.left is None
+    assert caplog.text.count("are not read") == 1
+    assert ("folder(s) imu/, left/, right/ are not read: the streams are read from imu0/, cam0/ "
+            "(left), cam1/ (right)") in caplog.text
+    assert "(imu0/, cam0/, cam1/ missing here); rename them" in caplog.text
+    assert "leica0" not in caplog.text
 
 
 def test_duplicate_timestamp(ds_dir: Path) -> None:

@@ -7,8 +7,10 @@ timestamps are parsed as Python ints (int64 ns exceed float64's 53-bit mantissa)
 from __future__ import annotations
 
 import math
+import re
 import warnings
 from collections.abc import Sequence
+from decimal import Decimal
 from pathlib import Path
 from typing import Any
 
@@ -305,11 +307,21 @@ def parse_timestamps(
                 int(r[0])
             except ValueError:
                 raise DatasetError(
-                    f"{path}:{k}: malformed timestamp {r[0]!r} (expected integer nanoseconds)"
+                    f"{path}:{k}: malformed timestamp {r[0]!r} (expected integer nanoseconds"
+                    f"{_seconds_hint(r[0])})"
                 ) from None
         raise
     check_timestamps(path, t, line_no, strict)
     return t
+
+
+def _seconds_hint(text: str) -> str:
+    """A hint for a stamp written as decimal seconds (``1700000000.000000``: a user's
+    export), else nothing."""
+    if re.fullmatch(r"\d{1,11}\.\d*", text.strip()) is None:
+        return ""
+    ns = int(Decimal(text.strip()) * 1_000_000_000)  # exact: a float rounds 1.7e18 to 256 ns
+    return f"; {text} looks like seconds with decimals: write integer nanoseconds, {ns} here"
 
 
 def check_timestamps(path: Path, t: NDArray[np.int64], line_no: Sequence[int],

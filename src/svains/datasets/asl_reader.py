@@ -381,6 +381,25 @@ def _check_stereo(ds: Dataset, mav0: Path) -> None:
         check_stereo_sync(ds.left, ds.right, ds.stereo_tol_ns, where)
 
 
+# EuRoC's own folders that svains does not read (its positions, point clouds, motion capture)
+_OTHER_KNOWN = frozenset({"leica0", "vicon0", "pointcloud0", "mocap0"})
+
+
+def _warn_unknown_folders(mav0: Path) -> None:
+    """Warn about stream folders that are not read when a sensor's usual one is missing
+    (``imu/``, ``left/``, ``right/`` exported from a bag: ``info`` listed the ground truth alone
+    and said nothing; a user's probe)."""
+    others = sorted(f.name for f in mav0.iterdir() if f.is_dir() and f.name not in STREAM_FOLDERS
+                    and f.name not in _OTHER_KNOWN and not f.name.startswith("."))  # fmt: skip
+    missing = [n for n in ("imu0", "cam0", "cam1") if not (mav0 / n).is_dir()]
+    if others and missing:
+        log.warning("%s: folder(s) %s are not read: the streams are read from imu0/, cam0/ "
+                    "(left), cam1/ (right), gps0/, mag0/, sonar0/, features0/ and "
+                    "state_groundtruth_estimate0/ (%s missing here); rename them",
+                    mav0, ", ".join(f"{n}/" for n in others),
+                    ", ".join(f"{n}/" for n in missing))  # fmt: skip
+
+
 def read_asl(path: Path, replaced: frozenset[str] = frozenset()) -> Dataset:
     """Read an ASL data set (root folder or its ``mav0``); absent streams stay ``None``.
     ``replaced``: the calibrations Kalibr files replace (``"cameras"``, ``"imu"``), whose
@@ -390,6 +409,7 @@ def read_asl(path: Path, replaced: frozenset[str] = frozenset()) -> Dataset:
         raise DatasetError(f"{path}: not an ASL data set (no mav0/ or stream folders)")
     root = mav0.parent if mav0.name == "mav0" else mav0
     ds = Dataset(root=root, name=root.name)
+    _warn_unknown_folders(mav0)
     body = mav0 / "body.yaml"
     if body.is_file():
         y = read_sensor_yaml(body)
