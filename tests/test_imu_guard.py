@@ -317,3 +317,40 @@ def test_a_held_or_noise_free_axis_is_no_rail_and_a_2g_sensors_rail_is() -> None
     pinned[200:225, 0] = 32767 * lsb
     verdicts = _run(_guard(), t, g, pinned)
     assert sum(v.reason == "saturated" for v in verdicts[200:225]) >= 23
+
+
+@pytest.mark.parametrize("rate", [200.0, 1000.0])
+def test_a_rail_reached_smoothly_is_dropped_and_a_wider_sensors_peaks_are_not(
+    rate: float,
+) -> None:
+    """A review's case: a 16-bit ±2 g accelerometer through smooth 3-5 g bumps reaches its
+    rail from values just below it, so 1.5 times its live extremes lay beyond the rail: not
+    one clipped sample dropped. A new extreme held ``rail_edge_run`` more times is a rail, and
+    the axis back on it later too; a ±8 g sensor through the same bumps (flat peaks whose
+    values repeat, 1 LSB of noise) loses nothing."""
+    g0 = 9.80665
+    rng = np.random.default_rng(4)
+    n = int(20 * rate)
+    s = np.arange(n) / rate
+    t = (s * 1e9).astype(np.int64)
+    g = 0.005 * rng.standard_normal((n, 3))
+    for full_scale in (2, 8):
+        lsb = 2 * full_scale * g0 / 65536
+        a = np.array([0.0, 0.0, 9.81]) + 2 * lsb * rng.standard_normal((n, 3))
+        x = a[:, 0].copy()
+        for k, peak in enumerate((3.0, 3.5, 4.0, 4.5, 5.0)):
+            b = (s >= 2 + 3 * k) & (s < 2.6 + 3 * k)
+            x[b] += peak * g0 * np.sin(math.pi * (s[b] - 2 - 3 * k) / 0.6)
+        a[:, 0] = np.clip(np.round(x / lsb), -32768, 32767) * lsb
+        guard = ImuGuard(0.005 / math.sqrt(rate), 2 * lsb / math.sqrt(rate), rate)
+        verdicts = _run(guard, t, g, a)
+        clipped = np.abs(a[:, 0]) >= 32767 * lsb
+        kept = np.array([v.accepted for v in verdicts])
+        for k, v in enumerate(verdicts):  # the rail's samples retracted by a later one
+            if v.retract_previous:
+                kept[np.flatnonzero(kept[:k])[-v.retract_previous:]] = False
+        if full_scale == 2:
+            assert clipped.sum() > 100 and kept[clipped].mean() < 0.03
+            assert kept[~clipped].all()
+        else:
+            assert not clipped.any() and kept.all()

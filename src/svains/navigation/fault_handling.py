@@ -187,17 +187,17 @@ class ImuFaults:
         if n and history.n >= n + 1:
             spike_ns = int(history.t_ns[-n])
             before_ns = int(history.t_ns[-n - 1])
+            why = verdict.reason if verdict.kind == "drop" else "spike"
             if used_until_ns is None or used_until_ns <= before_ns:
                 for _ in range(n):
                     history.drop_last()
                 history.mark_fault(before_ns, t_ns)
                 self.last_fault_ns = spike_ns
-                why = verdict.reason if verdict.kind == "drop" else "spike"
                 self._warn.warn(f"imu-{why}", spike_ns, f"IMU sample dropped ({why}, seen from "
                                 "the sample after it), bridged by its neighbours")  # fmt: skip
-            else:
-                self._warn.warn("imu-spike-late", spike_ns, "IMU spike found after the "
-                                "estimator had used it: kept")  # fmt: skip
+            else:  # (a rail's first samples were named a spike: a review)
+                self._warn.warn(f"imu-{why}-late", spike_ns, f"IMU sample found {why} after "
+                                "the estimator had used it: kept")  # fmt: skip
         if verdict.kind in ("drop", "gap"):
             self.last_fault_ns = t_ns
             last = history.last_ns
