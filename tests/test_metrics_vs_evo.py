@@ -447,3 +447,8 @@ def test_pairs_at_max_diff_are_warned_as_decided_by_rounding(
     # one pose on each side (the test indexed the one before past the start: IndexError)
     one = to_trajectory(t_ref[:1], np.zeros((1, 3)), np.tile([1.0, 0, 0, 0], (1, 1)))
     assert associate(one, one, 0.01)[2].tolist() == [0]
+    # the same stamps on both sides with --max-diff 1 us: exact pairs, nothing to warn (a
+    # review: "200 of 200 poses are 1e-06 s from their nearest")
+    with caplog.at_level(logging.WARNING):
+        associate(ref, ref, 1e-6)
+    assert "decided by rounding" not in caplog.text

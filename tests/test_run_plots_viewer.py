@@ -164,3 +164,22 @@ def test_plot_with_a_data_set_without_ground_truth_or_of_another_name_still_draw
     res = runner.invoke(app, ["plot", str(run_dir / "report.json"), "--out", str(tmp_path / "c")])
     assert res.exit_code == 2
     assert f"report.json is a file: give the run's folder ({run_dir})" in res.stderr
+
+
+def test_an_empty_or_header_only_tracks_file_is_read_as_the_plain_reader_reads_it(
+    run_dir: Path, tmp_path: Path, euroc_micro: Path
+) -> None:
+    """A review's case: numpy read an empty ``tracks.csv`` (a run cut short) as ``{'': []}``,
+    which the viewer failed on later, and warned twice on a header alone."""
+    import warnings
+
+    d = _with_logs(run_dir, tmp_path, euroc_micro)
+    (d / "tracks.csv").write_text("")
+    with pytest.raises(DatasetError, match=r"tracks\.csv: empty file"):
+        _ = read_run(d).tracks
+    (d / "tracks.csv").write_text("t_ns,track_id,u_px,v_px,inlier\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tracks = read_run(d).tracks
+    assert tracks is not None and list(tracks) == ["t_ns", "track_id", "u_px", "v_px", "inlier"]
+    assert all(c.size == 0 for c in tracks.values()) and tracks["t_ns"].dtype == np.int64

@@ -220,7 +220,8 @@ def _warn_ambiguous_pairs(t_short_ns: NDArray[np.int64], t_long_ns: NDArray[np.i
     k = np.searchsorted(t_long_ns, t_short_ns)
     up, low = np.minimum(k, t_long_ns.size - 1), np.maximum(k - 1, 0)
     d = np.minimum(np.abs(t_long_ns[up] - t_short_ns), np.abs(t_short_ns - t_long_ns[low]))
-    n = int(np.sum(np.abs(d - round(max_diff_s * 1e9)) <= AMBIGUOUS_NS))
+    # exact stamps (d = 0) are never ambiguous, whatever --max-diff (1 us: a review)
+    n = int(np.sum((np.abs(d - round(max_diff_s * 1e9)) <= AMBIGUOUS_NS) & (d > 0)))
     if n >= max(2, AMBIGUOUS_SHARE * t_short_ns.size):
         log.warning("%d of %d poses are %g s from their nearest in time to within 1 us: "
                     "whether each is paired is decided by rounding (float seconds and "

@@ -87,6 +87,10 @@ def _numeric_columns(path: Path) -> dict[str, NDArray[Any]]:
     ``tracks.csv`` holds millions of rows); a malformed file is read again to say where."""
     with path.open() as f:
         header = f.readline()
+        if not header.strip() or not f.readline().strip():
+            # empty (a run cut short) or a header alone: the plain reader says so or reads it
+            # (numpy returned {'': []} for the one and warned twice for the other: a review)
+            return _csv_columns(path)
     names = [n.strip().lstrip("#") for n in header.split(",")]
     ints = [k for k, n in enumerate(names) if n in ("t_ns", "track_id")]
     floats = [k for k in range(len(names)) if k not in ints]
