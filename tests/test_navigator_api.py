@@ -41,6 +41,28 @@ def test_static_start_outputs_and_state() -> None:
     assert nav.status == "closed" and nav.close() is res
 
 
+def test_undrained_outputs_keep_the_latest_and_a_replay_keeps_none(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A user's probe: the states for ``outputs()`` were kept without end (134 MB per hour),
+    also by the replay, which takes them by ``on_output`` and never drains them."""
+    from svains.navigation import navigator
+
+    monkeypatch.setattr(navigator, "OUTPUTS_KEPT", 5)
+    with caplog.at_level("WARNING", logger="svains.navigation.navigator"):
+        nav = Navigator(RunConfig(), Rig())
+        _feed_static(nav, 4.0, np.random.default_rng(0))
+        res = nav.close()
+    assert res.t_ns.size > 10
+    assert [o.t_ns for o in nav.outputs()] == res.t_ns[-5:].tolist()
+    assert caplog.text.count("outputs() not drained for 5 states") == 1
+    seen: list[NavState] = []
+    nav = Navigator(RunConfig(), Rig(), on_output=seen.append, keep_outputs=False)
+    _feed_static(nav, 4.0, np.random.default_rng(0))
+    res = nav.close()
+    assert [o.t_ns for o in seen] == res.t_ns.tolist() and list(nav.outputs()) == []
+
+
 def test_duplicate_and_backward_imu_stamps_are_dropped_and_counted() -> None:
     nav = Navigator(RunConfig(), Rig())
     _feed_static(nav, 2.5, np.random.default_rng(1))

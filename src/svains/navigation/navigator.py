@@ -58,17 +58,22 @@ _UNIT_SAMPLES = 20  # IMU samples whose spacing judges the stamps' unit
 OutputCallback = Callable[[NavState], None]
 
 
+# States ``outputs()`` keeps undrained: 10 minutes at the default 10 Hz (3.7 kB each).
+OUTPUTS_KEPT = 6000
+
+
 class Navigator:
     """Causal estimator for ``config.method`` in {ins, lc, tc, 3d} (``vo`` has no filter).
 
     ``on_output(state)`` is called at every output tick (and for the final state); the same
-    states can be drained with ``outputs()``. ``initial_state`` starts the filter from a given
-    state (``init.mode == "groundtruth"``) instead of the IMU/GPS/vision start.
+    states can be drained with ``outputs()`` (the latest ``OUTPUTS_KEPT``; none kept with
+    ``keep_outputs=False``). ``initial_state`` starts the filter from a given state
+    (``init.mode == "groundtruth"``) instead of the IMU/GPS/vision start.
     """
 
     def __init__(
         self, config: RunConfig, rig: Rig, *, on_output: OutputCallback | None = None,
-        initial_state: InitialState | None = None,
+        initial_state: InitialState | None = None, keep_outputs: bool = True,
     ) -> None:
         if not isinstance(config, RunConfig):
             raise TypeError(f"Navigator: config must be a RunConfig, got {type(config).__name__}"
@@ -126,7 +131,10 @@ class Navigator:
             else None
         )
         self._on_output = on_output
-        self._outputs: deque[NavState] = deque()
+        # The states for ``outputs()``, the latest OUTPUTS_KEPT: a caller that takes them by
+        # ``on_output`` (the replay) never drains them (134 MB per hour of 10 Hz states kept)
+        self._outputs: deque[NavState] = deque(maxlen=OUTPUTS_KEPT if keep_outputs else 0)
+        self._outputs_dropped = 0
         self._backlog: list[tuple[int, int, Any]] = []  # released before the initial state
         self._source: FeatureFrames | ImageFrames | None = None
         self._frames_seen = 0
@@ -299,7 +307,8 @@ class Navigator:
         return None if self.core is None else self.core.snapshot()
 
     def outputs(self) -> Iterator[NavState]:
-        """Drain the states produced at the output ticks since the last call."""
+        """Drain the states produced at the output ticks since the last call (the latest
+        ``OUTPUTS_KEPT``; older ones are dropped, warned once without ``on_output``)."""
         while self._outputs:
             yield self._outputs.popleft()
 
@@ -442,6 +451,12 @@ class Navigator:
             self.status = "finished"
 
     def _emit(self, state: NavState) -> None:
+        if len(self._outputs) == OUTPUTS_KEPT:  # (never with keep_outputs=False: maxlen 0)
+            self._outputs_dropped += 1
+            if self._outputs_dropped == 1 and self._on_output is None:
+                log.warning("outputs() not drained for %d states: the oldest are dropped from "
+                            "it (drain it more often, or take every state by on_output)",
+                            OUTPUTS_KEPT)  # fmt: skip
         self._outputs.append(state)
         if self._on_output is not None:
             self._on_output(state)
@@ -464,7 +479,8 @@ class Navigator:
                 return
             if not (cfg.use_mag and self.rig.mag is not None):
                 return  # nor the start's heading: --no-mag is the advice for a disturbed one
-            self.starter.add_mag(t, payload)
+            if self.core is None:  # the start's heading; kept after it, 74 MB per hour
+                self.starter.add_mag(t, payload)
             if not self._rate_ok(MAG, t, cfg.max_mag_rate_hz):
                 return
         elif kind == SONAR:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -13,6 +12,7 @@ from svains.filter.rts import RtsRecorder
 from svains.filter.ukf import UpdateStats
 from svains.geometry.rotation import quat_to_rotmat
 from svains.models.state import BA, BG, P, Q, StateLayout, V, W
+from svains.navigation.track_log import TrackLog
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -73,30 +73,6 @@ class UpdateRecord:
     stats: UpdateStats
 
 
-class TrackLog:
-    """The left pixels of each frame's tracks, as the vision updater received them: per frame,
-    ``track_id`` (M,), ``uv_left_px`` (M, 2) in the rectified rig (``raw`` False) or the raw
-    left image (``raw`` True, see ``to_raw``), ``inlier`` (M,) the front end's flag (RANSAC and
-    stereo gates). Float32 pixels: a long run keeps a few hundred features per frame."""
-
-    def __init__(self, raw: bool = False) -> None:
-        self.raw = raw
-        self.frames: list[tuple[int, I64, NDArray[np.float32], NDArray[np.bool_]]] = []
-
-    def add(self, t_ns: int, track_id: I64, uv_left_px: F64, inlier: NDArray[np.bool_]) -> None:
-        """Keep one frame's tracks (copies)."""
-        self.frames.append((int(t_ns), np.array(track_id, np.int64),
-                            np.array(uv_left_px, np.float32).reshape(-1, 2),
-                            np.array(inlier, bool)))  # fmt: skip
-
-    def to_raw(self, unrectify: Callable[[F64], F64]) -> TrackLog:
-        """The same tracks with pixels mapped by ``unrectify`` (rectified (N, 2) -> raw (N, 2))."""
-        out = TrackLog(raw=True)
-        for t, ids, uv, inl in self.frames:
-            out.add(t, ids, unrectify(uv.astype(float)), inl)
-        return out
-
-
 @dataclass(frozen=True)
 class FrameTurn:
     """The world frame turned at ``t_ns`` by ``angle_rad`` (standard deviation ``std_rad``)
@@ -118,7 +94,9 @@ class RunResult:
     ``groundtruth`` (initialised from it), ``gps`` (GPS fixes fused) or ``local`` (static start
     without GPS: yaw and position are arbitrary, so raw errors against ground truth mean nothing).
     ``gps_used``: GPS was enabled and present; ``has_covariance``: False for filter-free methods.
-    ``update_log``: every measurement update with its time and sensor (``updates.csv``);
+    ``updates``: every measurement update's outcome (name, accepted, NIS, dof, gate; their
+    arrays, residual to contribution, are not kept: hundreds of MB per hour); ``update_log``:
+    the same with its time and sensor (``updates.csv``);
     ``tracks``: the vision tracks of every frame (``tracks.csv``), None without vision.
     ``history``: what a smoother needs (``smoother.enabled``; ``navigation.smoothing``).
     """

@@ -245,7 +245,8 @@ def replay(
     if config.init.mode == "groundtruth":
         init = groundtruth_start(ds, config, t0 if config.replay.start_s > 0 else None)
 
-    nav = Navigator(config, rig_from_dataset(ds), on_output=on_output, initial_state=init)
+    nav = Navigator(config, rig_from_dataset(ds), on_output=on_output, initial_state=init,
+                    keep_outputs=False)  # the run's result holds them (``close``)
     next_report = t0
     # Once around the whole loop (entering costs ~0.6 ms); under ``svains`` it keeps the
     # command's ``--threads``.
@@ -264,7 +265,7 @@ def replay(
         from svains.frontend.rectify import StereoRectifier
 
         rect = StereoRectifier.from_calibration(ds.cam0, ds.cam1)
-        result.tracks = result.tracks.to_raw(rect.unrectify_points)
+        result.tracks.make_raw(rect.unrectify_points)
     if progress is not None:
         progress(1.0)
     rep = result.report

@@ -77,7 +77,7 @@ def write_outputs(out_dir: Path, result: RunResult, layout: StateLayout | None =
         write_updates(out_dir / "updates.csv", result)
     else:
         (out_dir / "updates.csv").unlink(missing_ok=True)
-    if result.tracks is not None and result.tracks.frames:
+    if result.tracks is not None and len(result.tracks):
         write_tracks(out_dir / "tracks.csv", result)
     else:
         (out_dir / "tracks.csv").unlink(missing_ok=True)
