@@ -427,7 +427,7 @@ class StereoFrontend:
             return False
         problem = check.problem()
         if check.rechecks and check.swapped and not self._swapped:
-            # The first check found the streams in order, so the calibration is right and the
+            # The last verdict found the streams in order, so the calibration is right and the
             # streams crossed since (a driver restarted, its devices enumerated the other way):
             # exchanged back, the run goes on (a user's probe: KITTI raw crossed from frame 13,
             # 166 frames without tracks, 235 m GPS-denied).
@@ -435,7 +435,7 @@ class StereoFrontend:
             check.exchanges += 1
             self._rechecked_at = -RECHECK_EVERY  # crossed again (a restart undone): told soon
             log.warning("stereo pair (looked at again after %d frames in a row without a "
-                        "motion): %s; the first check found them in order, so the two streams "
+                        "motion): %s; they were in order before, so the two streams "
                         "are exchanged back from the next pair on", RECHECK_AFTER,
                         problem)  # fmt: skip
             return True

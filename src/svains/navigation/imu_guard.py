@@ -33,10 +33,9 @@ Thresholds (``ImuGuardOptions``), each from a model or a measurement:
 - **railed axis**: one axis that changed at each of its last ``live_run`` samples holding
   exactly the value of the sample before, beyond ``rail_factor`` times every value it showed
   while changing (or, reached smoothly, at or beyond every such value for ``rail_edge_run``
-  more samples), and
-  beyond a floor (``rail_floor_accel`` 1.9 g: a ±2 g sensor's rail,
-  ``rail_floor_gyro`` 1 rad/s): a reading clipped at a full scale
-  the calibration does not give (a user's probe: an accelerometer pinned at 10 g, or at 50 m/s²
+  more samples) and beyond a floor (``rail_floor_accel`` 1.9 g: a ±2 g sensor's rail,
+  ``rail_floor_gyro`` 1 rad/s), or exactly on a rail found before: a reading clipped at a full
+  scale the calibration does not give (a user's probe: an accelerometer pinned at 10 g, or at 50 m/s²
   with the gyro at 5 rad/s, for 0.5 s took KITTI raw ``3d`` 15-277 m off). The rail's samples
   accepted before it showed are retracted (``retract_previous``); its later samples are
   dropped while the axis keeps its value. A live axis repeats a new extreme about never.
