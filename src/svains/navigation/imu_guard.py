@@ -35,10 +35,10 @@ Thresholds (``ImuGuardOptions``), each from a model or a measurement:
   while changing (or, reached smoothly, at or beyond every such value for ``rail_edge_run``
   more samples) and beyond a floor (``rail_floor_accel`` 1.9 g: a ±2 g sensor's rail,
   ``rail_floor_gyro`` 1 rad/s), or exactly on a rail found before: a reading clipped at a full
-  scale the calibration does not give (a user's probe: an accelerometer pinned at 10 g, or at 50 m/s²
-  with the gyro at 5 rad/s, for 0.5 s took KITTI raw ``3d`` 15-277 m off). The rail's samples
-  accepted before it showed are retracted (``retract_previous``); its later samples are
-  dropped while the axis keeps its value. A live axis repeats a new extreme about never.
+  scale the calibration does not give (a user's probe: an accelerometer pinned at 10 g, or at
+  50 m/s² with the gyro at 5 rad/s, for 0.5 s took KITTI raw ``3d`` 15-277 m off). The rail's
+  samples accepted before it showed are retracted (``retract_previous``); its later samples
+  are dropped while the axis keeps its value. A live axis repeats a new extreme about never.
 - **gap**: accepted samples further apart than ``gap_factor`` times the median observed spacing
   (the rate in ``sensor.yaml`` is nominal only: KITTI raw's OXTS, nominally 100 Hz, has a median
   spacing of 40 ms and gaps up to 250 ms, which must not be flagged sample after sample).
