@@ -57,3 +57,45 @@ def test_raw_pixels_are_mapped_as_read_and_only_once() -> None:
     log.make_raw(lambda uv: uv + 100.0)  # raw already: not mapped twice
     assert log.raw
     _same(list(log.frames), want, shift=2.0)
+
+
+def test_a_full_temporary_folder_keeps_the_tracks_in_memory_with_one_warning(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A review's case: with the temporary folder full, ENOSPC ended the run (a live Navigator
+    too) with `[Errno 28] No space left on device` and no outputs."""
+    monkeypatch.setattr(track_log, "SPOOL_ROWS", 50)
+    monkeypatch.setattr(track_log.tempfile, "TemporaryFile",
+                        lambda **kw: open("/dev/full", "w+b", buffering=0))  # noqa: SIM115
+    want = _frames(60, seed=2)
+    log = TrackLog()
+    with caplog.at_level("WARNING", logger="svains.navigation.track_log"):
+        for f in want:
+            log.add(*f)
+    assert caplog.text.count("could not be spilled to a temporary file ([Errno 28]") == 1
+    assert log._offsets == [] and len(log) == 60
+    _same(list(log.frames), want)
+
+
+class _Rectifier:
+    """A stand-in holding remap tables as large as a real rectifier's."""
+
+    def __init__(self) -> None:
+        self.maps = np.zeros((4, 1000, 1000))
+
+    def unrectify(self, uv: np.ndarray) -> np.ndarray:
+        return uv + 2.0
+
+
+def test_a_pickled_log_carries_its_raw_pixels_not_the_rectifier() -> None:
+    """A review's case: the bound map dragged the rectifier's tables along, 20 MB per run."""
+    want = _frames(8, seed=3)
+    log = TrackLog()
+    for f in want:
+        log.add(*f)
+    log.make_raw(_Rectifier().unrectify)
+    data = pickle.dumps(log)
+    assert len(data) < 100_000
+    back = pickle.loads(data)
+    assert back.raw and back._map is None and back._mem_rows == sum(f[1].size for f in want)
+    _same(list(back.frames), want, shift=2.0)

@@ -7,12 +7,15 @@ frame, a user's probe), also in a live ``svains.Navigator`` that never writes th
 
 from __future__ import annotations
 
+import logging
 import tempfile
 from collections.abc import Callable, Iterator
 from typing import IO, Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+log = logging.getLogger(__name__)
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -36,6 +39,7 @@ class TrackLog:
         self._offsets: list[int] = []  # where each chunk of the spool starts
         self._n = 0
         self._map: Callable[[F64], F64] | None = None  # rectified -> raw, applied when read
+        self._spool_failed = False
 
     def add(self, t_ns: int, track_id: I64, uv_left_px: F64, inlier: NDArray[np.bool_]) -> None:
         """Keep one frame's tracks (copies)."""
@@ -44,7 +48,7 @@ class TrackLog:
         self._mem.append(frame)
         self._mem_rows += frame[1].size
         self._n += 1
-        if self._mem_rows >= SPOOL_ROWS:
+        if self._mem_rows >= SPOOL_ROWS and not self._spool_failed:
             self._spill()
 
     def __len__(self) -> int:
@@ -66,15 +70,25 @@ class TrackLog:
             self._map, self.raw = unrectify, True
 
     def _spill(self) -> None:
-        if self._spool is None:
-            # lives as long as the log (closed and gone with it, also on a crash)
-            self._spool = tempfile.TemporaryFile(prefix="svains-tracks-")  # noqa: SIM115
-        self._offsets.append(self._spool.seek(0, 2))
         m = self._mem
-        np.save(self._spool, np.array([[f[0], f[1].size] for f in m], np.int64).reshape(-1, 2))
-        np.save(self._spool, np.concatenate([f[1] for f in m]))
-        np.save(self._spool, np.concatenate([f[2] for f in m]))
-        np.save(self._spool, np.concatenate([f[3] for f in m]))
+        try:
+            if self._spool is None:
+                # lives as long as the log (closed and gone with it, also on a crash)
+                self._spool = tempfile.TemporaryFile(prefix="svains-tracks-", buffering=0)  # noqa: SIM115
+            start = self._spool.seek(0, 2)
+            heads = np.array([[f[0], f[1].size] for f in m], np.int64).reshape(-1, 2)
+            for a in (heads, *(np.concatenate([f[k] for f in m]) for k in (1, 2, 3))):
+                np.save(self._spool, a)
+            self._spool.flush()
+        except OSError as exc:
+            # a full or unwritable temporary folder must not end a run (a review: a live
+            # Navigator died of ENOSPC mid-run): the tracks stay in memory from now on
+            log.warning("the tracks kept for tracks.csv could not be spilled to a temporary "
+                        "file (%s, folder %s): they stay in memory", exc,
+                        tempfile.gettempdir())  # fmt: skip
+            self._spool_failed = True
+            return
+        self._offsets.append(start)
         self._mem, self._mem_rows = [], 0
 
     def _stored(self) -> Iterator[Frame]:
@@ -88,7 +102,10 @@ class TrackLog:
         yield from list(self._mem)
 
     def __getstate__(self) -> dict[str, Any]:
-        # a temporary file does not travel: the frames do (as stored, the map kept)
+        # a temporary file does not travel, nor the map (a rectifier's whole remap tables:
+        # 20 MB per pickled run, a review): the frames do, as read
+        frames = list(self.frames)
         state = self.__dict__.copy()
-        state.update(_mem=list(self._stored()), _spool=None, _offsets=[])
+        state.update(_mem=frames, _mem_rows=sum(f[1].size for f in frames), _spool=None,
+                     _offsets=[], _map=None, _spool_failed=False)  # fmt: skip
         return state
