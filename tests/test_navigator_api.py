@@ -4,6 +4,7 @@ bad configurations, copies of fed images, outputs."""
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -61,6 +62,37 @@ def test_undrained_outputs_keep_the_latest_and_a_replay_keeps_none(
     _feed_static(nav, 4.0, np.random.default_rng(0))
     res = nav.close()
     assert [o.t_ns for o in seen] == res.t_ns.tolist() and list(nav.outputs()) == []
+
+
+def test_a_restarted_process_goes_on_from_the_last_state() -> None:
+    """A live user's probe: a new Navigator started from the old one's ``state()`` raised "the
+    initial time must be an IMU sample time" at its first sample (the samples fed were the
+    ones after it) and no helper built the start from a NavState. Now
+    ``InitialState.from_nav_state`` and a start at the next sample, up to 50 ms later."""
+    from svains import InitialState
+
+    rng = np.random.default_rng(1)
+    cfg = RunConfig()
+    old = Navigator(cfg, Rig())
+    _feed_static(old, 4.0, rng)
+    s = old.state()
+    assert s is not None
+    start = InitialState.from_nav_state(s)
+    assert start.x.shape == (19,) and start.P.shape == (18, 18) and start.t_ns == s.t_ns
+    new = Navigator(replace(cfg, init=InitOptions(mode="groundtruth")), Rig(),
+                    initial_state=start)
+    for k in range(1, 400):  # the samples after the saved state's, 2.5 ms off its grid
+        new.feed_imu(s.t_ns + 2_500_000 + k * 5_000_000, 1e-3 * rng.standard_normal(3),
+                     np.array([0.0, 0.0, G]) + 1e-2 * rng.standard_normal(3))
+    assert new.status == "running" and new.t0_ns == s.t_ns + 7_500_000
+    res = new.close()
+    np.testing.assert_allclose(res.x[0, :3], s.p_W_B + s.v_W_B * 0.0075, atol=1e-9)
+    late = Navigator(replace(cfg, init=InitOptions(mode="groundtruth")), Rig(),
+                     initial_state=start)
+    with pytest.raises(InitialisationError, match=r"first sample after it comes 1\.000 s later"):
+        for k in range(40):
+            late.feed_imu(s.t_ns + 1_000_000_000 + k * 5_000_000, np.zeros(3),
+                          np.array([0.0, 0.0, G]))
 
 
 def test_duplicate_and_backward_imu_stamps_are_dropped_and_counted() -> None:

@@ -202,6 +202,29 @@ def test_streams_crossed_from_the_start_are_looked_at_again_and_tracked_once_in_
     assert summary["rechecks"] == 2 and "exchanges" not in summary
 
 
+def test_streams_crossed_from_a_dark_start_are_never_exchanged(
+    kitti_raw: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A review's case: crossed from the first pair, the first pairs dark and blurred so the
+    first check gave up undecided; a later recheck found them crossed and exchanged them,
+    saying "they were in order before", though no check ever had: a crossing from the start is
+    the cabling's or the calibration's, warned and left for the user."""
+    import cv2
+
+    fe, pair = _online(kitti_raw)
+    with caplog.at_level(logging.WARNING, logger="svains.frontend.pipeline"):
+        for k in range(40):
+            t, left, right = pair(k)
+            if k < 10:
+                left, right = (cv2.GaussianBlur((im * 0.25).astype(np.uint8), (0, 0), 12)
+                               for im in (left, right))  # fmt: skip
+            fe.process(t, right, left)
+    assert fe.stats.status == "swapped"
+    assert "exchanged" not in caplog.text and "in order before" not in caplog.text
+    assert caplog.text.count("the left and right images look swapped") == 1
+    assert "exchanges" not in fe.stereo_check_report().summary()
+
+
 def test_a_recheck_in_a_dark_stretch_does_not_stop_later_ones(
     kitti_raw: Path, caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -59,20 +59,29 @@ def test_raw_pixels_are_mapped_as_read_and_only_once() -> None:
     _same(list(log.frames), want, shift=2.0)
 
 
+def _no_temporary_folder(**kw: object) -> object:
+    raise FileNotFoundError(2, "No usable temporary directory found")
+
+
+@pytest.mark.parametrize(("make", "said"), [
+    (lambda **kw: open("/dev/full", "w+b", buffering=0), "[Errno 28]"),  # noqa: SIM115
+    (_no_temporary_folder, "No usable temporary directory found"),
+])
 def test_a_full_temporary_folder_keeps_the_tracks_in_memory_with_one_warning(
-    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+    make: object, said: str, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
-    """A review's case: with the temporary folder full, ENOSPC ended the run (a live Navigator
-    too) with `[Errno 28] No space left on device` and no outputs."""
+    """Two reviews' cases: with the temporary folder full, ENOSPC ended the run (a live
+    Navigator too) with `[Errno 28] No space left on device` and no outputs; with none usable,
+    the warning's own look-up of the folder raised again."""
     monkeypatch.setattr(track_log, "SPOOL_ROWS", 50)
-    monkeypatch.setattr(track_log.tempfile, "TemporaryFile",
-                        lambda **kw: open("/dev/full", "w+b", buffering=0))  # noqa: SIM115
+    monkeypatch.setattr(track_log.tempfile, "TemporaryFile", make)
     want = _frames(60, seed=2)
     log = TrackLog()
     with caplog.at_level("WARNING", logger="svains.navigation.track_log"):
         for f in want:
             log.add(*f)
-    assert caplog.text.count("could not be spilled to a temporary file ([Errno 28]") == 1
+    assert caplog.text.count("could not be spilled to a temporary file") == 1
+    assert said in caplog.text
     assert log._offsets == [] and len(log) == 60
     _same(list(log.frames), want)
 

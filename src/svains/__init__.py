@@ -6,9 +6,10 @@ Conventions (quaternions Hamilton scalar-first, frames in names, int64 ns timest
 
 __version__ = "0.1.0"
 
-__all__ = ["NavState", "Navigator", "RunConfig", "RunResult", "__version__"]
+__all__ = ["InitialState", "NavState", "Navigator", "RunConfig", "RunResult", "__version__"]
 
 _LAZY = {
+    "InitialState": "svains.navigation.init",
     "Navigator": "svains.navigation.navigator",
     "NavState": "svains.navigation.outputs",
     "RunResult": "svains.navigation.outputs",

@@ -114,6 +114,7 @@ class StereoFrontend:
         self.stereo_check = StereoCheck()
         self._swapped = False
         self._exchange = False
+        self._order_seen = False  # a check decided the streams were in order
         self._frames_seen = 0
         self._no_motion = 0  # frames in a row without a motion (``_watch_stereo``)
         self._rechecked_at = -RECHECK_EVERY
@@ -426,7 +427,7 @@ class StereoFrontend:
         if not check.decided:
             return False
         problem = check.problem()
-        if check.rechecks and check.swapped and not self._swapped:
+        if check.rechecks and check.swapped and not self._swapped and self._order_seen:
             # The last verdict found the streams in order, so the calibration is right and the
             # streams crossed since (a driver restarted, its devices enumerated the other way):
             # exchanged back, the run goes on (a user's probe: KITTI raw crossed from frame 13,
@@ -451,6 +452,8 @@ class StereoFrontend:
             log.warning("stereo pair%s: %s", again, problem)
         if check.swapped:
             self._rechecked_at = self._frames_seen  # looked at again RECHECK_EVERY frames on
+        else:
+            self._order_seen = True
         self._swapped = check.swapped
         return False
 

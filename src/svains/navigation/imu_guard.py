@@ -32,14 +32,14 @@ Thresholds (``ImuGuardOptions``), each from a model or a measurement:
   ``drop_frozen=False`` (``faults.imu_drop_frozen``) for a coarsely quantised IMU at rest.
 - **railed axis**: one axis that changed at each of its last ``live_run`` samples holding
   exactly the value of the sample before, beyond ``rail_factor`` times every value it showed
-  while changing (or, reached smoothly, at or beyond every such value for ``rail_edge_run``
-  more samples, near a common full scale the calibration does not give) and beyond a floor
-  (``rail_floor_accel`` 1.9 g: a ±2 g sensor's rail, ``rail_floor_gyro`` 1 rad/s), or
-  exactly on a rail found before: a reading clipped at a full scale the calibration does not
-  give (a user's probe: an accelerometer pinned at 10 g, or at
+  while changing and beyond a floor (``rail_floor_accel`` 1.9 g: a ±2 g sensor's rail,
+  ``rail_floor_gyro`` 1 rad/s), or exactly on a rail found so before: a reading clipped at a
+  full scale the calibration does not give (a user's probe: an accelerometer pinned at 10 g, or at
   50 m/s² with the gyro at 5 rad/s, for 0.5 s took KITTI raw ``3d`` 15-277 m off). The rail's
   samples accepted before it showed are retracted (``retract_previous``); its later samples
-  are dropped while the axis keeps its value. A live axis repeats a new extreme about never.
+  are dropped while the axis keeps its value. A live axis repeats a new extreme about never. A
+  rail reached smoothly is not caught here (a flat stretch of motion on a quiet axis holds its
+  value as exactly); recorded files are checked whole on load (``datasets.validate``).
 - **gap**: accepted samples further apart than ``gap_factor`` times the median observed spacing
   (the rate in ``sensor.yaml`` is nominal only: KITTI raw's OXTS, nominally 100 Hz, has a median
   spacing of 40 ms and gaps up to 250 ms, which must not be flagged sample after sample).
@@ -69,21 +69,6 @@ from svains.sensors.types import ImuCalib
 
 Vec3 = tuple[float, ...]
 G0 = 9.80665  # m/s², standard gravity (full scales are quoted in g)
-# The full scales MEMS IMUs are sold with: a rail reached smoothly is taken only near one of
-# them (within ``FULL_SCALE_TOLERANCE``), where the calibration gives none. A plateau elsewhere
-# (a drone yawing at its 1.6 rad/s rate limit behind a 20 Hz low-pass: exact repeats) is motion
-# (a review: 9034 of 40,000 samples dropped when any new extreme held 5 times was a rail).
-ACCEL_FULL_SCALES_G = (2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 18.0, 24.0, 32.0)
-GYRO_FULL_SCALES_DPS = (125.0, 150.0, 245.0, 250.0, 300.0, 400.0, 450.0, 500.0, 1000.0, 2000.0,
-                        4000.0)  # fmt: skip
-FULL_SCALE_TOLERANCE = 0.05  # relative: 16-bit rails, scale factors applied after the clip
-
-
-def near_full_scale(value: float, gyro: bool) -> bool:
-    """Whether ``|value|`` (rad/s for the gyro, else m/s²) lies near a common full scale."""
-    scales = ([math.radians(d) for d in GYRO_FULL_SCALES_DPS] if gyro
-              else [g * G0 for g in ACCEL_FULL_SCALES_G])  # fmt: skip
-    return any(abs(abs(value) / fs - 1.0) <= FULL_SCALE_TOLERANCE for fs in scales)
 
 VerdictKind = Literal["accept", "drop", "gap"]
 DropReason = Literal["nonfinite", "zeros", "frozen", "saturated", "spike"]
@@ -113,10 +98,6 @@ class ImuGuardOptions:
     rail_factor: float = 1.5  # an axis held beyond this many times its live extremes: railed
     rail_floor_accel: float = 1.9 * 9.80665  # m/s², ...and beyond this (a ±2 g sensor's rail)
     rail_floor_gyro: float = 1.0  # rad/s, ...and beyond this
-    # or reached smoothly: a new extreme beyond the floor repeated this many times (a live
-    # axis at a flat peak repeats its value: a ±8 g sensor through 3-5 g bumps at 1000 Hz,
-    # 1 LSB of noise, lost 49 samples in 20 runs at 2 repeats, none at 5)
-    rail_edge_run: int = 5
 
 
 @dataclass(frozen=True)
@@ -167,8 +148,6 @@ class ImuGuard:
         self._accel_density = float(accel_noise_density)
         self._gyro_sat = o.saturation_fraction * (gyro_range or o.gyro_range)
         self._accel_sat = o.saturation_fraction * (accel_range or o.accel_range)
-        # the triads whose full scale the calibration gives: their saturation is known
-        self._range_given = (gyro_range is not None, accel_range is not None)
         self._nominal_dt_s = 1.0 / nominal_rate_hz if nominal_rate_hz else None
         self._spacings: deque[float] = deque(maxlen=o.spacing_window)
         self._median_s: float | None = None  # cached median of ``_spacings``
@@ -192,12 +171,8 @@ class ImuGuard:
         self._prev_seen: Vec3 | None = None
         self._rail: list[float | None] = [None] * 6
         self._rail_retract = 0
-        # a rail reached smoothly: samples in a row equal to the one before on each axis, and
-        # whether that run began live at a new extreme beyond the floor
-        self._edge_run = [0] * 6
-        self._edge_armed = [False] * 6
         # each axis's rail once found: a later reading exactly on it is clipped too (a sensor
-        # vibrating at its rail leaves it and comes back: 4 of 266 clipped samples caught)
+        # vibrating at its rail leaves it and comes back)
         self._rail_seen: list[float | None] = [None] * 6
         self.counts = _Counters()
 
@@ -247,20 +222,12 @@ class ImuGuard:
             same = v != 0.0 and prev is not None and v == prev[i]
             # an axis that changed at each of its last ``live_run`` samples (a sample-and-hold
             # sensor repeating each value, or a noise-free simulated one, is not judged)
-            live = self._axis_live[i] >= o.live_run
-            if not same:
-                self._edge_run[i] = 0
-            elif self._edge_run[i] == 0:
-                self._edge_armed[i] = (live and abs(v) >= max(floor, self._live_max[i])
-                                       and not self._range_given[i >= 3]
-                                       and near_full_scale(v, i < 3))  # fmt: skip
-            self._edge_run[i] += same
-            # jumped to far beyond every live value (held twice), or reached smoothly: a new
-            # extreme held ``rail_edge_run`` more times (a ±2 g sensor through a 3 g bump
-            # reaches its rail from 1.9 g: missed, a review)
-            jumped = live and abs(v) >= max(floor, o.rail_factor * self._live_max[i])
-            held = same and (jumped or (self._edge_armed[i]
-                                        and self._edge_run[i] >= o.rail_edge_run))  # fmt: skip
+            # A rail reached smoothly is not told from a flat stretch of motion on a quiet,
+            # coarsely quantised axis (a drone yawing at 250 deg/s behind a low-pass, a 2 g
+            # banked turn: thousands of samples dropped when a new extreme held 5 times was
+            # taken for one, two reviews): only a jump far beyond every live value is.
+            held = (same and self._axis_live[i] >= o.live_run
+                    and abs(v) >= max(floor, o.rail_factor * self._live_max[i]))  # fmt: skip
             if v == self._rail_seen[i]:
                 self._rail[i] = v  # back on a rail found before: dropped as it comes
                 railed = True

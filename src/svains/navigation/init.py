@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,6 +26,9 @@ from svains.navigation.vision_start import VisionInertialFit
 from svains.sensors.types import GpsCalib, GroundTruth, ImuCalib, MagCalib
 from svains.sensors.units import accel_units_problem
 
+if TYPE_CHECKING:
+    from svains.navigation.outputs import NavState
+
 F64 = NDArray[np.float64]
 log = logging.getLogger(__name__)
 
@@ -38,12 +42,51 @@ HEADING_FROM_GPS = "none (local frame until the GPS velocities give it)"
 
 @dataclass
 class InitialState:
-    """Filter start: time ``t_ns`` (an IMU sample time), state ``x`` (nx,), covariance ``P``."""
+    """Filter start: time ``t_ns`` (an IMU sample time; else the first sample after it, up to
+    ``GIVEN_START_MAX_S`` later), state ``x`` (nx,), covariance ``P``."""
 
     t_ns: int
     x: F64
     P: F64
     info: dict[str, object] = field(default_factory=dict)
+
+    @classmethod
+    def from_nav_state(cls, state: NavState) -> InitialState:
+        """The start a new Navigator takes to go on from ``state`` (a ``Navigator.state()``
+        or an output): a process restarted mid-flight (``init.mode: groundtruth``)."""
+        parts = [state.p_W_B, state.v_W_B, state.q_W_B_wxyz, state.omega_B]
+        if state.bg_B is not None and state.ba_B is not None:
+            parts += [state.bg_B, state.ba_B]
+        return cls(int(state.t_ns), np.concatenate(parts).astype(float),
+                   np.array(state.P, dtype=float), {"mode": "given", "from": "NavState"})
+
+
+# A given start whose time is no IMU sample's starts at the first sample after it when that
+# comes at most this late (s), its position carried on by its velocity (a restarted process
+# fed the samples after the saved state's: "the initial time must be an IMU sample time").
+GIVEN_START_MAX_S = 0.05
+
+
+def given_at_sample(given: InitialState, t_imu_ns: NDArray[np.int64]) -> InitialState:
+    """``given`` at an IMU sample time of ``t_imu_ns`` (increasing, its last at or after
+    ``given.t_ns``): itself at its own sample, else moved to the first sample after it."""
+    k = int(np.searchsorted(t_imu_ns, given.t_ns))
+    t_k = int(t_imu_ns[k])
+    if t_k == given.t_ns:
+        return given
+    dt_s = (t_k - given.t_ns) * 1e-9
+    if dt_s > GIVEN_START_MAX_S:
+        raise InitialisationError(
+            f"the initial state's time {given.t_ns} ns is no IMU sample's and the first sample "
+            f"after it comes {dt_s:.3f} s later ({t_k} ns): feed an IMU sample stamped at the "
+            f"initial state's time, or start from a state at most {GIVEN_START_MAX_S} s before "
+            "the first sample fed")  # fmt: skip
+    x = np.array(given.x, dtype=float)
+    x[P] += x[V] * dt_s
+    log.info("the initial state (%d ns) is no IMU sample's: the filter starts at the next "
+             "sample, %.1f ms later, its position carried on by its velocity", given.t_ns,
+             dt_s * 1e3)  # fmt: skip
+    return InitialState(t_k, x, np.array(given.P, dtype=float), dict(given.info))
 
 
 @dataclass(frozen=True)

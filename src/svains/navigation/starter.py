@@ -24,6 +24,7 @@ from svains.navigation.init import (
     InitialState,
     MagArrays,
     from_vision_fit,
+    given_at_sample,
     initialise,
 )
 from svains.navigation.options import InitOptions
@@ -102,7 +103,7 @@ class Starter:
         if last is None or horizon_ns is None:
             return None
         if self.given is not None:
-            return self.given if last >= self.given.t_ns else None
+            return given_at_sample(self.given, history.t_ns) if last >= self.given.t_ns else None
         o = self.options
         if o.mode == "vision":
             return self._vision_start(history, horizon_ns)

@@ -7,6 +7,7 @@ frame, a user's probe), also in a live ``svains.Navigator`` that never writes th
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import tempfile
 from collections.abc import Callable, Iterator
@@ -29,7 +30,8 @@ class TrackLog:
     """The left pixels of each frame's tracks, as the vision updater received them: per frame,
     ``track_id`` (M,), ``uv_left_px`` (M, 2) in the rectified rig (``raw`` False) or the raw
     left image (``raw`` True, see ``make_raw``), ``inlier`` (M,) the front end's flag (RANSAC and
-    stereo gates). Float32 pixels; ``frames`` yields them in order, ``len`` counts them."""
+    stereo gates). Float32 pixels; ``frames`` yields them in order, ``len`` counts them. Not
+    for concurrent use (one thread adds, then reads: ``Navigator.close`` hands it out)."""
 
     def __init__(self, raw: bool = False) -> None:
         self.raw = raw
@@ -71,6 +73,7 @@ class TrackLog:
 
     def _spill(self) -> None:
         m = self._mem
+        start = None
         try:
             if self._spool is None:
                 # lives as long as the log (closed and gone with it, also on a crash)
@@ -79,14 +82,15 @@ class TrackLog:
             heads = np.array([[f[0], f[1].size] for f in m], np.int64).reshape(-1, 2)
             for a in (heads, *(np.concatenate([f[k] for f in m]) for k in (1, 2, 3))):
                 np.save(self._spool, a)
-            self._spool.flush()
-        except OSError as exc:
+        except OSError as exc:  # (no usable temporary folder raises FileNotFoundError)
             # a full or unwritable temporary folder must not end a run (a review: a live
             # Navigator died of ENOSPC mid-run): the tracks stay in memory from now on
             log.warning("the tracks kept for tracks.csv could not be spilled to a temporary "
-                        "file (%s, folder %s): they stay in memory", exc,
-                        tempfile.gettempdir())  # fmt: skip
+                        "file (%s): they stay in memory", exc)  # fmt: skip
             self._spool_failed = True
+            if self._spool is not None and start is not None:
+                with contextlib.suppress(OSError):
+                    self._spool.truncate(start)  # the partial chunk gives its space back
             return
         self._offsets.append(start)
         self._mem, self._mem_rows = [], 0
