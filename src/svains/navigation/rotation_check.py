@@ -74,10 +74,6 @@ class RotationCheckOptions:
     # (since a user's probe: a 5 ms offset, measured to ±0.07 ms, went unsaid at 15 ms and
     # made the run 3-6x worse; KITTI raw reads -0.8 ± 3.6 ms)
     offset_warn_s: float = 0.003
-    # keyframes 0.2-3 s apart give few frames short enough to judge: from half ``min_frames``
-    # on, a shift beyond this many of its standard deviations is warned (a user's probe: a
-    # 12 ms offset read -12.5 ± 0.4 ms on 7 frames and went unsaid, the run 6x worse)
-    offset_few_frames_sigmas: float = 10.0
     # ... and only when that shift explains the turns (misfit per degree of freedom at most
     # this: KITTI raw 0.99, 1.6 with its stamps 50 ms off, 13.4 at 150 ms, where the filter's
     # gyro bias, fed the late frames, is off too; a mount 20° off gives hundreds)
@@ -278,24 +274,21 @@ class RotationCheck:
         o = self.options
         if not self._near.add(self.history, (t0_ns, t1_ns, r_B, bg_B, var)):
             return
-        few = self.offset_frames < o.min_frames
-        if self.offset_frames < max(o.min_frames // 2, 2):
+        if self.offset_frames < o.min_frames:
             return
-        if not few:
-            self._judge_scale()
+        self._judge_scale()
         if self.warned_offset or self.warned:
             return  # told, or a mount told wrong (its turns' axes say nothing of the stamps)
         got = self.time_offset()
         if got is None:
-            if not few and not (self.far_frames < o.min_frames and self._far.pending):
+            if not (self.far_frames < o.min_frames and self._far.pending):
                 self._judge_edge()  # else the far shifts, judged a few seconds on, say how far
             return
         shift, std = got
         fit = self.offset_fit()
         if fit is None or fit > o.offset_max_fit:
             return  # no shift explains the turns: a mount error, told by the axes
-        sigmas = o.offset_few_frames_sigmas if few else 4.0
-        if abs(shift) >= o.offset_warn_s and abs(shift) > sigmas * std:
+        if abs(shift) >= o.offset_warn_s and abs(shift) > 4.0 * std:
             self.warned_offset = True
             log.warning(
                 "the camera's turns match the gyro's best with the IMU %.0f ms %s the camera "
