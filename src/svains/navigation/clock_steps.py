@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 log = logging.getLogger(__name__)
@@ -47,20 +47,24 @@ class _Stream:
 
     shift_ns: int = 0
     last_ns: int | None = None
-    lags_ns: deque[int] = field(default_factory=lambda: deque(maxlen=9))
-    lags_at_ns: deque[int] = field(default_factory=lambda: deque(maxlen=9))  # the IMU's time
+    # (lag, the IMU's time when it was taken), one per IMU time
+    lags: deque[tuple[int, int]] = field(default_factory=lambda: deque(maxlen=9))
     spacings_ns: deque[int] = field(default_factory=lambda: deque(maxlen=9))
     # a first stamp far back: raw, its lag, the IMU's time then, the stamp on the run's clock
     candidate: tuple[int, int, int, int] | None = None
     last_step: tuple[int, int, dict[str, float | str]] | None = None
 
 
-def _median(values: deque[int]) -> int | None:
+def _median(values: Sequence[int]) -> int | None:
     return sorted(values)[len(values) // 2] if values else None
 
 
-def _spread(values: deque[int]) -> int:
+def _spread(values: Sequence[int]) -> int:
     return max(values) - min(values) if values else 0
+
+
+def _lag_values(s: _Stream) -> list[int]:
+    return [lag for lag, _ in s.lags]
 
 
 
@@ -126,10 +130,7 @@ class ClockSteps:
             # user's probe); those from before it still do (a camera clock stepping back in
             # the gap, a USB reset, was missed when they went too: a review).
             for other in self._streams.values():
-                kept = [(lag, at) for lag, at in zip(other.lags_ns, other.lags_at_ns,
-                                                     strict=True) if at != stood]  # fmt: skip
-                other.lags_ns = deque((lag for lag, _ in kept), maxlen=9)
-                other.lags_at_ns = deque((at for _, at in kept), maxlen=9)
+                other.lags = deque((p for p in other.lags if p[1] != stood), maxlen=9)
                 if other.candidate is not None and other.candidate[2] == stood:
                     other.candidate = None
         self._imu_now_ns = t if self._imu_now_ns is None else max(self._imu_now_ns, t)
@@ -145,7 +146,7 @@ class ClockSteps:
             s = self._streams[stream] = _Stream()
         t = self._nearest(t_ns + s.shift_ns)
         now = self._imu_now_ns
-        if now is not None and len(s.lags_ns) >= MIN_LAGS and s.last_ns is not None:
+        if now is not None and len(s.lags) >= MIN_LAGS and s.last_ns is not None:
             step = self._stream_step(s, t_ns, t, now)
             if step is None:
                 return t  # held out: a stale message until the next stamp confirms a step
@@ -162,13 +163,11 @@ class ClockSteps:
         else:
             s.candidate = None
         if now is not None:
-            if s.lags_at_ns and s.lags_at_ns[-1] == now:
+            if s.lags and s.lags[-1][1] == now:
                 # one lag per IMU time: the stamps of an IMU gap (its time standing still)
                 # would push every lag from before it out
-                s.lags_ns.pop()
-                s.lags_at_ns.pop()
-            s.lags_ns.append(now - t)
-            s.lags_at_ns.append(now)
+                s.lags.pop()
+            s.lags.append((now - t, now))
         if s.last_ns is not None and t > s.last_ns:
             s.spacings_ns.append(t - s.last_ns)
         s.last_ns = t if s.last_ns is None else max(s.last_ns, t)
@@ -187,13 +186,14 @@ class ClockSteps:
         between them), while the IMU's own clock is not stepping; a step of more than
         ``STEP_BACK_S`` only."""
         assert s.last_ns is not None
-        before = _median(s.lags_ns)
+        lags = _lag_values(s)
+        before = _median(lags)
         assert before is not None
         lag = now - t
         growth = lag - before
         # how much the stream's lags vary when nothing happens (an IMU fed in batches), at
         # most half a step (a stalled pipeline's backlog spreads them by seconds)
-        agree = min(max(LAG_AGREE_MIN_NS, _spread(s.lags_ns)), self._step_ns // 2)
+        agree = min(max(LAG_AGREE_MIN_NS, _spread(lags)), self._step_ns // 2)
         spacing = _median(s.spacings_ns) or 0
         regular = _spread(s.spacings_ns) <= max(LAG_AGREE_MIN_NS, spacing // 10)
         c = s.candidate

@@ -35,8 +35,8 @@ Thresholds (``ImuGuardOptions``), each from a model or a measurement:
   while changing and beyond a floor (``rail_floor_accel`` 1.9 g: a ±2 g sensor's rail,
   ``rail_floor_gyro`` 1 rad/s), or exactly on a rail found so before: a reading clipped at a
   full scale the calibration does not give (a user's probe: an accelerometer pinned at 10 g, or at
-  50 m/s² with the gyro at 5 rad/s, for 0.5 s took KITTI raw ``3d`` 15-277 m off). The rail's
-  samples accepted before it showed are retracted (``retract_previous``); its later samples
+  50 m/s² with the gyro at 5 rad/s, for 0.5 s took KITTI raw ``3d`` 15-277 m off). The first
+  sample of the rail is retracted with the second (``retract_previous``); its later samples
   are dropped while the axis keeps its value. A live axis repeats a new extreme about never. A
   rail reached smoothly is not caught here (a flat stretch of motion on a quiet axis holds its
   value as exactly); recorded files are checked whole on load (``datasets.validate``).
@@ -219,14 +219,13 @@ class ImuGuard:
         railed = False
         for i, v in enumerate(values):
             floor = o.rail_floor_gyro if i < 3 else o.rail_floor_accel
-            same = v != 0.0 and prev is not None and v == prev[i]
             # an axis that changed at each of its last ``live_run`` samples (a sample-and-hold
-            # sensor repeating each value, or a noise-free simulated one, is not judged)
-            # A rail reached smoothly is not told from a flat stretch of motion on a quiet,
-            # coarsely quantised axis (a drone yawing at 250 deg/s behind a low-pass, a 2 g
-            # banked turn: thousands of samples dropped when a new extreme held 5 times was
-            # taken for one, two reviews): only a jump far beyond every live value is.
-            held = (same and self._axis_live[i] >= o.live_run
+            # sensor repeating each value, or a noise-free simulated one, is not judged). Only
+            # a jump far beyond every live value is a rail: one reached smoothly is not told
+            # from a flat stretch of motion on a quiet axis (a drone yawing at 250 deg/s behind
+            # a low-pass, a 2 g banked turn: thousands of samples dropped, two reviews).
+            held = (v != 0.0 and prev is not None and v == prev[i]
+                    and self._axis_live[i] >= o.live_run
                     and abs(v) >= max(floor, o.rail_factor * self._live_max[i]))  # fmt: skip
             if v == self._rail_seen[i]:
                 self._rail[i] = v  # back on a rail found before: dropped as it comes
@@ -234,14 +233,10 @@ class ImuGuard:
                 continue
             if held:
                 self._rail_seen[i] = v
-            if held and self._rail[i] is None and self._retract == 0:
-                # the rail's samples accepted before this one showed it
-                n = 0
-                for _, g, a in reversed(self._recent):
-                    if n == MAX_SPIKE_RUN or (g + a)[i] != v:
-                        break
-                    n += 1
-                self._rail_retract = max(self._rail_retract, n)
+            if held and self._rail[i] is None:
+                last = self._last
+                if last is not None and (last[1] + last[2])[i] == v and self._retract == 0:
+                    self._rail_retract = 1  # the rail's first sample, accepted before
             self._rail[i] = v if held or self._rail[i] == v else None
             railed |= self._rail[i] is not None
         return railed

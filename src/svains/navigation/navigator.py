@@ -134,7 +134,7 @@ class Navigator:
         # The states for ``outputs()``, the latest OUTPUTS_KEPT: a caller that takes them by
         # ``on_output`` (the replay) never drains them (134 MB per hour of 10 Hz states kept)
         self._outputs: deque[NavState] = deque(maxlen=OUTPUTS_KEPT if keep_outputs else 0)
-        self._outputs_dropped = 0
+        self._outputs_warned = False
         self._backlog: list[tuple[int, int, Any]] = []  # released before the initial state
         self._source: FeatureFrames | ImageFrames | None = None
         self._frames_seen = 0
@@ -451,12 +451,13 @@ class Navigator:
             self.status = "finished"
 
     def _emit(self, state: NavState) -> None:
-        if len(self._outputs) == OUTPUTS_KEPT:  # (never with keep_outputs=False: maxlen 0)
-            self._outputs_dropped += 1
-            if self._outputs_dropped == 1 and self._on_output is None:
-                log.warning("outputs() not drained for %d states: the oldest are dropped from "
-                            "it (drain it more often, or take every state by on_output)",
-                            OUTPUTS_KEPT)  # fmt: skip
+        # (never full with keep_outputs=False: maxlen 0)
+        if (len(self._outputs) == OUTPUTS_KEPT and self._on_output is None
+                and not self._outputs_warned):  # fmt: skip
+            self._outputs_warned = True
+            log.warning("outputs() not drained for %d states: the oldest are dropped from it "
+                        "(drain it more often, or take every state by on_output)",
+                        OUTPUTS_KEPT)  # fmt: skip
         self._outputs.append(state)
         if self._on_output is not None:
             self._on_output(state)
