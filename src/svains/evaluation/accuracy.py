@@ -76,11 +76,17 @@ def ate_result_with_fallback(
 
 
 def ate_with_fallback(
-    t_ns: I64, p_est: F64, q_est: F64, p_ref: F64, q_ref: F64, alignment: str = "se3"
+    t_ns: I64,
+    p_est: F64,
+    q_est: F64,
+    p_ref: F64,
+    q_ref: F64,
+    alignment: str = "se3",
+    up_W: ArrayLike = (0.0, 0.0, 1.0),
 ) -> tuple[float, str]:
-    """ATE RMSE (m) and the alignment actually used (see :func:`ate_result_with_fallback`);
-    the unaligned RMSE when every alignment fails."""
-    res = ate_result_with_fallback(t_ns, p_est, q_est, p_ref, q_ref, alignment)
+    """ATE RMSE (m) and the alignment actually used (see :func:`ate_result_with_fallback`; a
+    ``posyaw`` one turns about ``up_W``); the unaligned RMSE when every alignment fails."""
+    res = ate_result_with_fallback(t_ns, p_est, q_est, p_ref, q_ref, alignment, up_W)
     if res is None:
         return float(np.sqrt(np.mean(np.sum((p_est - p_ref) ** 2, axis=1)))), "none"
     return res.rmse, res.alignment
@@ -272,7 +278,7 @@ def accuracy_report(
     inside, p, v, q = interpolate_groundtruth(gt, t_ns)
     xe = x[inside]
     ate_m, out["alignment"] = ate_with_fallback(errs.t_ns, xe[:, 0:3], xe[:, 6:10], p, q,
-                                                alignment)  # fmt: skip
+                                                alignment, up_W)  # fmt: skip
     e, std = errs.e, np.sqrt(np.einsum("nii->ni", errs.P9))
     xa = errs.x
     p, _, q = levelled(p, v, q, R_W_Wref)  # the ATE above keeps the reference as it is
