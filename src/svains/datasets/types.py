@@ -39,7 +39,9 @@ __all__ = [
 
 @dataclass(frozen=True)
 class ImuStream:
-    """IMU samples: ``gyro_B`` (N, 3) rad/s and ``accel_B`` (N, 3) specific force m/s²."""
+    """IMU samples: ``gyro_B`` (N, 3) rad/s and ``accel_B`` (N, 3) specific force m/s², as the
+    file holds them: in the IMU's own frame S, which ``ImuCalib.T_B_S`` turns to the body (the
+    identity on EuRoC and the simulator). ``Navigator.feed_imu`` takes them as they are."""
 
     t_ns: I64
     gyro_B: F64

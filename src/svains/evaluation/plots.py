@@ -73,7 +73,8 @@ def plot_errors(err: RunErrors, path: Path, smoothed: RunErrors | None = None) -
             if r == 2:
                 ax.set_xlabel("time [s]")
     axes[0, 0].legend(loc="upper left")
-    fig.suptitle(f"errors after {err.alignment} alignment, with the filter's ±3 sigma"
+    aligned = "unaligned" if err.alignment == "none" else f"after {err.alignment} alignment"
+    fig.suptitle(f"errors {aligned}, with the filter's ±3 sigma"
                  + (" (and the smoother's)" if smoothed is not None else ""))
     return PlotFile(_save(fig, path), tuple(titles))
 

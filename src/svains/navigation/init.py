@@ -21,7 +21,7 @@ from svains.models.state import BA, BG, DBA, DBG, DP, DTH, DV, DW, P, Q, StateLa
 from svains.navigation.heading import course_heading_or_none
 from svains.navigation.imu_history import gyro_attitudes
 from svains.navigation.options import InitOptions
-from svains.navigation.platform_noise import block_deviation, block_means, measure_static_noise
+from svains.navigation.platform_noise import measure_static_noise, rest_deviations
 from svains.navigation.vision_start import VisionInertialFit
 from svains.sensors.types import GpsCalib, GroundTruth, ImuCalib, MagCalib
 from svains.sensors.units import accel_units_problem
@@ -211,8 +211,7 @@ def _from_static(dataset: InitData, layout: StateLayout, o: InitOptions) -> Init
     n_block = max(1, round(o.block_s / dt_s))
     if len(acc) // n_block < 2:
         raise InitialisationError(f"static interval of {o.static_s} s is shorter than two blocks")
-    acc_dev = block_deviation(block_means(acc, n_block))
-    gyro_dev = block_deviation(block_means(gyro, n_block))
+    acc_dev, gyro_dev = rest_deviations(gyro, acc, n_block)
     if acc_dev > o.max_accel_dev or gyro_dev > o.max_gyro_dev:
         # A turn tilts gravity in the accelerometer unless it is about the vertical; a gyro
         # that wanders under a steady accelerometer is more often one read in deg/s.

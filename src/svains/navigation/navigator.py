@@ -68,12 +68,16 @@ class Navigator:
     ``on_output(state)`` is called at every output tick (and for the final state); the same
     states can be drained with ``outputs()`` (the latest ``OUTPUTS_KEPT``; none kept with
     ``keep_outputs=False``). ``initial_state`` starts the filter from a given state
-    (``init.mode == "groundtruth"``) instead of the IMU/GPS/vision start.
+    (``init.mode == "groundtruth"``) instead of the IMU/GPS/vision start. ``rest_noise``: the
+    platform's IMU white noise measured at rest before the run (``platform_noise.rest_noise``),
+    which a start that is not static takes for the platform noise rule (a static start measures
+    its own).
     """
 
     def __init__(
         self, config: RunConfig, rig: Rig, *, on_output: OutputCallback | None = None,
         initial_state: InitialState | None = None, keep_outputs: bool = True,
+        rest_noise: StaticNoise | None = None,
     ) -> None:
         if not isinstance(config, RunConfig):
             raise TypeError(f"Navigator: config must be a RunConfig, got {type(config).__name__}"
@@ -92,6 +96,7 @@ class Navigator:
             raise ConfigError(f"rig.imu_period_s must be positive, got {rig.imu_period_s}")
         self.config = config
         self.rig = rig
+        self._rest_noise = rest_noise
         self.layout = BIASED if config.model == "biased" else PAPER
         self._wall0 = time.perf_counter()
         R_B_S = None if rig.imu is None else rig.imu.T_B_S[:3, :3]
@@ -397,11 +402,12 @@ class Navigator:
 
     def _start(self, init: InitialState) -> None:
         measured = init.info.get("static_noise")
-        noise, decided = platform_noise(
-            self.config.noise, self.rig.imu,
-            StaticNoise(**measured) if isinstance(measured, dict) else None,
-        )
+        # a start that is not static takes the rest the caller measured before it, if any
+        rest = StaticNoise(**measured) if isinstance(measured, dict) else self._rest_noise
+        noise, decided = platform_noise(self.config.noise, self.rig.imu, rest)
         if decided is not None:
+            if rest is self._rest_noise:
+                decided["measured_at"] = "a rest before the start"
             init.info["imu_noise"] = decided
         ins = InsFilter(self.history, self.rig, self.layout, init, self.config.filter, noise)
         self.core = Core(self.config, self.rig, ins, init.info, self._source, self._emit,

@@ -86,6 +86,7 @@ class Core:
         self._source = source
         self._updater: PixelUpdater | LcUpdater | None = None
         self._t_prev_frame: int | None = None
+        self._t_first_frame: int | None = None
         self._period_ns = int(config.output_period_s * 1e9)
         self._next_grid = (self.t0_ns // self._period_ns + 1) * self._period_ns
         self._tick_cache = (-1, 0)  # (grid point, its tick time)
@@ -562,6 +563,8 @@ class Core:
             self._since_fused.not_fused(refused=stats is not None)
         if self._t_prev_frame is not None:
             self._frame_spacing.append(t - self._t_prev_frame)
+        else:
+            self._t_first_frame = t
         self._t_prev_frame = t
 
     def _judge_continuity(
@@ -680,15 +683,27 @@ class Core:
         said nothing)."""
         if self.config.method == "ins" or self._vision_warned_gap:
             return
-        since = self._vision_fused_t[-1] if self._vision_fused_t else self.t0_ns
+        # No frame fuses alone: before the first fused one the gap counts from the first frame
+        # (frames 2 s apart warned at 2.04 s, their first fusable frame due at 4 s: a probe).
+        first = self._t_first_frame
+        since = (self._vision_fused_t[-1] if self._vision_fused_t
+                 else self.t0_ns if first is None else first)  # fmt: skip
         gap_s = (t - since) * 1e-9
-        limit = vision_gap_limit_s(self._frame_spacing, self.config.faults.vision_max_gap_s)
-        if gap_s > limit:
+        if gap_s > self._vision_gap_limit_s():
             self._vision_warned_gap = True
             reasons = self._since_fused.reasons(self._status_counts(), self._frames_dropped())
             self._warn.warn("vision-gap", t, f"{self.config.method}: no vision fused for "
                             f"{gap_s:.1f} s: the estimate is inertial only"
                             f"{reasons}")  # fmt: skip
+
+    def _vision_gap_limit_s(self) -> float:
+        """The longest stretch (s) without fused vision that is no gap: the floor, or 2.5 frame
+        spacings (``vision_gaps.vision_gap_limit_s``); until a second frame, the first frame's
+        delay after the start stands for the spacing."""
+        spacings: Any = self._frame_spacing
+        if not spacings and self._t_first_frame is not None:
+            spacings = [self._t_first_frame - self.t0_ns]
+        return vision_gap_limit_s(spacings, self.config.faults.vision_max_gap_s)
 
     def _status_counts(self) -> dict[str, int]:
         """The image front end's per-frame status counts so far (none for recorded features)."""
@@ -702,8 +717,10 @@ class Core:
         if self._recovery is not None:
             out["recovery"] = self._recovery.summary()
         if self.config.method != "ins":
+            # the warning's limit: frames 7 s apart read "vision_gap_fraction 1.0" with 15 of
+            # 20 frames fused against the 2 s floor (a user's probe)
             out.update(vision_gap_report(self._vision_fused_t, t_start_ns, t_end_ns,
-                                         self.config.faults.vision_max_gap_s))  # fmt: skip
+                                         self._vision_gap_limit_s()))  # fmt: skip
         return out
 
     # ---- outputs ------------------------------------------------------------------------

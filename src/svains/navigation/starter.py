@@ -50,7 +50,9 @@ class Starter:
             raise ConfigError(f"an initial_state is given but init.mode is {options.mode!r}: set "
                               "init.mode groundtruth to start from it, or leave it out")
         if given is None and options.mode == "gps" and rig.gps is None:
-            raise ConfigError("init.mode gps needs a GPS calibration in the rig")
+            raise ConfigError("init.mode gps (--init gps) needs a GPS: the rig has none (a data "
+                              "set without gps0/); start with --init static, vision or "
+                              "groundtruth")  # fmt: skip
         self.options = options
         self.rig = rig
         self.layout = layout

@@ -5,7 +5,10 @@
 asked for vision and fused none (``vision_degraded``) exits non-zero unless ``--allow-degraded``.
 
 - ``vision_gaps``: list of ``{start_s, duration_s}`` (from the run's start) without a fused
-  vision update for more than ``max_gap_s``, the run's start and end included;
+  vision update for more than ``max_gap_s``, the run's start and end included (the Navigator
+  gives the warning's limit: ``faults.vision_max_gap_s``, or 2.5 frame spacings where frames
+  come further apart);
+- ``vision_gap_limit_s``: that ``max_gap_s``;
 - ``vision_longest_gap_s``: the longest stretch without a fused vision update (s);
 - ``vision_gap_fraction``: fraction of the run's span inside ``vision_gaps``;
 - ``vision_fused_frames``: number of fused vision updates;
@@ -67,6 +70,7 @@ def vision_gap_report(
         "vision_gap_fraction": float(lengths[long].sum()) / span_ns if span_ns > 0 else 0.0,
         "vision_fused_frames": int(t.size),
         "vision_degraded": bool(t.size == 0),
+        "vision_gap_limit_s": float(max_gap_s),
     }
 
 

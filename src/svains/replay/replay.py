@@ -36,6 +36,7 @@ from svains.navigation.init import (
 from svains.navigation.navigator import Navigator
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import NavState, RunResult
+from svains.navigation.platform_noise import rest_noise
 from svains.navigation.tracks import frame_slices
 from svains.navigation.vision import tune_for_frames
 from svains.sensors.types import Rig
@@ -245,8 +246,14 @@ def replay(
     if config.init.mode == "groundtruth":
         init = groundtruth_start(ds, config, t0 if config.replay.start_s > 0 else None)
 
-    nav = Navigator(config, rig_from_dataset(ds), on_output=on_output, initial_state=init,
-                    keep_outputs=False)  # the run's result holds them (``close``)
+    rig = rig_from_dataset(ds)
+    rest = None
+    if config.init.mode != "static" and rig.imu is not None and config.noise.static_rule:
+        # a recording that begins at rest lends it to a later or moving start
+        R_B_S = rig.imu.T_B_S[:3, :3]
+        rest = rest_noise(t_imu, ds.imu.gyro_B @ R_B_S.T, ds.imu.accel_B @ R_B_S.T, config.init)
+    nav = Navigator(config, rig, on_output=on_output, initial_state=init,
+                    keep_outputs=False, rest_noise=rest)  # the run's result holds the outputs
     next_report = t0
     # Once around the whole loop (entering costs ~0.6 ms); under ``svains`` it keeps the
     # command's ``--threads``.
