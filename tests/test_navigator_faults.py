@@ -368,15 +368,23 @@ def test_a_false_bias_alarm_is_not_confirmed_and_the_biases_come_back(
     assert abs(err["kept"] - err["clean"]) < 0.05 * err["clean"] < 0.05 * err["forgot"], err
 
 
-@pytest.mark.parametrize("filter_changed", [False, True])
+@pytest.mark.parametrize(("filter_changed", "error"), [
+    (False, "Singular matrix"), (True, "Singular matrix"),
+    (False, "iterated information capacitance of vision_3d is not positive definite"),
+])  # fmt: skip
 def test_a_frame_whose_update_fails_numerically_is_skipped_and_warned(
     flight: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture,
-    filter_changed: bool,
+    filter_changed: bool, error: str,
 ) -> None:
     """numpy's solver raising inside one frame's model (a degenerate feature; rendered keyframes
-    once stopped a run with "Singular matrix") loses that frame, warned and counted, not the
-    run; if the filter had already changed, the error is not hidden."""
+    once stopped a run with "Singular matrix"), or the frame's own solve failing (the iterated
+    update's capacitance: a lost `--rotation imu` run stopped with exit 1, a user's probe),
+    loses that frame, warned and counted, not the run; if the filter had already changed, the
+    error is not hidden."""
+    from svains.errors import FilterError
     from svains.navigation import vision_pixels
+
+    exc_type = np.linalg.LinAlgError if error == "Singular matrix" else FilterError
 
     ds = load_dataset(flight)
     clean = _run(ds, "3d")
@@ -389,7 +397,7 @@ def test_a_frame_whose_update_fails_numerically_is_skipped_and_warned(
             if filter_changed:
                 ctx.ukf.x = ctx.ukf.x + 0.0  # type: ignore[attr-defined]
                 ctx.ukf.P = ctx.ukf.P * 1.01  # type: ignore[attr-defined]
-            raise np.linalg.LinAlgError("Singular matrix")
+            raise exc_type(error)
         return original(self, ctx)  # type: ignore[arg-type]
 
     monkeypatch.setattr(vision_pixels.PixelUpdater, "update", failing)
@@ -403,7 +411,7 @@ def test_a_frame_whose_update_fails_numerically_is_skipped_and_warned(
     assert vis["frames_failed_numerics"] == 1
     assert clean.report["vision"]["frames_failed_numerics"] == 0
     assert vis["frames_fused"] == clean.report["vision"]["frames_fused"] - 1
-    assert any("frame skipped, its update failed numerically (Singular matrix)" in r.message
+    assert any(f"frame skipped, its update failed numerically ({error})" in r.message
                for r in caplog.records)  # fmt: skip
     assert np.all(np.isfinite(res.x)) and res.report["ate_rmse_m"] < 0.5
 

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from svains.errors import FilterError
 from svains.filter.ukf import UpdateStats
 from svains.models.state import BA, BG, DV, Q, V
 from svains.models.state import P as POS
@@ -535,9 +536,12 @@ class Core:
         x_before, P_before = ins.ukf.x.copy(), ins.ukf.P.copy()
         try:
             stats = updater.update(ctx)
-        except np.linalg.LinAlgError as exc:
+        except (np.linalg.LinAlgError, FilterError) as exc:
             # A geometry the frame's model did not foresee (numpy's solver on a degenerate
-            # feature) loses that frame, not the run; a filter already changed cannot be.
+            # feature), or a solve the frame's own numbers broke (the information form's
+            # capacitance, indefinite by cancellation under a prior 1e7 times the pixel noise:
+            # `--rotation imu` lost at frames 3 s apart stopped with exit 1, a user's probe),
+            # loses that frame, not the run; a filter already changed cannot be.
             if not (np.array_equal(ins.ukf.x, x_before) and np.array_equal(ins.ukf.P, P_before)):
                 raise
             updater.counters.frames_failed_numerics += 1
@@ -683,11 +687,7 @@ class Core:
         said nothing)."""
         if self.config.method == "ins" or self._vision_warned_gap:
             return
-        # No frame fuses alone: before the first fused one the gap counts from the first frame
-        # (frames 2 s apart warned at 2.04 s, their first fusable frame due at 4 s: a probe).
-        first = self._t_first_frame
-        since = (self._vision_fused_t[-1] if self._vision_fused_t
-                 else self.t0_ns if first is None else first)  # fmt: skip
+        since = self._vision_fused_t[-1] if self._vision_fused_t else self.t0_ns
         gap_s = (t - since) * 1e-9
         if gap_s > self._vision_gap_limit_s():
             self._vision_warned_gap = True
@@ -699,7 +699,8 @@ class Core:
     def _vision_gap_limit_s(self) -> float:
         """The longest stretch (s) without fused vision that is no gap: the floor, or 2.5 frame
         spacings (``vision_gaps.vision_gap_limit_s``); until a second frame, the first frame's
-        delay after the start stands for the spacing."""
+        delay after the start stands for the spacing (no frame fuses alone: frames 2 s apart
+        warned at 2.04 s, their first fusable frame due at 4 s, a user's probe)."""
         spacings: Any = self._frame_spacing
         if not spacings and self._t_first_frame is not None:
             spacings = [self._t_first_frame - self.t0_ns]

@@ -2,14 +2,17 @@
 
 Modes (``InitOptions.mode``): ``static`` (the first ``static_s`` seconds of IMU, magnetometer
 heading, the first GPS fix as position when the rig has a GPS: waits up to ``gps_wait_s`` for
-it), ``gps`` (in flight, from the first two fixes) and a given state (``groundtruth``: the
-caller computed it). Each waits until the data it averages has been released in time order,
-then calls ``init.initialise`` on exactly that data, so the start equals the whole-recording
-computation. Until then the Navigator keeps the released measurements in a backlog.
+it), ``gps`` (in flight, from the first two fixes), ``vision`` (in flight, from stereo
+odometry and the IMU; with GPS fused, its position from the nearest fix) and a given state
+(``groundtruth``: the caller computed it). Each waits until the data it averages has been
+released in time order, then calls ``init.initialise`` on exactly that data, so the start
+equals the whole-recording computation. Until then the Navigator keeps the released
+measurements in a backlog.
 """
 
 from __future__ import annotations
 
+import collections
 from dataclasses import replace
 
 import numpy as np
@@ -33,6 +36,10 @@ from svains.sensors.types import Rig
 
 # A ``vision`` start takes its heading from the magnetometer samples this near its time.
 MAG_HEADING_SPAN_NS = 250_000_000
+# ...and, GPS fused, its position from the fix with a velocity nearest its time within this
+# span (``Starter._gps_at``), of the latest ``GPS_RECENT`` fixes.
+GPS_START_SPAN_NS = 2_000_000_000
+GPS_RECENT = 8
 
 
 class Starter:
@@ -60,6 +67,9 @@ class Starter:
         self.gps_fused = gps_fused
         self._mag: list[tuple[int, np.ndarray]] = []
         self._gps: list[tuple[int, np.ndarray, np.ndarray]] = []
+        # the latest fixes, for the ``vision`` start's position (``_gps_at``)
+        self._gps_recent: collections.deque[tuple[int, np.ndarray, np.ndarray]] = (
+            collections.deque(maxlen=GPS_RECENT))
         self.odometry = (StartOdometry(rig.cam0, rig.cam1, max_row_diff_px)
                          if given is None and options.mode == "vision" else None)  # fmt: skip
 
@@ -74,8 +84,25 @@ class Starter:
     def add_gps(self, t_ns: int, p_W_G: np.ndarray, v_W_G: np.ndarray | None) -> None:
         """A fix (``v_W_G`` None: position only). Two fixes with velocity start in flight;
         position-only fixes need a third (``init._from_gps`` differences them)."""
+        fix = (t_ns, p_W_G, np.full(3, np.nan) if v_W_G is None else v_W_G)
         if len(self._gps) < self._gps_needed():
-            self._gps.append((t_ns, p_W_G, np.full(3, np.nan) if v_W_G is None else v_W_G))
+            self._gps.append(fix)
+        if self.odometry is not None:
+            self._gps_recent.append(fix)
+
+    def _gps_at(self, t_ns: int) -> tuple[np.ndarray, float] | None:
+        """The GPS antenna's position (3,) m at ``t_ns`` and its standard deviation (m): the
+        fix with a velocity nearest in time, within ``GPS_START_SPAN_NS``, carried to ``t_ns``
+        by that velocity; None without one."""
+        gps = self.rig.gps
+        near = [(abs(t - t_ns), t, p, v) for t, p, v in self._gps_recent
+                if abs(t - t_ns) <= GPS_START_SPAN_NS and np.all(np.isfinite(v))]  # fmt: skip
+        if gps is None or not near:
+            return None
+        _, t, p, v = min(near, key=lambda n: n[0])
+        dt_s = (t_ns - t) * 1e-9
+        return (np.asarray(p, float) + dt_s * np.asarray(v, float),
+                float(np.hypot(gps.position_noise_std, abs(dt_s) * gps.velocity_noise_std)))
 
     def _gps_needed(self) -> int:
         if len(self._gps) < 2:
@@ -177,5 +204,7 @@ class Starter:
                 m_B = self.rig.mag.T_B_S[:3, :3] @ np.mean(near, axis=0)
                 m_W = self.rig.mag.m_W
         self.odometry = None  # its frames and front end are no longer needed
+        gps_fix = self._gps_at(t_s) if gps_fused and self.rig.gps is not None else None
+        p_B_G = None if self.rig.gps is None else self.rig.gps.p_B_G
         return from_vision_fit(fit, t_s, R_W_B, v_W_B, gyro_B[k] - fit.b_g, self.layout, o,
-                               g_W, gps_fused, m_B, m_W)  # fmt: skip
+                               g_W, gps_fused, m_B, m_W, gps_fix, p_B_G)  # fmt: skip
