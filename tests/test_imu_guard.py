@@ -133,6 +133,16 @@ def test_irregular_spacing_like_kitti_raw_is_not_a_gap() -> None:
     a = np.array([0.0, 0.0, 9.81]) + 0.05 * rng.standard_normal((t.size, 3))
     guard = ImuGuard(1.7e-3, 0.03, nominal_rate_hz=100.0)
     assert all(v.kind == "accept" for v in _run(guard, t, g, a))
+    # A run started where the first spacing is 110 ms (KITTI raw from 3 s): no gap before a
+    # spacing is seen, though 10 nominal periods are 100 ms (a user's probe)...
+    late = np.concatenate([[0], t[1:] - t[1] + 110_000_000])
+    assert all(v.kind == "accept" for v in _run(ImuGuard(1.7e-3, 0.03, nominal_rate_hz=100.0),
+                                               late, g[: late.size], a[: late.size]))  # fmt: skip
+    # ...but a first spacing of a second is one.
+    lost = np.concatenate([[0], t[1:] - t[1] + 1_000_000_000])
+    verdicts = _run(ImuGuard(1.7e-3, 0.03, nominal_rate_hz=100.0), lost, g[: lost.size],
+                    a[: lost.size])  # fmt: skip
+    assert [v.kind for v in verdicts[:3]] == ["accept", "gap", "accept"]
 
 
 @pytest.mark.realdata

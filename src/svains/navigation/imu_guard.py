@@ -74,6 +74,7 @@ VerdictKind = Literal["accept", "drop", "gap"]
 DropReason = Literal["nonfinite", "zeros", "frozen", "saturated", "spike"]
 DROP_REASONS: tuple[DropReason, ...] = ("nonfinite", "zeros", "frozen", "saturated", "spike")
 _MEDIAN_EVERY = 16  # accepted spacings between two recomputations of the running median
+FIRST_GAP_S = 0.5  # s: the stream's first spacing is a gap only when longer (a long gap's bridge)
 MAX_SPIKE_RUN = 2  # samples a spike found by the sample after it may last
 
 
@@ -339,7 +340,11 @@ class ImuGuard:
         if self._last is not None:
             dt = (t_ns - self._last[0]) * 1e-9
             median = self.median_spacing_s()
-            if median is not None and dt > self.options.gap_factor * median:
+            # Before a spacing is seen the limit is the nominal rate's, which a recording that
+            # keeps fewer samples breaks at once: the first spacing is a gap only from
+            # FIRST_GAP_S (KITTI raw from 3 s: "IMU gap of 0.110 s", a user's probe).
+            if (median is not None and dt > self.options.gap_factor * median
+                    and (self._spacings or dt > FIRST_GAP_S)):  # fmt: skip
                 c = self.counts
                 c.gaps += 1
                 c.gap_total_s += dt
