@@ -101,8 +101,14 @@ def test_a_recording_shorter_than_the_window_is_refused_with_what_it_had(
     ds = load_dataset(quiet_flight)
     with pytest.raises(InitialisationError, match=r"the stream ended before 100 s of linked "
                                                    r"stereo frames \(the last chain: \d+ frames "
-                                                   r"over [78]\.\d+ s\)"):  # fmt: skip
+                                                   r"over [78]\.\d+ s\): an earlier --start, "
+                                                   r"or a shorter window"):  # fmt: skip
         run_method(ds, "3d", _config(vision_window_s=100.0))
+    # a start by the last frames (EuRoC micro's images end at 4.7 s: a user's probe)
+    with pytest.raises(InitialisationError,
+                       match=r"last chain: 1 frames over 0.00 s\): an earlier --start \(the start "
+                             r"needs 4"):  # fmt: skip
+        run_method(ds, "3d", replace(_config(), replay=replace(RunConfig().replay, start_s=7.9)))
 
 
 def test_the_fit_recovers_a_turned_frame_and_a_gyro_bias() -> None:

@@ -344,10 +344,16 @@ class Navigator:
             if self.core is None:
                 odo = self.starter.odometry
                 if odo is not None:  # a ``vision`` start: what its odometry had
+                    n = len(odo.t_ns)
+                    fix = ("no stereo frame came: are there images or features from this "
+                           "start on?" if n == 0 else
+                           "an earlier --start (the start needs 4 linked frames)" if n < 4 else
+                           "an earlier --start, or a shorter window (--set "
+                           "init.vision_window_s=...; 4 frames at least)")  # fmt: skip
                     raise InitialisationError(
                         f"in-flight start from vision: the stream ended before "
                         f"{self.config.init.vision_window_s:g} s of linked stereo frames (the "
-                        f"last chain: {len(odo.t_ns)} frames over {odo.span_s():.2f} s)")
+                        f"last chain: {n} frames over {odo.span_s():.2f} s): {fix}")
                 late = "" if not self.queue.late else (
                     "; dropped for coming more than buffer.window_s "
                     f"({self.config.buffer.window_s:g} s) after the IMU sample of their time: "
