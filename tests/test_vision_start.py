@@ -223,3 +223,21 @@ def test_kitti_raw_in_flight_vision_start_with_gps_finds_its_heading(kitti_raw: 
     rep = run_method(ds, "3d", config).report
     assert abs(rep["init"]["heading_turn_deg"] + 41.7) < 3.0
     assert rep["ate_rmse_m"] < 0.25 and rep["nees_mean"] < 18.0  # measured 0.141 m, 11.4
+
+
+def test_a_start_that_waited_says_so(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """A GPS start inside an outage waited 10 s without a word and the report said nothing of
+    when it started (a user's probe)."""
+    from svains.sim import SimConfig, simulate
+
+    cfg = SimConfig(duration_s=14.0, seed=3)
+    cfg.camera.render_images = False
+    cfg.gps.outages = [[0.0, 7.0]]
+    ds = load_dataset(simulate(cfg, tmp_path / "late_gps"))
+    with caplog.at_level("WARNING"):
+        rep = run_method(ds, "ins", RunConfig(init=InitOptions(mode="gps"))).report
+    assert 7.0 <= rep["init"]["start_after_s"] <= 9.0
+    assert any("the gps start came 7." in r.message and "two GPS fixes" in r.message
+               for r in caplog.records)  # fmt: skip
+    quick = run_method(ds, "ins", RunConfig(init=InitOptions(mode="groundtruth"))).report
+    assert quick["init"]["start_after_s"] < 0.1

@@ -58,6 +58,9 @@ _UNIT_SAMPLES = 20  # IMU samples whose spacing judges the stamps' unit
 OutputCallback = Callable[[NavState], None]
 
 
+# A gps or vision start this long (s) after the first IMU sample is warned: it skipped data.
+START_WAIT_WARN_S = 5.0
+
 # States ``outputs()`` keeps undrained: 10 minutes at the default 10 Hz (3.7 kB each).
 OUTPUTS_KEPT = 6000
 
@@ -97,6 +100,7 @@ class Navigator:
         self.config = config
         self.rig = rig
         self._rest_noise = rest_noise
+        self._first_imu_ns: int | None = None  # the start's wait is counted from it
         self.layout = BIASED if config.model == "biased" else PAPER
         self._wall0 = time.perf_counter()
         R_B_S = None if rig.imu is None else rig.imu.T_B_S[:3, :3]
@@ -177,6 +181,8 @@ class Navigator:
         ):
             return  # dropped: propagation bridges it from its neighbours
         self.history.append(t_ns, gyro_S, accel_S)
+        if self._first_imu_ns is None:
+            self._first_imu_ns = t_ns
         if self.history.n == _UNIT_SAMPLES and not self.history.dropped:  # judged once
             # stamps in µs or ms were blamed on a short static start (a user's probe)
             unit = time_unit_problem(float(np.median(np.diff(self.history.t_ns))))
@@ -415,6 +421,18 @@ class Navigator:
             if rest is self._rest_noise:
                 decided["measured_at"] = "a rest before the start"
             init.info["imu_noise"] = decided
+        if self._first_imu_ns is not None:
+            # a start that waited (fixes inside a GPS outage, frames that would not link)
+            # skipped the data before it without a word (a user's probe: 10 s)
+            waited_s = (int(init.t_ns) - self._first_imu_ns) * 1e-9
+            init.info["start_after_s"] = round(waited_s, 3)
+            mode = self.config.init.mode
+            if waited_s > START_WAIT_WARN_S and mode in ("gps", "vision"):
+                needs = {"gps": "two GPS fixes", "vision": "linked stereo frames"}[mode]
+                self._warn.warn("start-wait", int(init.t_ns),
+                                f"the {mode} start came {waited_s:.1f} s after the first IMU "
+                                f"sample (it waits for {needs}): nothing before it is "
+                                "estimated")  # fmt: skip
         ins = InsFilter(self.history, self.rig, self.layout, init, self.config.filter, noise)
         self.core = Core(self.config, self.rig, ins, init.info, self._source, self._emit,
                          self.imu_faults, self._warn,
