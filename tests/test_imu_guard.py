@@ -143,6 +143,13 @@ def test_irregular_spacing_like_kitti_raw_is_not_a_gap() -> None:
     verdicts = _run(ImuGuard(1.7e-3, 0.03, nominal_rate_hz=100.0), lost, g[: lost.size],
                     a[: lost.size])  # fmt: skip
     assert [v.kind for v in verdicts[:3]] == ["accept", "gap", "accept"]
+    # The first spacing let pass stays out of the median: a 2 s dropout after a first 0.45 s
+    # spacing on a 200 Hz IMU is still a gap (it was the median's, 10 x 0.45 s: a review).
+    t200 = np.concatenate([[0, 450_000_000, 455_000_000],
+                           2_455_000_000 + np.arange(50) * 5_000_000])
+    n = t200.size
+    verdicts = _run(ImuGuard(1.7e-4, 2e-3, nominal_rate_hz=200.0), t200, g[:n], a[:n])
+    assert [v.kind for v in verdicts[:4]] == ["accept", "accept", "accept", "gap"]
 
 
 @pytest.mark.realdata

@@ -117,6 +117,6 @@ def test_an_in_flight_euroc_start_takes_the_recordings_rest(euroc_micro, tmp_pat
                                    "--no-gps", "--no-mag"])  # fmt: skip
     assert res.exit_code == 0, res.output
     noise = json.loads((tmp_path / "r" / "report.json").read_text())["init"]["imu_noise"]
-    assert noise["measured_at"] == "a rest before the start"
+    assert noise["measured_at"] == "rest_noise"
     assert noise["gyro"]["applied"] and 4.0 < noise["gyro"]["ratio"] < 7.0
     assert noise["accel"]["applied"] and 6.0 < noise["accel"]["ratio"] < 10.0

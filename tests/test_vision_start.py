@@ -241,3 +241,30 @@ def test_a_start_that_waited_says_so(tmp_path: Path, caplog: pytest.LogCaptureFi
                for r in caplog.records)  # fmt: skip
     quick = run_method(ds, "ins", RunConfig(init=InitOptions(mode="groundtruth"))).report
     assert quick["init"]["start_after_s"] < 0.1
+
+
+def test_the_vision_starts_fix_is_the_nearest_in_time_and_never_one_the_run_turned_off(
+    gps_flight: Path,
+) -> None:
+    """The start takes the fix nearest its first frame: at 20 Hz the last 8 fixes kept missed
+    it by 1.65 s (carried back by a constant velocity), and a fix inside the user's
+    ``--gps-outage`` placed a "GPS-denied" start (a review)."""
+    from svains.models.state import BIASED
+    from svains.navigation.starter import Starter
+    from svains.replay import rig_from_dataset
+
+    ds = load_dataset(gps_flight)
+    starter = Starter(InitOptions(mode="vision"), rig_from_dataset(ds), BIASED, None)
+    v = np.array([0.5, 0.0, 0.0])  # not the fixes' own motion: a far fix carried back is off
+    for k in range(80):  # 20 Hz over 4 s, each fix at x = t
+        starter.add_gps(k * 50_000_000, np.array([k * 0.05, 0.0, 0.0]), v)
+    p, _ = starter._gps_at(250_000_000)
+    np.testing.assert_allclose(p, [0.25, 0.0, 0.0], atol=1e-12)
+    off = Starter(InitOptions(mode="vision"), rig_from_dataset(ds), BIASED, None)
+    off.add_gps(0, np.zeros(3), v, off=True)
+    assert off._gps_at(0) is None
+    # through a run: GPS lost for the first 12 s, the start is the old one
+    config = RunConfig(method="3d", init=InitOptions(mode="vision"), use_mag=False,
+                       gps_outages=((0.0, 12.0),), duration_s=4.0)  # fmt: skip
+    init = run_method(ds, "3d", config).report["init"]
+    assert "position" not in init and init["heading"].startswith("none (arbitrary yaw")

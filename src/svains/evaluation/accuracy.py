@@ -93,11 +93,13 @@ def ate_with_fallback(
 
 
 def ate_rmse(
-    t_ns: I64, p_est: F64, q_est: F64, p_ref: F64, q_ref: F64, alignment: str = "se3"
+    t_ns: I64, p_est: F64, q_est: F64, p_ref: F64, q_ref: F64, alignment: str = "se3",
+    up_W: ArrayLike = (0.0, 0.0, 1.0),
 ) -> float:
     """Absolute trajectory error RMSE (m) after ``alignment`` (with ``ate_with_fallback``'s
-    fallback when it is degenerate), reference sampled at ``t_ns``; equals ``evo_ape``'s."""
-    return ate_with_fallback(t_ns, p_est, q_est, p_ref, q_ref, alignment)[0]
+    fallback when it is degenerate; ``posyaw`` about ``up_W``), reference sampled at ``t_ns``;
+    equals ``evo_ape``'s."""
+    return ate_with_fallback(t_ns, p_est, q_est, p_ref, q_ref, alignment, up_W)[0]
 
 
 def align_states(x: F64, P9: F64, T_Wref_West: F64) -> tuple[F64, F64]:

@@ -419,7 +419,7 @@ class Navigator:
         noise, decided = platform_noise(self.config.noise, self.rig.imu, rest)
         if decided is not None:
             if rest is self._rest_noise:
-                decided["measured_at"] = "a rest before the start"
+                decided["measured_at"] = "rest_noise"  # the replay: the recording's first rest
             init.info["imu_noise"] = decided
         if self._first_imu_ns is not None:
             # a start that waited (fixes inside a GPS outage, frames that would not link)
@@ -500,7 +500,7 @@ class Navigator:
             if why is not None:
                 self.queue.drop("gps", t, why)
                 return
-            self.starter.add_gps(t, *payload)
+            self.starter.add_gps(t, *payload, off=self._gps_off_at(t))
             if not (cfg.use_gps and self.rig.gps is not None):
                 return
         elif kind == MAG:
@@ -529,6 +529,18 @@ class Navigator:
             if cfg.method == "ins" or not self._frame_stage(t, payload):
                 return
         self._backlog.append((t, kind, payload if kind != FRAME else None))
+
+    def _gps_off_at(self, t: int) -> bool:
+        """Whether the fix at ``t`` falls where the run fuses no GPS (``gps_outages``,
+        ``gps_until_s``, both from the first IMU sample, as the Core counts them)."""
+        cfg = self.config
+        if not cfg.use_gps or self.rig.gps is None:
+            return True
+        if self._first_imu_ns is None:
+            return False
+        rel_s = (t - self._first_imu_ns) * 1e-9
+        return any(a <= rel_s < a + d for a, d in cfg.gps_outages) or (
+            cfg.gps_until_s is not None and rel_s > cfg.gps_until_s)
 
     @property
     def _takes_frames(self) -> bool:

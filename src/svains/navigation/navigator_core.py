@@ -87,7 +87,6 @@ class Core:
         self._source = source
         self._updater: PixelUpdater | LcUpdater | None = None
         self._t_prev_frame: int | None = None
-        self._t_first_frame: int | None = None
         self._period_ns = int(config.output_period_s * 1e9)
         self._next_grid = (self.t0_ns // self._period_ns + 1) * self._period_ns
         self._tick_cache = (-1, 0)  # (grid point, its tick time)
@@ -567,8 +566,6 @@ class Core:
             self._since_fused.not_fused(refused=stats is not None)
         if self._t_prev_frame is not None:
             self._frame_spacing.append(t - self._t_prev_frame)
-        else:
-            self._t_first_frame = t
         self._t_prev_frame = t
 
     def _judge_continuity(
@@ -697,14 +694,10 @@ class Core:
                             f"{reasons}")  # fmt: skip
 
     def _vision_gap_limit_s(self) -> float:
-        """The longest stretch (s) without fused vision that is no gap: the floor, or 2.5 frame
-        spacings (``vision_gaps.vision_gap_limit_s``); until a second frame, the first frame's
-        delay after the start stands for the spacing (no frame fuses alone: frames 2 s apart
-        warned at 2.04 s, their first fusable frame due at 4 s, a user's probe)."""
-        spacings: Any = self._frame_spacing
-        if not spacings and self._t_first_frame is not None:
-            spacings = [self._t_first_frame - self.t0_ns]
-        return vision_gap_limit_s(spacings, self.config.faults.vision_max_gap_s)
+        """The longest stretch (s) without fused vision that is no gap: the floor
+        (``faults.vision_max_gap_s``, which a replay raises to 2.5 of its recording's frame
+        spacings), or 2.5 of the recent frame spacings (``vision_gaps.vision_gap_limit_s``)."""
+        return vision_gap_limit_s(self._frame_spacing, self.config.faults.vision_max_gap_s)
 
     def _status_counts(self) -> dict[str, int]:
         """The image front end's per-frame status counts so far (none for recorded features)."""

@@ -37,9 +37,8 @@ from svains.sensors.types import Rig
 # A ``vision`` start takes its heading from the magnetometer samples this near its time.
 MAG_HEADING_SPAN_NS = 250_000_000
 # ...and, GPS fused, its position from the fix with a velocity nearest its time within this
-# span (``Starter._gps_at``), of the latest ``GPS_RECENT`` fixes.
+# span (``Starter._gps_at``).
 GPS_START_SPAN_NS = 2_000_000_000
-GPS_RECENT = 8
 
 
 class Starter:
@@ -69,7 +68,7 @@ class Starter:
         self._gps: list[tuple[int, np.ndarray, np.ndarray]] = []
         # the latest fixes, for the ``vision`` start's position (``_gps_at``)
         self._gps_recent: collections.deque[tuple[int, np.ndarray, np.ndarray]] = (
-            collections.deque(maxlen=GPS_RECENT))
+            collections.deque())
         self.odometry = (StartOdometry(rig.cam0, rig.cam1, max_row_diff_px)
                          if given is None and options.mode == "vision" else None)  # fmt: skip
 
@@ -81,14 +80,22 @@ class Starter:
         if self.odometry is not None:
             self.odometry.add_frame(t_ns, payload)
 
-    def add_gps(self, t_ns: int, p_W_G: np.ndarray, v_W_G: np.ndarray | None) -> None:
+    def add_gps(self, t_ns: int, p_W_G: np.ndarray, v_W_G: np.ndarray | None,
+                off: bool = False) -> None:  # fmt: skip
         """A fix (``v_W_G`` None: position only). Two fixes with velocity start in flight;
-        position-only fixes need a third (``init._from_gps`` differences them)."""
+        position-only fixes need a third (``init._from_gps`` differences them). ``off``: the
+        run fuses no GPS at its time (an outage): the ``vision`` start does not take it."""
         fix = (t_ns, p_W_G, np.full(3, np.nan) if v_W_G is None else v_W_G)
         if len(self._gps) < self._gps_needed():
             self._gps.append(fix)
-        if self.odometry is not None:
-            self._gps_recent.append(fix)
+        if self.odometry is not None and not off:
+            recent = self._gps_recent
+            recent.append(fix)
+            # by time, not count: at 20 Hz the last 8 fixes missed the window's first frame
+            # (a review); the odometry's window and the span around its first frame
+            keep_ns = int(self.options.vision_window_s * 1e9) + 2 * GPS_START_SPAN_NS
+            while recent and recent[0][0] < t_ns - keep_ns:
+                recent.popleft()
 
     def _gps_at(self, t_ns: int) -> tuple[np.ndarray, float] | None:
         """The GPS antenna's position (3,) m at ``t_ns`` and its standard deviation (m): the

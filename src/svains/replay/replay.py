@@ -39,6 +39,7 @@ from svains.navigation.outputs import NavState, RunResult
 from svains.navigation.platform_noise import rest_noise
 from svains.navigation.tracks import frame_slices
 from svains.navigation.vision import tune_for_frames
+from svains.navigation.vision_gaps import VISION_GAP_SPACINGS
 from svains.sensors.types import Rig
 from svains.threads import limit_threads
 
@@ -71,7 +72,8 @@ def history_from_dataset(ds: Dataset) -> ImuHistory:
 
 def resolve_config(ds: Dataset, config: RunConfig) -> RunConfig:
     """``config`` with what the recording implies: the tracks' source (``auto``), the features'
-    pixel noise, and the ``rotation="imu"`` frame noise (``tune_for_frames``). Idempotent."""
+    pixel noise, the ``rotation="imu"`` frame noise (``tune_for_frames``) and the vision gap's
+    floor for frames further apart (``faults.vision_max_gap_s``: 2.5 spacings). Idempotent."""
     if config.method == "ins" and config.init.mode != "vision":  # no frames to read
         return config
     v = config.vision
@@ -92,7 +94,13 @@ def resolve_config(ds: Dataset, config: RunConfig) -> RunConfig:
         return config
     times = times[:: max(1, v.frame_stride)]
     period = float(np.median(np.diff(times))) * 1e-9 if len(times) >= 2 else None
-    return tune_for_frames(config, ds.imu_calib, period)
+    config = tune_for_frames(config, ds.imu_calib, period)
+    if period is not None and VISION_GAP_SPACINGS * period > config.faults.vision_max_gap_s:
+        # the limit the Core reaches after two frames, from the first: frames 2 s apart
+        # warned of a gap before their first frame when it came 2.09 s in (a review)
+        gap_s = round(VISION_GAP_SPACINGS * period, 6)
+        config = replace(config, faults=replace(config.faults, vision_max_gap_s=gap_s))
+    return config
 
 
 def groundtruth_start(ds: Dataset, config: RunConfig, t_start_ns: int | None) -> InitialState:
