@@ -15,9 +15,9 @@ from svains.filter.sigma_points import MerweScaledSigmaPoints
 from svains.filter.ukf import UKF
 from svains.geometry.rotation import quat_exp
 from svains.models.manifold import NavManifold
-from svains.models.state import BIASED, DTH
+from svains.models.state import BIASED
 from svains.navigation.heading_check import HeadingError, turn_heading
-from svains.navigation.heading_wait import turn_logged, widen_yaw
+from svains.navigation.heading_wait import turn_logged
 from svains.navigation.init import HEADING_FROM_GPS
 from svains.navigation.options import InitOptions, RunConfig, RunOptions
 
@@ -55,22 +55,6 @@ def test_the_logged_estimates_turn_as_the_state_does() -> None:
     assert np.hypot(*d1[:2]) == pytest.approx(np.hypot(*d0[:2])) and d1[2] == pytest.approx(d0[2])
     turn = np.degrees(np.arctan2(d1[1], d1[0]) - np.arctan2(d0[1], d0[0])) % 360.0
     assert turn == pytest.approx(140.0)
-
-
-def test_widen_yaw_raises_the_heading_variance_alone() -> None:
-    ukf = _ukf(4)
-    u = np.zeros(BIASED.ndx)
-    from svains.geometry.rotation import quat_to_rotmat
-
-    u[DTH] = quat_to_rotmat(ukf.x[6:10]).T @ UP
-    P0 = ukf.P.copy()
-    widen_yaw(ukf, UP, 0.5)
-    assert u @ ukf.P @ u == pytest.approx(0.25)
-    d = ukf.P - P0
-    np.testing.assert_allclose(d, (0.25 - u @ P0 @ u) * np.outer(u, u), atol=1e-15)
-    before = ukf.P.copy()
-    widen_yaw(ukf, UP, 0.1)  # already wider: unchanged
-    np.testing.assert_array_equal(ukf.P, before)
 
 
 @pytest.fixture(scope="module")

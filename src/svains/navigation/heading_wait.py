@@ -14,10 +14,12 @@ their velocities with the filter's, and once the rotation between the two frames
 its ``max_std_deg`` the state is turned into the world about the pivot with that uncertainty
 (``turn_heading`` with ``pivot_W``), and so is everything kept in the local frame so far: the
 logged estimates (``turn_logged``) and the stored keyframes. Fixes are fused from then on.
-Should no heading come within ``HEADING_WAIT_MAX_S`` of held fixes (a slow vehicle, velocities
-that never fit one rotation), or the fixes carry no velocity, the old start is taken: the yaw,
-and the logged estimates' too, widened to ``yaw_std_unknown`` (``widen_yaw``, a turn by 0°) and
-the fixes fused, warned.
+Should no heading come within ``HEADING_WAIT_MAX_S`` worth of held fixes at the GPS's rate (a
+slow vehicle, velocities that never fit one rotation), or the fixes carry no velocity, the old
+start is taken: the state and the logged estimates turned by 0° with the uncertainty
+``yaw_std_unknown`` about the pivot (their yaw, and their positions by their distance from it)
+and the fixes fused, warned. The pivot is the GPS antenna, where the local frame and the world
+agree.
 """
 
 from __future__ import annotations
@@ -25,9 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.filter.ukf import UKF
 from svains.geometry.rotation import quat_exp, quat_multiply, quat_normalize, quat_to_rotmat
-from svains.models.state import DTH
 from svains.navigation.heading_check import HeadingError
 from svains.navigation.outputs import FrameTurn
 
@@ -87,15 +87,3 @@ def turn_smoothed(x: F64, std: F64, P9: F64, t_ns: F64, turns: list[FrameTurn]) 
         error = HeadingError(turn.angle_rad, turn.std_rad, 0)
         turn_logged([x[i] for i in rows], [std[i] for i in rows], [P9[i] for i in rows], error,
                     turn.up_W, turn.pivot_W)  # fmt: skip
-
-
-def widen_yaw(ukf: UKF, up_W: F64, yaw_std_rad: float) -> None:
-    """Give the heading (the attitude error about the vertical) the standard deviation
-    ``yaw_std_rad`` where it has less, uncorrelated with the rest."""
-    up = np.asarray(up_W, dtype=float) / np.linalg.norm(up_W)
-    n = ukf.P.shape[0]
-    u = np.zeros(n)
-    u[DTH] = quat_to_rotmat(ukf.x[6:10]).T @ up
-    have = float(u @ ukf.P @ u)
-    if have < yaw_std_rad**2:
-        ukf.P = ukf.P + (yaw_std_rad**2 - have) * np.outer(u, u)

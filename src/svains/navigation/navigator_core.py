@@ -19,6 +19,7 @@ import numpy as np
 
 from svains.errors import FilterError
 from svains.filter.ukf import UpdateStats
+from svains.geometry.rotation import quat_to_rotmat
 from svains.models.state import BA, BG, DV, Q, V
 from svains.models.state import P as POS
 from svains.navigation.base import FrameContext, MeasurementBlock
@@ -35,7 +36,7 @@ from svains.navigation.fault_handling import (
 )
 from svains.navigation.gps_latency import GpsLatencyCheck
 from svains.navigation.heading_check import HeadingCheck, HeadingError, turn_heading, yaw_std
-from svains.navigation.heading_wait import HEADING_WAIT_MAX_S, turn_logged, widen_yaw
+from svains.navigation.heading_wait import HEADING_WAIT_MAX_S, turn_logged
 from svains.navigation.init import HEADING_FROM_GPS
 from svains.navigation.ins import InsFilter, default_imu_calib
 from svains.navigation.options import RunConfig
@@ -158,7 +159,7 @@ class Core:
         # A static start without a heading source runs in a local frame about its position
         # until the GPS velocities give the heading; fixes wait (``navigation.heading_wait``).
         self._heading_wait = init_info.get("heading") == HEADING_FROM_GPS
-        self._heading_pivot = np.array(ins.ukf.x[POS], dtype=float)
+        self._heading_pivot = self._antenna_W()
         self._heading_wait_from: int | None = None  # first fix held after setting off
         self.gps_held_heading = 0
         self.frame_turns: list[FrameTurn] = []
@@ -231,6 +232,23 @@ class Core:
         """The final state at ``end_ns`` (logged like a tick)."""
         self._propagate(end_ns)
         self._log(last=True)
+        if self._heading_wait and self.gps_held_heading:
+            # the outputs hold the fix's position with the start's local heading (a probe)
+            self._warn.warn("heading-wait", end_ns, "the run ended before the GPS velocities "
+                            f"gave the heading ({self.gps_held_heading} fix(es) held): its "
+                            "outputs are in the start's local frame, turned from the world "
+                            "about the start's GPS antenna")  # fmt: skip
+
+    def _antenna_W(self) -> np.ndarray:
+        """The GPS antenna's position (3,) m (the body's without a GPS): the heading wait's
+        pivot, where the local frame and the world agree (a start subtracts the lever arm with
+        its local heading: turned about the body, a 1.5 m lever arm left the first seconds
+        1.2 m off, a user's probe)."""
+        x = self.ins.ukf.x
+        p = np.array(x[POS], dtype=float)
+        if self.rig.gps is not None:
+            p = p + quat_to_rotmat(x[Q]) @ np.asarray(self.rig.gps.p_B_G, dtype=float)
+        return p
 
     def _propagate(self, t: int) -> None:
         """The IMU to ``t``, with the noise of the IMU gaps crossed on the way."""
@@ -390,13 +408,16 @@ class Core:
         v_h = v - (v @ self._up_W) * self._up_W
         if float(np.linalg.norm(v_h)) <= 3.0 * self.rig.gps.velocity_noise_std:
             if self._heading_wait_from is None:
-                self._heading_pivot = np.array(self.ins.ukf.x[POS], dtype=float)
+                self._heading_pivot = self._antenna_W()
             return False
         if self._heading_wait_from is None:
             self._heading_wait_from = t
-        if (t - self._heading_wait_from) * 1e-9 > HEADING_WAIT_MAX_S:
-            self._end_heading_wait(t, f"the GPS velocities gave none over "
-                                   f"{HEADING_WAIT_MAX_S:g} s of motion")  # fmt: skip
+        # counted in fixes at the GPS's rate, not in time: an outage soon after the start
+        # ended the wait after 2 fixes, "10 s of motion" (a user's probe: KITTI raw 7.1 m)
+        most = max(3, round(HEADING_WAIT_MAX_S * self.rig.gps.rate_hz))
+        if self.gps_held_heading >= most:
+            self._end_heading_wait(t, f"the GPS velocities gave none over {most} fixes of "
+                                   "motion")  # fmt: skip
             return False
         self.gps_held_heading += 1
         return True
@@ -436,7 +457,10 @@ class Core:
         of 0° with that uncertainty) and fixes are fused, warned."""
         self._heading_wait = False
         std = self.config.init.yaw_std_unknown
-        widen_yaw(self.ins.ukf, self._up_W, std)
+        # about the pivot, as the logged rows below: a state far from it (a start in motion)
+        # is off by the unknown turn in position too (a yaw widened alone lost the fixes)
+        turn_heading(self.ins.ukf, HeadingError(0.0, std, 0), self._up_W,
+                     pivot_W=self._heading_pivot)  # fmt: skip
         if self._log_x:
             # the logged rows were the local frame's with a yaw σ of a known heading: as
             # world-frame rows they hold an arbitrary heading too (they read 52-105σ off)
