@@ -58,6 +58,7 @@ STEP_S = 0.01
 STEP_MIN_S, STEP_MAX_S = 0.5, 3.0  # consecutive fixes this far apart make a step
 MODEL_STD_MPS = 0.05  # per axis and step: attitude (0.3° of tilt is 0.05 m/s per s) and accel
 MIN_STEPS = 10
+LEVER_SMOOTH_S = 0.1  # s: the gyro averaged over this for the lever arm's velocity
 MAX_FIT = 10.0
 WARN_MS = 40.0
 MIN_DELTA_DEVIANCE = 50.0  # how much worse the stamps as given must fit than the best shift
@@ -183,7 +184,13 @@ class GpsLatencyCheck:
         dv = shifted_integrals(ts, acc, d, -self.shifts_s)  # shifted back by each shift
         if not self.p_B_G.any():
             return dv
-        lever = np.einsum("nij,nj->ni", R, np.cross(w, self.p_B_G))  # R (ω × p_B_G)
+        # ω averaged over LEVER_SMOOTH_S: one sample's gyro noise times the lever arm (the
+        # simulator's 0.12 rad/s by 1.8 m: 0.2 m/s, twice the GPS's velocity noise) made a
+        # latency of 120 ms out of nothing (a user's probe)
+        n = max(1, round(LEVER_SMOOTH_S / max(float(np.median(np.diff(ts))), 1e-6)))
+        w_mean = np.stack([np.convolve(w[:, i], np.full(n, 1.0 / n), mode="same")
+                           for i in range(3)], axis=1)  # fmt: skip
+        lever = np.einsum("nij,nj->ni", R, np.cross(w_mean, self.p_B_G))  # R (ω × p_B_G)
         return dv + np.stack([np.interp(d - self.shifts_s, ts, lever[:, i])
                               - np.interp(-self.shifts_s, ts, lever[:, i])
                               for i in range(3)], axis=1)  # fmt: skip
