@@ -188,7 +188,9 @@ class GpsLatencyCheck:
         # simulator's 0.12 rad/s by 1.8 m: 0.2 m/s, twice the GPS's velocity noise) made a
         # latency of 120 ms out of nothing (a user's probe)
         n = max(1, round(LEVER_SMOOTH_S / max(float(np.median(np.diff(ts))), 1e-6)))
-        w_mean = np.stack([np.convolve(w[:, i], np.full(n, 1.0 / n), mode="same")
+        box = np.ones(n)
+        count = np.convolve(np.ones(len(w)), box, mode="same")  # fewer samples at the ends
+        w_mean = np.stack([np.convolve(w[:, i], box, mode="same") / count
                            for i in range(3)], axis=1)  # fmt: skip
         lever = np.einsum("nij,nj->ni", R, np.cross(w_mean, self.p_B_G))  # R (ω × p_B_G)
         return dv + np.stack([np.interp(d - self.shifts_s, ts, lever[:, i])
