@@ -57,20 +57,28 @@ def test_the_logged_estimates_turn_as_the_state_does() -> None:
     assert turn == pytest.approx(140.0)
 
 
-@pytest.fixture(scope="module")
-def resting_drone(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A 25 s simulated flight along EuRoC V1_02 (rests, then flies), GPS, no magnetometer:
-    the start's arbitrary heading is about 146° from the truth."""
+def _v102_drone(out: Path, duration_s: float, p_B_G: list[float] | None = None) -> Path:
+    """A simulated flight along EuRoC V1_02 (rests, then flies) with GPS and no magnetometer;
+    ``p_B_G`` the GPS antenna's lever arm (m; the simulator's default when None)."""
     from svains.sim.config import ImuConfig, SimConfig
     from svains.sim.simulate import simulate
 
-    cfg = SimConfig(scenario="trajectory", duration_s=25.0, seed=0)
+    cfg = SimConfig(scenario="trajectory", duration_s=duration_s, seed=0)
     cfg.trajectory.tum_path = str(TRAJECTORIES / "euroc_V1_02_medium_groundtruth.tum")
     cfg.imu = ImuConfig.preset("adis16448")
     cfg.camera.rate_hz = 10.0
     cfg.camera.render_images = False
     cfg.mag.enabled = cfg.sonar.enabled = False
-    return simulate(cfg, tmp_path_factory.mktemp("resting_drone") / "v102")
+    if p_B_G is not None:
+        cfg.gps.p_B_G = p_B_G
+    return simulate(cfg, out)
+
+
+@pytest.fixture(scope="module")
+def resting_drone(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 25 s simulated flight along EuRoC V1_02 (rests, then flies), GPS, no magnetometer:
+    the start's arbitrary heading is about 146° from the truth."""
+    return _v102_drone(tmp_path_factory.mktemp("resting_drone") / "v102", 25.0)
 
 
 @pytest.mark.realdata  # a trajectory of ../shared/data/trajectories
@@ -174,17 +182,8 @@ def test_the_heading_check_compares_the_antennas_velocity(tmp_path: Path) -> Non
     """The GPS gives the antenna's velocity; the check compared the body's with it, off by
     R (ω × p_B_G): with a 1.5 m lever arm the heading was never found (ATE 3.11 m, NEES 271,
     a review). Now it is, as without the lever arm."""
-    from svains.sim.config import ImuConfig, SimConfig
-    from svains.sim.simulate import simulate
-
-    cfg = SimConfig(scenario="trajectory", duration_s=40.0, seed=0)
-    cfg.trajectory.tum_path = str(TRAJECTORIES / "euroc_V1_02_medium_groundtruth.tum")
-    cfg.imu = ImuConfig.preset("adis16448")
-    cfg.camera.rate_hz = 10.0
-    cfg.camera.render_images = False
-    cfg.mag.enabled = cfg.sonar.enabled = False
-    cfg.gps.p_B_G = [1.5, 0.0, 0.15]
-    res = run_method(load_dataset(simulate(cfg, tmp_path / "lever")), "ins", RunOptions())
+    drone = _v102_drone(tmp_path / "lever", 40.0, p_B_G=[1.5, 0.0, 0.15])
+    res = run_method(load_dataset(drone), "ins", RunOptions())
     init = res.report["init"]
     assert init["heading_turn_deg"] == pytest.approx(146.0, abs=8.0)
     assert res.report["ate_rmse_m"] < 2.0 and res.report["nees_mean"] < 15.0

@@ -405,8 +405,8 @@ class Core:
         """While a local start waits for its heading: a fix that shows the vehicle still
         (horizontal GPS speed within 3σ of its velocity noise) is fused (at rest the local frame
         and the world agree at the body), and the frame's pivot follows the body; a fix that
-        shows it moving is held out (counted), until ``HEADING_WAIT_MAX_S`` after the first
-        held; then the wait ends (``_end_heading_wait``) and it is fused. The IMU's rest test
+        shows it moving is held out (counted) until the wait is over (``_heading_wait_over``);
+        then the wait ends (``_end_heading_wait``) and it is fused. The IMU's rest test
         is not asked: it ended on a vehicle parked for a minute, and the fixes were held while
         it stood (a user's probe)."""
         assert self.rig.gps is not None
