@@ -76,12 +76,7 @@ def ate_result_with_fallback(
 
 
 def ate_with_fallback(
-    t_ns: I64,
-    p_est: F64,
-    q_est: F64,
-    p_ref: F64,
-    q_ref: F64,
-    alignment: str = "se3",
+    t_ns: I64, p_est: F64, q_est: F64, p_ref: F64, q_ref: F64, alignment: str = "se3",
     up_W: ArrayLike = (0.0, 0.0, 1.0),
 ) -> tuple[float, str]:
     """ATE RMSE (m) and the alignment actually used (see :func:`ate_result_with_fallback`; a

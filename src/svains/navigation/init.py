@@ -21,7 +21,7 @@ from svains.models.state import BA, BG, DBA, DBG, DP, DTH, DV, DW, P, Q, StateLa
 from svains.navigation.heading import course_heading_or_none
 from svains.navigation.imu_history import gyro_attitudes
 from svains.navigation.options import InitOptions
-from svains.navigation.platform_noise import measure_static_noise, rest_deviations
+from svains.navigation.platform_noise import measure_static_noise, rest_deviations, rest_window
 from svains.navigation.vision_start import VisionInertialFit
 from svains.sensors.types import GpsCalib, GroundTruth, ImuCalib, MagCalib
 from svains.sensors.units import accel_units_problem
@@ -199,16 +199,14 @@ def _from_static(dataset: InitData, layout: StateLayout, o: InitOptions) -> Init
     assert imu is not None
     # Start at the third sample so the stencil of eq. 3 has its history.
     t0 = int(imu.t_ns[2])
-    sel = imu.t_ns - int(imu.t_ns[0]) <= int(o.static_s * 1e9)
-    if sel.sum() < 10:
+    n, dt_s, n_block = rest_window(imu.t_ns, o.static_s, o.block_s)
+    if n < 10:
         raise InitialisationError(
-            f"static interval of {o.static_s} s holds {int(sel.sum())} IMU samples (need >= 10)"
+            f"static interval of {o.static_s} s holds {n} IMU samples (need >= 10)"
         )
     R_B_S = _imu_R_B_S(dataset)
-    gyro = imu.gyro_B[sel] @ R_B_S.T
-    acc = imu.accel_B[sel] @ R_B_S.T
-    dt_s = max(1e-9, float(np.median(np.diff(imu.t_ns[sel]))) * 1e-9)
-    n_block = max(1, round(o.block_s / dt_s))
+    gyro = imu.gyro_B[:n] @ R_B_S.T
+    acc = imu.accel_B[:n] @ R_B_S.T
     if len(acc) // n_block < 2:
         raise InitialisationError(f"static interval of {o.static_s} s is shorter than two blocks")
     acc_dev, gyro_dev = rest_deviations(gyro, acc, n_block)
@@ -236,7 +234,7 @@ def _from_static(dataset: InitData, layout: StateLayout, o: InitOptions) -> Init
     up_W = -g_W / np.linalg.norm(g_W)
     info: dict[str, object] = {
         "mode": "static",
-        "static_samples": int(sel.sum()),
+        "static_samples": n,
         "accel_block_dev": acc_dev,
         "gyro_block_dev": gyro_dev,
         # The platform's white noise at rest (``navigation.platform_noise``).

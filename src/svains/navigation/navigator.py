@@ -35,7 +35,7 @@ from svains.navigation.fault_handling import ImuFaults, RateLimitedLog
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.init import InitialState
 from svains.navigation.ins import InsFilter, default_imu_calib
-from svains.navigation.navigator_core import Core
+from svains.navigation.navigator_core import Core, gps_off_windows
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import NavState, RunResult
 from svains.navigation.platform_noise import StaticNoise, platform_noise
@@ -531,16 +531,12 @@ class Navigator:
         self._backlog.append((t, kind, payload if kind != FRAME else None))
 
     def _gps_off_at(self, t: int) -> bool:
-        """Whether the fix at ``t`` falls where the run fuses no GPS (``gps_outages``,
-        ``gps_until_s``, both from the first IMU sample, as the Core counts them)."""
-        cfg = self.config
-        if not cfg.use_gps or self.rig.gps is None:
+        """Whether the fix at ``t`` falls where the run fuses no GPS (``Core``'s windows)."""
+        if not self.config.use_gps or self.rig.gps is None:
             return True
         if self._first_imu_ns is None:
             return False
-        rel_s = (t - self._first_imu_ns) * 1e-9
-        return any(a <= rel_s < a + d for a, d in cfg.gps_outages) or (
-            cfg.gps_until_s is not None and rel_s > cfg.gps_until_s)
+        return any(a <= t < b for a, b in gps_off_windows(self.config, self._first_imu_ns))
 
     @property
     def _takes_frames(self) -> bool:

@@ -57,6 +57,16 @@ from svains.sensors.types import Rig
 log = logging.getLogger(__name__)
 
 
+def gps_off_windows(config: RunConfig, t_first_ns: int) -> list[tuple[int, int]]:
+    """The ``[from, to)`` ns windows where the run fuses no GPS: ``gps_outages`` and after
+    ``gps_until_s``, both counted from the first IMU sample ``t_first_ns``."""
+    off = [(t_first_ns + int(a * 1e9), t_first_ns + int((a + d) * 1e9))
+           for a, d in config.gps_outages]  # fmt: skip
+    if config.gps_until_s is not None:
+        off.append((t_first_ns + int(config.gps_until_s * 1e9) + 1, 2**62))
+    return off
+
+
 # A given start faster than this (m/s) is not at rest, however uncertain its velocity.
 START_REST_SPEED_MPS = 0.1
 
@@ -91,11 +101,7 @@ class Core:
         self._period_ns = int(config.output_period_s * 1e9)
         self._next_grid = (self.t0_ns // self._period_ns + 1) * self._period_ns
         self._tick_cache = (-1, 0)  # (grid point, its tick time)
-        t_first = int(ins.t_imu[0])
-        self._gps_off = [(t_first + int(a * 1e9), t_first + int((a + d) * 1e9))
-                         for a, d in config.gps_outages]  # fmt: skip
-        if config.gps_until_s is not None:
-            self._gps_off.append((t_first + int(config.gps_until_s * 1e9) + 1, 2**62))
+        self._gps_off = gps_off_windows(config, int(ins.t_imu[0]))
         self.counts: dict[str, dict[str, int]] = {}
         self.updates: list[UpdateStats] = []
         self.update_log: list[UpdateRecord] = []

@@ -103,24 +103,33 @@ def rest_deviations(gyro_B: F64, accel_B: F64, n_block: int) -> tuple[float, flo
             block_deviation(block_means(gyro_B, n_block)))  # fmt: skip
 
 
-def rest_noise(t_ns: NDArray[np.int64], gyro_B: F64, accel_B: F64,
-               o: InitOptions) -> StaticNoise | None:  # fmt: skip
-    """The white noise of the first ``o.static_s`` s of IMU samples (``t_ns`` (N,) ns,
-    body-frame ``gyro_B`` rad/s and ``accel_B`` m/s² (N, 3)) when they pass the static start's
-    rest test (block means of ``o.block_s`` within ``o.max_accel_dev`` and ``o.max_gyro_dev``),
-    else None."""
+def rest_window(t_ns: NDArray[np.int64], static_s: float, block_s: float) -> tuple[int, float, int]:
+    """The static start's window over IMU stamps ``t_ns`` (N,) ns, increasing: how many of the
+    first samples lie within ``static_s`` s of the first, their median spacing (s) and the
+    samples per ``block_s`` block."""
     t = np.asarray(t_ns, dtype=np.int64)
-    sel = t - int(t[0]) <= int(o.static_s * 1e9) if len(t) else np.zeros(0, dtype=bool)
-    if sel.sum() < 10:
+    if len(t) == 0:
+        return 0, 0.0, 1
+    n = int(np.searchsorted(t, int(t[0]) + int(static_s * 1e9), side="right"))
+    dt_s = max(1e-9, float(np.median(np.diff(t[:n]))) * 1e-9) if n > 1 else 1e-9
+    return n, dt_s, max(1, round(block_s / dt_s))
+
+
+def rest_noise(t_ns: NDArray[np.int64], gyro_S: F64, accel_S: F64, o: InitOptions,
+               R_B_S: F64 | None = None) -> StaticNoise | None:  # fmt: skip
+    """The white noise of the first ``o.static_s`` s of IMU samples (``t_ns`` (N,) ns, ``gyro_S``
+    rad/s and ``accel_S`` m/s² (N, 3), turned to the body by ``R_B_S`` (3, 3) when given) when
+    they pass the static start's rest test (block means of ``o.block_s`` within
+    ``o.max_accel_dev`` and ``o.max_gyro_dev``), else None."""
+    n, dt_s, n_block = rest_window(t_ns, o.static_s, o.block_s)
+    if n < 10 or n // n_block < 2:
         return None
-    dt_s = max(1e-9, float(np.median(np.diff(t[sel]))) * 1e-9)
-    n_block = max(1, round(o.block_s / dt_s))
-    if sel.sum() // n_block < 2:
-        return None
-    acc_dev, gyro_dev = rest_deviations(gyro_B[sel], accel_B[sel], n_block)
+    R = np.eye(3) if R_B_S is None else np.asarray(R_B_S, dtype=float)
+    gyro_B, accel_B = gyro_S[:n] @ R.T, accel_S[:n] @ R.T
+    acc_dev, gyro_dev = rest_deviations(gyro_B, accel_B, n_block)
     if acc_dev > o.max_accel_dev or gyro_dev > o.max_gyro_dev:
         return None
-    return measure_static_noise(gyro_B[sel], accel_B[sel], dt_s, o.block_s)
+    return measure_static_noise(gyro_B, accel_B, dt_s, o.block_s)
 
 
 def platform_noise(

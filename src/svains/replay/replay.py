@@ -258,8 +258,7 @@ def replay(
     rest = None
     if config.init.mode != "static" and rig.imu is not None and config.noise.static_rule:
         # a recording that begins at rest lends it to a later or moving start
-        R_B_S = rig.imu.T_B_S[:3, :3]
-        rest = rest_noise(t_imu, ds.imu.gyro_B @ R_B_S.T, ds.imu.accel_B @ R_B_S.T, config.init)
+        rest = rest_noise(t_imu, ds.imu.gyro_B, ds.imu.accel_B, config.init, rig.imu.T_B_S[:3, :3])
     nav = Navigator(config, rig, on_output=on_output, initial_state=init,
                     keep_outputs=False, rest_noise=rest)  # the run's result holds the outputs
     next_report = t0
