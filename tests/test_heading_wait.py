@@ -17,7 +17,7 @@ from svains.geometry.rotation import quat_exp
 from svains.models.manifold import NavManifold
 from svains.models.state import BIASED
 from svains.navigation.heading_check import HeadingError, turn_heading
-from svains.navigation.heading_wait import turn_logged
+from svains.navigation.heading_wait import FixPathHeading, turn_logged
 from svains.navigation.init import HEADING_FROM_GPS
 from svains.navigation.options import InitOptions, RunConfig, RunOptions
 
@@ -138,21 +138,97 @@ def test_the_smoother_turns_what_it_smoothed_before_the_heading_was_found(
     assert np.all(sm.std[before][:, 6:9].max(axis=1) >= 0.9 * turn.std_rad)
 
 
+def _path_fixes(rng: np.random.Generator, angle_deg: float, sigma: float, n: int = 12
+                ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """A curved path in a local frame (a car at 3 m/s turning at 0.1 rad/s, 1 Hz, heights
+    varying) and its fixes: the same path turned by ``angle_deg`` about the vertical and moved,
+    with noise ``sigma`` per axis."""
+    t = np.arange(n, dtype=float)
+    heading = 0.1 * t
+    local = np.stack([np.cumsum(3.0 * np.cos(heading)), np.cumsum(3.0 * np.sin(heading)),
+                      0.2 * np.sin(t)], axis=1)  # fmt: skip
+    a = np.radians(angle_deg)
+    Rz = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    fixes = local @ Rz.T + np.array([40.0, -7.0, 2.0]) + rng.normal(0.0, sigma, (n, 3))
+    return local, fixes
+
+
+def _path_heading(sigma: float, max_std_deg: float = 10.0) -> FixPathHeading:
+    return FixPathHeading(UP, sigma, np.radians(max_std_deg), 0.999)
+
+
+def test_the_fixes_path_gives_the_heading_with_its_uncertainty() -> None:
+    """Monte Carlo: the path's turn (fixes against the filter's antenna positions, translation
+    free) is unbiased and its standard deviation is its spread's (normalised errors of unit
+    variance over 400 draws); none before three fixes."""
+    rng = np.random.default_rng(5)
+    z = []
+    for _ in range(400):
+        angle = rng.uniform(-180.0, 180.0)
+        local, fixes = _path_fixes(rng, angle, 2.0)
+        path = _path_heading(2.0)
+        assert path.add(0, fixes[0], local[0], 0.0) is None
+        assert path.add(1, fixes[1], local[1], 0.0) is None
+        for k in range(2, len(local)):
+            error = path.add(k, fixes[k], local[k], 0.0)
+        assert error is not None and error.steps == len(local)
+        d = (np.degrees(error.angle_rad) - angle + 180.0) % 360.0 - 180.0
+        z.append(np.radians(d) / error.std_rad)
+    z = np.asarray(z)
+    assert abs(z.mean()) < 0.15 and 0.8 < z.var() < 1.25
+
+
+def test_a_jumped_fix_is_no_rotation_and_a_drifted_filter_barely_counts() -> None:
+    """A fix 25 m off fails the fit (no heading); a point where the filter's position has grown
+    100 m² uncertain (an INS after an outage) and is 10 m off moves the turn by less than its
+    standard deviation; the wait's looser bound takes a short path's turn the sure one does
+    not."""
+    rng = np.random.default_rng(2)
+    local, fixes = _path_fixes(rng, 60.0, 0.5)
+    clean = _path_heading(0.5)
+    for k in range(len(local)):
+        sure = clean.add(k, fixes[k], local[k], 0.0)
+    assert sure is not None and abs(np.degrees(sure.angle_rad) - 60.0) < 3.0 * np.degrees(
+        sure.std_rad)
+    jumped = _path_heading(0.5)
+    for k in range(len(local)):
+        off = fixes[k] + (np.array([25.0, 0.0, 0.0]) if k == 2 else 0.0)
+        assert jumped.add(k, off, local[k], 0.0) is None
+    drifted = _path_heading(0.5)
+    for k in range(len(local)):
+        late = k == len(local) - 1
+        error = drifted.add(k, fixes[k], local[k] + (np.array([0.0, 10.0, 0.0]) if late else 0),
+                            100.0 if late else 0.0)  # fmt: skip
+    assert error is not None
+    assert abs(error.angle_rad - sure.angle_rad) < error.std_rad
+    # two fixes 3 m apart and a third: 1.4 m noise gives tens of degrees
+    short = _path_heading(1.4)
+    for k in range(3):
+        assert short.add(k, fixes[k], local[k], 0.0) is None
+    loose = short.estimate(np.radians(60.0))
+    assert loose is not None and np.radians(10.0) < loose.std_rad < np.radians(60.0)
+
+
 @pytest.mark.realdata  # a trajectory of ../shared/data/trajectories
-def test_position_only_fixes_end_the_wait_at_once(
+def test_position_only_fixes_give_the_heading_from_their_path(
     resting_drone: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    """Without GPS velocities the heading check has nothing to turn by: the wait ends at the
-    first fix (the arbitrary heading of before, warned) instead of holding 30 s of fixes."""
+    """Without GPS velocities the wait ended at the first fix with the arbitrary heading, 146°
+    off (ATE 25.9 m, NEES 395). Now the fixes' path against the filter's gives it: the drone
+    hovers near its start (1.4 m fixes), so the path's turn is taken at the wait's end, known
+    to about 11°, and warned: NEES 8."""
     from dataclasses import replace
 
     ds = load_dataset(resting_drone)
     ds = replace(ds, gps=replace(ds.gps, v_W_G=np.full_like(ds.gps.v_W_G, np.nan)))
     with caplog.at_level("WARNING"):
         res = run_method(ds, "ins", RunOptions())
-    assert res.report["init"]["heading"] == "none (arbitrary yaw)"
-    assert "gps_held_for_heading" not in res.report
-    assert "no heading for the local start (the GPS gives no velocities)" in caplog.text
+    init = res.report["init"]
+    assert init["heading"] == HEADING_FROM_GPS
+    assert abs(init["heading_turn_deg"] - 146.0) < 3.0 * init["heading_std_deg"]
+    assert 5.0 < init["heading_std_deg"] < 20.0
+    assert res.report["nees_mean"] < 12.0 and res.report["ate_rmse_m"] < 5.0
+    assert "the heading from the path of the GPS fixes is taken, known to ±" in caplog.text
 
 
 @pytest.mark.realdata  # a trajectory of ../shared/data/trajectories

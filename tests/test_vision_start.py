@@ -214,6 +214,50 @@ def test_a_vision_start_with_gps_and_no_heading_waits_for_the_gps_velocities(
     assert "heading_turn_deg" not in old["init"] and old["ate_rmse_m"] > 2.0 * rep["ate_rmse_m"]
 
 
+def _position_only(ds: Dataset) -> Dataset:
+    """The data set with its GPS velocities dropped (a ROS NavSatFix gives none)."""
+    assert ds.gps is not None
+    return replace(ds, gps=replace(ds.gps, v_W_G=np.full_like(ds.gps.v_W_G, np.nan)))
+
+
+def test_a_vision_start_with_position_only_gps_turns_by_the_fixes_path(gps_flight: Path) -> None:
+    """Position-only fixes: the start took an arbitrary heading the fixes tied (this flight:
+    `3d` 6.29 m, NEES 1115). Now the nearest fix places it (uncertain by the start's speed
+    times the time to it) and the fixes' path against the filter's gives the heading; an `ins`
+    whose velocities never gave it within the wait takes the path's at its end (12.26 m,
+    NEES 56 before)."""
+    ds = load_dataset(gps_flight)
+    config = RunConfig(method="3d", init=InitOptions(mode="vision"), use_mag=False)
+    rep = run_method(_position_only(ds), "3d", config).report
+    init = rep["init"]
+    assert init["position"] == "the nearest GPS fix" and init["heading_found_s"] < 8.0
+    assert abs(abs(init["heading_turn_deg"]) - 90.0) < 3.0 * init["heading_std_deg"] < 30.0
+    assert rep["ate_rmse_m"] < 1.5 and rep["nees_mean"] < 12.0  # measured 0.95 m, 6.45
+    # velocities the user says not to fuse are not the wait's either: the path gives it
+    unused = run_method(ds, "3d", replace(config, use_gps_velocity=False)).report["init"]
+    assert unused["heading_found_s"] == init["heading_found_s"]
+    assert unused["heading_std_deg"] == pytest.approx(init["heading_std_deg"], rel=0.2)
+    ins = run_method(ds, "ins", replace(config, method="ins")).report
+    assert abs(abs(ins["init"]["heading_turn_deg"]) - 90.0) < 3.0 * ins["init"]["heading_std_deg"]
+    assert ins["ate_rmse_m"] < 5.0 and ins["nees_mean"] < 12.0  # measured 3.31 m, 6.04
+
+
+@pytest.mark.realdata
+def test_kitti_raw_vision_start_with_position_only_gps_finds_its_heading(
+    kitti_raw: Path,
+) -> None:
+    """From 18 s, position-only (as a NavSatFix bag gives it): 117 m off at the end from 14 s,
+    the fixes refused as multipath (a user's probe). The path gives the turn (41.7° by the
+    velocities) within about 2 s."""
+    ds = _position_only(load_dataset(kitti_raw))
+    config = RunConfig(method="3d", use_mag=False, init=InitOptions(mode="vision"))
+    config = replace(config, replay=replace(config.replay, start_s=18.0))
+    rep = run_method(ds, "3d", config).report
+    assert abs(rep["init"]["heading_turn_deg"] + 41.7) < 3.0 * rep["init"]["heading_std_deg"]
+    assert rep["init"]["heading_found_s"] < 4.0
+    assert rep["final_error_m"] < 0.5 and rep["nees_mean"] < 15.0  # measured 0.127 m, 10.6
+
+
 @pytest.mark.realdata
 def test_kitti_raw_in_flight_vision_start_with_gps_finds_its_heading(kitti_raw: Path) -> None:
     """From 18 s the first camera's heading is 41° off: 62.8 m ATE, NEES 882 (a user's probe)."""
@@ -258,11 +302,28 @@ def test_the_vision_starts_fix_is_the_nearest_in_time_and_never_one_the_run_turn
     v = np.array([0.5, 0.0, 0.0])  # not the fixes' own motion: a far fix carried back is off
     for k in range(80):  # 20 Hz over 4 s, each fix at x = t
         starter.add_gps(k * 50_000_000, np.array([k * 0.05, 0.0, 0.0]), v)
-    p, _ = starter._gps_at(250_000_000)
+    p, _ = starter._gps_at(250_000_000, 0.0)
     np.testing.assert_allclose(p, [0.25, 0.0, 0.0], atol=1e-12)
+    # position-only fixes: interpolated between the two either side, extrapolated from the
+    # two nearest past the last; one alone is uncertain by the start's speed
+    sp = ds.gps_calib.position_noise_std
+    pos = Starter(InitOptions(mode="vision"), rig_from_dataset(ds), BIASED, None)
+    for k in range(80):
+        pos.add_gps(k * 50_000_000, np.array([k * 0.05, 0.0, 0.0]), None)
+    p, std = pos._gps_at(260_000_000, 2.0)
+    np.testing.assert_allclose(p, [0.26, 0.0, 0.0], atol=1e-12)
+    assert std == pytest.approx(np.hypot(sp * np.hypot(0.8, 0.2), 0.5 * 2.0 * 0.01 * 0.04))
+    p, std = pos._gps_at(4_000_000_000, 2.0)  # 4.0 s from the fixes at 3.9 and 3.95 s
+    np.testing.assert_allclose(p, [4.0, 0.0, 0.0], atol=1e-12)
+    assert std == pytest.approx(np.hypot(sp * np.hypot(1.0, 2.0), 0.5 * 2.0 * 0.1 * 0.05))
+    one = Starter(InitOptions(mode="vision"), rig_from_dataset(ds), BIASED, None)
+    one.add_gps(1_000_000_000, np.ones(3), None)
+    p, std = one._gps_at(500_000_000, 2.0)
+    np.testing.assert_allclose(p, np.ones(3))
+    assert std == pytest.approx(np.hypot(sp, 1.0))
     off = Starter(InitOptions(mode="vision"), rig_from_dataset(ds), BIASED, None)
     off.add_gps(0, np.zeros(3), v, off=True)
-    assert off._gps_at(0) is None
+    assert off._gps_at(0, 0.0) is None
     # through a run: GPS lost for the first 12 s, the start is the old one
     config = RunConfig(method="3d", init=InitOptions(mode="vision"), use_mag=False,
                        gps_outages=((0.0, 12.0),), duration_s=4.0)  # fmt: skip
@@ -273,12 +334,20 @@ def test_the_vision_starts_fix_is_the_nearest_in_time_and_never_one_the_run_turn
 def test_a_run_that_ends_waiting_for_the_heading_says_so(
     gps_flight: Path, caplog: pytest.LogCaptureFixture,
 ) -> None:
-    """Its outputs mix the fix's position with the start's local heading (a user's probe)."""
+    """Its outputs mix the fix's position with the start's local heading (a user's probe).
+    Three fixes in: the path of the fixes gives the heading to tens of degrees, taken at the
+    run's end (warned with its uncertainty); two: none, and the outputs stay local, warned."""
     ds = load_dataset(gps_flight)
     config = RunConfig(method="3d", init=InitOptions(mode="vision"), use_mag=False,
                        duration_s=3.0)  # fmt: skip
     with caplog.at_level("WARNING"):
         rep = run_method(ds, "3d", config).report
+    assert 10.0 < rep["init"]["heading_std_deg"] <= np.degrees(InitOptions().yaw_std_unknown)
+    assert abs(abs(rep["init"]["heading_turn_deg"]) - 90.0) < 3.0 * rep["init"]["heading_std_deg"]
+    assert "the run ended before the heading was known: the heading from the path" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        rep = run_method(ds, "3d", replace(config, duration_s=2.0)).report
     assert "heading_turn_deg" not in rep["init"]
     assert any("the run ended before the GPS velocities gave the heading" in r.message
                for r in caplog.records)  # fmt: skip

@@ -37,7 +37,7 @@ log = logging.getLogger(__name__)
 STATIC_GRAVITY_TOL = 0.25
 # ``InitialState.info["heading"]`` of a start whose heading the GPS velocities will give
 # (``InitOptions.heading_from_gps``): it runs in a local frame until then.
-HEADING_FROM_GPS = "none (local frame until the GPS velocities give it)"
+HEADING_FROM_GPS = "none (local frame until the GPS gives it)"
 
 
 @dataclass
@@ -259,7 +259,8 @@ def _from_static(dataset: InitData, layout: StateLayout, o: InitOptions) -> Init
             yaw_std = o.yaw_std_local
             info["heading"] = HEADING_FROM_GPS
             log.warning("no magnetometer in the static interval: the heading is taken from the "
-                        "GPS velocities once the vehicle moves; GPS fixes wait for it")
+                        "GPS (its velocities, or its path) once the vehicle moves; GPS fixes "
+                        "wait for it")  # fmt: skip
         elif gps_fused:
             info["heading"] = "none (arbitrary yaw)"
             log.warning("no magnetometer in the static interval: heading starts arbitrary")

@@ -35,8 +35,14 @@ from svains.navigation.fault_handling import (
     whitened_correction,
 )
 from svains.navigation.gps_latency import GpsLatencyCheck
-from svains.navigation.heading_check import HeadingCheck, HeadingError, turn_heading, yaw_std
-from svains.navigation.heading_wait import HEADING_WAIT_MAX_S, turn_logged
+from svains.navigation.heading_check import (
+    HeadingCheck,
+    HeadingCheckOptions,
+    HeadingError,
+    turn_heading,
+    yaw_std,
+)
+from svains.navigation.heading_wait import HEADING_WAIT_MAX_S, FixPathHeading, turn_logged
 from svains.navigation.init import HEADING_FROM_GPS
 from svains.navigation.ins import InsFilter, default_imu_calib
 from svains.navigation.options import RunConfig
@@ -162,6 +168,10 @@ class Core:
             and config.faults.heading_check else None
         )  # fmt: skip
         self._heading_fixes: list[Any] = []  # (t, v_W_G) of this group's GPS velocities
+        # position-only fixes during the heading wait: the heading from their path
+        self._fix_path = FixPathHeading(
+            self._up_W, rig.gps.position_noise_std if rig.gps is not None else 1.0,
+            np.radians(HeadingCheckOptions().max_std_deg), HeadingCheckOptions().fit_probability)
         # A static start without a heading source runs in a local frame about its position
         # until the GPS velocities give the heading; fixes wait (``navigation.heading_wait``).
         self._heading_wait = init_info.get("heading") == HEADING_FROM_GPS
@@ -170,9 +180,8 @@ class Core:
         self._heading_held_t: list[int] = []  # the held fixes' times
         self.gps_held_heading = 0
         self.frame_turns: list[FrameTurn] = []
-        if self._heading_wait and self._heading_check is None:
-            self._end_heading_wait(self.t0_ns, "the heading check is off or the GPS velocities "
-                                   "unused")  # fmt: skip
+        if self._heading_wait and not config.faults.heading_check:
+            self._end_heading_wait(self.t0_ns, "the heading check is off")
         self._mag_off = False  # after a heading turn the magnetometer, which held it, is off
         # the magnetometer's axes against the IMU's (files are checked on load)
         self._mag_turn = (MagTurnCheck(ins.history, rig.mag.T_B_S[:3, :3])
@@ -238,6 +247,8 @@ class Core:
     def finish(self, end_ns: int) -> None:
         """The final state at ``end_ns`` (logged like a tick)."""
         self._propagate(end_ns)
+        if self._heading_wait:
+            self._take_path_heading(end_ns, "the run ended before the heading was known")
         self._log(last=True)
         if self._heading_wait and self.gps_held_heading:
             # the outputs hold the fix's position with the start's local heading (a probe)
@@ -291,10 +302,11 @@ class Core:
                     self._recovery is not None and self._recovery.rate_off("gps", t))
                 if self._heading_check is not None and payload[1] is not None:
                     self._check_heading(t, payload[1], use_v)
-                if self._heading_wait and payload[1] is None:
-                    # position-only fixes give the heading check nothing to turn by
-                    self._end_heading_wait(t, "the GPS gives no velocities")
-                if self._heading_wait and self._hold_for_heading(t, payload[1]):
+                # a velocity not fused is not the wait's either: the fixes' path gives it
+                v_wait = payload[1] if cfg.use_gps_velocity else None
+                if self._heading_wait:
+                    self._check_heading_path(t, payload[0], acquire=v_wait is None)
+                if self._heading_wait and self._hold_for_heading(t, v_wait):
                     continue
                 if self._recovery is not None and self._recovery.reset_pending:
                     v = payload[1] if use_v else None
@@ -407,18 +419,52 @@ class Core:
                         f"off (± {np.degrees(error.std_rad):.1f}°, from the GPS velocities "
                         f"over {error.steps} fixes): the state is turned{hint}")  # fmt: skip
 
+    def _check_heading_path(self, t: int, p_W_G: Any, acquire: bool) -> None:
+        """During the heading wait, a fix: its path with the filter's (``FixPathHeading``,
+        started again after an IMU fault, whose bridge breaks the filter's path) gives the
+        heading, which turns the state when ``acquire`` (a position-only fix; with velocities
+        the heading check's is surer sooner, KITTI raw ±0.3° against ±1.8° at the third fix,
+        and the path's serves at the wait's end: ``_take_path_heading``)."""
+        ukf = self.ins.ukf
+        fault_ns = None if self._imu_faults is None else self._imu_faults.last_fault_ns
+        if fault_ns is not None and fault_ns >= self._fix_path.last_ns:
+            self._fix_path.clear()
+        error = self._fix_path.add(t, np.asarray(p_W_G, float), self._antenna_W(),
+                                   float(np.trace(ukf.P[POS, POS])) / 3.0)  # fmt: skip
+        if error is not None and acquire:
+            self._heading_found(t, error)
+
+    def _take_path_heading(self, t: int, why: str) -> bool:
+        """At the wait's end without a heading (``why``): the fixes' path's, if it is surer
+        than the arbitrary heading's ``init.yaw_std_unknown`` and fits, is taken
+        (the state and what it logged turned), warned with its uncertainty. Whether it was."""
+        error = self._fix_path.estimate(self.config.init.yaw_std_unknown)
+        if error is None:
+            return False
+        self._heading_found(t, error)
+        self._warn.warn("heading-wait", t, f"{why}: the heading from the path of the GPS fixes "
+                        f"is taken, known to ± {np.degrees(error.std_rad):.1f}° only (a "
+                        "magnetometer or GPS velocities would give it sooner)")  # fmt: skip
+        return True
+
     def _hold_for_heading(self, t: int, v_W_G: Any) -> bool:
         """While a local start waits for its heading: a fix that shows the vehicle still
-        (horizontal GPS speed within 3σ of its velocity noise) is fused (at rest the local frame
-        and the world agree at the body), and the frame's pivot follows the body; a fix that
-        shows it moving is held out (counted) until the wait is over (``_heading_wait_over``);
-        then the wait ends (``_end_heading_wait``) and it is fused. The IMU's rest test
-        is not asked: it ended on a vehicle parked for a minute, and the fixes were held while
-        it stood (a user's probe)."""
+        (horizontal GPS speed within 3σ of its velocity noise; a position-only fix: the
+        filter's antenna within the fix's σ of the pivot, where the local frame's heading error
+        moves it by less than the fix's noise) is fused (at rest the local frame and the world
+        agree at the body), and the frame's pivot follows the body; a fix that shows it moving
+        is held out (counted) until the wait is over (``_heading_wait_over``); then the wait
+        ends (``_end_heading_wait``) and it is fused. The IMU's rest test is not asked: it
+        ended on a vehicle parked for a minute, and the fixes were held while it stood (a
+        user's probe)."""
         assert self.rig.gps is not None
-        v = np.asarray(v_W_G, dtype=float)
-        v_h = v - (v @ self._up_W) * self._up_W
-        if float(np.linalg.norm(v_h)) <= 3.0 * self.rig.gps.velocity_noise_std:
+        if v_W_G is None:
+            d = self._antenna_W() - self._heading_pivot
+            moved, limit = d - (d @ self._up_W) * self._up_W, self.rig.gps.position_noise_std
+        else:
+            v = np.asarray(v_W_G, dtype=float)
+            moved, limit = v - (v @ self._up_W) * self._up_W, 3.0 * self.rig.gps.velocity_noise_std
+        if float(np.linalg.norm(moved)) <= limit:
             if self._heading_wait_from is None:
                 self._heading_pivot = self._antenna_W()
             return False
@@ -426,8 +472,8 @@ class Core:
             self._heading_wait_from = t
         self._heading_held_t.append(t)
         if self._heading_wait_over(t):
-            self._end_heading_wait(t, f"the GPS velocities gave none over "
-                                   f"{HEADING_WAIT_MAX_S:g} s of motion")  # fmt: skip
+            self._end_heading_wait(t, f"the GPS gave none over {HEADING_WAIT_MAX_S:g} s of "
+                                   "motion")  # fmt: skip
             return False
         self.gps_held_heading += 1
         return True
@@ -460,7 +506,7 @@ class Core:
         self.init_info["heading_std_deg"] = round(float(np.degrees(error.std_rad)), 3)
         if self.gps_held_heading:
             self.init_info["gps_fixes_held"] = self.gps_held_heading
-        log.info("%.3f s into the run: heading from the GPS velocities over %d fixes, the "
+        log.info("%.3f s into the run: heading from the GPS over %d fixes, the "
                  "local frame turned by %.1f° (± %.1f°) into the world; %d fix(es) held until "
                  "then", at_s, error.steps, np.degrees(error.angle_rad),
                  np.degrees(error.std_rad), self.gps_held_heading)  # fmt: skip
@@ -480,7 +526,10 @@ class Core:
     def _end_heading_wait(self, t: int, why: str) -> None:
         """No heading from the GPS: the start's heading becomes an arbitrary one (its yaw
         widened to ``init.yaw_std_unknown``, and so are the estimates logged so far, by a turn
-        of 0° with that uncertainty) and fixes are fused, warned."""
+        of 0° with that uncertainty) and fixes are fused, warned; unless the position-only
+        fixes' path gives it better than that (``_take_path_heading``)."""
+        if self._take_path_heading(t, why):
+            return
         self._heading_wait = False
         std = self.config.init.yaw_std_unknown
         # about the pivot, as the logged rows below: a state far from it (a start in motion)
