@@ -120,6 +120,21 @@ def test_a_mirrored_magnetometer_is_refused_on_load(village_30s: Path, tmp_path:
         load_dataset(copy)
 
 
+def test_a_dead_magnetometer_has_no_mount_to_judge(village_30s: Path) -> None:
+    """A dead (all-zero) magnetometer: the field's turns are all zero, whose cosine with the
+    gyro's was 0 / 0 (a numpy warning on the fault bench's dead magnetometer)."""
+    import warnings
+
+    from svains.sensors.units import mag_turn_vs_gyro
+
+    ds = load_dataset(village_30s)
+    assert ds.mag is not None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert mag_turn_vs_gyro(ds.imu.t_ns, ds.imu.gyro_B, ds.imu.accel_B, ds.mag.t_ns,
+                                np.zeros_like(ds.mag.m_S)) is None  # fmt: skip
+
+
 def test_a_mirrored_magnetometer_fed_online_is_warned_and_left_out(
     village_30s: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

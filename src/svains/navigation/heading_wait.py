@@ -88,32 +88,48 @@ class FixPathHeading:
 
     def estimate(self, max_std_rad: float) -> HeadingError | None:
         """The path's heading error if known to ``max_std_rad`` and fitting, else None (at a
-        wait's end a looser bound than ``add``'s beats an arbitrary heading)."""
+        wait's end a looser bound than ``add``'s beats an arbitrary heading). A fix that
+        does not fit (multipath) is left out, the worst first, up to one in five: kept, one
+        jumped fix refused every later fit and the wait ended with an arbitrary heading (a
+        user's probe)."""
         n = len(self._gps)
         if n < 3:
             return None
         # each point weighted by its variance: the fix's and what the filter's position has
         # gained since the first point (an INS after an outage barely counts)
         var = self._var_p + np.maximum(np.asarray(self._var) - self._var[0], 0.0)
-        w = 1.0 / var
-        g = np.array(self._gps)
-        f = np.array(self._filter)
-        g -= w @ g / w.sum()
-        f -= w @ f / w.sum()
+        keep = np.ones(n, dtype=bool)
+        for _ in range(n // 5 + 1):
+            m = int(keep.sum())
+            fitted = self._fit(np.array(self._gps)[keep], np.array(self._filter)[keep],
+                               1.0 / var[keep])  # fmt: skip
+            if fitted is None:
+                return None
+            angle, std, misfit = fitted
+            if std > max_std_rad:
+                return None
+            if float(misfit.sum()) <= chi2.ppf(self._fit_probability, 2 * m - 3):
+                return HeadingError(angle, std, m)
+            if m <= 3:
+                return None
+            keep[np.flatnonzero(keep)[int(np.argmax(misfit))]] = False
+        return None
+
+    @staticmethod
+    def _fit(g: F64, f: F64, w: F64) -> tuple[float, float, F64] | None:
+        """The weighted turn mapping the path ``f`` (m, 2) onto ``g`` (m, 2), translation
+        free: its angle (rad), standard deviation (rad) and each point's weighted squared
+        misfit (m,); None for a path with no spread."""
+        g = g - w @ g / w.sum()
+        f = f - w @ f / w.sum()
         spread = float(w @ np.sum(f * f, axis=1))
         if spread <= 0.0:
             return None
         angle = math.atan2(float(w @ (f[:, 0] * g[:, 1] - f[:, 1] * g[:, 0])),
                            float(w @ np.sum(f * g, axis=1)))  # fmt: skip
-        std = math.sqrt(1.0 / spread)
-        if std > max_std_rad:
-            return None
         c, s = math.cos(angle), math.sin(angle)
         turned = f @ np.array([[c, s], [-s, c]])  # each row turned by ``angle``
-        fit = float(w @ np.sum((turned - g) ** 2, axis=1))
-        if fit > chi2.ppf(self._fit_probability, 2 * n - 3):
-            return None
-        return HeadingError(angle, std, n)
+        return angle, math.sqrt(1.0 / spread), w * np.sum((turned - g) ** 2, axis=1)
 
 
 def turn_logged(

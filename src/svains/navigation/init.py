@@ -490,7 +490,7 @@ def from_vision_fit(
     fit: VisionInertialFit, t_ns: int, R_W_B: F64, v_W_B: F64, omega_B: F64,
     layout: StateLayout, o: InitOptions, gravity_W: F64, gps_fused: bool,
     m_B: F64 | None = None, m_W: F64 | None = None,
-    gps_fix: tuple[F64, float] | None = None, p_B_G: F64 | None = None,
+    gps_fix: tuple[F64, float, str] | None = None, p_B_G: F64 | None = None,
 ) -> InitialState:
     """Initial state at the IMU sample ``t_ns`` from a vision-inertial fit
     (``navigation.vision_start``) carried there: attitude ``R_W_B``, velocity ``v_W_B``, body
@@ -500,11 +500,12 @@ def from_vision_fit(
     when given (as a static start takes it: TRIAD with the fitted vertical), else a gauge
     (the odometry's first camera's) unless GPS will tie it (and then the position too:
     ``VISION_GPS_POSITION_STD_M``). With GPS fused, ``gps_fix`` (the antenna's position (3,) m
-    at ``t_ns`` and its standard deviation, m) and the lever arm ``p_B_G`` (3,) m, and no
-    magnetometer: the fix places the body and, with ``o.heading_from_gps``, the start defines a
-    local frame until the GPS velocities give the heading (``navigation.heading_wait``; an
-    arbitrary heading with σ ``yaw_std_unknown`` collapsed within a second whatever its error:
-    KITTI raw from 18 s, 41° off, ATE 62.8 m, a user's probe)."""
+    at ``t_ns``, its standard deviation, m, and how it was had, for the report) and the lever
+    arm ``p_B_G`` (3,) m, and no magnetometer: the fix places the body and, with
+    ``o.heading_from_gps``, the start defines a local frame until the GPS gives the heading
+    (``navigation.heading_wait``; an arbitrary heading with σ ``yaw_std_unknown`` collapsed
+    within a second whatever its error: KITTI raw from 18 s, 41° off, ATE 62.8 m, a user's
+    probe)."""
     up = -np.asarray(gravity_W, float) / np.linalg.norm(gravity_W)
     heading = ("none (arbitrary yaw: the GPS fixes tie it)" if gps_fused
                else "none (local frame: the start defines its yaw)")  # fmt: skip
@@ -542,5 +543,5 @@ def from_vision_fit(
         "gyro_bias": fit.b_g.tolist(),
     }
     if gps_fused and gps_fix is not None:
-        info["position"] = "the nearest GPS fix"
+        info["position"] = gps_fix[2]
     return InitialState(int(t_ns), x, P0, info)

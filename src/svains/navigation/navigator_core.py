@@ -176,6 +176,11 @@ class Core:
         # until the GPS velocities give the heading; fixes wait (``navigation.heading_wait``).
         self._heading_wait = init_info.get("heading") == HEADING_FROM_GPS
         self._heading_pivot = self._antenna_W()
+        # the antenna's own motion during the wait (the filter's predictions and vision, not
+        # the fixes fused meanwhile: ``_check_heading_path``), counted from ``_own_from_A``
+        self._own_A = np.zeros(3)
+        self._own_from_A = self._heading_pivot.copy()
+        self._own_fix_fused = False
         self._heading_wait_from: int | None = None  # first fix held after setting off
         self._heading_held_t: list[int] = []  # the held fixes' times
         self.gps_held_heading = 0
@@ -252,7 +257,7 @@ class Core:
         self._log(last=True)
         if self._heading_wait and self.gps_held_heading:
             # the outputs hold the fix's position with the start's local heading (a probe)
-            self._warn.warn("heading-wait", end_ns, "the run ended before the GPS velocities "
+            self._warn.warn("heading-wait", end_ns, "the run ended before the GPS "
                             f"gave the heading ({self.gps_held_heading} fix(es) held): its "
                             "outputs are in the start's local frame, turned from the world "
                             "about the start's GPS antenna")  # fmt: skip
@@ -350,6 +355,9 @@ class Core:
             assert self._heading_check is not None
             self._heading_check.after_update(t_fix, ins.ukf.x[V], v_fix)
         self._heading_fixes.clear()
+        if self._own_fix_fused:  # the fix's pull is no motion of the antenna's own
+            self._own_from_A = self._antenna_W()
+            self._own_fix_fused = False
         if self._recovery is not None and (has_frame or blocks or len(items) > has_tick):
             self._recovery.check(ins.ukf, t)
         self._check_vision_gap(t)
@@ -400,7 +408,7 @@ class Core:
         if error is None:
             return
         if acquire:
-            self._heading_found(t, error)
+            self._heading_found(t, error, "the GPS velocities")
             return
         # The fix's velocity replaces the turned one (it is the reference the turn was found
         # against; an INS's velocity error is no rotation of its velocity).
@@ -429,10 +437,15 @@ class Core:
         fault_ns = None if self._imu_faults is None else self._imu_faults.last_fault_ns
         if fault_ns is not None and fault_ns >= self._fix_path.last_ns:
             self._fix_path.clear()
-        error = self._fix_path.add(t, np.asarray(p_W_G, float), self._antenna_W(),
+        # the filter's path is its own motion: with the fixes fused while standing in it, a
+        # 10 Hz GPS dragged it onto the fixes and the fit took a turn 58° off (a user's probe)
+        p_A = self._antenna_W()
+        self._own_A += p_A - self._own_from_A
+        self._own_from_A = p_A
+        error = self._fix_path.add(t, np.asarray(p_W_G, float), self._own_A.copy(),
                                    float(np.trace(ukf.P[POS, POS])) / 3.0)  # fmt: skip
         if error is not None and acquire:
-            self._heading_found(t, error)
+            self._heading_found(t, error, "the GPS fixes' path")
 
     def _take_path_heading(self, t: int, why: str) -> bool:
         """At the wait's end without a heading (``why``): the fixes' path's, if it is surer
@@ -441,7 +454,7 @@ class Core:
         error = self._fix_path.estimate(self.config.init.yaw_std_unknown)
         if error is None:
             return False
-        self._heading_found(t, error)
+        self._heading_found(t, error, "the GPS fixes' path, at the wait's end")
         self._warn.warn("heading-wait", t, f"{why}: the heading from the path of the GPS fixes "
                         f"is taken, known to ± {np.degrees(error.std_rad):.1f}° only (a "
                         "magnetometer or GPS velocities would give it sooner)")  # fmt: skip
@@ -450,23 +463,25 @@ class Core:
     def _hold_for_heading(self, t: int, v_W_G: Any) -> bool:
         """While a local start waits for its heading: a fix that shows the vehicle still
         (horizontal GPS speed within 3σ of its velocity noise; a position-only fix: the
-        filter's antenna within the fix's σ of the pivot, where the local frame's heading error
-        moves it by less than the fix's noise) is fused (at rest the local frame and the world
-        agree at the body), and the frame's pivot follows the body; a fix that shows it moving
-        is held out (counted) until the wait is over (``_heading_wait_over``); then the wait
-        ends (``_end_heading_wait``) and it is fused. The IMU's rest test is not asked: it
-        ended on a vehicle parked for a minute, and the fixes were held while it stood (a
-        user's probe)."""
+        antenna's own motion since the wait began within half the fix's σ, where any heading
+        error moves it by less than the fix's noise; measured from fix to fix, a vehicle
+        slower than σ per fix interval, 14 m/s at 10 Hz, stood for good: a user's probe) is
+        fused (at rest the local frame and the world agree at the body), and the frame's
+        pivot follows the body; a fix that shows it moving is held out (counted) until the
+        wait is over (``_heading_wait_over``); then the wait ends (``_end_heading_wait``) and
+        it is fused. The IMU's rest test is not asked: it ended on a vehicle parked for a
+        minute, and the fixes were held while it stood (a user's probe)."""
         assert self.rig.gps is not None
         if v_W_G is None:
-            d = self._antenna_W() - self._heading_pivot
-            moved, limit = d - (d @ self._up_W) * self._up_W, self.rig.gps.position_noise_std
+            d = self._own_A
+            moved, limit = d - (d @ self._up_W) * self._up_W, 0.5 * self.rig.gps.position_noise_std
         else:
             v = np.asarray(v_W_G, dtype=float)
             moved, limit = v - (v @ self._up_W) * self._up_W, 3.0 * self.rig.gps.velocity_noise_std
         if float(np.linalg.norm(moved)) <= limit:
             if self._heading_wait_from is None:
                 self._heading_pivot = self._antenna_W()
+            self._own_fix_fused = True
             return False
         if self._heading_wait_from is None:
             self._heading_wait_from = t
@@ -494,9 +509,10 @@ class Core:
         spacing_s = float(np.median(np.diff(held))) * 1e-9
         return held.size > max(3, HEADING_WAIT_MAX_S / max(spacing_s, 1e-3))
 
-    def _heading_found(self, t: int, error: Any) -> None:
-        """The local frame's heading found: the state, the estimates logged so far and the
-        stored keyframes turned into the world about the start's position."""
+    def _heading_found(self, t: int, error: Any, source: str) -> None:
+        """The local frame's heading found (from ``source``, for the report): the state, the
+        estimates logged so far and the stored keyframes turned into the world about the
+        start's position."""
         turn_heading(self.ins.ukf, error, self._up_W, pivot_W=self._heading_pivot)
         self._turn_kept(t, error)
         self._heading_wait = False
@@ -504,12 +520,13 @@ class Core:
         self.init_info["heading_found_s"] = round(at_s, 3)
         self.init_info["heading_turn_deg"] = round(float(np.degrees(error.angle_rad)), 3)
         self.init_info["heading_std_deg"] = round(float(np.degrees(error.std_rad)), 3)
+        self.init_info["heading_source"] = source
         if self.gps_held_heading:
             self.init_info["gps_fixes_held"] = self.gps_held_heading
-        log.info("%.3f s into the run: heading from the GPS over %d fixes, the "
-                 "local frame turned by %.1f° (± %.1f°) into the world; %d fix(es) held until "
-                 "then", at_s, error.steps, np.degrees(error.angle_rad),
-                 np.degrees(error.std_rad), self.gps_held_heading)  # fmt: skip
+        log.info("%.3f s into the run: heading from %s over %d fixes, the local frame "
+                 "turned by %.1f° (± %.1f°) into the world; %d fix(es) held until then", at_s,
+                 source, error.steps, np.degrees(error.angle_rad), np.degrees(error.std_rad),
+                 self.gps_held_heading)  # fmt: skip
 
     def _turn_kept(self, t: int, error: HeadingError) -> None:
         """Turn what the run kept in the local frame (the estimates logged so far, for a

@@ -100,14 +100,14 @@ class Starter:
             while recent and recent[0][0] < t_ns - keep_ns:
                 recent.popleft()
 
-    def _gps_at(self, t_ns: int, speed_mps: float) -> tuple[np.ndarray, float] | None:
-        """The GPS antenna's position (3,) m at ``t_ns`` and its standard deviation (m): the
-        fix with a velocity nearest in time, within ``GPS_START_SPAN_NS``, carried to ``t_ns``
-        by that velocity; without one, position-only fixes: the two either side (else the two
-        nearest) inter- or extrapolated, off by the path's bend at ``GPS_INTERP_ACCEL_MPS2``
-        (the nearest alone was 1.14 m off for 0.13 s at 8.5 m/s: KITTI raw from 14 s); one
-        alone, uncertain by the distance the start's ``speed_mps`` covers to it (its direction
-        is the heading sought); None without any."""
+    def _gps_at(self, t_ns: int, speed_mps: float) -> tuple[np.ndarray, float, str] | None:
+        """The GPS antenna's position (3,) m at ``t_ns``, its standard deviation (m) and how it
+        was had (for the report): the fix with a velocity nearest in time, within
+        ``GPS_START_SPAN_NS``, carried to ``t_ns`` by that velocity; without one, position-only
+        fixes: the two either side (else the two nearest) inter- or extrapolated, off by the
+        path's bend at ``GPS_INTERP_ACCEL_MPS2`` (the nearest alone was 1.14 m off for 0.13 s
+        at 8.5 m/s: KITTI raw from 14 s); one alone, uncertain by the distance the start's
+        ``speed_mps`` covers to it (its direction is the heading sought); None without any."""
         gps = self.rig.gps
         near = [(abs(t - t_ns), t, p, v) for t, p, v in self._gps_recent
                 if abs(t - t_ns) <= GPS_START_SPAN_NS]  # fmt: skip
@@ -118,7 +118,8 @@ class Starter:
             _, t, p, v = min(with_v, key=lambda n: n[0])
             dt_s = (t_ns - t) * 1e-9
             return (np.asarray(p, float) + dt_s * np.asarray(v, float),
-                    float(np.hypot(gps.position_noise_std, abs(dt_s) * gps.velocity_noise_std)))
+                    float(np.hypot(gps.position_noise_std, abs(dt_s) * gps.velocity_noise_std)),
+                    "the nearest GPS fix")  # fmt: skip
         before = sorted((n for n in near if n[1] <= t_ns), key=lambda n: n[0])
         after = sorted((n for n in near if n[1] > t_ns), key=lambda n: n[0])
         # the two fixes either side, else the two nearest on one side (a run that starts
@@ -127,14 +128,17 @@ class Starter:
         if len(pair) < 2:
             _, t, p, _ = pair[0]
             return (np.asarray(p, float),
-                    float(np.hypot(gps.position_noise_std, abs(t_ns - t) * 1e-9 * speed_mps)))
+                    float(np.hypot(gps.position_noise_std, abs(t_ns - t) * 1e-9 * speed_mps)),
+                    "the nearest GPS fix (position only)")  # fmt: skip
         (_, ta, pa, _), (_, tb, pb, _) = sorted(pair, key=lambda n: n[1])
         w = (t_ns - ta) / (tb - ta)
         # the fixes' noise carried by the weights, and a quadratic path's departure from the
         # chord (``|p''| / 2 · |t - ta| |t - tb|``)
         bend = 0.5 * GPS_INTERP_ACCEL_MPS2 * abs(t_ns - ta) * abs(t_ns - tb) * 1e-18
+        how = "interpolated" if 0.0 <= w <= 1.0 else "extrapolated"
         return ((1.0 - w) * np.asarray(pa, float) + w * np.asarray(pb, float),
-                float(np.hypot(gps.position_noise_std * np.hypot(1.0 - w, w), bend)))
+                float(np.hypot(gps.position_noise_std * np.hypot(1.0 - w, w), bend)),
+                f"two position-only GPS fixes, {how}")  # fmt: skip
 
     def _gps_needed(self) -> int:
         if len(self._gps) < 2:

@@ -213,6 +213,8 @@ def mag_turn_vs_gyro(imu_t_ns: NDArray[np.int64], gyro_B: NDArray[np.float64],
     if not ok.any():
         return None
     a, b = d_field[ok], -d_turn[ok]
+    if not a @ a > 0.0:
+        return None  # a field that never turns (a dead or stuck sensor) has no direction
     cosine = float(a @ b / np.sqrt((a @ a) * (b @ b)))
     return cosine, int(ok.sum()), float(np.degrees(np.sum(np.abs(b))))
 
