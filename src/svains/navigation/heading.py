@@ -26,6 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from svains.errors import InitialisationError
 from svains.geometry.rotation import so3_exp
+from svains.navigation.heading_check import horizontal
 
 F64 = NDArray[np.float64]
 log = logging.getLogger(__name__)
@@ -39,10 +40,6 @@ class CourseHeading:
     R_W_B: F64
     yaw_std_rad: float
     speed_mps: float
-
-
-def _horizontal(v: F64, up: F64) -> F64:
-    return v - (v @ up) * up
 
 
 def _frame(a: F64, b: F64) -> F64:
@@ -80,7 +77,7 @@ def heading_from_course(
         raise InitialisationError("specific force along body x: no attitude from the course")
     v_B = v_G  # the lever-arm term needs the attitude: first without it, then refined
     for _ in range(4):
-        speed = float(np.linalg.norm(_horizontal(v_B, up)))
+        speed = float(np.linalg.norm(horizontal(v_B, up)))
         if speed < min_speed_mps:
             raise InitialisationError(
                 f"horizontal speed {speed:.2f} m/s is below {min_speed_mps:g} m/s: the GPS course "

@@ -41,6 +41,12 @@ from svains.models.state import P as POS
 F64 = NDArray[np.float64]
 
 
+def horizontal(v: F64, up_W: F64) -> F64:
+    """``v`` (3,) without its part along the unit vertical ``up_W`` (3,)."""
+    v = np.asarray(v, dtype=float)
+    return v - (v @ up_W) * up_W
+
+
 @dataclass(frozen=True)
 class HeadingCheckOptions:
     """``window`` GPS steps (each at most ``max_step_s`` long) per estimate; a turn needs the
@@ -82,7 +88,13 @@ class HeadingCheck:
         self.turns: list[dict[str, float]] = []
 
     def _horizontal(self, v: F64) -> F64:
-        return v - (v @ self.up_W) * self.up_W
+        return horizontal(v, self.up_W)
+
+    def restart(self) -> None:
+        """Forget the velocities and steps kept (the frame they were compared in has turned)."""
+        self._steps.clear()
+        self._fixes.clear()
+        self._prev = None
 
     def before_update(self, t_ns: int, v_pred_W: F64, v_gps_W: F64, yaw_std_rad: float,
                       v_var: float = 0.0, usable: bool = True,

@@ -1,4 +1,4 @@
-"""A static start without a heading source, held in a local frame until GPS gives the heading.
+"""A start without a heading source, held in a local frame until GPS gives the heading.
 
 With GPS fused and no magnetometer, the static start used to take an arbitrary heading with a
 standard deviation of 28.6° (``init.yaw_std_unknown``). The true error can be anything up to
@@ -14,12 +14,14 @@ their velocities with the filter's, and once the rotation between the two frames
 its ``max_std_deg`` the state is turned into the world about the pivot with that uncertainty
 (``turn_heading`` with ``pivot_W``), and so is everything kept in the local frame so far: the
 logged estimates (``turn_logged``) and the stored keyframes. Fixes are fused from then on.
-Should no heading come within ``HEADING_WAIT_MAX_S`` worth of held fixes at the GPS's rate (a
-slow vehicle, velocities that never fit one rotation), or the fixes carry no velocity, the old
-start is taken: the state and the logged estimates turned by 0° with the uncertainty
-``yaw_std_unknown`` about the pivot (their yaw, and their positions by their distance from it)
-and the fixes fused, warned. The pivot is the GPS antenna, where the local frame and the world
-agree.
+Position-only fixes (or velocities not fused) give the heading from their path instead
+(``FixPathHeading``; standing is then the antenna's own motion since the wait began within
+half a fix's σ). Should no heading come within ``HEADING_WAIT_MAX_S`` worth of held fixes at
+the GPS's rate (a slow vehicle, velocities that never fit one rotation), the path's turn is
+taken if it is surer than an arbitrary heading, else the old start: the state and the logged
+estimates turned by 0° with the uncertainty ``yaw_std_unknown`` about the pivot (their yaw,
+and their positions by their distance from it) and the fixes fused, warned. The pivot is the
+GPS antenna, where the local frame and the world agree.
 """
 
 from __future__ import annotations
@@ -43,17 +45,21 @@ HEADING_WAIT_MAX_S = 10.0
 
 class FixPathHeading:
     """The heading for the wait from position-only fixes (a ROS ``NavSatFix`` carries no
-    velocity): the rotation about the vertical that best maps the filter's antenna positions at
-    the fixes (the local frame's path) onto the fixes (the world's), translation free (a 2-D
+    velocity): the rotation about the vertical that best maps the filter's own antenna path at
+    the fixes (the local frame's) onto the fixes (the world's), translation free (a 2-D
     Procrustes fit of the centred horizontal paths, each point weighted by the inverse of its
-    variance: the fix's ``σ_p²`` plus the filter's position variance gained since the first
-    point). Its variance is one over the weighted spread about the centroid: a long path pins
+    variance: the fix's ``σ_p²`` plus the filter's position variance gained since the least
+    it had). Its variance is one over the weighted spread about the centroid: a long path pins
     it where one fix's difference (``√2 σ_p / Δt``) cannot (a drone at 1 m/s with 1.4 m fixes
-    at 1 Hz). Taken once it is known to ``max_std_rad`` and the turned path fits the fixes (a
-    chi-square test at ``fit_probability``: a fix that jumped is no rotation). Without it a
-    start with no magnetometer took an arbitrary heading the first fixes collapsed (KITTI raw
-    from 14 s, position-only: 117 m off at the end, the fixes refused as multipath: a user's
-    probe)."""
+    at 1 Hz). The fixes taken while standing count as one point at their mean, of one fix's
+    variance (GPS errors last minutes: 200 of them drowned the fit test and shrank the
+    standard deviation, and a jumped fix passed, 4.4σ off: a review). Taken once it is known
+    to ``max_std_rad`` and the turned path fits the fixes (chi-square at ``fit_probability``,
+    over the sum and, its level shared among them, over each point), the worst-fitting point
+    left out, up to one in five (one multipath fix refused every later fit: a user's probe).
+    Without it a start with no magnetometer took an arbitrary heading the first fixes
+    collapsed (KITTI raw from 14 s, position-only: 117 m off at the end, the fixes refused as
+    multipath: a user's probe)."""
 
     def __init__(self, up_W: F64, position_noise_std: float, max_std_rad: float,
                  fit_probability: float) -> None:  # fmt: skip
@@ -65,71 +71,95 @@ class FixPathHeading:
         self._var_p = float(position_noise_std) ** 2
         self._max_std = float(max_std_rad)
         self._fit_probability = float(fit_probability)
-        self._gps: list[F64] = []
-        self._filter: list[F64] = []
-        self._var: list[float] = []
+        self._gps_H: list[F64] = []  # the fixes in the horizontal basis (2,) m
+        self._filter_H: list[F64] = []  # the filter's own path there (2,) m
+        self._var: list[float] = []  # the filter's position variance at each (m²)
+        # the standing fixes: their sums (fix, filter) and count, and the least variance
+        self._standing_H = np.zeros(4)
+        self._standing_n = 0
+        self._standing_var = math.inf
         self.last_ns = -1  # the latest point's time
 
     def clear(self) -> None:
-        """Start the path again (an IMU fault bridged: the filter's path is broken)."""
-        self._gps.clear()
-        self._filter.clear()
+        """Start the path again (an IMU fault bridged: the filter's path is broken; the wait
+        over: nothing more to fit)."""
+        self._gps_H.clear()
+        self._filter_H.clear()
         self._var.clear()
+        self._standing_H[:] = 0.0
+        self._standing_n = 0
+        self._standing_var = math.inf
 
-    def add(self, t_ns: int, p_W_G: F64, p_W_A: F64, var_A: float) -> HeadingError | None:
-        """A fix ``p_W_G`` (3,) m with the filter's predicted antenna position ``p_W_A`` (3,) m
-        and its position variance per axis ``var_A`` (m²): the heading error once known and
-        fitting (the local frame turned by ``-angle_rad`` from the world), else None."""
+    def add(self, t_ns: int, p_W_G: F64, p_W_A: F64, var_A: float,
+            standing: bool = False) -> HeadingError | None:  # fmt: skip
+        """A fix ``p_W_G`` (3,) m with the filter's own antenna path at it ``p_W_A`` (3,) m
+        and its position variance per axis ``var_A`` (m²); ``standing``: the vehicle stood
+        (the fix joins the standing mean). The heading error once known and fitting (the
+        local frame turned by ``-angle_rad`` from the world), else None."""
         self.last_ns = int(t_ns)
-        self._gps.append(self._E @ np.asarray(p_W_G, float))
-        self._filter.append(self._E @ np.asarray(p_W_A, float))
-        self._var.append(float(var_A))
+        g, f = self._E @ np.asarray(p_W_G, float), self._E @ np.asarray(p_W_A, float)
+        if standing:
+            self._standing_H += np.concatenate([g, f])
+            self._standing_n += 1
+            self._standing_var = min(self._standing_var, float(var_A))
+        else:
+            self._gps_H.append(g)
+            self._filter_H.append(f)
+            self._var.append(float(var_A))
         return self.estimate(self._max_std)
+
+    def _points(self) -> tuple[F64, F64, F64]:
+        """The fixes (n, 2), the filter's path (n, 2) and their variances (n,): the standing
+        mean first."""
+        g, f, var = list(self._gps_H), list(self._filter_H), list(self._var)
+        if self._standing_n:
+            mean = self._standing_H / self._standing_n
+            g, f, var = [mean[:2], *g], [mean[2:], *f], [self._standing_var, *var]
+        v = np.asarray(var, dtype=float)
+        gained = np.maximum(v - np.minimum.accumulate(v), 0.0) if v.size else v
+        return np.array(g).reshape(-1, 2), np.array(f).reshape(-1, 2), self._var_p + gained
 
     def estimate(self, max_std_rad: float) -> HeadingError | None:
         """The path's heading error if known to ``max_std_rad`` and fitting, else None (at a
-        wait's end a looser bound than ``add``'s beats an arbitrary heading). A fix that
-        does not fit (multipath) is left out, the worst first, up to one in five: kept, one
-        jumped fix refused every later fit and the wait ended with an arbitrary heading (a
-        user's probe)."""
-        n = len(self._gps)
+        wait's end a looser bound than ``add``'s beats an arbitrary heading)."""
+        g_H, f_H, var = self._points()
+        n = len(var)
         if n < 3:
             return None
-        # each point weighted by its variance: the fix's and what the filter's position has
-        # gained since the first point (an INS after an outage barely counts)
-        var = self._var_p + np.maximum(np.asarray(self._var) - self._var[0], 0.0)
         keep = np.ones(n, dtype=bool)
         for _ in range(n // 5 + 1):
             m = int(keep.sum())
-            fitted = self._fit(np.array(self._gps)[keep], np.array(self._filter)[keep],
-                               1.0 / var[keep])  # fmt: skip
+            fitted = _turn_fit(g_H[keep], f_H[keep], 1.0 / var[keep])
             if fitted is None:
                 return None
             angle, std, misfit = fitted
             if std > max_std_rad:
                 return None
-            if float(misfit.sum()) <= chi2.ppf(self._fit_probability, 2 * m - 3):
+            p = self._fit_probability
+            if (float(misfit.sum()) <= chi2.ppf(p, 2 * m - 3)
+                    and float(misfit.max()) <= chi2.ppf(1.0 - (1.0 - p) / m, 2)):  # fmt: skip
                 return HeadingError(angle, std, m)
             if m <= 3:
                 return None
             keep[np.flatnonzero(keep)[int(np.argmax(misfit))]] = False
         return None
 
-    @staticmethod
-    def _fit(g: F64, f: F64, w: F64) -> tuple[float, float, F64] | None:
-        """The weighted turn mapping the path ``f`` (m, 2) onto ``g`` (m, 2), translation
-        free: its angle (rad), standard deviation (rad) and each point's weighted squared
-        misfit (m,); None for a path with no spread."""
-        g = g - w @ g / w.sum()
-        f = f - w @ f / w.sum()
-        spread = float(w @ np.sum(f * f, axis=1))
-        if spread <= 0.0:
-            return None
-        angle = math.atan2(float(w @ (f[:, 0] * g[:, 1] - f[:, 1] * g[:, 0])),
-                           float(w @ np.sum(f * g, axis=1)))  # fmt: skip
-        c, s = math.cos(angle), math.sin(angle)
-        turned = f @ np.array([[c, s], [-s, c]])  # each row turned by ``angle``
-        return angle, math.sqrt(1.0 / spread), w * np.sum((turned - g) ** 2, axis=1)
+
+def _turn_fit(g_H: F64, f_H: F64, w: F64) -> tuple[float, float, F64] | None:
+    """The weighted turn mapping the path ``f_H`` (m, 2) onto ``g_H`` (m, 2), both in a
+    horizontal basis whose two axes turn about the vertical as x and y about z, translation
+    free: its angle (rad), standard deviation (rad) and each point's weighted squared misfit
+    (m,); None for a path with no spread."""
+    g = g_H - w @ g_H / w.sum()
+    f = f_H - w @ f_H / w.sum()
+    spread = float(w @ np.sum(f * f, axis=1))
+    if spread <= 0.0:
+        return None
+    angle = math.atan2(float(w @ (f[:, 0] * g[:, 1] - f[:, 1] * g[:, 0])),
+                       float(w @ np.sum(f * g, axis=1)))  # fmt: skip
+    c, s = math.cos(angle), math.sin(angle)
+    turned = f @ np.array([[c, s], [-s, c]])  # each row turned by ``angle``
+    return angle, math.sqrt(1.0 / spread), w * np.sum((turned - g) ** 2, axis=1)
 
 
 def turn_logged(

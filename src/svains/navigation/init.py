@@ -35,8 +35,8 @@ log = logging.getLogger(__name__)
 # At rest the specific force is gravity plus the accelerometer's bias and scale error; a
 # consumer MEMS part stays within a few percent, a unit mistake (g, gravity removed) does not.
 STATIC_GRAVITY_TOL = 0.25
-# ``InitialState.info["heading"]`` of a start whose heading the GPS velocities will give
-# (``InitOptions.heading_from_gps``): it runs in a local frame until then.
+# ``InitialState.info["heading"]`` of a start whose heading the GPS will give (its velocities,
+# or the fixes' path; ``InitOptions.heading_from_gps``): it runs in a local frame until then.
 HEADING_FROM_GPS = "none (local frame until the GPS gives it)"
 
 

@@ -39,6 +39,7 @@ from svains.navigation.heading_check import (
     HeadingCheck,
     HeadingCheckOptions,
     HeadingError,
+    horizontal,
     turn_heading,
     yaw_std,
 )
@@ -169,17 +170,18 @@ class Core:
         )  # fmt: skip
         self._heading_fixes: list[Any] = []  # (t, v_W_G) of this group's GPS velocities
         # position-only fixes during the heading wait: the heading from their path
+        check = HeadingCheckOptions()
         self._fix_path = FixPathHeading(
             self._up_W, rig.gps.position_noise_std if rig.gps is not None else 1.0,
-            np.radians(HeadingCheckOptions().max_std_deg), HeadingCheckOptions().fit_probability)
+            np.radians(check.max_std_deg), check.fit_probability)
         # A static start without a heading source runs in a local frame about its position
-        # until the GPS velocities give the heading; fixes wait (``navigation.heading_wait``).
+        # until the GPS gives the heading; fixes wait (``navigation.heading_wait``).
         self._heading_wait = init_info.get("heading") == HEADING_FROM_GPS
         self._heading_pivot = self._antenna_W()
         # the antenna's own motion during the wait (the filter's predictions and vision, not
-        # the fixes fused meanwhile: ``_check_heading_path``), counted from ``_own_from_A``
-        self._own_A = np.zeros(3)
-        self._own_from_A = self._heading_pivot.copy()
+        # the fixes fused meanwhile: ``_wait_fix``), counted from ``_own_from_W_A``
+        self._own_W_A = np.zeros(3)
+        self._own_from_W_A = self._heading_pivot.copy()
         self._own_fix_fused = False
         self._heading_wait_from: int | None = None  # first fix held after setting off
         self._heading_held_t: list[int] = []  # the held fixes' times
@@ -310,9 +312,9 @@ class Core:
                 # a velocity not fused is not the wait's either: the fixes' path gives it
                 v_wait = payload[1] if cfg.use_gps_velocity else None
                 if self._heading_wait:
-                    self._check_heading_path(t, payload[0], acquire=v_wait is None)
-                if self._heading_wait and self._hold_for_heading(t, v_wait):
-                    continue
+                    standing = self._wait_fix(t, payload[0], v_wait)
+                    if self._heading_wait and self._hold_for_heading(t, standing):
+                        continue
                 if self._recovery is not None and self._recovery.reset_pending:
                     v = payload[1] if use_v else None
                     self._recovery.reset_from_gps(ins.ukf, self.rig.gps, payload[0], v)
@@ -356,7 +358,7 @@ class Core:
             self._heading_check.after_update(t_fix, ins.ukf.x[V], v_fix)
         self._heading_fixes.clear()
         if self._own_fix_fused:  # the fix's pull is no motion of the antenna's own
-            self._own_from_A = self._antenna_W()
+            self._own_from_W_A = self._antenna_W()
             self._own_fix_fused = False
         if self._recovery is not None and (has_frame or blocks or len(items) > has_tick):
             self._recovery.check(ins.ukf, t)
@@ -427,25 +429,38 @@ class Core:
                         f"off (± {np.degrees(error.std_rad):.1f}°, from the GPS velocities "
                         f"over {error.steps} fixes): the state is turned{hint}")  # fmt: skip
 
-    def _check_heading_path(self, t: int, p_W_G: Any, acquire: bool) -> None:
-        """During the heading wait, a fix: its path with the filter's (``FixPathHeading``,
-        started again after an IMU fault, whose bridge breaks the filter's path) gives the
-        heading, which turns the state when ``acquire`` (a position-only fix; with velocities
-        the heading check's is surer sooner, KITTI raw ±0.3° against ±1.8° at the third fix,
-        and the path's serves at the wait's end: ``_take_path_heading``)."""
+    def _wait_fix(self, t: int, p_W_G: Any, v_W_G: Any) -> bool:
+        """During the heading wait, a fix (``v_W_G`` None: position only, or its velocity not
+        fused): whether it shows the vehicle standing, and the fixes' path with the filter's
+        own (``FixPathHeading``, started again after an IMU fault, whose bridge breaks the
+        filter's path), which gives a position-only fix's heading and turns the state (with
+        velocities the heading check is surer sooner, KITTI raw ±0.3° at the fourth fix
+        against ±1.8° at the third, and the path's serves at the wait's end:
+        ``_take_path_heading``). Standing: the GPS's horizontal speed within 3σ of its
+        velocity noise; without a velocity, the antenna's own motion since the wait began
+        within half a fix's σ, where any heading error moves it by less than the fix's noise
+        (judged from fix to fix, a vehicle slower than σ per fix interval, 14 m/s at 10 Hz,
+        stood for good: a user's probe)."""
+        assert self.rig.gps is not None
         ukf = self.ins.ukf
         fault_ns = None if self._imu_faults is None else self._imu_faults.last_fault_ns
         if fault_ns is not None and fault_ns >= self._fix_path.last_ns:
             self._fix_path.clear()
         # the filter's path is its own motion: with the fixes fused while standing in it, a
         # 10 Hz GPS dragged it onto the fixes and the fit took a turn 58° off (a user's probe)
-        p_A = self._antenna_W()
-        self._own_A += p_A - self._own_from_A
-        self._own_from_A = p_A
-        error = self._fix_path.add(t, np.asarray(p_W_G, float), self._own_A.copy(),
-                                   float(np.trace(ukf.P[POS, POS])) / 3.0)  # fmt: skip
-        if error is not None and acquire:
+        p_W_A = self._antenna_W()
+        self._own_W_A += p_W_A - self._own_from_W_A
+        self._own_from_W_A = p_W_A
+        if v_W_G is None:
+            moved, limit = self._own_W_A, 0.5 * self.rig.gps.position_noise_std
+        else:
+            moved, limit = np.asarray(v_W_G, float), 3.0 * self.rig.gps.velocity_noise_std
+        standing = float(np.linalg.norm(horizontal(moved, self._up_W))) <= limit
+        error = self._fix_path.add(t, np.asarray(p_W_G, float), self._own_W_A.copy(),
+                                   float(np.trace(ukf.P[POS, POS])) / 3.0, standing)  # fmt: skip
+        if error is not None and v_W_G is None:
             self._heading_found(t, error, "the GPS fixes' path")
+        return standing
 
     def _take_path_heading(self, t: int, why: str) -> bool:
         """At the wait's end without a heading (``why``): the fixes' path's, if it is surer
@@ -460,25 +475,15 @@ class Core:
                         "magnetometer or GPS velocities would give it sooner)")  # fmt: skip
         return True
 
-    def _hold_for_heading(self, t: int, v_W_G: Any) -> bool:
-        """While a local start waits for its heading: a fix that shows the vehicle still
-        (horizontal GPS speed within 3σ of its velocity noise; a position-only fix: the
-        antenna's own motion since the wait began within half the fix's σ, where any heading
-        error moves it by less than the fix's noise; measured from fix to fix, a vehicle
-        slower than σ per fix interval, 14 m/s at 10 Hz, stood for good: a user's probe) is
-        fused (at rest the local frame and the world agree at the body), and the frame's
-        pivot follows the body; a fix that shows it moving is held out (counted) until the
-        wait is over (``_heading_wait_over``); then the wait ends (``_end_heading_wait``) and
-        it is fused. The IMU's rest test is not asked: it ended on a vehicle parked for a
-        minute, and the fixes were held while it stood (a user's probe)."""
-        assert self.rig.gps is not None
-        if v_W_G is None:
-            d = self._own_A
-            moved, limit = d - (d @ self._up_W) * self._up_W, 0.5 * self.rig.gps.position_noise_std
-        else:
-            v = np.asarray(v_W_G, dtype=float)
-            moved, limit = v - (v @ self._up_W) * self._up_W, 3.0 * self.rig.gps.velocity_noise_std
-        if float(np.linalg.norm(moved)) <= limit:
+    def _hold_for_heading(self, t: int, standing: bool) -> bool:
+        """While a local start waits for its heading: a fix that shows the vehicle
+        ``standing`` (``_wait_fix``) is fused (at rest the local frame and the world agree at
+        the body), and the frame's pivot follows the body; a fix that shows it moving is held
+        out (counted) until the wait is over (``_heading_wait_over``); then the wait ends
+        (``_end_heading_wait``) and it is fused. The IMU's rest test is not asked: it ended on
+        a vehicle parked for a minute, and the fixes were held while it stood (a user's
+        probe)."""
+        if standing:
             if self._heading_wait_from is None:
                 self._heading_pivot = self._antenna_W()
             self._own_fix_fused = True
@@ -515,7 +520,7 @@ class Core:
         start's position."""
         turn_heading(self.ins.ukf, error, self._up_W, pivot_W=self._heading_pivot)
         self._turn_kept(t, error)
-        self._heading_wait = False
+        self._wait_over()
         at_s = (t - self.t0_ns) * 1e-9
         self.init_info["heading_found_s"] = round(at_s, 3)
         self.init_info["heading_turn_deg"] = round(float(np.degrees(error.angle_rad)), 3)
@@ -527,6 +532,14 @@ class Core:
                  "turned by %.1f° (± %.1f°) into the world; %d fix(es) held until then", at_s,
                  source, error.steps, np.degrees(error.angle_rad), np.degrees(error.std_rad),
                  self.gps_held_heading)  # fmt: skip
+
+    def _wait_over(self) -> None:
+        """The heading wait ends: its path is dropped and the heading check starts again (its
+        velocities were compared in the local frame)."""
+        self._heading_wait = False
+        self._fix_path.clear()
+        if self._heading_check is not None:
+            self._heading_check.restart()
 
     def _turn_kept(self, t: int, error: HeadingError) -> None:
         """Turn what the run kept in the local frame (the estimates logged so far, for a
@@ -547,7 +560,7 @@ class Core:
         fixes' path gives it better than that (``_take_path_heading``)."""
         if self._take_path_heading(t, why):
             return
-        self._heading_wait = False
+        self._wait_over()
         std = self.config.init.yaw_std_unknown
         # about the pivot, as the logged rows below: a state far from it (a start in motion)
         # is off by the unknown turn in position too (a yaw widened alone lost the fixes). The
