@@ -18,8 +18,6 @@ import logging
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from svains.datasets import load_dataset
 from svains.datasets.types import Dataset
 from svains.evaluation.run import run_method
@@ -30,7 +28,7 @@ def position_only(ds: Dataset) -> Dataset:
     """The data set with its GPS velocities dropped."""
     if ds.gps is None:
         raise SystemExit("the data set has no GPS")
-    return replace(ds, gps=replace(ds.gps, v_W_G=np.full_like(ds.gps.v_W_G, np.nan)))
+    return replace(ds, gps=ds.gps.position_only())
 
 
 def _cells(report: dict) -> str:

@@ -153,7 +153,7 @@ def test_the_smoother_takes_a_heading_found_at_the_runs_end(resting_drone: Path)
     from svains.replay.groundtruth import interpolate_groundtruth
 
     ds = load_dataset(resting_drone)
-    ds = replace(ds, gps=replace(ds.gps, v_W_G=np.full_like(ds.gps.v_W_G, np.nan)))
+    ds = replace(ds, gps=ds.gps.position_only())
     res = run_method(ds, "3d", RunOptions(smoother=SmootherOptions(enabled=True)))
     (turn,) = res.frame_turns
     assert turn.t_ns == res.t_ns[-1] and 5.0 < np.degrees(turn.std_rad) < 20.0
@@ -288,7 +288,7 @@ def test_position_only_fixes_give_the_heading_from_their_path(
     from dataclasses import replace
 
     ds = load_dataset(resting_drone)
-    ds = replace(ds, gps=replace(ds.gps, v_W_G=np.full_like(ds.gps.v_W_G, np.nan)))
+    ds = replace(ds, gps=ds.gps.position_only())
     with caplog.at_level("WARNING"):
         res = run_method(ds, "ins", RunOptions())
     init = res.report["init"]

@@ -217,7 +217,7 @@ def test_a_vision_start_with_gps_and_no_heading_waits_for_the_gps_velocities(
 def _position_only(ds: Dataset) -> Dataset:
     """The data set with its GPS velocities dropped (a ROS NavSatFix gives none)."""
     assert ds.gps is not None
-    return replace(ds, gps=replace(ds.gps, v_W_G=np.full_like(ds.gps.v_W_G, np.nan)))
+    return replace(ds, gps=ds.gps.position_only())
 
 
 def test_a_vision_start_with_position_only_gps_turns_by_the_fixes_path(gps_flight: Path) -> None:

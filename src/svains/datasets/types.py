@@ -82,6 +82,10 @@ class GpsStream:
         """(N,) whether each fix carries a velocity."""
         return np.all(np.isfinite(self.v_W_G), axis=1)
 
+    def position_only(self) -> GpsStream:
+        """The same fixes without their velocities (as a ROS ``NavSatFix`` gives them)."""
+        return replace(self, v_W_G=np.full_like(self.v_W_G, np.nan))
+
     def velocity_or_differenced(self) -> F64:
         """(N, 3) m/s: the fixes' velocities, or where a fix has none the positions' central
         difference (one-sided at the ends) for checks that only need the course and speed."""
