@@ -556,8 +556,8 @@ class Core:
     def _end_heading_wait(self, t: int, why: str) -> None:
         """No heading from the GPS: the start's heading becomes an arbitrary one (its yaw
         widened to ``init.yaw_std_unknown``, and so are the estimates logged so far, by a turn
-        of 0° with that uncertainty) and fixes are fused, warned; unless the position-only
-        fixes' path gives it better than that (``_take_path_heading``)."""
+        of 0° with that uncertainty) and fixes are fused, warned; unless the fixes' path gives
+        it better than that (``_take_path_heading``)."""
         if self._take_path_heading(t, why):
             return
         self._wait_over()
