@@ -70,3 +70,22 @@ def test_ci_runs_the_suite_first_then_docs_and_packaging() -> None:
     makefile = (ROOT / "Makefile").read_text()
     assert "mkdocs build --strict --site-dir site" in makefile
     assert "site/" in (ROOT / ".gitignore").read_text().splitlines()
+
+
+def test_the_measured_with_constraints_pin_every_dependency_inside_its_range() -> None:
+    """``bench/measured-with.txt`` (the versions the figures were last measured with, for
+    ``pip install -c``) pins each runtime dependency exactly, to a version pyproject allows."""
+    from packaging.requirements import Requirement
+
+    pins = {}
+    for line in (ROOT / "bench" / "measured-with.txt").read_text(encoding="utf-8").splitlines():
+        if line.strip() and not line.startswith("#"):
+            req = Requirement(line)
+            (spec,) = req.specifier
+            assert spec.operator == "==", line
+            pins[req.name.lower().replace("_", "-")] = spec.version
+    for dep in _pyproject()["project"]["dependencies"]:
+        req = Requirement(dep)
+        name = req.name.lower().replace("_", "-")
+        assert name in pins, f"{name} not pinned in bench/measured-with.txt"
+        assert req.specifier.contains(pins[name], prereleases=True), (name, pins[name])
