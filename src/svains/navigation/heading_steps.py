@@ -1,0 +1,274 @@
+"""The heading steps of ``navigator_core.Core``: the GPS heading check and the heading wait.
+
+``HeadingSteps`` is a mixin of ``Core``: a start without a heading source held in a local frame
+until the GPS gives the heading (``navigation.heading_wait``), the check that turns a heading
+the GPS velocities show wrong (``navigation.heading_check``), and the GPS antenna's position
+they pivot about. It uses what ``Core`` sets before ``_init_heading``: ``ins``, ``rig``,
+``config``, ``init_info``, ``t0_ns``, ``_up_W``, ``_warn``, ``_imu_faults``, the logs
+(``_log_x``, ``_log_std``, ``_log_P9``), ``_updater`` and ``_mag_off``.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+
+from svains.geometry.rotation import quat_to_rotmat
+from svains.models.state import DV, Q, V, W
+from svains.models.state import P as POS
+from svains.navigation.heading_check import (
+    HeadingCheck,
+    HeadingCheckOptions,
+    HeadingError,
+    horizontal,
+    turn_heading,
+    yaw_std,
+)
+from svains.navigation.heading_wait import HEADING_WAIT_MAX_S, FixPathHeading, turn_logged
+from svains.navigation.init import HEADING_FROM_GPS
+from svains.navigation.ins import default_imu_calib
+from svains.navigation.options import RunConfig
+from svains.navigation.outputs import FrameTurn
+from svains.sensors.types import Rig
+
+log = logging.getLogger(__name__)
+
+
+class HeadingSteps:
+    """The heading check and the heading wait of ``Core`` (the module docstring)."""
+
+    def _init_heading(self, config: RunConfig, rig: Rig, init_info: dict[str, Any],
+                      gps_used: bool) -> None:  # fmt: skip
+        """The heading check and, for a start whose heading the GPS will give
+        (``init.HEADING_FROM_GPS``), the wait's state (Core's ``__init__``, once ``ins``,
+        ``_up_W``, ``t0_ns`` and the logs are set)."""
+        self._heading_check = (
+            HeadingCheck(self._up_W, rig.gps.velocity_noise_std,
+                         (rig.imu or default_imu_calib()).accel_noise_density)
+            if gps_used and rig.gps is not None and config.use_gps_velocity
+            and config.faults.heading_check else None
+        )  # fmt: skip
+        self._heading_fixes: list[Any] = []  # (t, v_W_G) of this group's GPS velocities
+        # position-only fixes during the heading wait: the heading from their path
+        check = HeadingCheckOptions()
+        self._fix_path = FixPathHeading(
+            self._up_W, rig.gps.position_noise_std if rig.gps is not None else 1.0,
+            np.radians(check.max_std_deg), check.fit_probability)
+        # A static start without a heading source runs in a local frame about its position
+        # until the GPS gives the heading; fixes wait (``navigation.heading_wait``).
+        self._heading_wait = init_info.get("heading") == HEADING_FROM_GPS
+        self._heading_pivot = self._antenna_W()
+        # the antenna's own motion during the wait (the filter's predictions and vision, not
+        # the fixes fused meanwhile: ``_wait_fix``), counted from ``_own_from_W_A``
+        self._own_W_A = np.zeros(3)
+        self._own_from_W_A = self._heading_pivot.copy()
+        self._own_fix_fused = False
+        self._heading_wait_from: int | None = None  # first fix held after setting off
+        self._heading_held_t: list[int] = []  # the held fixes' times
+        self.gps_held_heading = 0
+        self.frame_turns: list[FrameTurn] = []
+        if self._heading_wait and not config.faults.heading_check:
+            self._end_heading_wait(self.t0_ns, "the heading check is off")
+
+    def _antenna_W(self) -> np.ndarray:
+        """The GPS antenna's position (3,) m (the body's without a GPS): the heading wait's
+        pivot, where the local frame and the world agree (a start subtracts the lever arm with
+        its local heading: turned about the body, a 1.5 m lever arm left the first seconds
+        1.2 m off, a user's probe)."""
+        x = self.ins.ukf.x
+        p = np.array(x[POS], dtype=float)
+        if self.rig.gps is not None:
+            p = p + quat_to_rotmat(x[Q]) @ np.asarray(self.rig.gps.p_B_G, dtype=float)
+        return p
+
+    def _check_heading(self, t: int, v_W_G: Any, use_v: bool) -> None:
+        """Before a GPS fix's update: turn the state when the velocities since the last fixes
+        show its heading wrong (``navigation.heading_check``), warned. Not across an IMU fault
+        (a bridged gap predicts no velocity change) nor with a GPS velocity switched off."""
+        assert self._heading_check is not None
+        ukf = self.ins.ukf
+        fault_ns = None if self._imu_faults is None else self._imu_faults.last_fault_ns
+        usable = use_v and (fault_ns is None or fault_ns < self._heading_check.last_fix_ns)
+        v_var = float(np.trace(ukf.P[DV, DV])) / 3.0
+        acquire = self._heading_wait
+        # the antenna's velocity, as the fix gives it: the body's differed by R (ω × p_B_G),
+        # and with a 1.5 m lever arm the heading was never found (a review)
+        assert self.rig.gps is not None
+        v_W_A = ukf.x[V] + quat_to_rotmat(ukf.x[Q]) @ np.cross(
+            ukf.x[W], np.asarray(self.rig.gps.p_B_G, dtype=float))
+        error = self._heading_check.before_update(t, v_W_A, v_W_G, yaw_std(ukf, self._up_W),
+                                                  v_var, usable, acquire)  # fmt: skip
+        self._heading_fixes.append((t, np.asarray(v_W_G, float)))
+        if error is None:
+            return
+        if acquire:
+            self._heading_found(t, error, "the GPS velocities")
+            return
+        # The fix's velocity replaces the turned one (it is the reference the turn was found
+        # against; an INS's velocity error is no rotation of its velocity).
+        assert self.rig.gps is not None
+        turn_heading(ukf, error, self._up_W, np.asarray(v_W_G, float),
+                     self.rig.gps.velocity_noise_std)  # fmt: skip
+        # A heading the magnetometer held (at the start or since) was its: fused on, it would
+        # pull the turned state back once the yaw is uncertain (simulator, `ins`, magnetometer
+        # turned 90°: back to 110° off 9 s after the turn).
+        hint = ""
+        if self.rig.mag is not None and self.config.use_mag:
+            self._mag_off = True
+            hint = ("; the magnetometer is not fused from now on (is its T_BS right? "
+                    "svains reads its field in the body frame through it)")
+        self._warn.warn("heading-turn", t, f"the heading was {np.degrees(error.angle_rad):.1f}° "
+                        f"off (± {np.degrees(error.std_rad):.1f}°, from the GPS velocities "
+                        f"over {error.steps} fixes): the state is turned{hint}")  # fmt: skip
+
+    def _wait_fix(self, t: int, p_W_G: Any, v_W_G: Any) -> bool:
+        """During the heading wait, a fix (``v_W_G`` None: position only, or its velocity not
+        fused): whether it shows the vehicle standing, and the fixes' path with the filter's
+        own (``FixPathHeading``, started again after an IMU fault, whose bridge breaks the
+        filter's path), which gives a position-only fix's heading and turns the state (with
+        velocities the heading check is surer sooner, KITTI raw ±0.3° at the fourth fix
+        against ±1.8° at the third, and the path's serves at the wait's end:
+        ``_take_path_heading``). Standing: the GPS's horizontal speed within 3σ of its
+        velocity noise; without a velocity, the antenna's own motion since the wait began
+        within half a fix's σ, where any heading error moves it by less than the fix's noise
+        (judged from fix to fix, a vehicle slower than σ per fix interval, 14 m/s at 10 Hz,
+        stood for good: a user's probe)."""
+        assert self.rig.gps is not None
+        ukf = self.ins.ukf
+        fault_ns = None if self._imu_faults is None else self._imu_faults.last_fault_ns
+        if fault_ns is not None and fault_ns >= self._fix_path.last_ns:
+            self._fix_path.clear()
+        # the filter's path is its own motion: with the fixes fused while standing in it, a
+        # 10 Hz GPS dragged it onto the fixes and the fit took a turn 58° off (a user's probe)
+        p_W_A = self._antenna_W()
+        self._own_W_A += p_W_A - self._own_from_W_A
+        self._own_from_W_A = p_W_A
+        if v_W_G is None:
+            moved, limit = self._own_W_A, 0.5 * self.rig.gps.position_noise_std
+        else:
+            moved, limit = np.asarray(v_W_G, float), 3.0 * self.rig.gps.velocity_noise_std
+        standing = float(np.linalg.norm(horizontal(moved, self._up_W))) <= limit
+        error = self._fix_path.add(t, np.asarray(p_W_G, float), self._own_W_A.copy(),
+                                   float(np.trace(ukf.P[POS, POS])) / 3.0, standing)  # fmt: skip
+        if error is not None and v_W_G is None:
+            self._heading_found(t, error, "the GPS fixes' path")
+        return standing
+
+    def _take_path_heading(self, t: int, why: str) -> bool:
+        """At the wait's end without a heading (``why``): the fixes' path's, if it is surer
+        than the arbitrary heading's ``init.yaw_std_unknown`` and fits, is taken
+        (the state and what it logged turned), warned with its uncertainty. Whether it was."""
+        error = self._fix_path.estimate(self.config.init.yaw_std_unknown)
+        if error is None:
+            return False
+        self._heading_found(t, error, "the GPS fixes' path, at the wait's end")
+        self._warn.warn("heading-wait", t, f"{why}: the heading from the path of the GPS fixes "
+                        f"is taken, known to ± {np.degrees(error.std_rad):.1f}° only (a "
+                        "magnetometer or GPS velocities would give it sooner)")  # fmt: skip
+        return True
+
+    def _hold_for_heading(self, t: int, standing: bool) -> bool:
+        """While a local start waits for its heading: a fix that shows the vehicle
+        ``standing`` (``_wait_fix``) is fused (at rest the local frame and the world agree at
+        the body), and the frame's pivot follows the body; a fix that shows it moving is held
+        out (counted) until the wait is over (``_heading_wait_over``); then the wait ends
+        (``_end_heading_wait``) and it is fused. The IMU's rest test is not asked: it ended on
+        a vehicle parked for a minute, and the fixes were held while it stood (a user's
+        probe)."""
+        if standing:
+            if self._heading_wait_from is None:
+                self._heading_pivot = self._antenna_W()
+            self._own_fix_fused = True
+            return False
+        if self._heading_wait_from is None:
+            self._heading_wait_from = t
+        self._heading_held_t.append(t)
+        if self._heading_wait_over(t):
+            self._end_heading_wait(t, f"the GPS gave none over {HEADING_WAIT_MAX_S:g} s of "
+                                   "motion")  # fmt: skip
+            return False
+        self.gps_held_heading += 1
+        return True
+
+    def _heading_wait_over(self, t: int) -> bool:
+        """Whether the heading wait has run ``HEADING_WAIT_MAX_S``: an unaided INS in time since
+        the first fix held (it drifts meanwhile), a vision method in held fixes at their own
+        spacing (its local frame holds; an outage soon after a vision start, counted in time,
+        ended the wait after 2 fixes: KITTI raw 7.08 m, and an INS counted in fixes drifted
+        6 s longer: 5.54 -> 13.56 m, two reviews). The spacing is the fixes', not the declared
+        rate (10 Hz declared for 1 Hz fixes held every fix of the run: a review)."""
+        assert self._heading_wait_from is not None
+        if self.config.method == "ins":
+            return (t - self._heading_wait_from) * 1e-9 > HEADING_WAIT_MAX_S
+        held = np.asarray(self._heading_held_t, dtype=np.int64)
+        if held.size < 3:
+            return False
+        spacing_s = float(np.median(np.diff(held))) * 1e-9
+        return held.size > max(3, HEADING_WAIT_MAX_S / max(spacing_s, 1e-3))
+
+    def _heading_found(self, t: int, error: Any, source: str) -> None:
+        """The local frame's heading found (from ``source``, for the report): the state, the
+        estimates logged so far and the stored keyframes turned into the world about the
+        start's position."""
+        turn_heading(self.ins.ukf, error, self._up_W, pivot_W=self._heading_pivot)
+        self._turn_kept(t, error)
+        self._wait_over()
+        at_s = (t - self.t0_ns) * 1e-9
+        self.init_info["heading_found_s"] = round(at_s, 3)
+        self.init_info["heading_turn_deg"] = round(float(np.degrees(error.angle_rad)), 3)
+        self.init_info["heading_std_deg"] = round(float(np.degrees(error.std_rad)), 3)
+        self.init_info["heading_source"] = source
+        if self.gps_held_heading:
+            self.init_info["gps_fixes_held"] = self.gps_held_heading
+        log.info("%.3f s into the run: heading from %s over %d fixes, the local frame "
+                 "turned by %.1f° (± %.1f°) into the world; %d fix(es) held until then", at_s,
+                 source, error.steps, np.degrees(error.angle_rad), np.degrees(error.std_rad),
+                 self.gps_held_heading)  # fmt: skip
+
+    def _wait_over(self) -> None:
+        """The heading wait ends: its path is dropped and the heading check starts again (its
+        velocities were compared in the local frame)."""
+        self._heading_wait = False
+        self._fix_path.clear()
+        if self._heading_check is not None:
+            self._heading_check.restart()
+
+    def _turn_kept(self, t: int, error: HeadingError) -> None:
+        """Turn what the run kept in the local frame (the estimates logged so far, for a
+        smoother too, and the stored keyframes) as the state was: by ``error`` about the
+        heading wait's pivot."""
+        pivot = self._heading_pivot
+        turn_logged(self._log_x, self._log_std, self._log_P9, error, self._up_W, pivot)
+        self.frame_turns.append(FrameTurn(t, error.angle_rad, error.std_rad, self._up_W.copy(),
+                                          pivot.copy()))  # fmt: skip
+        reloc = getattr(self._updater, "relocaliser", None)
+        if reloc is not None:
+            reloc.memory.turn(error.angle_rad * self._up_W, pivot)
+
+    def _end_heading_wait(self, t: int, why: str) -> None:
+        """No heading from the GPS: the start's heading becomes an arbitrary one (its yaw
+        widened to ``init.yaw_std_unknown``, and so are the estimates logged so far, by a turn
+        of 0° with that uncertainty) and fixes are fused, warned; unless the fixes' path gives
+        it better than that (``_take_path_heading``)."""
+        if self._take_path_heading(t, why):
+            return
+        self._wait_over()
+        std = self.config.init.yaw_std_unknown
+        # about the pivot, as the logged rows below: a state far from it (a start in motion)
+        # is off by the unknown turn in position too (a yaw widened alone lost the fixes). The
+        # covariance alone: a mean rewritten to round-off cut the smoother's chain (a review)
+        ukf = self.ins.ukf
+        x = ukf.x.copy()
+        turn_heading(ukf, HeadingError(0.0, std, 0), self._up_W, pivot_W=self._heading_pivot)
+        ukf.x = x
+        if self._log_x:
+            # the logged rows were the local frame's with a yaw σ of a known heading: as
+            # world-frame rows they hold an arbitrary heading too (they read 52-105σ off)
+            self._turn_kept(t, HeadingError(0.0, std, 0))
+        self.init_info["heading"] = "none (arbitrary yaw)"
+        self._warn.warn("heading-wait", t, f"no heading for the local start ({why}): GPS "
+                        f"fixes are fused with an arbitrary heading (standard deviation "
+                        f"{np.degrees(std):.1f}°) from now on; a magnetometer would give "
+                        "one")  # fmt: skip
