@@ -4,7 +4,7 @@
 until the GPS gives the heading (``navigation.heading_wait``), the check that turns a heading
 the GPS velocities show wrong (``navigation.heading_check``), and the GPS antenna's position
 they pivot about. It uses what ``Core`` sets before ``_init_heading``: ``ins``, ``rig``,
-``config``, ``init_info``, ``t0_ns``, ``_up_W``, ``_warn``, ``_imu_faults``, the logs
+``config``, ``init_info``, ``t0_ns``, ``_up_W``, ``_warn``, ``_imu_fault_since``, the logs
 (``_log_x``, ``_log_std``, ``_log_P9``), ``_updater`` and ``_mag_off``.
 """
 
@@ -89,8 +89,7 @@ class HeadingSteps:
         (a bridged gap predicts no velocity change) nor with a GPS velocity switched off."""
         assert self._heading_check is not None
         ukf = self.ins.ukf
-        fault_ns = None if self._imu_faults is None else self._imu_faults.last_fault_ns
-        usable = use_v and (fault_ns is None or fault_ns < self._heading_check.last_fix_ns)
+        usable = use_v and not self._imu_fault_since(self._heading_check.last_fix_ns)
         v_var = float(np.trace(ukf.P[DV, DV])) / 3.0
         acquire = self._heading_wait
         # the antenna's velocity, as the fix gives it: the body's differed by R (ω × p_B_G),
@@ -137,8 +136,7 @@ class HeadingSteps:
         stood for good: a user's probe)."""
         assert self.rig.gps is not None
         ukf = self.ins.ukf
-        fault_ns = None if self._imu_faults is None else self._imu_faults.last_fault_ns
-        if fault_ns is not None and fault_ns >= self._fix_path.last_ns:
+        if self._imu_fault_since(self._fix_path.last_ns):
             self._fix_path.clear()
         # the filter's path is its own motion: with the fixes fused while standing in it, a
         # 10 Hz GPS dragged it onto the fixes and the fit took a turn 58° off (a user's probe)
@@ -150,9 +148,11 @@ class HeadingSteps:
         else:
             moved, limit = np.asarray(v_W_G, float), 3.0 * self.rig.gps.velocity_noise_std
         standing = float(np.linalg.norm(horizontal(moved, self._up_W))) <= limit
+        # with velocities the path is fitted only at the wait's end
         error = self._fix_path.add(t, np.asarray(p_W_G, float), self._own_W_A.copy(),
-                                   float(np.trace(ukf.P[POS, POS])) / 3.0, standing)  # fmt: skip
-        if error is not None and v_W_G is None:
+                                   float(np.trace(ukf.P[POS, POS])) / 3.0, standing,
+                                   fit=v_W_G is None)  # fmt: skip
+        if error is not None:
             self._heading_found(t, error, "the GPS fixes' path")
         return standing
 

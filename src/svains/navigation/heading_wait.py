@@ -90,12 +90,13 @@ class FixPathHeading:
         self._standing_n = 0
         self._standing_var = math.inf
 
-    def add(self, t_ns: int, p_W_G: F64, p_W_A: F64, var_A: float,
-            standing: bool = False) -> HeadingError | None:  # fmt: skip
+    def add(self, t_ns: int, p_W_G: F64, p_W_A: F64, var_A: float, standing: bool = False,
+            fit: bool = True) -> HeadingError | None:  # fmt: skip
         """A fix ``p_W_G`` (3,) m with the filter's own antenna path at it ``p_W_A`` (3,) m
         and its position variance per axis ``var_A`` (m²); ``standing``: the vehicle stood
         (the fix joins the standing mean). The heading error once known and fitting (the
-        local frame turned by ``-angle_rad`` from the world), else None."""
+        local frame turned by ``-angle_rad`` from the world), else None; ``fit`` False:
+        stored only (``estimate`` later)."""
         self.last_ns = int(t_ns)
         g, f = self._E @ np.asarray(p_W_G, float), self._E @ np.asarray(p_W_A, float)
         if standing:
@@ -106,7 +107,7 @@ class FixPathHeading:
             self._gps_H.append(g)
             self._filter_H.append(f)
             self._var.append(float(var_A))
-        return self.estimate(self._max_std)
+        return self.estimate(self._max_std) if fit else None
 
     def _points(self) -> tuple[F64, F64, F64]:
         """The fixes (n, 2), the filter's path (n, 2) and their variances (n,): the standing

@@ -101,6 +101,7 @@ class Navigator:
         self.rig = rig
         self._rest_noise = rest_noise
         self._first_imu_ns: int | None = None  # the start's wait is counted from it
+        self._gps_off: list[tuple[int, int]] = []  # the Core's no-GPS windows, from it
         self.layout = BIASED if config.model == "biased" else PAPER
         self._wall0 = time.perf_counter()
         R_B_S = None if rig.imu is None else rig.imu.T_B_S[:3, :3]
@@ -184,6 +185,7 @@ class Navigator:
         self.history.append(t_ns, gyro_S, accel_S)
         if self._first_imu_ns is None:
             self._first_imu_ns = t_ns
+            self._gps_off = gps_off_windows(self.config, t_ns)
         if self.history.n == _UNIT_SAMPLES and not self.history.dropped:  # judged once
             # stamps in µs or ms were blamed on a short static start (a user's probe)
             unit = time_unit_problem(float(np.median(np.diff(self.history.t_ns))))
@@ -535,9 +537,7 @@ class Navigator:
         """Whether the fix at ``t`` falls where the run fuses no GPS (``Core``'s windows)."""
         if not self.config.use_gps or self.rig.gps is None:
             return True
-        if self._first_imu_ns is None:
-            return False
-        return any(a <= t < b for a, b in gps_off_windows(self.config, self._first_imu_ns))
+        return any(a <= t < b for a, b in self._gps_off)
 
     @property
     def _takes_frames(self) -> bool:

@@ -329,13 +329,18 @@ class Core(HeadingSteps):
                               None if v_W_G is None else np.asarray(v_W_G, float), gps.p_B_G,
                               float(gps.position_noise_std), float(gps.velocity_noise_std))
 
+    def _imu_fault_since(self, t_ns: int) -> bool:
+        """Whether an IMU fault (a dropped sample, a bridged gap) came at ``t_ns`` or later:
+        a step across it is no measured motion."""
+        fault_ns = None if self._imu_faults is None else self._imu_faults.last_fault_ns
+        return fault_ns is not None and fault_ns >= t_ns
+
     def _observe_latency(self, t: int, v_W_G: Any) -> None:
         """Hand a fix to the GPS latency check with the filter's attitude and biases before
         its update; a step across an IMU fault (a bridged gap) is not used."""
         assert self._gps_latency is not None
         x, last = self.ins.ukf.x, self._gps_latency.last_fix_ns
-        fault_ns = None if self._imu_faults is None else self._imu_faults.last_fault_ns
-        usable = fault_ns is None or last is None or fault_ns < last
+        usable = last is None or not self._imu_fault_since(last)
         zero = np.zeros(3)
         biased = self.ins.layout.biased
         self._gps_latency.observe_fix(t, v_W_G, x[Q], x[BG] if biased else zero,
