@@ -741,7 +741,8 @@ def check_feature_disparity(uv_left: NDArray[np.float64], uv_right: NDArray[np.f
     right of the left one: the left and right columns crossed, or cam0 and cam1), a warning
     when left and right pixels are rows apart (not a rectified pair: a median row offset above
     ``FEATURES_ROW_OFFSET_PX`` and 3 times the pixel noise ``pixel_noise_std`` px)."""
-    d = uv_left[:, 0] - uv_right[:, 0]
+    with np.errstate(over="ignore"):  # pixels near ±1e308 differ by ±inf: its sign holds
+        d = uv_left[:, 0] - uv_right[:, 0]
     seen = np.abs(d) >= 1.0
     n = int(seen.sum())
     if n < FEATURES_MIN_OBSERVATIONS:
@@ -752,7 +753,8 @@ def check_feature_disparity(uv_left: NDArray[np.float64], uv_right: NDArray[np.f
             f"{path}: {negative} of {n} observations lie at negative disparity (u_right right of "
             "u_left): are the left and right columns swapped? Rows are track_id, u_left, "
             "v_left, u_right, v_right")  # fmt: skip
-    rows = float(np.median(np.abs(uv_left[seen, 1] - uv_right[seen, 1])))
+    with np.errstate(over="ignore", invalid="ignore"):
+        rows = float(np.median(np.abs(uv_left[seen, 1] - uv_right[seen, 1])))
     if rows > max(FEATURES_ROW_OFFSET_PX, 3.0 * pixel_noise_std):
         log.warning("%s: left and right pixels are %.1f px apart in rows (median of %d): "
                     "features0 is read as a rectified pair, where they share a row", path,
