@@ -86,14 +86,20 @@ def test_the_start_velocities_of_exact_fixes_are_the_true_ones() -> None:
     ts = np.array([0.0, 1.0, 2.5])
     p = ts[:, None] * v0 + 0.5 * ts[:, None] ** 2 * a
     gps = GpsArrays((ts * 1e9).astype(np.int64), p, np.full((3, 3), np.nan))
-    got, accel_std = _with_start_velocities(gps, "exact", 1e-9, 1.0)
+    got, accel_std, v0_std = _with_start_velocities(gps, "exact", 1e-9, 1.0)
     assert got.v_W_G[0] == pytest.approx(v0, abs=1e-6)
     assert got.v_W_G[1] == pytest.approx(v0 + a * 1.0, abs=1e-6)
-    assert accel_std < 1e-6
+    assert accel_std < 1e-6 and v0_std < 1e-8
     # 1 Hz fixes of 1.41 m: the second difference (3.46 m/s² std) shrinks to the 1 m/s² prior
-    noisy, std = _with_start_velocities(replace(gps, t_ns=np.array([0, 1, 2]) * 10**9),
-                                        "noisy", np.sqrt(2), 1.0)  # fmt: skip
+    noisy, std, v0_std = _with_start_velocities(replace(gps, t_ns=np.array([0, 1, 2]) * 10**9),
+                                                "noisy", np.sqrt(2), 1.0)  # fmt: skip
     assert std == pytest.approx(1.0 / np.sqrt(1 + 1 / 12), rel=1e-9)
+    # the first velocity: a difference of two 1.41 m fixes 1 s apart (2 m/s), less half the
+    # interval's acceleration
+    assert v0_std == pytest.approx(np.hypot(2.0, 0.5 * std), rel=1e-9)
+    # fixes with velocities: none of it
+    assert _with_start_velocities(replace(gps, v_W_G=np.zeros((3, 3))), "v", 1.0, 1.0)[1:] == (
+        0.0, 0.0)
     ratio = 1.0 / (1.0 + 12.0)
     a_fix = (p[2] - 2 * p[1] + p[0])
     assert noisy.v_W_G[1] - noisy.v_W_G[0] == pytest.approx(ratio * a_fix)

@@ -277,6 +277,51 @@ def test_a_long_rest_counts_as_one_point_and_does_not_hide_a_jumped_fix() -> Non
     assert abs(last.angle_rad) < 3.0 * last.std_rad and last.std_rad > np.radians(2.0)
 
 
+def _held(local: np.ndarray, fixes: np.ndarray) -> tuple[FixPathHeading, np.ndarray]:
+    """A path holding every fix but the last, against the filter's own path (from zero: the
+    world's start is unknown to it), and that own path."""
+    own = local - local[0]
+    path = _path_heading(1.4)
+    for k in range(len(own) - 1):
+        path.add(k, fixes[k], own[k], 0.0, fit=False)
+    return path, own
+
+
+def test_the_held_fixes_say_where_the_antenna_is_now() -> None:
+    """Once the turn is known, each held fix carried to now along the filter's own path
+    (turned) is where the antenna is now: the mean of those, with one fix's variance (GPS
+    errors last minutes) plus the turn's over the path's length; a fix moved 25 m is left out.
+    Monte Carlo over white fixes: the mean's error has one fix's variance over their number."""
+    rng = np.random.default_rng(7)
+    a = np.radians(60.0)
+    Rz = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    z = []
+    for _ in range(300):
+        local, fixes = _path_fixes(rng, 60.0, 1.4)
+        path, own = _held(local, fixes)
+        mean, cov, n = path.carried_to_now(a, 0.0, own[-1])
+        truth = path.basis @ (Rz @ local[-1] + np.array([40.0, -7.0, 2.0]))
+        assert n >= len(own) - 2  # a clean fix past the 0.999 chi-square, now and then
+        np.testing.assert_allclose(cov, 1.4**2 * np.eye(2))
+        z.append((mean - truth) / (1.4 / np.sqrt(n)))
+    z = np.asarray(z)
+    assert np.all(np.abs(z.mean(axis=0)) < 0.15)
+    assert np.all((z.var(axis=0) > 0.8) & (z.var(axis=0) < 1.25))
+    # a jumped fix is left out; the turn's uncertainty grows with the path since each fix
+    local, fixes = _path_fixes(rng, 60.0, 1.4)
+    fixes[3] += np.array([25.0, 0.0, 0.0])
+    path, own = _held(local, fixes)
+    mean, cov, n = path.carried_to_now(a, np.radians(5.0), own[-1])
+    assert n == len(own) - 2
+    back = (own[-1] - np.delete(own[:-1], 3, axis=0)) @ path.basis.T
+    turn_var = np.radians(5.0) ** 2 * np.mean(np.sum(back**2, axis=1))
+    np.testing.assert_allclose(cov, (1.4**2 + turn_var) * np.eye(2))
+    truth = path.basis @ (Rz @ local[-1] + np.array([40.0, -7.0, 2.0]))
+    assert np.linalg.norm(mean - truth) < 3.0 * 1.4 / np.sqrt(n) * np.sqrt(2.0)
+    # without fixes, nothing
+    assert _path_heading(1.4).carried_to_now(a, 0.0, own[-1]) is None
+
+
 @pytest.mark.realdata  # a trajectory of ../shared/data/trajectories
 def test_position_only_fixes_give_the_heading_from_their_path(
     resting_drone: Path, caplog: pytest.LogCaptureFixture

@@ -57,6 +57,18 @@ def test_slow_vehicle_is_refused_with_its_speed() -> None:
                             0.05)
 
 
+def test_a_course_too_uncertain_is_refused_with_its_uncertainty() -> None:
+    """5 m/s with a velocity differenced from 1.4 m fixes (2 m/s per axis): a course ± 23°,
+    which a filter cannot carry; a 0.1 m/s velocity at the same speed gives one to ± 2°."""
+    v = np.array([5.0, 0.0, 0.0])
+    with pytest.raises(InitialisationError, match=r"known to ± 23° only \(at most 10°\)"):
+        heading_from_course(v, -G_W, -G_W, np.zeros(3), np.zeros(3), UP, 2.0,
+                            max_std_rad=np.radians(10.0))  # fmt: skip
+    sure = heading_from_course(v, -G_W, -G_W, np.zeros(3), np.zeros(3), UP, 0.1,
+                               max_std_rad=np.radians(10.0))  # fmt: skip
+    assert np.degrees(sure.yaw_std_rad) == pytest.approx(np.degrees(np.hypot(0.02, 0.03)))
+
+
 def test_kitti_gps_start_without_magnetometer_takes_the_course(kitti_raw: Path) -> None:
     from svains.datasets import load_dataset
     from svains.replay.groundtruth import interpolate_groundtruth

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -10,7 +12,14 @@ from svains.datasets.types import ImuStream
 from svains.errors import InitialisationError
 from svains.geometry.rotation import quat_box_minus, quat_to_rotmat
 from svains.models.state import BIASED, PAPER
-from svains.navigation.init import initialise
+from svains.navigation.init import (
+    HEADING_FROM_GPS,
+    VELOCITY_UNKNOWN,
+    GpsArrays,
+    ImuArrays,
+    InitData,
+    initialise,
+)
 from svains.navigation.options import InitOptions
 from svains.sensors.types import GpsCalib
 
@@ -150,6 +159,43 @@ def test_in_flight_gps_start_matches_the_truth(village_flight) -> None:
     # A static start refuses this data: the helicopter is flying.
     with pytest.raises(InitialisationError, match="not static"):
         initialise(ds, BIASED, InitOptions(mode="static"))
+
+
+def test_a_slow_gps_start_without_heading_leaves_the_velocity_direction_open(
+    village_flight,
+) -> None:
+    """Below the course's 3 m/s, no magnetometer, vision fused: the start's frame is local
+    about the antenna, so the fix's world velocity keeps only its vertical part there and its
+    horizontal speed goes to the covariance, |v_h|²/2 per horizontal axis (whatever the unknown
+    turn, the horizontal error is |v_h| in mean square) plus the fixes' velocity noise.
+    Without vision, the arbitrary heading of old with the fix's velocity."""
+    ds = village_flight
+    imu, gps = ds.imu, ds.gps
+    data = InitData("slow", ds.gravity_W, ImuArrays(imu.t_ns, imu.gyro_B, imu.accel_B),
+                    ds.imu_calib, None, None, GpsArrays(gps.t_ns, gps.p_W_G, gps.v_W_G),
+                    ds.gps_calib, vision_fused=True)  # fmt: skip
+    init = initialise(data, BIASED, InitOptions(mode="gps"))
+    v_h = gps.v_W_G[0, :2]
+    assert 1.0 < np.linalg.norm(v_h) < 3.0  # the village flight's 2 m/s
+    assert init.info["heading"] == HEADING_FROM_GPS
+    assert init.info[VELOCITY_UNKNOWN] == pytest.approx(np.linalg.norm(v_h), abs=1e-3)
+    assert np.all(init.x[3:5] == 0.0) and init.x[5] == pytest.approx(gps.v_W_G[0, 2])
+    # horizontally without the world velocity's threefold margin (the fixes' own noise)
+    vel_var = max(InitOptions().velocity_std, 3.0 * ds.gps_calib.velocity_noise_std) ** 2
+    spread = 0.5 * v_h @ v_h + ds.gps_calib.velocity_noise_std**2
+    np.testing.assert_allclose(np.diag(init.P)[3:6], [spread, spread, vel_var], rtol=1e-9)
+    # without vision (an unaided INS) the old start: an arbitrary heading, the fix's velocity
+    old = initialise(replace(data, vision_fused=False), BIASED, InitOptions(mode="gps"))
+    assert old.info["heading"] == "none (arbitrary yaw)" and VELOCITY_UNKNOWN not in old.info
+    np.testing.assert_allclose(old.x[3:6], gps.v_W_G[0] + 0.0, atol=1e-12)
+    # the fixes cut to positions in memory, the calibration still a velocity fix's 0.1 m/s:
+    # the velocities differenced from 1.41 m fixes 1 s apart are uncertain by 2 m/s
+    cut = replace(data, gps=GpsArrays(gps.t_ns, gps.p_W_G, np.full_like(gps.v_W_G, np.nan)))
+    pos = initialise(cut, BIASED, InitOptions(mode="gps"))
+    v0_std = np.sqrt(2.0) * ds.gps_calib.position_noise_std / (np.diff(gps.t_ns[:2])[0] * 1e-9)
+    assert 1.9 < v0_std < 2.1
+    assert np.diag(pos.P)[5] >= (3.0 * v0_std) ** 2
+    assert np.all(np.diag(pos.P)[3:5] >= v0_std**2 + 0.5 * pos.info[VELOCITY_UNKNOWN] ** 2 - 1e-6)
 
 
 def test_in_flight_gps_start_tracks_like_a_ground_truth_start(village_flight) -> None:

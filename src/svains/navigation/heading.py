@@ -19,6 +19,7 @@ allowance, added in variance. Below ``min_speed_mps`` the course is unreliable:
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,12 +60,16 @@ def heading_from_course(
     velocity_noise_std: float,
     min_speed_mps: float = 3.0,
     sideslip_std_rad: float = 0.03,
+    max_std_rad: float = math.inf,
 ) -> CourseHeading:
     """``R_W_B`` (3, 3) from the specific force ``f_B`` (3,) / ``f_W`` (3,) m/s² (exact) and body
     x along the body's velocity (from the GPS antenna velocity ``v_W_G`` (3,) m/s, ``omega_B``
     (3,) rad/s and lever arm ``p_B_G`` (3,) m). ``up_W`` (3,) defines the horizontal for the
     speed; ``velocity_noise_std`` m/s per axis. ``InitialisationError`` below
-    ``min_speed_mps`` of horizontal speed.
+    ``min_speed_mps`` of horizontal speed, or when the heading's standard deviation exceeds
+    ``max_std_rad`` (a velocity differenced from position-only fixes, 2 m/s per axis, gave a
+    course 38° uncertain at 3 m/s, which the filter could not carry: the simulator from 28 s,
+    `3d` 3.67 m, NEES 1081).
     """
     up = np.asarray(up_W, dtype=float)
     up = up / np.linalg.norm(up)
@@ -86,20 +91,26 @@ def heading_from_course(
         R = _frame(fW, v_B) @ _frame(fB, x_B).T
         v_B = v_G - R @ lever_B
     std = float(np.hypot(velocity_noise_std / speed, sideslip_std_rad))
+    if std > max_std_rad:
+        raise InitialisationError(
+            f"the course at {speed:.2f} m/s with a velocity noise of {velocity_noise_std:.2g} "
+            f"m/s is known to ± {math.degrees(std):.0f}° only (at most "
+            f"{math.degrees(max_std_rad):.0f}°): the GPS course gives no heading"
+        )
     return CourseHeading(R, std, speed)
 
 
 def course_heading_or_none(
     v_W_G: ArrayLike, f_B: ArrayLike, f_W: ArrayLike, omega_B: ArrayLike, p_B_G: ArrayLike,
     up_W: ArrayLike, velocity_noise_std: float, min_speed_mps: float = 3.0,
-    back_s: float = 0.0,
+    back_s: float = 0.0, max_std_rad: float = math.inf,
 ) -> CourseHeading | None:
     """:func:`heading_from_course` (inputs averaged over an interval, so the attitude is the
     interval's middle one) turned back by ``back_s`` seconds of the body rate ``omega_B``,
     ``R Exp(-ω back_s)``; None (logged as a warning) when it refuses."""
     try:
         out = heading_from_course(v_W_G, f_B, f_W, omega_B, p_B_G, up_W, velocity_noise_std,
-                                  min_speed_mps)
+                                  min_speed_mps, max_std_rad=max_std_rad)
     except InitialisationError as exc:
         log.warning("no heading from the GPS course: %s", exc)
         return None

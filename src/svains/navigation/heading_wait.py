@@ -13,7 +13,9 @@ pivot follows it; fixes that show it moving wait. ``HeadingCheck`` in its acquir
 their velocities with the filter's, and once the rotation between the two frames is known to
 its ``max_std_deg`` the state is turned into the world about the pivot with that uncertainty
 (``turn_heading`` with ``pivot_W``), and so is everything kept in the local frame so far: the
-logged estimates (``turn_logged``) and the stored keyframes. Fixes are fused from then on.
+logged estimates (``turn_logged``) and the stored keyframes. The fixes held meanwhile, each
+carried to now along the filter's turned path, place the state (``carried_to_now``: one
+horizontal update), and fixes are fused from then on.
 Position-only fixes (or velocities not fused) give the heading from their path instead
 (``FixPathHeading``; standing is then the antenna's own motion since the wait began within
 half a fix's σ). Should no heading come within ``HEADING_WAIT_MAX_S`` worth of held fixes at
@@ -144,6 +146,37 @@ class FixPathHeading:
                 return None
             keep[np.flatnonzero(keep)[int(np.argmax(misfit))]] = False
         return None
+
+    @property
+    def basis(self) -> F64:
+        """The horizontal basis (2, 3) the path is kept in (``e1 × e2 = up``)."""
+        return self._E
+
+    def carried_to_now(self, angle_rad: float, std_rad: float,
+                       own_W_A: F64) -> tuple[F64, F64, int] | None:  # fmt: skip
+        """Where the path's fixes put the antenna now, the local frame turned by ``angle_rad``
+        (± ``std_rad``) into the world: each fix carried to now along the filter's own path,
+        turned likewise (``own_W_A`` (3,) m: that path's point now), their mean weighted as the
+        fit weights them, in ``basis`` (2,) m, its covariance (2, 2) m² and the fixes used;
+        None without any. A fix whose carried position is off the mean beyond its noise
+        (chi-square at ``fit_probability``) is left out. The covariance is one fix's, not the
+        mean's (GPS errors last minutes: a few seconds of fixes are no surer than one), with
+        the turn's uncertainty over the path's length since them."""
+        g_H, f_H, var = self._points()
+        if not len(var):
+            return None
+        c, s = math.cos(angle_rad), math.sin(angle_rad)
+        back = (self._E @ np.asarray(own_W_A, float) - f_H) @ np.array([[c, s], [-s, c]])
+        carried = g_H + back
+        w = 1.0 / var
+        mean = w @ carried / w.sum()
+        keep = np.sum((carried - mean) ** 2, axis=1) / var <= chi2.ppf(self._fit_probability, 2)
+        if keep.any() and not keep.all():
+            mean = w[keep] @ carried[keep] / w[keep].sum()
+        else:
+            keep[:] = True
+        turn_var = std_rad**2 * float(w[keep] @ np.sum(back[keep] ** 2, axis=1) / w[keep].sum())
+        return mean, (self._var_p + turn_var) * np.eye(2), int(keep.sum())
 
 
 def _turn_fit(g_H: F64, f_H: F64, w: F64) -> tuple[float, float, F64] | None:

@@ -38,6 +38,9 @@ STATIC_GRAVITY_TOL = 0.25
 # ``InitialState.info["heading"]`` of a start whose heading the GPS will give (its velocities,
 # or the fixes' path; ``InitOptions.heading_from_gps``): it runs in a local frame until then.
 HEADING_FROM_GPS = "none (local frame until the GPS gives it)"
+# ``InitialState.info`` key of an in-motion start in such a local frame: its horizontal speed
+# (m/s), the direction unknown there.
+VELOCITY_UNKNOWN = "start_speed_horizontal_mps"
 
 
 @dataclass
@@ -128,6 +131,9 @@ class InitData:
     # Whether the run fuses GPS (None: whenever ``gps_calib`` is given). Without GPS and without
     # a heading source the world frame is local and its yaw is defined by the start.
     gps_fused: bool | None = None
+    # Whether the run fuses vision, which measures the velocity in a local frame: an in-motion
+    # start without a heading source holds one only then (``_from_gps``).
+    vision_fused: bool = False
 
 
 def _triad(a_B: F64, b_B: F64, a_W: F64, b_W: F64) -> F64:
@@ -374,16 +380,17 @@ def _from_groundtruth(
 
 def _with_start_velocities(
     gps: GpsArrays, name: str, position_std_m: float, accel_prior_std: float
-) -> tuple[GpsArrays, float]:
-    """``gps`` whose first two fixes carry velocities, and the standard deviation (m/s²) of
-    the acceleration between them taken from positions (0 when the fixes carry velocities).
+) -> tuple[GpsArrays, float, float]:
+    """``gps`` whose first two fixes carry velocities, the standard deviation (m/s²) of the
+    acceleration between them taken from positions and that (m/s per axis) of the first
+    velocity so taken (both 0 when the fixes carry velocities).
     From a receiver without velocity, the first three positions differenced: the mean
     velocities over the two intervals, and between them a constant acceleration
     (``v_0 = v_01 - a Δt_01 / 2``, ``v_1 = v_0 + a Δt_01``). A second difference of noisy
     fixes is a poor acceleration, so it is combined with a zero-mean prior of
     ``accel_prior_std`` per axis (the posterior mean and standard deviation)."""
     if np.all(np.isfinite(gps.v_W_G[:2])):
-        return gps, 0.0
+        return gps, 0.0, 0.0
     if len(gps.t_ns) < 3:
         raise InitialisationError(
             f"{name}: --init gps from fixes without velocity needs at least 3 fixes"
@@ -400,7 +407,9 @@ def _with_start_velocities(
     v[0] = v01 - 0.5 * a_W * dt01
     v[1] = v[0] + a_W * dt01
     accel_std = float(np.sqrt(var_prior * var_fix / (var_prior + var_fix)))
-    return GpsArrays(gps.t_ns, gps.p_W_G, v), accel_std
+    # v_0: the first difference (√2 σ_p / Δt_01) less half the interval's acceleration
+    v0_std = float(np.hypot(np.sqrt(2.0) * position_std_m / dt01, 0.5 * dt01 * accel_std))
+    return GpsArrays(gps.t_ns, gps.p_W_G, v), accel_std, v0_std
 
 
 def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> InitialState:
@@ -408,8 +417,11 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
     fixes; roll and pitch from the mean specific force over the first GPS interval against the
     acceleration the GPS velocities show (``f_B = R^T (a_W - g_W)``; fixes without velocity:
     from the first three positions, ``_with_start_velocities``); heading from the
-    magnetometer (TRIAD on that same vector), else arbitrary with ``yaw_std_unknown``. Biases
-    start at zero with their prior standard deviations."""
+    magnetometer (TRIAD on that same vector), else from the GPS course at
+    ``course_min_speed_mps`` or faster, else, with GPS and vision fused and
+    ``heading_from_gps``, a local frame about the antenna (``HEADING_FROM_GPS``: the
+    horizontal velocity's direction unknown there, ``VELOCITY_UNKNOWN``), else arbitrary with
+    ``yaw_std_unknown``. Biases start at zero with their prior standard deviations."""
     imu, gps = dataset.imu, dataset.gps
     assert imu is not None
     if gps is None or dataset.gps_calib is None or len(gps.t_ns) < 2:
@@ -417,9 +429,12 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
             f"{dataset.name}: --init gps needs a GPS stream with at least 2 fixes and its "
             "calibration"
         )
-    gps, accel_std = _with_start_velocities(gps, dataset.name,
+    gps, accel_std, v0_std = _with_start_velocities(gps, dataset.name,
                                             dataset.gps_calib.position_noise_std,
                                             o.flight_accel_prior_std)
+    # the start velocity's noise: a calibration's figure may be a velocity fix's, though
+    # these velocities were differenced (a data set's fixes cut to positions in memory)
+    v_noise = max(dataset.gps_calib.velocity_noise_std, v0_std)
     ta, tb = int(gps.t_ns[0]), int(gps.t_ns[1])
     k = max(2, int(np.searchsorted(imu.t_ns, ta)))
     win = (imu.t_ns >= ta) & (imu.t_ns <= tb)
@@ -438,6 +453,7 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
     f_W = a_W - g_W  # the specific force the GPS implies, world frame
     info: dict[str, object] = {"mode": "gps", "gps_acceleration_W": a_W.tolist()}
     yaw_std = o.yaw_std_unknown
+    local_velocity = False  # the velocity's horizontal direction unknown (a local frame)
     mag = dataset.mag
     mag_sel = None if mag is None else (mag.t_ns >= ta) & (mag.t_ns <= tb)
     if mag is not None and dataset.mag_calib is not None and mag_sel is not None and mag_sel.any():
@@ -455,11 +471,26 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
         # same first GPS interval as the specific force.
         course = course_heading_or_none(
             0.5 * (gps.v_W_G[0] + gps.v_W_G[1]), f_B, f_W, imu.gyro_B[win].mean(axis=0) @ R_B_S.T,
-            dataset.gps_calib.p_B_G, -g_W, dataset.gps_calib.velocity_noise_std,
-            o.course_min_speed_mps, (0.5 * (ta + tb) - t0) * 1e-9,
+            dataset.gps_calib.p_B_G, -g_W, v_noise,
+            o.course_min_speed_mps, (0.5 * (ta + tb) - t0) * 1e-9, o.course_max_yaw_std,
         )  # fmt: skip
+        gps_fused = getattr(dataset, "gps_fused", None) is not False  # (a Dataset has none)
         if course is not None:
             R_W_B, yaw_std, info["heading"] = course.R_W_B, course.yaw_std_rad, "gps course"
+        elif gps_fused and o.heading_from_gps and getattr(dataset, "vision_fused", False):
+            # A local frame about the antenna, as a static start's, until the GPS gives the
+            # heading: the fixes' velocity is the world's, so in that frame only its vertical
+            # part and its horizontal speed are known, and vision measures the rest (an
+            # arbitrary heading with σ 28.6° was collapsed within a second whatever its error:
+            # `3d`, 180° off, 11.0 m, NEES 13778). An unaided INS cannot hold that frame: its
+            # velocity's changes alone, tilted by a drifting attitude, gave no heading in 10 s
+            # (a simulated 2 m/s flight; a bank of heading hypotheses is the route).
+            yaw_std = o.yaw_std_local
+            info["heading"] = HEADING_FROM_GPS
+            local_velocity = True
+            log.warning("no magnetometer and too slow for the GPS course at the start: the "
+                        "heading is taken from the GPS once the motion shows it; GPS fixes "
+                        "wait for it")  # fmt: skip
         else:
             info["heading"] = "none (arbitrary yaw)"
             log.warning("no magnetometer at the start: heading starts arbitrary")
@@ -468,17 +499,31 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
     # Position and velocity of the body at t0 from the first fix (t0 is within one IMU period).
     x[P] = gps.p_W_G[0] + gps.v_W_G[0] * (t0 - ta) * 1e-9 - R_W_B @ dataset.gps_calib.p_B_G
     x[V] = gps.v_W_G[0]
+    up_W = -g_W / np.linalg.norm(g_W)
+    v_h = gps.v_W_G[0] - (gps.v_W_G[0] @ up_W) * up_W
+    if local_velocity:
+        # its mean over the unknown turn is the vertical part; the horizontal speed's spread
+        # over the circle it may point along is |v_h|²/2 per horizontal axis
+        x[V] = gps.v_W_G[0] - v_h
+        info[VELOCITY_UNKNOWN] = round(float(np.linalg.norm(v_h)), 3)
     gyro_B = imu.gyro_B[max(0, k - 2) : k + 1] @ R_B_S.T
     x[W] = gyro_B[-1] if layout.biased else stencil_consistent_rate(gyro_B, len(gyro_B) - 1)
     pos_std = max(o.position_std, 3.0 * dataset.gps_calib.position_noise_std)
-    vel_std = max(o.velocity_std, 3.0 * dataset.gps_calib.velocity_noise_std)
+    vel_std = max(o.velocity_std, 3.0 * v_noise)
     # Roll/pitch: the mean over a GPS interval hides the attitude changing inside it; an
     # acceleration from differenced positions tilts the specific force by about σ_a / |f|.
     tilt_std = max(o.flight_roll_pitch_std, accel_std / float(np.linalg.norm(f_W)))
     if accel_std > 0:
         info["gps_acceleration_std"] = accel_std
-    P0 = _levelled_covariance(layout, o, R_W_B, -g_W / np.linalg.norm(g_W), pos_std, vel_std,
-                              tilt_std, yaw_std)  # fmt: skip
+    P0 = _levelled_covariance(layout, o, R_W_B, up_W, pos_std, vel_std, tilt_std, yaw_std)
+    if local_velocity:
+        # horizontally the spread over the circle and the fixes' own velocity noise, without
+        # the world velocity's threefold margin: position-only fixes differenced give 2 m/s,
+        # and 6 m/s per axis let vision's first updates carry the local path 9 m astray in a
+        # second (the simulator from 25 s: 3.59 m, NEES 70)
+        H = np.eye(3) - np.outer(up_W, up_W)
+        spread = 0.5 * float(v_h @ v_h) + v_noise**2
+        P0[DV, DV] = P0[DV, DV] - vel_std**2 * H + spread * H
     return InitialState(t0, x, P0, info)
 
 

@@ -129,7 +129,8 @@ class Navigator:
         self.starter = Starter(config.init, rig, self.layout, initial_state,
                                gps_fused=config.use_gps and rig.gps is not None,
                                max_row_diff_px=config.vision.max_row_diff_px,
-                               gps_velocity=config.use_gps_velocity)
+                               gps_velocity=config.use_gps_velocity,
+                               vision_fused=config.method != "ins")
         self._warn = RateLimitedLog(config.faults.warn_interval_s)
         self.clock = ClockSteps()
         # A rig without an IMU calibration is guarded with the default one the filter uses: a

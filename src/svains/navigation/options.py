@@ -124,8 +124,11 @@ class InitOptions:
     # 7.5° (RMS 2.2°) while the MAV was at rest (ground truth: 0.19°); 0.27° (0.16°) with this.
     yaw_std_local: float = 0.02
     course_min_speed_mps: float = 3.0  # GPS start without magnetometer: heading from the course
+    # rad: ...when the course is known this well (its σ: the velocity noise over the speed,
+    # and sideslip); a noisier one is no heading (the heading check's ``max_std_deg``)
+    course_max_yaw_std: float = 0.175
     # A static start with GPS fused and no magnetometer (and a ``vision`` start, the fix
-    # nearest it placing the body):
+    # nearest it placing the body; a ``gps`` start too slow for the course, vision fused):
     # True runs in a local frame (yaw σ ``yaw_std_local``) holding the GPS fixes out until
     # their velocities against the filter's give the heading, then turns the frame and what
     # it logged (``navigation.navigator_core``); False takes an arbitrary heading with
