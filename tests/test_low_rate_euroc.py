@@ -89,3 +89,23 @@ def test_lc_frames_5_s_apart_run_to_the_end(euroc_micro: Path, tmp_path: Path) -
     assert r["vision"]["frames_fused"] >= 25
     assert r["vision"]["frames_relocalised"] >= 2
     assert r["vision"]["frames_bad_covariance"] >= 1
+
+
+def test_a_lost_filter_says_so(euroc_micro: Path, tmp_path: Path) -> None:
+    """The older `--rotation imu` model at every 15th frame (3 s) loses the filter (1110 m,
+    exit 0): it said only that vision was missing and the filter inconsistent (a user's probe).
+    Now one line says it is lost, and the report says when; the default model is not lost."""
+    svains = Path(sys.executable).with_name("svains")
+    out = tmp_path / "imu"
+    cmd = [str(svains), "run", str(euroc_micro), "--method", "3d", "--synthetic-features", "5",
+           "--no-gps", "--no-mag", "--set", "vision.frame_stride=15", "--rotation", "imu",
+           "--out", str(out)]  # fmt: skip
+    done = subprocess.run(cmd, check=True, capture_output=True, text=True)
+    r = json.loads((out / "report.json").read_text(encoding="utf-8"))
+    lost = r["recovery"]["lost"]
+    assert r["ate_rmse_m"] > 100.0 and len(lost) == 1 and lost[0]["refusing"] == ["3d"]
+    assert lost[0]["position_std_m"] > 10.0
+    assert done.stderr.count("the filter is lost:") == 1
+    assert "and 3d refuses it; the estimate is dead reckoning" in done.stderr
+    default = _run(euroc_micro, tmp_path / "clone", "3d", 15)
+    assert default["recovery"]["lost"] == [] and default["ate_rmse_m"] < 1.0

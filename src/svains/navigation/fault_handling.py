@@ -393,6 +393,9 @@ class Recovery:
                        else None)  # fmt: skip
         self.unfused = 0  # samples of a leaning sensor taken back (``navigation.unfuse``)
         self._clone_times = clone_times or tuple
+        # (t_ns, position σ m, sensors refusing) each time the filter was found lost
+        self.lost: list[tuple[int, float, tuple[str, ...]]] = []
+        self._lost_now = False
 
     @staticmethod
     def _vision_lean(options: FaultOptions, gps_used: bool) -> bool:
@@ -453,6 +456,7 @@ class Recovery:
                     unfuse(ukf, taken, self._clone_times())
                     self.unfused += len(taken)
         position_std_m = math.sqrt(float(np.trace(ukf.P[DP, DP])) / 3.0)
+        self._check_lost(t_ns, position_std_m)
         action = self.monitor.should_recover(t_ns, position_std_m)
         if action is None:
             self._check_bias(ukf, t_ns)
@@ -474,6 +478,28 @@ class Recovery:
             inflate(ukf, action)
         else:
             self.reset_pending = True
+
+    def _check_lost(self, t_ns: int, position_std_m: float) -> None:
+        """Warn, once per episode, when sensors refuse a filter whose position is already
+        uncertain beyond the monitor's ``max_position_std_m``: no recovery applies there (an
+        inflation would not widen it usefully), so the estimate is dead reckoning until a
+        sensor agrees again. Before this line a run that lost its filter (EuRoC every 15th
+        frame with ``--rotation imu``: 1110 m) said only that vision was missing and the filter
+        inconsistent, and exited 0 (a user's probe)."""
+        limit = self.monitor.options.max_position_std_m
+        if position_std_m < limit:
+            self._lost_now = False
+            return
+        refusing = self.monitor.rejecting(t_ns)
+        if self._lost_now or not refusing:
+            return
+        self._lost_now = True
+        self.lost.append((int(t_ns), position_std_m, refusing))
+        verb = "refuse" if len(refusing) > 1 else "refuses"
+        self._warn.warn("recovery-lost", t_ns, f"the filter is lost: its position is uncertain "
+                        f"to {position_std_m:.3g} m (beyond {limit:g} m, where no recovery "
+                        f"applies) and {', '.join(refusing)} {verb} it; the estimate is dead "
+                        "reckoning until a sensor agrees again")  # fmt: skip
 
     def _check_bias(self, ukf: UKF, t_ns: int) -> None:
         """The monitor's bias test (``ConsistencyMonitor.biased``): widen the IMU biases (a
@@ -568,6 +594,8 @@ class Recovery:
         out["bias_restored"] = self.bias_restored
         out["lean_unfuse"] = self.shares is not None  # armed: a lean's samples are taken back
         out["lean_unfused"] = self.unfused
+        out["lost"] = [{"t_ns": t, "position_std_m": round(std, 3), "refusing": list(names)}
+                       for t, std, names in self.lost]  # fmt: skip
         return out
 
 
