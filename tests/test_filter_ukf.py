@@ -354,3 +354,40 @@ def test_the_last_gain_and_innovation_solve_are_the_same_on_both_paths() -> None
         np.testing.assert_allclose(ukf.last_gain_T, np.linalg.solve(S, H @ P0), atol=1e-10)
         np.testing.assert_allclose(ukf.last_innovation_solve, np.linalg.solve(S, z - H @ x0),
                                    atol=1e-9)  # fmt: skip
+
+
+def test_a_linear_update_with_a_shared_error_is_the_augmented_kalman_update() -> None:
+    """``update_linear`` with noise sharing an error with the state equals the Kalman update of
+    the state augmented by that error, marginalised: state e (n) and a nuisance d (1) jointly
+    Gaussian, r = H e - s d + n. Without the shared term it is the textbook update; a refused
+    innovation leaves the state; a covariance not positive definite is named."""
+    rng = np.random.default_rng(3)
+    n, nz = 5, 2
+    A = rng.normal(size=(n + 1, n + 1))
+    Paug = A @ A.T + 0.1 * np.eye(n + 1)  # [e, d]
+    P, c, var_d = Paug[:n, :n], Paug[:n, n], Paug[n, n]
+    H, s = rng.normal(size=(nz, n)), rng.normal(size=nz)
+    Rn = np.diag([0.3, 0.5])
+    r = rng.normal(size=nz)
+    # the augmented update: r = [H, -s] [e; d] + n
+    Ha = np.hstack([H, -s[:, None]])
+    S = Ha @ Paug @ Ha.T + Rn
+    K = Paug @ Ha.T @ np.linalg.inv(S)
+    x_aug = K @ r
+    P_aug = Paug - K @ S @ K.T
+    ukf = UKF(Euclidean(n), MerweScaledSigmaPoints(n), np.zeros(n), P.copy())
+    # v = n - s d: Cov(e, v) = -c sᵀ, Cov(v) = Rn + var_d s sᵀ
+    stats = ukf.update_linear(H, r, Rn + var_d * np.outer(s, s), -np.outer(c, s))
+    assert stats.accepted and stats.dof == nz
+    np.testing.assert_allclose(ukf.x, x_aug[:n], atol=1e-12)
+    np.testing.assert_allclose(ukf.P, P_aug[:n, :n], atol=1e-12)
+    assert stats.nis == pytest.approx(float(r @ np.linalg.solve(S, r)))
+    plain = UKF(Euclidean(n), MerweScaledSigmaPoints(n), np.zeros(n), P.copy())
+    plain.update_linear(H, r, Rn)
+    K0 = P @ H.T @ np.linalg.inv(H @ P @ H.T + Rn)
+    np.testing.assert_allclose(plain.x, K0 @ r, atol=1e-12)
+    far = UKF(Euclidean(n), MerweScaledSigmaPoints(n), np.zeros(n), P.copy())
+    refused = far.update_linear(H, 1e3 * r, Rn, gate_probability=0.999)
+    assert not refused.accepted and np.all(far.x == 0.0) and np.all(far.P == P)
+    with pytest.raises(FilterError, match="gps_held: innovation covariance not positive"):
+        far.update_linear(H, r, -1e6 * np.eye(nz), name="gps_held")

@@ -173,7 +173,7 @@ def test_a_slow_gps_start_without_heading_leaves_the_velocity_direction_open(
     imu, gps = ds.imu, ds.gps
     data = InitData("slow", ds.gravity_W, ImuArrays(imu.t_ns, imu.gyro_B, imu.accel_B),
                     ds.imu_calib, None, None, GpsArrays(gps.t_ns, gps.p_W_G, gps.v_W_G),
-                    ds.gps_calib, vision_fused=True)  # fmt: skip
+                    ds.gps_calib, local_heading_wait=True)  # fmt: skip
     init = initialise(data, BIASED, InitOptions(mode="gps"))
     v_h = gps.v_W_G[0, :2]
     assert 1.0 < np.linalg.norm(v_h) < 3.0  # the village flight's 2 m/s
@@ -185,7 +185,7 @@ def test_a_slow_gps_start_without_heading_leaves_the_velocity_direction_open(
     spread = 0.5 * v_h @ v_h + ds.gps_calib.velocity_noise_std**2
     np.testing.assert_allclose(np.diag(init.P)[3:6], [spread, spread, vel_var], rtol=1e-9)
     # without vision (an unaided INS) the old start: an arbitrary heading, the fix's velocity
-    old = initialise(replace(data, vision_fused=False), BIASED, InitOptions(mode="gps"))
+    old = initialise(replace(data, local_heading_wait=False), BIASED, InitOptions(mode="gps"))
     assert old.info["heading"] == "none (arbitrary yaw)" and VELOCITY_UNKNOWN not in old.info
     np.testing.assert_allclose(old.x[3:6], gps.v_W_G[0] + 0.0, atol=1e-12)
     # the fixes cut to positions in memory, the calibration still a velocity fix's 0.1 m/s:

@@ -294,6 +294,40 @@ class UKF:
         self.last_gain_T, self.last_innovation_solve = gain
         return UpdateStats(name, True, float(nis), nz, float(gate))
 
+    def update_linear(
+        self, H: F64, r: F64, R: F64, C: F64 | None = None,
+        gate_probability: float | None = None, name: str = "",
+    ) -> UpdateStats:
+        """A linear(ised) update with innovation ``r = H e + v`` (nz,): ``H`` (nz, ndx) maps the
+        tangent error ``e`` (true ⊟ estimate), the noise ``v`` has covariance ``R`` (nz, nz) and
+        may share an error with the state, ``C = Cov(e, v)`` (ndx, nz) (None: independent),
+        as the exact Kalman update of the state augmented by that shared error gives it:
+        ``S = H P Hᵀ + R + H C + Cᵀ Hᵀ``, gain ``(P Hᵀ + C) S⁻¹``; gated as ``update``,
+        the mean retracted and recorded as an update's."""
+        H = np.asarray(H, dtype=float)
+        r = np.asarray(r, dtype=float).ravel()
+        nz = r.size
+        C = np.zeros((H.shape[1], nz)) if C is None else np.asarray(C, dtype=float)
+        P_xy = self.P @ H.T + C
+        S = H @ P_xy + C.T @ H.T + np.asarray(R, dtype=float)
+        S = 0.5 * (S + S.T)
+        try:
+            L = np.linalg.cholesky(S)
+        except np.linalg.LinAlgError as exc:
+            raise FilterError(f"{name or 'measurement'}: innovation covariance not positive "
+                              "definite") from exc  # fmt: skip
+        w = np.linalg.solve(L, r)
+        nis = float(w @ w)
+        gate = _gate(gate_probability, None, nz)
+        if not np.isfinite(nis):
+            raise FilterError(f"{name or 'measurement'}: non-finite innovation")
+        if nis > gate:
+            return UpdateStats(name, False, nis, nz, float(gate))
+        K = np.linalg.solve(S, P_xy.T).T
+        self._set_posterior(self.manifold.retract(self.x[None, :], (K @ r)[None, :])[0],
+                            self.P - K @ S @ K.T)  # fmt: skip
+        return UpdateStats(name, True, nis, nz, float(gate), whitened=w)
+
     def set_posterior(self, x: F64, P: F64) -> None:
         """Replace the estimate at this instant as an update does (symmetrised), the recorder
         and observers told so: for a change that is no prediction, such as updates taken

@@ -17,11 +17,6 @@ def gps_position(X: F64, p_B_G: F64) -> F64:
     return X[:, P] + qrot(X[:, Q].T, r[:, None]).T
 
 
-def gps_horizontal_position(X: F64, p_B_G: F64, E_H_W: F64) -> F64:
-    """Antenna position in a horizontal basis ``E_H_W`` (2, 3): (S, nx) -> (S, 2) m."""
-    return gps_position(X, p_B_G) @ np.asarray(E_H_W, dtype=float).T
-
-
 def gps_velocity(X: F64, p_B_G: F64) -> F64:
     """Antenna velocity ``v_W_G = v_W_B + R_W_B (ω_B × p_B_G)``: (S, nx) -> (S, 3) m/s."""
     r = np.asarray(p_B_G, dtype=float)[:, None]

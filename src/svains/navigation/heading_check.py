@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import chi2
 
+from svains.filter.manifold import Manifold
 from svains.filter.ukf import UKF
 from svains.geometry.rotation import quat_exp, quat_multiply, quat_normalize, quat_to_rotmat
 from svains.models.clones import CloneManifold
@@ -207,17 +208,13 @@ def turn_heading(ukf: UKF, error: HeadingError, up_W: F64, v_W: F64 | None = Non
     x = ukf.x.copy()
     n = ukf.P.shape[0]
     J = np.eye(n)
-    a = np.zeros(n)  # d(state)/d(angle): where the turn's uncertainty goes
     x[V] = Rz @ x[V]
     x[Q] = quat_normalize(quat_multiply(q_z, x[Q]))
     J[DV, DV] = Rz
-    a[DV] = np.cross(up, x[V])
-    a[DTH] = quat_to_rotmat(x[Q]).T @ up
     if pivot_W is not None:
         pivot = np.asarray(pivot_W, dtype=float)
         x[POS] = pivot + Rz @ (x[POS] - pivot)
         J[DP, DP] = Rz
-        a[DP] = np.cross(up, x[POS] - pivot)
     manifold = ukf.manifold
     if isinstance(manifold, CloneManifold):
         p = x[POS].copy() if pivot_W is None else np.asarray(pivot_W, dtype=float)
@@ -226,12 +223,11 @@ def turn_heading(ukf: UKF, error: HeadingError, up_W: F64, v_W: F64 | None = Non
             x[cp] = p + Rz @ (x[cp] - p)
             x[cq] = quat_normalize(quat_multiply(q_z, x[cq]))
             t = manifold.tangent(i)
-            tp, tq = slice(t.start, t.start + 3), slice(t.start + 3, t.start + 6)
+            tp = slice(t.start, t.start + 3)
             J[tp, tp] = Rz
             if pivot_W is None:  # turned about the current position, which they follow
                 J[tp, DP] = np.eye(3) - Rz
-            a[tp] = np.cross(up, x[cp] - p)
-            a[tq] = quat_to_rotmat(x[cq]).T @ up
+    a = turn_sensitivity(x, manifold, up, pivot_W)
     P = J @ ukf.P @ J.T + error.std_rad**2 * np.outer(a, a)
     if v_W is not None:
         x[V] = v_W
@@ -239,3 +235,26 @@ def turn_heading(ukf: UKF, error: HeadingError, up_W: F64, v_W: F64 | None = Non
         P[:, DV] = 0.0
         P[DV, DV] = v_std**2 * np.eye(3)
     ukf.x, ukf.P = x, 0.5 * (P + P.T)
+
+
+def turn_sensitivity(x: F64, manifold: Manifold, up_W: F64, pivot_W: F64 | None = None) -> F64:
+    """How the state ``x`` (nx,), just turned about the unit vertical ``up_W`` (3,), moves with
+    the turn's angle: d(state)/d(angle) (ndx,) in the tangent of ``manifold``, where a turn's
+    uncertainty goes (``turn_heading``). Velocity and attitude turn; the position and the pose
+    clones' positions turn about ``pivot_W`` (3,) m, or without one the clones about the
+    current position, which stays."""
+    up = np.asarray(up_W, dtype=float)
+    a = np.zeros(manifold.ndx)
+    a[DV] = np.cross(up, x[V])
+    a[DTH] = quat_to_rotmat(x[Q]).T @ up
+    p = np.asarray(x[POS], dtype=float)
+    if pivot_W is not None:
+        p = np.asarray(pivot_W, dtype=float)
+        a[DP] = np.cross(up, x[POS] - p)
+    if isinstance(manifold, CloneManifold):
+        for i in range(manifold.n_clones):
+            cp, cq = manifold.columns(i)
+            t = manifold.tangent(i)
+            a[t.start : t.start + 3] = np.cross(up, x[cp] - p)
+            a[t.start + 3 : t.start + 6] = quat_to_rotmat(x[cq]).T @ up
+    return a

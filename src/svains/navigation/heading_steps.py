@@ -11,26 +11,24 @@ they pivot about. It uses what ``Core`` sets before ``_init_heading``: ``ins``, 
 from __future__ import annotations
 
 import logging
-from functools import partial
 from typing import Any
 
 import numpy as np
 
-from svains.geometry.rotation import quat_to_rotmat
-from svains.models.gps import gps_horizontal_position
-from svains.models.state import DV, Q, V, W
+from svains.geometry.rotation import quat_to_rotmat, skew
+from svains.models.state import DP, DTH, DV, Q, V, W
 from svains.models.state import P as POS
-from svains.navigation.base import MeasurementBlock
 from svains.navigation.heading_check import (
     HeadingCheck,
     HeadingCheckOptions,
     HeadingError,
     horizontal,
     turn_heading,
+    turn_sensitivity,
     yaw_std,
 )
 from svains.navigation.heading_wait import HEADING_WAIT_MAX_S, FixPathHeading, turn_logged
-from svains.navigation.init import HEADING_FROM_GPS
+from svains.navigation.init import HEADING_FROM_GPS, VELOCITY_UNKNOWN
 from svains.navigation.ins import default_imu_calib
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import FrameTurn
@@ -59,13 +57,15 @@ class HeadingSteps:
         self._fix_path = FixPathHeading(
             self._up_W, rig.gps.position_noise_std if rig.gps is not None else 1.0,
             np.radians(check.max_std_deg), check.fit_probability)
-        # A static start without a heading source runs in a local frame about its position
-        # until the GPS gives the heading; fixes wait (``navigation.heading_wait``).
+        # A start without a heading source runs in a local frame about its GPS antenna until
+        # the GPS gives the heading; fixes wait (``navigation.heading_wait``).
         self._heading_wait = init_info.get("heading") == HEADING_FROM_GPS
+        # a ``gps`` start in motion, its horizontal velocity's direction unknown there
+        self._start_moving = VELOCITY_UNKNOWN in init_info
         self._heading_pivot = self._antenna_W()
         # the antenna's own motion during the wait (the filter's predictions and vision, not
         # the fixes fused meanwhile: ``_wait_fix``), counted from ``_own_from_W_A``
-        self._own_W_A = np.zeros(3)
+        self._own_L_A = np.zeros(3)
         self._own_from_W_A = self._heading_pivot.copy()
         self._own_fix_fused = False
         self._heading_wait_from: int | None = None  # first fix held after setting off
@@ -132,11 +132,12 @@ class HeadingSteps:
         filter's path), which gives a position-only fix's heading and turns the state (with
         velocities the heading check is surer sooner, KITTI raw ±0.3° at the fourth fix
         against ±1.8° at the third, and the path's serves at the wait's end:
-        ``_take_path_heading``). Standing: the GPS's horizontal speed within 3σ of its
-        velocity noise; without a velocity, the antenna's own motion since the wait began
-        within half a fix's σ, where any heading error moves it by less than the fix's noise
-        (judged from fix to fix, a vehicle slower than σ per fix interval, 14 m/s at 10 Hz,
-        stood for good: a user's probe)."""
+        ``_take_path_heading``). Standing, before the vehicle first set off (a ``gps`` start
+        in motion never is): the GPS's horizontal speed within 3σ of its velocity noise;
+        without a velocity, the antenna's own motion since the wait began within half a fix's
+        σ, where any heading error moves it by less than the fix's noise (judged from fix to
+        fix, a vehicle slower than σ per fix interval, 14 m/s at 10 Hz, stood for good: a
+        user's probe)."""
         assert self.rig.gps is not None
         ukf = self.ins.ukf
         if self._imu_fault_since(self._fix_path.last_ns):
@@ -144,15 +145,21 @@ class HeadingSteps:
         # the filter's path is its own motion: with the fixes fused while standing in it, a
         # 10 Hz GPS dragged it onto the fixes and the fit took a turn 58° off (a user's probe)
         p_W_A = self._antenna_W()
-        self._own_W_A += p_W_A - self._own_from_W_A
+        self._own_L_A += p_W_A - self._own_from_W_A
         self._own_from_W_A = p_W_A
         if v_W_G is None:
-            moved, limit = self._own_W_A, 0.5 * self.rig.gps.position_noise_std
+            moved, limit = self._own_L_A, 0.5 * self.rig.gps.position_noise_std
         else:
             moved, limit = np.asarray(v_W_G, float), 3.0 * self.rig.gps.velocity_noise_std
-        standing = float(np.linalg.norm(horizontal(moved, self._up_W))) <= limit
+        # Fused only at the pivot, where the local frame and the world agree: before the
+        # vehicle first set off (a stop after it, fused, moved the state 3-5 m: a user's
+        # probe). A start in motion is never there; and its own motion began at a zeroed
+        # velocity, so its first position-only fixes passed as standing at 4.3 m/s (a review:
+        # 2.37 m, NEES 22.5)
+        standing = (not self._start_moving and self._heading_wait_from is None
+                    and float(np.linalg.norm(horizontal(moved, self._up_W))) <= limit)
         # with velocities the path is fitted only at the wait's end
-        error = self._fix_path.add(t, np.asarray(p_W_G, float), self._own_W_A.copy(),
+        error = self._fix_path.add(t, np.asarray(p_W_G, float), self._own_L_A.copy(),
                                    float(np.trace(ukf.P[POS, POS])) / 3.0, standing,
                                    fit=v_W_G is None)  # fmt: skip
         if error is not None:
@@ -174,15 +181,14 @@ class HeadingSteps:
 
     def _hold_for_heading(self, t: int, standing: bool) -> bool:
         """While a local start waits for its heading: a fix that shows the vehicle
-        ``standing`` (``_wait_fix``) is fused (at rest the local frame and the world agree at
-        the body), and the frame's pivot follows the body; a fix that shows it moving is held
-        out (counted) until the wait is over (``_heading_wait_over``); then the wait ends
-        (``_end_heading_wait``) and it is fused. The IMU's rest test is not asked: it ended on
-        a vehicle parked for a minute, and the fixes were held while it stood (a user's
-        probe)."""
-        if standing:
-            if self._heading_wait_from is None:
-                self._heading_pivot = self._antenna_W()
+        ``standing`` before it set off (``_wait_fix``) is fused (at rest there the local
+        frame and the world agree at the body), and the frame's pivot follows the body; any
+        other is held out (counted) until the wait is over (``_heading_wait_over``); then the
+        wait ends (``_end_heading_wait``) and it is fused. The IMU's rest test is not asked:
+        it ended on a vehicle parked for a minute, and the fixes were held while it stood (a
+        user's probe)."""
+        if standing:  # (before setting off: ``_wait_fix``)
+            self._heading_pivot = self._antenna_W()
             self._own_fix_fused = True
             return False
         if self._heading_wait_from is None:
@@ -215,11 +221,13 @@ class HeadingSteps:
         """The local frame's heading found (from ``source``, for the report): the state, the
         estimates logged so far and the stored keyframes turned into the world about the
         start's position."""
-        # the filter's own path's point now, in the local frame (``_wait_fix``'s sum)
-        own_W_A = self._own_W_A + self._antenna_W() - self._own_from_W_A
+        # the filter's own path's point now and its position variance, in the local frame
+        # (``_wait_fix``'s sum and terms: the turn's own spread is no drift of that path)
+        own_L_A = self._own_L_A + self._antenna_W() - self._own_from_W_A
+        var_L_A = float(np.trace(self.ins.ukf.P[POS, POS])) / 3.0
         turn_heading(self.ins.ukf, error, self._up_W, pivot_W=self._heading_pivot)
         self._turn_kept(t, error)
-        self._fuse_held_fixes(t, error, own_W_A)
+        self._fuse_held_fixes(t, error, own_L_A, var_L_A)
         self._wait_over()
         at_s = (t - self.t0_ns) * 1e-9
         self.init_info["heading_found_s"] = round(at_s, 3)
@@ -233,25 +241,44 @@ class HeadingSteps:
                  source, error.steps, np.degrees(error.angle_rad), np.degrees(error.std_rad),
                  self.gps_held_heading)  # fmt: skip
 
-    def _fuse_held_fixes(self, t: int, error: HeadingError, own_W_A: np.ndarray) -> None:
-        """The fixes held during the wait, once turned into the world, say where the antenna is
+    def _fuse_held_fixes(self, t: int, error: HeadingError, own_L_A: np.ndarray,
+                         var_L_A: float) -> None:  # fmt: skip
+        """The fixes held while moving, once turned into the world, say where the antenna is
         now (``FixPathHeading.carried_to_now``): one horizontal position update, gated as a
-        fix's. Without it the turned state kept the one fix that placed the start, with the
-        filter's own drift since: a position-only `3d` start on the simulator, the vision's
-        first updates on a velocity unknown to 6 m/s, turned 10 m off, its next fixes refused
-        until the filter was inflated (3.59 m, NEES 70); with velocities the held fixes cost
-        0.1-0.3 m of ATE where the heading was right."""
+        fix's, linear (``UKF.update_linear``) because its error shares the turn's with the
+        turned state (their cross-covariance from ``turn_sensitivity``; taken as independent,
+        the update shrank the yaw: NEES 1.3 per dof, a review). Without it the turned state
+        kept the one fix that placed the start, with the filter's own drift since (a
+        position-only `3d` start on the simulator, turned 10 m off, its next fixes refused
+        until the filter was inflated: 3.59 m, NEES 70). Not across an IMU fault since the
+        last fix (its bridge breaks the filter's path). ``own_L_A`` (3,) m and ``var_L_A`` (m²
+        per axis): the filter's own path's point now and its position variance, before the
+        turn."""
         assert self.rig.gps is not None
-        found = self._fix_path.carried_to_now(error.angle_rad, error.std_rad, own_W_A)
-        if found is None:
+        ukf = self.ins.ukf
+        if self._imu_fault_since(self._fix_path.last_ns):
             return
-        z_H, R, n = found
-        h = partial(gps_horizontal_position, p_B_G=self.rig.gps.p_B_G,
-                    E_H_W=self._fix_path.basis)  # fmt: skip
-        stats = self.ins.apply([MeasurementBlock("gps_held", h, z_H, R)],
-                               self.config.filter.gate_probability)  # fmt: skip
+        held = self._fix_path.carried_to_now(error.angle_rad, own_L_A, var_L_A, t)
+        if held is None:
+            return
+        E = self._fix_path.basis
+        x = ukf.x
+        R_W_B = quat_to_rotmat(x[Q])
+        p_B_G = np.asarray(self.rig.gps.p_B_G, dtype=float)
+        H = np.zeros((2, ukf.P.shape[0]))  # the horizontal antenna position's Jacobian
+        H[:, DP] = E
+        H[:, DTH] = -E @ R_W_B @ skew(p_B_G)  # body-frame attitude error
+        # The mean is off by -d_turn δψ for the turn's error δψ, which the turned state
+        # carries as a δψ (``turn_sensitivity``): their shared error, Cov(e, v) = -σ² a d_turnᵀ
+        a = turn_sensitivity(x, ukf.manifold, self._up_W, self._heading_pivot)
+        var_turn = error.std_rad**2
+        stats = ukf.update_linear(
+            H, held.z_H - E @ (x[POS] + R_W_B @ p_B_G),
+            held.R + var_turn * np.outer(held.d_turn_H, held.d_turn_H),
+            -var_turn * np.outer(a, held.d_turn_H), self.config.filter.gate_probability,
+            "gps_held")  # fmt: skip
         self._record(stats, "gps_held", t)
-        self.init_info["held_fixes_fused"] = n if stats.accepted else 0
+        self.init_info["held_fixes_fused"] = held.n if stats.accepted else 0
 
     def _wait_over(self) -> None:
         """The heading wait ends: its path is dropped and the heading check starts again (its

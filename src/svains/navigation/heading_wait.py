@@ -29,6 +29,7 @@ GPS antenna, where the local frame and the world agree.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -76,6 +77,7 @@ class FixPathHeading:
         self._gps_H: list[F64] = []  # the fixes in the horizontal basis (2,) m
         self._filter_H: list[F64] = []  # the filter's own path there (2,) m
         self._var: list[float] = []  # the filter's position variance at each (m²)
+        self._t_ns: list[int] = []  # each point's time
         # the standing fixes: their sums (fix, filter) and count, and the least variance
         self._standing_H = np.zeros(4)
         self._standing_n = 0
@@ -88,6 +90,7 @@ class FixPathHeading:
         self._gps_H.clear()
         self._filter_H.clear()
         self._var.clear()
+        self._t_ns.clear()
         self._standing_H[:] = 0.0
         self._standing_n = 0
         self._standing_var = math.inf
@@ -109,6 +112,7 @@ class FixPathHeading:
             self._gps_H.append(g)
             self._filter_H.append(f)
             self._var.append(float(var_A))
+            self._t_ns.append(int(t_ns))
         return self.estimate(self._max_std) if fit else None
 
     def _points(self) -> tuple[F64, F64, F64]:
@@ -152,31 +156,54 @@ class FixPathHeading:
         """The horizontal basis (2, 3) the path is kept in (``e1 × e2 = up``)."""
         return self._E
 
-    def carried_to_now(self, angle_rad: float, std_rad: float,
-                       own_W_A: F64) -> tuple[F64, F64, int] | None:  # fmt: skip
-        """Where the path's fixes put the antenna now, the local frame turned by ``angle_rad``
-        (± ``std_rad``) into the world: each fix carried to now along the filter's own path,
-        turned likewise (``own_W_A`` (3,) m: that path's point now), their mean weighted as the
-        fit weights them, in ``basis`` (2,) m, its covariance (2, 2) m² and the fixes used;
-        None without any. A fix whose carried position is off the mean beyond its noise
-        (chi-square at ``fit_probability``) is left out. The covariance is one fix's, not the
-        mean's (GPS errors last minutes: a few seconds of fixes are no surer than one), with
-        the turn's uncertainty over the path's length since them."""
-        g_H, f_H, var = self._points()
-        if not len(var):
+    def carried_to_now(self, angle_rad: float, own_L_A: F64, var_A: float,
+                       before_ns: int) -> HeldFixes | None:  # fmt: skip
+        """Where the fixes held while moving (taken before ``before_ns``; those while standing
+        were fused) put the antenna now, the local frame turned by ``angle_rad`` into the
+        world: each carried to now along the filter's own path, turned likewise (``own_L_A``
+        (3,) m: that path's point now; ``var_A`` (m²): the filter's position variance per axis
+        now), their weighted mean (``HeldFixes``); None without any that fit. Each fix's noise
+        is its own σ_p² and the filter's drift since it (the variance it has gained since),
+        which also weighs it; one whose carried position is off their median beyond that
+        noise and another fix's (chi-square at ``fit_probability``) is left out. The mean's
+        noise is one fix's, not the mean's (GPS errors last minutes: a few seconds of fixes
+        are no surer than one), with the weighted mean drift."""
+        sel = np.asarray(self._t_ns, dtype=np.int64) < before_ns
+        if not sel.any():
             return None
+        g_H = np.asarray(self._gps_H)[sel]
+        f_H = np.asarray(self._filter_H)[sel]
+        drift = np.maximum(float(var_A) - np.asarray(self._var)[sel], 0.0)
         c, s = math.cos(angle_rad), math.sin(angle_rad)
-        back = (self._E @ np.asarray(own_W_A, float) - f_H) @ np.array([[c, s], [-s, c]])
+        back = (self._E @ np.asarray(own_L_A, float) - f_H) @ np.array([[c, s], [-s, c]])
         carried = g_H + back
-        w = 1.0 / var
+        var = self._var_p + drift
+        # about their median (a fix jumped 40 m dragged the mean of three past every test, and
+        # all three were kept: a user's probe), each against another fix's noise as well
+        centre = np.median(carried, axis=0)
+        off = np.sum((carried - centre) ** 2, axis=1) / (var + self._var_p)
+        keep = off <= chi2.ppf(self._fit_probability, 2)
+        if not keep.any():
+            return None
+        w = np.where(keep, 1.0 / var, 0.0)
         mean = w @ carried / w.sum()
-        keep = np.sum((carried - mean) ** 2, axis=1) / var <= chi2.ppf(self._fit_probability, 2)
-        if keep.any() and not keep.all():
-            mean = w[keep] @ carried[keep] / w[keep].sum()
-        else:
-            keep[:] = True
-        turn_var = std_rad**2 * float(w[keep] @ np.sum(back[keep] ** 2, axis=1) / w[keep].sum())
-        return mean, (self._var_p + turn_var) * np.eye(2), int(keep.sum())
+        # the turned path's derivative along the turn: up × b in the basis is (-b_y, b_x)
+        d_turn = w @ np.stack([-back[:, 1], back[:, 0]], axis=1) / w.sum()
+        noise = self._var_p + float(w @ drift / w.sum())
+        return HeldFixes(mean, noise * np.eye(2), d_turn, int(keep.sum()))
+
+
+@dataclass(frozen=True)
+class HeldFixes:
+    """The fixes a heading wait held, carried to now (``FixPathHeading.carried_to_now``): their
+    mean ``z_H`` (2,) m in the path's ``basis``; its noise covariance ``R`` (2, 2) m²; how it
+    moves with the turn's angle ``d_turn_H`` (2,) m/rad (for a turn too small by δψ the mean is
+    off by ``-d_turn_H δψ``: the error it shares with the turned state); the fixes used ``n``."""
+
+    z_H: F64
+    R: F64
+    d_turn_H: F64
+    n: int
 
 
 def _turn_fit(g_H: F64, f_H: F64, w: F64) -> tuple[float, float, F64] | None:

@@ -131,9 +131,10 @@ class InitData:
     # Whether the run fuses GPS (None: whenever ``gps_calib`` is given). Without GPS and without
     # a heading source the world frame is local and its yaw is defined by the start.
     gps_fused: bool | None = None
-    # Whether the run fuses vision, which measures the velocity in a local frame: an in-motion
-    # start without a heading source holds one only then (``_from_gps``).
-    vision_fused: bool = False
+    # Whether the run can hold an in-motion start in a local frame until the GPS gives the
+    # heading (``_from_gps``): it fuses vision, which measures the velocity there, and its
+    # heading check is on (off, the wait ends at once).
+    local_heading_wait: bool = False
 
 
 def _triad(a_B: F64, b_B: F64, a_W: F64, b_W: F64) -> F64:
@@ -477,7 +478,7 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
         gps_fused = getattr(dataset, "gps_fused", None) is not False  # (a Dataset has none)
         if course is not None:
             R_W_B, yaw_std, info["heading"] = course.R_W_B, course.yaw_std_rad, "gps course"
-        elif gps_fused and o.heading_from_gps and getattr(dataset, "vision_fused", False):
+        elif gps_fused and o.heading_from_gps and getattr(dataset, "local_heading_wait", False):
             # A local frame about the antenna, as a static start's, until the GPS gives the
             # heading: the fixes' velocity is the world's, so in that frame only its vertical
             # part and its horizontal speed are known, and vision measures the rest (an
@@ -488,9 +489,9 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
             yaw_std = o.yaw_std_local
             info["heading"] = HEADING_FROM_GPS
             local_velocity = True
-            log.warning("no magnetometer and too slow for the GPS course at the start: the "
-                        "heading is taken from the GPS once the motion shows it; GPS fixes "
-                        "wait for it")  # fmt: skip
+            log.warning("no magnetometer and no GPS course at the start (too slow, or too "
+                        "uncertain): the heading is taken from the GPS once the motion shows "
+                        "it; GPS fixes wait for it")  # fmt: skip
         else:
             info["heading"] = "none (arbitrary yaw)"
             log.warning("no magnetometer at the start: heading starts arbitrary")

@@ -130,7 +130,8 @@ class Navigator:
                                gps_fused=config.use_gps and rig.gps is not None,
                                max_row_diff_px=config.vision.max_row_diff_px,
                                gps_velocity=config.use_gps_velocity,
-                               vision_fused=config.method != "ins")
+                               local_heading_wait=(config.method != "ins"
+                                                   and config.faults.heading_check))
         self._warn = RateLimitedLog(config.faults.warn_interval_s)
         self.clock = ClockSteps()
         # A rig without an IMU calibration is guarded with the default one the filter uses: a

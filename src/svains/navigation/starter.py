@@ -50,13 +50,13 @@ class Starter:
     def __init__(
         self, options: InitOptions, rig: Rig, layout: StateLayout, given: InitialState | None,
         gps_fused: bool | None = None, max_row_diff_px: float | None = 2.0,
-        gps_velocity: bool = True, vision_fused: bool = False,
+        gps_velocity: bool = True, local_heading_wait: bool = False,
     ) -> None:
         """``gps_fused``: whether the run fuses GPS (None: when the rig has one);
         ``max_row_diff_px``: the stereo rows' tolerance of the start's odometry (``vision``);
         ``gps_velocity`` False: the fixes' velocities are not used (``use_gps_velocity``), the
-        start takes them as position-only; ``vision_fused``: the run fuses vision
-        (``InitData.vision_fused``)."""
+        start takes them as position-only; ``local_heading_wait``: the run can hold an in-motion
+        start in a local frame (``InitData.local_heading_wait``)."""
         if given is None and options.mode == "groundtruth":
             raise ConfigError("init.mode groundtruth needs the initial state (initial_state=)")
         if given is not None and options.mode != "groundtruth":
@@ -72,7 +72,7 @@ class Starter:
         self.given = given
         self.gps_fused = gps_fused
         self._gps_velocity = gps_velocity
-        self.vision_fused = vision_fused
+        self.local_heading_wait = local_heading_wait
         self._mag: list[tuple[int, np.ndarray]] = []
         self._gps: list[tuple[int, np.ndarray, np.ndarray]] = []
         # the latest fixes, for the ``vision`` start's position (``_gps_at``)
@@ -169,7 +169,7 @@ class Starter:
             "navigator", self.rig.gravity_W,
             ImuArrays(history.t_ns.copy(), history.gyro_B.copy(), history.accel_B.copy()),
             None, mag, self.rig.mag, gps, self.rig.gps, gps_fused=self.gps_fused,
-            vision_fused=self.vision_fused,
+            local_heading_wait=self.local_heading_wait,
         )  # fmt: skip
 
     def try_start(self, history: ImuHistory, horizon_ns: int | None) -> InitialState | None:
