@@ -516,3 +516,17 @@ def test_the_held_fixes_update_shares_the_turns_error_with_the_state() -> None:
     rng = np.random.default_rng(12)
     alone = np.array([_turned_and_held(rng, False) for _ in range(400)])
     assert alone[:, 1].mean() > 1.15
+
+
+def test_the_run_table_says_where_the_heading_came_from() -> None:
+    """`svains run`'s table: the turn, when and from what, and the fixes held and fused at the
+    turn (a user's probe found it said only with -v)."""
+    from svains.cli.run import heading_found
+
+    init = {"heading_turn_deg": -179.5, "heading_std_deg": 9.78, "heading_found_s": 6.0,
+            "heading_source": "the GPS fixes' path", "gps_fixes_held": 5,
+            "held_fixes_fused": 4}  # fmt: skip
+    assert heading_found(init) == ("-179.5° ± 9.8° at 6.0 s, from the GPS fixes' path; 5 "
+                                   "fix(es) held, 4 fused at the turn")  # fmt: skip
+    del init["gps_fixes_held"]
+    assert heading_found(init).endswith("from the GPS fixes' path")

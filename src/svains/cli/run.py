@@ -227,6 +227,8 @@ def run(
     if rep.get("errors_alignment") is not None:
         # Which degrees of freedom were aligned before the RMSE/NEES rows (none: raw errors).
         row("errors alignment", str(rep["errors_alignment"]), "")
+    if (rep.get("init") or {}).get("heading_source"):
+        row("heading from the GPS", heading_found(rep["init"]), "")
     for name, c in rep.get("measurements", {}).items():
         row(f"{name} fused/rejected", f"{c['fused']}/{c['rejected']}", "")
     for name, v in rep.get("vision", {}).items():
@@ -261,6 +263,18 @@ def run(
         # Never silently degraded: the outputs are written, but the run is not what was asked.
         fail(f"{rep['method']} fused no vision update: the run is plain INS (see report.json "
              "vision_gaps; --allow-degraded accepts it)")
+
+
+def heading_found(init: dict) -> str:
+    """A start held in a local frame until the GPS gave its heading (``report.json``'s
+    ``init``): the turn, when and from what, and the fixes held meanwhile and fused at the
+    turn (said only with ``-v`` before: a user's probe)."""
+    line = (f"{init['heading_turn_deg']:+.1f}° ± {init['heading_std_deg']:.1f}° at "
+            f"{init['heading_found_s']:.1f} s, from {init['heading_source']}")  # fmt: skip
+    held = init.get("gps_fixes_held")
+    if held:
+        line += f"; {held} fix(es) held, {init.get('held_fixes_fused', 0)} fused at the turn"
+    return line
 
 
 def _brief(v: object) -> str:
