@@ -435,7 +435,7 @@ def test_a_slow_gps_start_without_heading_holds_a_local_frame_until_the_gps_give
     first fixes collapsed whatever its error (this flight `3d` 2.23 m, NEES 984; from 40 s of
     a 60 s one with its outages, 11.0 m, NEES 13778). With vision fused it now holds a local
     frame about the antenna, its horizontal velocity's direction unknown there, until the GPS
-    velocities give the heading; the fixes held until then, turned, place it (measured 0.826
+    velocities give the heading; the fixes held until then, turned, place it (measured 0.840
     m, NEES 5.5); an unaided INS, which cannot hold that frame, keeps the old start."""
     from svains.sim import SimConfig, simulate
 

@@ -273,7 +273,9 @@ def heading_found(init: dict) -> str:
             f"{init['heading_found_s']:.1f} s, from {init['heading_source']}")  # fmt: skip
     held = init.get("gps_fixes_held")
     if held:
-        line += f"; {held} fix(es) held, {init.get('held_fixes_fused', 0)} fused at the turn"
+        line += f"; {held} fix(es) held"
+    if "held_fixes_fused" in init:
+        line += f", {init['held_fixes_fused']} fused at the turn"
     return line
 
 

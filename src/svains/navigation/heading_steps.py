@@ -221,13 +221,12 @@ class HeadingSteps:
         """The local frame's heading found (from ``source``, for the report): the state, the
         estimates logged so far and the stored keyframes turned into the world about the
         start's position."""
-        # the filter's own path's point now and its position variance, in the local frame
-        # (``_wait_fix``'s sum and terms: the turn's own spread is no drift of that path)
+        # the filter's own path's point now, in the local frame (``_wait_fix``'s sum)
         own_L_A = self._own_L_A + self._antenna_W() - self._own_from_W_A
-        var_L_A = float(np.trace(self.ins.ukf.P[POS, POS])) / 3.0
         turn_heading(self.ins.ukf, error, self._up_W, pivot_W=self._heading_pivot)
         self._turn_kept(t, error)
-        self._fuse_held_fixes(t, error, own_L_A, var_L_A)
+        if self.config.method != "ins":
+            self._fuse_held_fixes(t, error, own_L_A)
         self._wait_over()
         at_s = (t - self.t0_ns) * 1e-9
         self.init_info["heading_found_s"] = round(at_s, 3)
@@ -241,24 +240,25 @@ class HeadingSteps:
                  source, error.steps, np.degrees(error.angle_rad), np.degrees(error.std_rad),
                  self.gps_held_heading)  # fmt: skip
 
-    def _fuse_held_fixes(self, t: int, error: HeadingError, own_L_A: np.ndarray,
-                         var_L_A: float) -> None:  # fmt: skip
+    def _fuse_held_fixes(self, t: int, error: HeadingError, own_L_A: np.ndarray) -> None:
         """The fixes held while moving, once turned into the world, say where the antenna is
-        now (``FixPathHeading.carried_to_now``): one horizontal position update, gated as a
-        fix's, linear (``UKF.update_linear``) because its error shares the turn's with the
-        turned state (their cross-covariance from ``turn_sensitivity``; taken as independent,
-        the update shrank the yaw: NEES 1.3 per dof, a review). Without it the turned state
-        kept the one fix that placed the start, with the filter's own drift since (a
-        position-only `3d` start on the simulator, turned 10 m off, its next fixes refused
-        until the filter was inflated: 3.59 m, NEES 70). Not across an IMU fault since the
-        last fix (its bridge breaks the filter's path). ``own_L_A`` (3,) m and ``var_L_A`` (m²
-        per axis): the filter's own path's point now and its position variance, before the
-        turn."""
+        now (``FixPathHeading.carried_to_now``; ``own_L_A`` (3,) m: the filter's own path's
+        point now, before the turn): one horizontal position update, gated as a fix's, linear
+        (``UKF.update_linear``) because its error shares the turn's with the turned state
+        (their cross-covariance from ``turn_sensitivity``; taken as independent, the update
+        was overconfident: a Monte Carlo's position NEES 3.4-3.7 of 3, a review's yaw 1.2-1.3
+        per dof). Without it the turned state
+        kept the one fix that placed the start (a position-only `3d` start on the simulator,
+        turned 10 m off, its next fixes refused until the filter was inflated: 3.59 m, NEES
+        70). For vision methods (``_heading_found``): a carried fix's error is the path's since
+        it, which the state shares; vision holds that path, an INS's drifts (a review's Monte
+        Carlo: position NEES 2.8 of 2 after the update, 1.9 without). Not across an IMU fault
+        since the last fix (its bridge breaks the filter's path)."""
         assert self.rig.gps is not None
         ukf = self.ins.ukf
         if self._imu_fault_since(self._fix_path.last_ns):
             return
-        held = self._fix_path.carried_to_now(error.angle_rad, own_L_A, var_L_A, t)
+        held = self._fix_path.carried_to_now(error.angle_rad, own_L_A, t)
         if held is None:
             return
         E = self._fix_path.basis

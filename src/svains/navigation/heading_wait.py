@@ -156,41 +156,36 @@ class FixPathHeading:
         """The horizontal basis (2, 3) the path is kept in (``e1 × e2 = up``)."""
         return self._E
 
-    def carried_to_now(self, angle_rad: float, own_L_A: F64, var_A: float,
+    def carried_to_now(self, angle_rad: float, own_L_A: F64,
                        before_ns: int) -> HeldFixes | None:  # fmt: skip
         """Where the fixes held while moving (taken before ``before_ns``; those while standing
         were fused) put the antenna now, the local frame turned by ``angle_rad`` into the
         world: each carried to now along the filter's own path, turned likewise (``own_L_A``
-        (3,) m: that path's point now; ``var_A`` (m²): the filter's position variance per axis
-        now), their weighted mean (``HeldFixes``); None without any that fit. Each fix's noise
-        is its own σ_p² and the filter's drift since it (the variance it has gained since),
-        which also weighs it; one whose carried position is off their median beyond that
-        noise and another fix's (chi-square at ``fit_probability``) is left out. The mean's
-        noise is one fix's, not the mean's (GPS errors last minutes: a few seconds of fixes
-        are no surer than one), with the weighted mean drift."""
+        (3,) m: that path's point now), their mean (``HeldFixes``); None without any that fit.
+        A fix whose carried position is off their median beyond two fixes' noise (chi-square
+        at ``fit_probability``) is left out. The mean's noise is one fix's, not the mean's (GPS
+        errors last minutes: a few seconds of fixes are no surer than one). The path must be
+        good: its error since each fix is the state's too, which no variance here holds (a
+        vision method's; an INS's drifts: ``HeadingSteps._fuse_held_fixes``)."""
         sel = np.asarray(self._t_ns, dtype=np.int64) < before_ns
         if not sel.any():
             return None
         g_H = np.asarray(self._gps_H)[sel]
         f_H = np.asarray(self._filter_H)[sel]
-        drift = np.maximum(float(var_A) - np.asarray(self._var)[sel], 0.0)
         c, s = math.cos(angle_rad), math.sin(angle_rad)
         back = (self._E @ np.asarray(own_L_A, float) - f_H) @ np.array([[c, s], [-s, c]])
         carried = g_H + back
-        var = self._var_p + drift
         # about their median (a fix jumped 40 m dragged the mean of three past every test, and
         # all three were kept: a user's probe), each against another fix's noise as well
         centre = np.median(carried, axis=0)
-        off = np.sum((carried - centre) ** 2, axis=1) / (var + self._var_p)
+        off = np.sum((carried - centre) ** 2, axis=1) / (2.0 * self._var_p)
         keep = off <= chi2.ppf(self._fit_probability, 2)
         if not keep.any():
             return None
-        w = np.where(keep, 1.0 / var, 0.0)
-        mean = w @ carried / w.sum()
+        mean = carried[keep].mean(axis=0)
         # the turned path's derivative along the turn: up × b in the basis is (-b_y, b_x)
-        d_turn = w @ np.stack([-back[:, 1], back[:, 0]], axis=1) / w.sum()
-        noise = self._var_p + float(w @ drift / w.sum())
-        return HeldFixes(mean, noise * np.eye(2), d_turn, int(keep.sum()))
+        d_turn = np.stack([-back[keep, 1], back[keep, 0]], axis=1).mean(axis=0)
+        return HeldFixes(mean, self._var_p * np.eye(2), d_turn, int(keep.sum()))
 
 
 @dataclass(frozen=True)
