@@ -247,13 +247,13 @@ class HeadingSteps:
         (``UKF.update_linear``) because its error shares the turn's with the turned state
         (their cross-covariance from ``turn_sensitivity``; taken as independent, the update
         was overconfident: a Monte Carlo's position NEES 3.4-3.7 of 3, a review's yaw 1.2-1.3
-        per dof). Without it the turned state
-        kept the one fix that placed the start (a position-only `3d` start on the simulator,
-        turned 10 m off, its next fixes refused until the filter was inflated: 3.59 m, NEES
-        70). For vision methods (``_heading_found``): a carried fix's error is the path's since
-        it, which the state shares; vision holds that path, an INS's drifts (a review's Monte
-        Carlo: position NEES 2.8 of 2 after the update, 1.9 without). Not across an IMU fault
-        since the last fix (its bridge breaks the filter's path)."""
+        per dof). Without it the turned state kept the one fix that placed the start (a
+        position-only `3d` start on the simulator, turned 10 m off, its next fixes refused
+        until the filter was inflated: 3.59 m, NEES 70). For vision methods
+        (``_heading_found``): a carried fix's error is the path's since it, which the state
+        shares; vision holds that path, an INS's drifts (a review's Monte Carlo: position NEES
+        2.8 of 2 after the update, 1.9 without). Not across an IMU fault since the last fix
+        (its bridge breaks the filter's path)."""
         assert self.rig.gps is not None
         ukf = self.ins.ukf
         if self._imu_fault_since(self._fix_path.last_ns):
