@@ -16,7 +16,8 @@ from typing import Any
 import numpy as np
 
 from svains.geometry.rotation import quat_to_rotmat, skew
-from svains.models.state import DP, DTH, DV, Q, V, W
+from svains.models.gps import gps_position, gps_velocity
+from svains.models.state import DP, DTH, DV, Q
 from svains.models.state import P as POS
 from svains.navigation.heading_check import (
     HeadingCheck,
@@ -81,10 +82,9 @@ class HeadingSteps:
         its local heading: turned about the body, a 1.5 m lever arm left the first seconds
         1.2 m off, a user's probe)."""
         x = self.ins.ukf.x
-        p = np.array(x[POS], dtype=float)
-        if self.rig.gps is not None:
-            p = p + quat_to_rotmat(x[Q]) @ np.asarray(self.rig.gps.p_B_G, dtype=float)
-        return p
+        if self.rig.gps is None:
+            return np.array(x[POS], dtype=float)
+        return gps_position(x[None, :], self.rig.gps.p_B_G)[0]
 
     def _check_heading(self, t: int, v_W_G: Any, use_v: bool) -> None:
         """Before a GPS fix's update: turn the state when the velocities since the last fixes
@@ -98,8 +98,7 @@ class HeadingSteps:
         # the antenna's velocity, as the fix gives it: the body's differed by R (ω × p_B_G),
         # and with a 1.5 m lever arm the heading was never found (a review)
         assert self.rig.gps is not None
-        v_W_A = ukf.x[V] + quat_to_rotmat(ukf.x[Q]) @ np.cross(
-            ukf.x[W], np.asarray(self.rig.gps.p_B_G, dtype=float))
+        v_W_A = gps_velocity(ukf.x[None, :], self.rig.gps.p_B_G)[0]
         error = self._heading_check.before_update(t, v_W_A, v_W_G, yaw_std(ukf, self._up_W),
                                                   v_var, usable, acquire)  # fmt: skip
         self._heading_fixes.append((t, np.asarray(v_W_G, float)))
@@ -273,7 +272,7 @@ class HeadingSteps:
         a = turn_sensitivity(x, ukf.manifold, self._up_W, self._heading_pivot)
         var_turn = error.std_rad**2
         stats = ukf.update_linear(
-            H, held.z_H - E @ (x[POS] + R_W_B @ p_B_G),
+            H, held.z_H - E @ self._antenna_W(),
             held.R + var_turn * np.outer(held.d_turn_H, held.d_turn_H),
             -var_turn * np.outer(a, held.d_turn_H), self.config.filter.gate_probability,
             "gps_held")  # fmt: skip

@@ -172,8 +172,7 @@ class FixPathHeading:
             return None
         g_H = np.asarray(self._gps_H)[sel]
         f_H = np.asarray(self._filter_H)[sel]
-        c, s = math.cos(angle_rad), math.sin(angle_rad)
-        back = (self._E @ np.asarray(own_L_A, float) - f_H) @ np.array([[c, s], [-s, c]])
+        back = _turned(self._E @ np.asarray(own_L_A, float) - f_H, angle_rad)
         carried = g_H + back
         # about their median (a fix jumped 40 m dragged the mean of three past every test, and
         # all three were kept: a user's probe), each against another fix's noise as well
@@ -213,9 +212,15 @@ def _turn_fit(g_H: F64, f_H: F64, w: F64) -> tuple[float, float, F64] | None:
         return None
     angle = math.atan2(float(w @ (f[:, 0] * g[:, 1] - f[:, 1] * g[:, 0])),
                        float(w @ np.sum(f * g, axis=1)))  # fmt: skip
-    c, s = math.cos(angle), math.sin(angle)
-    turned = f @ np.array([[c, s], [-s, c]])  # each row turned by ``angle``
+    turned = _turned(f, angle)
     return angle, math.sqrt(1.0 / spread), w * np.sum((turned - g) ** 2, axis=1)
+
+
+def _turned(rows_H: F64, angle_rad: float) -> F64:
+    """Each row (m, 2) of a horizontal basis whose axes turn about the vertical as x and y
+    about z, turned by ``angle_rad``."""
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    return rows_H @ np.array([[c, s], [-s, c]])
 
 
 def turn_logged(

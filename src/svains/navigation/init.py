@@ -19,6 +19,7 @@ from svains.geometry.rotation import quat_normalize, rotmat_to_quat
 from svains.models.imu import stencil_consistent_rate
 from svains.models.state import BA, BG, DBA, DBG, DP, DTH, DV, DW, P, Q, StateLayout, V, W
 from svains.navigation.heading import course_heading_or_none
+from svains.navigation.heading_check import horizontal
 from svains.navigation.imu_history import gyro_attitudes
 from svains.navigation.options import InitOptions
 from svains.navigation.platform_noise import measure_static_noise, rest_deviations, rest_window
@@ -501,10 +502,10 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
     x[P] = gps.p_W_G[0] + gps.v_W_G[0] * (t0 - ta) * 1e-9 - R_W_B @ dataset.gps_calib.p_B_G
     x[V] = gps.v_W_G[0]
     up_W = -g_W / np.linalg.norm(g_W)
-    v_h = gps.v_W_G[0] - (gps.v_W_G[0] @ up_W) * up_W
     if local_velocity:
         # its mean over the unknown turn is the vertical part; the horizontal speed's spread
         # over the circle it may point along is |v_h|²/2 per horizontal axis
+        v_h = horizontal(gps.v_W_G[0], up_W)
         x[V] = gps.v_W_G[0] - v_h
         info[VELOCITY_UNKNOWN] = round(float(np.linalg.norm(v_h)), 3)
     gyro_B = imu.gyro_B[max(0, k - 2) : k + 1] @ R_B_S.T
@@ -522,9 +523,9 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
         # the world velocity's threefold margin: position-only fixes differenced give 2 m/s,
         # and 6 m/s per axis let vision's first updates carry the local path 9 m astray in a
         # second (the simulator from 25 s: 3.59 m, NEES 70)
-        H = np.eye(3) - np.outer(up_W, up_W)
+        vertical = np.outer(up_W, up_W)
         spread = 0.5 * float(v_h @ v_h) + v_noise**2
-        P0[DV, DV] = P0[DV, DV] - vel_std**2 * H + spread * H
+        P0[DV, DV] = vel_std**2 * vertical + spread * (np.eye(3) - vertical)
     return InitialState(t0, x, P0, info)
 
 
