@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import secrets
 import shutil
 import tempfile
 from collections.abc import Callable, Iterator
@@ -30,13 +31,10 @@ def atomic_path(path: Path | str) -> Iterator[Path]:
     On an exception (Ctrl-C included) the temporary file is removed and ``path`` is untouched.
     """
     final = Path(path)
+    tmp = temporary_name(final.parent, f"{TMP_PREFIX}{final.name}-")
     try:
-        fd, tmp_name = tempfile.mkstemp(prefix=f"{TMP_PREFIX}{final.name}-", dir=final.parent)
-    except OSError as exc:
-        raise _output_error(final, exc) from exc
-    os.close(fd)
-    tmp = Path(tmp_name)
-    try:
+        # created inside the ``try``: a signal between creating and cleaning up is handled
+        os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
         yield tmp
         os.chmod(tmp, 0o644)  # mkstemp creates 0600; outputs are ordinary files
         os.replace(tmp, final)
@@ -75,12 +73,21 @@ def staging_dir(parent: Path | str) -> Iterator[Path]:
     """
     base = Path(parent)
     base.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=TMP_PREFIX, dir=base))
-    os.chmod(stage, 0o755)  # mkdtemp creates 0700; an output folder is an ordinary folder
+    stage = temporary_name(base, TMP_PREFIX)
     try:
+        # Named before it exists and made inside the ``try``: a SIGTERM or Ctrl-C landing just
+        # after the folder appeared left it behind (mkdtemp returned it to no one).
+        os.mkdir(stage, 0o700)
+        os.chmod(stage, 0o755)  # an output folder is an ordinary folder, whatever the umask
         yield stage
     finally:
         shutil.rmtree(stage, ignore_errors=True)
+
+
+def temporary_name(parent: Path, prefix: str) -> Path:
+    """A fresh ``parent/prefix<16 hex digits>`` that does not exist yet (a clash of 64 random
+    bits with an existing entry makes the creation fail with ``FileExistsError``)."""
+    return parent / f"{prefix}{secrets.token_hex(8)}"
 
 
 def holds_working_dir(path: Path | str) -> bool:

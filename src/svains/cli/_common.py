@@ -17,13 +17,13 @@ reported on one line too, with exit code 1; ``svains --verbose`` shows its trace
 from __future__ import annotations
 
 import codecs
+import contextlib
 import io
 import logging
 import math
 import os
 import signal
 import sys
-import tempfile
 import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -33,7 +33,7 @@ import typer
 from typer.core import TyperGroup
 
 from svains.errors import ConfigError, SvainsError
-from svains.outputs import TMP_PREFIX, holds_working_dir
+from svains.outputs import TMP_PREFIX, holds_working_dir, temporary_name
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 1
@@ -133,7 +133,12 @@ def _probe_writable(folder: Path, out: Path, option: str) -> None:
     alone do not tell (root, read-only mounts, /proc)."""
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        os.rmdir(tempfile.mkdtemp(prefix=TMP_PREFIX, dir=folder))
+        probe = temporary_name(folder, TMP_PREFIX)
+        try:
+            os.mkdir(probe)
+        finally:
+            with contextlib.suppress(FileNotFoundError):
+                os.rmdir(probe)
     except OSError as exc:
         usage_error(f"{out} cannot be written: {exc.strerror or exc} ({folder})", option)
 
