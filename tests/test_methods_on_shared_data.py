@@ -40,6 +40,10 @@ def test_method_runs_or_refuses_in_one_line(data: str, method: str, tmp_path: Pa
     report = json.loads((tmp_path / "run" / "report.json").read_text(encoding="utf-8"))
     assert report["method"] == method
     assert report["ate_rmse_m"] is not None and report["ate_rmse_m"] < 5.0
+    # the line naming the files names those written (vo's named a covariance it has not)
+    wrote = next(ln for ln in res.stdout.splitlines() if ln.startswith("wrote "))
+    named = [n.strip() for n in wrote.split("/")[-1].split(",")]
+    assert sorted(named) == sorted(p.name for p in (tmp_path / "run").iterdir()), wrote
 
 
 def test_compare_with_a_failing_method_writes_the_rest_and_exits_1(tmp_path: Path) -> None:

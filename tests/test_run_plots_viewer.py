@@ -59,7 +59,7 @@ def test_plot_writes_errors_nees_and_measurement_panels(
     assert set(panels) == {"errors.png", "nees.png", "measurements.png"}
     assert panels["errors.png"][0] == "position x [m]" and len(panels["errors.png"]) == 9
     assert panels["errors.png"][8] == "attitude z [deg]"
-    assert panels["nees.png"][0].startswith("NEES over time (mean ")
+    assert panels["nees.png"][0].startswith("NEES over time, diagonal covariance (mean ")
     assert panels["measurements.png"] == ("3d: 1 fused, 1 rejected", "gps: 1 fused, 0 rejected")
     for name in panels:
         head = (d / "p" / name).read_bytes()[:8]

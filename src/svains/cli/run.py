@@ -245,14 +245,16 @@ def run(
             row("smoother chain cuts", "-", f"{sm['chain_cuts']} (the smoothing does not "
                 "reach across a reset of the state)")
     console.print(table)
-    logs = "".join(f", {n}" for n in ("updates.csv", "tracks.csv", "trajectory_smoothed.tum",
-                                      "trajectory_smoothed_euroc.csv",
-                                      "pose_covariance_smoothed.csv", "states_smoothed.csv",
-                                      "camchain_estimated.yaml")
-                   if (out / n).is_file())  # fmt: skip
+    # the files this run wrote (``vo`` writes no covariance: a user's probe read
+    # "pose_covariance.csv" here where there was none)
+    names = [n for n in ("trajectory_euroc.csv", "pose_covariance.csv", "states.csv",
+                         "updates.csv", "tracks.csv", "trajectory_smoothed.tum",
+                         "trajectory_smoothed_euroc.csv", "pose_covariance_smoothed.csv",
+                         "states_smoothed.csv", "camchain_estimated.yaml")
+             if (out / n).is_file()]  # fmt: skip
     # one line whatever the width (a log grepped for a path must find it whole)
-    console.print(escape(f"wrote {out}/trajectory.tum, trajectory_euroc.csv, pose_covariance.csv, "
-                         f"states.csv{logs}, report.json, config.yaml"), soft_wrap=True)
+    console.print(escape(f"wrote {out}/trajectory.tum, {', '.join(names)}, report.json, "
+                         "config.yaml"), soft_wrap=True)
     if rerun is not None:
         console.print(f"wrote {rerun} (open with: rerun {rerun})")
     note = degraded_note(rep) if rep.get("method") == "vo" else None

@@ -91,11 +91,13 @@ def plot_nees(
     ax.axhspan(lo, hi, color="tab:green", alpha=0.15, label=f"95 % interval, {dof} dof")
     ax.axhline(dof, color="tab:green", lw=1.0)
     ax.plot(t_s, err.nees, color="tab:blue", lw=1.0, label="NEES (diagonal covariance)")
-    title = f"NEES over time (mean {np.nanmean(err.nees):.2f})"
+    # (report.json's ``nees_mean`` takes the full covariance: a user's probe read this mean,
+    # 53.08, as that figure, 79.2)
+    title = f"NEES over time, diagonal covariance (mean {np.nanmean(err.nees):.2f})"
     if smoothed is not None:
         ax.plot((smoothed.t_ns - err.t_ns[0]) * 1e-9, smoothed.nees, color="tab:purple", lw=1.0,
                 label="smoothed NEES")  # fmt: skip
-        title = (f"NEES over time (mean {np.nanmean(err.nees):.2f}, smoothed "
+        title = (f"NEES over time, diagonal covariance (mean {np.nanmean(err.nees):.2f}, smoothed "
                  f"{np.nanmean(smoothed.nees):.2f})")  # fmt: skip
     ax.set_yscale("log")
     ax.set_xlabel("time [s]")

@@ -55,7 +55,8 @@ def qlog(q: F64) -> F64:
     small = s < _SMALL
     k = np.where(
         small,
-        (2.0 / w) * (1.0 - s * s / (3.0 * w * w)),
+        # (both branches are evaluated: w is 0 at a half turn, where ``small`` is False)
+        (2.0 / np.where(small, w, 1.0)) * (1.0 - s * s / (3.0 * np.where(small, w * w, 1.0))),
         2.0 * np.arctan2(s, w) / np.where(small, 1.0, s),
     )
     return k * v

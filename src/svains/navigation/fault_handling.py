@@ -559,6 +559,16 @@ class Recovery:
                         f"chi-square {nis:.3g} <= {gate:.3g}, 6 dof): the biases from before it "
                         "are restored")  # fmt: skip
 
+    def state_replaced(self, ukf: UKF) -> None:
+        """The filter's state is about to be replaced whole (a bank of headings merged,
+        ``navigation.yaw_bank``): a pending bias alarm's step is dropped (the state it was
+        appended to goes) and the bias test's window forgotten (innovations of the old
+        state)."""
+        if self._alarm is not None:
+            self._alarm = None
+            drop_step(ukf)
+        self.monitor.clear_bias_evidence()
+
     def reset_from_gps(self, ukf: UKF, cal: GpsCalib, p_W_G: F64, v_W_G: F64 | None) -> None:
         """Position (and velocity, when the fix has one) from the GPS fix; their covariance
         from its noise, uncorrelated with the rest of the state.

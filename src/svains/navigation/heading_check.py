@@ -42,6 +42,15 @@ from svains.models.state import P as POS
 F64 = NDArray[np.float64]
 
 
+def horizontal_basis(up_W: F64) -> F64:
+    """Two horizontal unit vectors (2, 3) with ``e1 × e2 = up`` for the unit vertical ``up_W``
+    (3,): turns about the vertical turn their coordinates as x and y about z."""
+    up = np.asarray(up_W, dtype=float)
+    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, np.cross(up, e1)])
+
+
 def horizontal(v: F64, up_W: F64) -> F64:
     """``v`` (3,) without its part along the unit vertical ``up_W`` (3,)."""
     v = np.asarray(v, dtype=float)

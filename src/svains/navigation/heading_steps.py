@@ -19,6 +19,7 @@ from svains.geometry.rotation import quat_to_rotmat, skew
 from svains.models.gps import gps_position, gps_velocity
 from svains.models.state import DP, DTH, DV, Q
 from svains.models.state import P as POS
+from svains.navigation.base import MeasurementBlock
 from svains.navigation.heading_check import (
     HeadingCheck,
     HeadingCheckOptions,
@@ -29,10 +30,11 @@ from svains.navigation.heading_check import (
     yaw_std,
 )
 from svains.navigation.heading_wait import HEADING_WAIT_MAX_S, FixPathHeading, turn_logged
-from svains.navigation.init import HEADING_FROM_GPS, VELOCITY_UNKNOWN
+from svains.navigation.init import ARBITRARY, HEADING_FROM_GPS, VELOCITY_UNKNOWN
 from svains.navigation.ins import default_imu_calib
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import FrameTurn
+from svains.navigation.yaw_bank import YAW_BANK_MAX_S, YawBank, bank_yaw, level_axis
 from svains.sensors.types import Rig
 
 log = logging.getLogger(__name__)
@@ -75,6 +77,69 @@ class HeadingSteps:
         self.frame_turns: list[FrameTurn] = []
         if self._heading_wait and not config.faults.heading_check:
             self._end_heading_wait(self.t0_ns, "the heading check is off")
+        # an INS started in motion with no heading: a bank of headings the fixes weigh
+        bank_n = config.init.yaw_bank_models
+        self._yaw_bank = (
+            YawBank(self.ins, self._up_W, rig.gps.p_B_G, bank_n, config.init.yaw_bank_max_std)
+            if bank_n and gps_used and rig.gps is not None and config.method == "ins"
+            and init_info.get("mode") == "gps" and init_info.get("heading") == ARBITRARY
+            else None
+        )  # fmt: skip
+
+    def _bank_fix(self, t: int, block: MeasurementBlock) -> bool:
+        """A measurement (a GPS fix, a sonar range) to the bank of headings
+        (``navigation.yaw_bank``), if one runs: True, the bank took it (its copies fuse it;
+        the filter follows the heaviest copy, and the estimate logged is the mixture's:
+        ``_estimate``). Once the heading is known the merged copies replace the filter,
+        reported as the heading found; a bank with none after ``YAW_BANK_MAX_S`` stops
+        (the filter stays the heaviest copy), warned."""
+        bank = self._yaw_bank
+        if bank is None:
+            return False
+        stats = bank.update(block)
+        if stats is not None:
+            self._record(stats, block.name, t)
+        merged = bank.merged()
+        ukf = self.ins.ukf
+        if self._recovery is not None:
+            self._recovery.state_replaced(ukf)  # (a pending bias step's rows dropped)
+        axis = level_axis(ukf.x, self._up_W)
+        yaw_before = bank_yaw(ukf.x, self._up_W, axis)
+        if merged is None:
+            heaviest = bank.members[int(np.argmax(bank.log_w))].ukf
+            ukf.x, ukf.P = heaviest.x.copy(), heaviest.P.copy()
+            if (t - self.t0_ns) * 1e-9 > YAW_BANK_MAX_S:
+                self._yaw_bank = None
+                self._warn.warn("heading-bank", t, f"no heading from the GPS fixes over "
+                                f"{YAW_BANK_MAX_S:g} s (the motion never showed it): the "
+                                "likeliest of the bank's headings is kept; a magnetometer "
+                                "would give one")  # fmt: skip
+            return True
+        ukf.x, ukf.P = merged.x, merged.P
+        self._yaw_bank = None
+        if self._heading_check is not None:
+            self._heading_check.restart()
+        turn = float(np.angle(np.exp(1j * (bank_yaw(ukf.x, self._up_W, axis) - yaw_before))))
+        at_s = (t - self.t0_ns) * 1e-9
+        self.init_info.update(heading_found_s=round(at_s, 3),
+                              heading_turn_deg=round(float(np.degrees(turn)), 3),
+                              heading_std_deg=round(float(np.degrees(merged.std_rad)), 3),
+                              heading_source=f"a bank of {len(bank.members)} headings "
+                                             f"over {merged.fixes} GPS fixes")  # fmt: skip
+        log.info("%.3f s into the run: heading from a bank of %d headings over %d fixes: "
+                 "turned by %.1f° (± %.1f°)", at_s, len(bank.members), merged.fixes,
+                 np.degrees(turn), np.degrees(merged.std_rad))  # fmt: skip
+        return True
+
+    def _estimate(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The estimate to log and emit: the state's mean (nx,), its covariance (ndx, ndx)
+        and tangent standard deviations (ndx,); while a bank of headings runs, its heaviest
+        copy's with the mixture's covariance (``YawBank.about_heaviest``)."""
+        ins = self.ins
+        if self._yaw_bank is None:
+            return ins.ukf.x, ins.ukf.P, ins.tangent_std()
+        x, P = self._yaw_bank.about_heaviest()
+        return x, P, np.sqrt(np.maximum(np.diag(P)[: self.layout.ndx], 0.0))
 
     def _antenna_W(self) -> np.ndarray:
         """The GPS antenna's position (3,) m (the body's without a GPS): the heading wait's
@@ -319,7 +384,7 @@ class HeadingSteps:
             # the logged rows were the local frame's with a yaw σ of a known heading: as
             # world-frame rows they hold an arbitrary heading too (they read 52-105σ off)
             self._turn_kept(t, HeadingError(0.0, std, 0))
-        self.init_info["heading"] = "none (arbitrary yaw)"
+        self.init_info["heading"] = ARBITRARY
         self._warn.warn("heading-wait", t, f"no heading for the local start ({why}): GPS "
                         f"fixes are fused with an arbitrary heading (standard deviation "
                         f"{np.degrees(std):.1f}°) from now on; a magnetometer would give "

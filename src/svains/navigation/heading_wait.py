@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from scipy.stats import chi2
 
 from svains.geometry.rotation import quat_exp, quat_multiply, quat_normalize, quat_to_rotmat
-from svains.navigation.heading_check import HeadingError
+from svains.navigation.heading_check import HeadingError, horizontal_basis
 from svains.navigation.outputs import FrameTurn
 
 F64 = NDArray[np.float64]
@@ -66,11 +66,8 @@ class FixPathHeading:
 
     def __init__(self, up_W: F64, position_noise_std: float, max_std_rad: float,
                  fit_probability: float) -> None:  # fmt: skip
-        up = np.asarray(up_W, dtype=float) / np.linalg.norm(up_W)
         # a horizontal basis: the fit is in its coordinates, the turn about ``up``
-        e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
-        e1 /= np.linalg.norm(e1)
-        self._E = np.stack([e1, np.cross(up, e1)])  # (2, 3); e1 × e2 = up
+        self._E = horizontal_basis(np.asarray(up_W, dtype=float) / np.linalg.norm(up_W))
         self._var_p = float(position_noise_std) ** 2
         self._max_std = float(max_std_rad)
         self._fit_probability = float(fit_probability)

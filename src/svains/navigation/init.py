@@ -42,6 +42,8 @@ HEADING_FROM_GPS = "none (local frame until the GPS gives it)"
 # ``InitialState.info`` key of an in-motion start in such a local frame: its horizontal speed
 # (m/s), the direction unknown there.
 VELOCITY_UNKNOWN = "start_speed_horizontal_mps"
+# ``report.json`` ``init.heading`` of a start with no heading source, fixes fused at once
+ARBITRARY = "none (arbitrary yaw)"
 
 
 @dataclass
@@ -270,7 +272,7 @@ def _from_static(dataset: InitData, layout: StateLayout, o: InitOptions) -> Init
                         "GPS (its velocities, or its path) once the vehicle moves; GPS fixes "
                         "wait for it")  # fmt: skip
         elif gps_fused:
-            info["heading"] = "none (arbitrary yaw)"
+            info["heading"] = ARBITRARY
             log.warning("no magnetometer in the static interval: heading starts arbitrary")
         else:
             yaw_std = o.yaw_std_local
@@ -494,7 +496,7 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
                         "uncertain): the heading is taken from the GPS once the motion shows "
                         "it; GPS fixes wait for it")  # fmt: skip
         else:
-            info["heading"] = "none (arbitrary yaw)"
+            info["heading"] = ARBITRARY
             log.warning("no magnetometer at the start: heading starts arbitrary")
     x = np.zeros(layout.nx)
     x[Q] = quat_normalize(rotmat_to_quat(R_W_B))

@@ -230,10 +230,11 @@ class Core(HeadingSteps):
     def _propagate(self, t: int) -> None:
         """The IMU to ``t``, with the noise of the IMU gaps crossed on the way."""
         self.ins.propagate_to(t)
-        if self._imu_faults is not None:
-            Q9 = self._imu_faults.take_noise(t)
-            if Q9 is not None:
-                add_gap_covariance(self.ins.ukf, Q9)
+        Q9 = self._imu_faults.take_noise(t) if self._imu_faults is not None else None
+        if Q9 is not None:
+            add_gap_covariance(self.ins.ukf, Q9)
+        if self._yaw_bank is not None:
+            self._yaw_bank.propagate(t, Q9)
 
     def _group(self, t: int, items: list[tuple[int, Any]]) -> None:
         ins, cfg = self.ins, self.config
@@ -259,7 +260,8 @@ class Core(HeadingSteps):
                 self._observe_gps_scale(t, payload[0], payload[1])
                 use_v = cfg.use_gps_velocity and not (
                     self._recovery is not None and self._recovery.rate_off("gps", t))
-                if self._heading_check is not None and payload[1] is not None:
+                if (self._heading_check is not None and payload[1] is not None
+                        and self._yaw_bank is None):  # (a bank weighs the headings itself)
                     self._check_heading(t, payload[1], use_v)
                 # a velocity not fused is not the wait's either: the fixes' path gives it
                 v_wait = payload[1] if cfg.use_gps_velocity else None
@@ -270,7 +272,9 @@ class Core(HeadingSteps):
                 if self._recovery is not None and self._recovery.reset_pending:
                     v = payload[1] if use_v else None
                     self._recovery.reset_from_gps(ins.ukf, self.rig.gps, payload[0], v)
-                blocks.append(ins.gps_block(self.rig.gps, payload[0], payload[1], use_v))
+                block = ins.gps_block(self.rig.gps, payload[0], payload[1], use_v)
+                if not self._bank_fix(t, block):
+                    blocks.append(block)
             elif kind == MAG:
                 assert self.rig.mag is not None
                 if self._mag_turn is not None and self._mag_turn.observe(t, payload):
@@ -288,7 +292,9 @@ class Core(HeadingSteps):
                     self._anchor_height(t, payload)
                     if self._sonar_anchor:
                         continue  # the first ranges set the height: not fused against 0 m
-                blocks.append(ins.sonar_block(self.rig.sonar, payload))
+                block = ins.sonar_block(self.rig.sonar, payload)
+                if not self._bank_fix(t, block):
+                    blocks.append(block)
             elif kind == FRAME:
                 has_frame = True
             else:
@@ -620,7 +626,7 @@ class Core(HeadingSteps):
     def snapshot(self) -> NavState:
         # The navigation block only (pose clones, when the state holds any, are left out).
         nx, ndx = self.layout.nx, self.layout.ndx
-        x, P = self.ins.ukf.x, self.ins.ukf.P
+        x, P, _ = self._estimate()
         return NavState.from_state(self.ins.t_ns, x[:nx], P[:ndx, :ndx], self.layout,
                                    not self._heading_wait)  # fmt: skip
 
@@ -628,10 +634,11 @@ class Core(HeadingSteps):
         ins = self.ins
         if self.history is not None:
             self.history.mark(ins.t_ns, ins.ukf.x, ins.ukf.P, last=last)
+        x, P, std = self._estimate()
         self._log_t.append(ins.t_ns)
-        self._log_x.append(ins.ukf.x[: self.layout.nx].copy())
-        self._log_std.append(ins.tangent_std())
-        self._log_P9.append(ins.ukf.P[:9, :9].copy())
+        self._log_x.append(x[: self.layout.nx].copy())
+        self._log_std.append(std)
+        self._log_P9.append(P[:9, :9].copy())
         self._emit(self.snapshot())
 
     def _world_frame(self) -> WorldFrame:

@@ -135,6 +135,15 @@ class InitOptions:
     # ``yaw_std_unknown`` and fuses the fixes at once (a UKF cannot carry a heading known to
     # ±180°: a user's probe, NEES 1650).
     heading_from_gps: bool = True
+    # An ``ins`` started from GPS in motion with no heading source (too slow for the course, no
+    # magnetometer): this many copies of the filter over the circle of headings, weighed by
+    # the fixes and merged once the heading is known to ``yaw_bank_max_std`` rad (one UKF
+    # carries that; the copies' own σ were 8-10° after a 90° turn at 2 m/s, which a 10° bound
+    # never merged) (``navigation.yaw_bank``); None: the arbitrary heading with
+    # ``yaw_std_unknown``, which the first fixes collapsed whatever its error (simulated
+    # 2 m/s flights started at 15-45 s: 43-178° off to the end).
+    yaw_bank_models: int | None = 8
+    yaw_bank_max_std: float = 0.26
     # ``vision`` (in flight, no GPS needed): stereo odometry over the first ``vision_window_s``
     # s against the IMU gives gravity and the velocity (``navigation.vision_start``); the fit's
     # gravity magnitude must lie within ``vision_max_g_error`` (relative) of the data set's.
