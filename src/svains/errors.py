@@ -21,6 +21,10 @@ class InitialisationError(SvainsError):
     """The estimator could not be initialised from the data given."""
 
 
+class StartFixesRefusedError(InitialisationError):
+    """An in-flight start's first GPS fixes disagree with the IMU: a later pair may serve."""
+
+
 class ConfigError(SvainsError):
     """A configuration value is invalid."""
 

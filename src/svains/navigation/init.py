@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.errors import InitialisationError
+from svains.errors import InitialisationError, StartFixesRefusedError
 from svains.geometry.rotation import quat_normalize, rotmat_to_quat
 from svains.models.imu import stencil_consistent_rate
 from svains.models.state import BA, BG, DBA, DBG, DP, DTH, DV, DW, P, Q, StateLayout, V, W
@@ -44,6 +44,9 @@ HEADING_FROM_GPS = "none (local frame until the GPS gives it)"
 VELOCITY_UNKNOWN = "start_speed_horizontal_mps"
 # ``report.json`` ``init.heading`` of a start with no heading source, fixes fused at once
 ARBITRARY = "none (arbitrary yaw)"
+# An in-flight start's fixes whose specific force is this many standard deviations from the
+# accelerometer's are refused (``_from_gps``)
+START_FORCE_SIGMAS = 3.0
 
 
 @dataclass
@@ -455,6 +458,19 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
     g_W = np.asarray(dataset.gravity_W, dtype=float)
     a_W = (gps.v_W_G[1] - gps.v_W_G[0]) / ((tb - ta) * 1e-9)
     f_W = a_W - g_W  # the specific force the GPS implies, world frame
+    # Its magnitude is the accelerometer's whatever the attitude: a velocity flipped by a
+    # glitch gave 4 m/s² on a steady 2 m/s flight, a start 22° tilted and held to 3° (`3d`
+    # 288 m off, a user's probe). Refused beyond 3σ (the fixes' acceleration noise and the
+    # accelerometer's bias prior; a refusal costs one fix): a later pair may start it.
+    a_std = accel_std if accel_std > 0 else np.sqrt(2.0) * v_noise / ((tb - ta) * 1e-9)
+    off = abs(float(np.linalg.norm(f_W)) - float(np.linalg.norm(f_B)))
+    off_std = float(np.hypot(a_std, o.accel_bias_std))
+    if off > START_FORCE_SIGMAS * off_std:
+        raise StartFixesRefusedError(
+            f"the GPS fixes at {ta * 1e-9:.3f} and {tb * 1e-9:.3f} s imply a specific force of "
+            f"{np.linalg.norm(f_W):.2f} m/s², the accelerometer measured "
+            f"{np.linalg.norm(f_B):.2f} (± {off_std:.2f}): a fix's velocity is wrong"
+        )  # fmt: skip
     info: dict[str, object] = {"mode": "gps", "gps_acceleration_W": a_W.tolist()}
     yaw_std = o.yaw_std_unknown
     local_velocity = False  # the velocity's horizontal direction unknown (a local frame)

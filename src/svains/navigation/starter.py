@@ -13,11 +13,12 @@ measurements in a backlog.
 from __future__ import annotations
 
 import collections
+import logging
 from dataclasses import replace
 
 import numpy as np
 
-from svains.errors import ConfigError
+from svains.errors import ConfigError, InitialisationError, StartFixesRefusedError
 from svains.models.state import StateLayout
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.init import (
@@ -39,6 +40,11 @@ MAG_HEADING_SPAN_NS = 250_000_000
 # ...and, GPS fused, its position from the fix with a velocity nearest its time within this
 # span (``Starter._gps_at``).
 GPS_START_SPAN_NS = 2_000_000_000
+# Pairs of fixes a ``gps`` start refuses in a row (``StartFixesRefusedError``) before it stops:
+# a glitch passes in one or two, a velocity in the wrong frame or unit never does.
+MAX_REFUSED_START_FIXES = 5
+
+log = logging.getLogger(__name__)
 # m/s²: the acceleration a start's position interpolated between two position-only fixes
 # allows for (a car's or a drone's ordinary manoeuvre).
 GPS_INTERP_ACCEL_MPS2 = 2.0
@@ -75,6 +81,7 @@ class Starter:
         self.local_heading_wait = local_heading_wait
         self._mag: list[tuple[int, np.ndarray]] = []
         self._gps: list[tuple[int, np.ndarray, np.ndarray]] = []
+        self._refused: list[str] = []  # the ``gps`` start's pairs of fixes refused so far
         # the latest fixes, for the ``vision`` start's position (``_gps_at``)
         self._gps_recent: collections.deque[tuple[int, np.ndarray, np.ndarray]] = (
             collections.deque())
@@ -188,7 +195,18 @@ class Starter:
             n = self._gps_needed()
             if len(self._gps) < n or horizon_ns <= self._gps[n - 1][0]:
                 return None
-            return initialise(self._data(history), self.layout, o)
+            try:
+                return initialise(self._data(history), self.layout, o)
+            except StartFixesRefusedError as exc:
+                # a glitch in one fix: the next pair starts it, up to a few times
+                self._refused.append(str(exc))
+                if len(self._refused) >= MAX_REFUSED_START_FIXES:
+                    raise InitialisationError(
+                        f"{len(self._refused)} pairs of GPS fixes in a row disagree with the "
+                        f"accelerometer (the last: {self._refused[-1]})") from exc  # fmt: skip
+                log.warning("the in-flight start waits for the next GPS fix: %s", exc)
+                self._gps.pop(0)
+                return None
         if history.n < 3:
             return None
         t_first, t0 = int(history.t_ns[0]), int(history.t_ns[2])

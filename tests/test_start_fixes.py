@@ -1,0 +1,74 @@
+"""An in-flight start's first GPS fixes checked against the accelerometer (``init._from_gps``):
+the specific force their velocities imply must have the magnitude the IMU measured, or the
+next pair starts it (``navigation.starter``)."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from svains.datasets import load_dataset
+from svains.datasets.types import Dataset
+from svains.errors import InitialisationError
+from svains.evaluation.run import run_method
+from svains.navigation.options import InitOptions, ReplayOptions, RunConfig
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The village at 2 m/s, 45 s, GPS at 1 Hz throughout, features only."""
+    from svains.sim import SimConfig, simulate
+
+    cfg = SimConfig(duration_s=45.0, seed=13)
+    cfg.camera.render_images = False
+    cfg.gps.outages = []
+    return simulate(cfg, tmp_path_factory.mktemp("start_fixes") / "flight")
+
+
+def _velocities_changed(ds: Dataset, at_s: list[float], dv: list[np.ndarray]) -> Dataset:
+    assert ds.gps is not None
+    v = ds.gps.v_W_G.copy()
+    t_s = (ds.gps.t_ns - ds.imu.t_ns[0]) * 1e-9
+    for a, d in zip(at_s, dv, strict=True):
+        v[int(np.argmin(np.abs(t_s - a)))] += d
+    return replace(ds, gps=replace(ds.gps, v_W_G=v))
+
+
+def _config(start_s: float) -> RunConfig:
+    return RunConfig(method="3d", init=InitOptions(mode="gps"), use_mag=False,
+                     replay=ReplayOptions(start_s=start_s), duration_s=15.0)  # fmt: skip
+
+
+def test_a_glitched_velocity_in_the_start_fixes_waits_for_the_next_pair(
+    flight: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The fix at 31 s with its velocity reversed (4 m/s² on a steady 2 m/s flight): the
+    start took it, 22° tilted and held to 3°, and `3d` ended 288 m off (a user's probe). Both
+    pairs holding it are refused, warned; the start takes the pair after."""
+    ds = load_dataset(flight)
+    assert ds.gps is not None
+    k = int(np.argmin(np.abs((ds.gps.t_ns - ds.imu.t_ns[0]) * 1e-9 - 31.0)))
+    bad = _velocities_changed(ds, [31.0], [-2.0 * ds.gps.v_W_G[k]])
+    with caplog.at_level(logging.WARNING, logger="svains.navigation.starter"):
+        rep = run_method(bad, "3d", _config(30.0)).report
+    waits = [r.getMessage() for r in caplog.records if "waits for the next GPS fix" in r.message]
+    assert len(waits) == 2 and "a fix's velocity is wrong" in waits[0], waits
+    clean = run_method(ds, "3d", _config(32.0)).report
+    assert rep["ate_rmse_m"] < 1.5 and rep["nees_mean"] < 20.0
+    assert rep["ate_rmse_m"] < 2.0 * clean["ate_rmse_m"]
+
+
+def test_fixes_that_never_agree_with_the_accelerometer_stop_the_start_in_one_line(
+    flight: Path,
+) -> None:
+    ds = load_dataset(flight)
+    at = [float(s) for s in range(30, 38)]
+    jumps = [np.array([3.0 * (-1) ** i, 0.0, 0.0]) for i in range(len(at))]
+    with pytest.raises(InitialisationError, match=r"^5 pairs of GPS fixes in a row disagree "
+                       r"with the accelerometer \(the last: the GPS fixes at .* imply a specific "
+                       r"force of .* m/s², the accelerometer measured .*\)"):  # fmt: skip
+        run_method(_velocities_changed(ds, at, jumps), "3d", _config(30.0))
