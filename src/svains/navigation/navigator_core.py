@@ -685,6 +685,8 @@ class Core(HeadingSteps):
             report["mag_held_skipped"] = self.held_skipped
         if self.gps_held_heading:
             report["gps_held_for_heading"] = self.gps_held_heading
+            # a wait that ended without a heading (the run's end) held them too (a probe)
+            self.init_info.setdefault("gps_fixes_held", self.gps_held_heading)
         if self._course_check is not None:
             report["gps_course_check"] = self._course_check.summary()
         if self._gps_latency is not None:
