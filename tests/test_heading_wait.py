@@ -527,3 +527,10 @@ def test_the_run_table_says_where_the_heading_came_from() -> None:
     assert heading_found(init).endswith("from the GPS fixes' path; 5 fix(es) held")
     del init["gps_fixes_held"]
     assert heading_found(init).endswith("from the GPS fixes' path")
+    from svains.cli.run import later_turns
+
+    turns = [{"t_ns": 1e9, "angle_deg": -89.9, "std_deg": 1.8, "wait": True},
+             {"t_ns": 9e9, "angle_deg": -178.34, "std_deg": 2.06, "wait": False}]  # fmt: skip
+    assert later_turns({"heading_check": {"turns": turns}}) == "-178.3° ± 2.1°"
+    assert later_turns({"heading_check": {"turns": turns[:1]}}) == ""
+    assert later_turns({}) == ""

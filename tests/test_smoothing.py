@@ -179,3 +179,27 @@ def test_clone_resizes_hand_the_smoother_their_exact_map(time_offset: bool) -> N
         else:  # nothing new: the map is the whole change, but for the clone's jitter
             assert np.abs(off).max() < 1e-12, np.abs(off).max()
         assert np.all(np.abs(d) <= 1e-8 * np.abs(np.diag(expected)).max())  # the jitter
+
+
+def test_the_smoothing_reaches_back_across_a_heading_found_after_a_wait(tmp_path: Path) -> None:
+    """A `3d` start in motion without magnetometer waits in a local frame until the GPS gives
+    its heading, then turns the state: written over the state, the turn cut the smoother's
+    chain, and the wait's seconds kept their forward error (this flight from 30 s: smoothed ATE
+    0.493 m against 0.415 forward; a user's probe, 0.93 m against 0.05 m with a magnetometer).
+    Recorded as the linear map it is, the fixes after the turn smooth the wait (measured
+    0.040 m, no cut)."""
+    from svains.evaluation.run import run_method
+    from svains.navigation.options import ReplayOptions, RunConfig
+
+    cfg = SimConfig(duration_s=52.0, seed=3)
+    cfg.camera.render_images = False
+    cfg.gps.outages = []
+    ds = load_dataset(simulate(cfg, tmp_path / "slow"))
+    config = RunConfig(method="3d", init=InitOptions(mode="gps"), use_mag=False,
+                       replay=ReplayOptions(start_s=30.0),
+                       smoother=SmootherOptions(enabled=True))  # fmt: skip
+    rep = run_method(ds, "3d", config).report
+    assert rep["init"]["heading_source"] == "the GPS velocities"
+    sm = rep["smoothed"]
+    assert sm["chain_cuts"] == 0
+    assert sm["ate_rmse_m"] < 0.1 and sm["ate_rmse_m"] < rep["ate_rmse_m"] / 3.0

@@ -72,3 +72,22 @@ def test_fixes_that_never_agree_with_the_accelerometer_stop_the_start_in_one_lin
                        r"with the accelerometer \(the last: the GPS fixes at .* imply a specific "
                        r"force of .* m/s², the accelerometer measured .*\)"):  # fmt: skip
         run_method(_velocities_changed(ds, at, jumps), "3d", _config(30.0))
+
+
+def test_a_jumped_position_in_the_start_fixes_waits_for_the_next_pair(
+    flight: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The fix at 30 s 40 m east: it placed the start, and the agreeing fixes after it were
+    refused by the gate until the filter was inflated (a user's probe: 17.3 m). The first
+    pair's positions are 42 m apart where their velocities moved the antenna 2 m."""
+    ds = load_dataset(flight)
+    assert ds.gps is not None
+    k = int(np.argmin(np.abs((ds.gps.t_ns - ds.imu.t_ns[0]) * 1e-9 - 30.0)))
+    p = ds.gps.p_W_G.copy()
+    p[k, 0] += 40.0
+    bad = replace(ds, gps=replace(ds.gps, p_W_G=p))
+    with caplog.at_level(logging.WARNING, logger="svains.navigation.starter"):
+        rep = run_method(bad, "3d", _config(30.0)).report
+    waits = [r.getMessage() for r in caplog.records if "waits for the next GPS fix" in r.message]
+    assert len(waits) == 1 and "a fix's position jumped" in waits[0], waits
+    assert rep["ate_rmse_m"] < 1.5 and rep["nees_mean"] < 20.0

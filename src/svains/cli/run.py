@@ -229,6 +229,9 @@ def run(
         row("errors alignment", str(rep["errors_alignment"]), "")
     if (rep.get("init") or {}).get("heading_source"):
         row("heading from the GPS", heading_found(rep["init"]), "")
+    later = later_turns(rep)
+    if later:
+        row("heading turned later (GPS velocities)", later, "")
     for name, c in rep.get("measurements", {}).items():
         row(f"{name} fused/rejected", f"{c['fused']}/{c['rejected']}", "")
     for name, v in rep.get("vision", {}).items():
@@ -279,6 +282,15 @@ def heading_found(init: dict) -> str:
     if "held_fixes_fused" in init:
         line += f", {init['held_fixes_fused']} fused at the turn"
     return line
+
+
+def later_turns(rep: dict) -> str:
+    """The heading check's turns after any that ended a start's heading wait (``report.json``'s
+    ``heading_check``), "" without: a probe read only the wait's, wrong, turn in the table
+    though the check turned the state back 8 s later."""
+    turns = [t for t in (rep.get("heading_check") or {}).get("turns") or []
+             if not t.get("wait")]  # fmt: skip
+    return ", ".join(f"{t['angle_deg']:+.1f}° ± {t['std_deg']:.1f}°" for t in turns)
 
 
 def _brief(v: object) -> str:

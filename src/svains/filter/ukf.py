@@ -326,6 +326,8 @@ class UKF:
         K = np.linalg.solve(S, P_xy.T).T
         self._set_posterior(self.manifold.retract(self.x[None, :], (K @ r)[None, :])[0],
                             self.P - K @ S @ K.T)  # fmt: skip
+        # (no gain of ``update``'s form: a caller reading the last one must not take an older)
+        self.last_gain_T = self.last_innovation_solve = None
         return UpdateStats(name, True, nis, nz, float(gate), whitened=w)
 
     def set_posterior(self, x: F64, P: F64) -> None:

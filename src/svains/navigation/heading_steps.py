@@ -374,12 +374,9 @@ class HeadingSteps:
         self._wait_over()
         std = self.config.init.yaw_std_unknown
         # about the pivot, as the logged rows below: a state far from it (a start in motion)
-        # is off by the unknown turn in position too (a yaw widened alone lost the fixes). The
-        # covariance alone: a mean rewritten to round-off cut the smoother's chain (a review)
-        ukf = self.ins.ukf
-        x = ukf.x.copy()
-        turn_heading(ukf, HeadingError(0.0, std, 0), self._up_W, pivot_W=self._heading_pivot)
-        ukf.x = x
+        # is off by the unknown turn in position too (a yaw widened alone lost the fixes)
+        turn_heading(self.ins.ukf, HeadingError(0.0, std, 0), self._up_W,
+                     pivot_W=self._heading_pivot)  # fmt: skip
         if self._log_x:
             # the logged rows were the local frame's with a yaw σ of a known heading: as
             # world-frame rows they hold an arbitrary heading too (they read 52-105σ off)

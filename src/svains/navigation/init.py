@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import chi2
 
 from svains.errors import InitialisationError, StartFixesRefusedError
 from svains.geometry.rotation import quat_normalize, rotmat_to_quat
@@ -47,6 +48,9 @@ ARBITRARY = "none (arbitrary yaw)"
 # An in-flight start's fixes whose specific force is this many standard deviations from the
 # accelerometer's are refused (``_from_gps``)
 START_FORCE_SIGMAS = 3.0
+# ... and whose positions are apart by more than their velocities moved the antenna, at this
+# chi-square probability (3 dof; 3σ's two-sided probability)
+START_FIX_PROBABILITY = 0.9973
 
 
 @dataclass
@@ -462,6 +466,22 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
     # glitch gave 4 m/s² on a steady 2 m/s flight, a start 22° tilted and held to 3° (`3d`
     # 288 m off, a user's probe). Refused beyond 3σ (the fixes' acceleration noise and the
     # accelerometer's bias prior; a refusal costs one fix): a later pair may start it.
+    if accel_std == 0.0:
+        # With velocities, the two positions must be as far apart as the velocities carried
+        # the antenna (the trapezoid), within the fixes' noise: a jumped fix placed the start
+        # 40 m off, and the three agreeing fixes after it were refused (a user's probe: 17.3 m)
+        dt = (tb - ta) * 1e-9
+        moved = 0.5 * (gps.v_W_G[0] + gps.v_W_G[1]) * dt
+        d = gps.p_W_G[1] - gps.p_W_G[0] - moved
+        pos_std = dataset.gps_calib.position_noise_std
+        d_std = float(np.sqrt(2.0 * pos_std**2 + 0.5 * (dt * v_noise) ** 2))
+        if float(d @ d) / d_std**2 > chi2.ppf(START_FIX_PROBABILITY, 3):
+            raise StartFixesRefusedError(
+                f"the GPS fixes at {ta * 1e-9:.3f} and {tb * 1e-9:.3f} s are "
+                f"{np.linalg.norm(gps.p_W_G[1] - gps.p_W_G[0]):.1f} m apart where their "
+                f"velocities moved the antenna {np.linalg.norm(moved):.1f} m (± {d_std:.1f} per "
+                "axis): a fix's position jumped"
+            )  # fmt: skip
     a_std = accel_std if accel_std > 0 else np.sqrt(2.0) * v_noise / ((tb - ta) * 1e-9)
     off = abs(float(np.linalg.norm(f_W)) - float(np.linalg.norm(f_B)))
     off_std = float(np.hypot(a_std, o.accel_bias_std))
