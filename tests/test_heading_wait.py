@@ -521,8 +521,9 @@ def test_the_run_table_says_where_the_heading_came_from() -> None:
     init = {"heading_turn_deg": -179.5, "heading_std_deg": 9.78, "heading_found_s": 6.0,
             "heading_source": "the GPS fixes' path", "gps_fixes_held": 5,
             "held_fixes_fused": 4}  # fmt: skip
-    assert heading_found(init) == ("-179.5° ± 9.8° at 6.0 s, from the GPS fixes' path; 5 "
-                                   "fix(es) held, 4 fused at the turn")  # fmt: skip
+    assert heading_found(init) == ("turned -179.5° ± 9.8° 6.0 s after the start, from the "
+                                   "GPS fixes' path; 5 fix(es) held, 4 fused at the "
+                                   "turn")  # fmt: skip
     del init["held_fixes_fused"]  # an INS's wait fuses none of them
     assert heading_found(init).endswith("from the GPS fixes' path; 5 fix(es) held")
     del init["gps_fixes_held"]

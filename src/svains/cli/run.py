@@ -274,8 +274,11 @@ def heading_found(init: dict) -> str:
     """A start held in a local frame until the GPS gave its heading (``report.json``'s
     ``init``): the turn, when and from what, and the fixes held meanwhile and fused at the
     turn (said only with ``-v`` before: a user's probe)."""
-    line = (f"{init['heading_turn_deg']:+.1f}° ± {init['heading_std_deg']:.1f}° at "
-            f"{init['heading_found_s']:.1f} s, from {init['heading_source']}")  # fmt: skip
+    # "turned": the change applied, not a heading; the time from the filter's start, which
+    # may come after --start (a probe read both otherwise)
+    line = (f"turned {init['heading_turn_deg']:+.1f}° ± {init['heading_std_deg']:.1f}° "
+            f"{init['heading_found_s']:.1f} s after the start, from "
+            f"{init['heading_source']}")  # fmt: skip
     held = init.get("gps_fixes_held")
     if held:
         line += f"; {held} fix(es) held"

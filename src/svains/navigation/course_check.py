@@ -28,6 +28,7 @@ from collections import deque
 import numpy as np
 from numpy.typing import NDArray
 
+from svains.navigation.heading_check import horizontal_basis
 from svains.navigation.imu_history import ImuHistory
 from svains.sensors.units import (
     GPS_TURN_MIN_DEG,
@@ -52,10 +53,8 @@ class CourseCheck:
         """``history``: the body-frame IMU samples the estimator keeps; ``g_W`` (3,) m/s²."""
         self.history = history
         self.g_W = np.asarray(g_W, dtype=float)
-        up = -self.g_W / np.linalg.norm(self.g_W)
-        e1 = np.cross(up, (1.0, 0.0, 0.0) if abs(up[0]) < 0.9 else (0.0, 1.0, 0.0))
-        e1 /= np.linalg.norm(e1)
-        self._e = (e1, np.cross(up, e1))  # (e1, e2, up) right-handed
+        e1, e2 = horizontal_basis(-self.g_W / np.linalg.norm(self.g_W))
+        self._e = (e1, e2)  # (e1, e2, up) right-handed
         self._anchor: tuple[int, float, float] | None = None  # t_ns, course rad, speed m/s
         # sums over the counted steps: course·turn, course², turn², |turn|
         self._ab = self._aa = self._bb = self._abs_b = 0.0

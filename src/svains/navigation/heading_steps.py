@@ -30,7 +30,7 @@ from svains.navigation.heading_check import (
     yaw_std,
 )
 from svains.navigation.heading_wait import HEADING_WAIT_MAX_S, FixPathHeading, turn_logged
-from svains.navigation.init import ARBITRARY, HEADING_FROM_GPS, VELOCITY_UNKNOWN
+from svains.navigation.init import ARBITRARY, HEADING_BANK, HEADING_FROM_GPS, VELOCITY_UNKNOWN
 from svains.navigation.ins import default_imu_calib
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import FrameTurn
@@ -79,12 +79,17 @@ class HeadingSteps:
             self._end_heading_wait(self.t0_ns, "the heading check is off")
         # an INS started in motion with no heading: a bank of headings the fixes weigh
         bank_n = config.init.yaw_bank_models
-        self._yaw_bank = (
-            YawBank(self.ins, self._up_W, rig.gps.p_B_G, bank_n, config.init.yaw_bank_max_std)
-            if bank_n and gps_used and rig.gps is not None and config.method == "ins"
-            and init_info.get("mode") == "gps" and init_info.get("heading") == ARBITRARY
-            else None
-        )  # fmt: skip
+        self._yaw_bank: YawBank | None = None
+        if (bank_n and gps_used and rig.gps is not None and config.method == "ins"
+                and init_info.get("mode") == "gps" and init_info.get("heading") == ARBITRARY):
+            # the start's specific force, which its attitude was levelled on
+            a_W = np.asarray(init_info.get("gps_acceleration_W", np.zeros(3)), dtype=float)
+            self._yaw_bank = YawBank(self.ins, self._up_W, a_W - np.asarray(rig.gravity_W),
+                                     rig.gps.p_B_G, bank_n, config.init.yaw_bank_max_std)
+            init_info["heading"] = HEADING_BANK
+            log.warning("a bank of %d headings weighs the GPS fixes until they show the "
+                        "heading (the estimates' yaw uncertainty is the bank's spread "
+                        "meanwhile)", bank_n)  # fmt: skip
 
     def _bank_fix(self, t: int, block: MeasurementBlock) -> bool:
         """A measurement (a GPS fix, a sonar range) to the bank of headings
@@ -96,29 +101,25 @@ class HeadingSteps:
         bank = self._yaw_bank
         if bank is None:
             return False
-        stats = bank.update(block)
+        stats = bank.update(block, self.config.filter.gate_probability)
         if stats is not None:
             self._record(stats, block.name, t)
         merged = bank.merged()
         ukf = self.ins.ukf
-        if self._recovery is not None:
-            self._recovery.state_replaced(ukf)  # (a pending bias step's rows dropped)
         axis = level_axis(ukf.x, self._up_W)
         yaw_before = bank_yaw(ukf.x, self._up_W, axis)
         if merged is None:
+            # the filter follows the likeliest copy (no recovery acts on it meanwhile)
             heaviest = bank.members[int(np.argmax(bank.log_w))].ukf
             ukf.x, ukf.P = heaviest.x.copy(), heaviest.P.copy()
             if (t - self.t0_ns) * 1e-9 > YAW_BANK_MAX_S:
-                self._yaw_bank = None
-                self._warn.warn("heading-bank", t, f"no heading from the GPS fixes over "
-                                f"{YAW_BANK_MAX_S:g} s (the motion never showed it): the "
-                                "likeliest of the bank's headings is kept; a magnetometer "
-                                "would give one")  # fmt: skip
+                self._bank_unresolved(t, f"no heading from the GPS fixes over "
+                                      f"{YAW_BANK_MAX_S:g} s: the likeliest of the bank's "
+                                      "headings is kept")  # fmt: skip
+                self._bank_over()
             return True
         ukf.x, ukf.P = merged.x, merged.P
-        self._yaw_bank = None
-        if self._heading_check is not None:
-            self._heading_check.restart()
+        self._bank_over()
         turn = float(np.angle(np.exp(1j * (bank_yaw(ukf.x, self._up_W, axis) - yaw_before))))
         at_s = (t - self.t0_ns) * 1e-9
         self.init_info.update(heading_found_s=round(at_s, 3),
@@ -130,6 +131,24 @@ class HeadingSteps:
                  "turned by %.1f° (± %.1f°)", at_s, len(bank.members), merged.fixes,
                  np.degrees(turn), np.degrees(merged.std_rad))  # fmt: skip
         return True
+
+    def _bank_unresolved(self, t: int, why: str) -> None:
+        """The bank of headings gave no heading (``why``): warned with its spread, which
+        ``report.json`` keeps (``init.heading_bank_std_deg``)."""
+        assert self._yaw_bank is not None
+        std = float(np.degrees(self._yaw_bank.heading()[1]))
+        self.init_info["heading_bank_std_deg"] = round(std, 3)
+        self._warn.warn("heading-bank", t, f"{why} (the bank's yaw uncertainty {std:.0f}°; "
+                        "only acceleration shows it, and a magnetometer would give it)")
+
+    def _bank_over(self) -> None:
+        """The bank of headings ends (merged, or given up): the heading check starts again
+        and the consistency monitor's bias test forgets the innovations it held."""
+        self._yaw_bank = None
+        if self._heading_check is not None:
+            self._heading_check.restart()
+        if self._recovery is not None:
+            self._recovery.state_replaced(self.ins.ukf)
 
     def _estimate(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The estimate to log and emit: the state's mean (nx,), its covariance (ndx, ndx)

@@ -45,6 +45,9 @@ HEADING_FROM_GPS = "none (local frame until the GPS gives it)"
 VELOCITY_UNKNOWN = "start_speed_horizontal_mps"
 # ``report.json`` ``init.heading`` of a start with no heading source, fixes fused at once
 ARBITRARY = "none (arbitrary yaw)"
+# ... and of such an ``ins`` start in motion, which runs a bank of headings instead
+# (``navigation.yaw_bank``)
+HEADING_BANK = "none (a bank of headings until the GPS fixes show it)"
 # An in-flight start's fixes whose specific force is this many standard deviations from the
 # accelerometer's are refused (``_from_gps``)
 START_FORCE_SIGMAS = 3.0
@@ -482,10 +485,12 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
                 f"velocities moved the antenna {np.linalg.norm(moved):.1f} m (± {d_std:.1f} per "
                 "axis): a fix's position jumped"
             )  # fmt: skip
-    a_std = accel_std if accel_std > 0 else np.sqrt(2.0) * v_noise / ((tb - ta) * 1e-9)
+    # (not from position-only fixes: their acceleration is shrunk to a prior, and a vehicle
+    # braking hard or climbing was refused pair after pair, a review)
+    a_std = np.sqrt(2.0) * v_noise / ((tb - ta) * 1e-9)
     off = abs(float(np.linalg.norm(f_W)) - float(np.linalg.norm(f_B)))
     off_std = float(np.hypot(a_std, o.accel_bias_std))
-    if off > START_FORCE_SIGMAS * off_std:
+    if accel_std == 0.0 and off > START_FORCE_SIGMAS * off_std:
         raise StartFixesRefusedError(
             f"the GPS fixes at {ta * 1e-9:.3f} and {tb * 1e-9:.3f} s imply a specific force of "
             f"{np.linalg.norm(f_W):.2f} m/s², the accelerometer measured "
@@ -533,7 +538,7 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
                         "it; GPS fixes wait for it")  # fmt: skip
         else:
             info["heading"] = ARBITRARY
-            log.warning("no magnetometer at the start: heading starts arbitrary")
+            log.warning("no heading source at the start (no magnetometer, no GPS course)")
     x = np.zeros(layout.nx)
     x[Q] = quat_normalize(rotmat_to_quat(R_W_B))
     # Position and velocity of the body at t0 from the first fix (t0 is within one IMU period).

@@ -220,6 +220,9 @@ class Core(HeadingSteps):
         if self._heading_wait:
             self._take_path_heading(end_ns, "the run ended before the heading was known")
         self._log(last=True)
+        if self._yaw_bank is not None:
+            self._bank_unresolved(end_ns, "the run ended before the GPS fixes showed the "
+                                  "heading")  # fmt: skip
         if self._heading_wait and self.gps_held_heading:
             # the outputs hold the fix's position with the start's local heading (a probe)
             self._warn.warn("heading-wait", end_ns, "the run ended before the GPS "
@@ -269,7 +272,8 @@ class Core(HeadingSteps):
                     standing = self._wait_fix(t, payload[0], v_wait)
                     if self._heading_wait and self._hold_for_heading(t, standing):
                         continue
-                if self._recovery is not None and self._recovery.reset_pending:
+                if (self._recovery is not None and self._recovery.reset_pending
+                        and self._yaw_bank is None):  # fmt: skip
                     v = payload[1] if use_v else None
                     self._recovery.reset_from_gps(ins.ukf, self.rig.gps, payload[0], v)
                 block = ins.gps_block(self.rig.gps, payload[0], payload[1], use_v)
@@ -318,7 +322,9 @@ class Core(HeadingSteps):
         if self._own_fix_fused:  # the fix's pull is no motion of the antenna's own
             self._own_from_W_A = self._antenna_W()
             self._own_fix_fused = False
-        if self._recovery is not None and (has_frame or blocks or len(items) > has_tick):
+        if (self._recovery is not None and self._yaw_bank is None
+                and (has_frame or blocks or len(items) > has_tick)):  # fmt: skip
+            # (a bank of headings' filter is its likeliest copy, written over at each fix)
             self._recovery.check(ins.ukf, t)
         self._check_vision_gap(t)
         if t >= self._next_keep_ns:
@@ -568,7 +574,7 @@ class Core(HeadingSteps):
         # The one place where every measurement update's outcome is known.
         c = self.counts.setdefault(key, {"fused": 0, "rejected": 0})
         c["fused" if stats.accepted else "rejected"] += 1
-        if self._recovery is not None and key != "zupt":
+        if self._recovery is not None and key != "zupt" and self._yaw_bank is None:
             # A refused zero-velocity update means motion, not a lost filter.
             self._recovery.observe(stats, key, t)
         # kept for the outputs without its arrays: a magnetometer update's share of the joint
@@ -628,13 +634,15 @@ class Core(HeadingSteps):
         nx, ndx = self.layout.nx, self.layout.ndx
         x, P, _ = self._estimate()
         return NavState.from_state(self.ins.t_ns, x[:nx], P[:ndx, :ndx], self.layout,
-                                   not self._heading_wait)  # fmt: skip
+                                   not self._heading_wait and self._yaw_bank is None)  # fmt: skip
 
     def _log(self, last: bool = False) -> None:
         ins = self.ins
-        if self.history is not None:
-            self.history.mark(ins.t_ns, ins.ukf.x, ins.ukf.P, last=last)
         x, P, std = self._estimate()
+        if self.history is not None:
+            # (a bank of headings' estimate, not its filter's: a review found the smoothed
+            # yaw σ the start's 28° where the logged one was 104°)
+            self.history.mark(ins.t_ns, x, P, last=last)
         self._log_t.append(ins.t_ns)
         self._log_x.append(x[: self.layout.nx].copy())
         self._log_std.append(std)

@@ -45,9 +45,8 @@ log = logging.getLogger(__name__)
 
 F64 = NDArray[np.float64]
 
-# A fix every copy finds beyond this chi-square quantile weighs none of them (a GPS jump is no
-# evidence for one heading), and one copy's NIS counts at most that much (one outlier fix
-# cannot outweigh the fixes before it).
+# The copies' gate without the filter's (``filter.gate_probability`` None): a copy refuses a fix
+# beyond this chi-square quantile, and its NIS counts at most that much.
 _FIX_PROBABILITY = 0.9999
 
 # The longest a bank runs (s): a vehicle that only cruises never shows its heading, and the
@@ -70,29 +69,29 @@ class BankResult:
 class YawBank:
     """``n`` copies of an INS filter over the circle of headings (the module docstring)."""
 
-    def __init__(self, ins: InsFilter, up_W: F64, p_B_G: F64, n: int,
+    def __init__(self, ins: InsFilter, up_W: F64, f_W: F64, p_B_G: F64, n: int,
                  max_std_rad: float) -> None:  # fmt: skip
-        """Copies of ``ins`` (at its start: its mean and covariance) turned about the unit
-        vertical ``up_W`` (3,) through the GPS antenna (``p_B_G`` (3,) m in the body frame),
-        whose fixed position the start took; merged once the heading is known to
-        ``max_std_rad``."""
+        """Copies of ``ins`` (at its start: its mean and covariance) turned about the start's
+        specific force ``f_W`` (3,) m/s² (the direction its attitude was levelled on, ``R f_B
+        = f_W``: turned about the vertical instead, every copy but the first disagreed with
+        the accelerating start, and a review's KITTI raw start merged 80° off) through the
+        GPS antenna (``p_B_G`` (3,) m in the body frame), whose fixed position the start took;
+        ``up_W`` (3,) the vertical the headings are counted about; merged once the heading is
+        known to ``max_std_rad``."""
         if n < 2:
             raise ValueError(f"a bank of headings needs at least 2 copies, got {n}")
         up = np.asarray(up_W, dtype=float) / np.linalg.norm(up_W)
+        axis = np.asarray(f_W, dtype=float) / np.linalg.norm(f_W)
         self._up = up
         self._max_std = float(max_std_rad)
         x0, P0 = ins.ukf.x, ins.ukf.P
         R0 = quat_to_rotmat(x0[Q])
         p_W_A = x0[POS] + R0 @ np.asarray(p_B_G, float)
-        # yaw in the body tangent: δθ_B along R^T up (a world turn leaves it as it was)
-        u = np.zeros(P0.shape[0])
-        u[DTH] = R0.T @ up
-        var_yaw = (math.pi / n) ** 2
-        P_k = P0 + (var_yaw - float(u @ P0 @ u)) * np.outer(u, u)
+        P_k = _heading_spread(P0, R0, up, axis, (math.pi / n) ** 2)
         self._axis = level_axis(x0, up)
         self.members: list[InsFilter] = []
         for i in range(n):
-            q_z = quat_exp((2.0 * math.pi * i / n) * up)
+            q_z = quat_exp((2.0 * math.pi * i / n) * axis)
             x = x0.copy()
             x[Q] = quat_normalize(quat_multiply(q_z, x0[Q]))
             x[POS] = p_W_A - quat_to_rotmat(x[Q]) @ np.asarray(p_B_G, float)
@@ -112,42 +111,39 @@ class YawBank:
     def _live(self) -> list[int]:
         return [i for i in range(len(self.members)) if np.isfinite(self.log_w[i])]
 
-    def update(self, block: MeasurementBlock) -> UpdateStats | None:
-        """Fuse a measurement ``block`` (a GPS fix, a sonar range) into every live copy and
-        weigh each by its innovation's likelihood (``N(r; 0, S)``, the NIS capped at
-        ``_FIX_PROBABILITY``'s quantile); a fix every copy finds beyond that quantile is fused
-        by none. A copy whose update fails numerically drops out. The update's statistics of
-        the heaviest copy after it (None: fused by none)."""
-        live = self._live()
-        dof = int(np.size(block.z))
-        cap = float(chi2.ppf(_FIX_PROBABILITY, dof))
-        looks: dict[int, tuple[float, float]] = {}  # NIS and log det(S) before the update
-        for i in live:
+    def update(self, block: MeasurementBlock,
+               gate_probability: float | None) -> UpdateStats | None:  # fmt: skip
+        """Fuse a measurement ``block`` (a GPS fix, a sonar range) into every live copy that
+        its gate at ``gate_probability`` accepts, and weigh each copy by its innovation's
+        likelihood (``N(r; 0, S)``, the NIS capped at the gate: a copy that refuses the fix
+        keeps its mean and loses that much). A fix every copy refuses weighs none (a GPS jump
+        is no evidence for a heading). A copy whose update fails numerically drops out. The
+        update's statistics of the heaviest copy after it (refused by all: the heaviest's
+        refusal; None: no live copy)."""
+        p = _FIX_PROBABILITY if gate_probability is None else gate_probability
+        cap = float(chi2.ppf(p, int(np.size(block.z))))
+        stats: dict[int, UpdateStats] = {}
+        logdet: dict[int, float] = {}
+        for i in self._live():
             ukf = self.members[i].ukf
             try:
                 X, _ = ukf.sigma_points()
-                S, r = _innovation(ukf, X, block)
-                L = np.linalg.cholesky(S)
+                S, _ = _innovation(ukf, X, block)
+                logdet[i] = 2.0 * float(np.sum(np.log(np.diag(np.linalg.cholesky(S)))))
+                stats[i] = ukf.update(block.h, block.z, block.R, p, block.residual,
+                                      block.name)  # fmt: skip
             except (FilterError, np.linalg.LinAlgError):
                 self.log_w[i] = -math.inf
-                continue
-            w = np.linalg.solve(L, r)
-            looks[i] = (float(w @ w), 2.0 * float(np.sum(np.log(np.diag(L)))))
-        if not looks or min(nis for nis, _ in looks.values()) > cap:
+                stats.pop(i, None)
+        if not stats:
             return None
-        stats: dict[int, UpdateStats] = {}
-        for i, (nis, logdet) in looks.items():
-            ukf = self.members[i].ukf
-            try:
-                stats[i] = ukf.update(block.h, block.z, block.R, None, block.residual,
-                                      block.name)  # fmt: skip
-            except FilterError:
-                self.log_w[i] = -math.inf
-                continue
-            self.log_w[i] += -0.5 * (min(nis, cap) + logdet)
+        if not any(st.accepted for st in stats.values()):
+            # refused by every copy: no evidence, and recorded as a refusal (a probe found a
+            # GPS jump gone from updates.csv)
+            return stats[max(stats, key=lambda i: self.log_w[i])]
+        for i, st in stats.items():
+            self.log_w[i] += -0.5 * (min(st.nis, cap) + logdet[i])
         finite = np.isfinite(self.log_w)
-        if not finite.any():
-            return None
         self.log_w[finite] -= np.logaddexp.reduce(self.log_w[finite])
         self.fixes += block.name == "gps"
         return stats[int(np.argmax(self.log_w))]
@@ -169,24 +165,33 @@ class YawBank:
 
     def about_heaviest(self) -> tuple[F64, F64]:
         """The heaviest copy's mean ``x`` (nx,) and the mixture's covariance about it (ndx,
-        ndx): each copy's covariance plus its offset's outer product, weighted (copies of
-        weight below 1e-6 left out). The estimate while the heading is unknown: its yaw
-        variance is the copies' spread, however wide."""
-        w, d, keep = self._offsets()
+        ndx): each copy's covariance (in the heaviest's tangent) plus its offset's outer
+        product, weighted (copies of weight below 1e-6 left out). The estimate while the
+        heading is unknown: its yaw variance is the copies' spread, however wide."""
+        w, d, P, keep = self._offsets()
         ref = self.members[int(np.argmax(w))].ukf
-        P = sum(w[i] * (self.members[i].ukf.P + np.outer(d[n], d[n]))
-                for n, i in enumerate(keep))  # fmt: skip
-        return ref.x.copy(), 0.5 * (P + P.T) / float(w[keep].sum())
+        wk = w[keep] / w[keep].sum()
+        P_about = sum(wk[n] * (P[n] + np.outer(d[n], d[n])) for n in range(len(keep)))
+        return ref.x.copy(), 0.5 * (P_about + P_about.T)
 
-    def _offsets(self) -> tuple[F64, F64, list[int]]:
-        """The weights (n,), each kept copy's offset from the heaviest on its tangent space
-        (k, ndx) and the kept copies' indices (weight above 1e-6)."""
+    def _offsets(self) -> tuple[F64, F64, list[F64], list[int]]:
+        """The weights (n,); for each kept copy (weight above 1e-6; their indices last) its
+        offset from the heaviest on the heaviest's tangent space (k, ndx) and its covariance
+        taken into that tangent (the body-frame attitude errors turned by ``R_refᵀ R_i``;
+        world-frame position and velocity, and biases, as they are)."""
         w = np.exp(self.log_w)
         ref = self.members[int(np.argmax(w))].ukf
         keep = [i for i in range(len(w)) if w[i] > 1e-6]
         d = np.array([ref.manifold.local(self.members[i].ukf.x[None, :], ref.x)[0]
                       for i in keep])  # fmt: skip
-        return w, d, keep
+        R_ref_T = quat_to_rotmat(ref.x[Q]).T
+        P = []
+        for i in keep:
+            m = self.members[i].ukf
+            T = np.eye(m.P.shape[0])
+            T[DTH, DTH] = R_ref_T @ quat_to_rotmat(m.x[Q])
+            P.append(T @ m.P @ T.T)
+        return w, d, P, keep
 
     def merged(self) -> BankResult | None:
         """The copies merged into one Gaussian once the heading is known to ``max_std_rad``
@@ -197,14 +202,32 @@ class YawBank:
         _, std = self.heading()
         if std > self._max_std:
             return None
-        w, d, keep = self._offsets()
+        w, d, P, keep = self._offsets()
         ref = self.members[int(np.argmax(w))].ukf
         wk = w[keep] / w[keep].sum()
         d_mean = wk @ d
         x = ref.manifold.retract(ref.x[None, :], d_mean[None, :])[0]
-        P = sum(wk[n] * (self.members[i].ukf.P + np.outer(d[n] - d_mean, d[n] - d_mean))
-                for n, i in enumerate(keep))  # fmt: skip
-        return BankResult(x, 0.5 * (P + P.T), std, self.fixes)
+        P_m = sum(wk[n] * (P[n] + np.outer(d[n] - d_mean, d[n] - d_mean))
+                  for n in range(len(keep)))  # fmt: skip
+        return BankResult(x, 0.5 * (P_m + P_m.T), std, self.fixes)
+
+
+def _heading_spread(P0: F64, R0: F64, up: F64, axis: F64, var: float) -> F64:
+    """``P0`` (ndx, ndx) with its heading variance about ``up`` (3,) brought down to its tilt
+    variance (the mean of the two horizontal directions'), then ``var`` (rad²) about ``axis``
+    (3,) instead: the body-frame attitude errors along ``R0ᵀ up`` and ``R0ᵀ axis``."""
+    n = P0.shape[0]
+
+    def along(v_W: F64) -> F64:
+        u = np.zeros(n)
+        u[DTH] = R0.T @ v_W
+        return u
+
+    E = horizontal_basis(up)
+    tilt_var = 0.5 * sum(float(along(e) @ P0 @ along(e)) for e in E)
+    u_up, u_ax = along(up), along(axis)
+    P = P0 + (tilt_var - float(u_up @ P0 @ u_up)) * np.outer(u_up, u_up)
+    return P + (var - float(u_ax @ P @ u_ax)) * np.outer(u_ax, u_ax)
 
 
 def level_axis(x: F64, up_W: F64) -> int:
