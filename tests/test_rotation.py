@@ -1,6 +1,7 @@
 """Group identities and conventions of the quaternion helpers."""
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from svains.geometry import rotation as rot
@@ -64,3 +65,20 @@ def test_quat_average_recovers_symmetric_spread() -> None:
     qs = rot.quat_box_plus(mean[None], d)
     avg = rot.quat_average(qs, np.ones(4))
     np.testing.assert_allclose(rot.quat_box_minus(avg, mean), 0.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-8, 0.3, 1.2, 2.8])
+def test_the_inverse_right_jacobian_maps_a_body_perturbation_into_the_chart(angle: float) -> None:
+    """``Log(Exp(θ) Exp(δ)) - θ ≈ J_r⁻¹(θ) δ`` by finite differences (the bank of headings
+    takes a copy's covariance into another's chart with it)."""
+    rng = np.random.default_rng(3)
+    axis = rng.normal(size=3)
+    theta = angle * axis / np.linalg.norm(axis)
+    J = rot.so3_right_jacobian_inv(theta)
+    h = 1e-6
+    num = np.column_stack([
+        (rot.so3_log(rot.so3_exp(theta) @ rot.so3_exp(h * e))
+         - rot.so3_log(rot.so3_exp(theta) @ rot.so3_exp(-h * e)))
+        / (2 * h) for e in np.eye(3)
+    ])  # fmt: skip
+    np.testing.assert_allclose(J, num, atol=1e-6)

@@ -126,6 +126,19 @@ def so3_log(R: ArrayLike) -> Array:
     return quat_log(rotmat_to_quat(R))
 
 
+def so3_right_jacobian_inv(theta: ArrayLike) -> Array:
+    """Inverse right Jacobian of SO(3) at the rotation vector ``theta`` (3,) -> (3, 3):
+    ``Log(Exp(θ) Exp(δ)) ≈ θ + J_r⁻¹(θ) δ`` for a small body perturbation ``δ`` (a
+    covariance about ``Exp(θ)`` in the chart about the identity)."""
+    t = np.asarray(theta, dtype=float)
+    a = float(np.linalg.norm(t))
+    K = skew(t)
+    if a < 1e-6:
+        return np.eye(3) + 0.5 * K + (K @ K) / 12.0
+    c = 1.0 / a**2 - (1.0 + np.cos(a)) / (2.0 * a * np.sin(a))
+    return np.eye(3) + 0.5 * K + c * (K @ K)
+
+
 def quat_box_plus(q_wxyz: ArrayLike, dtheta_B: ArrayLike) -> Array:
     """Local (body) perturbation ``q ⊗ Exp(δθ_B)``, renormalised; broadcasts."""
     return quat_normalize(quat_multiply(q_wxyz, quat_exp(dtheta_B)))

@@ -101,22 +101,21 @@ class HeadingSteps:
         bank = self._yaw_bank
         if bank is None:
             return False
-        stats = bank.update(block, self.config.filter.gate_probability)
+        stats = bank.update(block, self.config.filter.gate_probability, t)
         if stats is not None:
             self._record(stats, block.name, t)
+        if not bank.alive:  # every copy failed numerically: the filter goes on as it is
+            self._bank_unresolved(t, "every copy of the bank of headings failed")
+            self._bank_over()
+            return False
         merged = bank.merged()
         ukf = self.ins.ukf
         axis = level_axis(ukf.x, self._up_W)
         yaw_before = bank_yaw(ukf.x, self._up_W, axis)
         if merged is None:
             # the filter follows the likeliest copy (no recovery acts on it meanwhile)
-            heaviest = bank.members[int(np.argmax(bank.log_w))].ukf
+            heaviest = bank.heaviest()
             ukf.x, ukf.P = heaviest.x.copy(), heaviest.P.copy()
-            if (t - self.t0_ns) * 1e-9 > YAW_BANK_MAX_S:
-                self._bank_unresolved(t, f"no heading from the GPS fixes over "
-                                      f"{YAW_BANK_MAX_S:g} s: the likeliest of the bank's "
-                                      "headings is kept")  # fmt: skip
-                self._bank_over()
             return True
         ukf.x, ukf.P = merged.x, merged.P
         self._bank_over()
@@ -132,14 +131,35 @@ class HeadingSteps:
                  np.degrees(turn), np.degrees(merged.std_rad))  # fmt: skip
         return True
 
+    def _bank_propagate(self, t: int, Q9: np.ndarray | None) -> None:
+        """The bank of headings' copies to ``t`` (an IMU gap's covariance ``Q9`` added); it
+        ends when no copy is left, or after ``YAW_BANK_MAX_S`` without a heading (checked
+        here too: without fixes nothing else reaches it), the filter then the likeliest
+        copy."""
+        bank = self._yaw_bank
+        assert bank is not None
+        bank.propagate(t, Q9)
+        if not bank.alive:
+            self._bank_unresolved(t, "every copy of the bank of headings failed")
+            self._bank_over()
+        elif (t - self.t0_ns) * 1e-9 > YAW_BANK_MAX_S:
+            self._bank_unresolved(t, f"no heading from the GPS fixes over {YAW_BANK_MAX_S:g} "
+                                  "s: the likeliest of the bank's headings is kept")  # fmt: skip
+            heaviest = bank.heaviest()
+            self.ins.ukf.x, self.ins.ukf.P = heaviest.x.copy(), heaviest.P.copy()
+            self._bank_over()
+
     def _bank_unresolved(self, t: int, why: str) -> None:
         """The bank of headings gave no heading (``why``): warned with its spread, which
         ``report.json`` keeps (``init.heading_bank_std_deg``)."""
         assert self._yaw_bank is not None
-        std = float(np.degrees(self._yaw_bank.heading()[1]))
-        self.init_info["heading_bank_std_deg"] = round(std, 3)
-        self._warn.warn("heading-bank", t, f"{why} (the bank's yaw uncertainty {std:.0f}°; "
-                        "only acceleration shows it, and a magnetometer would give it)")
+        spread = "no copy left"
+        if self._yaw_bank.alive:
+            std = float(np.degrees(self._yaw_bank.heading()[1]))
+            self.init_info["heading_bank_std_deg"] = round(std, 3)
+            spread = f"the bank's yaw uncertainty {std:.0f}°"
+        self._warn.warn("heading-bank", t, f"{why} ({spread}; only acceleration shows the "
+                        "heading, and a magnetometer would give it)")  # fmt: skip
 
     def _bank_over(self) -> None:
         """The bank of headings ends (merged, or given up): the heading check starts again

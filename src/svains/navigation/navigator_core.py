@@ -237,7 +237,7 @@ class Core(HeadingSteps):
         if Q9 is not None:
             add_gap_covariance(self.ins.ukf, Q9)
         if self._yaw_bank is not None:
-            self._yaw_bank.propagate(t, Q9)
+            self._bank_propagate(t, Q9)
 
     def _group(self, t: int, items: list[tuple[int, Any]]) -> None:
         ins, cfg = self.ins, self.config

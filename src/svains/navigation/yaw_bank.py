@@ -33,7 +33,13 @@ from scipy.stats import chi2
 
 from svains.errors import FilterError
 from svains.filter.ukf import UKF, UpdateStats
-from svains.geometry.rotation import quat_exp, quat_multiply, quat_normalize, quat_to_rotmat
+from svains.geometry.rotation import (
+    quat_exp,
+    quat_multiply,
+    quat_normalize,
+    quat_to_rotmat,
+    so3_right_jacobian_inv,
+)
 from svains.models.state import DTH, Q
 from svains.models.state import P as POS
 from svains.navigation.base import MeasurementBlock
@@ -49,6 +55,8 @@ F64 = NDArray[np.float64]
 # beyond this chi-square quantile, and its NIS counts at most that much.
 _FIX_PROBABILITY = 0.9999
 
+# The copies are weighed by at most one GPS fix's likelihood per this many seconds (s)
+WEIGH_PERIOD_S = 1.0
 # The longest a bank runs (s): a vehicle that only cruises never shows its heading, and the
 # bank costs its copies' predictions and updates.
 YAW_BANK_MAX_S = 120.0
@@ -100,23 +108,38 @@ class YawBank:
             self.members.append(member)
         self.log_w = np.full(n, -math.log(n))
         self.fixes = 0
+        self._last_weighed_ns: int | None = None
 
     def propagate(self, t_ns: int, Q9: F64 | None = None) -> None:
         """Every live copy to ``t_ns``, an IMU gap's covariance ``Q9`` (9, 9) added."""
         for i in self._live():
-            self.members[i].propagate_to(t_ns)
+            try:
+                self.members[i].propagate_to(t_ns)
+            except FilterError:  # (a copy that fails numerically drops out)
+                self.log_w[i] = -math.inf
+                continue
             if Q9 is not None:
                 add_gap_covariance(self.members[i].ukf, Q9)
 
     def _live(self) -> list[int]:
         return [i for i in range(len(self.members)) if np.isfinite(self.log_w[i])]
 
-    def update(self, block: MeasurementBlock,
-               gate_probability: float | None) -> UpdateStats | None:  # fmt: skip
-        """Fuse a measurement ``block`` (a GPS fix, a sonar range) into every live copy that
-        its gate at ``gate_probability`` accepts, and weigh each copy by its innovation's
-        likelihood (``N(r; 0, S)``, the NIS capped at the gate: a copy that refuses the fix
-        keeps its mean and loses that much). A fix every copy refuses weighs none (a GPS jump
+    @property
+    def alive(self) -> bool:
+        """Whether any copy is left."""
+        return bool(np.isfinite(self.log_w).any())
+
+    def heaviest(self) -> UKF:
+        """The likeliest copy's filter (a live one)."""
+        return self.members[int(np.argmax(self.log_w))].ukf
+
+    def update(self, block: MeasurementBlock, gate_probability: float | None,
+               t_ns: int | None = None) -> UpdateStats | None:  # fmt: skip
+        """Fuse a measurement ``block`` (a GPS fix, a sonar range) taken at ``t_ns`` into every
+        live copy that its gate at ``gate_probability`` accepts, and weigh each copy by its
+        innovation's likelihood (``N(r; 0, S)``, the NIS capped at the gate: a copy that
+        refuses the fix keeps its mean and loses that much; a GPS fix only, tempered to one
+        per ``WEIGH_PERIOD_S``). A fix every copy refuses weighs none (a GPS jump
         is no evidence for a heading). A copy whose update fails numerically drops out. The
         update's statistics of the heaviest copy after it (refused by all: the heaviest's
         refusal; None: no live copy)."""
@@ -141,11 +164,19 @@ class YawBank:
             # refused by every copy: no evidence, and recorded as a refusal (a probe found a
             # GPS jump gone from updates.csv)
             return stats[max(stats, key=lambda i: self.log_w[i])]
-        for i, st in stats.items():
-            self.log_w[i] += -0.5 * (min(st.nis, cap) + logdet[i])
-        finite = np.isfinite(self.log_w)
-        self.log_w[finite] -= np.logaddexp.reduce(self.log_w[finite])
-        self.fixes += block.name == "gps"
+        # Only GPS fixes weigh the copies (a range does not see the heading), at most one
+        # second's worth per second: a 10 Hz receiver's fixes share their errors, and counted
+        # as independent they merged a review's flight 39° off, sure to 11°
+        if block.name == "gps" and t_ns is not None:
+            dt_s = math.inf if self._last_weighed_ns is None else (
+                (t_ns - self._last_weighed_ns) * 1e-9)
+            power = min(1.0, dt_s / WEIGH_PERIOD_S)
+            self._last_weighed_ns = t_ns
+            for i, st in stats.items():
+                self.log_w[i] += -0.5 * power * (min(st.nis, cap) + logdet[i])
+            finite = np.isfinite(self.log_w)
+            self.log_w[finite] -= np.logaddexp.reduce(self.log_w[finite])
+            self.fixes += 1
         return stats[int(np.argmax(self.log_w))]
 
     def _yaws(self) -> F64:
@@ -177,19 +208,18 @@ class YawBank:
     def _offsets(self) -> tuple[F64, F64, list[F64], list[int]]:
         """The weights (n,); for each kept copy (weight above 1e-6; their indices last) its
         offset from the heaviest on the heaviest's tangent space (k, ndx) and its covariance
-        taken into that tangent (the body-frame attitude errors turned by ``R_refᵀ R_i``;
-        world-frame position and velocity, and biases, as they are)."""
+        taken into that tangent (a body-frame attitude error ``δ`` of copy i is ``J_r⁻¹(d_i) δ``
+        there, ``d_i`` its attitude offset; position, velocity and biases as they are)."""
         w = np.exp(self.log_w)
         ref = self.members[int(np.argmax(w))].ukf
         keep = [i for i in range(len(w)) if w[i] > 1e-6]
         d = np.array([ref.manifold.local(self.members[i].ukf.x[None, :], ref.x)[0]
                       for i in keep])  # fmt: skip
-        R_ref_T = quat_to_rotmat(ref.x[Q]).T
         P = []
-        for i in keep:
+        for n, i in enumerate(keep):
             m = self.members[i].ukf
             T = np.eye(m.P.shape[0])
-            T[DTH, DTH] = R_ref_T @ quat_to_rotmat(m.x[Q])
+            T[DTH, DTH] = so3_right_jacobian_inv(d[n][DTH])
             P.append(T @ m.P @ T.T)
         return w, d, P, keep
 
