@@ -113,9 +113,7 @@ class HeadingSteps:
         axis = level_axis(ukf.x, self._up_W)
         yaw_before = bank_yaw(ukf.x, self._up_W, axis)
         if merged is None:
-            # the filter follows the likeliest copy (no recovery acts on it meanwhile)
-            heaviest = bank.heaviest()
-            ukf.x, ukf.P = heaviest.x.copy(), heaviest.P.copy()
+            self._follow_heaviest()
             return True
         ukf.x, ukf.P = merged.x, merged.P
         self._bank_over()
@@ -145,9 +143,15 @@ class HeadingSteps:
         elif (t - self.t0_ns) * 1e-9 > YAW_BANK_MAX_S:
             self._bank_unresolved(t, f"no heading from the GPS fixes over {YAW_BANK_MAX_S:g} "
                                   "s: the likeliest of the bank's headings is kept")  # fmt: skip
-            heaviest = bank.heaviest()
-            self.ins.ukf.x, self.ins.ukf.P = heaviest.x.copy(), heaviest.P.copy()
+            self._follow_heaviest()
             self._bank_over()
+
+    def _follow_heaviest(self) -> None:
+        """The filter becomes the bank's likeliest copy (no recovery acts on it while the bank
+        runs: it is written over at each fix)."""
+        assert self._yaw_bank is not None
+        heaviest = self._yaw_bank.heaviest()
+        self.ins.ukf.x, self.ins.ukf.P = heaviest.x.copy(), heaviest.P.copy()
 
     def _bank_unresolved(self, t: int, why: str) -> None:
         """The bank of headings gave no heading (``why``): warned with its spread, which

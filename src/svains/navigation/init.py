@@ -426,6 +426,44 @@ def _with_start_velocities(
     return GpsArrays(gps.t_ns, gps.p_W_G, v), accel_std, v0_std
 
 
+def _check_start_fixes(gps: GpsArrays, f_W: F64, f_B: F64, v_noise: float, pos_std: float,
+                       accel_bias_std: float) -> None:  # fmt: skip
+    """Raise ``StartFixesRefusedError`` when the first two fixes (with velocities, noise
+    ``v_noise`` m/s and ``pos_std`` m per axis) contradict the IMU or each other; a later pair
+    may start the run.
+
+    - The specific force they imply, ``f_W`` (3,) m/s², must have the magnitude the
+      accelerometer measured, ``|f_B|``, whatever the attitude (within ``START_FORCE_SIGMAS``
+      of the fixes' acceleration noise and the bias prior ``accel_bias_std``): a velocity
+      flipped by a glitch gave 4 m/s² on a steady 2 m/s flight, a start 22° tilted and held to
+      3° (`3d` 288 m off, a user's probe). Not from position-only fixes: their acceleration is
+      shrunk to a prior, and a vehicle braking hard was refused pair after pair (a review).
+    - Their positions must be as far apart as their velocities carried the antenna (the
+      trapezoid, chi-square at ``START_FIX_PROBABILITY``): a jumped fix placed the start 40 m
+      off, and the agreeing fixes after it were refused (a user's probe: 17.3 m).
+    """
+    ta, tb = int(gps.t_ns[0]), int(gps.t_ns[1])
+    dt = (tb - ta) * 1e-9
+    moved = 0.5 * (gps.v_W_G[0] + gps.v_W_G[1]) * dt
+    d = gps.p_W_G[1] - gps.p_W_G[0] - moved
+    d_std = float(np.sqrt(2.0 * pos_std**2 + 0.5 * (dt * v_noise) ** 2))
+    if float(d @ d) / d_std**2 > chi2.ppf(START_FIX_PROBABILITY, 3):
+        raise StartFixesRefusedError(
+            f"the GPS fixes at {ta * 1e-9:.3f} and {tb * 1e-9:.3f} s are "
+            f"{np.linalg.norm(gps.p_W_G[1] - gps.p_W_G[0]):.1f} m apart where their velocities "
+            f"moved the antenna {np.linalg.norm(moved):.1f} m (± {d_std:.1f} per axis): a fix's "
+            "position jumped"
+        )  # fmt: skip
+    off = abs(float(np.linalg.norm(f_W)) - float(np.linalg.norm(f_B)))
+    off_std = float(np.hypot(np.sqrt(2.0) * v_noise / dt, accel_bias_std))
+    if off > START_FORCE_SIGMAS * off_std:
+        raise StartFixesRefusedError(
+            f"the GPS fixes at {ta * 1e-9:.3f} and {tb * 1e-9:.3f} s imply a specific force of "
+            f"{np.linalg.norm(f_W):.2f} m/s², the accelerometer measured "
+            f"{np.linalg.norm(f_B):.2f} (± {off_std:.2f}): a fix's velocity is wrong"
+        )  # fmt: skip
+
+
 def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> InitialState:
     """In-flight start (no static interval needed): position and velocity from the first GPS
     fixes; roll and pitch from the mean specific force over the first GPS interval against the
@@ -465,37 +503,9 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
     g_W = np.asarray(dataset.gravity_W, dtype=float)
     a_W = (gps.v_W_G[1] - gps.v_W_G[0]) / ((tb - ta) * 1e-9)
     f_W = a_W - g_W  # the specific force the GPS implies, world frame
-    # Its magnitude is the accelerometer's whatever the attitude: a velocity flipped by a
-    # glitch gave 4 m/s² on a steady 2 m/s flight, a start 22° tilted and held to 3° (`3d`
-    # 288 m off, a user's probe). Refused beyond 3σ (the fixes' acceleration noise and the
-    # accelerometer's bias prior; a refusal costs one fix): a later pair may start it.
-    if accel_std == 0.0:
-        # With velocities, the two positions must be as far apart as the velocities carried
-        # the antenna (the trapezoid), within the fixes' noise: a jumped fix placed the start
-        # 40 m off, and the three agreeing fixes after it were refused (a user's probe: 17.3 m)
-        dt = (tb - ta) * 1e-9
-        moved = 0.5 * (gps.v_W_G[0] + gps.v_W_G[1]) * dt
-        d = gps.p_W_G[1] - gps.p_W_G[0] - moved
-        pos_std = dataset.gps_calib.position_noise_std
-        d_std = float(np.sqrt(2.0 * pos_std**2 + 0.5 * (dt * v_noise) ** 2))
-        if float(d @ d) / d_std**2 > chi2.ppf(START_FIX_PROBABILITY, 3):
-            raise StartFixesRefusedError(
-                f"the GPS fixes at {ta * 1e-9:.3f} and {tb * 1e-9:.3f} s are "
-                f"{np.linalg.norm(gps.p_W_G[1] - gps.p_W_G[0]):.1f} m apart where their "
-                f"velocities moved the antenna {np.linalg.norm(moved):.1f} m (± {d_std:.1f} per "
-                "axis): a fix's position jumped"
-            )  # fmt: skip
-    # (not from position-only fixes: their acceleration is shrunk to a prior, and a vehicle
-    # braking hard or climbing was refused pair after pair, a review)
-    a_std = np.sqrt(2.0) * v_noise / ((tb - ta) * 1e-9)
-    off = abs(float(np.linalg.norm(f_W)) - float(np.linalg.norm(f_B)))
-    off_std = float(np.hypot(a_std, o.accel_bias_std))
-    if accel_std == 0.0 and off > START_FORCE_SIGMAS * off_std:
-        raise StartFixesRefusedError(
-            f"the GPS fixes at {ta * 1e-9:.3f} and {tb * 1e-9:.3f} s imply a specific force of "
-            f"{np.linalg.norm(f_W):.2f} m/s², the accelerometer measured "
-            f"{np.linalg.norm(f_B):.2f} (± {off_std:.2f}): a fix's velocity is wrong"
-        )  # fmt: skip
+    if accel_std == 0.0:  # (position-only fixes' velocities are their positions')
+        _check_start_fixes(gps, f_W, f_B, v_noise, dataset.gps_calib.position_noise_std,
+                           o.accel_bias_std)  # fmt: skip
     info: dict[str, object] = {"mode": "gps", "gps_acceleration_W": a_W.tolist()}
     yaw_std = o.yaw_std_unknown
     local_velocity = False  # the velocity's horizontal direction unknown (a local frame)

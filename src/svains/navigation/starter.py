@@ -41,7 +41,7 @@ MAG_HEADING_SPAN_NS = 250_000_000
 # span (``Starter._gps_at``).
 GPS_START_SPAN_NS = 2_000_000_000
 # Pairs of fixes a ``gps`` start refuses in a row (``StartFixesRefusedError``) before it stops:
-# a glitch passes in one or two, a velocity in the wrong frame or unit never does.
+# a glitch passes in one or two; a stream that never agrees is no start.
 MAX_REFUSED_START_FIXES = 5
 
 log = logging.getLogger(__name__)
@@ -203,7 +203,8 @@ class Starter:
                 if len(self._refused) >= MAX_REFUSED_START_FIXES:
                     raise InitialisationError(
                         f"{len(self._refused)} pairs of GPS fixes in a row disagree with the "
-                        f"accelerometer (the last: {self._refused[-1]})") from exc  # fmt: skip
+                        f"accelerometer or each other (the last: {self._refused[-1]})"
+                    ) from exc  # fmt: skip
                 log.warning("the in-flight start waits for the next GPS fix: %s", exc)
                 self._gps.pop(0)
                 return None

@@ -10,20 +10,21 @@ to the end, NEES 12-70).
 
 :class:`YawBank` is a Gaussian sum over the heading, as PX4's EKF-GSF yaw estimator is for a
 drone without a trusted compass: ``n`` copies of the INS filter whose headings split the
-circle (the i-th turned by ``2πi/n`` about the vertical, yaw σ ``π/n``, every other part of
-the state and its covariance the start's) run on the same IMU samples and fuse the same GPS
-fixes, each weighted by how likely its innovations were. While the vehicle only cruises
-every copy explains the fixes alike; once it accelerates, those pointing wrongly see their
-velocity run off the fixes' and lose their weight. When the mixture's heading is known to
-``max_std_rad`` (the spread of the copies' headings about their circular mean, weighted,
-plus each copy's own variance), the copies are merged into one Gaussian (moments about the
-heaviest copy, on its tangent space) which replaces the navigator's filter.
+circle (the i-th turned by ``2πi/n`` about the start's specific force, which its attitude was
+levelled on, through the GPS antenna; yaw σ ``π/n``; every other part of the state and its
+covariance the start's) run on the same IMU samples and fuse the same GPS fixes and ranges,
+each gated as the filter gates. A fix weighs each copy by how likely its innovation was (at
+most one second's worth per second). While the vehicle only cruises every copy explains the
+fixes alike; once it accelerates, those pointing wrongly see their velocity run off the
+fixes' and lose their weight. When the mixture's heading is known to ``max_std_rad`` (the
+spread of the copies' headings about their circular mean, weighted, plus each copy's own
+variance), the copies are merged into one Gaussian (moments on the heaviest copy's tangent
+space) which replaces the navigator's filter.
 """
 
 from __future__ import annotations
 
 import copy
-import logging
 import math
 from dataclasses import dataclass
 
@@ -46,8 +47,6 @@ from svains.navigation.base import MeasurementBlock
 from svains.navigation.fault_handling import add_gap_covariance
 from svains.navigation.heading_check import horizontal_basis, yaw_std
 from svains.navigation.ins import InsFilter
-
-log = logging.getLogger(__name__)
 
 F64 = NDArray[np.float64]
 
@@ -200,7 +199,7 @@ class YawBank:
         product, weighted (copies of weight below 1e-6 left out). The estimate while the
         heading is unknown: its yaw variance is the copies' spread, however wide."""
         w, d, P, keep = self._offsets()
-        ref = self.members[int(np.argmax(w))].ukf
+        ref = self.heaviest()
         wk = w[keep] / w[keep].sum()
         P_about = sum(wk[n] * (P[n] + np.outer(d[n], d[n])) for n in range(len(keep)))
         return ref.x.copy(), 0.5 * (P_about + P_about.T)
@@ -211,7 +210,7 @@ class YawBank:
         taken into that tangent (a body-frame attitude error ``δ`` of copy i is ``J_r⁻¹(d_i) δ``
         there, ``d_i`` its attitude offset; position, velocity and biases as they are)."""
         w = np.exp(self.log_w)
-        ref = self.members[int(np.argmax(w))].ukf
+        ref = self.heaviest()
         keep = [i for i in range(len(w)) if w[i] > 1e-6]
         d = np.array([ref.manifold.local(self.members[i].ukf.x[None, :], ref.x)[0]
                       for i in keep])  # fmt: skip
@@ -233,7 +232,7 @@ class YawBank:
         if std > self._max_std:
             return None
         w, d, P, keep = self._offsets()
-        ref = self.members[int(np.argmax(w))].ukf
+        ref = self.heaviest()
         wk = w[keep] / w[keep].sum()
         d_mean = wk @ d
         x = ref.manifold.retract(ref.x[None, :], d_mean[None, :])[0]
