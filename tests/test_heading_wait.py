@@ -535,3 +535,38 @@ def test_the_run_table_says_where_the_heading_came_from() -> None:
     assert later_turns({"heading_check": {"turns": turns}}) == "-178.3° ± 2.1°"
     assert later_turns({"heading_check": {"turns": turns[:1]}}) == ""
     assert later_turns({}) == ""
+
+
+def test_velocities_the_fixes_positions_contradict_give_no_turn(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Horizontal velocities reversed for the first 5 s of a `3d` start in motion without
+    magnetometer: the wait took them for a 180°-wrong turn the fixes' positions contradicted,
+    and ran 10-26 m off for 8 s (a user's probe: 6.76 m, NEES 14187). The positions' own turn
+    now vetoes it, warned, and the wait goes on to the true turn."""
+    import logging
+    from dataclasses import replace
+
+    from svains.navigation.options import ReplayOptions
+    from svains.sim import SimConfig, simulate
+
+    cfg = SimConfig(duration_s=52.0, seed=3)
+    cfg.camera.render_images = False
+    cfg.gps.outages = []
+    ds = load_dataset(simulate(cfg, tmp_path / "slow"))
+    assert ds.gps is not None
+    t_s = (ds.gps.t_ns - ds.imu.t_ns[0]) * 1e-9
+    v = ds.gps.v_W_G.copy()
+    bad = (t_s >= 29.5) & (t_s < 34.5)
+    v[bad, :2] *= -1.0
+    reversed_ds = replace(ds, gps=replace(ds.gps, v_W_G=v))
+    config = RunConfig(method="3d", init=InitOptions(mode="gps"), use_mag=False,
+                       replay=ReplayOptions(start_s=30.0), duration_s=15.0)  # fmt: skip
+    with caplog.at_level(logging.WARNING):
+        rep = run_method(reversed_ds, "3d", config).report
+    assert any("no turn from them; the wait goes on" in r.message for r in caplog.records)
+    clean = run_method(ds, "3d", config).report
+    init, true_turn = rep["init"], clean["init"]["heading_turn_deg"]
+    assert init["heading_found_s"] > 4.5
+    assert abs(init["heading_turn_deg"] - true_turn) < 3.0 * init["heading_std_deg"]
+    assert rep["ate_rmse_m"] < 1.5 and rep["nees_mean"] < 20.0

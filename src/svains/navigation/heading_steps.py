@@ -11,6 +11,7 @@ they pivot about. It uses what ``Core`` sets before ``_init_heading``: ``ins``, 
 from __future__ import annotations
 
 import logging
+import math
 from typing import Any
 
 import numpy as np
@@ -213,7 +214,8 @@ class HeadingSteps:
         if error is None:
             return
         if acquire:
-            self._heading_found(t, error, "the GPS velocities")
+            if not self._path_contradicts(t, error):
+                self._heading_found(t, error, "the GPS velocities")
             return
         # The fix's velocity replaces the turned one (it is the reference the turn was found
         # against; an INS's velocity error is no rotation of its velocity).
@@ -231,6 +233,24 @@ class HeadingSteps:
         self._warn.warn("heading-turn", t, f"the heading was {np.degrees(error.angle_rad):.1f}° "
                         f"off (± {np.degrees(error.std_rad):.1f}°, from the GPS velocities "
                         f"over {error.steps} fixes): the state is turned{hint}")  # fmt: skip
+
+    def _path_contradicts(self, t: int, error: HeadingError) -> bool:
+        """Whether the fixes' own path (``FixPathHeading``, their positions) gives a heading
+        beyond 3σ of the velocities' ``error``: then the velocities are no heading (warned,
+        the wait goes on). Velocities reversed through a wait were taken for a 180° turn the
+        positions contradicted, and `3d` ran 10-26 m off for 8 s (a user's probe)."""
+        path = self._fix_path.estimate(math.pi)
+        if path is None:
+            return False
+        off = math.remainder(error.angle_rad - path.angle_rad, 2.0 * math.pi)
+        if abs(off) <= 3.0 * math.hypot(error.std_rad, path.std_rad):
+            return False
+        deg = math.degrees
+        self._warn.warn("heading-wait", t, f"the GPS velocities turn the heading by "
+                        f"{deg(error.angle_rad):.0f}° (± {deg(error.std_rad):.0f}°), the fixes' "
+                        f"positions by {deg(path.angle_rad):.0f}° (± {deg(path.std_rad):.0f}°): "
+                        "no turn from them; the wait goes on")  # fmt: skip
+        return True
 
     def _wait_fix(self, t: int, p_W_G: Any, v_W_G: Any) -> bool:
         """During the heading wait, a fix (``v_W_G`` None: position only, or its velocity not
