@@ -106,16 +106,15 @@ class HeadingSteps:
         if stats is not None:
             self._record(stats, block.name, t)
         if not bank.alive:  # every copy failed numerically: the filter goes on as it is
-            self._bank_unresolved(t, "every copy of the bank of headings failed")
-            self._bank_over()
+            self._bank_gave_up(t, "every copy of the bank of headings failed")
             return False
         merged = bank.merged()
-        ukf = self.ins.ukf
-        axis = level_axis(ukf.x, self._up_W)
-        yaw_before = bank_yaw(ukf.x, self._up_W, axis)
         if merged is None:
             self._follow_heaviest()
             return True
+        ukf = self.ins.ukf
+        axis = level_axis(ukf.x, self._up_W)
+        yaw_before = bank_yaw(ukf.x, self._up_W, axis)
         ukf.x, ukf.P = merged.x, merged.P
         self._bank_over()
         turn = float(np.angle(np.exp(1j * (bank_yaw(ukf.x, self._up_W, axis) - yaw_before))))
@@ -139,13 +138,11 @@ class HeadingSteps:
         assert bank is not None
         bank.propagate(t, Q9)
         if not bank.alive:
-            self._bank_unresolved(t, "every copy of the bank of headings failed")
-            self._bank_over()
+            self._bank_gave_up(t, "every copy of the bank of headings failed")
         elif (t - self.t0_ns) * 1e-9 > YAW_BANK_MAX_S:
-            self._bank_unresolved(t, f"no heading from the GPS fixes over {YAW_BANK_MAX_S:g} "
-                                  "s: the likeliest of the bank's headings is kept")  # fmt: skip
             self._follow_heaviest()
-            self._bank_over()
+            self._bank_gave_up(t, f"no heading from the GPS fixes over {YAW_BANK_MAX_S:g} s: "
+                               "the likeliest of the bank's headings is kept")  # fmt: skip
 
     def _follow_heaviest(self) -> None:
         """The filter becomes the bank's likeliest copy (no recovery acts on it while the bank
@@ -154,9 +151,9 @@ class HeadingSteps:
         heaviest = self._yaw_bank.heaviest()
         self.ins.ukf.x, self.ins.ukf.P = heaviest.x.copy(), heaviest.P.copy()
 
-    def _bank_unresolved(self, t: int, why: str) -> None:
-        """The bank of headings gave no heading (``why``): warned with its spread, which
-        ``report.json`` keeps (``init.heading_bank_std_deg``)."""
+    def _bank_gave_up(self, t: int, why: str) -> None:
+        """The bank of headings ends without a heading (``why``): warned with its spread,
+        which ``report.json`` keeps (``init.heading_bank_std_deg``)."""
         assert self._yaw_bank is not None
         spread = "no copy left"
         if self._yaw_bank.alive:
@@ -165,6 +162,7 @@ class HeadingSteps:
             spread = f"the bank's yaw uncertainty {std:.0f}°"
         self._warn.warn("heading-bank", t, f"{why} ({spread}; only acceleration shows the "
                         "heading, and a magnetometer would give it)")  # fmt: skip
+        self._bank_over()
 
     def _bank_over(self) -> None:
         """The bank of headings ends (merged, or given up): the heading check starts again

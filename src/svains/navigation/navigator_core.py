@@ -221,8 +221,8 @@ class Core(HeadingSteps):
             self._take_path_heading(end_ns, "the run ended before the heading was known")
         self._log(last=True)
         if self._yaw_bank is not None:
-            self._bank_unresolved(end_ns, "the run ended before the GPS fixes showed the "
-                                  "heading")  # fmt: skip
+            self._bank_gave_up(end_ns, "the run ended before the GPS fixes showed the "
+                               "heading")  # fmt: skip
         if self._heading_wait and self.gps_held_heading:
             # the outputs hold the fix's position with the start's local heading (a probe)
             self._warn.warn("heading-wait", end_ns, "the run ended before the GPS "
@@ -272,10 +272,10 @@ class Core(HeadingSteps):
                     standing = self._wait_fix(t, payload[0], v_wait)
                     if self._heading_wait and self._hold_for_heading(t, standing):
                         continue
-                if (self._recovery is not None and self._recovery.reset_pending
-                        and self._yaw_bank is None):  # fmt: skip
+                recovery = self._acting_recovery
+                if recovery is not None and recovery.reset_pending:
                     v = payload[1] if use_v else None
-                    self._recovery.reset_from_gps(ins.ukf, self.rig.gps, payload[0], v)
+                    recovery.reset_from_gps(ins.ukf, self.rig.gps, payload[0], v)
                 block = ins.gps_block(self.rig.gps, payload[0], payload[1], use_v)
                 if not self._bank_fix(t, block):
                     blocks.append(block)
@@ -322,10 +322,9 @@ class Core(HeadingSteps):
         if self._own_fix_fused:  # the fix's pull is no motion of the antenna's own
             self._own_from_W_A = self._antenna_W()
             self._own_fix_fused = False
-        if (self._recovery is not None and self._yaw_bank is None
-                and (has_frame or blocks or len(items) > has_tick)):  # fmt: skip
-            # (a bank of headings' filter is its likeliest copy, written over at each fix)
-            self._recovery.check(ins.ukf, t)
+        recovery = self._acting_recovery
+        if recovery is not None and (has_frame or blocks or len(items) > has_tick):
+            recovery.check(ins.ukf, t)
         self._check_vision_gap(t)
         if t >= self._next_keep_ns:
             self._keep_imu(t)
@@ -570,13 +569,20 @@ class Core(HeadingSteps):
     def set_source(self, source: FeatureFrames | ImageFrames) -> None:
         self._source = source
 
+    @property
+    def _acting_recovery(self) -> Recovery | None:
+        """The consistency monitor where it acts: not while a bank of headings runs (the
+        filter is then its likeliest copy, written over at each fix)."""
+        return self._recovery if self._yaw_bank is None else None
+
     def _record(self, stats: UpdateStats, key: str, t: int) -> None:
         # The one place where every measurement update's outcome is known.
         c = self.counts.setdefault(key, {"fused": 0, "rejected": 0})
         c["fused" if stats.accepted else "rejected"] += 1
-        if self._recovery is not None and key != "zupt" and self._yaw_bank is None:
+        recovery = self._acting_recovery
+        if recovery is not None and key != "zupt":
             # A refused zero-velocity update means motion, not a lost filter.
-            self._recovery.observe(stats, key, t)
+            recovery.observe(stats, key, t)
         # kept for the outputs without its arrays: a magnetometer update's share of the joint
         # update alone (``contribution``, 5.9 kB) made 214 MB per hour (a user's probe)
         slim = dataclasses.replace(stats, whitened=None, residual=None, innovation_cov=None,

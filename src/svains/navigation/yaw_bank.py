@@ -149,11 +149,13 @@ class YawBank:
         for i in self._live():
             ukf = self.members[i].ukf
             try:
-                X, _ = ukf.sigma_points()
-                S, _ = _innovation(ukf, X, block)
-                logdet[i] = 2.0 * float(np.sum(np.log(np.diag(np.linalg.cholesky(S)))))
-                stats[i] = ukf.update(block.h, block.z, block.R, p, block.residual,
-                                      block.name)  # fmt: skip
+                # (``update_blocks`` hands back the innovation covariance it gated on)
+                [st] = ukf.update_blocks([(block.h, block.z, block.R, block.residual,
+                                           block.name)], p)  # fmt: skip
+                assert st.innovation_cov is not None
+                L = np.linalg.cholesky(st.innovation_cov)
+                logdet[i] = 2.0 * float(np.sum(np.log(np.diag(L))))
+                stats[i] = st
             except (FilterError, np.linalg.LinAlgError):
                 self.log_w[i] = -math.inf
                 stats.pop(i, None)
@@ -272,17 +274,3 @@ def bank_yaw(x: F64, up_W: F64, axis: int) -> float:
     ``up_W`` (3,)), counted about the vertical."""
     h = horizontal_basis(np.asarray(up_W, float)) @ quat_to_rotmat(x[Q])[:, axis]
     return math.atan2(float(h[1]), float(h[0]))
-
-
-def _innovation(ukf: UKF, X: F64, block: MeasurementBlock) -> tuple[F64, F64]:
-    """The innovation's covariance ``S`` (nz, nz) and the innovation ``r`` (nz,) of ``block``
-    over the sigma points ``X``."""
-    Wm, Wc = ukf.points.Wm, ukf.points.Wc
-    z = np.ravel(block.z)
-    Y = np.reshape(block.h(X), (X.shape[0], z.size))
-    y = Wm @ Y
-    dY = Y - y if block.residual is None else block.residual(Y, y)
-    r = z - y if block.residual is None else block.residual(z, y)
-    R = np.asarray(block.R, dtype=float)
-    S = dY.T @ (Wc[:, None] * dY) + (np.diag(R) if R.ndim == 1 else R)
-    return 0.5 * (S + S.T), r
