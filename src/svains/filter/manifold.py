@@ -3,6 +3,11 @@
 ``retract(X (S, nx), dX (S, ndx)) -> (S, nx)`` is the box-plus, ``local(X (S, nx), x_ref (nx,))
 -> (S, ndx)`` its inverse (box-minus, ``retract(x_ref, local(X, x_ref)) == X``), ``mean(X, w)``
 the weighted mean on the manifold (weights may be negative and sum to one).
+
+A manifold may also declare *consider* parameters, ``consider -> (slice, slice) | None``: the
+columns in ``x`` and in the tangent of Euclidean numbers (equal in both) that the filter carries
+with their covariance but never updates (the Schmidt-Kalman filter: an uncertain calibration
+whose effect on the other states' covariance is kept, while its value stays the prior's).
 """
 
 from __future__ import annotations
@@ -34,9 +39,18 @@ class Manifold(Protocol):
 
 @dataclass(frozen=True)
 class Euclidean:
-    """Plain vector space R^n (the UKF then is the textbook one)."""
+    """Plain vector space R^n (the UKF then is the textbook one); ``consider_cols`` (start,
+    stop): the consider parameters among them (None: none)."""
 
     n: int
+    consider_cols: tuple[int, int] | None = None
+
+    @property
+    def consider(self) -> tuple[slice, slice] | None:
+        if self.consider_cols is None:
+            return None
+        c = slice(*self.consider_cols)
+        return c, c
 
     @property
     def nx(self) -> int:

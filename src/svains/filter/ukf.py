@@ -337,8 +337,17 @@ class UKF:
         self._set_posterior(x, P)
 
     def _set_posterior(self, x: F64, P: F64) -> None:
-        """Take an accepted update's mean and covariance (symmetrised), telling the recorder."""
+        """Take an accepted update's mean and covariance (symmetrised), telling the recorder.
+        The manifold's consider parameters (``Manifold`` docstring) keep their prior mean and
+        covariance block: with the gain's rows for them zeroed, the Schmidt update's other
+        blocks, cross-covariances included, are the full update's."""
         x_prior, P_prior = self.x, self.P
+        consider = getattr(self.manifold, "consider", None)
+        if consider is not None:
+            cx, cdx = consider
+            x, P = np.array(x, dtype=float), np.array(P, dtype=float)
+            x[cx] = x_prior[cx]
+            P[cdx, cdx] = P_prior[cdx, cdx]
         self.x = x
         self.P = 0.5 * (P + P.T)
         for obs in self._watching():

@@ -8,7 +8,10 @@ clones, each ``(p_W_B (3, m), q_W_B_wxyz (4))`` at a past frame time: nx + n_cal
 numbers. Tangent ``dx`` = navigation tangent (ndx), the calibration and auxiliary numbers, then
 each clone's ``(δp (3, m), δθ_B (3, rad))``, the attitude error on the right as everywhere else
 (``q = q̂ ⊗ Exp(δθ_B)``): ndx + n_calib + n_aux + 6K numbers. The process model leaves the
-calibration and auxiliary numbers constant, like the clones.
+calibration and auxiliary numbers constant, like the clones. The first ``n_consider``
+calibration numbers may be *consider* parameters (``consider``): carried with their covariance
+and never updated (``filter.manifold``; the camera rotation's error as the run measures it,
+``navigation.vision_clones``).
 
 A clone is an exact copy of the current pose, so its tangent error equals the navigation
 block's ``(δp, δθ_B)``: augmenting is ``x' = (x, p, q)`` and ``P' = J P J^T`` with the
@@ -55,6 +58,7 @@ class CloneManifold:
     n_clones: int = 0
     n_calib: int = 0
     n_aux: int = 0
+    n_consider: int = 0
 
     @cached_property
     def n_euclid(self) -> int:
@@ -78,6 +82,15 @@ class CloneManifold:
         return (slice(self.nav.nx, self.nav.nx + self.n_calib),
                 slice(self.nav.ndx, self.nav.ndx + self.n_calib))
 
+    @property
+    def consider(self) -> tuple[slice, slice] | None:
+        """Columns of the consider parameters (the calibration block's first ``n_consider``)
+        in ``x`` and in the tangent (None: none); the UKF never updates them."""
+        if self.n_consider == 0:
+            return None
+        return (slice(self.nav.nx, self.nav.nx + self.n_consider),
+                slice(self.nav.ndx, self.nav.ndx + self.n_consider))
+
     @staticmethod
     def clone_jitter(variances: F64) -> F64:
         """Variance to add (k,) to the diagonal entries ``variances`` (k,) of a clone that
@@ -94,11 +107,11 @@ class CloneManifold:
 
     def with_clones(self, n_clones: int) -> CloneManifold:
         """The same layout with ``n_clones`` clones."""
-        return CloneManifold(self.nav, n_clones, self.n_calib, self.n_aux)
+        return CloneManifold(self.nav, n_clones, self.n_calib, self.n_aux, self.n_consider)
 
     def with_aux(self, n_aux: int) -> CloneManifold:
         """The same layout with an auxiliary block of ``n_aux`` numbers."""
-        return CloneManifold(self.nav, self.n_clones, self.n_calib, n_aux)
+        return CloneManifold(self.nav, self.n_clones, self.n_calib, n_aux, self.n_consider)
 
     def columns(self, i: int) -> tuple[slice, slice]:
         """Columns of clone ``i`` in ``x``: ``(p_W_B, q_W_B_wxyz)`` slices."""
@@ -381,6 +394,21 @@ def augment_calibration(
     x_new, P_new = _insert_block(x, P, manifold, 0, value, cov)
     return x_new, P_new, CloneManifold(manifold.nav, manifold.n_clones, value.size,
                                        manifold.n_aux)  # fmt: skip
+
+
+def augment_consider(
+    x: F64, P: F64, manifold: CloneManifold, cov: F64
+) -> tuple[F64, F64, CloneManifold]:
+    """Insert consider parameters (zero mean, covariance ``cov`` (n, n), uncorrelated with the
+    rest) at the front of the calibration block of a state that has none (any estimated
+    calibration numbers follow them): ``x'``, ``P'``, manifold."""
+    if manifold.n_consider:
+        raise ConfigError(f"the state already has {manifold.n_consider} consider parameters")
+    cov = np.asarray(cov, dtype=float)
+    n = cov.shape[0]
+    x_new, P_new = _insert_block(x, P, manifold, 0, np.zeros(n), cov)
+    return x_new, P_new, CloneManifold(manifold.nav, manifold.n_clones, manifold.n_calib + n,
+                                       manifold.n_aux, n)  # fmt: skip
 
 
 def augment_aux(x: F64, P: F64, manifold: CloneManifold, n: int) -> tuple[F64, F64, CloneManifold]:

@@ -266,7 +266,15 @@ class VisionOptions:
     reference start: final error 1.41 % -> 1.73 %, NEES 67 -> 34; simulated village 60 s,
     seeds 0-1, exact calibration: RMSE 0.239/0.277 m -> 0.407/0.289 m). With GPS it finds
     KITTI's rotation error (0.36 +- 0.13 deg about the camera x axis, as the tilt against the
-    reference shows): see ``bench/kitti_extrinsic_check.py --from-gps``. ``estimate_time_offset``
+    reference shows): see ``bench/kitti_extrinsic_check.py --from-gps``.
+    ``consider_extrinsics`` (clones only, ignored while the rotation is estimated): once the
+    rotation check (``navigation.rotation_check``) has measured the mount on 3 turning frames,
+    ``δφ_C`` joins the state with that measure (the error and its standard deviation combined,
+    per axis; from 0.1°) as a Schmidt consider parameter, never updated, its effect on the
+    covariance carried (``CloneWindow.consider_rotation``). Opt-in: on KITTI raw it makes the
+    covariance honest (``3d`` GPS-denied NEES 79 -> 37, the outage run's smoothed NEES 55 -> 11)
+    but the forward outage errors grow (0.66 / 0.51 -> 0.79 / 0.74 m; ``docs/results/kitti.md``).
+    ``estimate_time_offset``
     (clones only) adds the camera-IMU time offset's residual (s, Kalibr's ``t_imu = t_cam +
     timeshift_cam_imu``, on top of the calibration's own offset, which stays applied to the
     image stamps) to the state with prior standard deviation ``time_offset_std_ms``
@@ -386,6 +394,7 @@ class VisionOptions:
     motion_prior_min_std: tuple[float, float] = (2e-3, 5e-3)
     estimate_extrinsics: bool = False
     extrinsics_std_deg: float = 1.0
+    consider_extrinsics: bool = False
     estimate_time_offset: bool = False
     time_offset_std_ms: float = 20.0
     update_iterations: int = 1

@@ -50,6 +50,7 @@ from svains.models.clones import (
     as_clone_manifold,
     augment_calibration,
     augment_clone,
+    augment_consider,
     augment_independent_clone,
     augment_shifted_clone_sigma,
     marginalize_clone,
@@ -74,10 +75,11 @@ class CloneWindow:
     def __init__(
         self, extrinsic_std_rad: float | None = None, time_offset_std_s: float | None = None,
         time_offset_applied_s: float = 0.0, history: ImuHistory | None = None,
-        g_W: tuple[float, float, float] = (0.0, 0.0, -9.81),
+        g_W: tuple[float, float, float] = (0.0, 0.0, -9.81), consider: bool = False,
     ) -> None:
         """``extrinsic_std_rad``: estimate the camera rotation correction with this prior
-        standard deviation per axis (None: the calibration is taken as exact);
+        standard deviation per axis (None: the calibration is taken as exact, or considered
+        with the error the run measures when ``consider``: ``consider_rotation``);
         ``time_offset_std_s``: estimate the camera-IMU time offset's residual with this prior
         standard deviation (s; None: the offset is taken as exact); ``time_offset_applied_s``
         the offset the data's calibration already applied to the image stamps (s, reported
@@ -93,6 +95,10 @@ class CloneWindow:
         self.extrinsic: tuple[F64, F64] | None = None
         # (t_ns, residual t_d s, its std s) after every frame while the offset is estimated.
         self.time_offset: list[tuple[int, float, float]] = []
+        # The standard deviation (rad per axis) of δφ_C as a consider parameter (None: not
+        # carried; ``consider_rotation``).
+        self.considered: float | None = None
+        self.consider = consider
 
     @property
     def n_calib(self) -> int:
@@ -100,10 +106,10 @@ class CloneWindow:
         return 3 * (self.extrinsic_std_rad is not None) + (self.time_offset_std_s is not None)
 
     def calib(self, ukf: UKF) -> slice | None:
-        """Columns of ``δφ_C`` in ``ukf.x`` (None: not estimated)."""
+        """Columns of ``δφ_C`` in ``ukf.x`` (None: neither estimated nor considered)."""
         manifold = ukf.manifold
         if (not isinstance(manifold, CloneManifold) or manifold.calib is None
-                or self.extrinsic_std_rad is None):
+                or (self.extrinsic_std_rad is None and manifold.n_consider == 0)):
             return None
         a = manifold.calib[0].start
         return slice(a, a + 3)
@@ -206,6 +212,32 @@ class CloneWindow:
             if self.time_offset_std_s is not None:
                 self.time_offset.append((int(t_ns), float(value[-1]), float(std[-1])))
 
+    def consider_rotation(self, ukf: UKF, std_rad: float | None) -> None:
+        """Carry the camera rotation's error ``δφ_C`` as a consider parameter of ``std_rad`` per
+        axis (the rotation check's measure of the calibration's error; None: not known yet):
+        added once it reaches ``CONSIDER_MIN_DEG``, re-scaled when it changes by more than
+        ``CONSIDER_RESCALE``. Nothing while ``δφ_C`` is estimated, nor without ``consider``."""
+        manifold = ukf.manifold
+        if (not self.consider or self.extrinsic_std_rad is not None or std_rad is None
+                or not isinstance(manifold, CloneManifold)):  # fmt: skip
+            return
+        if manifold.n_consider == 0:
+            if std_rad < np.radians(CONSIDER_MIN_DEG):
+                return
+            n_nav = manifold.nav.ndx
+            x, P, manifold = augment_consider(ukf.x, ukf.P, manifold, np.eye(3) * std_rad**2)
+            T = np.eye(ukf.P.shape[0])
+            T = np.vstack([T[:n_nav], np.zeros((3, T.shape[1])), T[n_nav:]])
+            ukf.resize(manifold, x, P, T)
+            self.considered = std_rad
+            return
+        consider, was = manifold.consider, self.considered
+        assert consider is not None and was is not None
+        if abs(std_rad - was) <= CONSIDER_RESCALE * was:
+            return
+        ukf.P = rescaled_consider(ukf.P, consider[1], std_rad**2)
+        self.considered = std_rad
+
     def add_keyframe(self, ukf: UKF, t_ns: int, p_W_B: F64, q_W_B_wxyz: F64,
                      P_pose: F64) -> None:  # fmt: skip
         """Put a stored keyframe's pose at ``t_ns`` (ns; ``p_W_B`` (3,) m, ``q_W_B_wxyz`` (4,),
@@ -243,6 +275,8 @@ class CloneWindow:
             value, std = self.extrinsic
             out.update(extrinsic_rotation_deg=np.degrees(value).tolist(),
                        extrinsic_rotation_std_deg=np.degrees(std).tolist())  # fmt: skip
+        if self.considered is not None:
+            out.update(extrinsic_rotation_considered_std_deg=float(np.degrees(self.considered)))
         if self.time_offset:
             t, v, s = (np.asarray(c) for c in zip(*self.time_offset, strict=True))
             v = (v + self.time_offset_applied_s) * 1e3
@@ -255,6 +289,26 @@ class CloneWindow:
                                      "std_ms": (s[keep] * 1e3).tolist()},
             )  # fmt: skip
         return out
+
+
+# The camera rotation's error is carried as a consider parameter only from this standard
+# deviation (deg) on: below it its effect is lost in the noise (0.1° turns the translation's
+# direction by 0.17 % of the path).
+CONSIDER_MIN_DEG = 0.1
+# ... and re-scaled when the check's measure moves by more than this fraction of it.
+CONSIDER_RESCALE = 0.25
+
+
+def rescaled_consider(P: F64, cols: slice, variance: float) -> F64:
+    """``P`` with the consider parameters at ``cols`` given ``variance`` per axis: each state's
+    share of error they explain, ``S P_cc Sᵀ`` with ``S = P_·c P_cc⁻¹``, re-scaled with them,
+    ``P + S (P_cc' - P_cc) Sᵀ``: the covariance of this run's errors, its gains unchanged, had
+    the parameters that variance (exact for a linear system: the filter never updates them, so
+    the errors depend on them through ``S`` alone)."""
+    P_cc = P[cols, cols]
+    S = np.linalg.solve(P_cc, P[cols, :]).T
+    out = P + S @ (np.eye(P_cc.shape[0]) * variance - P_cc) @ S.T
+    return 0.5 * (out + out.T)
 
 
 # ``report.json``'s time-offset history: at most one entry per this period (s), so an hour of
@@ -286,7 +340,8 @@ def clone_window(
         return None
     std = np.radians(options.extrinsics_std_deg) if options.estimate_extrinsics else None
     td_std = options.time_offset_std_ms * 1e-3 if options.estimate_time_offset else None
-    return CloneWindow(std, td_std, time_offset_applied_s, history, g_W)
+    return CloneWindow(std, td_std, time_offset_applied_s, history, g_W,
+                       consider=options.consider_extrinsics)
 
 
 def next_reference_ns(source: object, t_ns: int) -> int | None:

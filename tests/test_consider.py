@@ -1,0 +1,202 @@
+"""Consider parameters (the Schmidt-Kalman filter): carried with their covariance, never updated.
+
+The UKF update against the closed-form Schmidt update; a Monte Carlo over a linear track whose
+odometry has a constant unknown bias (forward and smoothed NEES in their band with the bias
+considered, far above it with the bias ignored); the re-scaling of a consider prior; and the
+camera rotation considered by the clone window (``vision.consider_extrinsics``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from svains.filter import UKF, Euclidean, MerweScaledSigmaPoints
+from svains.filter.rts import RtsRecorder, smooth
+from svains.models.clones import CloneManifold, augment_calibration, augment_clone
+from svains.models.manifold import NavManifold
+from svains.models.state import BIASED
+from svains.navigation.vision_clones import CONSIDER_MIN_DEG, CloneWindow, rescaled_consider
+
+
+def _spd(rng: np.random.Generator, n: int) -> np.ndarray:
+    A = rng.normal(size=(n, n))
+    return A @ A.T + 0.5 * np.eye(n)
+
+
+def _ukf(P: np.ndarray, x: np.ndarray, consider: tuple[int, int] | None) -> UKF:
+    n = x.size
+    return UKF(Euclidean(n, consider), MerweScaledSigmaPoints(n, 0.5, 2.0, 0.0), x, P)
+
+
+def _schmidt(x: np.ndarray, P: np.ndarray, H: np.ndarray, R: np.ndarray, z: np.ndarray,
+             c: slice) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The closed-form Schmidt update: the gain's consider rows zeroed, Joseph form."""
+    S = H @ P @ H.T + R
+    K = P @ H.T @ np.linalg.inv(S)
+    K[c] = 0.0
+    IKH = np.eye(x.size) - K @ H
+    return x + K @ (z - H @ x), IKH @ P @ IKH.T + K @ R @ K.T
+
+
+@pytest.mark.parametrize("path", ["update", "update_blocks", "update_linear"])
+def test_an_update_is_the_schmidt_update(path: str) -> None:
+    rng = np.random.default_rng(0)
+    n, c = 5, slice(3, 5)
+    x, P = rng.normal(size=n), _spd(rng, n)
+    H, R = rng.normal(size=(2, n)), np.diag([0.3, 0.5])
+    z = H @ x + rng.normal(size=2)
+    ukf = _ukf(P, x, (3, 5))
+    if path == "update":
+        ukf.update(lambda X: X @ H.T, z, R)
+    elif path == "update_blocks":
+        ukf.update_blocks([(lambda X: X @ H.T, z, R, None, "b")])
+    else:
+        ukf.update_linear(H, z - H @ x, R)
+    x_s, P_s = _schmidt(x, P, H, R, z, c)
+    np.testing.assert_allclose(ukf.x, x_s, atol=1e-10)
+    np.testing.assert_allclose(ukf.P, P_s, atol=1e-10)
+    np.testing.assert_array_equal(ukf.x[c], x[c])  # never updated
+    # ... while the full update would have moved them and shrunk their block
+    full = _ukf(P, x, None)
+    full.update(lambda X: X @ H.T, z, R)
+    assert np.abs(full.x[c] - x[c]).max() > 1e-3
+    assert np.trace(full.P[c, c]) < np.trace(P[c, c]) - 1e-3
+
+
+# A track (position, velocity) whose velocity odometry reads with a constant bias b, and a
+# position fix every FIX_EVERY steps; b is the consider parameter.
+DT, STEPS, FIX_EVERY, TRIALS = 1.0, 30, 10, 300
+Q_VEL, R_ODO, R_FIX, B_STD = 0.01, 0.01, 1.0, 0.1
+
+
+def _track_nees(consider: bool, seed: int) -> tuple[float, float]:
+    """Mean forward and smoothed NEES (2 dof) of the position and velocity over the trials,
+    the bias considered (3-state filter) or ignored (2-state filter, the bias unmodelled)."""
+    rng = np.random.default_rng(seed)
+    n = 3 if consider else 2
+    F = np.eye(n)
+    F[0, 1] = DT
+    Qn = np.zeros((n, n))
+    Qn[1, 1] = Q_VEL
+    nees_f, nees_s = [], []
+    for _ in range(TRIALS):
+        b = rng.normal(0.0, B_STD)
+        truth = np.array([0.0, 1.0]) + rng.normal(0.0, 0.01, 2)
+        x0 = np.array([0.0, 1.0, 0.0][:n])
+        P0 = np.diag([1e-4, 1e-4, B_STD**2][:n])
+        ukf = _ukf(P0, x0, (2, 3) if consider else None)
+        rec = RtsRecorder()
+        ukf.recorder = rec
+        rec.start(ukf.x, ukf.P)
+        truths = []
+        for k in range(STEPS):
+            if k:
+                truth = np.array([truth[0] + DT * truth[1],
+                                  truth[1] + rng.normal(0.0, np.sqrt(Q_VEL))])  # fmt: skip
+                ukf.predict(lambda X, u, dt: X @ F.T, None, DT, Qn)
+            if k % FIX_EVERY == 0:
+                z = truth[0] + rng.normal(0.0, np.sqrt(R_FIX))
+                ukf.update(lambda X: X[:, :1], np.array([z]), np.array([R_FIX]))
+            else:
+                z = truth[1] + b + rng.normal(0.0, np.sqrt(R_ODO))
+                h = (lambda X: X[:, 1:2] + X[:, 2:3]) if consider else (lambda X: X[:, 1:2])
+                ukf.update(h, np.array([z]), np.array([R_ODO]))
+            rec.mark(k, ukf.x, ukf.P, last=k == STEPS - 1)
+            e = truth - ukf.x[:2]
+            nees_f.append(e @ np.linalg.solve(ukf.P[:2, :2], e))
+            truths.append(truth)
+        s = smooth(rec)
+        for k in range(STEPS):
+            e = truths[k] - (s.x[k, :2] + s.eps[k, :2])
+            nees_s.append(e @ np.linalg.solve(s.P[k, :2, :2], e))
+    return float(np.mean(nees_f)), float(np.mean(nees_s))
+
+
+def test_a_considered_bias_keeps_filter_and_smoother_consistent() -> None:
+    # The means of 2 over 300 trials; the steps of a trial are correlated, so the band is the
+    # trials' spread, not a chi-square's over every step: seeds 1-3 gave 1.89-2.05 forward and
+    # 1.98-2.11 smoothed.
+    forward, smoothed = _track_nees(True, 1)
+    assert 1.7 < forward < 2.3
+    assert 1.7 < smoothed < 2.3
+    # The same bias ignored: both overconfident (seeds 1-3: 11.8-13.6 and 11.0-12.9).
+    forward, smoothed = _track_nees(False, 1)
+    assert forward > 6.0 and smoothed > 6.0
+
+
+def test_rescaling_a_consider_prior_keeps_the_rest() -> None:
+    """``P_cc`` takes the new variance, the cross-covariances scale with it, and what the
+    parameters do not explain (the Schur complement) is unchanged."""
+    rng = np.random.default_rng(2)
+    P, c = _spd(rng, 6), slice(1, 4)
+    P[c, c] = np.eye(3) * 0.04
+    P = P + 0.0  # keep it positive definite after the edit
+    P += np.eye(6) * max(0.0, -np.linalg.eigvalsh(P).min() + 0.1)
+    P_cc = P[c, c]
+    out = rescaled_consider(P, c, 0.09)
+    np.testing.assert_allclose(out[c, c], np.eye(3) * 0.09, atol=1e-12)
+    rest = np.r_[0:1, 4:6]
+
+    def schur(M: np.ndarray) -> np.ndarray:
+        return M[np.ix_(rest, rest)] - M[rest, c] @ np.linalg.solve(M[c, c], M[c, rest])
+
+    np.testing.assert_allclose(schur(out), schur(P), atol=1e-12)
+    np.testing.assert_allclose(out[rest, c] @ np.linalg.inv(out[c, c]),
+                               P[rest, c] @ np.linalg.inv(P_cc), atol=1e-12)  # fmt: skip
+    assert np.linalg.eigvalsh(out).min() > 0.0
+
+
+def _clone_state(rng: np.random.Generator, time_offset: bool) -> UKF:
+    nav = NavManifold(BIASED)
+    x = rng.normal(size=BIASED.nx)
+    x[6:10] /= np.linalg.norm(x[6:10])
+    P = _spd(rng, BIASED.ndx) * 1e-2
+    m = CloneManifold(nav, 0)
+    if time_offset:
+        x, P, m = augment_calibration(x, P, m, np.zeros(1), np.eye(1) * 1e-4)
+    x, P, m = augment_clone(x, P, m)
+    return UKF(m, MerweScaledSigmaPoints(m.ndx, 0.5, 2.0, 0.0), x, P)
+
+
+@pytest.mark.parametrize("time_offset", [False, True])
+def test_the_clone_window_considers_the_measured_rotation(time_offset: bool) -> None:
+    rng = np.random.default_rng(3)
+    ukf = _clone_state(rng, time_offset)
+    window = CloneWindow(time_offset_std_s=1e-2 if time_offset else None, consider=True)
+    n0 = ukf.P.shape[0]
+    window.consider_rotation(ukf, None)  # nothing measured yet
+    window.consider_rotation(ukf, np.radians(0.5 * CONSIDER_MIN_DEG))  # too small to matter
+    assert ukf.P.shape[0] == n0 and window.calib(ukf) is None
+    std = np.radians(0.6)
+    window.consider_rotation(ukf, std)
+    m = ukf.manifold
+    assert isinstance(m, CloneManifold) and m.n_consider == 3
+    assert ukf.P.shape[0] == n0 + 3
+    cols = window.calib(ukf)
+    assert cols is not None and cols == m.consider[0]
+    np.testing.assert_allclose(ukf.P[m.consider[1], m.consider[1]], np.eye(3) * std**2)
+    if time_offset:  # the estimated offset stays the block's last number
+        assert m.calib is not None and m.calib[0].stop - m.calib[0].start == 4
+    # A measurement through the considered rotation moves the state, never the rotation.
+    before = ukf.x[cols].copy()
+    ukf.update(lambda X: X[:, 0:1] + X[:, cols][:, :1], np.array([ukf.x[0] + 0.1]),
+               np.array([1e-4]))  # fmt: skip
+    np.testing.assert_array_equal(ukf.x[cols], before)
+    np.testing.assert_allclose(ukf.P[m.consider[1], m.consider[1]], np.eye(3) * std**2)
+    # Re-scaled only past 25 %.
+    window.consider_rotation(ukf, std * 1.2)
+    np.testing.assert_allclose(ukf.P[m.consider[1], m.consider[1]], np.eye(3) * std**2)
+    window.consider_rotation(ukf, std * 2.0)
+    np.testing.assert_allclose(ukf.P[m.consider[1], m.consider[1]], np.eye(3) * (2 * std) ** 2)
+    assert window.summary()["extrinsic_rotation_considered_std_deg"] == pytest.approx(1.2)
+
+
+def test_nothing_is_considered_while_the_rotation_is_estimated_or_off() -> None:
+    rng = np.random.default_rng(4)
+    for window in (CloneWindow(np.radians(1.0), consider=True), CloneWindow(consider=False)):
+        ukf = _clone_state(rng, False)
+        n0 = ukf.P.shape[0]
+        window.consider_rotation(ukf, np.radians(0.6))
+        assert ukf.P.shape[0] == n0
+        assert "extrinsic_rotation_considered_std_deg" not in window.summary()
