@@ -2,8 +2,8 @@
 
 The UKF update against the closed-form Schmidt update; a Monte Carlo over a linear track whose
 odometry has a constant unknown bias (forward and smoothed NEES in their band with the bias
-considered, far above it with the bias ignored); the re-scaling of a consider prior; and the
-camera rotation considered by the clone window (``vision.consider_extrinsics``).
+considered, far above it with the bias ignored); and the camera rotation considered by the
+clone window (``vision.consider_extrinsics_std_deg``).
 """
 
 from __future__ import annotations
@@ -11,12 +11,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from svains.errors import ConfigError
 from svains.filter import UKF, Euclidean, MerweScaledSigmaPoints
 from svains.filter.rts import RtsRecorder, smooth
-from svains.models.clones import CloneManifold, augment_calibration, augment_clone
+from svains.models.clones import CloneManifold
 from svains.models.manifold import NavManifold
 from svains.models.state import BIASED
-from svains.navigation.vision_clones import CONSIDER_MIN_DEG, CloneWindow, rescaled_consider
+from svains.navigation.options import VisionOptions
+from svains.navigation.vision_clones import CloneWindow
 
 
 def _spd(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -125,78 +127,50 @@ def test_a_considered_bias_keeps_filter_and_smoother_consistent() -> None:
     assert forward > 6.0 and smoothed > 6.0
 
 
-def test_rescaling_a_consider_prior_keeps_the_rest() -> None:
-    """``P_cc`` takes the new variance, the cross-covariances scale with it, and what the
-    parameters do not explain (the Schur complement) is unchanged."""
-    rng = np.random.default_rng(2)
-    P, c = _spd(rng, 6), slice(1, 4)
-    P[c, c] = np.eye(3) * 0.04
-    P = P + 0.0  # keep it positive definite after the edit
-    P += np.eye(6) * max(0.0, -np.linalg.eigvalsh(P).min() + 0.1)
-    P_cc = P[c, c]
-    out = rescaled_consider(P, c, 0.09)
-    np.testing.assert_allclose(out[c, c], np.eye(3) * 0.09, atol=1e-12)
-    rest = np.r_[0:1, 4:6]
-
-    def schur(M: np.ndarray) -> np.ndarray:
-        return M[np.ix_(rest, rest)] - M[rest, c] @ np.linalg.solve(M[c, c], M[c, rest])
-
-    np.testing.assert_allclose(schur(out), schur(P), atol=1e-12)
-    np.testing.assert_allclose(out[rest, c] @ np.linalg.inv(out[c, c]),
-                               P[rest, c] @ np.linalg.inv(P_cc), atol=1e-12)  # fmt: skip
-    assert np.linalg.eigvalsh(out).min() > 0.0
-
-
-def _clone_state(rng: np.random.Generator, time_offset: bool) -> UKF:
-    nav = NavManifold(BIASED)
+def _clone_state(rng: np.random.Generator, window: CloneWindow) -> UKF:
+    """A navigation state (no clone yet) taken through the window's first frame."""
     x = rng.normal(size=BIASED.nx)
     x[6:10] /= np.linalg.norm(x[6:10])
     P = _spd(rng, BIASED.ndx) * 1e-2
-    m = CloneManifold(nav, 0)
-    if time_offset:
-        x, P, m = augment_calibration(x, P, m, np.zeros(1), np.eye(1) * 1e-4)
-    x, P, m = augment_clone(x, P, m)
-    return UKF(m, MerweScaledSigmaPoints(m.ndx, 0.5, 2.0, 0.0), x, P)
+    m = CloneManifold(NavManifold(BIASED), 0)
+    ukf = UKF(m, MerweScaledSigmaPoints(m.ndx, 0.5, 2.0, 0.0), x, P)
+    window.after_frame(ukf, 1_000, 1_000)
+    return ukf
 
 
 @pytest.mark.parametrize("time_offset", [False, True])
-def test_the_clone_window_considers_the_measured_rotation(time_offset: bool) -> None:
+def test_the_clone_window_considers_the_rotation(time_offset: bool) -> None:
     rng = np.random.default_rng(3)
-    ukf = _clone_state(rng, time_offset)
-    window = CloneWindow(time_offset_std_s=1e-2 if time_offset else None, consider=True)
-    n0 = ukf.P.shape[0]
-    window.consider_rotation(ukf, None)  # nothing measured yet
-    window.consider_rotation(ukf, np.radians(0.5 * CONSIDER_MIN_DEG))  # too small to matter
-    assert ukf.P.shape[0] == n0 and window.calib(ukf) is None
-    std = np.radians(0.6)
-    window.consider_rotation(ukf, std)
+    std = np.radians(0.5)
+    window = CloneWindow(time_offset_std_s=1e-2 if time_offset else None, consider_std_rad=std)
+    ukf = _clone_state(rng, window)
     m = ukf.manifold
-    assert isinstance(m, CloneManifold) and m.n_consider == 3
-    assert ukf.P.shape[0] == n0 + 3
+    assert isinstance(m, CloneManifold) and m.n_consider == 3 and m.n_clones == 1
+    assert m.n_calib == 3 + time_offset  # the estimated offset stays the block's last number
     cols = window.calib(ukf)
-    assert cols is not None and cols == m.consider[0]
-    np.testing.assert_allclose(ukf.P[m.consider[1], m.consider[1]], np.eye(3) * std**2)
-    if time_offset:  # the estimated offset stays the block's last number
-        assert m.calib is not None and m.calib[0].stop - m.calib[0].start == 4
+    assert m.consider is not None and cols == m.consider[0]
+    c = m.consider[1]
+    np.testing.assert_allclose(ukf.P[c, c], np.eye(3) * std**2)
     # A measurement through the considered rotation moves the state, never the rotation.
-    before = ukf.x[cols].copy()
+    before = ukf.x.copy()
     ukf.update(lambda X: X[:, 0:1] + X[:, cols][:, :1], np.array([ukf.x[0] + 0.1]),
                np.array([1e-4]))  # fmt: skip
-    np.testing.assert_array_equal(ukf.x[cols], before)
-    np.testing.assert_allclose(ukf.P[m.consider[1], m.consider[1]], np.eye(3) * std**2)
-    # Re-scaled only past 25 %.
-    window.consider_rotation(ukf, std * 1.2)
-    np.testing.assert_allclose(ukf.P[m.consider[1], m.consider[1]], np.eye(3) * std**2)
-    window.consider_rotation(ukf, std * 2.0)
-    np.testing.assert_allclose(ukf.P[m.consider[1], m.consider[1]], np.eye(3) * (2 * std) ** 2)
-    assert window.summary()["extrinsic_rotation_considered_std_deg"] == pytest.approx(1.2)
+    np.testing.assert_array_equal(ukf.x[cols], before[cols])
+    assert abs(ukf.x[0] - before[0]) > 1e-3
+    np.testing.assert_allclose(ukf.P[c, c], np.eye(3) * std**2)
+    assert np.abs(ukf.P[0, c]).max() > 1e-6  # ... while the state's link to it is kept
+    # The next frame keeps the block (and the clone cycle goes on).
+    window.after_frame(ukf, 2_000, 2_000)
+    assert ukf.manifold.n_consider == 3 and ukf.manifold.n_clones == 1
+    assert window.summary()["extrinsic_rotation_considered_std_deg"] == pytest.approx(0.5)
 
 
-def test_nothing_is_considered_while_the_rotation_is_estimated_or_off() -> None:
-    rng = np.random.default_rng(4)
-    for window in (CloneWindow(np.radians(1.0), consider=True), CloneWindow(consider=False)):
-        ukf = _clone_state(rng, False)
-        n0 = ukf.P.shape[0]
-        window.consider_rotation(ukf, np.radians(0.6))
-        assert ukf.P.shape[0] == n0
-        assert "extrinsic_rotation_considered_std_deg" not in window.summary()
+def test_an_estimated_rotation_is_not_considered_and_both_are_refused() -> None:
+    window = CloneWindow(np.radians(1.0), consider_std_rad=np.radians(0.5))
+    ukf = _clone_state(np.random.default_rng(4), window)
+    assert ukf.manifold.n_consider == 0 and ukf.manifold.n_calib == 3
+    assert "extrinsic_rotation_considered_std_deg" not in window.summary()
+    with pytest.raises(ConfigError, match="either estimated or considered"):
+        VisionOptions(estimate_extrinsics=True, consider_extrinsics_std_deg=0.5)
+    with pytest.raises(ConfigError, match="must be positive"):
+        VisionOptions(consider_extrinsics_std_deg=0.0)

@@ -267,13 +267,13 @@ class VisionOptions:
     seeds 0-1, exact calibration: RMSE 0.239/0.277 m -> 0.407/0.289 m). With GPS it finds
     KITTI's rotation error (0.36 +- 0.13 deg about the camera x axis, as the tilt against the
     reference shows): see ``bench/kitti_extrinsic_check.py --from-gps``.
-    ``consider_extrinsics`` (clones only, ignored while the rotation is estimated): once the
-    rotation check (``navigation.rotation_check``) has measured the mount on 3 turning frames,
-    ``δφ_C`` joins the state with that measure (the error and its standard deviation combined,
-    per axis; from 0.1°) as a Schmidt consider parameter, never updated, its effect on the
-    covariance carried (``CloneWindow.consider_rotation``). Opt-in: on KITTI raw it makes the
-    covariance honest (``3d`` GPS-denied NEES 79 -> 37, the outage run's smoothed NEES 55 -> 11)
-    but the forward outage errors grow (0.66 / 0.51 -> 0.79 / 0.74 m; ``docs/results/kitti.md``).
+    ``consider_extrinsics_std_deg`` (clones only; None: off): the camera rotation's error is
+    not estimated but *considered*: ``δφ_C`` joins the state with this standard deviation per
+    axis (the calibration's accuracy, as its user knows it) as a Schmidt consider parameter the
+    filter never updates, so the covariance carries what a rotation error that size does
+    (``CloneWindow``, ``Manifold.consider``). Opt-in: on KITTI raw (0.5°) the covariance gets
+    honest (``3d`` GPS-denied NEES 79 -> 38, the outage run's smoothed NEES 55 -> 14) while a
+    right calibration loses 13-35 % of its accuracy (``docs/results/kitti.md``).
     ``estimate_time_offset``
     (clones only) adds the camera-IMU time offset's residual (s, Kalibr's ``t_imu = t_cam +
     timeshift_cam_imu``, on top of the calibration's own offset, which stays applied to the
@@ -394,7 +394,7 @@ class VisionOptions:
     motion_prior_min_std: tuple[float, float] = (2e-3, 5e-3)
     estimate_extrinsics: bool = False
     extrinsics_std_deg: float = 1.0
-    consider_extrinsics: bool = False
+    consider_extrinsics_std_deg: float | None = None
     estimate_time_offset: bool = False
     time_offset_std_ms: float = 20.0
     update_iterations: int = 1
@@ -478,6 +478,14 @@ class VisionOptions:
         if self.frame_gate_probability is not None and not 0 < self.frame_gate_probability < 1:
             raise ConfigError("vision.frame_gate_probability must be in (0, 1) or null, got "
                               f"{self.frame_gate_probability}")  # fmt: skip
+        con = self.consider_extrinsics_std_deg
+        if con is not None and not (con > 0 and self.rotation == "clone"
+                                    and not self.estimate_extrinsics):  # fmt: skip
+            raise ConfigError(
+                "vision.consider_extrinsics_std_deg must be positive, with vision.rotation=clone "
+                "and without vision.estimate_extrinsics (the rotation is either estimated or "
+                f"considered), got {con} with rotation {self.rotation!r} and estimate_extrinsics "
+                f"{self.estimate_extrinsics}")
         if not self.extrinsics_std_deg > 0:
             raise ConfigError(
                 f"vision.extrinsics_std_deg must be positive, got {self.extrinsics_std_deg}"

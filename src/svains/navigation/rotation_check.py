@@ -217,14 +217,12 @@ class RotationCheck:
         if judged and len(self.angles_deg) >= o.min_frames:
             self._judge_mount()
 
-    def mount_error(self, min_frames: int | None = None) -> tuple[float, float, F64, float] | None:
+    def mount_error(self) -> tuple[float, float, F64, float] | None:
         """The rotation (deg) of cam0 on the body that best maps the camera's turns onto the
         gyro's beyond the calibration's (``R_B_C,true = R @ R_B_C``), its standard deviation
         (deg; scaled by the misfit per degree of freedom when above 1), its axis (3,) in body
-        axes and that misfit; None before ``min_frames`` (default the options') turning
-        frames."""
-        need = self.options.min_frames if min_frames is None else min_frames
-        if self._mount_frames < max(need, 2) or self._gg <= 0.0:
+        axes and that misfit; None before ``min_frames`` turning frames."""
+        if self._mount_frames < self.options.min_frames or self._gg <= 0.0:
             return None
         U, _, Vt = np.linalg.svd(self._H)
         D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(U @ Vt)))])

@@ -108,8 +108,6 @@ class LcUpdater:
         self.last_tracks = tr
         if self.checks is not None:
             self.checks.observe_frame(tr, ctx)
-            if self.clones is not None and self.clones.consider:
-                self.clones.consider_rotation(ctx.ukf, self.checks.mount_std_rad())
         if tr is None or tr.egomotion is None or tr.t_ns <= tr.t_prev_ns:
             stats = None
             if self.relocaliser is not None:

@@ -7,8 +7,6 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-import numpy as np
-
 from svains.frontend.types import StereoTracks
 from svains.geometry.camera import RectifiedStereo
 from svains.navigation.base import FrameContext
@@ -23,13 +21,6 @@ from svains.sensors.types import Rig
 # user's probe; ``lc``, which estimates one, warned). The front end's estimator gives one for
 # the checks over this many frames (2-5 ms each), enough for their verdicts.
 CHECK_EGOMOTION_FRAMES = 300
-# A mount further off than this (deg) is no small error a consider parameter models (the
-# check warns of it from 1°): the filters carry at most this much (``mount_std_rad``).
-MOUNT_CONSIDER_MAX_DEG = 5.0
-# ... measured from this many turning frames on (the check's own verdict waits for 10): a car
-# turns at its start and then perhaps not for minutes (KITTI raw: 8 frames in its first 2.3 s,
-# the ninth at 30 s); the measure's standard deviation covers the few frames.
-MOUNT_CONSIDER_MIN_FRAMES = 3
 
 
 class VisionChecks:
@@ -60,17 +51,6 @@ class VisionChecks:
         r = self.rotation
         self.scale.stand_down = r.warned or r.warned_ratio or r.warned_lens or r.warned_scale
         self.scale.observe_frame(tr, ctx)
-
-    def mount_std_rad(self) -> float | None:
-        """How far (rad, per axis) the calibration's camera rotation may be off, as the turns
-        measure it: the mount error and its standard deviation combined (the error's root
-        mean square given the measure), at most ``MOUNT_CONSIDER_MAX_DEG``; None before
-        ``MOUNT_CONSIDER_MIN_FRAMES`` turning frames."""
-        got = self.rotation.mount_error(MOUNT_CONSIDER_MIN_FRAMES)
-        if got is None:
-            return None
-        angle, std = got[0], got[1]
-        return float(np.radians(min(np.hypot(angle, std), MOUNT_CONSIDER_MAX_DEG)))
 
     def summary(self) -> dict[str, Any]:
         """``rotation_check`` and ``scale_check`` for the report's ``vision`` section."""

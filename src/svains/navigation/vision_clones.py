@@ -23,6 +23,11 @@ invisible at these step lengths). The exact relative-motion models then see it p
 (``models.vision_clone``) and the clones' correlation with it makes it observable from the IMU
 motion between frames. Adds 3 tangent dimensions (55 sigma points with one clone).
 
+**The camera-IMU rotation considered** (``vision.consider_extrinsics_std_deg``): the same
+``δφ_C`` block, with zero mean and the given standard deviation per axis, as a consider
+parameter (``CloneManifold.n_consider``): the models see it per sigma point as above, so the
+state's covariance carries its effect, and the UKF never updates it (``UKF._set_posterior``).
+
 **Online camera-IMU time offset** (``vision.estimate_time_offset``): one more calibration
 number after ``δφ_C`` (when both are on), ``t_d`` (s, Kalibr's ``t_imu = t_cam + t_d``), the
 residual of the offset the data's calibration already applied to the image stamps
@@ -75,11 +80,13 @@ class CloneWindow:
     def __init__(
         self, extrinsic_std_rad: float | None = None, time_offset_std_s: float | None = None,
         time_offset_applied_s: float = 0.0, history: ImuHistory | None = None,
-        g_W: tuple[float, float, float] = (0.0, 0.0, -9.81), consider: bool = False,
+        g_W: tuple[float, float, float] = (0.0, 0.0, -9.81),
+        consider_std_rad: float | None = None,
     ) -> None:
         """``extrinsic_std_rad``: estimate the camera rotation correction with this prior
-        standard deviation per axis (None: the calibration is taken as exact, or considered
-        with the error the run measures when ``consider``: ``consider_rotation``);
+        standard deviation per axis (None: the calibration is taken as exact, or considered);
+        ``consider_std_rad``: carry it instead as a consider parameter of this standard
+        deviation per axis, never estimated (the Schmidt filter; ignored while estimated);
         ``time_offset_std_s``: estimate the camera-IMU time offset's residual with this prior
         standard deviation (s; None: the offset is taken as exact); ``time_offset_applied_s``
         the offset the data's calibration already applied to the image stamps (s, reported
@@ -95,10 +102,7 @@ class CloneWindow:
         self.extrinsic: tuple[F64, F64] | None = None
         # (t_ns, residual t_d s, its std s) after every frame while the offset is estimated.
         self.time_offset: list[tuple[int, float, float]] = []
-        # The standard deviation (rad per axis) of δφ_C as a consider parameter (None: not
-        # carried; ``consider_rotation``).
-        self.considered: float | None = None
-        self.consider = consider
+        self.consider_std_rad = None if extrinsic_std_rad is not None else consider_std_rad
 
     @property
     def n_calib(self) -> int:
@@ -184,6 +188,12 @@ class CloneWindow:
             n_nav = manifold.nav.ndx
             x, P, manifold = self._with_calibration(x, P, manifold)
             T = np.vstack([T[:n_nav], np.zeros((self.n_calib, T.shape[1])), T[n_nav:]])
+        if self.consider_std_rad is not None and manifold.n_consider == 0:
+            # in front of any estimated calibration numbers (``augment_consider``)
+            n_nav = manifold.nav.ndx
+            x, P, manifold = augment_consider(x, P, manifold,
+                                              np.eye(3) * self.consider_std_rad**2)  # fmt: skip
+            T = np.vstack([T[:n_nav], np.zeros((3, T.shape[1])), T[n_nav:]])
         if reference_ns is not None and int(reference_ns) == int(t_ns) and t_ns not in times:
             if self.time_offset_std_s is None:
                 x, P, manifold = augment_clone(x, P, manifold)
@@ -211,32 +221,6 @@ class CloneWindow:
                 self.extrinsic = (value[:3], std[:3])
             if self.time_offset_std_s is not None:
                 self.time_offset.append((int(t_ns), float(value[-1]), float(std[-1])))
-
-    def consider_rotation(self, ukf: UKF, std_rad: float | None) -> None:
-        """Carry the camera rotation's error ``δφ_C`` as a consider parameter of ``std_rad`` per
-        axis (the rotation check's measure of the calibration's error; None: not known yet):
-        added once it reaches ``CONSIDER_MIN_DEG``, re-scaled when it changes by more than
-        ``CONSIDER_RESCALE``. Nothing while ``δφ_C`` is estimated, nor without ``consider``."""
-        manifold = ukf.manifold
-        if (not self.consider or self.extrinsic_std_rad is not None or std_rad is None
-                or not isinstance(manifold, CloneManifold)):  # fmt: skip
-            return
-        if manifold.n_consider == 0:
-            if std_rad < np.radians(CONSIDER_MIN_DEG):
-                return
-            n_nav = manifold.nav.ndx
-            x, P, manifold = augment_consider(ukf.x, ukf.P, manifold, np.eye(3) * std_rad**2)
-            T = np.eye(ukf.P.shape[0])
-            T = np.vstack([T[:n_nav], np.zeros((3, T.shape[1])), T[n_nav:]])
-            ukf.resize(manifold, x, P, T)
-            self.considered = std_rad
-            return
-        consider, was = manifold.consider, self.considered
-        assert consider is not None and was is not None
-        if abs(std_rad - was) <= CONSIDER_RESCALE * was:
-            return
-        ukf.P = rescaled_consider(ukf.P, consider[1], std_rad**2)
-        self.considered = std_rad
 
     def add_keyframe(self, ukf: UKF, t_ns: int, p_W_B: F64, q_W_B_wxyz: F64,
                      P_pose: F64) -> None:  # fmt: skip
@@ -275,8 +259,9 @@ class CloneWindow:
             value, std = self.extrinsic
             out.update(extrinsic_rotation_deg=np.degrees(value).tolist(),
                        extrinsic_rotation_std_deg=np.degrees(std).tolist())  # fmt: skip
-        if self.considered is not None:
-            out.update(extrinsic_rotation_considered_std_deg=float(np.degrees(self.considered)))
+        if self.consider_std_rad is not None:
+            out.update(
+                extrinsic_rotation_considered_std_deg=float(np.degrees(self.consider_std_rad)))
         if self.time_offset:
             t, v, s = (np.asarray(c) for c in zip(*self.time_offset, strict=True))
             v = (v + self.time_offset_applied_s) * 1e3
@@ -289,26 +274,6 @@ class CloneWindow:
                                      "std_ms": (s[keep] * 1e3).tolist()},
             )  # fmt: skip
         return out
-
-
-# The camera rotation's error is carried as a consider parameter only from this standard
-# deviation (deg) on: below it its effect is lost in the noise (0.1° turns the translation's
-# direction by 0.17 % of the path).
-CONSIDER_MIN_DEG = 0.1
-# ... and re-scaled when the check's measure moves by more than this fraction of it.
-CONSIDER_RESCALE = 0.25
-
-
-def rescaled_consider(P: F64, cols: slice, variance: float) -> F64:
-    """``P`` with the consider parameters at ``cols`` given ``variance`` per axis: each state's
-    share of error they explain, ``S P_cc Sᵀ`` with ``S = P_·c P_cc⁻¹``, re-scaled with them,
-    ``P + S (P_cc' - P_cc) Sᵀ``: the covariance of this run's errors, its gains unchanged, had
-    the parameters that variance (exact for a linear system: the filter never updates them, so
-    the errors depend on them through ``S`` alone)."""
-    P_cc = P[cols, cols]
-    S = np.linalg.solve(P_cc, P[cols, :]).T
-    out = P + S @ (np.eye(P_cc.shape[0]) * variance - P_cc) @ S.T
-    return 0.5 * (out + out.T)
 
 
 # ``report.json``'s time-offset history: at most one entry per this period (s), so an hour of
@@ -340,8 +305,9 @@ def clone_window(
         return None
     std = np.radians(options.extrinsics_std_deg) if options.estimate_extrinsics else None
     td_std = options.time_offset_std_ms * 1e-3 if options.estimate_time_offset else None
+    con = options.consider_extrinsics_std_deg
     return CloneWindow(std, td_std, time_offset_applied_s, history, g_W,
-                       consider=options.consider_extrinsics)
+                       None if con is None else float(np.radians(con)))
 
 
 def next_reference_ns(source: object, t_ns: int) -> int | None:

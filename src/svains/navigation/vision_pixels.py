@@ -363,8 +363,6 @@ class PixelUpdater:
         self.last_tracks = tr
         if self.checks is not None:
             self.checks.observe_frame(tr, ctx)
-            if self.clones is not None and self.clones.consider:
-                self.clones.consider_rotation(ctx.ukf, self.checks.mount_std_rad())
         return self._fuse(ctx, tr, inc)
 
     def last_egomotion(self) -> Egomotion | None:
