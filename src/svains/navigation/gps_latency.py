@@ -218,16 +218,27 @@ class GpsLatencyCheck:
         delta = float(self.deviance[zero] - self.deviance[k]) / scale
         return float(self.shifts_s[k]), std, fit, delta
 
+    def _shown(self, got: tuple[float, float, float, float]) -> str | None:
+        """What the figures ``got`` show beyond a model error: ``beyond`` (the best shift at
+        the grid's edge), ``shift`` (inside it) or None (the stamps as given fit about as
+        well, or the best shift does not explain the steps): the warning's tests."""
+        lag, _, fit, delta = got
+        if delta < max(MIN_DELTA_DEVIANCE, MIN_DELTA_PER_STEP * self.steps):
+            return None
+        edge = lag <= self.shifts_s[0] + STEP_S / 2 or lag >= self.shifts_s[-1] - STEP_S / 2
+        if edge:
+            return "beyond"
+        return None if fit > MAX_FIT else "shift"
+
     def _judge(self) -> None:
         got = self.figures()
         if got is None or self.warned is not None:
             return
-        lag, std, fit, delta = got
-        if delta < max(MIN_DELTA_DEVIANCE, MIN_DELTA_PER_STEP * self.steps):
+        lag, std, _, _ = got
+        shown = self._shown(got)
+        if shown is None:
             return
-        edge = lag <= self.shifts_s[0] + STEP_S / 2 or lag >= self.shifts_s[-1] - STEP_S / 2
-        if not edge and fit > MAX_FIT:
-            return
+        edge = shown == "beyond"
         # A shift beyond the grid cannot fit at its edge: warned whatever the misfit, as long
         # as the edge explains the steps far better than the stamps as given.
         if edge:
@@ -247,11 +258,14 @@ class GpsLatencyCheck:
 
     def summary(self) -> dict[str, object]:
         """``latency_ms`` (positive: stamped late), ``latency_std_ms``, ``latency_fit``,
-        ``delta_deviance`` (None before enough steps), ``steps`` and ``warned`` (None, ``latency``
-        or ``beyond``)."""
+        ``delta_deviance`` (None before enough steps), ``shown`` (whether the best shift
+        stands out of a model error: ``_shown``'s tests; False: ``latency_ms`` is no
+        measure, whatever its standard deviation), ``steps`` and ``warned`` (None,
+        ``latency`` or ``beyond``)."""
         got = self.figures()
         return {"latency_ms": None if got is None else 1e3 * got[0],
                 "latency_std_ms": None if got is None else 1e3 * got[1],
                 "latency_fit": None if got is None else got[2],
                 "delta_deviance": None if got is None else got[3],
+                "shown": got is not None and self._shown(got) is not None,
                 "steps": self.steps, "warned": self.warned}  # fmt: skip
