@@ -96,3 +96,18 @@ def test_a_camera_without_distortion_coefficients_is_read_undistorted_and_warned
     assert ds.cam0 is not None and not ds.cam0.distortion.any()
     assert "cam0/sensor.yaml: no 'distortion_coefficients': the lens is taken as undistorted" \
         in caplog.text
+
+
+def test_kalibr_s_name_for_the_distortion_coefficients_is_read(tmp_path: Path) -> None:
+    """A sensor.yaml written from a Kalibr camchain names them ``distortion_coeffs``: the lens
+    was read as undistorted under a warning (a user's probe)."""
+    root = tmp_path / "ds"
+    write_full(root)
+    path = root / "mav0" / "cam0" / "sensor.yaml"
+    path.write_text("\n".join(
+        "distortion_coeffs: [-0.28, 0.07, 0.0002, 0.00002]"
+        if ln.startswith("distortion_coefficients") else ln
+        for ln in path.read_text().splitlines()) + "\n")  # fmt: skip
+    ds = load_dataset(root)
+    assert ds.cam0 is not None
+    np.testing.assert_allclose(ds.cam0.distortion, [-0.28, 0.07, 0.0002, 0.00002])

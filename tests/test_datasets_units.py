@@ -149,6 +149,18 @@ def test_the_accelerometer_unit_is_named(scale: float, remove_gravity: bool,
         assert problem is not None and guess in problem, problem
 
 
+def test_gyro_and_accelerometer_columns_swapped_are_named() -> None:
+    """A header-less CSV with the accelerometer's columns first (a user's probe) was told
+    "gravity removed": the gyro's columns hold gravity's magnitude."""
+    rng = np.random.default_rng(2)
+    f = np.array([0.0, 0.0, 9.81]) + rng.normal(0.0, 0.2, (500, 3))
+    w = rng.normal(0.0, 0.05, (500, 3))
+    problem = accel_units_problem(w, G_W, f)
+    assert problem is not None and "are the gyro and accelerometer columns swapped?" in problem
+    assert accel_units_problem(f, G_W, w) is None
+    assert "gravity removed" in (accel_units_problem(w, G_W) or "")  # no rates: the old guess
+
+
 def test_a_principal_point_near_the_edge_warns_of_the_intrinsics_order(
     caplog: pytest.LogCaptureFixture,
 ) -> None:

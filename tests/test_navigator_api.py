@@ -87,6 +87,15 @@ def test_a_restarted_process_goes_on_from_the_last_state() -> None:
     assert new.status == "running" and new.t0_ns == s.t_ns + 7_500_000
     res = new.close()
     np.testing.assert_allclose(res.x[0, :3], s.p_W_B + s.v_W_B * 0.0075, atol=1e-9)
+    # the old run's rest noise is handed on by the caller (a user's probe: the restart fell
+    # back to the calibration's densities, in silence)
+    assert old.rest_noise is not None and old.rest_noise.dof > 0
+    assert new.rest_noise is None
+    again = Navigator(replace(cfg, init=InitOptions(mode="groundtruth")), Rig(),
+                      initial_state=start, rest_noise=old.rest_noise)
+    for k in range(1, 40):
+        again.feed_imu(s.t_ns + 2_500_000 + k * 5_000_000, np.zeros(3), np.array([0.0, 0.0, G]))
+    assert again.rest_noise is old.rest_noise
     late = Navigator(replace(cfg, init=InitOptions(mode="groundtruth")), Rig(),
                      initial_state=start)
     with pytest.raises(InitialisationError, match=r"first sample after it comes 1\.000 s later"):
@@ -472,3 +481,131 @@ def test_the_vision_gap_says_frames_were_dropped_before_the_filter(
         nav.close()
     assert re.search(r"no vision fused for [\d.]+ s: the estimate is inertial only \((\d+) frames "
                      r"since; \1 dropped before the filter", caplog.text), caplog.text
+
+
+def test_a_driver_reusing_its_gps_buffers_does_not_change_the_fixes_held() -> None:
+    """A user's probe: fixes were kept by reference, so a driver that rewrites one buffer per
+    fix left every held fix reading the newest (the ``gps`` start then refused five pairs as
+    "0.0 m apart"). Each fix is copied: the run equals one fed fresh arrays."""
+    results = []
+    for reuse in (False, True):
+        nav = Navigator(RunConfig(init=InitOptions(mode="gps")), _gps_rig())
+        rng = np.random.default_rng(7)
+        buf_p, buf_v = np.zeros(3), np.zeros(3)
+        for k in range(int(6.0 * 200)):
+            t = 1_000_000_000 + k * 5_000_000
+            nav.feed_imu(t, 1e-3 * rng.standard_normal(3),
+                         [0.0, 0.0, G] + 1e-2 * rng.standard_normal(3))  # fmt: skip
+            if k % 200 == 100:
+                p, v = 0.3 * rng.standard_normal(3), 0.05 * rng.standard_normal(3)
+                if reuse:
+                    buf_p[:], buf_v[:] = p, v
+                    p, v = buf_p, buf_v
+                nav.feed_gps(t, p, v)
+        results.append(nav.close())
+    np.testing.assert_array_equal(results[0].x, results[1].x)
+
+
+def test_frames_fed_to_an_ins_after_close_are_refused() -> None:
+    nav = Navigator(RunConfig(method="ins"), Rig())
+    _feed_static(nav, 3.0, np.random.default_rng(8))
+    nav.close()
+    for call in (lambda: nav.feed_stereo(0, np.zeros((2, 2), np.uint8), np.zeros((2, 2), np.uint8)),
+                 lambda: nav.feed_tracks(0, [1], [[0.0, 0.0]], [[0.0, 0.0]])):  # fmt: skip
+        with pytest.raises(ClosedError, match=r"feed_(stereo|tracks) after close\(\)"):
+            call()
+
+
+def test_a_given_start_with_a_quaternion_that_is_not_unit_is_refused() -> None:
+    from svains import InitialState
+
+    x = np.zeros(19)
+    x[6:10] = [3.0, 0.0, 0.0, 0.0]
+    cfg = replace(RunConfig(), init=InitOptions(mode="groundtruth"))
+    with pytest.raises(ConfigError, match=r"q_W_B_wxyz \[3\.0, 0\.0, 0\.0, 0\.0\] has norm 3, "
+                       r"not 1"):  # fmt: skip
+        Navigator(cfg, Rig(), initial_state=InitialState(0, x, np.eye(18) * 1e-4))
+    x[6:10] = [0.0, 0.0, 0.0, 0.0]
+    with pytest.raises(ConfigError, match="has norm 0, not 1"):
+        Navigator(cfg, Rig(), initial_state=InitialState(0, x, np.eye(18) * 1e-4))
+    x[6:10] = [1.0, 0.0, 0.0, 0.0]
+    x[0] = np.nan
+    with pytest.raises(ConfigError, match="x holds a non-finite number"):
+        Navigator(cfg, Rig(), initial_state=InitialState(0, x, np.eye(18) * 1e-4))
+    with pytest.raises(ConfigError, match=r"x has 13 numbers, the state 19"):
+        Navigator(cfg, Rig(), initial_state=InitialState(0, np.zeros(13), np.eye(12)))
+    # a file's rounded digits are normalised
+    x[0] = 0.0
+    x[6:10] = [0.9999, 0.0, 0.0, 0.0]
+    nav = Navigator(cfg, Rig(), initial_state=InitialState(1_000_000_000, x, np.eye(18) * 1e-4))
+    _feed_static(nav, 0.5, np.random.default_rng(9))
+    s = nav.state()
+    assert s is not None and abs(np.linalg.norm(s.q_W_B_wxyz) - 1.0) < 1e-12
+
+
+def test_stereo_pairs_fed_before_any_imu_sample_are_held_up_to_a_bound() -> None:
+    """A user's probe: 60 s of pairs fed before the IMU grew the process by 824 MB and were
+    then discarded uncounted. Beyond ``MAX_PAIRS_BEFORE_IMU`` they are dropped, counted."""
+    from svains.navigation.navigator import MAX_PAIRS_BEFORE_IMU
+
+    nav = Navigator(RunConfig(method="3d"), Rig())
+    img = np.zeros((4, 6), np.uint8)
+    img2 = img.copy()
+    img2[0, 0] = 1
+    for k in range(MAX_PAIRS_BEFORE_IMU + 25):
+        nav.feed_stereo(500_000_000 + k * 50_000_000, img, img2)
+    assert nav.queue.dropped == {"frame": 25}
+    assert len(nav.queue.pending_after(0)) == MAX_PAIRS_BEFORE_IMU
+
+
+@pytest.mark.parametrize("crossed", [False, True])
+def test_fed_tracks_with_left_and_right_crossed_are_named_and_exchanged(
+    crossed: bool, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A user's probe: tracks fed right-then-left went unfused, 39 of 39 frames, with only "no
+    vision fused" to say so. Judged over the first frames, warned once, exchanged."""
+    nav = Navigator(RunConfig(method="3d"), Rig(imu_period_s=0.005))
+    rng = np.random.default_rng(10)
+    with caplog.at_level("WARNING", logger="svains.navigation.navigator"):
+        for k in range(4):
+            uv_l = rng.uniform(50, 600, (30, 2))
+            uv_r = uv_l - [rng.uniform(2, 40), 0.0]  # positive disparity
+            if crossed:
+                uv_l, uv_r = uv_r, uv_l
+            nav.feed_tracks(1_000 + k, np.arange(30), uv_l, uv_r)
+    said = caplog.text.count("uv_left and uv_right look crossed; they are exchanged")
+    assert said == int(crossed)
+    frames = sorted(e for e in nav.queue._heap if e[1] == FRAME)
+    # every frame queued with the left pixel right of the right one (disparity > 0) from the
+    # verdict on (the third frame); before it, as fed
+    for t, _, _, payload in frames[2:]:
+        assert np.all(payload[2][:, 0] > payload[3][:, 0]), t
+
+
+def test_close_checks_until_ns_as_the_feeds_check_stamps() -> None:
+    nav = Navigator(RunConfig(), Rig())
+    _feed_static(nav, 3.0, np.random.default_rng(11))
+    with pytest.raises(ValueError, match=r"close: until_ns must be integer nanoseconds, got "
+                       r"'abc'"):  # fmt: skip
+        nav.close(until_ns="abc")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"got 1\.5 \(a time in seconds\? pass round"):
+        nav.close(until_ns=1.5)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"close: until_ns 2 is before \d+ ns, .* measurements "
+                       r"\(a time in seconds\? pass round\(t_s \* 1e9\)\)"):  # fmt: skip
+        nav.close(until_ns=2)
+    assert nav.close(until_ns=np.int64(nav.history.last_ns)).t_ns[-1] == nav.history.last_ns
+
+
+def test_a_second_gps_fix_with_the_same_stamp_is_dropped() -> None:
+    nav = Navigator(RunConfig(), _gps_rig())
+    rng = np.random.default_rng(12)
+    for k in range(int(4.0 * 200)):
+        t = 1_000_000_000 + k * 5_000_000
+        nav.feed_imu(t, 1e-3 * rng.standard_normal(3),
+                     [0.0, 0.0, G] + 1e-2 * rng.standard_normal(3))  # fmt: skip
+        if k % 200 == 100:
+            p = 0.3 * rng.standard_normal(3)
+            nav.feed_gps(t, p, np.zeros(3))
+            nav.feed_gps(t, p + 1.0, np.zeros(3))  # the same instant, other values
+    res = nav.close()
+    assert res.report["dropped"] == {"gps": 4}

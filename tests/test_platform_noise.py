@@ -70,6 +70,27 @@ def test_a_vibrating_platform_takes_the_measured_density_and_a_wider_random_walk
         NoiseOptions(static_rule=False), None)
 
 
+@pytest.mark.parametrize(("factor", "said"), [(1e-3, "The measured one is used"),
+                                              (1e3, "The calibration is kept")])
+def test_a_density_in_another_unit_is_warned(factor: float, said: str,
+                                             caplog: pytest.LogCaptureFixture) -> None:  # fmt: skip
+    """A calibration 1000x off (per sample, deg, mg) passed in silence (a user's probe); the
+    vibrating platform of EuRoC (5-8x) is no unit and stays unsaid."""
+    gyro, accel = _rest(np.random.default_rng(2), 5 * GYRO_D, 8 * ACCEL_D)
+    m = measure_static_noise(gyro, accel, 1.0 / RATE_HZ, 0.1)
+    with caplog.at_level("WARNING", logger="svains.navigation.platform_noise"):
+        platform_noise(NoiseOptions(), _calib(), m)
+        assert caplog.text == ""
+        cal = _calib()
+        wrong = ImuCalib(T_B_S=cal.T_B_S, rate_hz=RATE_HZ, gyro_noise_density=GYRO_D,
+                         gyro_random_walk=2e-5, accel_noise_density=ACCEL_D * factor,
+                         accel_random_walk=3e-3)  # fmt: skip
+        platform_noise(NoiseOptions(), wrong, m)
+    assert "the accelerometer's white noise measured at rest is" in caplog.text
+    assert "in another unit" in caplog.text and said in caplog.text
+    assert "the gyro's" not in caplog.text
+
+
 @pytest.mark.realdata
 def test_the_euroc_static_start_measures_its_rotor_vibration(euroc_micro) -> None:
     from svains.datasets.loader import load_dataset

@@ -166,16 +166,16 @@ def read_camera_calib(folder: Path, t_ns: np.ndarray | None = None) -> CameraCal
     if model != "pinhole":
         raise CalibrationError(f"{ypath}: camera_model '{model}' is not supported (pinhole only)")
     dist_model = str(y.get("distortion_model", "radial-tangential"))
-    if y.get("distortion_coefficients") is None:
+    # Kalibr's camchain names them ``distortion_coeffs``; a sensor.yaml written from one
+    # carried its lens as undistorted, under a warning only (a user's probe)
+    key = next((k for k in ("distortion_coefficients", "distortion_coeffs")
+                if y.get(k) is not None), None)  # fmt: skip
+    if key is None:
         log.warning("%s: no 'distortion_coefficients': the lens is taken as undistorted (write "
                     "[0.0, 0.0, 0.0, 0.0] to say so)", ypath)  # fmt: skip
     try:
         canonical = canonical_model(dist_model)
-        dist = (
-            check_coefficients(canonical, y["distortion_coefficients"])
-            if y.get("distortion_coefficients") is not None
-            else np.zeros(4)
-        )
+        dist = check_coefficients(canonical, y[key]) if key is not None else np.zeros(4)
     except (CalibrationError, TypeError, ValueError) as exc:
         raise CalibrationError(f"{ypath}: {exc}") from exc
     res = yaml_vector(y, "resolution", ypath, 2)

@@ -283,10 +283,11 @@ def check_stereo_rig(cam0: CameraCalib, cam1: CameraCalib, path0: Path, path1: P
         )
 
 
-def check_accel_units(accel_S: NDArray[np.float64], g_W: NDArray[np.float64], path: Path) -> None:
+def check_accel_units(accel_S: NDArray[np.float64], g_W: NDArray[np.float64], path: Path,
+                      gyro_S: NDArray[np.float64] | None = None) -> None:  # fmt: skip
     """DatasetError naming ``path`` when ``accel_S`` (N, 3) is not specific force in m/s²
-    (``sensors.units.accel_units_problem``)."""
-    problem = accel_units_problem(accel_S, g_W)
+    (``sensors.units.accel_units_problem``, with the rates ``gyro_S`` (N, 3) when given)."""
+    problem = accel_units_problem(accel_S, g_W, gyro_S)
     if problem is not None:
         raise DatasetError(f"{path}: {problem}")
 
@@ -599,7 +600,7 @@ def vet_streams(ds: Dataset) -> None:
         return csv if csv.is_file() else ds.root / folder
 
     if ds.imu is not None:
-        check_accel_units(ds.imu.accel_B, ds.gravity_W, where("imu0"))
+        check_accel_units(ds.imu.accel_B, ds.gravity_W, where("imu0"), ds.imu.gyro_B)
         upside = gravity_reference_problem(ds)
         if upside is not None:
             log.warning("%s: %s", ds.root / "mav0" / "body.yaml", upside)

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import chi2
 
-from svains.errors import InitialisationError, StartFixesRefusedError
+from svains.errors import ConfigError, InitialisationError, StartFixesRefusedError
 from svains.geometry.rotation import quat_normalize, rotmat_to_quat
 from svains.models.imu import stencil_consistent_rate
 from svains.models.state import BA, BG, DBA, DBG, DP, DTH, DV, DW, P, Q, StateLayout, V, W
@@ -75,6 +75,31 @@ class InitialState:
             parts += [state.bg_B, state.ba_B]
         return cls(int(state.t_ns), np.concatenate(parts).astype(float),
                    np.array(state.P, dtype=float), {"mode": "given", "from": "NavState"})
+
+
+# A given start's quaternion is normalised when its norm is this close to 1 (a file's rounded
+# digits), refused when further off (a norm of 3 ran on, logged as it was: a user's probe).
+GIVEN_QUAT_NORM_TOL = 1e-3
+
+
+def checked_given(given: InitialState, layout: StateLayout) -> InitialState:
+    """``given`` with its quaternion normalised; ``ConfigError`` naming the problem when its
+    mean is not ``layout``'s size, holds a non-finite number, or its quaternion is not a unit
+    one to ``GIVEN_QUAT_NORM_TOL``."""
+    x = np.asarray(given.x, dtype=float).ravel()
+    if x.size != layout.nx:
+        parts = "p, v, q_wxyz, ω" + (", bg, ba" if layout.biased else "")
+        raise ConfigError(f"initial_state: x has {x.size} numbers, the state {layout.nx} "
+                          f"({parts})")
+    if not np.all(np.isfinite(x)):
+        raise ConfigError(f"initial_state: x holds a non-finite number: {x.tolist()}")
+    norm = float(np.linalg.norm(x[Q]))
+    if abs(norm - 1.0) > GIVEN_QUAT_NORM_TOL:
+        raise ConfigError(f"initial_state: the attitude q_W_B_wxyz {x[Q].tolist()} has norm "
+                          f"{norm:.6g}, not 1 (a unit quaternion, w first)")
+    x = x.copy()
+    x[Q] = x[Q] / norm
+    return InitialState(int(given.t_ns), x, np.asarray(given.P, dtype=float), dict(given.info))
 
 
 # A given start whose time is no IMU sample's starts at the first sample after it when that
@@ -203,7 +228,8 @@ def initialise(
     if options.mode == "gps":
         # In flight nothing rests to compare with gravity; the samples so far still show a
         # unit mistake (a static start compares its mean, ``STATIC_GRAVITY_TOL``).
-        problem = accel_units_problem(dataset.imu.accel_B, np.asarray(dataset.gravity_W))
+        problem = accel_units_problem(dataset.imu.accel_B, np.asarray(dataset.gravity_W),
+                                      dataset.imu.gyro_B)  # fmt: skip
         if problem is not None:
             raise InitialisationError(f"{dataset.name}: {problem}")
         return _from_gps(dataset, layout, options)

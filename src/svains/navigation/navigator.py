@@ -39,7 +39,7 @@ from svains.navigation.navigator_core import Core, gps_off_windows
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import NavState, RunResult
 from svains.navigation.platform_noise import StaticNoise, platform_noise
-from svains.navigation.plausibility import SampleChecks
+from svains.navigation.plausibility import SampleChecks, TrackSides
 from svains.navigation.starter import Starter
 from svains.navigation.tracks import TrackOptions
 from svains.navigation.vision_sources import FeatureFrames, ImageFrames, rig_from_calibrations
@@ -60,6 +60,10 @@ OutputCallback = Callable[[NavState], None]
 
 # A gps or vision start this long (s) after the first IMU sample is warned: it skipped data.
 START_WAIT_WARN_S = 5.0
+
+# Stereo pairs held when fed before any IMU sample (a driver's images may start a little
+# before its IMU); later ones are dropped, counted: 2 s at 20 Hz, 14 MB of 752x480 pairs.
+MAX_PAIRS_BEFORE_IMU = 40
 
 # States ``outputs()`` keeps undrained: 10 minutes at the default 10 Hz (3.7 kB each).
 OUTPUTS_KEPT = 6000
@@ -100,7 +104,10 @@ class Navigator:
         self.config = config
         self.rig = rig
         self._rest_noise = rest_noise
+        self._rest_used: StaticNoise | None = None  # the rest the noise rule took (``_start``)
         self._first_imu_ns: int | None = None  # the start's wait is counted from it
+        self._pairs_before_imu = 0  # stereo pairs fed before it (``MAX_PAIRS_BEFORE_IMU``)
+        self._track_sides = TrackSides()
         self._gps_off: list[tuple[int, int]] = []  # the Core's no-GPS windows, from it
         self.layout = BIASED if config.model == "biased" else PAPER
         self._wall0 = time.perf_counter()
@@ -113,6 +120,7 @@ class Navigator:
         # the stamps of the last frames fed: a frame fed twice (a driver's repeated message)
         # paired with itself and broke every link after it, silently (a user's probe)
         self._frame_stamps: collections.deque[int] = collections.deque(maxlen=64)
+        self._gps_stamps: collections.deque[int] = collections.deque(maxlen=64)  # the same
         self._checks = SampleChecks(
             None if rig.mag is None else float(np.linalg.norm(rig.mag.m_W))
         )
@@ -206,7 +214,8 @@ class Navigator:
         if t.size < 2 or t[-1] - t[0] < _UNITS_SPAN_NS:
             return
         self._units_checked = True
-        problem = accel_units_problem(self.history.accel_B, np.asarray(self.rig.gravity_W))
+        problem = accel_units_problem(self.history.accel_B, np.asarray(self.rig.gravity_W),
+                                      self.history.gyro_B)  # fmt: skip
         if problem is not None:
             log.warning("over the first %.0f s of IMU samples %s", _UNITS_SPAN_NS * 1e-9,
                         problem)  # fmt: skip
@@ -221,6 +230,7 @@ class Navigator:
         must not change them afterwards. Ignored by ``ins`` but for an ``init.mode`` vision start.
         ``TypeError`` for another dtype:
         a 12- or 16-bit or float image has no one right conversion, so the caller makes it."""
+        self._open("feed_stereo")
         if self._takes_frames:
             t_ns = self.clock.other(_stamp("feed_stereo", t_ns), "frame")
             left, right = _image("left", left), _image("right", right)
@@ -245,6 +255,15 @@ class Navigator:
                                    "not yet exposed?)" if lo == hi else
                                    " (one camera's image sent twice?)"))  # fmt: skip
                 return
+            if self._first_imu_ns is None:
+                # Before the first IMU sample nothing consumes the pairs: 60 s of them held
+                # 824 MB and vanished uncounted once the IMU came (a user's probe).
+                self._pairs_before_imu += 1
+                if self._pairs_before_imu > MAX_PAIRS_BEFORE_IMU:
+                    self.queue.drop("frame", t_ns, "fed before any IMU sample: the estimator "
+                                    f"holds at most {MAX_PAIRS_BEFORE_IMU} pairs until the "
+                                    "IMU starts (feed the IMU first)")  # fmt: skip
+                    return
             if self._new_frame(t_ns):
                 self._push(t_ns, FRAME, ("images", *pair))
 
@@ -254,6 +273,7 @@ class Navigator:
         """Pre-tracked features of one stereo frame: ``track_id`` (M,) int, ``uv_left``,
         ``uv_right`` (M, 2) px in the rectified pair ``cam0``/``cam1`` define. Ignored by
         ``ins``."""
+        self._open("feed_tracks")
         if self._takes_frames:
             t_ns = self.clock.other(_stamp("feed_tracks", t_ns), "frame")
             raw = np.asarray(track_id)
@@ -276,20 +296,34 @@ class Navigator:
                 self.queue.drop("feature", t_ns, f"{int((~finite).sum())} of {m} "
                                 "features with non-finite pixels")  # fmt: skip
                 ids, uv_l, uv_r = ids[finite], uv_l[finite], uv_r[finite]
+            crossed = self._track_sides.observe(uv_l, uv_r)
+            if crossed is not None:
+                # (fed tracks went unfused without a word: a user's probe)
+                log.warning("feed_tracks: %s", crossed)
+            if self._track_sides.crossed:
+                uv_l, uv_r = uv_r, uv_l
             if self._new_frame(t_ns):
                 self._push(t_ns, FRAME, ("features", ids, uv_l, uv_r))
 
     def feed_gps(self, t_ns: int, p_W_G: ArrayLike, v_W_G: ArrayLike | None = None) -> None:
         """A GPS fix: antenna position ``p_W_G`` (3,) m and velocity ``v_W_G`` (3,) m/s (None:
         position only) in the world frame."""
-        v = None if v_W_G is None else _vector("feed_gps", "v_W_G", v_W_G)
-        p = _vector("feed_gps", "p_W_G", p_W_G)
-        self._push(self.clock.other(_stamp("feed_gps", t_ns), "gps"), GPS, (p, v))
+        # copies: a fix waits in the queue (and the start holds the first ones), while a
+        # driver may reuse its buffers (every held fix read the newest: a user's probe)
+        v = None if v_W_G is None else _vector("feed_gps", "v_W_G", v_W_G).copy()
+        p = _vector("feed_gps", "p_W_G", p_W_G).copy()
+        t_ns = self.clock.other(_stamp("feed_gps", t_ns), "gps")
+        if t_ns in self._gps_stamps:
+            # two fixes of one instant were both fused, as if independent (a user's probe)
+            self.queue.drop("gps", t_ns, "a second fix with the same stamp; the first is kept")
+            return
+        self._gps_stamps.append(t_ns)
+        self._push(t_ns, GPS, (p, v))
 
     def feed_mag(self, t_ns: int, m_S: ArrayLike) -> None:
         """A magnetometer sample ``m_S`` (3,) Gauss in its sensor frame."""
         t_ns = self.clock.other(_stamp("feed_mag", t_ns), "mag")
-        self._push(t_ns, MAG, _vector("feed_mag", "m_S", m_S))
+        self._push(t_ns, MAG, _vector("feed_mag", "m_S", m_S).copy())
 
     def feed_sonar(self, t_ns: int, range_m: float) -> None:
         """A sonar range (m) along the sensor's +z axis to flat ground."""
@@ -306,6 +340,12 @@ class Navigator:
             return False
         self._frame_stamps.append(t_ns)
         return True
+
+    def _open(self, method: str) -> None:
+        """``ClosedError`` for a ``feed_*`` call after ``close()``."""
+        if self.status == "closed":
+            raise ClosedError(f"{method} after close(): this Navigator's run is over; make a "
+                              "new Navigator for another")  # fmt: skip
 
     def _push(self, t_ns: int, kind: int, payload: Any) -> None:
         if self.status == "closed":
@@ -329,6 +369,14 @@ class Navigator:
             yield self._outputs.popleft()
 
     @property
+    def rest_noise(self) -> StaticNoise | None:
+        """The IMU noise measured at rest that this run's noise rule took (its static start's,
+        or the one given), None before the start or without one: a process restarted from
+        ``state()`` passes it on (``Navigator(..., rest_noise=old.rest_noise)``), or the new run
+        falls back to the calibration's densities."""
+        return self._rest_used
+
+    @property
     def t0_ns(self) -> int | None:
         """Time of the initial state (None before it)."""
         return None if self.core is None else self.core.t0_ns
@@ -338,11 +386,16 @@ class Navigator:
         configured ``duration_s`` after the start) and return the run's ``RunResult``."""
         if self._result is not None:
             return self._result
+        if until_ns is not None:
+            until_ns = _stamp("close", until_ns, "until_ns")
         done = self.queue.horizon_ns
-        if until_ns is not None and done is not None and int(until_ns) < done - 1:
+        if until_ns is not None and done is not None and until_ns < done - 1:
             # refused before anything changes: a later close() still ends the run
-            raise ValueError(f"close: until_ns {int(until_ns)} is before {done - 1} ns, up to "
-                             "which the estimator has already processed its measurements")
+            seconds = " (a time in seconds? pass round(t_s * 1e9))" if (
+                0 < until_ns < done // 100_000) else ""
+            raise ValueError(f"close: until_ns {until_ns} is before {done - 1} ns, up to "
+                             f"which the estimator has already processed its "
+                             f"measurements{seconds}")
         last = self.history.last_ns
         if self.status != "finished" and last is not None:
             end = last if until_ns is None else min(int(until_ns), last)
@@ -421,6 +474,7 @@ class Navigator:
         measured = init.info.get("static_noise")
         # a start that is not static takes the rest the caller measured before it, if any
         rest = StaticNoise(**measured) if isinstance(measured, dict) else self._rest_noise
+        self._rest_used = rest
         noise, decided = platform_noise(self.config.noise, self.rig.imu, rest)
         if decided is not None:
             if rest is self._rest_noise:
@@ -608,22 +662,22 @@ def _image(name: str, image: Any) -> NDArray[Any]:
     return a
 
 
-def _stamp(method: str, t_ns: object) -> int:
-    """``t_ns`` as int nanoseconds; ``ValueError`` naming ``method`` for a stamp that is not a
-    whole number (seconds or milliseconds as floats were truncated to repeats of a few
-    nanoseconds and dropped one by one: a user's probe)."""
+def _stamp(method: str, t_ns: object, name: str = "t_ns") -> int:
+    """``t_ns`` as int nanoseconds; ``ValueError`` naming ``method`` (and the argument
+    ``name``) for a stamp that is not a whole number (seconds or milliseconds as floats were
+    truncated to repeats of a few nanoseconds and dropped one by one: a user's probe)."""
     if type(t_ns) is int:
         return t_ns  # the replay's stamps: once per sample, so the short way
     if isinstance(t_ns, (bool, np.bool_)):
-        raise ValueError(f"{method}: t_ns must be integer nanoseconds, got {t_ns!r}")
+        raise ValueError(f"{method}: {name} must be integer nanoseconds, got {t_ns!r}")
     if isinstance(t_ns, (int, np.integer)):
         return int(t_ns)
     if not isinstance(t_ns, (float, np.floating)):
-        raise ValueError(f"{method}: t_ns must be integer nanoseconds, got {t_ns!r}")
+        raise ValueError(f"{method}: {name} must be integer nanoseconds, got {t_ns!r}")
     f = float(t_ns)
     if not np.isfinite(f) or f != round(f):
         hint = " (a time in seconds? pass round(t_s * 1e9))" if np.isfinite(f) else ""
-        raise ValueError(f"{method}: t_ns must be integer nanoseconds, got {f!r}{hint}")
+        raise ValueError(f"{method}: {name} must be integer nanoseconds, got {f!r}{hint}")
     return int(f)
 
 

@@ -132,6 +132,11 @@ def rest_noise(t_ns: NDArray[np.int64], gyro_S: F64, accel_S: F64, o: InitOption
     return measure_static_noise(gyro_B, accel_B, dt_s, o.block_s)
 
 
+# A rest whose white noise is this many times the calibration's, or this fraction of it, is no
+# vibration (EuRoC's MAV with its rotors on: 5.5x gyro, 7.9x accelerometer) but a unit.
+UNIT_RATIO_BAND = (0.1, 50.0)
+
+
 def platform_noise(
     options: NoiseOptions, calib: ImuCalib | None, measured: StaticNoise | None
 ) -> tuple[NoiseOptions, dict[str, Any] | None]:
@@ -151,6 +156,16 @@ def platform_noise(
         explicit = getattr(options, f"{name}_noise_density") is not None
         applied = ratio > limit and not explicit
         info[name] = {"ratio": ratio, "applied": bool(applied)}
+        lo, hi = UNIT_RATIO_BAND
+        if not explicit and not lo <= ratio <= hi:
+            # a density in another unit (per sample, deg, mg) passed in silence, the filter
+            # 1000x too sure or too cautious (a user's probe)
+            log.warning("the %s's white noise measured at rest is %.3g times its calibrated "
+                        "density %.3g: is the density in imu0/sensor.yaml in another unit (it "
+                        "is per √Hz, in rad/s or m/s²)? %s",
+                        "accelerometer" if name == "accel" else name, ratio, base,
+                        "The measured one is used, and the random walk scaled by the ratio's "
+                        "square root" if applied else "The calibration is kept")  # fmt: skip
         if not applied:
             continue
         walk = getattr(options, f"{name}_random_walk")

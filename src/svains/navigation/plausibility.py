@@ -82,3 +82,44 @@ class SampleChecks:
         if r <= 0.0:
             return f"sonar range {r:.3g} m is not positive (no echo)"
         return None
+
+
+# Fed tracks: after this many features over at least ``TRACK_SIDE_MIN_FRAMES`` frames, a share
+# of negative disparities (the right pixel right of the left one) this large says the left and
+# right pixels are crossed (an image pair's test counts 0-2 of 700-1900 so on right pairs:
+# ``frontend.stereo_check``). Features within 1 px of zero disparity (points at infinity) say
+# nothing and are left out.
+TRACK_SIDE_MIN_FEATURES = 60
+TRACK_SIDE_MIN_FRAMES = 3
+TRACK_SIDE_CROSSED_FRACTION = 0.8
+
+
+class TrackSides:
+    """Whether fed tracks' left and right pixels are crossed, judged once over their first
+    frames; once judged crossed, every later frame's are exchanged (as crossed image streams
+    are, ``frontend.stereo_check``)."""
+
+    def __init__(self) -> None:
+        self.negative = 0
+        self.counted = 0
+        self.frames = 0
+        self.crossed: bool | None = None  # None: not judged yet
+
+    def observe(self, uv_left: F64, uv_right: F64) -> str | None:
+        """One frame's pixels (M, 2) each; the warning to give when this frame decides they are
+        crossed (None otherwise)."""
+        if self.crossed is not None:
+            return None
+        d = uv_left[:, 0] - uv_right[:, 0]
+        d = d[np.abs(d) >= 1.0]
+        self.negative += int(np.sum(d < 0.0))
+        self.counted += int(d.size)
+        self.frames += 1
+        if self.frames < TRACK_SIDE_MIN_FRAMES or self.counted < TRACK_SIDE_MIN_FEATURES:
+            return None
+        self.crossed = self.negative >= TRACK_SIDE_CROSSED_FRACTION * self.counted
+        if not self.crossed:
+            return None
+        return (f"{self.negative} of {self.counted} fed features lie at negative disparity (the "
+                "right pixel right of the left one): uv_left and uv_right look crossed; they "
+                "are exchanged from here on")

@@ -27,6 +27,7 @@ from svains.navigation.init import (
     InitData,
     InitialState,
     MagArrays,
+    checked_given,
     from_vision_fit,
     given_at_sample,
     initialise,
@@ -75,7 +76,7 @@ class Starter:
         self.options = options
         self.rig = rig
         self.layout = layout
-        self.given = given
+        self.given = None if given is None else checked_given(given, layout)
         self.gps_fused = gps_fused
         self._gps_velocity = gps_velocity
         self.local_heading_wait = local_heading_wait

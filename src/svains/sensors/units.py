@@ -19,9 +19,11 @@ ACCEL_MEDIAN_RANGE_G = (0.5, 3.0)
 GRAVITY_RANGE_M_S2 = (9.7, 9.9)
 
 
-def accel_units_problem(accel_S: NDArray[np.float64], g_W: NDArray[np.float64]) -> str | None:
+def accel_units_problem(accel_S: NDArray[np.float64], g_W: NDArray[np.float64],
+                        gyro_S: NDArray[np.float64] | None = None) -> str | None:  # fmt: skip
     """Why the specific force ``accel_S`` (N, 3) cannot be m/s² with gravity included, given
-    gravity ``g_W`` (3,) m/s², or None (also for no samples)."""
+    gravity ``g_W`` (3,) m/s², or None (also for no samples); ``gyro_S`` (N, 3) the same
+    samples' rates, to tell columns swapped with the gyro's (None: not judged)."""
     if len(accel_S) == 0:
         return None
     med = float(np.median(np.linalg.norm(accel_S, axis=1)))
@@ -29,6 +31,15 @@ def accel_units_problem(accel_S: NDArray[np.float64], g_W: NDArray[np.float64]) 
     lo, hi = ACCEL_MEDIAN_RANGE_G
     if lo * g <= med <= hi * g:
         return None
+    if gyro_S is not None and len(gyro_S) == len(accel_S):
+        med_gyro = float(np.median(np.linalg.norm(gyro_S, axis=1)))
+        if lo * g <= med_gyro <= hi * g:
+            # gravity in the gyro's columns (a header-less CSV with the accelerometer first
+            # was told "gravity removed": a user's probe)
+            return (f"the gyro's median magnitude is {med_gyro:.4g} and the accelerometer's "
+                    f"{med:.4g}, against gravity {g:.4g} m/s²: are the gyro and accelerometer "
+                    "columns swapped? (svains reads t, w_x, w_y, w_z, a_x, a_y, a_z, or the "
+                    "columns a header names)")  # fmt: skip
     # Gravity dominates the mean of a specific force: removed, the mean is near zero.
     steady = float(np.linalg.norm(np.mean(accel_S, axis=0))) > 0.5 * med
     guesses = (("g (multiply by 9.81)", 1.0), ("mg", 1000.0), ("ft/s²", g / 0.3048))
