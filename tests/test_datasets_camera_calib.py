@@ -111,3 +111,15 @@ def test_kalibr_s_name_for_the_distortion_coefficients_is_read(tmp_path: Path) -
     ds = load_dataset(root)
     assert ds.cam0 is not None
     np.testing.assert_allclose(ds.cam0.distortion, [-0.28, 0.07, 0.0002, 0.00002])
+
+
+def test_a_nested_4x4_t_bs_is_read(tmp_path: Path) -> None:
+    """``T_BS`` as a nested 4x4 list (Kalibr's camchain form) was refused as "must be 16
+    numbers" though no ``data`` key was given (a user's probe)."""
+    from svains.datasets._textio import yaml_T_BS
+
+    T = [[0.0, -1.0, 0.0, 0.1], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+    np.testing.assert_array_equal(yaml_T_BS({"T_BS": T}, tmp_path / "sensor.yaml"), np.array(T))
+    flat = [e for r in T for e in r]
+    np.testing.assert_array_equal(
+        yaml_T_BS({"T_BS": {"rows": 4, "cols": 4, "data": flat}}, tmp_path), np.array(T))

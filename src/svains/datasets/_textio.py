@@ -135,6 +135,10 @@ def yaml_T_BS(data: dict[str, Any], path: Path, required: bool = True) -> NDArra
             raise CalibrationError(f"{path}: missing field 'T_BS'")
         return np.eye(4)
     values = node.get("data") if isinstance(node, dict) else node
+    if isinstance(values, list) and values and all(isinstance(r, list) for r in values):
+        # a nested 4x4 list, as Kalibr's camchain writes T_cam_imu (refused as "must be 16
+        # numbers": a user's probe)
+        values = [e for row in values for e in row]
     try:
         T = np.asarray([float(e) for e in values], dtype=float)
     except (TypeError, ValueError, OverflowError) as exc:
