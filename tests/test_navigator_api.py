@@ -4,6 +4,7 @@ bad configurations, copies of fed images, outputs."""
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -14,6 +15,7 @@ from svains import Navigator, NavState, RunConfig
 from svains.errors import ClosedError, ConfigError, InitialisationError
 from svains.navigation.event_queue import FRAME
 from svains.navigation.options import InitOptions
+from svains.navigation.outputs import RunResult
 from svains.sensors.types import GpsCalib, Rig
 
 G = 9.81
@@ -237,23 +239,34 @@ def _gps_rig() -> Rig:
     return Rig(gps=GpsCalib(np.zeros(3), 1.0, 0.5, 0.1))
 
 
+def _feed_resting_with_fixes(nav: Navigator, seconds: float, rng: np.random.Generator,
+                             feed_fix: Callable[[int, int], None]) -> None:  # fmt: skip
+    """A resting IMU at 200 Hz from 1 s, ``feed_fix(t_ns, second)`` half a second into every
+    second (the caller feeds the GPS)."""
+    for k in range(int(seconds * 200)):
+        t = 1_000_000_000 + k * 5_000_000
+        nav.feed_imu(t, 1e-3 * rng.standard_normal(3),
+                     [0.0, 0.0, G] + 1e-2 * rng.standard_normal(3))  # fmt: skip
+        if k % 200 == 100:
+            feed_fix(t, k // 200)
+
+
 def test_a_non_finite_gps_fix_is_dropped_and_counted() -> None:
     """A NaN in a fed GPS position or velocity (a user's probe): before, a FilterError raised by
     a later feed_imu ("gps: non-finite innovation"), or a NaN heading and a non-finite
     covariance; now dropped and counted as the magnetometer's and sonar's are."""
     nav = Navigator(RunConfig(), _gps_rig())
     rng = np.random.default_rng(5)
-    for k in range(int(8.0 * 200)):
-        t = 1_000_000_000 + k * 5_000_000
-        nav.feed_imu(t, 1e-3 * rng.standard_normal(3),
-                     [0.0, 0.0, G] + 1e-2 * rng.standard_normal(3))  # fmt: skip
-        if k % 200 == 100:
-            p, v = 0.3 * rng.standard_normal(3), 0.05 * rng.standard_normal(3)
-            if k // 200 == 3:
-                p[0] = np.nan
-            if k // 200 == 5:
-                v[2] = np.inf
-            nav.feed_gps(t, p, v)
+
+    def fix(t: int, second: int) -> None:
+        p, v = 0.3 * rng.standard_normal(3), 0.05 * rng.standard_normal(3)
+        if second == 3:
+            p[0] = np.nan
+        if second == 5:
+            v[2] = np.inf
+        nav.feed_gps(t, p, v)
+
+    _feed_resting_with_fixes(nav, 8.0, rng, fix)
     res = nav.close()
     assert res.report["dropped"] == {"gps": 2}
     assert res.report["measurements"]["gps"]["fused"] >= 4
@@ -487,22 +500,22 @@ def test_a_driver_reusing_its_gps_buffers_does_not_change_the_fixes_held() -> No
     """A user's probe: fixes were kept by reference, so a driver that rewrites one buffer per
     fix left every held fix reading the newest (the ``gps`` start then refused five pairs as
     "0.0 m apart"). Each fix is copied: the run equals one fed fresh arrays."""
-    results = []
-    for reuse in (False, True):
+    def run(reuse: bool) -> RunResult:
         nav = Navigator(RunConfig(init=InitOptions(mode="gps")), _gps_rig())
         rng = np.random.default_rng(7)
         buf_p, buf_v = np.zeros(3), np.zeros(3)
-        for k in range(int(6.0 * 200)):
-            t = 1_000_000_000 + k * 5_000_000
-            nav.feed_imu(t, 1e-3 * rng.standard_normal(3),
-                         [0.0, 0.0, G] + 1e-2 * rng.standard_normal(3))  # fmt: skip
-            if k % 200 == 100:
-                p, v = 0.3 * rng.standard_normal(3), 0.05 * rng.standard_normal(3)
-                if reuse:
-                    buf_p[:], buf_v[:] = p, v
-                    p, v = buf_p, buf_v
-                nav.feed_gps(t, p, v)
-        results.append(nav.close())
+
+        def fix(t: int, _: int) -> None:
+            p, v = 0.3 * rng.standard_normal(3), 0.05 * rng.standard_normal(3)
+            if reuse:
+                buf_p[:], buf_v[:] = p, v
+                p, v = buf_p, buf_v
+            nav.feed_gps(t, p, v)
+
+        _feed_resting_with_fixes(nav, 6.0, rng, fix)
+        return nav.close()
+
+    results = [run(False), run(True)]
     np.testing.assert_array_equal(results[0].x, results[1].x)
 
 
@@ -599,13 +612,12 @@ def test_close_checks_until_ns_as_the_feeds_check_stamps() -> None:
 def test_a_second_gps_fix_with_the_same_stamp_is_dropped() -> None:
     nav = Navigator(RunConfig(), _gps_rig())
     rng = np.random.default_rng(12)
-    for k in range(int(4.0 * 200)):
-        t = 1_000_000_000 + k * 5_000_000
-        nav.feed_imu(t, 1e-3 * rng.standard_normal(3),
-                     [0.0, 0.0, G] + 1e-2 * rng.standard_normal(3))  # fmt: skip
-        if k % 200 == 100:
-            p = 0.3 * rng.standard_normal(3)
-            nav.feed_gps(t, p, np.zeros(3))
-            nav.feed_gps(t, p + 1.0, np.zeros(3))  # the same instant, other values
+
+    def fix(t: int, _: int) -> None:
+        p = 0.3 * rng.standard_normal(3)
+        nav.feed_gps(t, p, np.zeros(3))
+        nav.feed_gps(t, p + 1.0, np.zeros(3))  # the same instant, other values
+
+    _feed_resting_with_fixes(nav, 4.0, rng, fix)
     res = nav.close()
     assert res.report["dropped"] == {"gps": 4}
