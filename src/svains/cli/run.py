@@ -26,6 +26,9 @@ from svains.cli._common import (
 )
 from svains.errors import SvainsError
 
+# An ATE fit that tilts the estimate more than this (deg) is said in the run table.
+ATE_TILT_NOTE_DEG = 1.0
+
 _SHOWN = ("ate_rmse_m", "position_rmse_m", "velocity_rmse_mps", "attitude_rmse_deg", "nees_mean",
           "wall_s", "realtime_factor", "wall_end_to_end_s",
           "realtime_factor_end_to_end")  # fmt: skip
@@ -221,6 +224,14 @@ def run(
             # The frame the start defines, not the fit over the run (see docs/conventions.md).
             row("nees in the start's frame", fmt(rep["nees_start_anchored"]),
                 fmt((sm or {}).get("nees_start_anchored")))
+    if rep.get("alignment") is not None:
+        # The ATE row's fit; one that tilts a gravity-aligned run trades its tilt for position
+        # error, and `svains evaluate --align posyaw` gives the figure without it (a probe).
+        tilt = rep.get("ate_fit_tilt_deg")
+        said = str(rep["alignment"]) + (
+            f" (the fit tilted the estimate {tilt:.2f}°; posyaw: `svains evaluate --align "
+            "posyaw`)" if tilt is not None and tilt > ATE_TILT_NOTE_DEG else "")
+        row("ATE alignment", said, "")
     if rep.get("reference_tilt_deg") is not None:
         # The reference frame's tilt from gravity, removed before the errors and the NEES.
         row("reference tilt removed [deg]", f"{rep['reference_tilt_deg']:.3f}", "")
