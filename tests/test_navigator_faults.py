@@ -114,6 +114,28 @@ def test_a_lost_filter_recovers_and_fuses_gps_again(flight: Path) -> None:
     assert kept.report["position_rmse_m"] < lost.report["position_rmse_m"] / 2
 
 
+def test_a_gps_fix_far_off_is_refused_with_a_warning(
+    flight: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A fix 1 km off was refused and counted in silence (a user's probe); one 5 m off (within
+    multipath's reach) stays unsaid."""
+    from svains.datasets.types import GpsStream
+
+    ds = load_dataset(flight)
+    assert ds.gps is not None
+    k = int(np.searchsorted(ds.gps.t_ns, ds.gps.t_ns[0] + int(FAULT_AT_S * S)))
+    said = []
+    for off in (5.0, 1000.0):
+        p = ds.gps.p_W_G.copy()
+        p[k, 0] += off
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="svains.navigation.fault_handling"):
+            res = _run(replace(ds, gps=GpsStream(ds.gps.t_ns, p, ds.gps.v_W_G)))
+        said.append("a GPS fix refused" in caplog.text)
+        assert res.report["measurements"]["gps"]["rejected"] >= (off > 100)
+    assert said == [False, True]
+
+
 def test_fault_options_are_checked_and_set_by_dotted_key() -> None:
     with pytest.raises(ConfigError, match=r"faults\.vision_max_gap_s must be positive"):
         FaultOptions(vision_max_gap_s=0.0)

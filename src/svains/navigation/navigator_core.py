@@ -65,6 +65,9 @@ def gps_off_windows(config: RunConfig, t_first_ns: int) -> list[tuple[int, int]]
 
 # A given start faster than this (m/s) is not at rest, however uncertain its velocity.
 START_REST_SPEED_MPS = 0.1
+# A GPS fix refused with a NIS this many times its gate is warned (throttled): a glitch, or a
+# lost estimate, not a fix a little off (multipath of 30 m on a 1.4 m fix: about 20 times).
+FAR_FIX_GATES = 100.0
 
 
 class Core(HeadingSteps):
@@ -579,6 +582,11 @@ class Core(HeadingSteps):
         # The one place where every measurement update's outcome is known.
         c = self.counts.setdefault(key, {"fused": 0, "rejected": 0})
         c["fused" if stats.accepted else "rejected"] += 1
+        if key == "gps" and not stats.accepted and stats.nis > FAR_FIX_GATES * stats.gate:
+            # a fix 1 km off was refused and counted without a word (a user's probe)
+            self._warn.warn("gps-far", t, f"a GPS fix refused {stats.nis / stats.gate:.0f} "
+                            f"times beyond its gate (NIS {stats.nis:.3g}): the fix, or the "
+                            "estimate, is far off")  # fmt: skip
         recovery = self._acting_recovery
         if recovery is not None and key != "zupt":
             # A refused zero-velocity update means motion, not a lost filter.
