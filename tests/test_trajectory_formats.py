@@ -45,13 +45,20 @@ def files(euroc_micro: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[s
     out["kitti"] = d / "kitti" / "poses.txt"
     est = Dataset(root=d, name="est", groundtruth=type(full)(t, p, q, 0 * p, 0 * p, 0 * p))
     out["bag"] = write_bag(est, d / "est.bag", "ros1", topics={"gt": "/estimate"})
+    # a run's states.csv: stamps, p, v, q (w first), then more columns
+    head = ("t_ns,p_W_B_x,p_W_B_y,p_W_B_z,v_W_B_x,v_W_B_y,v_W_B_z,q_W_B_w,q_W_B_x,q_W_B_y,"
+            "q_W_B_z,omega_B_x")
+    srows = [f"{ti},{','.join(repr(v) for v in (*pi, 0.0, 0.0, 0.0, *qi, 0.5))}"
+             for ti, pi, qi in zip(t.tolist(), p.tolist(), q.tolist(), strict=True)]
+    (d / "states.csv").write_text(head + "\n" + "\n".join(srows) + "\n")
+    out["states"] = d / "states.csv"
     out["ref"] = euroc_micro / "mav0" / "state_groundtruth_estimate0" / "data.csv"
     return out
 
 
 def test_every_format_reads_the_same_trajectory(files: dict[str, Path]) -> None:
     t, p, q = read_trajectory(files["tum"])
-    for fmt in ("euroc", "kitti", "bag"):
+    for fmt in ("euroc", "kitti", "bag", "states"):
         assert detect_format(files[fmt]) == fmt
         t2, p2, q2 = read_trajectory(files[fmt])
         np.testing.assert_array_equal(t2, t)
@@ -64,7 +71,7 @@ def test_evaluate_gives_the_same_ate_for_every_format(
     files: dict[str, Path], tmp_path: Path
 ) -> None:
     ates = {}
-    for fmt in ("tum", "euroc", "kitti", "bag"):
+    for fmt in ("tum", "euroc", "kitti", "bag", "states"):
         out = tmp_path / f"{fmt}.json"
         res = runner.invoke(
             app, ["evaluate", str(files[fmt]), str(files["ref"]), "--json", str(out)]

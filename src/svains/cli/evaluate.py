@@ -49,7 +49,7 @@ def evaluate(
         str | None,
         typer.Option(
             "--format",
-            help="Format of both files (tum, euroc, kitti, bag, dataset; a data-set folder "
+            help="Format of both files (tum, euroc, kitti, bag, dataset, states; a data-set folder "
             "given as reference is read as one); default: detected.",
         ),
     ] = None,

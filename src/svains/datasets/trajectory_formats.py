@@ -6,7 +6,8 @@
 - ``kitti``: KITTI poses, 12 numbers per line (3x4 ``T_W_C`` row-major); times from
   ``times.txt`` beside the file, else pose i at i seconds;
 - ``bag``: a pose topic of a ROS bag (``datasets/rosbag.py``), header stamps;
-- ``dataset``: a data-set folder's ground truth.
+- ``dataset``: a data-set folder's ground truth;
+- ``states``: a run's ``states.csv`` (``t_ns``, ``p_W_B_*``, ``v_W_B_*``, ``q_W_B_*``, ...).
 """
 
 from __future__ import annotations
@@ -27,8 +28,10 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-TrajectoryFormat = Literal["tum", "euroc", "kitti", "bag", "dataset"]
-FORMATS: tuple[str, ...] = ("tum", "euroc", "kitti", "bag", "dataset")
+TrajectoryFormat = Literal["tum", "euroc", "kitti", "bag", "dataset", "states"]
+FORMATS: tuple[str, ...] = ("tum", "euroc", "kitti", "bag", "dataset", "states")
+# The first columns of a run's states.csv (``replay.writers``)
+STATES_HEADER = "t_ns,p_W_B_x,p_W_B_y,p_W_B_z,v_W_B_x,v_W_B_y,v_W_B_z,q_W_B_w,q_W_B_x"
 Trajectory = tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]
 
 
@@ -52,6 +55,9 @@ def detect_format(path: Path) -> TrajectoryFormat:
         return "dataset"
     if not path.is_file():
         raise DatasetError(f"missing file: {path}")
+    with path.open(errors="replace") as fh:
+        if fh.readline().startswith(STATES_HEADER):
+            return "states"
     row, commas = _first_row(path)
     if len(row) == 12:
         return "kitti"
@@ -61,7 +67,7 @@ def detect_format(path: Path) -> TrajectoryFormat:
         return "tum"
     raise DatasetError(
         f"{path}: cannot tell the trajectory format from a first row of {len(row)} fields "
-        f"(TUM 8, EuRoC csv 8 or 17, KITTI 12); pass --format"
+        f"(TUM 8, EuRoC csv 8 or 17, KITTI 12, a run's states.csv); pass --format"
     )
 
 
@@ -74,6 +80,20 @@ def read_euroc_csv(path: Path) -> Trajectory:
     t = parse_timestamps(path, rows, lines)
     a = parse_floats(path, rows, lines, slice(1, 8))
     return t, a[:, 0:3].copy(), a[:, 3:7].copy()
+
+
+def read_states_csv(path: Path) -> Trajectory:
+    """A run's ``states.csv``: its stamps, positions and ``q_W_B`` (w first) columns (a probe
+    found it unreadable by ``svains evaluate``)."""
+    with path.open(errors="replace") as fh:
+        header = fh.readline().strip()
+    if not header.startswith(STATES_HEADER):
+        raise DatasetError(f"{path}: not a svains states.csv (its header starts {header[:40]!r})")
+    n = len(header.split(","))
+    rows, lines = read_csv_rows(path, n)
+    t = parse_timestamps(path, rows, lines)
+    a = parse_floats(path, rows, lines, slice(1, 11))
+    return t, a[:, 0:3].copy(), a[:, 6:10].copy()
 
 
 def read_kitti_poses(path: Path) -> Trajectory:
@@ -111,6 +131,8 @@ def read_trajectory(
         return read_tum(p)
     if fmt == "euroc":
         return read_euroc_csv(p)
+    if fmt == "states":
+        return read_states_csv(p)
     if fmt == "kitti":
         return read_kitti_poses(p)
     if fmt == "bag":
