@@ -375,3 +375,23 @@ def test_flips_that_keep_changing_place_leave_the_mismatch_to_be_warned(
     assert check.warned_axis is None and check.warned_mismatch
     (rec,) = caplog.records
     assert "do not fit the images'" in rec.getMessage()
+
+
+def test_an_early_excursion_on_a_right_baseline_is_not_warned(tmp_path: Path) -> None:
+    """The paper's ordering, seed 8 (a right baseline, the paper's noisy IMU): the factor read
+    0.647 ± 0.088 after 16 span pairs, 4.0 of its deviations, and was warned, though it ends
+    0.92 ± 0.07 after 58. A warning now waits for the call to hold over ``min_pairs`` more
+    pairs."""
+    from svains.datasets import load_dataset
+    from svains.evaluation.run import run_method
+    from svains.navigation.options import InitOptions, RunConfig
+    from svains.sim import SimConfig, simulate
+
+    cfg = SimConfig(duration_s=60.0, seed=8)
+    cfg.camera.rate_hz = 5.0
+    cfg.camera.render_images = False
+    ds = load_dataset(simulate(cfg, tmp_path / "v8"))
+    run = RunConfig(init=InitOptions(mode="groundtruth"), use_gps=False, use_mag=False)
+    got = run_method(ds, "lc", run).report["vision"]["scale_check"]
+    assert got["pairs"] >= 50 and not got["warned"]
+    assert abs(got["factor"] - 1.0) < 3 * got["factor_std"]
