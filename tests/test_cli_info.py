@@ -142,3 +142,13 @@ def test_info_reads_a_camchain_and_shows_the_mount_and_the_refusal(
                         env={"COLUMNS": "200"})  # fmt: skip
     assert res.exit_code == 0, res.output
     assert "stereo pair: refused: stereo rectification: cam1 must be right of cam0" in res.output
+
+
+def test_a_stream_missing_samples_shows_its_mean_rate_beside_the_median(kitti_raw: Path) -> None:
+    """KITTI raw's IMU: 25 Hz by its median step, 16 Hz on average, 100 Hz declared: three
+    numbers, none labelled (a probe)."""
+    res = runner.invoke(app, ["info", str(kitti_raw)], env={"COLUMNS": "160"})
+    assert res.exit_code == 0, res.output
+    assert _row(res.output, "imu0")[2] == "25.00 (15.96 mean)"
+    assert "rate [Hz] (median step)" in res.output
+    assert "imu0: 100 Hz declared" in res.output

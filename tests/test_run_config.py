@@ -49,6 +49,11 @@ def test_bad_settings_name_their_key() -> None:
         with_settings(c, {"filter.max_predict_steps": "ten"})
     with pytest.raises(ConfigError, match=r"unknown configuration key 'noise\.gyro'"):
         with_settings(c, {"noise.gyro": 1.0})
+    # a near miss names the key meant (a probe: a --config file listed its section's keys,
+    # --set said nothing)
+    with pytest.raises(ConfigError, match=r"unknown configuration key 'vision\.frame_strid'; "
+                       r"did you mean 'vision\.frame_stride'\?"):  # fmt: skip
+        with_settings(c, {"vision.frame_strid": 2})
     with pytest.raises(ConfigError, match=r"unknown configuration section 'nope'"):
         with_settings(c, {"nope.key": 1})
     with pytest.raises(ConfigError, match=r"init\.mode must be one of"):

@@ -67,7 +67,8 @@ SUPPLEMENT: dict[str, str] = {
     "NoiseOptions.random_walk_scale": "Factor on the IMU bias random walks.",
     # InitOptions
     "InitOptions.mode": "How the filter starts: `static` (a resting start), `gps` (in flight "
-    "from GPS) or `groundtruth` (the reference's first pose).",
+    "from GPS), `vision` (in flight from the first seconds of stereo odometry against the "
+    "IMU) or `groundtruth` (the reference's first pose).",
     "InitOptions.static_s": "Length of the static interval at the start (s).",
     "InitOptions.block_s": "Length of the blocks whose IMU means test a static start (s).",
     "InitOptions.position_std": "Initial position standard deviation.",

@@ -8,6 +8,7 @@ Values are type-checked against the dataclass fields (bool, int, float, str, ``L
 from __future__ import annotations
 
 import dataclasses
+import difflib
 from pathlib import Path
 from typing import Any
 
@@ -68,7 +69,12 @@ def with_settings(config: RunConfig, settings: dict[str, Any]) -> RunConfig:
                                   f"in '{dotted}'")
             node = node[part]
         if parts[-1] not in node:
-            raise ConfigError(f"unknown configuration key '{dotted}'")
+            # the nearest names, as a --config file's key lists its section's (a probe)
+            near = difflib.get_close_matches(parts[-1], list(node), n=3, cutoff=0.6)
+            section = ".".join(parts[:-1])
+            hint = ("; did you mean " + " or ".join(
+                f"'{section + '.' if section else ''}{k}'" for k in near) + "?") if near else ""
+            raise ConfigError(f"unknown configuration key '{dotted}'{hint}")
         node[parts[-1]] = value
     return from_dict(data)
 

@@ -19,6 +19,7 @@ ModelName = Literal["paper", "biased"]
 InitMode = Literal["static", "gps", "groundtruth", "vision"]
 MethodName = Literal["ins", "vo", "lc", "tc", "3d"]
 SourceName = Literal["auto", "features", "images"]
+MotionModel = Literal["clone", "linear", "exp", "imu"]  # ``MOTION_MODELS``
 
 
 @dataclass(frozen=True)
@@ -362,7 +363,7 @@ class VisionOptions:
     max_features_short: int | None = 300
     short_gap_s: float | None = 1.0
     min_features: int = 3
-    rotation: str = "clone"
+    rotation: MotionModel = "clone"
     frame_stride: int = 1
     max_row_diff_px: float | None = 2.0
     lc_cov_scale: float | None = None
