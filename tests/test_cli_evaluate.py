@@ -142,3 +142,23 @@ def test_a_fit_that_tilts_the_estimate_says_so(tmp_path: Path) -> None:
     assert "note: the se3 fit tilted the estimate by 4.00°" in se3.output
     posyaw = runner.invoke(app, [*args, "--align", "posyaw"])
     assert posyaw.exit_code == 0 and "tilted" not in posyaw.output
+
+
+def test_the_fit_tilt_is_measured_about_the_world_up() -> None:
+    """KITTI odometry's camera world has y down: a fit turning about y is a yaw there, not a
+    tilt (a review: ``fit_tilt_deg`` read 5° of yaw as 5° of tilt)."""
+    from svains.evaluation.metrics import ate
+    from svains.geometry.rotation import quat_to_rotmat, rotmat_to_quat, so3_exp
+
+    rng = np.random.default_rng(3)
+    n = 200
+    t_ns = (np.arange(n) * 100_000_000).astype(np.int64)
+    p_ref = np.cumsum(rng.normal(0.0, 1.0, (n, 3)), axis=0)
+    q_ref = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+    R = so3_exp([0.0, np.radians(5.0), 0.0])
+    p_est = p_ref @ R.T
+    q_est = rotmat_to_quat(R @ quat_to_rotmat(q_ref))
+    res = ate(t_ns, p_est, q_est, t_ns, p_ref, q_ref, align="se3")
+    assert res.fit_tilt_deg == pytest.approx(5.0, abs=1e-6)  # a z-up world's tilt
+    assert res.tilt_about_deg((0.0, -1.0, 0.0)) == pytest.approx(0.0, abs=1e-6)
+    assert res.tilt_about_deg((1.0, 0.0, 0.0)) == pytest.approx(5.0, abs=1e-6)

@@ -159,6 +159,11 @@ def test_gyro_and_accelerometer_columns_swapped_are_named() -> None:
     assert problem is not None and "are the gyro and accelerometer columns swapped?" in problem
     assert accel_units_problem(f, G_W, w) is None
     assert "gravity removed" in (accel_units_problem(w, G_W) or "")  # no rates: the old guess
+    # an accelerometer in g beside a gyro in deg/s turning 15°/s is the unit, not a swap
+    # (a review)
+    turning = np.degrees(rng.normal(0.0, 0.05, (500, 3))) + np.array([0.0, 0.0, 15.0])
+    said = accel_units_problem(f / 9.81, G_W, turning) or ""
+    assert "looks like g (multiply by 9.81)" in said and "swapped" not in said
 
 
 def test_a_principal_point_near_the_edge_warns_of_the_intrinsics_order(

@@ -284,7 +284,7 @@ def test_feeding_after_close_is_refused_and_an_early_close_leaves_the_run_whole(
     with pytest.raises(ClosedError, match=r"feed_imu after close\(\): this Navigator's run is "
                        r"over; make a new Navigator for another"):  # fmt: skip
         nav.feed_imu(res.t_ns[-1] + 5_000_000, np.zeros(3), [0.0, 0.0, G])
-    with pytest.raises(ClosedError, match=r"a measurement fed after close\(\)"):
+    with pytest.raises(ClosedError, match=r"feed_gps after close\(\)"):
         nav.feed_gps(res.t_ns[-1], np.zeros(3))
     assert nav.close() is res
 
@@ -558,17 +558,30 @@ def test_a_given_start_with_a_quaternion_that_is_not_unit_is_refused() -> None:
 
 def test_stereo_pairs_fed_before_any_imu_sample_are_held_up_to_a_bound() -> None:
     """A user's probe: 60 s of pairs fed before the IMU grew the process by 824 MB and were
-    then discarded uncounted. Beyond ``MAX_PAIRS_BEFORE_IMU`` they are dropped, counted."""
-    from svains.navigation.navigator import MAX_PAIRS_BEFORE_IMU
+    then discarded uncounted. Beyond ``MAX_FRAMES_BEFORE_IMU`` they are dropped, counted."""
+    from svains.navigation.navigator import MAX_FRAMES_BEFORE_IMU
 
     nav = Navigator(RunConfig(method="3d"), Rig())
     img = np.zeros((4, 6), np.uint8)
     img2 = img.copy()
     img2[0, 0] = 1
-    for k in range(MAX_PAIRS_BEFORE_IMU + 25):
+    for k in range(MAX_FRAMES_BEFORE_IMU + 25):
         nav.feed_stereo(500_000_000 + k * 50_000_000, img, img2)
     assert nav.queue.dropped == {"frame": 25}
-    assert len(nav.queue.pending_after(0)) == MAX_PAIRS_BEFORE_IMU
+    assert len(nav.queue.pending_after(0)) == MAX_FRAMES_BEFORE_IMU
+    # fed tracks alike (a review)
+    nav = Navigator(RunConfig(method="3d"), Rig())
+    for k in range(MAX_FRAMES_BEFORE_IMU + 5):
+        nav.feed_tracks(500_000_000 + k * 50_000_000, [1], [[10.0, 5.0]], [[4.0, 5.0]])
+    assert nav.queue.dropped == {"frame": 5}
+    # a repeated GPS stamp after close() is refused as any feed is, not dropped (a review)
+    nav = Navigator(RunConfig(), _gps_rig())
+    rng = np.random.default_rng(13)
+    _feed_resting_with_fixes(nav, 3.0, rng, lambda t, _: nav.feed_gps(
+        t, 0.3 * rng.standard_normal(3), np.zeros(3)))
+    nav.close()
+    with pytest.raises(ClosedError, match=r"feed_gps after close"):
+        nav.feed_gps(1_500_000_000, np.zeros(3), np.zeros(3))  # a stamp fed before
 
 
 @pytest.mark.parametrize("crossed", [False, True])

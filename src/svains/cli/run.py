@@ -230,7 +230,8 @@ def run(
         tilt = rep.get("ate_fit_tilt_deg")
         said = str(rep["alignment"]) + (
             f" (the fit tilted the estimate {tilt:.2f}°; posyaw: `svains evaluate --align "
-            "posyaw`)" if tilt is not None and tilt > ATE_TILT_NOTE_DEG else "")
+            "posyaw`)" if tilt is not None and tilt > ATE_TILT_NOTE_DEG
+            and rep.get("method") != "vo" else "")  # (vo's own tilt is its drift)
         row("ATE alignment", said, "")
     if rep.get("reference_tilt_deg") is not None:
         # The reference frame's tilt from gravity, removed before the errors and the NEES.

@@ -79,7 +79,14 @@ def build_config(
         except ConfigError as exc:
             usage_error(str(exc), "--set")
         given[key] = value
-    return with_settings(config, given)
+    try:
+        return with_settings(config, given)
+    except ConfigError as exc:
+        if config_file is not None:
+            raise  # (the file's: exit 1, as its other errors)
+        # options that do not go together on the command line are a usage error, as
+        # ``--smooth`` with ``vo`` is (exit 2)
+        usage_error(str(exc), None)
 
 
 def _git_revision() -> str:

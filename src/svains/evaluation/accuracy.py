@@ -282,7 +282,7 @@ def accuracy_report(
         ate_m, out["alignment"] = fit.rmse, fit.alignment
         # how far the fit turned the estimate's vertical (a z-up world): a gravity-aligned run
         # tilted 7° by an se3 fit over KITTI raw read 0.30 m, `evaluate --align posyaw` 0.81 m
-        out["ate_fit_tilt_deg"] = fit.fit_tilt_deg
+        out["ate_fit_tilt_deg"] = fit.tilt_about_deg(up_W)
     e, std = errs.e, np.sqrt(np.einsum("nii->ni", errs.P9))
     xa = errs.x
     p, _, q = levelled(p, v, q, R_W_Wref)  # the ATE above keeps the reference as it is

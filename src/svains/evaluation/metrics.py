@@ -61,8 +61,14 @@ class AteResult:
         world): 0 for posyaw and none. A large one after se3/sim3 means the fit traded the
         estimate's tilt for position error (drift along a long path), and the rotation errors
         after it are the fit's, not the estimate's."""
-        z = np.asarray(self.T_align, dtype=float)[:3, 2]
-        return float(np.degrees(np.arccos(np.clip(z[2] / np.linalg.norm(z), -1.0, 1.0))))
+        return self.tilt_about_deg((0.0, 0.0, 1.0))
+
+    def tilt_about_deg(self, up: ArrayLike) -> float:
+        """Angle (deg) by which the alignment turns the world's ``up`` (3,) (``fit_tilt_deg``
+        for a world that is not z-up: KITTI odometry's camera world has y down)."""
+        u = np.asarray(up, dtype=float) / np.linalg.norm(up)
+        Ru = np.asarray(self.T_align, dtype=float)[:3, :3] @ u
+        return float(np.degrees(np.arccos(np.clip(Ru @ u / np.linalg.norm(Ru), -1.0, 1.0))))
 
     def summary(self) -> dict[str, float | int | str]:
         """Scalars only (JSON friendly)."""

@@ -147,6 +147,9 @@ class RtsRecorder:
         self.marks: list[MarkEpoch] = []
         self.cuts = 0
         self.updates = 0
+        # An update saw consider parameters (``filter.manifold``): the backward pass below is no
+        # smoother for a Schmidt forward run (it can end worse than the filter), so it refuses.
+        self.considered = False
         self._open: list[_Open] = []
         self._x_post: F64 | None = None  # posterior of the last epoch
         self._P_post: F64 | None = None
@@ -187,6 +190,8 @@ class RtsRecorder:
     def updated(self, manifold: Manifold, x_prior: F64, P_prior: F64, x_post: F64,
                 P_post: F64) -> None:
         """An accepted update took ``(x_prior, P_prior)`` to ``(x_post, P_post)``."""
+        if getattr(manifold, "consider", None) is not None:
+            self.considered = True
         if self._x_post is None:
             return
         self._check(x_prior, P_prior)
@@ -357,6 +362,10 @@ def smooth(recorder: RtsRecorder) -> Smoothed:
     """The backward pass over a finished recording (``recorder.mark(..., last=True)`` done)."""
     if not recorder.finished:
         raise FilterError("smooth() needs a finished recording (mark the last epoch)")
+    if recorder.considered:
+        raise FilterError("smooth(): the recording holds updates with consider parameters, "
+                          "which this RTS pass does not handle (it can end worse than the "
+                          "filter)")
     chain = recorder.chain
     n = len(chain)
     eps_c: list[F64] = [np.zeros(0)] * n

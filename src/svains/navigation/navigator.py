@@ -61,9 +61,10 @@ OutputCallback = Callable[[NavState], None]
 # A gps or vision start this long (s) after the first IMU sample is warned: it skipped data.
 START_WAIT_WARN_S = 5.0
 
-# Stereo pairs held when fed before any IMU sample (a driver's images may start a little
-# before its IMU); later ones are dropped, counted: 2 s at 20 Hz, 14 MB of 752x480 pairs.
-MAX_PAIRS_BEFORE_IMU = 40
+# Frames (stereo pairs, tracks) held when fed before any IMU sample (a driver's images may
+# start a little before its IMU); later ones are dropped, counted: 2 s at 20 Hz, 14 MB of
+# 752x480 pairs.
+MAX_FRAMES_BEFORE_IMU = 40
 
 # States ``outputs()`` keeps undrained: 10 minutes at the default 10 Hz (3.7 kB each).
 OUTPUTS_KEPT = 6000
@@ -106,7 +107,7 @@ class Navigator:
         self._rest_noise = rest_noise
         self._rest_used: StaticNoise | None = None  # the rest the noise rule took (``_start``)
         self._first_imu_ns: int | None = None  # the start's wait is counted from it
-        self._pairs_before_imu = 0  # stereo pairs fed before it (``MAX_PAIRS_BEFORE_IMU``)
+        self._frames_before_imu = 0  # frames fed before it (``MAX_FRAMES_BEFORE_IMU``)
         self._track_sides = TrackSides()
         self._gps_off: list[tuple[int, int]] = []  # the Core's no-GPS windows, from it
         self.layout = BIASED if config.model == "biased" else PAPER
@@ -255,15 +256,8 @@ class Navigator:
                                    "not yet exposed?)" if lo == hi else
                                    " (one camera's image sent twice?)"))  # fmt: skip
                 return
-            if self._first_imu_ns is None:
-                # Before the first IMU sample nothing consumes the pairs: 60 s of them held
-                # 824 MB and vanished uncounted once the IMU came (a user's probe).
-                self._pairs_before_imu += 1
-                if self._pairs_before_imu > MAX_PAIRS_BEFORE_IMU:
-                    self.queue.drop("frame", t_ns, "fed before any IMU sample: the estimator "
-                                    f"holds at most {MAX_PAIRS_BEFORE_IMU} pairs until the "
-                                    "IMU starts (feed the IMU first)")  # fmt: skip
-                    return
+            if self._held_before_imu(t_ns):
+                return
             if self._new_frame(t_ns):
                 self._push(t_ns, FRAME, ("images", *pair))
 
@@ -302,6 +296,8 @@ class Navigator:
                 log.warning("feed_tracks: %s", crossed)
             if self._track_sides.crossed:
                 uv_l, uv_r = uv_r, uv_l
+            if self._held_before_imu(t_ns):
+                return
             if self._new_frame(t_ns):
                 self._push(t_ns, FRAME, ("features", ids, uv_l, uv_r))
 
@@ -310,6 +306,7 @@ class Navigator:
         position only) in the world frame."""
         # copies: a fix waits in the queue (and the start holds the first ones), while a
         # driver may reuse its buffers (every held fix read the newest: a user's probe)
+        self._open("feed_gps")
         v = None if v_W_G is None else _vector("feed_gps", "v_W_G", v_W_G).copy()
         p = _vector("feed_gps", "p_W_G", p_W_G).copy()
         t_ns = self.clock.other(_stamp("feed_gps", t_ns), "gps")
@@ -331,6 +328,20 @@ class Navigator:
         if np.ndim(r) != 0:
             raise ValueError(f"feed_sonar: range_m must be one number, got shape {np.shape(r)}")
         self._push(self.clock.other(_stamp("feed_sonar", t_ns), "sonar"), SONAR, float(r))
+
+    def _held_before_imu(self, t_ns: int) -> bool:
+        """Whether the frame at ``t_ns`` is dropped, counted, as one too many fed before any IMU
+        sample: nothing consumes frames until then (60 s of pairs held 824 MB and vanished
+        uncounted once the IMU came: a user's probe)."""
+        if self._first_imu_ns is not None:
+            return False
+        self._frames_before_imu += 1
+        if self._frames_before_imu <= MAX_FRAMES_BEFORE_IMU:
+            return False
+        self.queue.drop("frame", t_ns, "fed before any IMU sample: the estimator holds at most "
+                        f"{MAX_FRAMES_BEFORE_IMU} frames until the IMU starts (feed the IMU "
+                        "first)")  # fmt: skip
+        return True
 
     def _new_frame(self, t_ns: int) -> bool:
         """Whether no frame with the stamp ``t_ns`` was fed lately (else dropped, counted)."""

@@ -273,8 +273,9 @@ class VisionOptions:
     axis (the calibration's accuracy, as its user knows it) as a Schmidt consider parameter the
     filter never updates, so the covariance carries what a rotation error that size does
     (``CloneWindow``, ``Manifold.consider``). Opt-in: on KITTI raw (0.5°) the covariance gets
-    honest (``3d`` GPS-denied NEES 79 -> 38, the outage run's smoothed NEES 55 -> 14) while a
-    right calibration loses 13-35 % of its accuracy (``docs/results/kitti.md``).
+    honest (``3d`` GPS-denied NEES 79 -> 38, the outage run's 11.3 -> 8.3) while a right
+    calibration loses 13-35 % of its accuracy (``docs/results/kitti.md``). Not with the
+    smoother (``RunConfig`` refuses the two): its RTS pass is no smoother for a Schmidt run.
     ``estimate_time_offset``
     (clones only) adds the camera-IMU time offset's residual (s, Kalibr's ``t_imu = t_cam +
     timeshift_cam_imu``, on top of the calibration's own offset, which stays applied to the
@@ -942,6 +943,14 @@ class RunConfig:
         for start, length in self.gps_outages:
             if length < 0:
                 raise ConfigError(f"gps_outages: negative duration {length} at {start} s")
+        if self.smoother.enabled and self.vision.consider_extrinsics_std_deg is not None:
+            # The RTS pass over a Schmidt forward run is no smoother: a review's simulated
+            # flight went 0.111 m forward -> 0.163 m "smoothed", and a linear toy's smoothed
+            # variances exceeded the filter's.
+            raise ConfigError(
+                "smoothing (--smooth) does not handle vision.consider_extrinsics_std_deg yet: "
+                "the backward pass over a run with consider parameters can end worse than the "
+                "forward run; drop one of the two")
 
 
 # The name before the typed configuration (``svains.evaluation.run.run_method`` callers).

@@ -161,8 +161,8 @@ def platform_noise(
             # a density in another unit (per sample, deg, mg) passed in silence, the filter
             # 1000x too sure or too cautious (a user's probe)
             log.warning("the %s's white noise measured at rest is %.3g times its calibrated "
-                        "density %.3g: is the density in imu0/sensor.yaml in another unit (it "
-                        "is per √Hz, in rad/s or m/s²)? %s",
+                        "density %.3g: is the calibration's density in another unit (it is "
+                        "per √Hz, in rad/s or m/s²)? %s",
                         "accelerometer" if name == "accel" else name, ratio, base,
                         "The measured one is used, and the random walk scaled by the ratio's "
                         "square root" if applied else "The calibration is kept")  # fmt: skip

@@ -629,7 +629,9 @@ class ScaleCheck:
                 # noisy IMU the misfit's curvature understates the spread (simulated village
                 # flights with the right baseline, 18 pairs: deviations 2x what it says).
                 got = (got[0], max(got[1], self._jackknife_std()), got[2], got[3])
-            if got is not None and self._held(got, warn):
+            if got is None:
+                self._flagged_at = None
+            elif self._held(got, warn):
                 self.warned = self._warn(got, self.options.warn, "the accelerometer says",
                                          "span pairs")  # fmt: skip
         self._judge_axes()

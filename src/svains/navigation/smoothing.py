@@ -54,6 +54,9 @@ def smoothed_result(result: RunResult) -> RunResult:
         raise ConfigError("this RunResult is smoothed already: smooth the forward run's "
                           "RunResult (Navigator.close())")  # fmt: skip
     rec = result.history
+    if rec is not None and rec.considered:
+        raise ConfigError("the run carried consider parameters, which the backward pass does "
+                          "not handle (it can end worse than the forward run): not smoothed")
     if rec is None:
         raise ConfigError("the run kept no history to smooth: run it with smoother.enabled "
                           "(svains run --smooth)")  # fmt: skip

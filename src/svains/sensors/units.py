@@ -31,19 +31,21 @@ def accel_units_problem(accel_S: NDArray[np.float64], g_W: NDArray[np.float64],
     lo, hi = ACCEL_MEDIAN_RANGE_G
     if lo * g <= med <= hi * g:
         return None
-    if gyro_S is not None and len(gyro_S) == len(accel_S):
-        med_gyro = float(np.median(np.linalg.norm(gyro_S, axis=1)))
-        if lo * g <= med_gyro <= hi * g:
-            # gravity in the gyro's columns (a header-less CSV with the accelerometer first
-            # was told "gravity removed": a user's probe)
-            return (f"the gyro's median magnitude is {med_gyro:.4g} and the accelerometer's "
-                    f"{med:.4g}, against gravity {g:.4g} m/s²: are the gyro and accelerometer "
-                    "columns swapped? (svains reads t, w_x, w_y, w_z, a_x, a_y, a_z, or the "
-                    "columns a header names)")  # fmt: skip
     # Gravity dominates the mean of a specific force: removed, the mean is near zero.
     steady = float(np.linalg.norm(np.mean(accel_S, axis=0))) > 0.5 * med
     guesses = (("g (multiply by 9.81)", 1.0), ("mg", 1000.0), ("ft/s²", g / 0.3048))
     guess = next((name for name, one_g in guesses if abs(med / one_g - 1.0) < 0.2), None)
+    if (guess is None or not steady) and gyro_S is not None and len(gyro_S) == len(accel_S):
+        med_gyro = float(np.median(np.linalg.norm(gyro_S, axis=1)))
+        gyro_steady = float(np.linalg.norm(np.mean(gyro_S, axis=0))) > 0.5 * med_gyro
+        if lo * g <= med_gyro <= hi * g and gyro_steady:
+            # gravity in the gyro's columns (a header-less CSV with the accelerometer first
+            # was told "gravity removed": a user's probe); only where no unit explains the
+            # accelerometer (g with a gyro in deg/s turning 15°/s is the unit: a review)
+            return (f"the gyro's median magnitude is {med_gyro:.4g} and the accelerometer's "
+                    f"{med:.4g}, against gravity {g:.4g} m/s²: are the gyro and accelerometer "
+                    "columns swapped? (svains reads t, w_x, w_y, w_z, a_x, a_y, a_z, or the "
+                    "columns a header names)")  # fmt: skip
     if guess is None or not steady:
         guess = ("gravity removed (linear acceleration)" if med < lo * g and not steady
                  else "another unit")  # fmt: skip
