@@ -25,6 +25,8 @@ from pathlib import Path  # noqa: E402
 import pytest  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
+from _flights import gps_flight  # noqa: E402
+
 threadpool_limits(limits=1)  # libraries loaded before this file (none expected) too
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
@@ -73,9 +75,4 @@ def kitti_raw() -> Path:
 def village_30s(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The simulator's village, 30 s, seed 0, features only, GPS at 1 Hz throughout (the
     online sensor checks' tests: ``test_course_check.py``, ``test_heading_check.py``)."""
-    from svains.sim import SimConfig, simulate
-
-    cfg = SimConfig(duration_s=30.0, seed=0)
-    cfg.camera.render_images = False
-    cfg.gps.outages = []
-    return simulate(cfg, tmp_path_factory.mktemp("village_30s") / "data")
+    return gps_flight(tmp_path_factory.mktemp("village_30s") / "data", 30.0, 0)

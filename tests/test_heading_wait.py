@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from _flights import gps_flight
 from conftest import TRAJECTORIES
 from svains.datasets import load_dataset
 from svains.evaluation.run import run_method
@@ -548,12 +549,8 @@ def test_velocities_the_fixes_positions_contradict_give_no_turn(
     from dataclasses import replace
 
     from svains.navigation.options import ReplayOptions
-    from svains.sim import SimConfig, simulate
 
-    cfg = SimConfig(duration_s=52.0, seed=3)
-    cfg.camera.render_images = False
-    cfg.gps.outages = []
-    ds = load_dataset(simulate(cfg, tmp_path / "slow"))
+    ds = load_dataset(gps_flight(tmp_path / "slow", 52.0, 3))
     assert ds.gps is not None
     t_s = (ds.gps.t_ns - ds.imu.t_ns[0]) * 1e-9
     v = ds.gps.v_W_G.copy()

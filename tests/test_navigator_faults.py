@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from _flights import gps_flight
 from svains.cli.main import app
 from svains.datasets import load_dataset
 from svains.datasets.types import Dataset, ImuStream
@@ -27,12 +28,7 @@ FAULT_AT_S = 6.0
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A 12 s simulated flight (seed 3) with GPS at 1 Hz, features, no images."""
-    from svains.sim import SimConfig, simulate
-
-    cfg = SimConfig(duration_s=12.0, seed=3)
-    cfg.camera.render_images = False
-    cfg.gps.outages = []
-    return simulate(cfg, tmp_path_factory.mktemp("faults") / "flight")
+    return gps_flight(tmp_path_factory.mktemp("faults") / "flight", 12.0, 3)
 
 
 def _with_imu(ds: Dataset, edit: str) -> Dataset:
@@ -220,12 +216,7 @@ def test_3d_marginalises_its_points_only_across_a_gap(flight: Path) -> None:
 @pytest.fixture(scope="module")
 def flight20(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A 20 s simulated flight (seed 3) with GPS at 1 Hz, features, no images."""
-    from svains.sim import SimConfig, simulate
-
-    cfg = SimConfig(duration_s=20.0, seed=3)
-    cfg.camera.render_images = False
-    cfg.gps.outages = []
-    return simulate(cfg, tmp_path_factory.mktemp("bias") / "flight")
+    return gps_flight(tmp_path_factory.mktemp("bias") / "flight", 20.0, 3)
 
 
 def _accel_step(ds: Dataset, step_mps2: float) -> Dataset:

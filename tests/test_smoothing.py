@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from _flights import gps_flight
 from svains.datasets.loader import load_dataset
 from svains.errors import ConfigError
 from svains.evaluation.compare import run_methods, write_comparison
@@ -191,10 +192,7 @@ def test_the_smoothing_reaches_back_across_a_heading_found_after_a_wait(tmp_path
     from svains.evaluation.run import run_method
     from svains.navigation.options import ReplayOptions, RunConfig
 
-    cfg = SimConfig(duration_s=52.0, seed=3)
-    cfg.camera.render_images = False
-    cfg.gps.outages = []
-    ds = load_dataset(simulate(cfg, tmp_path / "slow"))
+    ds = load_dataset(gps_flight(tmp_path / "slow", 52.0, 3))
     config = RunConfig(method="3d", init=InitOptions(mode="gps"), use_mag=False,
                        replay=ReplayOptions(start_s=30.0),
                        smoother=SmootherOptions(enabled=True))  # fmt: skip

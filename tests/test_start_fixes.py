@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from _flights import gps_flight
 from svains.datasets import load_dataset
 from svains.datasets.types import Dataset
 from svains.errors import InitialisationError
@@ -21,12 +22,7 @@ from svains.navigation.options import InitOptions, ReplayOptions, RunConfig
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The village at 2 m/s, 45 s, GPS at 1 Hz throughout, features only."""
-    from svains.sim import SimConfig, simulate
-
-    cfg = SimConfig(duration_s=45.0, seed=13)
-    cfg.camera.render_images = False
-    cfg.gps.outages = []
-    return simulate(cfg, tmp_path_factory.mktemp("start_fixes") / "flight")
+    return gps_flight(tmp_path_factory.mktemp("start_fixes") / "flight", 45.0, 13)
 
 
 def _velocities_changed(ds: Dataset, at_s: list[float], dv: list[np.ndarray]) -> Dataset:

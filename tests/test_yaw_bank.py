@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2, multivariate_normal
 
+from _flights import gps_flight
 from svains.datasets import load_dataset
 from svains.errors import FilterError
 from svains.evaluation.run import run_method
@@ -243,12 +244,7 @@ def test_the_level_axis_is_the_body_axis_nearest_the_horizontal() -> None:
 def slow_flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The village at 2 m/s (below the course's 3 m/s), 52 s, GPS throughout: straight along
     +y from 18 s, a 90° left turn at 34-38 s, then straight along -x."""
-    from svains.sim import SimConfig, simulate
-
-    cfg = SimConfig(duration_s=52.0, seed=3)
-    cfg.camera.render_images = False
-    cfg.gps.outages = []
-    return simulate(cfg, tmp_path_factory.mktemp("yaw_bank") / "slow")
+    return gps_flight(tmp_path_factory.mktemp("yaw_bank") / "slow", 52.0, 3)
 
 
 def _ins(ds: object, start_s: float, models: int | None) -> dict:
