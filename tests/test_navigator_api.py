@@ -16,7 +16,7 @@ from svains.errors import ClosedError, ConfigError, InitialisationError
 from svains.navigation.event_queue import FRAME
 from svains.navigation.options import InitOptions
 from svains.navigation.outputs import RunResult
-from svains.sensors.types import GpsCalib, Rig
+from svains.sensors.types import CameraCalib, GpsCalib, Rig
 
 G = 9.81
 
@@ -134,10 +134,16 @@ def test_bad_configurations_name_the_problem() -> None:
         Navigator(RunConfig(init=InitOptions(mode="gps")), Rig())
     with pytest.raises(ConfigError, match="no IMU sample was fed"):
         Navigator(RunConfig(), Rig()).close()
+    # a vision method on a rig without cameras: its frames were dropped one by one and the
+    # run went on inertial only (a probe)
+    for method in ("lc", "tc", "3d"):
+        with pytest.raises(ConfigError, match=rf"method {method} needs the stereo calibrations "
+                                              r"rig.cam0 and rig.cam1 .* use method ins"):
+            Navigator(RunConfig(method=method), Rig(cam1=_stereo_rig().cam1))
 
 
 def test_fed_images_are_copied() -> None:
-    nav = Navigator(RunConfig(method="3d"), Rig())
+    nav = Navigator(RunConfig(method="3d"), _stereo_rig())
     left, right = np.full((4, 6), 7, np.uint8), np.full((4, 6), 8, np.uint8)
     nav.feed_stereo(5, left, right)
     left[:] = right[:] = 0  # the driver reuses its buffers
@@ -149,7 +155,7 @@ def test_fed_images_are_copied() -> None:
 def test_a_pair_that_is_not_8_bit_is_refused_naming_a_conversion(dtype: type,
                                                                  hint: str) -> None:  # fmt: skip
     # a cast would wrap 16-bit grey levels modulo 256 and floats in 0-1 to black
-    nav = Navigator(RunConfig(method="3d"), Rig())
+    nav = Navigator(RunConfig(method="3d"), _stereo_rig())
     img = np.zeros((4, 6), dtype)
     want = rf"the right image is {np.dtype(dtype)}, not uint8.*{hint}"
     with pytest.raises(TypeError, match=want):
@@ -172,7 +178,7 @@ def test_a_non_finite_sample_is_dropped_even_without_an_imu_calibration() -> Non
 
 
 def test_inputs_of_the_wrong_shape_are_refused_naming_the_argument() -> None:
-    rig = Rig(gps=GpsCalib(np.zeros(3), 1.0, 1.0, 0.1))
+    rig = replace(_stereo_rig(), gps=GpsCalib(np.zeros(3), 1.0, 1.0, 0.1))
     nav = Navigator(RunConfig(method="3d"), rig)
     with pytest.raises(ValueError, match=r"feed_imu: gyro_S must hold 3 values, got shape \(2,\)"):
         nav.feed_imu(1, [0.0, 0.0], [0.0, 0.0, G])
@@ -191,7 +197,7 @@ def test_inputs_of_the_wrong_shape_are_refused_naming_the_argument() -> None:
 def test_stamps_that_are_not_whole_nanoseconds_are_refused_naming_the_call() -> None:
     """Seconds as floats were truncated to a few nanoseconds and dropped as repeats, one
     warning each (a user's probe); whole numbers of any numeric type are stamps."""
-    rig = Rig(gps=GpsCalib(np.zeros(3), 1.0, 1.0, 0.1))
+    rig = replace(_stereo_rig(), gps=GpsCalib(np.zeros(3), 1.0, 1.0, 0.1))
     nav = Navigator(RunConfig(method="3d"), rig)
     hint = r"got 12\.345 \(a time in seconds\? pass round\(t_s \* 1e9\)\)"
     with pytest.raises(ValueError, match=r"feed_imu: t_ns must be integer nanoseconds, " + hint):
@@ -237,6 +243,15 @@ def test_a_start_from_a_given_state_warns_of_an_accelerometer_in_g(
 
 def _gps_rig() -> Rig:
     return Rig(gps=GpsCalib(np.zeros(3), 1.0, 0.5, 0.1))
+
+
+def _stereo_rig() -> Rig:
+    """A 20 Hz stereo pair 0.1 m wide, 640x480, no distortion."""
+    T1 = np.eye(4)
+    T1[0, 3] = 0.1
+    cams = [CameraCalib(name, T, 20.0, (640, 480), np.array([400.0, 400.0, 320.0, 240.0]),
+                        "radtan", np.zeros(4)) for name, T in (("cam0", np.eye(4)), ("cam1", T1))]
+    return Rig(cam0=cams[0], cam1=cams[1])
 
 
 def _feed_resting_with_fixes(nav: Navigator, seconds: float, rng: np.random.Generator,
@@ -304,7 +319,8 @@ def test_misused_arguments_get_a_typed_error_naming_them() -> None:
     with pytest.raises(ConfigError, match=r"an initial_state is given but init\.mode is 'gps'"):
         Navigator(RunConfig(init=InitOptions(mode="gps")), _gps_rig(),
                   initial_state=object())  # type: ignore[arg-type]
-    nav = Navigator(RunConfig(method="3d"), _gps_rig())
+    stereo = _stereo_rig()
+    nav = Navigator(RunConfig(method="3d"), replace(_gps_rig(), cam0=stereo.cam0, cam1=stereo.cam1))
     with pytest.raises(ValueError, match=r"feed_imu: gyro_S must hold 3 numbers, got \['a'"):
         nav.feed_imu(1, ["a", "b", "c"], [0.0, 0.0, G])
     with pytest.raises(ValueError, match=r"feed_sonar: range_m must be one number, got shape "
@@ -414,7 +430,7 @@ def test_non_finite_pixels_and_identical_stereo_images_are_dropped(
 ) -> None:
     """NaN pixels were fused as numbers; a right image equal to the left (one camera sent
     twice) put every point at infinity; both silently (a user's probe)."""
-    nav = Navigator(RunConfig(method="3d"), Rig(imu_period_s=0.005))
+    nav = Navigator(RunConfig(method="3d"), replace(_stereo_rig(), imu_period_s=0.005))
     with caplog.at_level("WARNING"):
         nav.feed_tracks(1_000, [1, 2, 3], [[1.0, 2.0], [np.nan, 4.0], [5.0, 6.0]],
                         [[0.5, 2.0], [2.5, 4.0], [4.5, np.inf]])  # fmt: skip
@@ -438,7 +454,7 @@ def test_measurements_on_another_clock_are_named_at_close(
 ) -> None:
     """Frames stamped an hour ahead were never used: a pure INS run, one "no vision fused"
     line (a user's probe). close() names what was left and how far after the last IMU sample."""
-    nav = Navigator(RunConfig(method="3d"), Rig(imu_period_s=0.005))
+    nav = Navigator(RunConfig(method="3d"), replace(_stereo_rig(), imu_period_s=0.005))
     rng = np.random.default_rng(3)
     hour = 3_600_000_000_000
     for k in range(5):
@@ -561,7 +577,7 @@ def test_stereo_pairs_fed_before_any_imu_sample_are_held_up_to_a_bound() -> None
     then discarded uncounted. Beyond ``MAX_FRAMES_BEFORE_IMU`` they are dropped, counted."""
     from svains.navigation.navigator import MAX_FRAMES_BEFORE_IMU
 
-    nav = Navigator(RunConfig(method="3d"), Rig())
+    nav = Navigator(RunConfig(method="3d"), _stereo_rig())
     img = np.zeros((4, 6), np.uint8)
     img2 = img.copy()
     img2[0, 0] = 1
@@ -570,7 +586,7 @@ def test_stereo_pairs_fed_before_any_imu_sample_are_held_up_to_a_bound() -> None
     assert nav.queue.dropped == {"frame": 25}
     assert len(nav.queue.pending_after(0)) == MAX_FRAMES_BEFORE_IMU
     # fed tracks alike (a review)
-    nav = Navigator(RunConfig(method="3d"), Rig())
+    nav = Navigator(RunConfig(method="3d"), _stereo_rig())
     for k in range(MAX_FRAMES_BEFORE_IMU + 5):
         nav.feed_tracks(500_000_000 + k * 50_000_000, [1], [[10.0, 5.0]], [[4.0, 5.0]])
     assert nav.queue.dropped == {"frame": 5}
@@ -590,7 +606,7 @@ def test_fed_tracks_with_left_and_right_crossed_are_named_and_exchanged(
 ) -> None:
     """A user's probe: tracks fed right-then-left went unfused, 39 of 39 frames, with only "no
     vision fused" to say so. Judged over the first frames, warned once, exchanged."""
-    nav = Navigator(RunConfig(method="3d"), Rig(imu_period_s=0.005))
+    nav = Navigator(RunConfig(method="3d"), replace(_stereo_rig(), imu_period_s=0.005))
     rng = np.random.default_rng(10)
     with caplog.at_level("WARNING", logger="svains.navigation.navigator"):
         for k in range(4):
