@@ -488,6 +488,12 @@ class VisionOptions:
                 "and without vision.estimate_extrinsics (the rotation is either estimated or "
                 f"considered), got {con} with rotation {self.rotation!r} and estimate_extrinsics "
                 f"{self.estimate_extrinsics}")
+        if con is not None and self.correlated_pixels:
+            # the noise's correlation follows full updates only (filter.noise_correlation)
+            raise ConfigError("vision.consider_extrinsics_std_deg does not go with "
+                              "vision.correlated_pixels yet: the pixels' correlation cannot be "
+                              "followed through an update that keeps a considered block; drop "
+                              "one of the two")
         if not self.extrinsics_std_deg > 0:
             raise ConfigError(
                 f"vision.extrinsics_std_deg must be positive, got {self.extrinsics_std_deg}"
