@@ -176,6 +176,21 @@ def test_misuse_is_refused() -> None:
     rec.mark(0, np.zeros(2), np.eye(2), last=True)
     with pytest.raises(FilterError, match="after the last epoch"):
         rec.mark(1, np.zeros(2), np.eye(2))
+    # marks that keep the whole state, which then grows by a clone: refused at the mark, not
+    # numpy's "inhomogeneous shape" in smooth() (a review); fixed rows and means smooth it
+    for rows, keep in ((None, None), (np.arange(2), 2)):
+        rec = RtsRecorder(output_rows=rows, keep_x=keep)
+        rec.start(np.zeros(2), np.eye(2))
+        rec.mark(0, np.zeros(2), np.eye(2))
+        T = np.vstack([np.eye(2), np.eye(2)[:1]])
+        rec.resized(np.zeros(2), np.eye(2), T, np.zeros(3), T @ T.T)
+        if rows is None:
+            with pytest.raises(ConfigError, match=r"changed size \(2 -> 3 entries\).*give "
+                                                  "output_rows and keep_x"):  # fmt: skip
+                rec.mark(1, np.zeros(3), T @ T.T, last=True)
+        else:
+            rec.mark(1, np.zeros(3), T @ T.T, last=True)
+            assert smooth(rec).P.shape == (2, 2, 2)
 
 
 def test_the_memory_said_is_the_memory_held() -> None:

@@ -127,8 +127,9 @@ class RtsRecorder:
     """What a backward RTS pass needs, composed online from the forward filter's operations.
 
     ``output_rows``: the tangent rows a mark keeps (None: all); ``keep_x``: how many leading
-    entries of the mean a mark keeps (None: all); ``chain_interval_ns``: the spacing of the
-    stored whole-state epochs (a mark at least this long after the previous one becomes one).
+    entries of the mean a mark keeps (None: all; a state that changes size between marks needs
+    both given); ``chain_interval_ns``: the spacing of the stored whole-state epochs (a mark at
+    least this long after the previous one becomes one).
     """
 
     def __init__(
@@ -241,6 +242,13 @@ class RtsRecorder:
             raise ConfigError(f"output rows up to {rows.max()} for a {P.shape[0]}-dim state")
         keep = x.copy() if self.keep_x is None else (
             _EMPTY if self.keep_x == 0 else x[: self.keep_x].copy())
+        if self.marks and (rows.size, keep.size) != (self.marks[0].rows.size,
+                                                     self.marks[0].x.size):  # fmt: skip
+            # the marks are stacked by ``smooth``: numpy's "inhomogeneous shape" there (a review)
+            raise ConfigError(
+                f"RtsRecorder.mark: the state changed size ({self.marks[0].x.size} -> {x.size} "
+                "entries) and the marks keep all of it: give output_rows and keep_x to smooth a "
+                "state that changes size")
         mark = MarkEpoch(int(t_ns), keep, rows, np.zeros((rows.size, 0), np.float32),
                          np.zeros(rows.size), _pack(np.zeros((rows.size,) * 2)))  # fmt: skip
         self.marks.append(mark)
