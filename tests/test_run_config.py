@@ -181,6 +181,17 @@ def test_gps_outage_windows_and_gps_until(village_gps: Path, tmp_path: Path) -> 
     assert tail["to_end"] is True
     assert tail["start_s"] == pytest.approx(4.0, abs=0.05)
     assert tail["error_max_m"] >= tail["error_start_m"]
+    # Fixes outside the run (before --start, after --duration) were never fed: they do not
+    # close an outage (a probe: the first began 6 s before the run, unmarked).
+    late = fused(["--start", "3", "--gps-outage", "0:3.5"])  # GPS off 3-6.5 s
+    first = late["gps_outages"][0]
+    assert first["from_start"] is True
+    assert first["start_s"] == pytest.approx(0.0, abs=0.05)
+    assert first["duration_s"] == pytest.approx(4.0, abs=0.05)
+    short = fused(["--duration", "5", "--gps-outage", "1.5:3.6"])  # GPS off 1.5-5.1 s
+    (tail,) = short["gps_outages"]
+    assert tail["to_end"] is True
+    assert tail["duration_s"] == pytest.approx(4.0, abs=0.05)
     with pytest.raises(AssertionError):
         _cli(["run", str(village_gps), "--gps-outage", "2-3", "--out", str(tmp_path / "x")])
 

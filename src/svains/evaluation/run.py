@@ -138,10 +138,14 @@ def add_smoothed(
 
 
 def fused_gps_times(result: RunResult, t_gps_ns: NDArray[np.int64]) -> NDArray[np.int64]:
-    """GPS fix times (N,) ns that the run could fuse: those outside the configured GPS-off
-    windows (``--gps-outage``, ``--gps-until``), so those windows count as outages."""
+    """GPS fix times (N,) ns that the run could fuse: inside the span of its logged states and
+    outside the configured GPS-off windows (``--gps-outage``, ``--gps-until``), so those windows,
+    and the stretches before its first and after its last fix, count as outages."""
     t = np.asarray(t_gps_ns, dtype=np.int64)
-    keep = np.ones(t.size, dtype=bool)
+    # fixes before --start or after --duration were never fed: counted, they made the first
+    # outage start 6 s before the run and the last one end 5 s after it, unmarked (a probe)
+    keep = ((t >= result.t_ns[0]) & (t <= result.t_ns[-1]) if len(result.t_ns)
+            else np.zeros(t.size, dtype=bool))  # fmt: skip
     for a, b in result.report.get("gps_off_windows_ns", []):
         keep &= ~((t >= a) & (t < b))
     return t[keep]
