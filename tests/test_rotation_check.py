@@ -229,6 +229,24 @@ def test_frames_over_dropped_or_missing_samples_are_left_out() -> None:
     assert check.offset_frames == whole.offset_frames - 7
 
 
+@pytest.mark.parametrize("seed", [8, 18])
+def test_an_early_call_for_a_stamp_offset_must_hold_before_it_is_warned(
+    seed: int, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Right stamps: the first 12-14 turning frames of these flights read 3 ± 1 ms (the
+    synthetic gyro's half-sample lag and noise; warned before), 40 read -2.7 ± 0.3 ms, under
+    ``offset_warn_s``. A user's probe saw 67 ± 7 ms after 10 frames of a robot's slow turns on
+    a noisy gyro, -8 ± 4 ms after 25: the call must hold over ``min_frames`` more frames."""
+    h, frames = _flight(R_B_C, seed=seed, n_frames=40)
+    check = RotationCheck(h, R_B_C, DENSITY)
+    with caplog.at_level("WARNING", logger="svains.navigation.rotation_check"):
+        for tr in frames:
+            check.observe(tr, None)
+    s = check.summary()
+    assert s["time_offset_ms"] == pytest.approx(-2.7, abs=0.2) and not s["warned_time_offset"]
+    assert caplog.text == ""
+
+
 def test_the_stamps_deviation_grows_with_turns_the_noise_does_not_explain() -> None:
     # A gyro bias the filter has wrong (all at once on KITTI raw: the bias step among the
     # other faults) leaves turns the noise does not explain; the shift's deviation is scaled
