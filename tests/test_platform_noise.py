@@ -66,14 +66,6 @@ def test_a_vibrating_platform_takes_the_measured_density_and_a_wider_random_walk
     mine = NoiseOptions(gyro_noise_density=1e-3)
     opts, info = platform_noise(mine, _calib(), m)
     assert opts.gyro_noise_density == 1e-3 and not info["gyro"]["applied"]
-    # ... and so is a random walk (it was scaled by the ratio's root: a probe's 1.9e-4 became
-    # 6.3e-4), the measured density still taken
-    mine = NoiseOptions(gyro_random_walk=1.9e-4, accel_random_walk=0.03)
-    opts, info = platform_noise(mine, _calib(), m)
-    assert info is not None and info["gyro"]["applied"] and info["accel"]["applied"]
-    assert (opts.gyro_random_walk, opts.accel_random_walk) == (1.9e-4, 0.03)
-    assert info["gyro"]["random_walk"] == 1.9e-4
-    assert opts.gyro_noise_density == pytest.approx(m.gyro_density)
     assert platform_noise(NoiseOptions(static_rule=False), _calib(), m) == (
         NoiseOptions(static_rule=False), None)
 

@@ -142,8 +142,7 @@ def platform_noise(
 ) -> tuple[NoiseOptions, dict[str, Any] | None]:
     """``options`` with the densities the rest measured where they exceed the calibration
     significantly (see the module docstring), and what was decided (None: nothing measured,
-    no calibration or the rule is off). A density or random walk given explicitly in
-    ``options`` is kept."""
+    no calibration or the rule is off). A density given explicitly in ``options`` is kept."""
     if measured is None or calib is None or not options.static_rule or measured.dof < 1:
         return options, None
     limit = float(np.sqrt(chi2.ppf(options.static_probability, measured.dof) / measured.dof))
@@ -169,9 +168,8 @@ def platform_noise(
                         "square root" if applied else "The calibration is kept")  # fmt: skip
         if not applied:
             continue
-        # a random walk the user set is kept as a density is (it was scaled too: a probe)
         walk = getattr(options, f"{name}_random_walk")
-        walk = base_walk * float(np.sqrt(ratio)) if walk is None else walk
+        walk = (base_walk if walk is None else walk) * float(np.sqrt(ratio))
         out = replace(out, **{f"{name}_noise_density": meas, f"{name}_random_walk": walk})
         info[name].update(noise_density=meas, random_walk=walk)
         log.info("%s white noise %.3g measured at rest, %.1fx the calibration: used, random "
