@@ -66,6 +66,13 @@ def test_a_vibrating_platform_takes_the_measured_density_and_a_wider_random_walk
     mine = NoiseOptions(gyro_noise_density=1e-3)
     opts, info = platform_noise(mine, _calib(), m)
     assert opts.gyro_noise_density == 1e-3 and not info["gyro"]["applied"]
+    # a random walk set beside it is kept too; set alone it scales with the measured density
+    # as the calibration's does (docs/own-sensor.md)
+    opts, _ = platform_noise(NoiseOptions(gyro_noise_density=1e-3, gyro_random_walk=3e-5),
+                             _calib(), m)  # fmt: skip
+    assert opts.gyro_random_walk == 3e-5
+    opts, _ = platform_noise(NoiseOptions(gyro_random_walk=3e-5), _calib(), m)
+    assert opts.gyro_random_walk == pytest.approx(3e-5 * np.sqrt(r_g))
     assert platform_noise(NoiseOptions(static_rule=False), _calib(), m) == (
         NoiseOptions(static_rule=False), None)
 
