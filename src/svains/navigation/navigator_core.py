@@ -39,6 +39,7 @@ from svains.navigation.options import RunConfig
 from svains.navigation.outputs import NavState, RunResult, UpdateRecord, WorldFrame
 from svains.navigation.smoothing import history_recorder
 from svains.navigation.sonar_anchor import ANCHOR_AGREE_M, ANCHOR_RANGES, anchor_height
+from svains.navigation.still_camera import StillCamera
 from svains.navigation.vision import LcUpdater, PixelUpdater, make_vision_updater
 from svains.navigation.vision_clones import next_reference_ns
 from svains.navigation.vision_gaps import (
@@ -135,13 +136,19 @@ class Core(HeadingSteps):
         # rest" and one zero fused on the cruising car took KITTI raw's `ins` 14 -> 111 m (a
         # review); a start given at rest but really moving is the user's to say.
         moving = float(np.linalg.norm(ins.ukf.x[V])) > START_REST_SPEED_MPS
-        start_rest = config.zupt.after_start or (
-            config.init.mode not in ("gps", "vision") and not moving)
+        rest_start = config.init.mode not in ("gps", "vision") and not moving
+        start_rest = config.zupt.after_start or rest_start
         self._zupt = (
             StaticTest(config.zupt, config.init, float(np.linalg.norm(rig.gravity_W)))
             if config.zupt.enabled and start_rest else None
         )
         self._next_zupt_ns = self.t0_ns
+        # after the start's rest, a vision method's stops need the camera still too
+        self._still = (StillCamera(config.zupt.window_s, config.zupt.still_px)
+                       if self._zupt is not None and config.zupt.after_start
+                       and config.method != "ins" else None)  # fmt: skip
+        self._start_rest_over = not rest_start  # a start in motion has none to hold
+        self._zupt_unwitnessed = 0  # IMU rests after the start that the camera saw moving
         self.history = history_recorder(config, ins) if config.smoother.enabled else None
         # the GPS frame and the gyro's unit against each other (files are checked on load)
         self._course_check = CourseCheck(ins.history, rig.gravity_W) if gps_used else None
@@ -416,13 +423,18 @@ class Core(HeadingSteps):
             # to 0 and the accelerometer bias to 1 m/s², the run lost).
             return
         rest = self._zupt.at_rest(self.ins.history, t)
-        if rest and not self.config.zupt.after_start and self._zupt.moved_since_start(
+        if rest and not self._start_rest_over and self._zupt.moved_since_start(
             self.ins.history, t
         ):
             rest = False  # set off gently: the block test alone would go on
         if not rest:
-            if rest is not None and not self.config.zupt.after_start:
-                self._zupt = None  # the start's rest is over
+            if rest is not None:
+                self._start_rest_over = True
+                if not self.config.zupt.after_start:
+                    self._zupt = None  # the start's rest is over
+            return
+        if self._start_rest_over and self._still is not None and not self._still.still(t):
+            self._zupt_unwitnessed += 1  # a steady motion passes the IMU's test
             return
         b = zero_velocity_block(self.config.zupt.velocity_std_mps)
         (stats,) = self.ins.ukf.update_blocks([(b.h, b.z, b.R, b.residual, b.name)],
@@ -462,6 +474,8 @@ class Core(HeadingSteps):
             stats = None
         finally:
             ins.remove_omega_white()
+        if self._still is not None:
+            self._still.observe(updater.last_tracks)
         if prior is not None and stats is not None and stats.accepted:
             # The bias test of vision updates (``faults.bias_test_vision_probability``): their
             # corrections, whitened, lean one way after an IMU bias step.
@@ -717,6 +731,10 @@ class Core(HeadingSteps):
             report["heading_check"] = self._heading_check.summary()
         if self._mag_turn is not None:
             report["mag_turn_check"] = self._mag_turn.summary()
+        if self._still is not None:
+            # rests the IMU's test passed after the start and the camera did not (or could not
+            # tell): no update tried
+            report["zupt_camera_not_still"] = self._zupt_unwitnessed
         if self._gps_off:
             # Configured windows without GPS (int64 ns, [start, end)): the accuracy step reports
             # the error inside them as it does for gaps in the GPS stream.
