@@ -351,6 +351,7 @@ USAGE_CASES: list[tuple[list[str], str]] = [
     (["demo", "--out", "{tmp}/o", "--camera-rate", "100"], "'--camera-rate'"),
     (["simulate", "--out", "{tmp}/o", "--camera-rate", "100"], "'--camera-rate'"),
     (["simulate", "--out", "{tmp}/o", "--camera-rate", "0"], "'--camera-rate'"),
+    (["simulate", "--out", "{tmp}/o", "--stop", "5-3"], "'--stop': expects START:DURATION"),
     (["demo", "--out", "{tmp}/full"], "is not empty; use --force"),
     (["evaluate", "{tmp}/a.tum", "{tmp}/a.tum", "--align", "x"], "'--align'"),
     (["evaluate", "{tmp}/a.tum", "{tmp}/a.tum", "--max-diff", "nan"], "'--max-diff'"),

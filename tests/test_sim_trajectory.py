@@ -161,3 +161,29 @@ def test_a_trajectory_in_millimetres_is_refused_before_the_world_is_built(tmp_pa
                        r"\d+ m .*positions in millimetres\? TUM files hold metres"):  # fmt: skip
         tum_trajectory(tmp_path / "mm.tum", duration_s=10.0)
     tum_trajectory(TRAJECTORIES / "euroc_V1_02_medium_groundtruth.tum", duration_s=10.0)
+
+
+def test_stops_hold_the_vehicle_at_rest_unshaken_and_ease_in_and_out() -> None:
+    """``trajectory.stops``: a static start (a stop from 0 s) and a stop mid-flight; at rest
+    the speed, the rates and the shaking are zero, between them the cruise speed; the ramps
+    are smooth (no jump of acceleration beyond the cosine's)."""
+    from svains.sim.config import SimConfig
+
+    traj = village_trajectory(30.0, (60.0, 45.0), 5.0, 2.0, 2.0, seed=1,
+                              stops=[[0.0, 4.0], [14.0, 5.0]], stop_ramp_s=2.0)  # fmt: skip
+    t = np.arange(0.0, 30.0, 0.01)
+    s = traj.evaluate(t)
+    speed = np.linalg.norm(s.v_W_B, axis=1)
+    rest = (t < 3.9) | ((t > 14.1) & (t < 18.9))
+    assert speed[rest].max() < 1e-9 and np.abs(s.omega_B[rest]).max() < 1e-9
+    # the specific force at rest is gravity alone: a static start's rest test passes
+    np.testing.assert_allclose(np.linalg.norm(s.specific_force_B(G_W)[rest], axis=1), 9.81,
+                               atol=1e-9)  # fmt: skip
+    cruise = ((t > 6.5) & (t < 11.5)) | (t > 21.5)
+    assert np.abs(speed[cruise] - 2.0).max() < 0.02
+    # half-cosine ramps of 2 s from 2 m/s: |a| up to pi/2 m/s² along the path
+    assert np.abs(np.linalg.norm(s.a_W, axis=1)).max() < 2.0
+    with pytest.raises(ConfigError, match=r"trajectory.stops must be \[start_s, duration_s\]"):
+        cfg = SimConfig()
+        cfg.trajectory.stops = [[3.0]]
+        cfg.validate()

@@ -105,3 +105,16 @@ def test_a_robots_stop_gets_zero_velocity_updates_and_its_drive_none(
     speed = np.linalg.norm(result.x[:, 3:6], axis=1)
     at_stop = ((result.t_ns - t0) * 1e-9 > 10.0) & ((result.t_ns - t0) * 1e-9 < 13.5)
     assert speed[at_stop].max() < 0.01
+
+
+def test_stops_for_ins_are_warned(caplog: pytest.LogCaptureFixture) -> None:
+    """``ins`` has no camera to witness a rest: 8 village flights with stops went 6.6 -> 12.4 m
+    with it (``bench/specs/stops_village.yaml``)."""
+    from svains import Navigator, RunConfig
+    from svains.navigation.options import ZuptOptions
+    from svains.sensors.types import Rig
+
+    with caplog.at_level("WARNING", logger="svains.navigation.navigator"):
+        Navigator(RunConfig(method="ins", zupt=ZuptOptions(after_start=True)), Rig())
+        Navigator(RunConfig(method="ins"), Rig())
+    assert caplog.text.count("zupt.after_start with ins: the IMU's rest test alone") == 1

@@ -295,29 +295,36 @@ SonarOption = Annotated[
 ]
 
 
-def parse_outage(text: str) -> tuple[float, float]:
-    """``--gps-outage`` ``START:DURATION`` (seconds) -> (start, duration): ConfigError unless
-    both are finite, START >= 0 and DURATION > 0."""
+def parse_outage(text: str, option: str = "--gps-outage") -> tuple[float, float]:
+    """``option`` (``--gps-outage``, ``--stop``) ``START:DURATION`` (seconds) -> (start,
+    duration): ConfigError unless both are finite, START >= 0 and DURATION > 0."""
     try:
         a, b = text.split(":")
         start, length = float(a), float(b)
     except ValueError as exc:
-        raise ConfigError(f"--gps-outage expects START:DURATION in seconds, got {text!r}") from exc
+        raise ConfigError(f"{option} expects START:DURATION in seconds, got {text!r}") from exc
     if not (math.isfinite(start) and math.isfinite(length) and start >= 0 and length > 0):
-        raise ConfigError(f"--gps-outage expects START >= 0 and DURATION > 0 (finite seconds), "
+        raise ConfigError(f"{option} expects START >= 0 and DURATION > 0 (finite seconds), "
                           f"got {text!r}")  # fmt: skip
     return start, length
 
 
-def gps_outages(values: list[str] | None) -> list[str] | None:
-    """Typer callback: each ``--gps-outage`` read by ``parse_outage`` (else a usage error,
-    exit 2, naming the option)."""
-    for text in values or []:
-        try:
-            parse_outage(text)
-        except ConfigError as exc:
-            raise typer.BadParameter(str(exc).removeprefix("--gps-outage ")) from None
-    return values
+def _windows(option: str) -> Callable[[list[str] | None], list[str] | None]:
+    def check(values: list[str] | None) -> list[str] | None:
+        for text in values or []:
+            try:
+                parse_outage(text, option)
+            except ConfigError as exc:
+                raise typer.BadParameter(str(exc).removeprefix(f"{option} ")) from None
+        return values
+
+    return check
+
+
+# Typer callbacks: each value read by ``parse_outage`` (else a usage error, exit 2, naming the
+# option)
+gps_outages = _windows("--gps-outage")
+stop_windows = _windows("--stop")
 
 
 TopicOption = Annotated[

@@ -8,7 +8,15 @@ from typing import Annotated
 
 import typer
 
-from svains.cli._common import check_out_dir, fail, one_of, positive_finite, stereo_rate
+from svains.cli._common import (
+    check_out_dir,
+    fail,
+    one_of,
+    parse_outage,
+    positive_finite,
+    stereo_rate,
+    stop_windows,
+)
 from svains.errors import SvainsError
 
 
@@ -61,6 +69,11 @@ def register(app: typer.Typer) -> None:
             "(EuRoC ADIS16448 noise and bias random walk).",
             callback=one_of("paper", "adis16448"),
         )] = None,
+        stop: Annotated[list[str] | None, typer.Option(
+            "--stop", help="START:DURATION \\[s]: the village vehicle halts at rest for DURATION "
+            "from START, easing down and up over trajectory.stop_ramp_s (2 s); 0:D is a static "
+            "start; repeatable.", callback=stop_windows,
+        )] = None,
         force: Annotated[bool, typer.Option(
             "--force", help="Replace the data set already in --out (its mav0/).",
         )] = False,
@@ -94,6 +107,8 @@ def register(app: typer.Typer) -> None:
                 cfg.camera.render_images = False
             if imu_preset is not None:
                 cfg.imu = ImuConfig.preset(imu_preset)
+            if stop:
+                cfg.trajectory.stops = [list(parse_outage(text, "--stop")) for text in stop]
             t0 = time.perf_counter()
             root = simulate(cfg, out, overwrite=force)
         except SvainsError as exc:

@@ -141,6 +141,10 @@ class Navigator:
             log.warning("init.mode gps takes the start from the GPS fixes, though the run fuses "
                         "none there (no GPS, or an outage from 0 s): the start is GPS-aided, "
                         "the rest is not")  # fmt: skip
+        if config.zupt.enabled and config.zupt.after_start and config.method == "ins":
+            log.warning("zupt.after_start with ins: the IMU's rest test alone also passes a "
+                        "steady motion, and a zero velocity fused while moving takes the run "
+                        "off (the vision methods have the camera as a second witness)")
         self.starter = Starter(config.init, rig, self.layout, initial_state,
                                gps_fused=config.use_gps and rig.gps is not None,
                                max_row_diff_px=config.vision.max_row_diff_px,

@@ -169,7 +169,10 @@ class WorldConfig:
 
 @dataclass
 class TrajectoryConfig:
-    """``village``: rectangle at ``altitude`` m and ``speed`` m/s. ``trajectory``: TUM file."""
+    """``village``: rectangle at ``altitude`` m and ``speed`` m/s, halting at rest for each of
+    ``stops`` (``[start_s, duration_s]`` pairs; the speed eases down to zero over the
+    ``stop_ramp_s`` before ``start_s`` and back up over those after the stop: a stop at 0 s is
+    a static start). ``trajectory``: TUM file."""
 
     altitude: float = 2.0
     speed: float = 2.0
@@ -178,6 +181,8 @@ class TrajectoryConfig:
     vibration_hz: float = 3.0
     tum_path: str | None = None
     knot_dt_s: float = 0.05
+    stops: list[list[float]] = field(default_factory=list)
+    stop_ramp_s: float = 2.0
 
 
 @dataclass
@@ -203,6 +208,16 @@ class SimConfig:
             raise ConfigError(f"scenario must be 'village' or 'trajectory', got {self.scenario!r}")
         if self.scenario == "trajectory" and not self.trajectory.tum_path:
             raise ConfigError("scenario 'trajectory' needs trajectory.tum_path (a TUM file)")
+        tc = self.trajectory
+        if not tc.stop_ramp_s > 0:
+            raise ConfigError(f"trajectory.stop_ramp_s must be > 0, got {tc.stop_ramp_s}")
+        for stop in tc.stops:
+            if len(stop) != 2 or not stop[1] >= 0:
+                raise ConfigError("trajectory.stops must be [start_s, duration_s] pairs with "
+                                  f"duration_s >= 0, got {stop}")  # fmt: skip
+        if tc.stops and self.scenario != "village":
+            raise ConfigError("trajectory.stops apply to the village scenario (a TUM file holds "
+                              "its own stops)")  # fmt: skip
         if not 0 < self.duration_s <= MAX_DURATION_S:
             raise ConfigError(
                 f"duration_s must be in (0, {MAX_DURATION_S:g}], got {self.duration_s}"

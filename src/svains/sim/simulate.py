@@ -101,7 +101,8 @@ def build_scene(config: SimConfig) -> Scene:
             config.duration_s, tuple(config.world.size), config.world.corner_radius,
             tc.altitude, tc.speed, gravity=float(-config.gravity_W[2]), bank=tc.bank,
             vibration_deg=tc.vibration_deg, vibration_hz=tc.vibration_hz,
-            knot_dt_s=tc.knot_dt_s, seed=config.seed,
+            knot_dt_s=tc.knot_dt_s, seed=config.seed, stops=tc.stops,
+            stop_ramp_s=tc.stop_ramp_s,
         )  # fmt: skip
         R_B_C = forward_R_B_C(config.camera.tilt_down_deg)
         p_B_C = np.asarray(config.camera.p_B_C, float)

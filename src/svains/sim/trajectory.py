@@ -13,6 +13,7 @@ caller converts from int64 ns at the file edge.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -189,6 +190,23 @@ def _smooth(x: F64, win: int) -> F64:
     return out
 
 
+def speed_profile(t_s: ArrayLike, stops: Sequence[Sequence[float]], ramp_s: float) -> F64:
+    """The fraction (N,) of the cruise speed at times ``t_s`` (N,) s: 0 inside each stop
+    ``(start_s, duration_s)``, easing down over the ``ramp_s`` before it and up over those
+    after (half a cosine: no jump of acceleration at the ramp's ends), 1 elsewhere; a stop
+    from 0 s or earlier holds from before the start (a static start); overlapping stops
+    multiply."""
+    t = np.asarray(t_s, dtype=float)
+    f = np.ones_like(t)
+    for start, dur in stops:
+        a, b = float(start), float(start) + float(dur)
+        # distance from the stop (<= 0 inside); one from 0 s is a rest since before the start
+        d = t - b if a <= 0.0 else np.maximum(a - t, t - b)
+        f *= np.where(d <= 0.0, 0.0,
+                      0.5 * (1.0 - np.cos(np.pi * np.clip(d / ramp_s, 0.0, 1.0))))  # fmt: skip
+    return f
+
+
 def village_trajectory(
     duration_s: float,
     size: tuple[float, float],
@@ -201,27 +219,43 @@ def village_trajectory(
     vibration_hz: float = 3.0,
     knot_dt_s: float = 0.05,
     seed: int = 0,
+    stops: Sequence[Sequence[float]] = (),
+    stop_ramp_s: float = 2.0,
 ) -> SplineTrajectory:
     """The paper's flight: rounded rectangle at constant altitude and speed, body x forward,
-    y left, z up; coordinated bank in turns, slight nose-down pitch and small vibration."""
+    y left, z up; coordinated bank in turns, slight nose-down pitch and small vibration;
+    at rest through each of ``stops`` (``(start_s, duration_s)``, eased over ``stop_ramp_s``:
+    :func:`speed_profile`)."""
     n = int(np.ceil(duration_s / knot_dt_s)) + 4
     tau = (np.arange(n) - 1) * knot_dt_s
     # a margin of knots on both sides lets the smoothing below see past the ends
     pad = int(np.ceil(1.0 / knot_dt_s))
     tau_pad = (np.arange(-pad, n + pad) - 1) * knot_dt_s
-    xy, yaw, kappa = rounded_rectangle(speed * tau_pad, size, radius)
+    s_cruise = speed * tau_pad
+    xy, yaw, kappa = rounded_rectangle(s_cruise, size, radius)
     # The rounded rectangle's curvature jumps at each arc; a helicopter eases into a turn, so
-    # smooth path, heading and curvature (two passes of a ~0.5 s moving average) before use.
+    # smooth path, heading and curvature (two passes of a ~0.5 s moving average at the cruise
+    # speed) before use.
     win = max(1, round(0.5 / knot_dt_s))
-    xy = _smooth(_smooth(xy, win), win)[pad:-pad]
-    yaw = _smooth(_smooth(yaw[:, None], win), win)[pad:-pad, 0]
-    kappa = _smooth(_smooth(kappa[:, None], win), win)[pad:-pad, 0]
+    path = np.column_stack([_smooth(_smooth(xy, win), win),
+                            _smooth(_smooth(np.column_stack([yaw, kappa]), win), win)])
+    v_pad = speed * speed_profile(tau_pad, stops, stop_ramp_s)
+    if stops:
+        # the smoothed path at the arc length travelled (0 at t = 0; trapezoids over the
+        # knots): a stop holds one point of it, exactly
+        s_pad = np.concatenate([[0.0], np.cumsum(0.5 * (v_pad[1:] + v_pad[:-1]) * knot_dt_s)])
+        s_pad -= np.interp(0.0, tau_pad, s_pad)
+        path = np.column_stack([np.interp(s_pad, s_cruise, c) for c in path.T])
+    xy, yaw, kappa = path[pad:-pad, 0:2], path[pad:-pad, 2], path[pad:-pad, 3]
     p = np.column_stack([xy, np.full(n, altitude)])
     rng = np.random.default_rng(seed)
     ph = rng.uniform(0, 2 * np.pi, 3)
     vib = np.radians(vibration_deg) * np.sin(2 * np.pi * vibration_hz * tau[:, None] + ph)
+    v = v_pad[pad:-pad]
+    if stops:
+        vib = vib * (v / speed)[:, None]  # the shaking fades with the speed: none at rest
     # left turn (kappa > 0) lifts the right side: negative roll about x (forward) with y left
-    roll = -np.arctan(speed**2 * kappa / gravity) if bank else np.zeros(n)
+    roll = -np.arctan(v**2 * kappa / gravity) if bank else np.zeros(n)
     pitch = np.full(n, np.radians(3.0))  # nose down to fly forward
     R = _rpy_to_rotmat(roll + vib[:, 0], pitch + vib[:, 1], yaw + 0.5 * vib[:, 2])
     return SplineTrajectory(0.0, knot_dt_s, p, R)
