@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import heapq
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -10,6 +11,7 @@ import numpy as np
 from svains.navigation import navigator_core
 from svains.navigation.navigator import Navigator
 from svains.replay.replay import feed, measurements, rig_from_dataset
+from svains.sensors.types import CameraCalib
 
 
 class StubFrames:
@@ -34,12 +36,24 @@ class _StubNavigator(Navigator):
         return StubFrames()
 
 
+def _camera(name: str, x_m: float) -> CameraCalib:
+    """A 640x480 pinhole camera ``x_m`` along the body's x axis."""
+    T_B_C = np.eye(4)
+    T_B_C[0, 3] = x_m
+    return CameraCalib(name, T_B_C, 5.0, (640, 480), np.array([400.0, 400.0, 320.0, 240.0]),
+                       "radtan", np.zeros(4))
+
+
 def run_with_updater(monkeypatch: Any, ds: Any, config: Any, updater: Any,
                      frame_times: np.ndarray, initial_state: Any = None) -> Any:
     """Replay ``ds`` with ``updater`` called at ``frame_times`` (config.method must be a
     vision method); returns the ``RunResult``."""
     monkeypatch.setattr(navigator_core, "make_vision_updater", lambda *a, **k: updater)
-    nav = _StubNavigator(config, rig_from_dataset(ds), initial_state=initial_state)
+    rig = rig_from_dataset(ds)
+    if rig.cam0 is None or rig.cam1 is None:
+        # a vision method needs a stereo pair on the rig; the stand-in updater reads none
+        rig = replace(rig, cam0=_camera("cam0", 0.0), cam1=_camera("cam1", 0.1))
+    nav = _StubNavigator(config, rig, initial_state=initial_state)
     empty = np.zeros((0, 2))
     frames = ((int(t), 3, ("features", np.zeros(0, np.int64), empty, empty))
               for t in frame_times)
