@@ -454,6 +454,9 @@ class Core(HeadingSteps):
                            self._vision_apply(bridging, long),
                            (bridging and cfg.faults.gap_vision_two_view)
                            or (long and cfg.vision.two_view_after_long))  # fmt: skip
+        checks = getattr(updater, "checks", None)
+        if checks is not None and self._recovery is not None and self._recovery.lost:
+            checks.filter_lost = True
         lean = self._recovery is not None and self._recovery.tests_vision(cfg.method)
         prior = (ins.ukf.x.copy(), ins.ukf.P[np.ix_(LEAN_ROWS, LEAN_ROWS)]) if lean else None
         ins.add_omega_white()  # paper model: the vision models see ω's gyro white noise
