@@ -3,47 +3,82 @@ updates it lets through (``zupt.after_start``)."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from svains.frontend.types import StereoTracks
+from svains.geometry.camera import RectifiedStereo
 from svains.navigation.still_camera import StillCamera
 
-
-def _tracks(t_s: float, ids: np.ndarray, uv: np.ndarray) -> StereoTracks:
-    e = np.zeros((ids.size, 2))
-    return StereoTracks(int((t_s - 0.1) * 1e9), int(t_s * 1e9), ids, e, e, uv, e,
-                        np.zeros((ids.size, 3)), np.ones(ids.size, bool), None)  # fmt: skip
+RIG = RectifiedStereo(400.0, 320.0, 240.0, 0.1, np.eye(3), np.zeros(3), 640, 480)
 
 
-def test_still_features_are_still_and_moving_ones_are_not() -> None:
+def _tracks(t_s: float, p_C: np.ndarray, rng: np.random.Generator, std_px: float = 0.5,
+            order: np.ndarray | None = None) -> StereoTracks:  # fmt: skip
+    """Tracks ending at ``t_s`` of the points ``p_C`` (M, 3) m in the camera, noisy pixels."""
+    ids = np.arange(len(p_C)) if order is None else order
+    uv_l = RIG.project(p_C) + rng.normal(0.0, std_px, (len(p_C), 2))
+    uv_r = RIG.project_right(p_C) + rng.normal(0.0, std_px, (len(p_C), 2))
+    e = np.zeros((len(p_C), 2))
+    return StereoTracks(int((t_s - 0.1) * 1e9), int(t_s * 1e9), ids, e, e, uv_l[ids], uv_r[ids],
+                        np.zeros((len(p_C), 3)), np.ones(len(p_C), bool), None)  # fmt: skip
+
+
+def _scene(rng: np.random.Generator, depth: tuple[float, float], n: int = 60) -> np.ndarray:
+    z = rng.uniform(*depth, n)
+    return np.column_stack([rng.uniform(-0.6, 0.6, n) * z, rng.uniform(-0.4, 0.4, n) * z, z])
+
+
+def test_a_still_camera_bounds_its_speed_and_a_moving_one_does_not() -> None:
     rng = np.random.default_rng(0)
-    ids = np.arange(40)
-    uv0 = rng.uniform(0.0, 600.0, (40, 2))
-    still, moving = StillCamera(0.5, 1.5), StillCamera(0.5, 1.5)
-    for k in range(1, 9):  # 10 Hz, 0.5 px of noise; the moving features 0.5 px a frame
-        still.observe(_tracks(0.1 * k, ids, uv0 + rng.normal(0.0, 0.5, (40, 2))))
-        moving.observe(_tracks(0.1 * k, ids[::-1].copy(), (uv0 + 0.5 * k)[::-1].copy()))
+    p = _scene(rng, (2.0, 8.0))
+    still, moving, creeping = (StillCamera(RIG, 0.5, 0.5) for _ in range(3))
+    for k in range(1, 9):  # 10 Hz, 0.5 px of noise
+        t = 0.1 * k
+        still.observe(_tracks(t, p, rng))
+        # 0.3 m/s sideways and forward, ids in another order
+        moving.observe(_tracks(t, p - np.array([0.3, 0.0, 0.3]) * t, rng,
+                               order=np.arange(len(p))[::-1].copy()))  # fmt: skip
+        creeping.observe(_tracks(t, p - np.array([0.0, 0.0, 0.04]) * t, rng))
         if k < 6:  # under 0.5 s of frames: cannot tell
-            assert still.still(int(0.1 * k * 1e9)) is None
-    assert still.still(int(0.8e9)) is True
-    assert moving.still(int(0.8e9)) is False  # 2.5 px over the 0.5 s, ids in another order
-    assert still.still(int(1.4e9)) is None  # the latest frame 0.6 s old
+            assert still.speed_bound(int(t * 1e9)) is None
+    bound = still.speed_bound(int(0.8e9))
+    assert bound is not None and bound < 0.05
+    fast = moving.speed_bound(int(0.8e9))
+    assert fast is not None and fast > 0.3
+    # 4 cm/s forward (a review: a median pixel motion under 1.5 px called 0.05-0.2 m/s still)
+    slow = creeping.speed_bound(int(0.8e9))
+    assert slow is not None and slow > 0.04
+    assert still.speed_bound(int(1.4e9)) is None  # the latest frame 0.6 s old
     assert len(still._frames) <= 7  # nothing older than the span is kept
 
 
+def test_a_far_scene_cannot_bound_the_speed_tightly() -> None:
+    """Features 40-80 m away move 0.5 px in 0.5 s at 0.1 m/s: the bound says so."""
+    rng = np.random.default_rng(1)
+    p = _scene(rng, (40.0, 80.0))
+    cam = StillCamera(RIG, 0.5, 0.5)
+    for k in range(1, 8):
+        cam.observe(_tracks(0.1 * k, p, rng))
+    bound = cam.speed_bound(int(0.7e9))
+    assert bound is not None and bound > 0.1
+
+
 def test_too_few_common_features_or_a_frame_without_tracks_cannot_tell() -> None:
-    cam = StillCamera(0.5, 1.5)
-    uv = np.zeros((30, 2))
-    cam.observe(_tracks(0.1, np.arange(30), uv))
-    cam.observe(_tracks(0.7, np.arange(21, 51), uv))  # 9 features seen at both ends
-    assert cam.still(int(0.7e9)) is None
-    cam.observe(_tracks(1.3, np.arange(21, 51), uv))
-    assert cam.still(int(1.3e9)) is True
+    rng = np.random.default_rng(2)
+    p = _scene(rng, (2.0, 8.0), n=30)
+    cam = StillCamera(RIG, 0.5, 0.5)
+    cam.observe(_tracks(0.1, p, rng))
+    tr = _tracks(0.7, p, rng)
+    cam.observe(dataclasses.replace(tr, track_id=tr.track_id + 21))  # 9 features at both ends
+    assert cam.speed_bound(int(0.7e9)) is None
+    cam.observe(dataclasses.replace(_tracks(1.3, p, rng), track_id=tr.track_id + 21))
+    assert cam.speed_bound(int(1.3e9)) is not None
     cam.observe(None)  # the span broken
-    assert cam.still(int(1.3e9)) is None
+    assert cam.speed_bound(int(1.3e9)) is None
 
 
 @pytest.fixture(scope="module")

@@ -143,10 +143,11 @@ class Core(HeadingSteps):
             if config.zupt.enabled and start_rest else None
         )
         self._next_zupt_ns = self.t0_ns
-        # after the start's rest, a vision method's stops need the camera still too
-        self._still = (StillCamera(config.zupt.window_s, config.zupt.still_px)
-                       if self._zupt is not None and config.zupt.after_start
-                       and config.method != "ins" else None)  # fmt: skip
+        # after the start's rest, a vision method's stops need the camera still too (built at
+        # the first frame, from the vision updater's rig)
+        self._still_wanted = (self._zupt is not None and config.zupt.after_start
+                              and config.method != "ins")  # fmt: skip
+        self._still: StillCamera | None = None
         self._start_rest_over = not rest_start  # a start in motion has none to hold
         self._zupt_unwitnessed = 0  # IMU rests after the start that the camera saw moving
         self.history = history_recorder(config, ins) if config.smoother.enabled else None
@@ -411,6 +412,9 @@ class Core(HeadingSteps):
         assert self._zupt is not None
         self._next_zupt_ns = t + int(self.config.zupt.period_s * 1e9)
         if self._imu_faults is not None and self._imu_faults.bridging(t):
+            # the platform may have set off inside the gap: the start's rest is over (a review:
+            # a take-off inside a gap met IMU-only updates after it)
+            self._start_rest_over = True
             if not self.config.zupt.after_start:
                 # The start's rest cannot be followed across a gap: the platform may have set
                 # off inside it (EuRoC: a take-off in a 5 s gap, then a steady climb that the
@@ -433,10 +437,16 @@ class Core(HeadingSteps):
                 if not self.config.zupt.after_start:
                     self._zupt = None  # the start's rest is over
             return
-        if self._start_rest_over and self._still is not None and not self._still.still(t):
-            self._zupt_unwitnessed += 1  # a steady motion passes the IMU's test
-            return
-        b = zero_velocity_block(self.config.zupt.velocity_std_mps)
+        std = self.config.zupt.velocity_std_mps
+        if self._start_rest_over and self._still_wanted:
+            bound = None if self._still is None else self._still.speed_bound(t)
+            if bound is None or bound > self.config.zupt.still_max_speed_mps:
+                self._zupt_unwitnessed += 1  # a steady motion passes the IMU's test
+                return
+            # no surer of the rest than the camera is: a third of its bound let a creep of
+            # 2-4 cm/s in as zero, one update after another (velocity NEES 3.5 -> 13.8)
+            std = max(std, bound)
+        b = zero_velocity_block(std)
         (stats,) = self.ins.ukf.update_blocks([(b.h, b.z, b.R, b.residual, b.name)],
                                               self.config.filter.gate_probability)  # fmt: skip
         self._record(stats, "zupt", t)
@@ -477,8 +487,14 @@ class Core(HeadingSteps):
             stats = None
         finally:
             ins.remove_omega_white()
-        if self._still is not None:
-            self._still.observe(updater.last_tracks)
+        if self._still_wanted:
+            if self._still is None and updater.rig is not None:
+                self._still = StillCamera(updater.rig, updater.source.pixel_noise_std
+                                          if cfg.vision.pixel_noise_std is None
+                                          else cfg.vision.pixel_noise_std,
+                                          cfg.zupt.window_s)  # fmt: skip
+            if self._still is not None:
+                self._still.observe(updater.last_tracks)
         if prior is not None and stats is not None and stats.accepted:
             # The bias test of vision updates (``faults.bias_test_vision_probability``): their
             # corrections, whitened, lean one way after an IMU bias step.
@@ -734,7 +750,7 @@ class Core(HeadingSteps):
             report["heading_check"] = self._heading_check.summary()
         if self._mag_turn is not None:
             report["mag_turn_check"] = self._mag_turn.summary()
-        if self._still is not None:
+        if self._still_wanted:
             # rests the IMU's test passed after the start and the camera did not (or could not
             # tell): no update tried
             report["zupt_camera_not_still"] = self._zupt_unwitnessed

@@ -849,9 +849,10 @@ class ZuptOptions:
     flight a smooth motion passes the IMU test too (EuRoC V1_01 at 0.3 m/s: block means as
     steady as at rest) and the gate, with frames 2 s apart, let two such updates through and
     the filter diverged. With ``after_start`` the vision methods take the camera as a second
-    witness after the start's rest: the median pixel motion of the features seen over the last
-    ``window_s`` must stay under ``still_px`` (``navigation.still_camera``); ``ins`` has the
-    IMU's test alone.
+    witness after the start's rest: the speed its features allow over the last ``window_s``
+    (``navigation.still_camera``: the fitted motion plus 3 standard deviations) must stay under
+    ``still_max_speed_mps``, and the zero velocity is then fused with that bound as its
+    standard deviation when larger than ``velocity_std_mps``; ``ins`` has the IMU's test alone.
     """
 
     enabled: bool = True
@@ -868,15 +869,14 @@ class ZuptOptions:
     # least motion_floor_mps (a gentle start passes the block test; ``zupt.StaticTest``).
     motion_sigmas: float = 4.0  # the gained velocity's limit, in its noise's std
     motion_floor_mps: float = 0.05  # m/s, the limit's floor
-    # the camera's witness (``after_start``, vision methods): px of median feature motion over
-    # ``window_s`` below which the camera stood still (0.5 px noise reads 0.8 px; a robot at
-    # 0.8 m/s about 10 px)
-    still_px: float = 1.5
+    # the camera's witness (``after_start``, vision methods): the speed bound (m/s) under which
+    # a rest the IMU passed is fused
+    still_max_speed_mps: float = 0.05
 
     def __post_init__(self) -> None:
         check_types(self, "zupt.")
         for name in ("window_s", "period_s", "velocity_std_mps", "limit_factor",
-                     "motion_sigmas", "motion_floor_mps", "still_px"):
+                     "motion_sigmas", "motion_floor_mps", "still_max_speed_mps"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"zupt.{name} must be positive, got {getattr(self, name)}")
 

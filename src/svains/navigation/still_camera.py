@@ -1,15 +1,18 @@
-"""The camera's witness of a rest: the features' pixel motion over the last half second.
+"""The camera's witness of a rest: how fast it can have moved over the last half second.
 
 The IMU's rest test (``navigation.zupt.StaticTest``) cannot tell a rest from a steady motion:
 a robot driving straight at 0.8 m/s passed it on most of its 0.5 s windows, and with
-``zupt.after_start`` the filter met hundreds of "v = 0" updates while driving (a user's probe:
-`ins` 456 refused and 90 fused, velocity NEES 1640). A camera that moves sees its features
-move: ``StillCamera`` keeps the left pixels of each frame's tracks over the last
-``window_s`` and calls the camera still when the median displacement of the features seen
-at both ends of that span stays under ``still_px``. A forward motion moves the features near
-the image centre little, and noise moves every feature: the span (not one frame pair) and the
-median over many features keep the two apart (0.8 m/s over 0.5 s: about 10 px at 5-10 m; 0.5 px
-pixel noise: a median of 0.8 px).
+``zupt.after_start`` the filter met hundreds of "v = 0" updates while driving (a user's probe).
+A camera that moves sees its features move, by ``f t / Z`` for a translation ``t`` and a
+feature at depth ``Z``. ``StillCamera`` keeps the left pixels and stereo depths of each frame's
+tracks over the last ``window_s``; between the frames at both ends of that span it fits the
+camera's small translation and rotation to the displacements of the features seen at both
+(the linearised flow of a calibrated camera, depths from the first frame's disparity, least
+squares with the pixels' noise) and returns a bound on the speed: the translation's norm
+plus three of its standard deviations, over the span. A near scene bounds the speed tightly,
+a far one loosely; the caller takes the rest as a zero velocity only under its limit, and as
+uncertain as the bound (a median pixel motion under 1.5 px, the first witness, called a
+village drone creeping at 0.05-0.2 m/s still, and those zeros were fused: a review).
 """
 
 from __future__ import annotations
@@ -20,21 +23,27 @@ import numpy as np
 from numpy.typing import NDArray
 
 from svains.frontend.types import StereoTracks
+from svains.geometry.camera import RectifiedStereo
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
+# px: features nearer the infinite than this disparity carry no depth
+MIN_DISPARITY_PX = 0.5
+
 
 class StillCamera:
-    """Whether the camera stood still over the last ``window_s`` (see the module docstring):
-    ``observe`` each frame's tracks, ask ``still`` at a time."""
+    """A bound on the camera's speed over the last ``window_s`` (see the module docstring):
+    ``observe`` each frame's tracks, ask ``speed_bound`` at a time."""
 
-    def __init__(self, window_s: float, still_px: float, min_features: int = 10) -> None:
+    def __init__(self, rig: RectifiedStereo, pixel_std_px: float, window_s: float,
+                 min_features: int = 10) -> None:  # fmt: skip
+        self.rig = rig
+        self.pixel_std_px = float(pixel_std_px)
         self.window_ns = int(window_s * 1e9)
-        self.still_px = float(still_px)
         self.min_features = int(min_features)
-        # (t_ns, sorted track ids, their left pixels (M, 2)) of the recent frames
-        self._frames: collections.deque[tuple[int, I64, F64]] = collections.deque()
+        # (t_ns, sorted track ids, their left pixels (M, 2), depths (M,) m) of recent frames
+        self._frames: collections.deque[tuple[int, I64, F64, F64]] = collections.deque()
 
     def observe(self, tr: StereoTracks | None) -> None:
         """The tracks ending at a frame (None: a frame without tracks, which ends the span)."""
@@ -42,32 +51,64 @@ class StillCamera:
             self._frames.clear()
             return
         order = np.argsort(tr.track_id, kind="stable")
-        ids = np.asarray(tr.track_id)[order]
-        self._frames.append((int(tr.t_ns), ids, np.asarray(tr.uv_left, float)[order]))
+        uv_l = np.asarray(tr.uv_left, float)[order]
+        disparity = uv_l[:, 0] - np.asarray(tr.uv_right, float)[order, 0]
+        with np.errstate(divide="ignore"):
+            depth = np.where(disparity > MIN_DISPARITY_PX,
+                             self.rig.f * self.rig.baseline / disparity, np.inf)  # fmt: skip
+        self._frames.append((int(tr.t_ns), np.asarray(tr.track_id)[order], uv_l, depth))
         # keep the newest frame at least ``window_ns`` before the latest, not older ones
         while len(self._frames) > 2 and self._frames[-1][0] - self._frames[1][0] >= self.window_ns:
             self._frames.popleft()
 
-    def still(self, t_ns: int) -> bool | None:
-        """True when the camera stood still over the ``window_s`` before its latest frame,
-        False when it moved, None when it cannot tell (no frame within ``window_s`` before
-        ``t_ns``, a span shorter than ``window_s``, or fewer than ``min_features`` features
-        seen at both of its ends)."""
+    def speed_bound(self, t_ns: int) -> float | None:
+        """How fast (m/s) the camera can have moved over the span of at least ``window_s``
+        that ends at its latest frame: the fitted translation's norm plus 3 standard deviations,
+        over the span; None when it cannot tell (no frame within ``window_s`` before ``t_ns``,
+        no span that long, fewer than ``min_features`` features with a depth seen at both
+        ends, or a degenerate fit)."""
         if len(self._frames) < 2:
             return None
-        t_last, ids_last, uv_last = self._frames[-1]
+        t_last, ids_last, uv_last, _ = self._frames[-1]
         if t_ns - t_last > self.window_ns:
             return None
-        first = None
-        for frame in reversed(self._frames):
-            if t_last - frame[0] >= self.window_ns:
-                first = frame
-                break
+        first = next((f for f in reversed(self._frames) if t_last - f[0] >= self.window_ns), None)
         if first is None:
             return None
-        _, ids_first, uv_first = first
-        common, i_last, i_first = np.intersect1d(ids_last, ids_first, return_indices=True)
-        if common.size < self.min_features:
+        t_first, ids_first, uv_first, depth = first
+        _, i_last, i_first = np.intersect1d(ids_last, ids_first, return_indices=True)
+        near = np.isfinite(depth[i_first])
+        if int(near.sum()) < self.min_features:
             return None
-        moved = np.linalg.norm(uv_last[i_last] - uv_first[i_first], axis=1)
-        return bool(np.median(moved) < self.still_px)
+        i_last, i_first = i_last[near], i_first[near]
+        got = _fit_motion(self.rig, uv_first[i_first], uv_last[i_last], depth[i_first],
+                          np.sqrt(2.0) * self.pixel_std_px)  # fmt: skip
+        if got is None:
+            return None
+        t_C, cov_t = got
+        sigma = float(np.sqrt(max(np.linalg.eigvalsh(cov_t)[-1], 0.0)))
+        return (float(np.linalg.norm(t_C)) + 3.0 * sigma) / ((t_last - t_first) * 1e-9)
+
+
+def _fit_motion(rig: RectifiedStereo, uv0: F64, uv1: F64, depth: F64,
+                std_px: float) -> tuple[F64, F64] | None:  # fmt: skip
+    """Least-squares small camera motion from the displacements ``uv1 - uv0`` (M, 2) px of
+    features at ``depth`` (M,) m seen at ``uv0``: the flow ``f (A t / Z + B ω)`` of a
+    translation ``t`` (m) and rotation ``ω`` (rad) in the first camera's axes, each
+    displacement's noise ``std_px``. Returns ``t`` (3,) and its covariance (3, 3) m², None when
+    the normal matrix is singular."""
+    x = (uv0[:, 0] - rig.cu) / rig.f
+    y = (uv0[:, 1] - rig.cv) / rig.f
+    iz = 1.0 / depth
+    zero = np.zeros_like(x)
+    # rows: the u and v flow per feature; columns: t (3), ω (3)
+    Hu = np.stack([-iz, zero, x * iz, x * y, -(1.0 + x * x), y], axis=1)
+    Hv = np.stack([zero, -iz, y * iz, 1.0 + y * y, -x * y, -x], axis=1)
+    H = rig.f * np.concatenate([Hu, Hv])
+    d = np.concatenate([uv1[:, 0] - uv0[:, 0], uv1[:, 1] - uv0[:, 1]])
+    N = H.T @ H
+    if not np.all(np.isfinite(N)) or np.linalg.cond(N) > 1e12:
+        return None
+    N_inv = np.linalg.inv(N)
+    motion = N_inv @ (H.T @ d)
+    return motion[:3], std_px**2 * N_inv[:3, :3]
