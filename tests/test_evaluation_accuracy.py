@@ -195,7 +195,8 @@ def test_simulated_gps_runs_keep_unaligned_errors() -> None:
     assert res.report["position_rmse_m"] < 0.2
     # Without GPS, the same start is local: errors after posyaw.
     local = run_method(replace(st, gps=None, gps_calib=None), "ins", RunOptions())
-    assert local.world_frame == "local" and local.report["errors_alignment"] == "posyaw"
+    # (its magnetometer fixes the heading: from the first state's position alone)
+    assert local.world_frame == "local" and local.report["errors_alignment"] == "start_position"
 
 
 @pytest.mark.slow
@@ -332,10 +333,32 @@ def test_the_start_anchored_nees_only_where_the_start_defines_the_frame() -> Non
     x_gt[:, 6:10] = q
     st.groundtruth = _gt_of(t_gt, x_gt)
     with_mag = run_method(st, "ins", RunOptions(duration_s=2.0))
-    assert with_mag.report["errors_alignment"] == "posyaw"
+    assert with_mag.report["errors_alignment"] == "start_position"  # the heading is absolute
     assert with_mag.report["measurements"]["mag"]["fused"] > 0
     assert "nees_start_anchored" not in with_mag.report
     local = run_method(st, "ins", RunOptions(duration_s=2.0, use_mag=False))
     assert local.report["errors_alignment"] == "posyaw"
     assert local.report["nees_start_anchored"] > 0
     assert set(local.report["nees_blocks_start_anchored"]) == set(NEES_BLOCKS_DOF)
+
+
+def test_a_local_run_with_an_absolute_heading_is_read_from_its_first_position() -> None:
+    """A magnetometer makes the heading absolute: a yaw fitted over the run turns it, and the
+    fit's misfit moves a resting start's positions (σ 0.1 m) by metres (a probe: village stops,
+    ``ins`` NEES 2656, 10.4 from the first state's position alone)."""
+    n = 200
+    t_ns = (np.arange(n) * 1e8).astype(np.int64)
+    x_true = np.zeros((n, 13))
+    x_true[40:, 0] = np.linspace(0.0, 40.0, n - 40)  # at rest 4 s, then 40 m along x
+    x_true[:, 6] = 1.0
+    x = x_true.copy()
+    drift = np.zeros(n)
+    drift[40:] = 0.004 * np.arange(n - 40) ** 1.5  # as an INS drifts: 8 m at the end
+    x[:, 0] += drift  # along the path: no yaw takes it out, a fitted shift spreads it
+    P9 = np.zeros((n, 9, 9))
+    P9[:, range(9), range(9)] = 0.05**2
+    P9[:, 0, 0] = P9[:, 1, 1] = P9[:, 2, 2] = (0.1 + drift) ** 2
+    fitted = accuracy_report(t_ns, x, P9, _gt_of(t_ns, x_true), errors_alignment="posyaw")
+    kept = accuracy_report(t_ns, x, P9, _gt_of(t_ns, x_true), errors_alignment="start_position")
+    assert kept["errors_alignment"] == "start_position"
+    assert kept["nees_blocks"]["position"] < 1.0 < 10.0 < fitted["nees_blocks"]["position"]

@@ -40,11 +40,15 @@ def errors_alignment_for(result: RunResult) -> str:
 
     ``none`` when the run's world frame is the ground truth's (``world_frame`` ``groundtruth``
     or ``gps``); otherwise the degrees of freedom the method cannot observe: ``posyaw`` (yaw and
-    translation) for a filter, whose roll and pitch follow gravity, ``se3`` for pure VO.
+    translation) for a filter, whose roll and pitch follow gravity, ``start_position`` (the
+    first state's position) for one whose heading a magnetometer fixed, ``se3`` for pure VO.
     """
     if result.world_frame in ("groundtruth", "gps"):
         return "none"
-    return "se3" if result.report.get("method") == "vo" else "posyaw"
+    if result.report.get("method") == "vo":
+        return "se3"
+    seen = result.report.get("measurements") or {}
+    return "start_position" if int((seen.get("mag") or {}).get("fused", 0)) > 0 else "posyaw"
 
 
 def _up_W(dataset: Dataset) -> NDArray[np.float64]:
