@@ -137,8 +137,8 @@ def test_bad_configurations_name_the_problem() -> None:
     # a vision method on a rig without cameras: its frames were dropped one by one and the
     # run went on inertial only (a probe)
     for method in ("lc", "tc", "3d"):
-        with pytest.raises(ConfigError, match=rf"method {method} needs the stereo calibrations "
-                                              r"rig.cam0 and rig.cam1 .* use method ins"):
+        with pytest.raises(ConfigError, match=rf"method {method} needs the cam0 and cam1 "
+                                              r"calibrations .* use method ins"):
             Navigator(RunConfig(method=method), Rig(cam1=_stereo_rig().cam1))
 
 

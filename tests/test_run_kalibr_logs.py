@@ -139,8 +139,8 @@ def test_compare_takes_the_kalibr_files_for_a_bag(bag_and_kalibr, tmp_path: Path
     # compare writes what it could and exits 1 naming the failed method (issue 23)
     assert res.exit_code == 1, res.output
     assert res.stderr.strip().splitlines()[-1] == (
-        "error: 1 of 1 method(s) failed: 3d (image-based vision needs the cam0 and cam1 "
-        "calibrations)"
+        "error: 1 of 1 method(s) failed: 3d (method 3d needs the cam0 and cam1 calibrations "
+        "(the rig's cam0 and cam1); without cameras use method ins)"
     )
     assert (tmp_path / "compare.md").is_file()
     assert not (tmp_path / "3d" / "report.json").exists()  # a bag has no camera calibration

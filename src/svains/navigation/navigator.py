@@ -99,9 +99,8 @@ class Navigator:
         if config.method != "ins" and (rig.cam0 is None or rig.cam1 is None):
             # refused here: the frames would otherwise be dropped one by one and the run go on
             # inertial only under "no vision fused" (a probe)
-            raise ConfigError(f"method {config.method} needs the stereo calibrations rig.cam0 "
-                              "and rig.cam1 (Rig(cam0=..., cam1=...)); without cameras use "
-                              "method ins")
+            raise ConfigError(f"method {config.method} needs the cam0 and cam1 calibrations "
+                              "(the rig's cam0 and cam1); without cameras use method ins")
         g = float(np.linalg.norm(rig.gravity_W))
         if not GRAVITY_RANGE_M_S2[0] <= g <= GRAVITY_RANGE_M_S2[1]:
             raise ConfigError(f"rig.gravity_W has magnitude {g:.4g} m/s², expected "
