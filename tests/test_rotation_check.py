@@ -247,6 +247,30 @@ def test_an_early_call_for_a_stamp_offset_must_hold_before_it_is_warned(
     assert caplog.text == ""
 
 
+@pytest.mark.parametrize(("kw", "said"), [
+    ({"offset_s": 0.05}, "the IMU 48 ms after the camera stamps (± 0 ms), too few frames"),
+    ({"camera_scale": 0.91}, "the camera turned 0.921 ± 0.002 times as far as the gyro, too few"),
+    ({}, None),
+])
+def test_a_call_with_no_time_to_hold_is_said_at_the_end(
+    kw: dict, said: str | None, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A run of 11-12 turning frames: a 50 ms offset (47.7 ± 0.4 ms) or a focal length 9 % off
+    went unsaid once calls had to hold (a review); at the run's end they are said as such."""
+    h, frames = _flight(R_B_C, seed=2, n_frames=14, **kw)
+    check = RotationCheck(h, R_B_C, DENSITY)
+    with caplog.at_level("WARNING", logger="svains.navigation.rotation_check"):
+        for tr in frames:
+            check.observe(tr, None)
+        assert caplog.text == ""  # not yet held
+        check.summary()
+        check.summary()  # said once
+    if said is None:
+        assert caplog.text == ""
+    else:
+        assert caplog.text.count("too few frames to confirm it") == 1 and said in caplog.text
+
+
 def test_the_stamps_deviation_grows_with_turns_the_noise_does_not_explain() -> None:
     # A gyro bias the filter has wrong (all at once on KITTI raw: the bias step among the
     # other faults) leaves turns the noise does not explain; the shift's deviation is scaled

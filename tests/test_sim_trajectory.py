@@ -183,7 +183,10 @@ def test_stops_hold_the_vehicle_at_rest_unshaken_and_ease_in_and_out() -> None:
     assert np.abs(speed[cruise] - 2.0).max() < 0.02
     # half-cosine ramps of 2 s from 2 m/s: |a| up to pi/2 m/s² along the path
     assert np.abs(np.linalg.norm(s.a_W, axis=1)).max() < 2.0
-    with pytest.raises(ConfigError, match=r"trajectory.stops must be \[start_s, duration_s\]"):
+    for stops, said in (([[3.0]], r"must be \[start_s, duration_s\] pairs"),
+                        ([2.0, 3.0], r"must be \[start_s, duration_s\] pairs"),  # flat: a review
+                        ([[200.0, 3.0]], r"the stop \[200.0, 3.0\] starts after the flight")):
         cfg = SimConfig()
-        cfg.trajectory.stops = [[3.0]]
-        cfg.validate()
+        cfg.trajectory.stops = stops  # type: ignore[assignment]
+        with pytest.raises(ConfigError, match=said):
+            cfg.validate()

@@ -171,8 +171,9 @@ class WorldConfig:
 class TrajectoryConfig:
     """``village``: rectangle at ``altitude`` m and ``speed`` m/s, halting at rest for each of
     ``stops`` (``[start_s, duration_s]`` pairs; the speed eases down to zero over the
-    ``stop_ramp_s`` before ``start_s`` and back up over those after the stop: a stop at 0 s is
-    a static start). ``trajectory``: TUM file."""
+    ``stop_ramp_s`` before ``start_s`` and back up over those after the stop, at rest to within
+    one knot, ``knot_dt_s``, of its ends: a stop at 0 s is a static start). ``trajectory``: TUM
+    file."""
 
     altitude: float = 2.0
     speed: float = 2.0
@@ -212,9 +213,12 @@ class SimConfig:
         if not tc.stop_ramp_s > 0:
             raise ConfigError(f"trajectory.stop_ramp_s must be > 0, got {tc.stop_ramp_s}")
         for stop in tc.stops:
-            if len(stop) != 2 or not stop[1] >= 0:
+            if not isinstance(stop, list) or len(stop) != 2 or not stop[1] >= 0:
                 raise ConfigError("trajectory.stops must be [start_s, duration_s] pairs with "
                                   f"duration_s >= 0, got {stop}")  # fmt: skip
+            if not stop[0] < self.duration_s:
+                raise ConfigError(f"trajectory.stops: the stop {stop} starts after the flight's "
+                                  f"end ({self.duration_s:g} s)")  # fmt: skip
         if tc.stops and self.scenario != "village":
             raise ConfigError("trajectory.stops apply to the village scenario (a TUM file holds "
                               "its own stops)")  # fmt: skip
