@@ -327,6 +327,11 @@ gps_outages = _windows("--gps-outage")
 stop_windows = _windows("--stop")
 
 
+# the --rotation help of run, compare and demo
+ROTATION_HELP = ("Vision motion model: clone (default; the one that holds with frames seconds "
+                 "apart: imu lost the filter at 3-5 s on EuRoC), imu, linear (paper eq. 18) or "
+                 "exp.")
+
 TopicOption = Annotated[
     list[str] | None,
     typer.Option("--topic", help="ROLE=TOPIC: a bag's topic for a role (imu, left, right, gps, "

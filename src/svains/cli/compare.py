@@ -106,8 +106,7 @@ def compare(
     model: Annotated[str, typer.Option("--model", help="State model: paper or biased.")] = "biased",
     rotation: Annotated[
         str | None,
-        typer.Option("--rotation", help="Vision motion model: clone (default), imu, linear "
-                     "(paper eq. 18) or exp.", callback=_common.rotation_choice),
+        typer.Option("--rotation", help=_common.ROTATION_HELP, callback=_common.rotation_choice),
     ] = None,
     init: Annotated[
         str, typer.Option("--init", help="static, gps (in flight), vision (in flight "

@@ -11,6 +11,7 @@ import typer
 from rich.console import Console
 
 from svains.cli._common import (
+    ROTATION_HELP,
     check_out_dir,
     fail,
     positive_finite,
@@ -41,8 +42,7 @@ def demo(
     ] = True,
     rotation: Annotated[
         str | None,
-        typer.Option("--rotation", help="Vision motion model: clone (default), imu, linear "
-                     "(paper eq. 18) or exp.", callback=rotation_choice),
+        typer.Option("--rotation", help=ROTATION_HELP, callback=rotation_choice),
     ] = None,
     methods: Annotated[
         str, typer.Option("--methods", help="Comma-separated methods.")

@@ -14,6 +14,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from svains.cli._common import (
+    ROTATION_HELP,
     GpsOutageOption,
     GpsUntilOption,
     SonarOption,
@@ -77,8 +78,7 @@ def run(
     ] = None,
     rotation: Annotated[
         str | None,
-        typer.Option("--rotation", help="Vision motion model: clone (default), imu, linear "
-                     "(paper eq. 18) or exp.", callback=rotation_choice),
+        typer.Option("--rotation", help=ROTATION_HELP, callback=rotation_choice),
     ] = None,
     setting: Annotated[
         list[str] | None,
