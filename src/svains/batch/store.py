@@ -2,7 +2,8 @@
 
 ``DIR/runs/<task_id>/`` holds what ``svains run`` writes (``trajectory.tum``, ``states.csv``,
 ``report.json``), ``nees.csv`` (``t_ns,nees`` per logged state; ``nees_smoothed.csv`` the
-same for a smoothed run) and ``result.json``: the task's
+same for a smoothed run, ``nees_start_anchored.csv`` in the frame the start defines where the
+report has ``nees_start_anchored``) and ``result.json``: the task's
 parameters and its status (``ok``, or ``failed`` with the error and traceback). The folder is
 built beside its final place and renamed into it whole. A run with an ``ok`` marker is finished
 and is skipped when the campaign is run again; a failed one is run again.
@@ -67,7 +68,8 @@ def write_result(out_dir: Path, task: Task, result: TaskResult) -> None:
             run = RunResult(result.t_ns, result.x, result.std, np.zeros((0, 9, 9)), result.report)
             write_outputs(d, run)
             for name, series in (("nees.csv", result.nees_series()),
-                                 ("nees_smoothed.csv", result.smoothed_nees)):
+                                 ("nees_smoothed.csv", result.smoothed_nees),
+                                 ("nees_start_anchored.csv", result.anchored_nees)):
                 if series is not None:
                     rows = "".join(f"{int(t)},{v:.9g}\n" for t, v in zip(*series, strict=True))
                     write_atomic(d / name, "t_ns,nees\n" + rows)
@@ -83,12 +85,17 @@ def read_report(out_dir: Path, task: Task) -> dict[str, Any]:
     return report
 
 
+# the NEES series a run may keep: their file beside its outputs, by kind
+NEES_FILES = {"": "nees.csv", "smoothed": "nees_smoothed.csv",
+              "start-anchored": "nees_start_anchored.csv"}
+
+
 def read_nees(
-    out_dir: Path, task: Task, smoothed: bool = False
+    out_dir: Path, task: Task, kind: str = ""
 ) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
-    """``t_ns`` (N,) and NEES (N,) of a finished run (its smoothed estimate's with
-    ``smoothed``), ``None`` if it has none."""
-    path = run_dir(out_dir, task) / ("nees_smoothed.csv" if smoothed else "nees.csv")
+    """``t_ns`` (N,) and NEES (N,) of a finished run (``kind`` ``smoothed``: its smoothed
+    estimate's; ``start-anchored``: in the frame its start defines), ``None`` if it has none."""
+    path = run_dir(out_dir, task) / NEES_FILES[kind]
     if not path.is_file():
         return None
     data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)

@@ -21,7 +21,7 @@ import numpy as np
 
 from svains.batch.consistency import NeesTest, nees_test
 from svains.batch.spec import CampaignSpec, Task, flatten
-from svains.batch.store import read_marker, read_nees, read_report
+from svains.batch.store import NEES_FILES, read_marker, read_nees, read_report
 
 GroupKey = tuple[str, str, str]  # (source, config, method)
 
@@ -107,11 +107,13 @@ def nees_tests(
     ok = {r["task_id"] for r in rows if r["status"] == "ok"}
     series: dict[GroupKey, list[Any]] = {}
     for task in tasks:
-        for smoothed in (False, True):
-            s = read_nees(out_dir, task, smoothed) if task.task_id in ok else None
+        for kind in NEES_FILES:
+            s = read_nees(out_dir, task, kind) if task.task_id in ok else None
             if s is not None:
-                # A smoothed run's own test, as a method "<method> smoothed".
-                method = f"{task.method} smoothed" if smoothed else task.method
+                # A smoothed run's own test, as a method "<method> smoothed"; a local run's in
+                # the frame its start defines, "<method> start-anchored" (the whole-run posyaw
+                # fit read a consistent GPS-denied ins 41x overconfident: a probe)
+                method = f"{task.method} {kind}" if kind else task.method
                 series.setdefault((task.source, task.config, method), []).append(s)
     tests = {key: nees_test(s) for key, s in series.items()}
     return {k: t for k, t in tests.items() if t is not None}

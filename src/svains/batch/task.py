@@ -55,6 +55,8 @@ class TaskResult:
     traceback: str | None = None
     # ``(t_ns, nees)`` of the smoothed estimate (``smoother.enabled``), None without.
     smoothed_nees: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None
+    # ``(t_ns, nees)`` in the frame the start defines (``nees_start_anchored``), None without.
+    anchored_nees: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None
 
     def nees_series(self) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
         """``(nees_t_ns, nees)``, None without."""
@@ -95,6 +97,7 @@ def _run(task: Task, ds: Dataset) -> TaskResult:
         task.task_id, "ok", result.report, result.t_ns, result.x, result.std,
         None if nees is None else nees[0], None if nees is None else nees[1],
         smoothed_nees=None if result.smoothed is None else nees_series(result.smoothed, ds),
+        anchored_nees=nees_series(result, ds, start_anchored=True),
     )  # fmt: skip
 
 

@@ -156,17 +156,21 @@ def fused_gps_times(result: RunResult, t_gps_ns: NDArray[np.int64]) -> NDArray[n
 
 
 def nees_series(
-    result: RunResult, dataset: Dataset
+    result: RunResult, dataset: Dataset, start_anchored: bool = False
 ) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
     """Per logged state: ``t_ns`` (N,) and NEES (N,) of (p, v, δθ), 9 dof, after
-    :func:`errors_alignment_for` (the series whose mean is ``report.json``'s ``nees_mean``);
-    ``None`` without a covariance or ground truth."""
+    :func:`errors_alignment_for` (the series whose mean is ``report.json``'s ``nees_mean``), or
+    with ``start_anchored`` after the first state's yaw and position (``nees_start_anchored``'s;
+    None where the report has none); ``None`` without a covariance or ground truth."""
     if not result.has_covariance:
         return None
+    if start_anchored and "nees_start_anchored" not in result.report:
+        return None
     errs = state_errors(
-        result.t_ns, result.x, result.P9, dataset.groundtruth, errors_alignment_for(result),
+        result.t_ns, result.x, result.P9, dataset.groundtruth,
+        "start" if start_anchored else errors_alignment_for(result),
         up_W=_up_W(dataset), R_W_Wref=reference_leveling(result, dataset)[0],
-    )
+    )  # fmt: skip
     return None if errs is None else (errs.t_ns, errs.nees)
 
 
