@@ -437,19 +437,27 @@ class Core(HeadingSteps):
                 if not self.config.zupt.after_start:
                     self._zupt = None  # the start's rest is over
             return
-        std = self.config.zupt.velocity_std_mps
-        if self._start_rest_over and self._still_wanted:
-            bound = None if self._still is None else self._still.speed_bound(t)
-            if bound is None or bound > self.config.zupt.still_max_speed_mps:
-                self._zupt_unwitnessed += 1  # a steady motion passes the IMU's test
-                return
-            # no surer of the rest than the camera is: a third of its bound let a creep of
-            # 2-4 cm/s in as zero, one update after another (velocity NEES 3.5 -> 13.8)
-            std = max(std, bound)
+        std = self._zero_velocity_std(t)
+        if std is None:
+            self._zupt_unwitnessed += 1  # a steady motion passes the IMU's test
+            return
         b = zero_velocity_block(std)
         (stats,) = self.ins.ukf.update_blocks([(b.h, b.z, b.R, b.residual, b.name)],
                                               self.config.filter.gate_probability)  # fmt: skip
         self._record(stats, "zupt", t)
+
+    def _zero_velocity_std(self, t: int) -> float | None:
+        """The standard deviation (m/s) of a rest the IMU's test passed at ``t``, or None where
+        the camera does not confirm one after the start's rest (``navigation.still_camera``)."""
+        o = self.config.zupt
+        if not (self._start_rest_over and self._still_wanted):
+            return o.velocity_std_mps
+        bound = None if self._still is None else self._still.speed_bound(t)
+        if bound is None or bound > o.still_max_speed_mps:
+            return None
+        # no surer of the rest than the camera is: a third of its bound let a creep of 2-4 cm/s
+        # in as zero, one update after another (velocity NEES 3.5 -> 13.8)
+        return max(o.velocity_std_mps, bound)
 
     def _frame(self, t: int, blocks: list[MeasurementBlock]) -> None:
         ins, cfg = self.ins, self.config
@@ -489,10 +497,9 @@ class Core(HeadingSteps):
             ins.remove_omega_white()
         if self._still_wanted:
             if self._still is None and updater.rig is not None:
-                self._still = StillCamera(updater.rig, updater.source.pixel_noise_std
-                                          if cfg.vision.pixel_noise_std is None
-                                          else cfg.vision.pixel_noise_std,
-                                          cfg.zupt.window_s)  # fmt: skip
+                px = cfg.vision.pixel_noise_std
+                px = updater.source.pixel_noise_std if px is None else px
+                self._still = StillCamera(updater.rig, px, cfg.zupt.window_s)
             if self._still is not None:
                 self._still.observe(updater.last_tracks)
         if prior is not None and stats is not None and stats.accepted:
