@@ -183,3 +183,24 @@ def test_an_empty_or_header_only_tracks_file_is_read_as_the_plain_reader_reads_i
         tracks = read_run(d).tracks
     assert tracks is not None and list(tracks) == ["t_ns", "track_id", "u_px", "v_px", "inlier"]
     assert all(c.size == 0 for c in tracks.values()) and tracks["t_ns"].dtype == np.int64
+
+
+def test_run_errors_follow_the_reports_start_position_frame(tmp_path: Path) -> None:
+    """A local run whose magnetometer fixed the heading is read from its first position
+    (``start_position``); the plots read it unaligned, 22 m off (a review)."""
+    from svains.evaluation.run import run_method
+    from svains.navigation.options import RunOptions
+    from svains.sim import SimConfig, simulate
+    from svains.sim.config import ImuConfig
+
+    cfg = SimConfig(duration_s=8.0, seed=1, imu=ImuConfig.preset("adis16448"))
+    cfg.trajectory.stops = [[0.0, 4.0]]
+    cfg.camera.render_images = False
+    ds = load_dataset(simulate(cfg, tmp_path / "ds"))
+    out = tmp_path / "run"
+    res = run_method(ds, "ins", RunOptions(use_gps=False, use_sonar=False), out_dir=out)
+    assert res.report["errors_alignment"] == "start_position"
+    err = run_errors(read_run(out), ds.groundtruth)
+    assert err.alignment == "start_position"
+    rmse = np.sqrt(np.mean(np.sum(err.e[:, 0:3] ** 2, axis=1)))
+    assert rmse == pytest.approx(res.report["position_rmse_m"], rel=1e-5)

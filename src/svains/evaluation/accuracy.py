@@ -116,7 +116,7 @@ def align_states(x: F64, P9: F64, T_Wref_West: F64) -> tuple[F64, F64]:
     return xa, J @ P9 @ J.T
 
 
-def _aligned(
+def aligned_for_errors(
     t_in: I64, xe: F64, P: F64, p: F64, q: F64, errors_alignment: str, up_W: ArrayLike
 ) -> tuple[F64, F64, str]:
     """States (N, nx) and covariances (N, 9, 9) after ``errors_alignment`` against the reference
@@ -247,7 +247,7 @@ def state_errors(
     if inside.sum() < 2:
         return None
     t_in = np.asarray(t_ns)[inside]
-    xe, P, used = _aligned(t_in, x[inside], P9[inside], p, q, errors_alignment, up_W)
+    xe, P, used = aligned_for_errors(t_in, x[inside], P9[inside], p, q, errors_alignment, up_W)
     up = np.asarray(up_W, float) / np.linalg.norm(up_W)
     return StateErrors(t_in, navigation_errors(xe, p, v, q), P, used, xe, up)
 

@@ -23,10 +23,8 @@ from numpy.typing import NDArray
 
 from svains.datasets.types import GroundTruth
 from svains.errors import DatasetError
-from svains.evaluation.accuracy import align_states, ate_result_with_fallback, reference_at
-from svains.evaluation.alignment import align_posyaw_poses
+from svains.evaluation.accuracy import aligned_for_errors, reference_at
 from svains.evaluation.reference_tilt import leveling_rotation
-from svains.geometry.rotation import quat_to_rotmat
 from svains.replay.groundtruth import navigation_errors
 
 # What ``plot_run`` may write (``time_offset.png`` for runs that estimated the offset).
@@ -161,14 +159,10 @@ def run_errors(rec: RunRecord, gt: GroundTruth, up_W: F64 | None = None) -> RunE
         raise DatasetError(f"{rec.run_dir}: the run and the ground truth do not overlap in time")
     x, std = rec.x[inside], rec.std[inside, :9]
     P = np.einsum("ni,ij->nij", np.nan_to_num(std, nan=0.0) ** 2, np.eye(9))
-    align = str(rec.report.get("errors_alignment") or "none")
-    if align == "posyaw":
-        T = align_posyaw_poses(x[:, 0:3], quat_to_rotmat(x[:, 6:10]), p, quat_to_rotmat(q), up)
-        x, P = align_states(x, P, T)
-    elif align == "se3":
-        fit = ate_result_with_fallback(rec.t_ns[inside], x[:, 0:3], x[:, 6:10], p, q, "se3", up)
-        if fit is not None:
-            x, P = align_states(x, P, fit.T_align)
+    # the report's own alignment (a start_position run was plotted unaligned, 22 m off: a
+    # review)
+    x, P, align = aligned_for_errors(rec.t_ns[inside], x, P, p, q,
+                                     str(rec.report.get("errors_alignment") or "none"), up)
     e = navigation_errors(x, p, v, q)
     s = np.sqrt(np.einsum("nii->ni", P))
     with np.errstate(divide="ignore", invalid="ignore"):
