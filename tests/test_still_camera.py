@@ -56,6 +56,32 @@ def test_a_still_camera_bounds_its_speed_and_a_moving_one_does_not() -> None:
     assert len(still._frames) <= 7  # nothing older than the span is kept
 
 
+def test_things_moving_with_the_camera_and_a_pull_away_are_no_rest() -> None:
+    """A review: features on a hood or a car ahead (moving with the camera), which RANSAC had
+    flagged, read a camera driving at 0.5 m/s as still; the span's average lagged a pull-away
+    (0.05 m/s fused as rest)."""
+    rng = np.random.default_rng(3)
+    scene, riders = _scene(rng, (10.0, 40.0), n=50), _scene(rng, (2.0, 3.0), n=12)
+    flagged, kept = StillCamera(RIG, 0.5, 0.5), StillCamera(RIG, 0.5, 0.5)
+    for k in range(1, 8):
+        t = 0.1 * k
+        tr = _tracks(t, np.vstack([scene - np.array([0.0, 0.0, 0.5]) * t, riders]), rng)
+        inlier = np.arange(62) < 50
+        flagged.observe(dataclasses.replace(tr, inlier=inlier))
+        kept.observe(tr)  # the riders kept as inliers: the fit's misfit tells
+    fast = flagged.speed_bound(int(0.7e9))
+    assert fast is not None and fast > 0.3
+    assert kept.speed_bound(int(0.7e9)) is None
+    # at rest for 0.6 s, then 0.15 m/s forward over the last frame pair
+    cam = StillCamera(RIG, 0.5, 0.5)
+    p = _scene(rng, (2.0, 8.0))
+    for k in range(1, 8):
+        cam.observe(_tracks(0.1 * k, p, rng))
+    assert cam.speed_bound(int(0.7e9)) < 0.05  # type: ignore[operator]
+    cam.observe(_tracks(0.8, p - np.array([0.0, 0.0, 0.015]), rng))
+    assert cam.speed_bound(int(0.8e9)) == np.inf
+
+
 def test_a_far_scene_cannot_bound_the_speed_tightly() -> None:
     """Features 40-80 m away move 0.5 px in 0.5 s at 0.1 m/s: the bound says so."""
     rng = np.random.default_rng(1)

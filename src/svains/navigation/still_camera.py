@@ -4,15 +4,23 @@ The IMU's rest test (``navigation.zupt.StaticTest``) cannot tell a rest from a s
 a robot driving straight at 0.8 m/s passed it on most of its 0.5 s windows, and with
 ``zupt.after_start`` the filter met hundreds of "v = 0" updates while driving (a user's probe).
 A camera that moves sees its features move, by ``f t / Z`` for a translation ``t`` and a
-feature at depth ``Z``. ``StillCamera`` keeps the left pixels and stereo depths of each frame's
-tracks over the last ``window_s``; between the frames at both ends of that span it fits the
-camera's small translation and rotation to the displacements of the features seen at both
-(the linearised flow of a calibrated camera, depths from the first frame's disparity, least
-squares with the pixels' noise) and returns a bound on the speed: the translation's norm
-plus three of its standard deviations, over the span. A near scene bounds the speed tightly,
-a far one loosely; the caller takes the rest as a zero velocity only under its limit, and as
-uncertain as the bound (a median pixel motion under 1.5 px, the first witness, called a
-village drone creeping at 0.05-0.2 m/s still, and those zeros were fused: a review).
+feature at depth ``Z``. ``StillCamera`` keeps the left pixels and stereo disparities of each
+frame's tracks over the last ``window_s``; between the frames at both ends of that span it fits
+the camera's small translation and rotation to the displacements of the features seen at both
+(the linearised flow of a calibrated camera, least squares with the pixels' noise; positions
+and inverse depths from both frames' mean, whose noise is uncorrelated with the displacement:
+the first frame's alone read a resting camera's newest pair as moving 56 % of the time, its
+noise in both the displacement and the depth) and returns a bound on the speed: the
+translation's norm plus three of its standard deviations, over the span. A near scene bounds
+the speed tightly, a far one loosely; the caller takes the rest as a zero velocity only under
+its limit, and as uncertain as the bound (a median pixel motion under 1.5 px, the first
+witness, called a village drone creeping at 0.05-0.2 m/s still, and those zeros were fused:
+a review).
+
+Only the tracks the front end kept as inliers enter, a fit whose residuals the pixels' noise
+does not explain (something in view moves with the camera: a hood, a car ahead) tells
+nothing, and the newest frame pair must show no significant translation of its own: the
+span's average lags a pull-away (a review: 0.05 m/s fused as rest 0.2 s into one).
 """
 
 from __future__ import annotations
@@ -30,6 +38,10 @@ I64 = NDArray[np.int64]
 
 # px: features nearer the infinite than this disparity carry no depth
 MIN_DISPARITY_PX = 0.5
+# the fit's misfit per degree of freedom beyond which it tells nothing
+MAX_MISFIT = 4.0
+# the newest pair's translation moves when t^T cov^-1 t exceeds this (chi-square, 3 dof, 0.99)
+MOVED_CHI2 = 11.34
 
 
 class StillCamera:
@@ -42,7 +54,8 @@ class StillCamera:
         self.pixel_std_px = float(pixel_std_px)
         self.window_ns = int(window_s * 1e9)
         self.min_features = int(min_features)
-        # (t_ns, sorted track ids, their left pixels (M, 2), depths (M,) m) of recent frames
+        # (t_ns, sorted track ids, their left pixels (M, 2), inverse depths (M,) 1/m, NaN where
+        # the disparity is too small) of the recent frames
         self._frames: collections.deque[tuple[int, I64, F64, F64]] = collections.deque()
 
     def observe(self, tr: StereoTracks | None) -> None:
@@ -50,13 +63,17 @@ class StillCamera:
         if tr is None or tr.track_id.size == 0:
             self._frames.clear()
             return
-        order = np.argsort(tr.track_id, kind="stable")
+        ids = np.asarray(tr.track_id)
+        inlier = np.asarray(tr.inlier, bool)
+        order = np.argsort(ids, kind="stable")
+        if inlier.shape == ids.shape:
+            order = order[inlier[order]]
         uv_l = np.asarray(tr.uv_left, float)[order]
         disparity = uv_l[:, 0] - np.asarray(tr.uv_right, float)[order, 0]
         with np.errstate(divide="ignore"):
-            depth = np.where(disparity > MIN_DISPARITY_PX,
-                             self.rig.f * self.rig.baseline / disparity, np.inf)  # fmt: skip
-        self._frames.append((int(tr.t_ns), np.asarray(tr.track_id)[order], uv_l, depth))
+            inv_depth = np.where(disparity > MIN_DISPARITY_PX,
+                                 disparity / (self.rig.f * self.rig.baseline), np.nan)  # fmt: skip
+        self._frames.append((int(tr.t_ns), ids[order], uv_l, inv_depth))
         # keep the newest frame at least ``window_ns`` before the latest, not older ones
         while len(self._frames) > 2 and self._frames[-1][0] - self._frames[1][0] >= self.window_ns:
             self._frames.popleft()
@@ -64,42 +81,56 @@ class StillCamera:
     def speed_bound(self, t_ns: int) -> float | None:
         """How fast (m/s) the camera can have moved over the span of at least ``window_s``
         that ends at its latest frame: the fitted translation's norm plus 3 standard deviations,
-        over the span; None when it cannot tell (no frame within ``window_s`` before ``t_ns``,
-        no span that long, fewer than ``min_features`` features with a depth seen at both
-        ends, or a degenerate fit)."""
+        over the span (inf when the newest frame pair moved); None when it cannot tell (no
+        frame within ``window_s`` before ``t_ns``, no span that long, fewer than
+        ``min_features`` inliers with a depth seen at both ends, a degenerate fit, or one the
+        pixels' noise does not explain)."""
         if len(self._frames) < 2:
             return None
-        t_last, ids_last, uv_last, _ = self._frames[-1]
-        if t_ns - t_last > self.window_ns:
+        last = self._frames[-1]
+        if t_ns - last[0] > self.window_ns:
             return None
-        first = next((f for f in reversed(self._frames) if t_last - f[0] >= self.window_ns), None)
-        if first is None:
-            return None
-        t_first, ids_first, uv_first, depth = first
-        _, i_last, i_first = np.intersect1d(ids_last, ids_first, return_indices=True)
-        near = np.isfinite(depth[i_first])
-        if int(near.sum()) < self.min_features:
-            return None
-        i_last, i_first = i_last[near], i_first[near]
-        got = _fit_motion(self.rig, uv_first[i_first], uv_last[i_last], depth[i_first],
-                          np.sqrt(2.0) * self.pixel_std_px)  # fmt: skip
+        first = next((f for f in reversed(self._frames) if last[0] - f[0] >= self.window_ns), None)
+        got = None if first is None else self._fit(first, last)
         if got is None:
             return None
         t_C, cov_t = got
+        newest = self._fit(self._frames[-2], last)
+        if newest is not None:
+            t_new, cov_new = newest
+            if float(t_new @ np.linalg.solve(cov_new, t_new)) > MOVED_CHI2:
+                return float("inf")  # set off since the span's start: its average lags
         sigma = float(np.sqrt(max(np.linalg.eigvalsh(cov_t)[-1], 0.0)))
-        return (float(np.linalg.norm(t_C)) + 3.0 * sigma) / ((t_last - t_first) * 1e-9)
+        return (float(np.linalg.norm(t_C)) + 3.0 * sigma) / ((last[0] - first[0]) * 1e-9)
+
+    def _fit(self, first: tuple[int, I64, F64, F64],
+             last: tuple[int, I64, F64, F64]) -> tuple[F64, F64] | None:  # fmt: skip
+        """The camera's translation (3,) m between the frames ``first`` and ``last`` and its
+        covariance (3, 3), from the inliers with a depth seen at both (None: too few, a
+        degenerate fit, or a misfit beyond ``MAX_MISFIT``)."""
+        _, ids_last, uv_last, iz_last = last
+        _, ids_first, uv_first, iz_first = first
+        _, i_last, i_first = np.intersect1d(ids_last, ids_first, return_indices=True)
+        iz = 0.5 * (iz_first[i_first] + iz_last[i_last])
+        near = np.isfinite(iz)
+        if int(near.sum()) < self.min_features:
+            return None
+        i_last, i_first = i_last[near], i_first[near]
+        return _fit_motion(self.rig, uv_first[i_first], uv_last[i_last], iz[near],
+                           np.sqrt(2.0) * self.pixel_std_px)  # fmt: skip
 
 
-def _fit_motion(rig: RectifiedStereo, uv0: F64, uv1: F64, depth: F64,
+def _fit_motion(rig: RectifiedStereo, uv0: F64, uv1: F64, iz: F64,
                 std_px: float) -> tuple[F64, F64] | None:  # fmt: skip
     """Least-squares small camera motion from the displacements ``uv1 - uv0`` (M, 2) px of
-    features at ``depth`` (M,) m seen at ``uv0``: the flow ``f (A t / Z + B ω)`` of a
-    translation ``t`` (m) and rotation ``ω`` (rad) in the first camera's axes, each
-    displacement's noise ``std_px``. Returns ``t`` (3,) and its covariance (3, 3) m², None when
-    the normal matrix is singular."""
-    x = (uv0[:, 0] - rig.cu) / rig.f
-    y = (uv0[:, 1] - rig.cv) / rig.f
-    iz = 1.0 / depth
+    features at inverse depth ``iz`` (M,) 1/m, seen about the mean of ``uv0`` and ``uv1``: the
+    flow ``f (A t / Z + B ω)`` of a translation ``t`` (m) and rotation ``ω`` (rad) in the
+    camera's axes, each displacement's noise ``std_px``. Returns ``t`` (3,) and its covariance
+    (3, 3) m², None when the normal matrix is singular or the residuals exceed ``MAX_MISFIT``
+    times their noise per degree of freedom."""
+    mid = 0.5 * (uv0 + uv1)
+    x = (mid[:, 0] - rig.cu) / rig.f
+    y = (mid[:, 1] - rig.cv) / rig.f
     zero = np.zeros_like(x)
     # rows: the u and v flow per feature; columns: t (3), ω (3)
     Hu = np.stack([-iz, zero, x * iz, x * y, -(1.0 + x * x), y], axis=1)
@@ -111,4 +142,7 @@ def _fit_motion(rig: RectifiedStereo, uv0: F64, uv1: F64, depth: F64,
         return None
     N_inv = np.linalg.inv(N)
     motion = N_inv @ (H.T @ d)
+    r = d - H @ motion
+    if float(r @ r) / std_px**2 > MAX_MISFIT * max(d.size - 6, 1):
+        return None
     return motion[:3], std_px**2 * N_inv[:3, :3]
