@@ -94,3 +94,28 @@ def test_a_given_start_in_motion_has_no_starts_rest(village_30s) -> None:  # typ
         nav = Navigator(config, rig_from_dataset(ds), initial_state=init)
         nav.feed_imu(init.t_ns, np.zeros(3), np.array([0.0, 0.0, 9.81]))  # starts the core
         assert (nav.core._zupt is not None) is rest
+
+
+def test_a_pull_away_since_a_witnessed_rest_is_told_by_the_imu() -> None:
+    """The camera's verdict is a frame old: a robot's 0.4 m/s², under the rest test's limits,
+    is told by the velocity it integrates to since that frame, against the accelerometer's
+    white noise (a probe: 0.05 m/s fused as rest 0.2 s into a pull-away)."""
+    rng = np.random.default_rng(4)
+    density = 2e-3  # m/s²/√Hz, ADIS16448
+
+    def history(accel: float) -> ImuHistory:
+        h = ImuHistory()
+        for k in range(int(1.2 * RATE_HZ)):
+            t = k / RATE_HZ
+            a = np.array([0.0, 0.0, G]) + density * np.sqrt(RATE_HZ) * rng.standard_normal(3)
+            a[0] += accel * (t > 1.0)
+            h.append(int(t * 1e9), 1e-4 * rng.standard_normal(3), a)
+        return h
+
+    test = StaticTest(ZuptOptions(), InitOptions(), G)
+    moving, resting = history(0.4), history(0.0)
+    assert test.at_rest(moving, int(1.1e9))  # the rest test passes it
+    assert test.moved_since(moving, int(1.0e9), int(1.1e9), density)
+    false_alarms = sum(test.moved_since(resting, int(s * 1e9), int((s + 0.1) * 1e9), density)
+                       for s in np.arange(0.6, 1.05, 0.05))  # fmt: skip
+    assert false_alarms == 0

@@ -47,7 +47,7 @@ from svains.navigation.vision_gaps import (
     vision_gap_limit_s,
     vision_gap_report,
 )
-from svains.navigation.vision_sources import FeatureFrames, ImageFrames
+from svains.navigation.vision_sources import FeatureFrames, ImageFrames, pixel_std_px
 from svains.navigation.zupt import StaticTest, zero_velocity_block
 from svains.sensors.types import Rig
 
@@ -455,6 +455,12 @@ class Core(HeadingSteps):
         bound = None if self._still is None else self._still.speed_bound(t)
         if bound is None or bound > o.still_max_speed_mps:
             return None
+        # the camera's newest frame is older than t: the IMU says whether it set off since
+        assert self._zupt is not None and self._still is not None
+        t_frame = self._still.last_frame_ns
+        if t_frame is not None and t_frame < t and self._zupt.moved_since(
+                self.ins.history, t_frame, t, self.ins.noise.accel_noise_density):
+            return None
         # no surer of the rest than the camera is: a third of its bound let a creep of 2-4 cm/s
         # in as zero, one update after another (velocity NEES 3.5 -> 13.8)
         return max(o.velocity_std_mps, bound)
@@ -472,9 +478,8 @@ class Core(HeadingSteps):
                            self._vision_apply(bridging, long),
                            (bridging and cfg.faults.gap_vision_two_view)
                            or (long and cfg.vision.two_view_after_long))  # fmt: skip
-        checks = getattr(updater, "checks", None)
-        if checks is not None and self._recovery is not None and self._recovery.lost:
-            checks.filter_lost = True
+        if updater.checks is not None and self._recovery is not None and self._recovery.lost:
+            updater.checks.filter_lost = True
         lean = self._recovery is not None and self._recovery.tests_vision(cfg.method)
         prior = (ins.ukf.x.copy(), ins.ukf.P[np.ix_(LEAN_ROWS, LEAN_ROWS)]) if lean else None
         ins.add_omega_white()  # paper model: the vision models see ω's gyro white noise
@@ -496,12 +501,11 @@ class Core(HeadingSteps):
         finally:
             ins.remove_omega_white()
         if self._still_wanted:
-            if self._still is None and updater.rig is not None:
-                px = cfg.vision.pixel_noise_std
-                px = updater.source.pixel_noise_std if px is None else px
-                self._still = StillCamera(updater.rig, px, cfg.zupt.window_s)
-            if self._still is not None:
-                self._still.observe(updater.last_tracks)
+            if self._still is None:
+                self._still = StillCamera(
+                    updater.rig, pixel_std_px(cfg.vision.pixel_noise_std, updater.source),
+                    cfg.zupt.window_s)  # fmt: skip
+            self._still.observe(updater.last_tracks)
         if prior is not None and stats is not None and stats.accepted:
             # The bias test of vision updates (``faults.bias_test_vision_probability``): their
             # corrections, whitened, lean one way after an IMU bias step.

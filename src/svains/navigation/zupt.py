@@ -83,6 +83,33 @@ class StaticTest:
                     o.motion_sigmas * dev * float(np.sqrt(self.init.block_s * elapsed)))
         return bool(np.linalg.norm(dv) > limit)
 
+    def moved_since(self, history: ImuHistory, t_from_ns: int, t_ns: int,
+                    accel_density: float) -> bool:  # fmt: skip
+        """Whether the specific force over ``(t_from_ns, t_ns]``, less its mean over the
+        ``window_s`` before ``t_from_ns`` (a rest another witness saw), integrates to more
+        velocity than the accelerometer's white noise ``accel_density`` (m/s²/√Hz, the filter's)
+        explains, ``motion_sigmas`` of it: the camera's verdict is a frame old when the vehicle
+        pulls away, and the rest test's limits, made for a MAV's rotors, pass a robot's first
+        0.4 m/s² (a probe: 0.05 m/s fused as rest 0.2 s into a pull-away; the window's own
+        block spread, which the pull-away's start had already widened, let it through). False
+        where the samples do not tell (fewer than four before, none after)."""
+        t = history.t_ns
+        window_ns = int(self.options.window_s * 1e9)
+        k_from = int(np.searchsorted(t, t_from_ns, "right"))
+        k0 = int(np.searchsorted(t, t_from_ns - window_ns, "right"))
+        k1 = int(np.searchsorted(t, t_ns, "right"))
+        if k_from - k0 < 4 or k1 - k_from < 1:
+            return False
+        f_ref = history.accel_B[k0:k_from].mean(axis=0)
+        k_start = max(k_from - 1, 0)  # the interval that holds t_from
+        f = history.accel_B[k_start:k1]
+        dt = np.diff(t[k_start:k1]) * 1e-9
+        dv = np.sum((0.5 * (f[1:] + f[:-1]) - f_ref) * dt[:, None], axis=0)
+        elapsed = (t_ns - t_from_ns) * 1e-9
+        # white noise over the interval, and the reference mean's own over the window
+        std = accel_density * float(np.sqrt(elapsed * (1.0 + elapsed / self.options.window_s)))
+        return bool(np.linalg.norm(dv) > self.options.motion_sigmas * np.sqrt(3.0) * std)
+
     def at_rest(self, history: ImuHistory, t_ns: int) -> bool | None:
         """The samples in ``(t_ns - window_s, t_ns]``: block means (rotated to the body frame)
         within the limits, and their mean specific force within the accelerometer limit of
