@@ -185,7 +185,7 @@ def test_misuse_is_refused() -> None:
         T = np.vstack([np.eye(2), np.eye(2)[:1]])
         rec.resized(np.zeros(2), np.eye(2), T, np.zeros(3), T @ T.T)
         if rows is None:
-            with pytest.raises(ConfigError, match=r"changed size \(2 -> 3 entries\).*give "
+            with pytest.raises(ConfigError, match=r"changed size \(now 3 entries\).*give "
                                                   "output_rows and keep_x"):  # fmt: skip
                 rec.mark(1, np.zeros(3), T @ T.T, last=True)
         else:

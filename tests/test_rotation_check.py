@@ -271,6 +271,24 @@ def test_a_call_with_no_time_to_hold_is_said_at_the_end(
         assert caplog.text.count("too few frames to confirm it") == 1 and said in caplog.text
 
 
+def test_a_call_the_fit_does_not_explain_is_not_left_standing(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A mount 4° off with stamps 20 ms off: the turns fit no shift (misfit 32 beyond
+    ``offset_max_fit``); a call flagged before the misfit grew stayed, held the axes back and
+    was said at the end as an unconfirmed offset (a review)."""
+    R_true = so3_exp(np.radians(4.0) * np.array([0.0, 1.0, 0.0])) @ R_B_C
+    h, frames = _flight(R_true, seed=0, offset_s=0.02, n_frames=40)
+    check = RotationCheck(h, R_B_C, DENSITY)
+    with caplog.at_level("WARNING", logger="svains.navigation.rotation_check"):
+        for tr in frames:
+            check.observe(tr, None)
+        s = check.summary()
+    assert s["time_offset_fit"] > check.options.offset_max_fit
+    assert "too few frames to confirm it" not in caplog.text
+    assert "offset" not in check._flagged_at
+
+
 def test_the_stamps_deviation_grows_with_turns_the_noise_does_not_explain() -> None:
     # A gyro bias the filter has wrong (all at once on KITTI raw: the bias step among the
     # other faults) leaves turns the noise does not explain; the shift's deviation is scaled

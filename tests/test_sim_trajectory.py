@@ -190,3 +190,19 @@ def test_stops_hold_the_vehicle_at_rest_unshaken_and_ease_in_and_out() -> None:
         cfg.trajectory.stops = stops  # type: ignore[assignment]
         with pytest.raises(ConfigError, match=said):
             cfg.validate()
+
+
+def test_a_stops_speed_ramps_ease_without_a_jump_of_acceleration() -> None:
+    """``speed_profile``: half a cosine over the ramp (zero slope at both of its ends, half the
+    speed in its middle), zero inside the stop, one beyond; a stop from 0 s is a static start."""
+    from svains.sim.trajectory import speed_profile
+
+    ramp = 2.0
+    t = np.array([2.0, 2.001, 3.0, 3.999, 4.0, 5.0, 6.0, 6.001, 7.0, 7.999, 8.0, 9.0])
+    f = speed_profile(t, [[4.0, 2.0]], ramp)
+    np.testing.assert_allclose(f[[0, 4, 5, 6, 10, 11]], [1.0, 0.0, 0.0, 0.0, 1.0, 1.0], atol=1e-12)
+    np.testing.assert_allclose(f[[2, 8]], 0.5, atol=1e-12)
+    # slopes at the ramp's ends: zero to first order (a linear ramp has 1/ramp there)
+    assert abs(f[0] - f[1]) < 1e-5 and abs(f[3] - f[4]) < 1e-5
+    assert abs(f[6] - f[7]) < 1e-5 and abs(f[9] - f[10]) < 1e-5
+    np.testing.assert_allclose(speed_profile(np.array([-5.0, 0.0, 2.9]), [[0.0, 3.0]], ramp), 0.0)

@@ -71,7 +71,7 @@ def register(app: typer.Typer) -> None:
         )] = None,
         stop: Annotated[list[str] | None, typer.Option(
             "--stop", help="START:DURATION \\[s]: the village vehicle halts at rest for DURATION "
-            "from START, easing down and up over trajectory.stop_ramp_s (2 s); 0:D is a static "
+            "from START, easing down and up over trajectory.stop_ramp_s; 0:D is a static "
             "start; repeatable.", callback=stop_windows,
         )] = None,
         force: Annotated[bool, typer.Option(

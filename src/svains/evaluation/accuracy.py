@@ -132,9 +132,9 @@ def aligned_for_errors(
         # The first state's position alone: a local frame whose heading a magnetometer made
         # absolute (a yaw fitted over the run turned that heading, and its misfit shifted a
         # resting start's positions: NEES 950 where σ_p was 0.1 m, a probe).
-        T = np.eye(4)
-        T[:3, 3] = p[0] - xe[0, 0:3]
-        xe, P = align_states(xe, P, T)
+        T_Wref_West = np.eye(4)
+        T_Wref_West[:3, 3] = p[0] - xe[0, 0:3]
+        xe, P = align_states(xe, P, T_Wref_West)
     elif errors_alignment == "se3":
         fit = ate_result_with_fallback(t_in, xe[:, 0:3], xe[:, 6:10], p, q, "se3", up_W)
         if fit is None:

@@ -47,8 +47,13 @@ def errors_alignment_for(result: RunResult) -> str:
         return "none"
     if result.report.get("method") == "vo":
         return "se3"
+    return "start_position" if _fused(result, "mag") > 0 else "posyaw"
+
+
+def _fused(result: RunResult, sensor: str) -> int:
+    """How many of ``sensor``'s measurements the run fused (``report.json``'s counts)."""
     seen = result.report.get("measurements") or {}
-    return "start_position" if int((seen.get("mag") or {}).get("fused", 0)) > 0 else "posyaw"
+    return int((seen.get(sensor) or {}).get("fused", 0))
 
 
 def _up_W(dataset: Dataset) -> NDArray[np.float64]:
@@ -86,8 +91,7 @@ def _frame_is_the_starts(result: RunResult) -> bool:
     heading, which corrects the start's yaw within a fraction of a second) and no sonar (an
     absolute height) fused, no sonar-set start height. Otherwise the first state is no anchor
     (a user's probe: a consistent run, NEES 7.7, anchored on its first state 1.25e5)."""
-    seen = result.report.get("measurements") or {}
-    fused = sum(int((seen.get(k) or {}).get("fused", 0)) for k in ("mag", "sonar"))
+    fused = _fused(result, "mag") + _fused(result, "sonar")
     init = result.report.get("init") or {}
     return fused == 0 and "height_from_sonar_m" not in init
 

@@ -245,10 +245,12 @@ class RtsRecorder:
         if self.marks and (rows.size, keep.size) != (self.marks[0].rows.size,
                                                      self.marks[0].x.size):  # fmt: skip
             # the marks are stacked by ``smooth``: numpy's "inhomogeneous shape" there (a review)
+            missing = [name for name, val in (("output_rows", self.output_rows),
+                                              ("keep_x", self.keep_x)) if val is None]  # fmt: skip
             raise ConfigError(
-                f"RtsRecorder.mark: the state changed size ({self.marks[0].x.size} -> {x.size} "
-                "entries) and the marks keep all of it: give output_rows and keep_x to smooth a "
-                "state that changes size")
+                f"RtsRecorder.mark: the state changed size (now {x.size} entries) and the marks "
+                f"keep all of it: give {' and '.join(missing)} to smooth a state that changes "
+                "size")
         mark = MarkEpoch(int(t_ns), keep, rows, np.zeros((rows.size, 0), np.float32),
                          np.zeros(rows.size), _pack(np.zeros((rows.size,) * 2)))  # fmt: skip
         self.marks.append(mark)

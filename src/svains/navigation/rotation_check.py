@@ -298,14 +298,17 @@ class RotationCheck:
             return  # told, or a mount told wrong (its turns' axes say nothing of the stamps)
         got = self.time_offset()
         if got is None:
+            self._held("offset", False)  # a call not made at every frame is not held
             if not (self.far_frames < o.min_frames and self._far.pending):
                 self._judge_edge()  # else the far shifts, judged a few seconds on, say how far
             return
         shift, std = got
         fit = self.offset_fit()
-        if fit is None or fit > o.offset_max_fit:
-            return  # no shift explains the turns: a mount error, told by the axes
-        if self._held("offset", abs(shift) >= o.offset_warn_s and abs(shift) > 4.0 * std):
+        # no shift explains the turns beyond the fit's limit: a mount error, told by the axes
+        # (a call left standing through it held the axes back and was said at the end: a review)
+        explains = fit is not None and fit <= o.offset_max_fit
+        if self._held("offset", explains and abs(shift) >= o.offset_warn_s
+                      and abs(shift) > 4.0 * std):  # fmt: skip
             self.warned_offset = True
             log.warning(
                 "the camera's turns match the gyro's best with the IMU %.0f ms %s the camera "
@@ -390,6 +393,7 @@ class RotationCheck:
         fit = self.offset_fit()
         if (self.warned_scale or self.warned_ratio or self.warned or got is None
                 or fit is None):  # fmt: skip
+            self._held("scale", False)
             return
         scale, std = got
         off = abs(scale - 1.0)
@@ -501,9 +505,11 @@ class RotationCheck:
         if self._flagged_at and self.offset_frames >= self.options.min_frames:
             # calls still waiting to hold: no more frames will come
             self._at_end = True
-            self._judge_scale()
-            self._judge_offset()
-            self._at_end = False
+            try:
+                self._judge_scale()
+                self._judge_offset()
+            finally:
+                self._at_end = False
             self._tell_unconfirmed()
             if not self.warned_offset:
                 self._flagged_at.pop("offset", None)

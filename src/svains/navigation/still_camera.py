@@ -1,4 +1,4 @@
-"""The camera's witness of a rest: how fast it can have moved over the last half second.
+"""The camera's witness of a rest: how fast it can have moved over the last ``window_s``.
 
 The IMU's rest test (``navigation.zupt.StaticTest``) cannot tell a rest from a steady motion:
 a robot driving straight at 0.8 m/s passed it on most of its 0.5 s windows, and with
@@ -38,8 +38,12 @@ I64 = NDArray[np.int64]
 
 # px: features nearer the infinite than this disparity carry no depth
 MIN_DISPARITY_PX = 0.5
-# the fit's misfit per degree of freedom beyond which it tells nothing
+# the fit's misfit per degree of freedom beyond which it tells nothing: a resting camera's
+# reads about 1 (the village stops, 0.5 px features); twelve features riding with a camera
+# that drives at 0.5 m/s among fifty still ones read far beyond (tests/test_still_camera.py)
 MAX_MISFIT = 4.0
+# a normal matrix this ill-conditioned (scene, geometry) gives no usable translation
+MAX_COND = 1e12
 # the newest pair's translation moves when t^T cov^-1 t exceeds this (chi-square, 3 dof, 0.99)
 MOVED_CHI2 = 11.34
 
@@ -64,10 +68,8 @@ class StillCamera:
             self._frames.clear()
             return
         ids = np.asarray(tr.track_id)
-        inlier = np.asarray(tr.inlier, bool)
         order = np.argsort(ids, kind="stable")
-        if inlier.shape == ids.shape:
-            order = order[inlier[order]]
+        order = order[np.asarray(tr.inlier, bool)[order]]
         uv_l = np.asarray(tr.uv_left, float)[order]
         disparity = uv_l[:, 0] - np.asarray(tr.uv_right, float)[order, 0]
         with np.errstate(divide="ignore"):
@@ -77,6 +79,11 @@ class StillCamera:
         # keep the newest frame at least ``window_ns`` before the latest, not older ones
         while len(self._frames) > 2 and self._frames[-1][0] - self._frames[1][0] >= self.window_ns:
             self._frames.popleft()
+
+    @property
+    def last_frame_ns(self) -> int | None:
+        """The stamp of the newest frame observed (None: none in the span)."""
+        return self._frames[-1][0] if self._frames else None
 
     def speed_bound(self, t_ns: int) -> float | None:
         """How fast (m/s) the camera can have moved over the span of at least ``window_s``
@@ -94,14 +101,14 @@ class StillCamera:
         got = None if first is None else self._fit(first, last)
         if got is None:
             return None
-        t_C, cov_t = got
+        p_C0_C1, cov_p = got  # the camera's displacement over the span, in its own axes
         newest = self._fit(self._frames[-2], last)
         if newest is not None:
-            t_new, cov_new = newest
-            if float(t_new @ np.linalg.solve(cov_new, t_new)) > MOVED_CHI2:
+            p_Ckm1_Ck, cov_pk = newest
+            if float(p_Ckm1_Ck @ np.linalg.solve(cov_pk, p_Ckm1_Ck)) > MOVED_CHI2:
                 return float("inf")  # set off since the span's start: its average lags
-        sigma = float(np.sqrt(max(np.linalg.eigvalsh(cov_t)[-1], 0.0)))
-        return (float(np.linalg.norm(t_C)) + 3.0 * sigma) / ((last[0] - first[0]) * 1e-9)
+        sigma = float(np.sqrt(max(np.linalg.eigvalsh(cov_p)[-1], 0.0)))
+        return (float(np.linalg.norm(p_C0_C1)) + 3.0 * sigma) / ((last[0] - first[0]) * 1e-9)
 
     def _fit(self, first: tuple[int, I64, F64, F64],
              last: tuple[int, I64, F64, F64]) -> tuple[F64, F64] | None:  # fmt: skip
@@ -138,11 +145,13 @@ def _fit_motion(rig: RectifiedStereo, uv0: F64, uv1: F64, iz: F64,
     H = rig.f * np.concatenate([Hu, Hv])
     d = np.concatenate([uv1[:, 0] - uv0[:, 0], uv1[:, 1] - uv0[:, 1]])
     N = H.T @ H
-    if not np.all(np.isfinite(N)) or np.linalg.cond(N) > 1e12:
+    if not np.all(np.isfinite(N)) or np.linalg.cond(N) > MAX_COND:
         return None
-    N_inv = np.linalg.inv(N)
-    motion = N_inv @ (H.T @ d)
+    L = np.linalg.cholesky(N)
+    motion = np.linalg.solve(L.T, np.linalg.solve(L, H.T @ d))
     r = d - H @ motion
     if float(r @ r) / std_px**2 > MAX_MISFIT * max(d.size - 6, 1):
         return None
-    return motion[:3], std_px**2 * N_inv[:3, :3]
+    # the translation's block of N⁻¹, from the factor: (L⁻¹ E)ᵀ (L⁻¹ E), E its three columns
+    W = np.linalg.solve(L, np.eye(6)[:, :3])
+    return motion[:3], std_px**2 * (W.T @ W)

@@ -44,7 +44,12 @@ from svains.navigation.vision_noise import (
     previous_pixel_bias,
     whiten_chol,
 )
-from svains.navigation.vision_sources import FeatureFrames, ImageFrames, stereo_check_summary
+from svains.navigation.vision_sources import (
+    FeatureFrames,
+    ImageFrames,
+    pixel_std_px,
+    stereo_check_summary,
+)
 from svains.navigation.vision_two_view import TwoViewFeatures
 from svains.sensors.types import Rig
 
@@ -151,9 +156,7 @@ class PixelUpdater:
         self.options = options
         self.source = source
         self.rig = self.source.rig
-        std = options.pixel_noise_std
-        std = self.source.pixel_noise_std if std is None else std
-        self._pixel_std_px = max(float(std), 0.05)  # the pixels' own noise, unscaled
+        self._pixel_std_px = pixel_std_px(options.pixel_noise_std, source)  # unscaled
         self.sigma_px = self._pixel_std_px * options.noise_scale()
         self.clones = clone_window(options, applied_offset_s(rig), history, rig.gravity_W)
         self.checks = vision_checks(history, self.rig, rig)  # mount, stamps, baseline

@@ -34,6 +34,14 @@ U8 = NDArray[np.uint8]
 # Keyframes tried by descriptors for one frame that lost its link (closest views first).
 RELOCALISE_TRIES = 5
 
+def pixel_std_px(configured: float | None, source: FeatureFrames | ImageFrames) -> float:
+    """The pixels' own noise (px): the configured ``vision.pixel_noise_std``, else the
+    source's (recorded features carry theirs; the image front end's is a placeholder), at
+    least 0.05 px."""
+    std = source.pixel_noise_std if configured is None else configured
+    return max(float(std), 0.05)
+
+
 def rig_from_calibrations(cam0: CameraCalib | None, cam1: CameraCalib | None) -> RectifiedStereo:
     """The rectified pair that ``cam0``/``cam1`` define (``features0`` pixels live in it)."""
     if cam0 is None or cam1 is None:

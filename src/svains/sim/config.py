@@ -219,6 +219,8 @@ class SimConfig:
             if not stop[0] < self.duration_s:
                 raise ConfigError(f"trajectory.stops: the stop {stop} starts after the flight's "
                                   f"end ({self.duration_s:g} s)")  # fmt: skip
+        if tc.stops and not tc.speed > 0:
+            raise ConfigError(f"trajectory.stops need a cruise speed > 0, got {tc.speed}")
         if tc.stops and self.scenario != "village":
             raise ConfigError("trajectory.stops apply to the village scenario (a TUM file holds "
                               "its own stops)")  # fmt: skip
