@@ -478,8 +478,10 @@ class Core(HeadingSteps):
                            self._vision_apply(bridging, long),
                            (bridging and cfg.faults.gap_vision_two_view)
                            or (long and cfg.vision.two_view_after_long))  # fmt: skip
-        if updater.checks is not None and self._recovery is not None and self._recovery.lost:
-            updater.checks.filter_lost = True
+        # the calibration checks are the built-in updaters' (``VisionUpdater`` asks for none)
+        checks = getattr(updater, "checks", None)
+        if checks is not None and self._recovery is not None and self._recovery.lost:
+            checks.filter_lost = True
         lean = self._recovery is not None and self._recovery.tests_vision(cfg.method)
         prior = (ins.ukf.x.copy(), ins.ukf.P[np.ix_(LEAN_ROWS, LEAN_ROWS)]) if lean else None
         ins.add_omega_white()  # paper model: the vision models see ω's gyro white noise
@@ -500,7 +502,8 @@ class Core(HeadingSteps):
             stats = None
         finally:
             ins.remove_omega_white()
-        if self._still_wanted:
+        if self._still_wanted and isinstance(updater, (PixelUpdater, LcUpdater)):
+            # the built-in updaters keep their tracks; another ``VisionUpdater`` gives no witness
             if self._still is None:
                 self._still = StillCamera(
                     updater.rig, pixel_std_px(cfg.vision.pixel_noise_std, updater.source),
