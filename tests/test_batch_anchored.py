@@ -25,7 +25,7 @@ SPEC: dict[str, Any] = {
     "methods": ["ins", "3d"],
     "seeds": [0],
     "settings": {"fusion.use_gps": False, "fusion.use_mag": False, "fusion.use_sonar": False,
-                 "vision.source": "features"},
+                 "vision.source": "features", "smoother.enabled": True},
 }  # fmt: skip
 
 
@@ -44,3 +44,8 @@ def test_a_local_runs_start_anchored_nees_is_kept_and_tested(tmp_path: Path) -> 
         assert len(t_ns) == rep["evaluated_states"]
         assert np.mean(nees) == pytest.approx(rep["nees_start_anchored"], rel=1e-8)
         assert f"| village8_rest | default | {task.method} start-anchored | 1 |" in md
+        # the smoothed estimate's too
+        _, nees_s = read_nees(out, task, "smoothed start-anchored")  # type: ignore[misc]
+        assert np.mean(nees_s) == pytest.approx(rep["smoothed"]["nees_start_anchored"],
+                                                rel=1e-8)  # fmt: skip
+        assert f"| {task.method} smoothed start-anchored | 1 |" in md

@@ -2,11 +2,12 @@
 
 ``DIR/runs/<task_id>/`` holds what ``svains run`` writes (``trajectory.tum``, ``states.csv``,
 ``report.json``), ``nees.csv`` (``t_ns,nees`` per logged state; ``nees_smoothed.csv`` the
-same for a smoothed run, ``nees_start_anchored.csv`` in the frame the start defines where the
-report has ``nees_start_anchored``) and ``result.json``: the task's
-parameters and its status (``ok``, or ``failed`` with the error and traceback). The folder is
-built beside its final place and renamed into it whole. A run with an ``ok`` marker is finished
-and is skipped when the campaign is run again; a failed one is run again.
+same for a smoothed run, ``nees_start_anchored.csv`` and ``nees_smoothed_start_anchored.csv``
+in the frame the start defines where the report has ``nees_start_anchored``) and
+``result.json``: the task's parameters and its status (``ok``, or ``failed`` with the error
+and traceback). The folder is built beside its final place and renamed into it whole. A run
+with an ``ok`` marker is finished and is skipped when the campaign is run again; a failed one
+is run again.
 """
 
 from __future__ import annotations
@@ -69,7 +70,9 @@ def write_result(out_dir: Path, task: Task, result: TaskResult) -> None:
             write_outputs(d, run)
             for name, series in (("nees.csv", result.nees_series()),
                                  ("nees_smoothed.csv", result.smoothed_nees),
-                                 ("nees_start_anchored.csv", result.anchored_nees)):
+                                 ("nees_start_anchored.csv", result.anchored_nees),
+                                 ("nees_smoothed_start_anchored.csv",
+                                  result.smoothed_anchored_nees)):
                 if series is not None:
                     rows = "".join(f"{int(t)},{v:.9g}\n" for t, v in zip(*series, strict=True))
                     write_atomic(d / name, "t_ns,nees\n" + rows)
@@ -87,14 +90,16 @@ def read_report(out_dir: Path, task: Task) -> dict[str, Any]:
 
 # the NEES series a run may keep: their file beside its outputs, by kind
 NEES_FILES = {"": "nees.csv", "smoothed": "nees_smoothed.csv",
-              "start-anchored": "nees_start_anchored.csv"}
+              "start-anchored": "nees_start_anchored.csv",
+              "smoothed start-anchored": "nees_smoothed_start_anchored.csv"}
 
 
 def read_nees(
     out_dir: Path, task: Task, kind: str = ""
 ) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
-    """``t_ns`` (N,) and NEES (N,) of a finished run (``kind`` ``smoothed``: its smoothed
-    estimate's; ``start-anchored``: in the frame its start defines), ``None`` if it has none."""
+    """``t_ns`` (N,) and NEES (N,) of a finished run (``kind`` a key of ``NEES_FILES``:
+    ``smoothed``, its smoothed estimate's; ``start-anchored``, in the frame its start defines;
+    both), ``None`` if it has none."""
     path = run_dir(out_dir, task) / NEES_FILES[kind]
     if not path.is_file():
         return None

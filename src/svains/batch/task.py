@@ -55,8 +55,10 @@ class TaskResult:
     traceback: str | None = None
     # ``(t_ns, nees)`` of the smoothed estimate (``smoother.enabled``), None without.
     smoothed_nees: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None
-    # ``(t_ns, nees)`` in the frame the start defines (``nees_start_anchored``), None without.
+    # ``(t_ns, nees)`` in the frame the start defines (``nees_start_anchored``), the filter's
+    # and the smoothed estimate's; None without.
     anchored_nees: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None
+    smoothed_anchored_nees: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None
 
     def nees_series(self) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
         """``(nees_t_ns, nees)``, None without."""
@@ -98,6 +100,8 @@ def _run(task: Task, ds: Dataset) -> TaskResult:
         None if nees is None else nees[0], None if nees is None else nees[1],
         smoothed_nees=None if result.smoothed is None else nees_series(result.smoothed, ds),
         anchored_nees=nees_series(result, ds, start_anchored=True),
+        smoothed_anchored_nees=(None if result.smoothed is None
+                                else nees_series(result.smoothed, ds, start_anchored=True)),
     )  # fmt: skip
 
 

@@ -165,10 +165,12 @@ def nees_series(
     """Per logged state: ``t_ns`` (N,) and NEES (N,) of (p, v, δθ), 9 dof, after
     :func:`errors_alignment_for` (the series whose mean is ``report.json``'s ``nees_mean``), or
     with ``start_anchored`` after the first state's yaw and position (``nees_start_anchored``'s;
-    None where the report has none); ``None`` without a covariance or ground truth."""
+    None where the run's report has none: not posyaw, or a frame its start does not define);
+    ``None`` without a covariance or ground truth."""
     if not result.has_covariance:
         return None
-    if start_anchored and "nees_start_anchored" not in result.report:
+    if start_anchored and not (errors_alignment_for(result) == "posyaw"
+                               and _frame_is_the_starts(result)):  # fmt: skip
         return None
     errs = state_errors(
         result.t_ns, result.x, result.P9, dataset.groundtruth,
