@@ -72,7 +72,8 @@ def register(app: typer.Typer) -> None:
         stop: Annotated[list[str] | None, typer.Option(
             "--stop", help="START:DURATION \\[s]: the village vehicle halts at rest for DURATION "
             "from START, easing down and up over trajectory.stop_ramp_s; 0:D is a static "
-            "start; repeatable.", callback=stop_windows,
+            "start (with --imu-preset adis16448: the paper's IMU fails the rest test); "
+            "repeatable.", callback=stop_windows,
         )] = None,
         force: Annotated[bool, typer.Option(
             "--force", help="Replace the data set already in --out (its mav0/).",
