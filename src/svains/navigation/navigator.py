@@ -267,7 +267,7 @@ class Navigator:
                 return
             if self._held_before_imu(t_ns):
                 return
-            if self._new_frame(t_ns):
+            if self._new_stamp(self._frame_stamps, "frame", "frame", t_ns):
                 self._push(t_ns, FRAME, ("images", *pair))
 
     def feed_tracks(
@@ -307,7 +307,7 @@ class Navigator:
                 uv_l, uv_r = uv_r, uv_l
             if self._held_before_imu(t_ns):
                 return
-            if self._new_frame(t_ns):
+            if self._new_stamp(self._frame_stamps, "frame", "frame", t_ns):
                 self._push(t_ns, FRAME, ("features", ids, uv_l, uv_r))
 
     def feed_gps(self, t_ns: int, p_W_G: ArrayLike, v_W_G: ArrayLike | None = None) -> None:
@@ -319,12 +319,9 @@ class Navigator:
         v = None if v_W_G is None else _vector("feed_gps", "v_W_G", v_W_G).copy()
         p = _vector("feed_gps", "p_W_G", p_W_G).copy()
         t_ns = self.clock.other(_stamp("feed_gps", t_ns), "gps")
-        if t_ns in self._gps_stamps:
-            # two fixes of one instant were both fused, as if independent (a user's probe)
-            self.queue.drop("gps", t_ns, "a second fix with the same stamp; the first is kept")
-            return
-        self._gps_stamps.append(t_ns)
-        self._push(t_ns, GPS, (p, v))
+        # two fixes of one instant were both fused, as if independent (a user's probe)
+        if self._new_stamp(self._gps_stamps, "gps", "fix", t_ns):
+            self._push(t_ns, GPS, (p, v))
 
     def feed_mag(self, t_ns: int, m_S: ArrayLike) -> None:
         """A magnetometer sample ``m_S`` (3,) Gauss in its sensor frame."""
@@ -352,13 +349,14 @@ class Navigator:
                         "first)")  # fmt: skip
         return True
 
-    def _new_frame(self, t_ns: int) -> bool:
-        """Whether no frame with the stamp ``t_ns`` was fed lately (else dropped, counted)."""
-        if t_ns in self._frame_stamps:
-            self.queue.drop("frame", t_ns, "a second frame with the same stamp; the first is "
-                            "kept")  # fmt: skip
+    def _new_stamp(self, stamps: collections.deque[int], kind: str, noun: str,
+                   t_ns: int) -> bool:  # fmt: skip
+        """Whether no ``kind`` measurement (a ``noun``) with the stamp ``t_ns`` is among the
+        latest ``stamps`` (then kept there), else dropped, counted."""
+        if t_ns in stamps:
+            self.queue.drop(kind, t_ns, f"a second {noun} with the same stamp; the first is kept")
             return False
-        self._frame_stamps.append(t_ns)
+        stamps.append(t_ns)
         return True
 
     def _open(self, method: str) -> None:

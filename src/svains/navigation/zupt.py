@@ -72,9 +72,7 @@ class StaticTest:
         k1 = int(np.searchsorted(t, t_ns, "right"))
         k0 = max(self._rows_done - 1, 0)  # from the last row added, for its interval's end
         if k1 - k0 >= 2:
-            f = history.accel_B[k0:k1]
-            dt = np.diff(t[k0:k1]) * 1e-9
-            self._gained += np.sum((0.5 * (f[1:] + f[:-1]) - f_ref) * dt[:, None], axis=0)
+            self._gained += _gained(t[k0:k1], history.accel_B[k0:k1], f_ref)
             self._rows_done = k1
         dv = self._gained
         elapsed = (t_ns - t0) * 1e-9
@@ -102,9 +100,7 @@ class StaticTest:
             return False
         f_ref = history.accel_B[k0:k_from].mean(axis=0)
         k_start = max(k_from - 1, 0)  # the interval that holds t_from
-        f = history.accel_B[k_start:k1]
-        dt = np.diff(t[k_start:k1]) * 1e-9
-        dv = np.sum((0.5 * (f[1:] + f[:-1]) - f_ref) * dt[:, None], axis=0)
+        dv = _gained(t[k_start:k1], history.accel_B[k_start:k1], f_ref)
         elapsed = (t_ns - t_from_ns) * 1e-9
         # white noise over the interval, and the reference mean's own over the window
         std = accel_density * float(np.sqrt(elapsed * (1.0 + elapsed / self.options.window_s)))
@@ -135,6 +131,13 @@ class StaticTest:
             and block_deviation(gyro) <= gyro_limit
             and abs(float(np.linalg.norm(acc.mean(axis=0))) - self.gravity_mps2) <= acc_limit
         )
+
+
+def _gained(t_ns: NDArray[np.int64], accel_B: F64, f_ref: F64) -> F64:
+    """The velocity (3,) m/s the specific force ``accel_B`` (N, 3) at ``t_ns`` (N,), less
+    ``f_ref`` (3,), integrates to over the samples (trapezoids)."""
+    dt = np.diff(t_ns) * 1e-9
+    return np.sum((0.5 * (accel_B[1:] + accel_B[:-1]) - f_ref) * dt[:, None], axis=0)
 
 
 def zero_velocity_block(velocity_std_mps: float) -> MeasurementBlock:
