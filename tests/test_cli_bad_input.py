@@ -504,3 +504,15 @@ def test_a_figure_frame_without_tracks_is_refused_before_the_work(
                               "--figures", "--figure-frame", frame])  # fmt: skip
     _check(res, 1, f"--figure-frame {frame}: kitti_stereo_a has 51 stereo pairs; frames 1 to 50")
     assert not (tmp_path / "o").exists()
+
+
+def test_vo_names_the_filter_settings_it_does_not_use(
+    base: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # a user's probe: `--method vo --set zupt.after_start=true` ran without a word
+    argv = ["run", str(base), "--method", "vo", "--out", str(tmp_path / "o"),
+            "--set", "zupt.after_start=true", "--set", "frame_stride=1",
+            "--set", "filter.gate_probability=0.99"]  # fmt: skip
+    res = runner.invoke(app, argv)
+    assert res.exit_code == 0, res.output
+    assert "vo has no filter: zupt.after_start, filter.gate_probability not used" in caplog.text

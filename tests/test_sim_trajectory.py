@@ -185,7 +185,11 @@ def test_stops_hold_the_vehicle_at_rest_unshaken_and_ease_in_and_out() -> None:
     assert np.abs(np.linalg.norm(s.a_W, axis=1)).max() < 2.0
     for stops, said in (([[3.0]], r"must be \[start_s, duration_s\] pairs"),
                         ([2.0, 3.0], r"must be \[start_s, duration_s\] pairs"),  # flat: a review
-                        ([[200.0, 3.0]], r"the stop \[200.0, 3.0\] starts after the flight")):
+                        ([[200.0, 3.0]], r"the stop \[200.0, 3.0\] starts after the flight"),
+                        # ramps overlapping: a 0.04 m/s crawl between them (a user's probe)
+                        ([[13.0, 2.0], [10.0, 2.0]],
+                         r"the stops \[10.0, 2.0\] and \[13.0, 2.0\] are less than two ramps "
+                         r"apart \(2 x stop_ramp_s = 4 s\)")):
         cfg = SimConfig()
         cfg.trajectory.stops = stops  # type: ignore[assignment]
         with pytest.raises(ConfigError, match=said):

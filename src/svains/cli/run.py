@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from pathlib import Path
@@ -137,6 +138,7 @@ def run(
         build_config,
         effective_config_text,
         gps_off_switches,
+        filter_only_settings,
         kalibr_switches,
         topic_switches,
     )
@@ -169,6 +171,10 @@ def run(
         if config.method == "vo" and config.smoother.enabled:  # it was ignored, files missing
             raise typer.BadParameter("--smooth (smoother.enabled): vo has no filter to smooth; "
                                      "ins, lc, tc and 3d do")  # fmt: skip
+        unused = filter_only_settings(setting) if config.method == "vo" else []
+        if unused:  # set in vain, without a word (a user's probe: --set zupt.after_start=true)
+            logging.getLogger(__name__).warning("vo has no filter: %s not used",
+                                                ", ".join(unused))
         ds = load_dataset(dataset, calib=config.replay.calib, imu_calib=config.replay.imu_calib,
                           topics=parse_topic_roles(config.replay.topics))
         hz = config.replay.synthetic_features_hz

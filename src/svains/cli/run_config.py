@@ -89,6 +89,19 @@ def build_config(
         usage_error(str(exc), None)
 
 
+# sections only a filter reads: ``vo`` (a chain of stereo motions) ignores them
+FILTER_SECTIONS = ("filter", "noise", "init", "zupt", "smoother", "faults")
+
+
+def filter_only_settings(settings: list[str] | None) -> list[str]:
+    """The ``--set`` keys of ``settings`` that only a filter reads (``FILTER_SECTIONS``), in
+    their order: ``vo`` runs without them, which a user setting them is told."""
+    from svains.navigation.config_io import parse_setting
+
+    keys = [parse_setting(item)[0] for item in settings or []]
+    return [k for k in keys if k.split(".", 1)[0] in FILTER_SECTIONS]
+
+
 def _git_revision() -> str:
     here = Path(__file__).resolve().parent
     try:

@@ -219,6 +219,13 @@ class SimConfig:
             if not stop[0] < self.duration_s:
                 raise ConfigError(f"trajectory.stops: the stop {stop} starts after the flight's "
                                   f"end ({self.duration_s:g} s)")  # fmt: skip
+        ordered = sorted(tc.stops)
+        for a, b in zip(ordered, ordered[1:], strict=False):
+            # overlapping ramps multiply (``speed_profile``): a crawl between the stops
+            if b[0] - (a[0] + a[1]) < 2.0 * tc.stop_ramp_s:
+                raise ConfigError(f"trajectory.stops: the stops {a} and {b} are less than two "
+                                  f"ramps apart (2 x stop_ramp_s = {2 * tc.stop_ramp_s:g} s): "
+                                  "merge them or move them apart")  # fmt: skip
         if tc.stops and not tc.speed > 0:
             raise ConfigError(f"trajectory.stops need a cruise speed > 0, got {tc.speed}")
         if tc.stops and self.scenario != "village":

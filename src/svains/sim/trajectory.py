@@ -195,7 +195,7 @@ def speed_profile(t_s: ArrayLike, stops: Sequence[Sequence[float]], ramp_s: floa
     ``(start_s, duration_s)``, easing down over the ``ramp_s`` before it and up over those
     after (half a cosine: no jump of acceleration at the ramp's ends), 1 elsewhere; a stop
     from 0 s or earlier holds from before the start (a static start); overlapping stops
-    multiply."""
+    multiply (``SimConfig.validate`` refuses stops whose ramps overlap)."""
     t = np.asarray(t_s, dtype=float)
     f = np.ones_like(t)
     for start, dur in stops:
