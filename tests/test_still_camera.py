@@ -143,16 +143,22 @@ def robot_with_a_stop(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_a_robots_stop_gets_zero_velocity_updates_and_its_drive_none(
     robot_with_a_stop: Path,
 ) -> None:
-    """With ``zupt.after_start`` the IMU's rest test passed on straight driving at 0.8 m/s and
-    the filter met hundreds of "v = 0" updates there (a probe's robot: 323 refused, velocity
-    NEES 5.69); the camera's witness leaves the drive out and the stop in."""
+    """By default (``zupt.after_start`` None) a vision method tests every rest: the IMU's rest
+    test passed on straight driving at 0.8 m/s and the filter met hundreds of "v = 0" updates
+    there (a probe's robot: 323 refused, velocity NEES 5.69); the camera's witness leaves the
+    drive out and the stop in. ``ins`` keeps the start's rest alone."""
     from svains.datasets import load_dataset
     from svains.evaluation.run import run_method
     from svains.navigation.config_io import from_dict
 
     ds = load_dataset(robot_with_a_stop)
-    config = from_dict({"method": "3d", "use_gps": False, "use_sonar": False,
-                        "zupt": {"after_start": True}})  # fmt: skip
+    config = from_dict({"method": "ins", "use_gps": False, "use_sonar": False})
+    result = run_method(ds, options=config)
+    t0 = int(result.t_ns[0])
+    t_s = np.array([u.t_ns - t0 for u in result.update_log if u.sensor == "zupt"]) * 1e-9
+    assert t_s.size > 0 and t_s.max() < 3.5  # the start's rest only
+    assert "zupt_camera_not_still" not in result.report
+    config = from_dict({"method": "3d", "use_gps": False, "use_sonar": False})
     result = run_method(ds, options=config)
     t0 = int(result.t_ns[0])
     zupt = [(u.t_ns - t0, u.stats.accepted) for u in result.update_log if u.sensor == "zupt"]
@@ -183,5 +189,8 @@ def test_stops_for_ins_are_warned(caplog: pytest.LogCaptureFixture) -> None:
 
     with caplog.at_level("WARNING", logger="svains.navigation.navigator"):
         Navigator(RunConfig(method="ins", zupt=ZuptOptions(after_start=True)), Rig())
-        Navigator(RunConfig(method="ins"), Rig())
+        Navigator(RunConfig(method="ins"), Rig())  # the default: the start's rest alone
+    assert [ZuptOptions().after_start_for(m) for m in ("ins", "lc", "tc", "3d")] == [
+        False, True, True, True]
+    assert not ZuptOptions(after_start=False).after_start_for("3d")
     assert caplog.text.count("zupt.after_start with ins: the IMU's rest test alone") == 1

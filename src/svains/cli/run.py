@@ -137,8 +137,8 @@ def run(
     from svains.cli.run_config import (
         build_config,
         effective_config_text,
-        gps_off_switches,
         filter_only_settings,
+        gps_off_switches,
         kalibr_switches,
         topic_switches,
     )

@@ -141,6 +141,7 @@ class Navigator:
                         "none there (no GPS, or an outage from 0 s): the start is GPS-aided, "
                         "the rest is not")  # fmt: skip
         if config.zupt.enabled and config.zupt.after_start and config.method == "ins":
+            # (set, not the default: None leaves ins its start's rest alone)
             log.warning("zupt.after_start with ins: the IMU's rest test alone also passes a "
                         "steady motion, and a zero velocity fused while moving takes the run "
                         "off (the vision methods have the camera as a second witness)")

@@ -137,7 +137,8 @@ class Core(HeadingSteps):
         # review); a start given at rest but really moving is the user's to say.
         moving = float(np.linalg.norm(ins.ukf.x[V])) > START_REST_SPEED_MPS
         rest_start = config.init.mode not in ("gps", "vision") and not moving
-        start_rest = config.zupt.after_start or rest_start
+        self._after_start = config.zupt.after_start_for(config.method)
+        start_rest = self._after_start or rest_start
         self._zupt = (
             StaticTest(config.zupt, config.init, float(np.linalg.norm(rig.gravity_W)))
             if config.zupt.enabled and start_rest else None
@@ -145,7 +146,7 @@ class Core(HeadingSteps):
         self._next_zupt_ns = self.t0_ns
         # after the start's rest, a vision method's stops need the camera still too (built at
         # the first frame, from the vision updater's rig)
-        self._still_wanted = (self._zupt is not None and config.zupt.after_start
+        self._still_wanted = (self._zupt is not None and self._after_start
                               and config.method != "ins")  # fmt: skip
         self._still: StillCamera | None = None
         self._start_rest_over = not rest_start  # a start in motion has none to hold
@@ -406,16 +407,16 @@ class Core(HeadingSteps):
 
     def _zero_velocity(self, t: int) -> None:
         """A zero-velocity update when the IMU shows the platform at rest (``navigation.zupt``);
-        not while an IMU gap is bridged (its samples are not the platform's), and by default
-        only until the start's rest ends (``zupt.after_start``): at its first motion or at an
-        IMU gap."""
+        not while an IMU gap is bridged (its samples are not the platform's), and for ``ins``
+        by default only until the start's rest ends (``zupt.after_start``): at its
+        first motion or at an IMU gap."""
         assert self._zupt is not None
         self._next_zupt_ns = t + int(self.config.zupt.period_s * 1e9)
         if self._imu_faults is not None and self._imu_faults.bridging(t):
             # the platform may have set off inside the gap: the start's rest is over (a review:
             # a take-off inside a gap met IMU-only updates after it)
             self._start_rest_over = True
-            if not self.config.zupt.after_start:
+            if not self._after_start:
                 # The start's rest cannot be followed across a gap: the platform may have set
                 # off inside it (EuRoC: a take-off in a 5 s gap, then a steady climb that the
                 # rest test passes and a wide post-gap gate let in: velocity NEES 4e3).
@@ -434,7 +435,7 @@ class Core(HeadingSteps):
         if not rest:
             if rest is not None:
                 self._start_rest_over = True
-                if not self.config.zupt.after_start:
+                if not self._after_start:
                     self._zupt = None  # the start's rest is over
             return
         std = self._zero_velocity_std(t)

@@ -15,18 +15,20 @@ class ZuptOptions:
     start's limits, ``InitOptions``); at rest ``v_W_B = 0`` is fused with ``velocity_std_mps``
     per axis, gated like GPS (``filter.gate_probability``).
 
-    By default only at the start, until the IMU first shows motion (``after_start`` false): in
-    flight a smooth motion passes the IMU test too (EuRoC V1_01 at 0.3 m/s: block means as
-    steady as at rest) and the gate, with frames 2 s apart, let two such updates through and
-    the filter diverged. With ``after_start`` the vision methods take the camera as a second
-    witness after the start's rest: the speed its features allow over the last ``window_s``
-    (``navigation.still_camera``: the fitted motion plus 3 standard deviations) must stay under
-    ``still_max_speed_mps``, and the zero velocity is then fused with that bound as its
-    standard deviation when larger than ``velocity_std_mps``; ``ins`` has the IMU's test alone.
+    Every rest the vision methods' camera witnesses (``after_start`` None, the default, or
+    true): after the start's rest the camera is a second witness, the speed its features allow
+    over the last ``window_s`` (``navigation.still_camera``: the fitted motion plus 3 standard
+    deviations) must stay under ``still_max_speed_mps``, and the zero velocity is then fused
+    with that bound as its standard deviation when larger than ``velocity_std_mps``. ``ins``
+    has only the start's rest by default: in flight a smooth motion passes the IMU test too
+    (EuRoC V1_01 at 0.3 m/s: block means as steady as at rest; the simulated village flight
+    passes it about 190 times a minute) and the gate, with frames 2 s apart, let two such
+    updates through and the filter diverged; ``after_start`` true gives ``ins`` the IMU's
+    test alone (warned). ``after_start`` false: the start's rest only, for every method.
     """
 
     enabled: bool = True
-    after_start: bool = False
+    after_start: bool | None = None  # None: the vision methods' stops too, not ins'
     limit_factor: float = 2.0  # times the static start's block-mean limits (``InitOptions``)
     window_s: float = 0.5
     period_s: float = 0.1
@@ -42,6 +44,11 @@ class ZuptOptions:
     # the camera's witness (``after_start``, vision methods): the speed bound (m/s) under which
     # a rest the IMU passed is fused
     still_max_speed_mps: float = 0.05
+
+    def after_start_for(self, method: str) -> bool:
+        """Whether ``method``'s rests after the start's are tested (``after_start``; None:
+        the vision methods', which have the camera as a second witness)."""
+        return method != "ins" if self.after_start is None else self.after_start
 
     def __post_init__(self) -> None:
         check_types(self, "zupt.")

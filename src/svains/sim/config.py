@@ -17,6 +17,7 @@ vibration, which explains its size.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -220,7 +221,7 @@ class SimConfig:
                 raise ConfigError(f"trajectory.stops: the stop {stop} starts after the flight's "
                                   f"end ({self.duration_s:g} s)")  # fmt: skip
         ordered = sorted(tc.stops)
-        for a, b in zip(ordered, ordered[1:], strict=False):
+        for a, b in itertools.pairwise(ordered):
             # overlapping ramps multiply (``speed_profile``): a crawl between the stops
             if b[0] - (a[0] + a[1]) < 2.0 * tc.stop_ramp_s:
                 raise ConfigError(f"trajectory.stops: the stops {a} and {b} are less than two "
