@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -51,3 +54,31 @@ def test_the_gap_limit_follows_the_streams_longer_spacings() -> None:
     for n_long in (15, 16):
         spacings = [S // 5] * (31 - n_long) + [5 * S] * n_long
         assert vision_gap_limit_s(spacings, 2.0) == pytest.approx(12.5)
+
+
+def test_a_run_mostly_without_vision_says_so_at_its_end(tmp_path: Path) -> None:
+    """A run that fused a few frames and rode the IMU for the rest ended with no word (a
+    probe: 90 % of a run without vision); its table gives the gaps and a warning follows."""
+    from typer.testing import CliRunner
+
+    from svains.cli.main import app
+    from svains.sim import SimConfig, simulate
+
+    cfg = SimConfig(duration_s=6.0, seed=1)
+    cfg.camera.render_images = False
+    root = simulate(cfg, tmp_path / "ds")
+    path = root / "mav0" / "features0" / "data.csv"
+    lines = path.read_text().splitlines()
+    t0 = int(lines[1].split(",")[0])
+    kept = [ln for ln in lines[1:] if int(ln.split(",")[0]) - t0 < 2_100_000_000]
+    path.write_text("\n".join([lines[0], *kept]) + "\n")
+    res = CliRunner().invoke(app, ["run", str(root), "--method", "3d", "--init", "groundtruth",
+                                   "--out", str(tmp_path / "o")])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert "vision gaps" in res.output
+    said = re.search(r"3d went without vision for (\d+) % of the run", res.output)
+    assert said is not None and 50 <= int(said.group(1)) <= 70, res.output
+    argv = ["run", str(root), "--method", "3d", "--init", "groundtruth", "--out",
+            str(tmp_path / "o2"), "--duration", "2.5"]  # fmt: skip
+    full = CliRunner().invoke(app, argv)
+    assert full.exit_code == 0 and "without vision" not in full.output, full.output
