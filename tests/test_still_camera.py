@@ -82,6 +82,33 @@ def test_things_moving_with_the_camera_and_a_pull_away_are_no_rest() -> None:
     assert cam.speed_bound(int(0.8e9)) == np.inf
 
 
+def test_the_start_rest_ends_when_the_camera_sees_a_creep_three_frames_running() -> None:
+    """``start_rest_std``: a resting camera over 200 frames never ends the start's rest (its
+    span's chi-square stays under 1e-4's); one creeping at 4 cm/s ends it within a second,
+    after three frames running, a frame counted once however often it is asked."""
+    rng = np.random.default_rng(4)
+    p = _scene(rng, (2.0, 8.0))
+    still, creep = StillCamera(RIG, 0.5, 0.5), StillCamera(RIG, 0.5, 0.5)
+    said = []
+    for k in range(1, 201):
+        t = 0.1 * k
+        still.observe(_tracks(t, p, rng))
+        said.append(still.start_rest_std(int(t * 1e9), 0.002))
+    assert np.inf not in said
+    loosened = [s for s in said if s is not None]
+    assert len(loosened) <= 6 and all(0.002 < s < 0.05 for s in loosened)  # ~1 % at 0.99
+    verdicts = []
+    for k in range(1, 21):
+        t = 0.1 * k
+        creep.observe(_tracks(t, p - np.array([0.0, 0.0, 0.04]) * max(t - 0.5, 0.0), rng))
+        for _ in range(3):  # asked three times per frame
+            verdicts.append(creep.start_rest_std(int(t * 1e9), 0.002))
+    seen = [i // 3 for i, v in enumerate(verdicts) if v is not None]
+    ended = [i // 3 for i, v in enumerate(verdicts) if v == np.inf]
+    assert ended and ended[0] <= 12, ended  # within 0.7 s of setting off
+    assert ended[0] >= seen[0] + 2  # three frames running, not three asks of one
+
+
 def test_a_far_scene_cannot_bound_the_speed_tightly() -> None:
     """Features 40-80 m away move 0.5 px in 0.5 s at 0.1 m/s: the bound says so."""
     rng = np.random.default_rng(1)
@@ -194,3 +221,31 @@ def test_stops_for_ins_are_warned(caplog: pytest.LogCaptureFixture) -> None:
         False, True, True, True]
     assert not ZuptOptions(after_start=False).after_start_for("3d")
     assert caplog.text.count("zupt.after_start with ins: the IMU's rest test alone") == 1
+
+
+def test_a_gentle_set_off_ends_the_start_rest_by_the_camera(tmp_path: Path) -> None:
+    """A vehicle setting off over 12 s passes the IMU's rest limits for seconds, and the
+    start's zeros held it at rest while it crept at up to 5 cm/s (velocity NEES 24.6 of 3 over
+    30 s); the camera ends the start's rest about a second after it sets off."""
+    from svains.datasets import load_dataset
+    from svains.evaluation.run import run_method
+    from svains.navigation.config_io import from_dict
+    from svains.sim import SimConfig, simulate
+    from svains.sim.config import ImuConfig
+
+    cfg = SimConfig(duration_s=12.0, seed=2, imu=ImuConfig.preset("adis16448"))
+    cfg.trajectory.stops = [[0.0, 2.0]]
+    cfg.trajectory.stop_ramp_s = 12.0
+    cfg.camera.rate_hz = 10.0
+    cfg.camera.render_images = False
+    ds = load_dataset(simulate(cfg, tmp_path / "creep"))
+    runs = {}
+    for start_camera in (True, False):
+        config = from_dict({"method": "3d", "use_gps": False, "use_mag": False,
+                            "zupt": {"start_camera": start_camera}})  # fmt: skip
+        runs[start_camera] = run_method(ds, options=config).report
+    ended = runs[True]["zupt_start_camera"]["ended_s"]
+    assert ended is not None and 2.5 < ended < 4.0, ended
+    v_on, v_off = (runs[k]["nees_blocks"]["velocity"] for k in (True, False))
+    assert v_off > 15.0 and v_on < 0.5 * v_off, (v_on, v_off)
+    assert "zupt_start_camera" not in runs[False]

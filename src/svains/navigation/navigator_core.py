@@ -151,6 +151,10 @@ class Core(HeadingSteps):
         self._still: StillCamera | None = None
         self._start_rest_over = not rest_start  # a start in motion has none to hold
         self._zupt_unwitnessed = 0  # IMU rests after the start that the camera saw moving
+        # the camera's word on the start's rest (``zupt.start_camera``): when it ended it (ns),
+        # and the zeros it loosened before
+        self._start_vetoed_ns: int | None = None
+        self._start_loosened = 0
         self.history = history_recorder(config, ins) if config.smoother.enabled else None
         # the GPS frame and the gyro's unit against each other (files are checked on load)
         self._course_check = CourseCheck(ins.history, rig.gravity_W) if gps_used else None
@@ -432,13 +436,17 @@ class Core(HeadingSteps):
             self.ins.history, t
         ):
             rest = False  # set off gently: the block test alone would go on
+        std = self._start_rest_std(t) if rest and not self._start_rest_over else None
+        if std == float("inf"):
+            rest = False  # the camera saw it creep: the IMU's limits pass a creep
+            self._start_vetoed_ns = t
         if not rest:
             if rest is not None:
                 self._start_rest_over = True
                 if not self._after_start:
                     self._zupt = None  # the start's rest is over
             return
-        std = self._zero_velocity_std(t)
+        std = self._zero_velocity_std(t) if std is None else std
         if std is None:
             self._zupt_unwitnessed += 1  # a steady motion passes the IMU's test
             return
@@ -446,6 +454,17 @@ class Core(HeadingSteps):
         (stats,) = self.ins.ukf.update_blocks([(b.h, b.z, b.R, b.residual, b.name)],
                                               self.config.filter.gate_probability)  # fmt: skip
         self._record(stats, "zupt", t)
+
+    def _start_rest_std(self, t: int) -> float | None:
+        """The camera's word on the start's rest at ``t`` (``StillCamera.start_rest_std``: inf
+        where it ends it, a loosened standard deviation, or None), for the vision methods with
+        ``zupt.start_camera``."""
+        o = self.config.zupt
+        if not (o.start_camera and self._still_wanted and self._still is not None):
+            return None
+        std = self._still.start_rest_std(t, o.velocity_std_mps)
+        self._start_loosened += std is not None and std != float("inf")
+        return std
 
     def _zero_velocity_std(self, t: int) -> float | None:
         """The standard deviation (m/s) of a rest the IMU's test passed at ``t``, or None where
@@ -769,6 +788,12 @@ class Core(HeadingSteps):
             # rests the IMU's test passed after the start and the camera did not (or could not
             # tell): no update tried
             report["zupt_camera_not_still"] = self._zupt_unwitnessed
+            if self.config.zupt.start_camera:
+                report["zupt_start_camera"] = {
+                    "ended_s": None if self._start_vetoed_ns is None
+                    else (self._start_vetoed_ns - self.t0_ns) * 1e-9,
+                    "loosened": self._start_loosened,
+                }
         if self._gps_off:
             # Configured windows without GPS (int64 ns, [start, end)): the accuracy step reports
             # the error inside them as it does for gaps in the GPS stream.

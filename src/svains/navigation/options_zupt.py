@@ -25,6 +25,8 @@ class ZuptOptions:
     passes it about 190 times a minute) and the gate, with frames 2 s apart, let two such
     updates through and the filter diverged; ``after_start`` true gives ``ins`` the IMU's
     test alone (warned). ``after_start`` false: the start's rest only, for every method.
+    The camera also ends the start's rest where the IMU's limits pass a creep
+    (``start_camera``).
     """
 
     enabled: bool = True
@@ -44,6 +46,9 @@ class ZuptOptions:
     # the camera's witness (``after_start``, vision methods): the speed bound (m/s) under which
     # a rest the IMU passed is fused
     still_max_speed_mps: float = 0.05
+    # the vision methods' camera may end the START's rest, where the IMU's limits pass a creep
+    # (``StillCamera.start_rest_std``; needs the camera's witness, ``after_start``)
+    start_camera: bool = True
 
     def after_start_for(self, method: str) -> bool:
         """Whether ``method``'s rests after the start's are tested (``after_start``; None:

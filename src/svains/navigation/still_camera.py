@@ -46,6 +46,11 @@ MAX_MISFIT = 4.0
 MAX_COND = 1e12
 # the newest pair's translation moves when t^T cov^-1 t exceeds this (chi-square, 3 dof, 0.99)
 MOVED_CHI2 = 11.34
+# The start's rest ends when the span's translation is this significant (chi-square, 3 dof,
+# 1e-4) at this many frames running: at 16 simulated static starts and EuRoC's the largest was
+# 17.8 (a probe), a creep the IMU's limits pass crosses it within 1-2 s.
+START_MOVED_CHI2 = 21.11
+START_MOVED_FRAMES = 3
 
 
 class StillCamera:
@@ -61,6 +66,9 @@ class StillCamera:
         # (t_ns, sorted track ids, their left pixels (M, 2), inverse depths (M,) 1/m, NaN where
         # the disparity is too small) of the recent frames
         self._frames: collections.deque[tuple[int, I64, F64, F64]] = collections.deque()
+        # the start's rest: frames running whose span moved, and the newest one counted
+        self._moved_run = 0
+        self._moved_frame_ns: int | None = None
 
     def observe(self, tr: StereoTracks | None) -> None:
         """The tracks ending at a frame (None: a frame without tracks, which ends the span)."""
@@ -92,6 +100,36 @@ class StillCamera:
         frame within ``window_s`` before ``t_ns``, no span that long, fewer than
         ``min_features`` inliers with a depth seen at both ends, a degenerate fit, or one the
         pixels' noise does not explain)."""
+        m = self._span_motion(t_ns)
+        if m is None:
+            return None
+        bound, _, newest_chi2 = m
+        return float("inf") if newest_chi2 > MOVED_CHI2 else bound  # its average lags
+
+    def start_rest_std(self, t_ns: int, velocity_std_mps: float) -> float | None:
+        """The camera's word on the START's rest at ``t_ns``, which the IMU's test passed: inf
+        once the span's translation has been significant (``START_MOVED_CHI2``) at
+        ``START_MOVED_FRAMES`` frames running (a creep the IMU's limits pass: the zeros held a
+        vehicle setting off over 12 s at rest, velocity NEES 25), the zero's standard deviation
+        loosened to the speed bound where the span moved at 0.99 only, None where it says
+        nothing (as ``speed_bound``, or no motion)."""
+        m = self._span_motion(t_ns)
+        if m is None:
+            self._moved_run = 0
+            return None
+        bound, chi2, _ = m
+        frame_ns = self._frames[-1][0]
+        if frame_ns != self._moved_frame_ns:  # each frame counts once
+            self._moved_frame_ns = frame_ns
+            self._moved_run = self._moved_run + 1 if chi2 > START_MOVED_CHI2 else 0
+        if self._moved_run >= START_MOVED_FRAMES:
+            return float("inf")
+        return max(velocity_std_mps, bound) if chi2 > MOVED_CHI2 else None
+
+    def _span_motion(self, t_ns: int) -> tuple[float, float, float] | None:
+        """The speed bound (m/s) over the span ``speed_bound`` reads, the span translation's
+        chi-square against rest and the newest frame pair's (0 where it has no fit); None where
+        the camera cannot tell (``speed_bound``'s cases)."""
         if len(self._frames) < 2:
             return None
         last = self._frames[-1]
@@ -103,12 +141,10 @@ class StillCamera:
             return None
         p_C0_C1, cov_p = got  # the camera's displacement over the span, in its own axes
         newest = self._fit(self._frames[-2], last)
-        if newest is not None:
-            p_Ckm1_Ck, cov_pk = newest
-            if float(p_Ckm1_Ck @ np.linalg.solve(cov_pk, p_Ckm1_Ck)) > MOVED_CHI2:
-                return float("inf")  # set off since the span's start: its average lags
+        newest_chi2 = 0.0 if newest is None else _chi2(*newest)
         sigma = float(np.sqrt(max(np.linalg.eigvalsh(cov_p)[-1], 0.0)))
-        return (float(np.linalg.norm(p_C0_C1)) + 3.0 * sigma) / ((last[0] - first[0]) * 1e-9)
+        bound = (float(np.linalg.norm(p_C0_C1)) + 3.0 * sigma) / ((last[0] - first[0]) * 1e-9)
+        return bound, _chi2(p_C0_C1, cov_p), newest_chi2
 
     def _fit(self, first: tuple[int, I64, F64, F64],
              last: tuple[int, I64, F64, F64]) -> tuple[F64, F64] | None:  # fmt: skip
@@ -125,6 +161,11 @@ class StillCamera:
         i_last, i_first = i_last[near], i_first[near]
         return _fit_motion(self.rig, uv_first[i_first], uv_last[i_last], iz[near],
                            np.sqrt(2.0) * self.pixel_std_px)  # fmt: skip
+
+
+def _chi2(p: F64, cov: F64) -> float:
+    """``p^T cov^-1 p``: a translation (3,) against rest, in its covariance's units."""
+    return float(p @ np.linalg.solve(cov, p))
 
 
 def _fit_motion(rig: RectifiedStereo, uv0: F64, uv1: F64, iz: F64,
