@@ -617,3 +617,40 @@ def test_a_two_view_frame_over_a_wide_prior_is_linearised_at_its_egomotion() -> 
                                                        0.0, 0.05)  # fmt: skip
     assert upd.summary()["frames_linearised_at_egomotion"] == 0
     assert np.linalg.norm(ukf.x[0:3] - tf.x_k[0:3]) < 1e-3
+
+
+def test_instrument_pixels_are_the_k2_point_moved_by_the_last_motion() -> None:
+    """``vision.instrument_points``: the sigma-point spread is computed from each feature's
+    k-2 stereo point moved by the last update's mean motion and projected at k-1 (noise-free
+    here: the true k-1 pixels), the k-1 pixels where a feature has no k-2 pixels; none where
+    the k-2 frame or the motion is not the one just before."""
+    from svains.frontend.types import StereoTracks
+    from svains.geometry.rotation import so3_exp
+    from svains.models.vision_3d import move_points
+    from svains.models.vision_common import project_stereo
+
+    tf = two_frames(RIG, DT_S, np.array([0.1, -0.2, 0.3]), np.zeros(3), n_features=20)
+    m = len(tf.p_Ckm1_F)
+    t_km2, t_km1, t_k = T0 - int(DT_S * 1e9), T0, T0 + int(DT_S * 1e9)
+    R, r = so3_exp(np.array([0.01, -0.02, 0.03])), np.array([0.05, -0.02, 0.3])
+    p_km2 = (tf.p_Ckm1_F + r) @ R  # p_km1 = R p_km2 - r
+    np.testing.assert_allclose(move_points(R[None], r[None], p_km2)[0], tf.p_Ckm1_F, atol=1e-9)
+    uv_km2 = project_stereo(p_km2, RIG).reshape(-1, 4)
+    ids = np.arange(m, dtype=np.int64)
+    e = np.zeros((m, 2))
+    tr = StereoTracks(t_km1, t_k, ids, tf.uv_left_prev + 0.7, tf.uv_right_prev + 0.7, e, e,
+                      np.zeros((m, 3)), np.ones(m, bool), None)  # fmt: skip
+    for instruments in (True, False):
+        upd = updater_for("3d", _dataset(tf), VisionOptions(instrument_points=instruments))
+        upd._k2 = (t_km2, t_km1, ids[1:], uv_km2[1:, :2], uv_km2[1:, 2:])  # feature 0 new
+        upd._motion_before = (t_km2, t_km1, R, r)
+        got = upd._instrument_pixels(tr, ids)
+        if not instruments:
+            assert got is None
+            continue
+        assert got is not None
+        np.testing.assert_allclose(got[0][1:], tf.uv_left_prev[1:], atol=1e-6)
+        np.testing.assert_allclose(got[1][1:], tf.uv_right_prev[1:], atol=1e-6)
+        np.testing.assert_array_equal(got[0][0], tr.uv_left_prev[0])  # its own k-1 pixels
+        upd._motion_before = (t_km2 - 1, t_km1, R, r)  # a motion from another frame
+        assert upd._instrument_pixels(tr, ids) is None

@@ -153,7 +153,14 @@ class VisionOptions:
     (``FaultOptions.gap_vision_two_view``). On KITTI raw ``3d`` GPS-denied it gave 1.354 ->
     1.093 % final error but NEES 73.7 -> 92.1 and 60 % more wall time; re-measured 2026-12-04:
     1.353 -> 1.093 %, NEES 73.7 -> 92.0, wall time within 3 % (3 runs each: 3.79-3.97 s
-    against 3.91-3.96 s).
+    against 3.91-3.96 s). ``instrument_points`` (the paper's models, frames in a row): the
+    sigma points' spread of the prediction, the update's regressor, from each feature's k-2
+    stereo point moved by the last update's mean motion rather than from the noisy k-1 pixels
+    the residual also holds (an errors-in-variables bias: a constant 0.25° pitch on the
+    simulated village, probe 67); the prediction at the mean stays the k-1 pixels'. Off by
+    default: it takes the village's NEES from 11.58 to 8.52 and EuRoC's every frame from 0.037
+    to 0.029 m, but on GPS-aided 5 Hz test flights it loses accuracy (a smoothed outage 0.037
+    -> 0.100 m; ``docs/results/simulator.md``).
 
     The frame test (``tc``/``3d``): each feature is gated on its own
     (``feature_gate_probability``) and a frame is refused, and counted as a rejection, when
@@ -254,6 +261,7 @@ class VisionOptions:
     time_offset_std_ms: float = 20.0
     update_iterations: int = 1
     two_view: bool = False
+    instrument_points: bool = False
     frame_gate_probability: float | None = None
     frame_min_inlier_fraction: float = 0.5
     egomotion_fallback: bool = True
