@@ -249,3 +249,20 @@ def test_a_gentle_set_off_ends_the_start_rest_by_the_camera(tmp_path: Path) -> N
     v_on, v_off = (runs[k]["nees_blocks"]["velocity"] for k in (True, False))
     assert v_off > 15.0 and v_on < 0.5 * v_off, (v_on, v_off)
     assert "zupt_start_camera" not in runs[False]
+
+
+def test_a_start_in_motion_reports_no_start_camera(tmp_path: Path) -> None:
+    """``zupt_start_camera`` says what the camera did to a start's rest: a start in flight has
+    none, and the key read as if one had been checked (a review)."""
+    from svains.datasets import load_dataset
+    from svains.evaluation.run import run_method
+    from svains.navigation.config_io import from_dict
+    from svains.sim import SimConfig, simulate
+
+    cfg = SimConfig(duration_s=4.0, seed=1)
+    cfg.camera.render_images = False
+    ds = load_dataset(simulate(cfg, tmp_path / "flight"))
+    config = from_dict({"method": "3d", "use_gps": False, "init": {"mode": "groundtruth"}})
+    report = run_method(ds, options=config).report
+    assert "zupt_camera_not_still" in report  # the stops' witness is there
+    assert "zupt_start_camera" not in report

@@ -89,8 +89,11 @@ def build_config(
         usage_error(str(exc), None)
 
 
-# sections only a filter reads: ``vo`` (a chain of stereo motions) ignores them
-FILTER_SECTIONS = ("filter", "noise", "init", "zupt", "smoother", "faults")
+# sections and top-level keys only a filter reads: ``vo`` (a chain of stereo motions) ignores
+# them
+FILTER_SECTIONS = ("filter", "noise", "init", "zupt", "smoother", "faults", "model", "use_gps",
+                   "use_mag", "use_sonar", "use_gps_velocity", "max_mag_rate_hz",
+                   "max_sonar_rate_hz")
 
 
 def filter_only_settings(settings: list[str] | None) -> list[str]:

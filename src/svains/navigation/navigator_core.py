@@ -150,6 +150,7 @@ class Core(HeadingSteps):
                               and config.method != "ins")  # fmt: skip
         self._still: StillCamera | None = None
         self._start_rest_over = not rest_start  # a start in motion has none to hold
+        self._rest_start = rest_start
         self._zupt_unwitnessed = 0  # IMU rests after the start that the camera saw moving
         # the camera's word on the start's rest (``zupt.start_camera``): when it ended it (ns),
         # and the zeros it loosened before
@@ -788,7 +789,7 @@ class Core(HeadingSteps):
             # rests the IMU's test passed after the start and the camera did not (or could not
             # tell): no update tried
             report["zupt_camera_not_still"] = self._zupt_unwitnessed
-            if self.config.zupt.start_camera:
+            if self.config.zupt.start_camera and self._rest_start:  # (a start's rest to end)
                 report["zupt_start_camera"] = {
                     "ended_s": None if self._start_vetoed_ns is None
                     else (self._start_vetoed_ns - self.t0_ns) * 1e-9,
