@@ -91,18 +91,18 @@ def build_config(
 
 # sections and top-level keys only a filter reads: ``vo`` (a chain of stereo motions) ignores
 # them
-FILTER_SECTIONS = ("filter", "noise", "init", "zupt", "smoother", "faults", "model", "use_gps",
+FILTER_ONLY_KEYS = ("filter", "noise", "init", "zupt", "smoother", "faults", "model", "use_gps",
                    "use_mag", "use_sonar", "use_gps_velocity", "max_mag_rate_hz",
                    "max_sonar_rate_hz")
 
 
 def filter_only_settings(settings: list[str] | None) -> list[str]:
-    """The ``--set`` keys of ``settings`` that only a filter reads (``FILTER_SECTIONS``), in
+    """The ``--set`` keys of ``settings`` that only a filter reads (``FILTER_ONLY_KEYS``), in
     their order: ``vo`` runs without them, which a user setting them is told."""
     from svains.navigation.config_io import parse_setting
 
     keys = [parse_setting(item)[0] for item in settings or []]
-    return [k for k in keys if k.split(".", 1)[0] in FILTER_SECTIONS]
+    return [k for k in keys if k.split(".", 1)[0] in FILTER_ONLY_KEYS]
 
 
 def _git_revision() -> str:

@@ -277,19 +277,13 @@ class PixelUpdater:
             return lambda X: pixels_from_motion(*motion(X), p, rig)
         return lambda X: pixels_tc_from_motion(*motion(X), uvl0, uvr0, rig)
 
-    def _predict(
-        self, ctx: FrameContext, X: F64, uvl0: F64, uvr0: F64, motion: MotionFn
-    ) -> tuple[F64, F64, F64, F64 | None]:
-        """Predicted pixels ``Y`` (S, 4M) of the sigma points ``X``, the camera motion ``R_c``
-        (3, 3), ``r_c`` (3,) at the mean state, and (``3d``) the k-1 points (M, 3)."""
-        # One camera-motion evaluation for the sigma points and the mean (last row).
-        R_all, r_all = motion(np.vstack([X, ctx.ukf.x[None, :]]))
+    def _pixels(self, R_c: F64, r_c: F64, uvl0: F64, uvr0: F64) -> tuple[F64, F64 | None]:
+        """Predicted pixels (S, 4M) for the camera motions ``R_c`` (S, 3, 3), ``r_c`` (S, 3)
+        from the k-1 pixels (M, 2), and (``3d``) the k-1 points (M, 3) they triangulate to."""
         if self.method == "3d":
             p_F = self.rig.triangulate(uvl0, uvr0)
-            Y = pixels_from_motion(R_all[:-1], r_all[:-1], p_F, self.rig)
-            return Y, R_all[-1], r_all[-1], p_F
-        Y = pixels_tc_from_motion(R_all[:-1], r_all[:-1], uvl0, uvr0, self.rig)
-        return Y, R_all[-1], r_all[-1], None
+            return pixels_from_motion(R_c, r_c, p_F, self.rig), p_F
+        return pixels_tc_from_motion(R_c, r_c, uvl0, uvr0, self.rig), None
 
     def _bias(self, R_c: F64, r_c: F64, uvl0: F64, uvr0: F64) -> F64 | None:
         """Second-order bias (4M,) px of the predicted pixels from the k-1 pixel noise (the
@@ -348,19 +342,19 @@ class PixelUpdater:
         noise with the residual, a regression on a noisy regressor (errors in variables): on
         the simulated village the translation tilted 0.24° toward the camera's +y, read as a
         constant pitch (probe 67; roll/pitch NEES 3.2 of 2)."""
-        Y, R_c, r_c, p_F = self._predict(ctx, X, uvl0, uvr0, motion)
+        # One camera-motion evaluation for the sigma points and the mean (last row).
+        R_all, r_all = motion(np.vstack([X, ctx.ukf.x[None, :]]))
+        R_c, r_c = R_all[-1], r_all[-1]
+        Y, p_F = self._pixels(R_all[:-1], r_all[:-1], uvl0, uvr0)
         uvl_h, uvr_h, p_h, offset = uvl0, uvr0, p_F, None
         instruments = self._instrument_pixels(tr, idx)
-        self._motion_before = (tr.t_prev_ns, tr.t_ns, R_c, r_c)
+        if self.options.instrument_points:
+            self._motion_before = (tr.t_prev_ns, tr.t_ns, R_c, r_c)
         if instruments is not None:
             uvl_h, uvr_h = instruments
-            Y, _, _, p_h = self._predict(ctx, X, uvl_h, uvr_h, motion)
-
-            def at_mean(ul: F64, ur: F64, p: F64 | None) -> F64:
-                return self._model(ul, ur, lambda _: (R_c[None], r_c[None]), p)(None)[0]
-
-            offset = at_mean(uvl0, uvr0, p_F) - at_mean(uvl_h, uvr_h, p_h)
-            Y = Y + offset
+            Y_h, p_h = self._pixels(R_all, r_all, uvl_h, uvr_h)
+            offset = self._pixels(R_all[-1:], r_all[-1:], uvl0, uvr0)[0][0] - Y_h[-1]
+            Y = Y_h[:-1] + offset
         bias = self._bias(R_c, r_c, uvl0, uvr0)
         if bias is not None:
             Y = Y - bias
@@ -448,7 +442,8 @@ class PixelUpdater:
             (tr.t_ns - tr.t_prev_ns) * 1e-9)
         two_view = short or self.two_view or (
             (ctx.two_view or keyframe) and self._two_view_in_gaps)
-        if not keyframe:  # (a stored keyframe's tracks are no frame before the next)
+        # the k-2 pixels of the instruments (a stored keyframe's tracks are no frame before)
+        if self.options.instrument_points and not keyframe:
             self._k2 = self._pixels_before
             self._pixels_before = None if tr is None else (
                 tr.t_prev_ns, tr.t_ns, tr.track_id, tr.uv_left_prev, tr.uv_right_prev)

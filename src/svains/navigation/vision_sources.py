@@ -34,6 +34,7 @@ U8 = NDArray[np.uint8]
 # Keyframes tried by descriptors for one frame that lost its link (closest views first).
 RELOCALISE_TRIES = 5
 
+
 def pixel_std_px(configured: float | None, source: FeatureFrames | ImageFrames) -> float:
     """The pixels' own noise (px): the configured ``vision.pixel_noise_std``, else the
     source's (recorded features carry theirs; the image front end's is a placeholder), at
