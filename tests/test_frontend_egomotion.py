@@ -57,6 +57,22 @@ def test_ransac_recovers_motion_and_flags_outliers() -> None:
     assert np.linalg.norm(ego.p_Ck_Ckm1 - T_TRUE) < 5 * np.linalg.norm(sd[3:])
 
 
+def test_motion_only_skips_the_covariance_and_keeps_the_motion() -> None:
+    """``covariance=False`` (a linearisation point): the same motion, inliers and errors, bit
+    for bit, and a NaN covariance (never mistaken for a usable one)."""
+    p_prev, uvl, uvr, _ = _scene(2)
+    p_cur = RIG.triangulate(uvl, uvr)
+    full = estimate_egomotion_widening(p_prev, uvl, uvr, RIG, RansacOptions(seed=5), p_cur=p_cur)
+    only = estimate_egomotion_widening(p_prev, uvl, uvr, RIG, RansacOptions(seed=5), p_cur=p_cur,
+                                       covariance=False)  # fmt: skip
+    assert full.egomotion is not None and only.egomotion is not None
+    np.testing.assert_array_equal(only.egomotion.R_Ck_Ckm1, full.egomotion.R_Ck_Ckm1)
+    np.testing.assert_array_equal(only.egomotion.p_Ck_Ckm1, full.egomotion.p_Ck_Ckm1)
+    np.testing.assert_array_equal(only.inlier, full.inlier)
+    np.testing.assert_array_equal(only.error_px, full.error_px)
+    assert np.isnan(only.egomotion.cov).all() and np.isfinite(full.egomotion.cov).all()
+
+
 def test_ransac_works_without_triangulation_at_k_and_uses_prior() -> None:
     p_prev, uvl, uvr, out = _scene(2)
     prior = Egomotion(R_TRUE, T_TRUE, np.eye(6) * 1e-4)

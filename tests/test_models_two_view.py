@@ -133,3 +133,35 @@ def test_two_view_is_refused_without_clones_and_single_use_pixels(
     VisionOptions(two_view=True, shared_pixels=True, single_use_pixels=False)  # shared too
     with pytest.raises(ConfigError, match=r"got rotation 'imu', shared_pixels True"):
         VisionOptions(two_view=True, rotation="imu", shared_pixels=True)  # needs the clone
+
+
+def test_the_egomotion_linearisation_is_refined_once_per_model(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A mean motion that fits the pixels poorly takes the egomotion's linearisation: the
+    model's ``h`` (called up to six times by an iterated update) refines the points at the
+    egomotion once, and returns what refining them at every call would."""
+    import svains.navigation.vision_two_view as tvm
+
+    rng = np.random.default_rng(7)
+    p = _points(rng, 12)
+    z8 = _xyz_pixels(p)
+    R_off, r_off = so3_exp(np.array([0.02, -0.05, 0.05])), R_CAM + np.array([0.3, 0.0, 0.0])
+    R_all, r_all = np.stack([R_off, R_off]), np.stack([r_off, r_off])
+    tv = TwoViewFeatures.build(R_all, r_all, z8, p, RIG, 0.5, lambda: (R_C, R_CAM))
+    assert tv.alternative is not None
+    kept = np.arange(12)
+
+    def motion(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return np.repeat(R_off[None], X.shape[0], 0), np.repeat(r_off[None], X.shape[0], 0)
+
+    calls = []
+    real = tvm._linearised
+    monkeypatch.setattr(tvm, "_linearised", lambda *a: calls.append(1) or real(*a))
+    h = tv.model(kept, motion)
+    Y1, Y2 = h(np.zeros((3, 19))), h(np.zeros((3, 19)))
+    assert len(calls) == 3  # the mean's at each call, the egomotion's once
+    a, _, N = real(tv.a_F, z8, R_C, R_CAM, RIG)
+    expected = tvm._projected(N, two_view_pixels(*motion(np.zeros((3, 19))), a, RIG), z8)
+    np.testing.assert_array_equal(Y1, expected)
+    np.testing.assert_array_equal(Y2, expected)

@@ -166,6 +166,9 @@ def test_whitening_turns_noise_into_identity() -> None:
     Y = rng.normal(size=(5, 12))
     np.testing.assert_allclose(whiten_chol(Y, L), whiten(Y, W_inv), rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(whiten_chol(Y[0], L), whiten(Y[0], W_inv), rtol=1e-12, atol=1e-12)
+    # Diagonal factors (the two-view blocks) take a division: the same numbers.
+    D = np.broadcast_to(np.diag([0.5, 2.0, 1.0, 4.0]), (3, 4, 4))
+    np.testing.assert_allclose(whiten_chol(Y, D), whiten(Y, np.linalg.inv(D)), rtol=1e-15)
 
 
 def test_previous_pixel_noise_is_identity_map_without_motion() -> None:

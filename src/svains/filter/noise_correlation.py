@@ -44,7 +44,7 @@ F64 = NDArray[np.float64]
 _RCOND = 1e-10
 
 
-def _pinv_psd(P: F64) -> F64:
+def pinv_psd(P: F64) -> F64:
     """A generalised inverse ``X`` (``P X P = P``) of a symmetric positive semi-definite ``P``
     (n, n), cut at ``_RCOND`` at unit diagonal: ``D⁻¹ (D⁻¹ P D⁻¹)⁺ D⁻¹``, ``D`` the standard
     deviations. Cut on ``P`` as it is, a state mixing m² and (rad/s)² lost real directions
@@ -75,7 +75,7 @@ class NoiseCorrelation:
     ) -> None:
         self._C = np.asarray(C, dtype=float)
         self.mean = np.asarray(mean, dtype=float).copy()
-        self._M = _pinv_psd(np.asarray(P_post, dtype=float))
+        self._M = pinv_psd(np.asarray(P_post, dtype=float))
         self.blocks = np.asarray(blocks, dtype=float)
         self.keys = np.asarray(keys)
         self.t_ns = int(t_ns)
@@ -93,12 +93,12 @@ class NoiseCorrelation:
         """``C`` (ndx, k) for the state as it is now."""
         return self._C if self._phi is None else self._phi @ self._C
 
-    def unexplained(self, P: F64) -> tuple[F64, F64]:
+    def unexplained(self, P: F64, P_inv: F64 | None = None) -> tuple[F64, F64]:
         """``(C₀ (ndx0, k), M' (ndx0, ndx0))`` with ``Σ_n - C^T P⁻¹ C = blocks ⊕ + C₀^T M' C₀``
         for the current covariance ``P``: the noise's covariance given the state error (its
-        part the state does not explain)."""
+        part the state does not explain). ``P_inv``: ``pinv_psd(P)`` if the caller has it."""
         phi = self._maps()
-        Mp = self._M - phi.T @ _pinv_psd(P) @ phi
+        Mp = self._M - phi.T @ (pinv_psd(P) if P_inv is None else P_inv) @ phi
         # A covariance: round-off of the difference (M holds P⁻¹, up to 1e9) clipped at zero.
         w, V = np.linalg.eigh(0.5 * (Mp + Mp.T))
         return self._C, (V * np.maximum(w, 0.0)) @ V.T
@@ -116,7 +116,7 @@ class NoiseCorrelation:
             # the consider rows of K ν (a review: C off by 0.24 of 0.29)
             raise FilterError("NoiseCorrelation: an update with consider parameters cannot be "
                               "followed (the noise's correlation needs the full update)")
-        Pi = _pinv_psd(P_prior)
+        Pi = pinv_psd(P_prior)
         dx = manifold.local(np.asarray(x_post, float)[None, :], np.asarray(x_prior, float))[0]
         PiPhi = Pi @ self._maps()
         # (Φ C₀)^T P⁻¹ δx̂ without forming Φ C₀ (ndx × k) at every update between frames.
@@ -135,14 +135,16 @@ class NoiseCorrelation:
 
 def decorrelated(
     h: Callable[[F64], F64], manifold: Manifold, x0: F64, P0: F64, AC: F64, A_mean: F64,
+    P0_inv: F64 | None = None,
 ) -> Callable[[F64], F64]:
     """The update ``z = h(x) + A n + w`` with ``n`` estimated as ``n̂`` and correlated with the
     prior's error, ``C = E[x̃ n^T]``, as an update with independent noise ``A e + w``
     (``e = n - n̂ - C^T P0⁻¹ x̃``, covariance ``NoiseCorrelation.unexplained``): its model
     ``h'(X) = h(X) + A n̂ + A C^T P0⁻¹ (X ⊟ x0)`` for sigma points ``X`` (S, nx) of any mean
     (iterated updates). ``AC`` = ``A C^T`` (nz, ndx) and ``A_mean`` = ``A n̂`` (nz,) (the caller
-    knows the structure of ``A``); ``x0`` (nx,), ``P0`` (ndx, ndx) the prior."""
-    AG = AC @ _pinv_psd(P0)  # (nz, ndx): A times n regressed on the state error
+    knows the structure of ``A``); ``x0`` (nx,), ``P0`` (ndx, ndx) the prior (``P0_inv``:
+    ``pinv_psd(P0)`` if the caller has it)."""
+    AG = AC @ (pinv_psd(P0) if P0_inv is None else P0_inv)  # (nz, ndx): A n regressed on x̃
     offset = np.asarray(A_mean, dtype=float)
 
     def h2(X: F64) -> F64:

@@ -262,7 +262,7 @@ def _ransac(
 def estimate_egomotion(
     p_prev: F64, uv_left: F64, uv_right: F64, rig: RectifiedStereo, opts: RansacOptions,
     p_cur: F64 | Callable[[], F64] | None = None, prior: Egomotion | None = None,
-    rng: np.random.Generator | None = None,
+    rng: np.random.Generator | None = None, covariance: bool = True,
 ) -> EgomotionResult:
     """RANSAC + Gauss-Newton egomotion from N features.
 
@@ -270,6 +270,8 @@ def estimate_egomotion(
     rectified at k; ``p_cur`` (N, 3) m triangulated at k seeds hypotheses by 3-point alignment
     (or a function giving them, called only if random hypotheses are drawn);
     ``prior`` (e.g. the previous motion) is one extra hypothesis. Never raises on degenerate input.
+    ``covariance`` False: the motion only, its ``cov`` NaN (``egomotion_covariance`` is about
+    half the cost; the motion and inliers are the same either way).
     """
     p_prev = np.asarray(p_prev, dtype=float).reshape(-1, 3)
     uv_left = np.asarray(uv_left, dtype=float).reshape(-1, 2)
@@ -315,6 +317,9 @@ def estimate_egomotion(
     inlier[idx[inlier_sub]] = True
     error = np.full(n, np.inf)
     error[idx] = e
+    if not covariance:
+        return EgomotionResult(Egomotion(R_Ck_Ckm1=R, p_Ck_Ckm1=t, cov=np.full((6, 6), np.nan)),
+                               inlier, error)  # fmt: skip
     sel = idx[inlier_sub]
     dsel = None if dvar is None else dvar[inlier_sub]
     cov = egomotion_covariance(
@@ -345,14 +350,15 @@ def estimate_egomotion_widening(
     p_cur: F64 | Callable[[], F64] | None = None, prior: Egomotion | None = None,
     rng: np.random.Generator | None = None,
     wider_px: tuple[float, ...] = WIDENING_INLIER_PX,
-    min_fraction: float = WIDENING_MIN_INLIER_FRACTION,
+    min_fraction: float = WIDENING_MIN_INLIER_FRACTION, covariance: bool = True,
 ) -> EgomotionResult:
     """``estimate_egomotion`` at ``opts.inlier_px``; while that finds no motion, again at each
     of ``wider_px`` above it (same seed; arguments as there), where a motion counts only if at
     least ``min_fraction`` of the usable features (finite k-1 point) are its inliers. For
     frames far apart, whose k-1 depth noise moves even the true motion's reprojections by more
     than the threshold. Returns the first motion that counts, else the first try's result."""
-    first = estimate_egomotion(p_prev, uv_left, uv_right, rig, opts, p_cur, prior, rng)
+    first = estimate_egomotion(p_prev, uv_left, uv_right, rig, opts, p_cur, prior, rng,
+                               covariance)  # fmt: skip
     if first.egomotion is not None:
         return first
     usable = int(np.isfinite(np.asarray(p_prev, float).reshape(-1, 3)).all(axis=1).sum())
@@ -362,7 +368,7 @@ def estimate_egomotion_widening(
         if px <= opts.inlier_px:
             continue
         res = estimate_egomotion(p_prev, uv_left, uv_right, rig, replace(opts, inlier_px=px),
-                                 p_cur, prior, rng)  # fmt: skip
+                                 p_cur, prior, rng, covariance)  # fmt: skip
         if res.egomotion is not None and res.inlier.sum() >= min_fraction * usable:
             return res
     return first

@@ -43,21 +43,27 @@ def _scaled_points(R_c: F64, r_c: F64, a_F: F64) -> F64:
     return bearing @ np.swapaxes(R_c, -1, -2) - a_F[None, :, 2:3] * r_c[:, None, :]
 
 
-def two_view_pixels(R_c: F64, r_c: F64, a_F: F64, rig: RectifiedStereo) -> F64:
+def two_view_pixels(
+    R_c: F64, r_c: F64, a_F: F64, rig: RectifiedStereo, q: F64 | None = None
+) -> F64:
     """Predicted pixels (S, M, 8) px: ``[uL, vL, uR, vR]`` at k-1, then at k.
 
     ``R_c`` (S, 3, 3), ``r_c`` (S, 3) m: the left camera's motion k-1 -> k of each sigma point
-    (``d_k = R_c d - r_c``); ``a_F`` (M, 3) the points in inverse depth at k-1.
+    (``d_k = R_c d - r_c``); ``a_F`` (M, 3) the points in inverse depth at k-1; ``q`` their
+    ``_scaled_points`` if the caller has them.
     """
     f, b = rig.f, rig.baseline
     S, M = R_c.shape[0], a_F.shape[0]
     out = np.empty((S, M, NUM_PIXELS))
     rho = a_F[:, 2]
-    out[:, :, 0] = f * a_F[:, 0] + rig.cu
-    out[:, :, 1] = f * a_F[:, 1] + rig.cv
-    out[:, :, 2] = out[:, :, 0] - f * b * rho
-    out[:, :, 3] = out[:, :, 1]
-    q = _scaled_points(R_c, r_c, a_F)
+    # The k-1 pixels do not depend on the motion: computed once, copied to every sigma point.
+    before = np.empty((M, 4))
+    before[:, 0] = f * a_F[:, 0] + rig.cu
+    before[:, 1] = f * a_F[:, 1] + rig.cv
+    before[:, 2] = before[:, 0] - f * b * rho
+    before[:, 3] = before[:, 1]
+    out[:, :, :4] = before
+    q = _scaled_points(R_c, r_c, a_F) if q is None else q
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = f / q[..., 2]
     out[:, :, 4] = q[..., 0] * inv + rig.cu
@@ -67,8 +73,11 @@ def two_view_pixels(R_c: F64, r_c: F64, a_F: F64, rig: RectifiedStereo) -> F64:
     return out
 
 
-def point_jacobian(R_c: F64, r_c: F64, a_F: F64, rig: RectifiedStereo) -> F64:
-    """``∂ pixels / ∂ (α, β, ρ)`` (M, 8, 3) at one camera motion ``R_c`` (3, 3), ``r_c`` (3,)."""
+def point_jacobian(
+    R_c: F64, r_c: F64, a_F: F64, rig: RectifiedStereo, q: F64 | None = None
+) -> F64:
+    """``∂ pixels / ∂ (α, β, ρ)`` (M, 8, 3) at one camera motion ``R_c`` (3, 3), ``r_c`` (3,)
+    (``q`` (M, 3): the points' ``_scaled_points`` if the caller has them)."""
     f, b = rig.f, rig.baseline
     M = a_F.shape[0]
     rho = a_F[:, 2]
@@ -76,7 +85,7 @@ def point_jacobian(R_c: F64, r_c: F64, a_F: F64, rig: RectifiedStereo) -> F64:
     J[:, 0, 0] = J[:, 2, 0] = f
     J[:, 1, 1] = J[:, 3, 1] = f
     J[:, 2, 2] = -f * b
-    q = _scaled_points(R_c[None], r_c[None], a_F)[0]  # (M, 3)
+    q = _scaled_points(R_c[None], r_c[None], a_F)[0] if q is None else q  # (M, 3)
     D = np.concatenate([np.broadcast_to(R_c[:, :2], (M, 3, 2)),
                         np.broadcast_to(-r_c[:, None], (M, 3, 1))], axis=2)  # ∂q/∂a, (M, 3, 3)
     inv = f / q[:, 2]
@@ -103,13 +112,18 @@ def refine_points(
     ``R_c`` (3, 3), ``r_c`` (3,) the mean camera motion k-1 -> k.
     """
     a = a_F.copy()
+    R1, r1 = R_c[None], r_c[None]
     for _ in range(iterations):
-        r = z_F - two_view_pixels(R_c[None], r_c[None], a, rig)[0]
-        J = point_jacobian(R_c, r_c, a, rig)
+        q = _scaled_points(R1, r1, a)  # shared by the pixels and their Jacobian
+        r = z_F - two_view_pixels(R1, r1, a, rig, q)[0]
+        J = point_jacobian(R_c, r_c, a, rig, q[0])
         JT = np.swapaxes(J, 1, 2)
         A = JT @ J
         g = (JT @ r[:, :, None])[:, :, 0]
         ok = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(g).all(axis=1)
+        if ok.all():  # the usual case: no copies (each system is solved on its own either way)
+            a += _solve_normal(A, g)
+            continue
         if not ok.any():
             break
         step = np.zeros_like(a)

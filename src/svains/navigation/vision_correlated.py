@@ -24,7 +24,7 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
-from svains.filter.noise_correlation import NoiseCorrelation, decorrelated
+from svains.filter.noise_correlation import NoiseCorrelation, decorrelated, pinv_psd
 from svains.filter.ukf import UKF
 from svains.models.vision_two_view import NUM_FUSED
 from svains.navigation.base import MeasurementBlock
@@ -70,25 +70,29 @@ def with_correlation(
     rows = np.flatnonzero(hit)  # features of the block with k-1 pixels in ``corr``
     src = order[pos[rows]]  # their groups in ``corr``
     A = np.transpose(N[rows, :_PIXELS, :], (0, 2, 1)) / sigma_px  # (m, 5, 4): A_f
-    C0, Mp = corr.unexplained(ukf.P)
-    C_now = corr.current().reshape(-1, corr.keys.size, _PIXELS)[:, src, :]  # (ndx, m, 4)
-    C0m = C0.reshape(-1, corr.keys.size, _PIXELS)[:, src, :]  # (ndx0, m, 4)
-    nz, ndx = block.z.size, C_now.shape[0]
-    AC = np.zeros((nz // NUM_FUSED, NUM_FUSED, ndx))
-    AC[rows] = np.einsum("mjp,dmp->mjd", A, C_now)
-    AC0 = np.zeros((nz // NUM_FUSED, NUM_FUSED, C0m.shape[0]))
-    AC0[rows] = np.einsum("mjp,dmp->mjd", A, C0m)
-    A_mean = np.zeros((nz // NUM_FUSED, NUM_FUSED))
-    A_mean[rows] = np.einsum("mjp,mp->mj", A, corr.mean.reshape(-1, _PIXELS)[src])
+    P_inv = pinv_psd(ukf.P)  # for both uses below (the same P)
+    C0, Mp = corr.unexplained(ukf.P, P_inv)
+    # Feature by feature, A_f times its 4 columns of C (rows: the state's tangent) as batched
+    # (5, 4) @ (4, ndx) products: several times faster than ``einsum`` at 300 features.
+    C_now = _feature_columns(corr.current(), src)  # (m, 4, ndx)
+    C0m = _feature_columns(C0, src)  # (m, 4, ndx0)
+    nz, ndx = block.z.size, C_now.shape[2]
+    n_f = nz // NUM_FUSED
+    AC = np.zeros((n_f, NUM_FUSED, ndx))
+    AC[rows] = A @ C_now
+    AC0 = np.zeros((n_f, NUM_FUSED, C0m.shape[2]))
+    AC0[rows] = A @ C0m
+    A_mean = np.zeros((n_f, NUM_FUSED))
+    A_mean[rows] = (A @ corr.mean.reshape(-1, _PIXELS)[src][:, :, None])[:, :, 0]
     # Noise of the block given the state: its own (unit) minus what the k-1 pixels put in
     # (A Σ A^T, Σ = σ² I), plus what of their noise the k-2 -> k-1 update left unexplained:
     # per feature (blocks) and the part the state error no longer explains (low rank, C₀ M'
     # C₀^T). Whitened again (feature blocks, then the low-rank term) so the filter keeps its
     # diagonal-noise path.
-    n_f = nz // NUM_FUSED
     R_b = np.broadcast_to(np.eye(NUM_FUSED), (n_f, NUM_FUSED, NUM_FUSED)).copy()
-    R_b[rows] += np.einsum("mjp,mpq,miq->mji", A,
-                           corr.blocks[src] - sigma_px**2 * np.eye(_PIXELS), A)  # fmt: skip
+    D = corr.blocks[src] - sigma_px**2 * np.eye(_PIXELS)
+    if D.any():  # zero while ``after_update`` keeps each pixel's full variance σ² I
+        R_b[rows] += A @ D @ np.swapaxes(A, 1, 2)
     try:
         L_b = np.linalg.cholesky(R_b)
     except np.linalg.LinAlgError:
@@ -97,9 +101,14 @@ def with_correlation(
     G = whiten_chol((AC0.reshape(nz, -1) @ (V * np.sqrt(np.maximum(w, 0.0)))).T, L_b).T
     white = Whitening.of(L_b, G)
     h2 = decorrelated(block.h, ukf.manifold, ukf.x, ukf.P, AC.reshape(nz, ndx),
-                      A_mean.reshape(-1))  # fmt: skip
+                      A_mean.reshape(-1), P_inv)  # fmt: skip
     return (replace(block, h=lambda X: white(h2(X)), z=white(block.z[None, :])[0]),
             int(rows.size), white)
+
+
+def _feature_columns(C: F64, groups: I64) -> F64:
+    """The columns of ``C`` (n, 4k) of the pixel groups ``groups`` (m,): (m, 4, n)."""
+    return C.T.reshape(-1, _PIXELS, C.shape[0])[groups]
 
 
 def after_update(
@@ -120,23 +129,25 @@ def after_update(
     Y = N[:, _PIXELS:, :] / sigma_px  # (K, 4, 5)
     Q = None
     if white is not None:
-        # Each row of B^T is one feature's 5 numbers: whitened by that feature's own factor.
-        Y = whiten_chol(Y.reshape(1, n_f * _PIXELS * NUM_FUSED),
-                        np.repeat(white.L, _PIXELS, axis=0)).reshape(n_f, _PIXELS, NUM_FUSED)
+        # Each row of B^T is one feature's 5 numbers: whitened by that feature's own factor
+        # (as 4 rows of all K features' numbers, so each factor serves its feature's 4 rows).
+        Yp = np.swapaxes(Y, 0, 1).reshape(_PIXELS, n_f * NUM_FUSED)
+        Y = np.swapaxes(whiten_chol(Yp, white.L).reshape(_PIXELS, n_f, NUM_FUSED), 0, 1)
         if white.U is not None:
             Uf = white.U.reshape(n_f, NUM_FUSED, -1)  # (K, 5, r)
-            Q = np.einsum("kpj,kjr->kpr", Y, Uf) * white.d  # (K, 4, r): (Y U) D
+            Q = (Y @ Uf) * white.d  # (K, 4, r): (Y U) D
     var = sigma_px**2
-    K = KT[:nz].T.reshape(KT.shape[1], n_f, NUM_FUSED)  # (ndx, K, 5)
-    Srf = Sr[:nz].reshape(n_f, NUM_FUSED)
-    KB = np.einsum("dkj,kpj->dkp", K, Y)  # (ndx, K, 4): K B, feature blocks
-    BS = np.einsum("kpj,kj->kp", Y, Srf)  # B^T S⁻¹ν
+    # Feature blocks as batched products (several times faster than ``einsum``): B^T K^T, the
+    # transpose of K B, (K, 4, ndx) from each feature's 5 rows of K^T, and B^T S⁻¹ν.
+    BK = Y @ KT[:nz].reshape(n_f, NUM_FUSED, -1)
+    BS = (Y @ Sr[:nz].reshape(n_f, NUM_FUSED, 1))[:, :, 0]
+    BKT = BK.reshape(n_f * _PIXELS, -1)  # (4K, ndx)
     if Q is not None:
         assert white.U is not None and white.d is not None
-        KU = KT[:nz].T @ white.U  # (ndx, r)
-        KB = KB - np.einsum("dr,kpr->dkp", KU, Q)
+        Qm = Q.reshape(n_f * _PIXELS, -1)
+        BKT = BKT - Qm @ (white.U.T @ KT[:nz])
         BS = BS - Q @ (white.U.T @ Sr[:nz])
-    C = -var * KB.reshape(KB.shape[0], -1)  # (ndx, 4K): E[x̃⁺ n^T] = -K B Σ
+    C = -var * BKT.T  # (ndx, 4K): E[x̃⁺ n^T] = -K B Σ
     n_mean = var * BS.reshape(-1)  # n̂ = Σ B^T S⁻¹ν
     # The pair also estimated part of each k pixel's noise from its own residual (a rectified
     # pair's vertical disparity is noise only): Σ - Σ B^T B Σ per feature, which would leave

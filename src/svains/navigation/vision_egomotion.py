@@ -39,12 +39,15 @@ def egomotion_noise(ego: Egomotion, options: VisionOptions) -> tuple[F64, F64] |
 
 
 def tracks_egomotion(
-    tr: StereoTracks, rig: RectifiedStereo, seed: int, bundle: bool = False
+    tr: StereoTracks, rig: RectifiedStereo, seed: int, bundle: bool = False,
+    covariance: bool = True,
 ) -> Egomotion | None:
     """The egomotion the tracks carry, or that of their inliers (the front end's RANSAC +
     refinement, at wider inlier thresholds while that finds none:
     ``frontend.egomotion.estimate_egomotion_widening``), with ``bundle``
-    refined by the two-frame bundle adjustment (``frontend.egomotion_bundle.refine_or_keep``)."""
+    refined by the two-frame bundle adjustment (``frontend.egomotion_bundle.refine_or_keep``).
+    ``covariance`` False: for the motion only, RANSAC's covariance is not computed (NaN; the
+    motion is the same)."""
     if tr.egomotion is not None:
         return tr.egomotion
     ok = tr.inlier & np.isfinite(tr.p_Ckm1_F).all(axis=1)
@@ -55,7 +58,8 @@ def tracks_egomotion(
 
     uvl, uvr = tr.uv_left[ok], tr.uv_right[ok]
     res = estimate_egomotion_widening(tr.p_Ckm1_F[ok], uvl, uvr, rig, RansacOptions(seed=seed),
-                                      p_cur=rig.triangulate(uvl, uvr))  # fmt: skip
+                                      p_cur=rig.triangulate(uvl, uvr),
+                                      covariance=covariance)  # fmt: skip
     if res.egomotion is None or not bundle:
         return res.egomotion
     from svains.frontend.egomotion_bundle import refine_or_keep

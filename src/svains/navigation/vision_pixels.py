@@ -175,8 +175,9 @@ class PixelUpdater:
         # it is known (on rendered keyframes from images, 1 px assumed, it took V2_02 seed 2
         # from 0.366 to 0.996 m).
         self._noise_known = known
-        # The last tracks' egomotion (``_egomotion_of``): a frame may need it twice.
-        self._egomotion_memo: tuple[StereoTracks, Egomotion | None] | None = None
+        # The last tracks' egomotion (``_egomotion_of``): a frame may need it twice. The flag:
+        # whether its covariance was computed (a linearisation point needs the motion only).
+        self._egomotion_memo: tuple[StereoTracks, Egomotion | None, bool] | None = None
         self.last_tracks: StereoTracks | None = None  # the last frame's (``camera_continuity``)
         self._fused: tuple[int, I64] | None = None  # (frame time, track ids) of the last update
         # Track ids and disparities (px) at the k-1 frame of the last tracks (``_near``).
@@ -393,7 +394,9 @@ class PixelUpdater:
         z8 = np.concatenate([uvl0, uvr0, z.reshape(-1, 4)], axis=1)
 
         def egomotion() -> tuple[F64, F64] | None:
-            ego = self._egomotion_of(tr)
+            # The motion only: its covariance (half the estimate's cost) is made when a
+            # fallback to fusing the egomotion asks for it (``_egomotion_of``).
+            ego = self._egomotion_of(tr, covariance=False)
             if ego is None:
                 return None
             self.counters.frames_linearised_at_egomotion += 1
@@ -575,14 +578,18 @@ class PixelUpdater:
             self.counters.frames_egomotion += 1
         return stats
 
-    def _egomotion_of(self, tr: StereoTracks) -> Egomotion | None:
+    def _egomotion_of(self, tr: StereoTracks, covariance: bool = True) -> Egomotion | None:
         """``tracks_egomotion`` of ``tr``, computed once: a two-view frame linearised at its
-        egomotion may fall back to fusing it."""
-        if self._egomotion_memo is None or self._egomotion_memo[0] is not tr:
+        egomotion may fall back to fusing it. ``covariance`` False: the motion is all the
+        caller reads (its ``cov`` may be NaN); asked for later, the covariance is made by
+        estimating again (the same seed gives the same motion)."""
+        memo = self._egomotion_memo
+        if memo is None or memo[0] is not tr or (covariance and not memo[2]):
             ego = tracks_egomotion(tr, self.rig, seed=self.counters.frames,
-                                   bundle=self.options.bundle_for(self.method))  # fmt: skip
-            self._egomotion_memo = (tr, ego)
-        return self._egomotion_memo[1]
+                                   bundle=self.options.bundle_for(self.method),
+                                   covariance=covariance)  # fmt: skip
+            memo = self._egomotion_memo = (tr, ego, covariance or ego is None)
+        return memo[1]
 
     def _refused(self, f: _Features, n_valid: int) -> UpdateStats:
         """The stats of a frame refused by the frame test: the NIS of its valid features

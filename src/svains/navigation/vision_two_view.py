@@ -25,6 +25,7 @@ the same prediction in a rectified pair, are attenuated by it).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -46,6 +47,7 @@ from svains.navigation.vision_noise import feature_gate
 F64 = NDArray[np.float64]
 MotionFn = Callable[[F64], tuple[F64, F64]]
 Motion = tuple[F64, F64]  # one camera motion k-1 -> k: R_c (3, 3), r_c (3,) m
+Linearisation = tuple[F64, NDArray[np.bool_], F64]  # points (M, 3), valid (M,), N (M, 8, 5)
 _FAR_RHO = 1e-3  # 1/m, stand-in point (1 km ahead) for a feature whose refinement failed
 # Median over the features of the refined pixel residual's squared norm over σ²: about 5 (the
 # χ² of its 5 dof) at the right motion; beyond the χ²(5) 0.99 quantile the motion is off.
@@ -88,7 +90,7 @@ class TwoViewFeatures:
         if egomotion is not None:
             own = _misfit(lin, z8, R_all[-1], r_all[-1], rig, sigma_px)
             if own > WIDE_MISFIT and (alternative := egomotion()) is not None:
-                lin = _better(lin, own, a0, z8, alternative, rig, sigma_px)
+                lin = _better(lin, own, _fit(a0, z8, alternative, rig, sigma_px))
         a, valid, N = lin
         Y = _projected(N, two_view_pixels(R_all[:-1], r_all[:-1], a, rig), z8)
         M = z8.shape[0]
@@ -111,25 +113,29 @@ class TwoViewFeatures:
         """``h(X)`` (S, 5K) of the kept features for any sigma points ``X`` (S, nx) (iterated
         updates): points and null spaces linearised again at the motion of ``X[0]``."""
         a0, z8, rig, alt = self.a_F[kept], self.z8[kept], self.rig, self.alternative
+        sigma_px = self.sigma_px
+        # The linearisation at the egomotion and its misfit are the same at every call (same
+        # points, same motion): made once, when first needed (an iterated update calls ``h`` up
+        # to six times per frame, and refining the points is most of a call).
+        alt_fit = None if alt is None else functools.cache(
+            lambda: _fit(a0, z8, alt, rig, sigma_px))
 
         def h(X: F64) -> F64:
             R_c, r_c = motion(X)
             lin = _linearised(a0, z8, R_c[0], r_c[0], rig)
-            if alt is not None:
+            if alt_fit is not None:
                 # Near the posterior the state's own motion is kept: the egomotion, fitted to
                 # the pixels alone, always fits them a little better.
-                own = _misfit(lin, z8, R_c[0], r_c[0], rig, self.sigma_px)
+                own = _misfit(lin, z8, R_c[0], r_c[0], rig, sigma_px)
                 if own > WIDE_MISFIT:
-                    lin = _better(lin, own, a0, z8, alt, rig, self.sigma_px)
+                    lin = _better(lin, own, alt_fit())
             a, _, N = lin
             return _projected(N, two_view_pixels(R_c, r_c, a, rig), z8)
 
         return h
 
 
-def _linearised(
-    a0: F64, z8: F64, R_c: F64, r_c: F64, rig: RectifiedStereo
-) -> tuple[F64, NDArray[np.bool_], F64]:
+def _linearised(a0: F64, z8: F64, R_c: F64, r_c: F64, rig: RectifiedStereo) -> Linearisation:
     """Points refined from ``a0`` (M, 3) over the pixels ``z8`` (M, 8) at the camera motion
     ``R_c`` (3, 3), ``r_c`` (3,): (points (M, 3), valid (M,), null spaces (M, 8, 5)). A point
     whose refinement failed or lies behind either camera is invalid (and replaced by a far
@@ -143,8 +149,7 @@ def _linearised(
 
 
 def _misfit(
-    lin: tuple[F64, NDArray[np.bool_], F64], z8: F64, R_c: F64, r_c: F64, rig: RectifiedStereo,
-    sigma_px: float,
+    lin: Linearisation, z8: F64, R_c: F64, r_c: F64, rig: RectifiedStereo, sigma_px: float
 ) -> float:
     """Median over the features of ``|z8 - pixels|² / σ²`` at the points ``lin`` refined for
     the motion ``R_c``, ``r_c`` (an invalid feature counts as infinite)."""
@@ -154,17 +159,24 @@ def _misfit(
     return float(np.median(cost)) if cost.size else np.inf
 
 
-def _better(
-    lin: tuple[F64, NDArray[np.bool_], F64], own: float, a0: F64, z8: F64, alternative: Motion,
-    rig: RectifiedStereo, sigma_px: float,
-) -> tuple[F64, NDArray[np.bool_], F64]:
+def _fit(
+    a0: F64, z8: F64, motion: Motion, rig: RectifiedStereo, sigma_px: float
+) -> tuple[Linearisation, float]:
+    """The linearisation (``_linearised``) of the points ``a0`` over the pixels ``z8`` at the
+    camera motion ``motion`` and its misfit (``_misfit``)."""
+    lin = _linearised(a0, z8, *motion, rig)
+    return lin, _misfit(lin, z8, *motion, rig, sigma_px)
+
+
+def _better(lin: Linearisation, own: float, other: tuple[Linearisation, float]) -> Linearisation:
     """The linearisation (points, valid, null spaces) ``lin``, whose misfit is ``own``
-    (``_misfit``), or the one at ``alternative`` if that fits the pixels ``z8`` better. The
-    callers ask only once ``own`` exceeds ``WIDE_MISFIT``."""
-    other = _linearised(a0, z8, *alternative, rig)
-    return other if _misfit(other, z8, *alternative, rig, sigma_px) < own else lin
+    (``_misfit``), or ``other`` (another motion's, ``_fit``) if that fits the pixels better.
+    The callers ask only once ``own`` exceeds ``WIDE_MISFIT``."""
+    return other[0] if other[1] < own else lin
 
 
 def _projected(N: F64, Y8: F64, z8: F64) -> F64:
     """Predicted minus tracked pixels (S, M, 8) onto the bases ``N`` (M, 8, 5): (S, 5M)."""
-    return np.einsum("mkj,smk->smj", N, Y8 - z8).reshape(Y8.shape[0], -1)
+    # A batched matmul over the features, (M, S, 8) @ (M, 8, 5): 5x faster than the same
+    # contraction by ``einsum`` (which does not reach BLAS here) at 49 sigma points x 300.
+    return np.swapaxes(np.swapaxes(Y8 - z8, 0, 1) @ N, 0, 1).reshape(Y8.shape[0], -1)
