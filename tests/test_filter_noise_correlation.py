@@ -162,3 +162,49 @@ def test_an_update_with_consider_parameters_is_refused() -> None:
     with pytest.raises(ConfigError, match="consider_extrinsics_std_deg does not go with "
                                           r"vision\.correlated_pixels"):  # fmt: skip
         VisionOptions(correlated_pixels=True, consider_extrinsics_std_deg=0.5)
+
+
+def test_sensor_updates_between_the_frames_map_the_correlation_too() -> None:
+    """The Navigator fuses GPS and magnetometer between two frames with ``update_blocks`` (one
+    sigma-point draw, several blocks): the observer maps C through those updates as through
+    ``update``, and the second update still equals the filter that carries ``n`` in its state
+    (a probe's suspect for the GPS-aided flights: C left unmapped by a GPS update)."""
+    p = _problem(seed=5)
+    rng, n, k = p["rng"], p["n"], p["k"]
+    z1, z2 = rng.normal(size=5), rng.normal(size=6)
+    Hg, Wg = rng.normal(size=(3, n)), 0.2 * np.eye(3)  # a "GPS" block and a "mag" block
+    Hm, Wm = rng.normal(size=(2, n)), 0.1 * np.eye(2)
+    zg, zm = rng.normal(size=3), rng.normal(size=2)
+    H2 = p["H2"][:, :n]
+
+    xa = np.concatenate([p["x0"], np.zeros(k)])
+    Pa = np.block([[p["P0"], np.zeros((n, k))], [np.zeros((k, n)), p["Sigma"]]])
+    xa, Pa = _kf_update(xa, Pa, np.hstack([p["H1"], p["B1"]]), p["W1"], z1)
+    Fa = np.block([[p["F"], np.zeros((n, k))], [np.zeros((k, n)), np.eye(k)]])
+    xa, Pa = Fa @ xa, Fa @ Pa @ Fa.T
+    Pa[:n, :n] += p["Q"]
+    Hgm = np.hstack([np.vstack([Hg, Hm]), np.zeros((5, k))])
+    xa, Pa = _kf_update(xa, Pa, Hgm, np.block([[Wg, np.zeros((3, 2))], [np.zeros((2, 3)), Wm]]),
+                        np.concatenate([zg, zm]))  # fmt: skip
+    xa, Pa = _kf_update(xa, Pa, np.hstack([H2, p["A2"]]), p["W2"], z2)
+
+    ukf = UKF(Euclidean(n), MerweScaledSigmaPoints(n, alpha=0.7), p["x0"], p["P0"])
+    R1 = p["B1"] @ p["Sigma"] @ p["B1"].T + p["W1"]
+    assert ukf.update(lambda X: X @ p["H1"].T, z1, R1).accepted
+    Sig, B1 = p["Sigma"], p["B1"]
+    learnt = Sig - Sig @ B1.T @ np.linalg.solve(R1, B1 @ Sig)
+    corr = NoiseCorrelation(-ukf.last_gain_T.T @ B1 @ Sig, Sig @ B1.T @ ukf.last_innovation_solve,
+                            ukf.P, learnt[None], np.arange(1), 0)  # fmt: skip
+    ukf.observers.append(corr)
+    ukf.predict(lambda X, u_, dt: X @ p["F"].T, None, 0.1, p["Q"])
+    stats = ukf.update_blocks([(lambda X: X @ Hg.T, zg, Wg, None, "gps"),
+                               (lambda X: X @ Hm.T, zm, Wm, None, "mag")])  # fmt: skip
+    assert all(s.accepted for s in stats)
+    ukf.observers.remove(corr)
+    C0, Mp = corr.unexplained(ukf.P)
+    R_e = p["W2"] + p["A2"] @ (corr.blocks[0] + C0.T @ Mp @ C0) @ p["A2"].T
+    h2 = decorrelated(lambda X: X @ H2.T, ukf.manifold, ukf.x, ukf.P,
+                      p["A2"] @ corr.current().T, p["A2"] @ corr.mean)  # fmt: skip
+    assert ukf.update(h2, z2, R_e).accepted
+    np.testing.assert_allclose(ukf.x, xa[:n], rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(ukf.P, Pa[:n, :n], rtol=1e-7, atol=1e-10)
