@@ -74,11 +74,13 @@ class VisionOptions:
     10 seeds GPS-denied, ``3d`` ATE 0.094 -> 0.054 m, NEES 11.58 -> 9.10 (band 6.57-11.81);
     EuRoC V1_01 every frame 0.037 -> 0.018 m, every 10th / 25th 0.070 / 0.514 -> 0.070 /
     0.509 m; simulated 2 Hz flights 0.0371 -> 0.0279 m (0.0331 -> 0.0230 at ``vo``'s stamps);
-    costs: EuRoC irregular frames 0.286 -> 0.310 m (max 0.660 -> 0.786), about 4x the wall time
-    of a 5 Hz run, and the smoother, which takes measurement noise as white, does not know the
-    correlation. Off: ``single_use_pixels`` (clones) lets
-    each feature pixel enter one update only (a feature fused at k-1 is not triangulated again
-    at k, every other frame of a long track is lost); ``min_disparity_px`` (None:
+    costs: EuRoC irregular frames 0.286 -> 0.310 m (max 0.660 -> 0.786), 1.4-1.7x the wall time
+    of a 5 Hz run (2026-12-07), and the smoother, which takes measurement noise as white, does
+    not know the correlation; starts and checks tuned with single-use pixels are not ready for
+    it (``docs/results/low-rate.md``, "Correlated pixels as the default?"). Off:
+    ``single_use_pixels`` (clones) lets each feature pixel enter one update only (a feature
+    fused at k-1 is not triangulated again at k, every other frame of a long track is lost);
+    ``min_disparity_px`` (None:
     ``min_disparity()``) drops features whose disparity one frame earlier is smaller;
     ``frame_stride`` uses every n-th stereo frame; ``egomotion_bundle`` refines the egomotion of
     pre-tracked features by a two-frame bundle adjustment (None: ``vo`` only, see
@@ -246,7 +248,7 @@ class VisionOptions:
     # Every pixel in both frame pairs it belongs to at its full variance, the noise it shares
     # between them followed as a cross-covariance with the state (``filter.noise_correlation``):
     # the information single use leaves out, without the double count shared pixels split.
-    # Opt-in (measurements in the docstring): it loses on EuRoC's irregular frames, costs 4x.
+    # Opt-in (measurements in the docstring): it loses on EuRoC's irregular frames, costs 1.4-1.7x.
     correlated_pixels: bool = False
     single_use_pixels: bool = True
     min_disparity_px: float | None = None
