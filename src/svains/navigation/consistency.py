@@ -702,6 +702,23 @@ class ConsistencyMonitor:
                     f"{name}? It is not fused for a while", (name,))
         return None
 
+    def withdraw_jumps(self) -> tuple[str, ...]:
+        """The anchor sensors refused now as jumped (see the module), that refusal withdrawn:
+        the jump, its hold and its run of rejections forgotten, so the gate and the ordinary
+        recovery judge their next updates. For a state found wrong by other means (a heading
+        turned from the GPS velocities), whose anchor had contradicted it."""
+        out = []
+        for name, s in self._sensors.items():
+            if name not in self.options.anchor_sensors or s.jump_ns is None:
+                continue
+            s.consecutive_rejections, s.jump_ns, s.jump_grew = 0, None, False
+            s.jump_residual = None
+            s.jump_track.clear()
+            s.streak.clear()
+            s.streak_covs.clear()
+            out.append(name)
+        return tuple(out)
+
     def clear_bias_evidence(self) -> None:
         """Forget the bias test's window (after any recovery: the innovations start anew)."""
         for s in self._sensors.values():
