@@ -232,7 +232,7 @@ class HeadingSteps:
         # reckoning ran off from it) had not jumped: heard again. Simulated village 30 s,
         # magnetometer turned 90°, `3d`: the fixes stayed refused to the end (seed 3 without
         # sonar 10.97 m, seed 5 12.0 / 12.6 m with / without, against about 1 m clean).
-        recovery = self._recovery if self._yaw_bank is None else None
+        recovery = self._acting_recovery
         if recovery is not None and (names := recovery.heading_turned()):
             hint += f"; {', '.join(names)}, refused as jumped meanwhile, is heard again"
         self._warn.warn("heading-turn", t, f"the heading was {np.degrees(error.angle_rad):.1f}° "
