@@ -9,6 +9,7 @@ import logging
 import math
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -156,20 +157,30 @@ def test_a_run_started_from_a_magnetometer_turned_90_deg_is_mended(
     assert "heading_check" not in left.report
 
 
-@pytest.mark.slow
-def test_a_gps_refused_as_jumped_under_a_wrong_heading_is_heard_again_after_the_turn(
-    tmp_path: Path, caplog: pytest.LogCaptureFixture
-) -> None:
-    """Magnetometer turned 90°, no sonar, `3d` (seed 3): the wrong heading's dead reckoning
-    ran off from the GPS, whose next fix was refused as a jump; after the heading check turned
-    the state the fixes stayed refused to the end (10.97 m against 0.93 m clean, measured
-    2026-12-07). The turn withdraws the jump: 4.49 m."""
-    ds = load_dataset(gps_flight(tmp_path / "data", 30.0, 3))
+def _mag_turned_90_without_sonar(
+    folder: Path, seed: int, caplog: pytest.LogCaptureFixture
+) -> dict[str, Any]:
+    """`3d`'s report on a 30 s village flight (``seed``) with the magnetometer turned 90° on its
+    mount and no sonar, started in flight (``--init gps``); the fault handling's warnings in
+    ``caplog``."""
+    ds = load_dataset(gps_flight(folder, 30.0, seed))
     assert ds.mag is not None
     turned = replace(ds, mag=MagStream(ds.mag.t_ns, ds.mag.m_S @ _rz(math.pi / 2).T), sonar=None)
     with caplog.at_level(logging.WARNING, logger="svains.navigation.fault_handling"):
         rep = run_method(turned, "3d", RunOptions(init=InitOptions(mode="gps"))).report
     assert len(rep["heading_check"]["turns"]) == 1
+    return rep
+
+
+@pytest.mark.slow
+def test_a_gps_refused_as_jumped_under_a_wrong_heading_is_heard_again_after_the_turn(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Seed 3: the wrong heading's dead reckoning ran off from the GPS, whose next fix was
+    refused as a jump; after the heading check turned the state the fixes stayed refused to
+    the end (10.97 m against 0.93 m clean, measured 2026-12-07). The turn withdraws the jump:
+    4.49 m, 2.99 m with the run of refusals blamed on the filter too."""
+    rep = _mag_turned_90_without_sonar(tmp_path / "data", 3, caplog)
     assert "gps, refused as jumped meanwhile, is heard again" in caplog.text
     assert rep["measurements"]["gps"]["fused"] >= 10, rep["measurements"]["gps"]
     assert rep["position_rmse_m"] < 6.0, rep["position_rmse_m"]
@@ -179,17 +190,12 @@ def test_a_gps_refused_as_jumped_under_a_wrong_heading_is_heard_again_after_the_
 def test_refusals_under_a_wrong_heading_are_not_taken_for_multipath_after_the_turn(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    """Magnetometer turned 90°, no sonar, `3d` (seed 1): the fixes refused under the wrong
-    heading and the turn's own fix, whose velocity the turn takes, made one run of
-    innovations with a step in it; the scatter test read it as multipath and the GPS stayed
-    refused to the end (11.58 m, measured 2026-12-07). That run is the filter's
-    (``ConsistencyMonitor.blame_filter``): the filter is inflated instead (3.35 m)."""
-    ds = load_dataset(gps_flight(tmp_path / "data", 30.0, 1))
-    assert ds.mag is not None
-    turned = replace(ds, mag=MagStream(ds.mag.t_ns, ds.mag.m_S @ _rz(math.pi / 2).T), sonar=None)
-    with caplog.at_level(logging.WARNING, logger="svains.navigation.fault_handling"):
-        rep = run_method(turned, "3d", RunOptions(init=InitOptions(mode="gps"))).report
-    assert len(rep["heading_check"]["turns"]) == 1
+    """Seed 1: the fixes refused under the wrong heading and the turn's own fix, whose
+    velocity the turn takes, made one run of innovations with a step in it; the scatter test
+    read it as multipath and the GPS stayed refused to the end (11.58 m, measured
+    2026-12-07). That run is the filter's (``ConsistencyMonitor.blame_filter``): the filter is
+    inflated instead (3.35 m)."""
+    rep = _mag_turned_90_without_sonar(tmp_path / "data", 1, caplog)
     assert "multipath?" not in caplog.text
     assert rep["measurements"]["gps"]["fused"] >= 15, rep["measurements"]["gps"]
     assert rep["position_rmse_m"] < 5.0, rep["position_rmse_m"]
