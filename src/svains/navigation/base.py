@@ -46,6 +46,17 @@ from svains.models.state import StateLayout
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
+
+def find_ids(keys: I64, ids: I64) -> tuple[NDArray[np.bool_], I64]:
+    """Where the track ids ``ids`` (M,) sit in the unique, unsorted ``keys`` (K,): whether
+    each is there (M,), and its index in ``keys`` (M,; meaningless where it is not)."""
+    if keys.size == 0:
+        return np.zeros(ids.shape, bool), np.zeros(ids.shape, np.int64)
+    order = np.argsort(keys, kind="stable")
+    pos = np.clip(np.searchsorted(keys[order], ids), 0, keys.size - 1)
+    index = order[pos]
+    return keys[index] == ids, index
+
 @dataclass(frozen=True)
 class MeasurementBlock:
     """One measurement for a (possibly stacked) UKF update.

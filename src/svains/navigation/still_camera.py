@@ -100,7 +100,7 @@ class StillCamera:
         frame within ``window_s`` before ``t_ns``, no span that long, fewer than
         ``min_features`` inliers with a depth seen at both ends, a degenerate fit, or one the
         pixels' noise does not explain)."""
-        m = self._span_motion(t_ns)
+        m = self._span_motion(t_ns, newest=True)
         if m is None:
             return None
         bound, _, newest_chi2 = m
@@ -126,10 +126,11 @@ class StillCamera:
             return float("inf")
         return max(velocity_std_mps, bound) if chi2 > MOVED_CHI2 else None
 
-    def _span_motion(self, t_ns: int) -> tuple[float, float, float] | None:
+    def _span_motion(self, t_ns: int, newest: bool = False) -> tuple[float, float, float] | None:
         """The speed bound (m/s) over the span ``speed_bound`` reads, the span translation's
-        chi-square against rest and the newest frame pair's (0 where it has no fit); None where
-        the camera cannot tell (``speed_bound``'s cases)."""
+        chi-square against rest and, with ``newest``, the newest frame pair's (0 where it has
+        no fit or is not asked for); None where the camera cannot tell (``speed_bound``'s
+        cases)."""
         if len(self._frames) < 2:
             return None
         last = self._frames[-1]
@@ -140,8 +141,8 @@ class StillCamera:
         if got is None:
             return None
         p_C0_C1, cov_p = got  # the camera's displacement over the span, in its own axes
-        newest = self._fit(self._frames[-2], last)
-        newest_chi2 = 0.0 if newest is None else _chi2(*newest)
+        pair = self._fit(self._frames[-2], last) if newest else None
+        newest_chi2 = 0.0 if pair is None else _chi2(*pair)
         sigma = float(np.sqrt(max(np.linalg.eigvalsh(cov_p)[-1], 0.0)))
         bound = (float(np.linalg.norm(p_C0_C1)) + 3.0 * sigma) / ((last[0] - first[0]) * 1e-9)
         return bound, _chi2(p_C0_C1, cov_p), newest_chi2

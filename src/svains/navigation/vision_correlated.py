@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from svains.filter.noise_correlation import NoiseCorrelation, decorrelated, pinv_psd
 from svains.filter.ukf import UKF
 from svains.models.vision_two_view import NUM_FUSED
-from svains.navigation.base import MeasurementBlock
+from svains.navigation.base import MeasurementBlock, find_ids
 from svains.navigation.vision_noise import Whitening, whiten_chol
 
 F64 = NDArray[np.float64]
@@ -61,14 +61,11 @@ def with_correlation(
         return block, 0, None
     if np.ndim(block.R) != 1 or not np.all(np.asarray(block.R) == 1.0):
         return block, 0, None  # another layout (an IMU term): left as it is
-    order = np.argsort(corr.keys)
-    keys = corr.keys[order]
-    pos = np.clip(np.searchsorted(keys, track_ids), 0, keys.size - 1)
-    hit = keys[pos] == track_ids
+    hit, group = find_ids(corr.keys, track_ids)
     if not hit.any():
         return block, 0, None
     rows = np.flatnonzero(hit)  # features of the block with k-1 pixels in ``corr``
-    src = order[pos[rows]]  # their groups in ``corr``
+    src = group[rows]  # their groups in ``corr``
     A = np.transpose(N[rows, :_PIXELS, :], (0, 2, 1)) / sigma_px  # (m, 5, 4): A_f
     P_inv = pinv_psd(ukf.P)  # for both uses below (the same P)
     C0, Mp = corr.unexplained(ukf.P, P_inv)

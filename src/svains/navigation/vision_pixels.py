@@ -24,7 +24,7 @@ from svains.models.vision_clone import clone_camera_motion, predict_egomotion_cl
 from svains.models.vision_common import ImuIncrement, camera_motion, project_stereo, stack_pixels
 from svains.models.vision_tc import pixels_tc_from_motion
 from svains.navigation import vision_correlated
-from svains.navigation.base import FrameContext, MeasurementBlock
+from svains.navigation.base import FrameContext, MeasurementBlock, find_ids
 from svains.navigation.fault_handling import scale_motion_covariance
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.relocalise import Relocaliser
@@ -249,10 +249,8 @@ class PixelUpdater:
             self._disparity_t_ns = tr.t_ns
             return new
         self._disparity_t_ns = tr.t_ns
-        order = np.argsort(ids)
-        pos = np.clip(np.searchsorted(ids[order], tr.track_id), 0, ids.size - 1)
-        found = ids[order][pos] == tr.track_id
-        return np.where(found, disp[order][pos] >= d_min, new)
+        found, j = find_ids(ids, tr.track_id)
+        return np.where(found, disp[j] >= d_min, new)
 
     def _motion(
         self, ctx: FrameContext, tr: StereoTracks, dt_s: float, inc: ImuIncrement | None
@@ -313,11 +311,8 @@ class PixelUpdater:
         if (not self.options.instrument_points or k2 is None or mo is None
                 or k2[1] != tr.t_prev_ns or mo[:2] != k2[:2]):  # fmt: skip
             return None
-        ids = tr.track_id[idx]
-        order = np.argsort(k2[2], kind="stable")
-        pos = np.clip(np.searchsorted(k2[2][order], ids), 0, order.size - 1)
-        found = k2[2][order][pos] == ids
-        j = order[pos[found]]
+        found, j = find_ids(k2[2], tr.track_id[idx])
+        j = j[found]
         p_Ckm1 = move_points(mo[2][None], mo[3][None],
                              self.rig.triangulate(k2[3][j], k2[4][j]))[0]
         ok = np.isfinite(p_Ckm1).all(axis=1) & (p_Ckm1[:, 2] > 0)
