@@ -1,7 +1,8 @@
 """A wrong heading found from the GPS velocities and turned back (``navigation.heading_check``):
-the rotation is estimated from velocities (a vision method's) or from velocity changes (the
-IMU's), a velocity fault is no rotation, the turn keeps the motion since each clone, and a run
-started from a magnetometer turned 90° on its mount is mended."""
+the rotation is estimated from velocities (a vision method's), from velocity changes (the
+IMU's) or from the camera's own velocities, a velocity fault is no rotation, the turn keeps the
+motion since each clone, and a run started from a magnetometer turned 90° on its mount is
+mended."""
 
 from __future__ import annotations
 
@@ -23,9 +24,16 @@ from svains.filter.ukf import UKF
 from svains.geometry.rotation import quat_to_rotmat
 from svains.models.clones import CloneManifold, augment_clone
 from svains.models.manifold import NavManifold
-from svains.models.state import BIASED, DTH, Q, V
+from svains.models.state import BIASED, DP, DTH, Q, V
 from svains.models.state import P as POS
-from svains.navigation.heading_check import HeadingCheck, HeadingError, turn_heading, yaw_std
+from svains.navigation.heading_check import (
+    HeadingCheck,
+    HeadingError,
+    turn_heading,
+    widen_position,
+    yaw_std,
+)
+from svains.navigation.heading_steps import HeadingSteps
 from svains.navigation.options import FaultOptions, InitOptions, RunOptions
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -95,6 +103,39 @@ def test_a_gps_velocity_that_jumps_or_scatters_is_no_turn() -> None:
     assert _feed(HeadingCheck(UP, 0.1, 0.05), 0.02 * v @ _rz(1.0).T, 0.02 * v) == []
 
 
+
+def _feed_camera(
+    check: HeadingCheck, v_gps: np.ndarray, v_camera: np.ndarray
+) -> list[HeadingError]:
+    """Fixes at 1 Hz; the filter's velocity held to the GPS's (its velocity fused, its heading
+    left wrong), the camera's velocity ``v_camera[k]`` measured half-way between fixes k-1 and
+    k, in the filter's world."""
+    found: list[HeadingError] = []
+    for k in range(len(v_gps)):
+        camera = (k * S - S // 2, v_camera[k], 0.0025) if k else None
+        e = check.before_update(k * S, v_gps[k], v_gps[k], math.radians(2.0), 0.01,
+                                vision=camera)  # fmt: skip
+        if e is not None:
+            found.append(e)
+        check.after_update(k * S, v_gps[k], v_gps[k])
+    return found
+
+
+def test_the_camera_finds_a_wrong_heading_in_straight_flight() -> None:
+    """Straight on at 2 m/s, the filter's velocity fused from the GPS: neither its velocities
+    nor their changes show a heading error; the camera's velocities, turned by the filter's
+    attitude, do (only they: a camera that agrees, or one with a wrong scale, turns nothing)."""
+    rng = np.random.default_rng(5)
+    v = np.tile([2.0, 0.0, 0.0], (8, 1))
+    v_gps = v + rng.normal(0.0, 0.1, v.shape) * [1, 1, 0]
+    camera = v + rng.normal(0.0, 0.05, v.shape) * [1, 1, 0]
+    assert _feed(HeadingCheck(UP, 0.1, 0.05), v, v_gps) == []
+    found = _feed_camera(HeadingCheck(UP, 0.1, 0.05), v_gps, camera @ _rz(-math.pi / 2).T)
+    assert len(found) == 1 and math.degrees(found[0].angle_rad) == pytest.approx(90.0, abs=5.0)
+    assert found[0].witness == "camera"
+    assert _feed_camera(HeadingCheck(UP, 0.1, 0.05), v_gps, camera) == []
+    assert _feed_camera(HeadingCheck(UP, 0.1, 0.05), v_gps, 1.5 * camera @ _rz(-0.5).T) == []
+
 def test_the_turn_keeps_the_motion_since_each_clone() -> None:
     rng = np.random.default_rng(4)
     x = np.zeros(BIASED.nx)
@@ -138,6 +179,27 @@ def test_the_turn_keeps_the_motion_since_each_clone() -> None:
     assert a @ ukf.P @ a == pytest.approx(a @ P0 @ a, rel=1e-6)  # P0: the clones' P before
 
 
+
+def test_a_widened_position_keeps_the_motion_since_each_clone() -> None:
+    """``widen_position`` makes the position as unsure as the offset along it, and moves every
+    pose clone with it: the motion since each clone stays as sure as it was."""
+    rng = np.random.default_rng(6)
+    A = rng.normal(size=(BIASED.ndx, BIASED.ndx)) * 0.1
+    x = np.zeros(BIASED.nx)
+    x[Q] = [1.0, 0.0, 0.0, 0.0]
+    m = CloneManifold(NavManifold(BIASED), 0)
+    x, P0, m = augment_clone(x, A @ A.T + 1e-3 * np.eye(BIASED.ndx), m)
+    ukf = UKF(m, MerweScaledSigmaPoints(m.ndx), x, P0)
+    offset = np.array([3.0, -4.0, 0.0])
+    widen_position(ukf, offset)
+    u = offset / 5.0
+    assert u @ ukf.P[DP, DP] @ u == pytest.approx(u @ P0[DP, DP] @ u + 25.0, rel=1e-12)
+    t = m.tangent(0)
+    rel = np.zeros((3, ukf.P.shape[0]))
+    rel[:, DP] = np.eye(3)
+    rel[:, t.start:t.start + 3] = -np.eye(3)
+    np.testing.assert_allclose(rel @ ukf.P @ rel.T, rel @ P0 @ rel.T, atol=1e-12)
+
 def test_a_run_started_from_a_magnetometer_turned_90_deg_is_mended(
     village_30s: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
@@ -158,11 +220,16 @@ def test_a_run_started_from_a_magnetometer_turned_90_deg_is_mended(
 
 
 def _mag_turned_90_without_sonar(
-    folder: Path, seed: int, caplog: pytest.LogCaptureFixture
+    folder: Path, seed: int, caplog: pytest.LogCaptureFixture,
+    monkeypatch: pytest.MonkeyPatch | None = None,
 ) -> dict[str, Any]:
     """`3d`'s report on a 30 s village flight (``seed``) with the magnetometer turned 90° on its
     mount and no sonar, started in flight (``--init gps``); the fault handling's warnings in
-    ``caplog``."""
+    ``caplog``. With ``monkeypatch`` the heading check hears no camera velocities, as with a
+    camera that tracks too little to measure its motion between the fixes: the GPS's own
+    witness turns the heading, later, after the fixes were refused."""
+    if monkeypatch is not None:
+        monkeypatch.setattr(HeadingSteps, "_camera_velocity", lambda self, t: None)
     ds = load_dataset(gps_flight(folder, 30.0, seed))
     assert ds.mag is not None
     turned = replace(ds, mag=MagStream(ds.mag.t_ns, ds.mag.m_S @ _rz(math.pi / 2).T), sonar=None)
@@ -174,13 +241,14 @@ def _mag_turned_90_without_sonar(
 
 @pytest.mark.slow
 def test_a_gps_refused_as_jumped_under_a_wrong_heading_is_heard_again_after_the_turn(
-    tmp_path: Path, caplog: pytest.LogCaptureFixture
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Seed 3: the wrong heading's dead reckoning ran off from the GPS, whose next fix was
+    """Seed 3, the camera's witness left out: the wrong heading's dead reckoning ran off from
+    the GPS, whose next fix was
     refused as a jump; after the heading check turned the state the fixes stayed refused to
     the end (10.97 m against 0.93 m clean, measured 2026-12-07). The turn withdraws the jump:
     4.49 m, 2.99 m with the run of refusals blamed on the filter too."""
-    rep = _mag_turned_90_without_sonar(tmp_path / "data", 3, caplog)
+    rep = _mag_turned_90_without_sonar(tmp_path / "data", 3, caplog, monkeypatch)
     assert "gps, refused as jumped meanwhile, is heard again" in caplog.text
     assert rep["measurements"]["gps"]["fused"] >= 10, rep["measurements"]["gps"]
     assert rep["position_rmse_m"] < 6.0, rep["position_rmse_m"]
@@ -188,14 +256,29 @@ def test_a_gps_refused_as_jumped_under_a_wrong_heading_is_heard_again_after_the_
 
 @pytest.mark.slow
 def test_refusals_under_a_wrong_heading_are_not_taken_for_multipath_after_the_turn(
-    tmp_path: Path, caplog: pytest.LogCaptureFixture
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Seed 1: the fixes refused under the wrong heading and the turn's own fix, whose
-    velocity the turn takes, made one run of innovations with a step in it; the scatter test
-    read it as multipath and the GPS stayed refused to the end (11.58 m, measured
-    2026-12-07). That run is the filter's (``ConsistencyMonitor.blame_filter``): the filter is
-    inflated instead (3.35 m)."""
-    rep = _mag_turned_90_without_sonar(tmp_path / "data", 1, caplog)
+    """Seed 1, the camera's witness left out: the fixes refused under the wrong heading and
+    the turn's own fix, whose velocity the turn takes, made one run of innovations with a step
+    in it; the scatter test read it as multipath and the GPS stayed refused to the end (11.58 m,
+    measured 2026-12-07). The turned position, 9.7 m from the fix against a standard
+    deviation of 0.64 m per axis, is widened to it (``widen_position``): the fix is fused and
+    the run ends (2.94 m)."""
+    rep = _mag_turned_90_without_sonar(tmp_path / "data", 1, caplog, monkeypatch)
     assert "multipath?" not in caplog.text
     assert rep["measurements"]["gps"]["fused"] >= 15, rep["measurements"]["gps"]
     assert rep["position_rmse_m"] < 5.0, rep["position_rmse_m"]
+
+
+@pytest.mark.slow
+def test_the_camera_turns_a_wrong_heading_on_a_straight_flight(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Seed 2 flies straight on at 2 m/s: the velocity changes never pinned the heading, and
+    the frames were refused under it (turned 22.5° at 20 s, 10.98 m against 0.74 m clean,
+    measured 2026-12-07). The camera's velocities against the GPS's turn it within 5 s."""
+    rep = _mag_turned_90_without_sonar(tmp_path / "data", 2, caplog)
+    turn = rep["heading_check"]["turns"][0]
+    assert turn["t_ns"] <= 6e9 and abs(turn["angle_deg"]) > 75.0 and turn["witness"] == "camera"
+    assert "from the camera's velocities against the GPS's over 4 fixes" in caplog.text
+    assert rep["position_rmse_m"] < 3.0, rep["position_rmse_m"]

@@ -536,6 +536,8 @@ def test_the_run_table_says_where_the_heading_came_from() -> None:
     assert later_turns({"heading_check": {"turns": turns}}) == "-178.3° ± 2.1°"
     assert later_turns({"heading_check": {"turns": turns[:1]}}) == ""
     assert later_turns({}) == ""
+    turns[1]["witness"] = "camera"
+    assert later_turns({"heading_check": {"turns": turns}}) == "-178.3° ± 2.1° (camera)"
 
 
 def test_velocities_the_fixes_positions_contradict_give_no_turn(

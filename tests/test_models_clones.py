@@ -13,7 +13,7 @@ from _vision_truth import make_rig, true_pixels, two_frames
 from svains.errors import ConfigError
 from svains.filter.sigma_points import MerweScaledSigmaPoints
 from svains.filter.ukf import UKF
-from svains.geometry.rotation import quat_to_rotmat, so3_exp
+from svains.geometry.rotation import quat_exp, quat_multiply, quat_to_rotmat, so3_exp
 from svains.models.clones import (
     CLONE_JITTER,
     CLONE_JITTER_REL,
@@ -27,6 +27,7 @@ from svains.models.manifold import NavManifold
 from svains.models.state import BIASED, DP, DTH, PAPER
 from svains.models.vision_3d import predict_pixels_3d_exact
 from svains.models.vision_clone import (
+    body_displacement,
     clone_camera_motion,
     predict_egomotion_clone,
     predict_pixels_3d_clone,
@@ -304,3 +305,19 @@ def test_clone_motion_with_rotation_correction_equals_the_turned_rig() -> None:
     np.testing.assert_allclose(
         predict_egomotion_clone(x_cal, cols_cal, RIG, slice(13, 16)),
         predict_egomotion_clone(x, cols, turned), atol=1e-14)
+
+
+def test_body_displacement_inverts_the_clone_camera_motion() -> None:
+    """The body's displacement recovered from the left camera's motion is the state's
+    ``R_k^T (p_k - p_km1)``, the lever arm and the camera's mounting rotation included."""
+    assert np.linalg.norm(RIG.p_B_C) > 0.01 and not np.allclose(RIG.R_B_C, np.eye(3))
+    rng = np.random.default_rng(11)
+    x, P = _random_state(rng)
+    x, P, m = augment_clone(x, P, CloneManifold(NavManifold(BIASED), 0))
+    cols = m.columns(0)
+    x[0:3] += [0.4, -0.3, 0.1]  # the body moved and turned since the clone
+    x[6:10] = quat_multiply(x[6:10], quat_exp(np.array([0.05, -0.1, 0.3])))
+    R_c, r_c = _motion_at(x, cols)
+    R_k = quat_to_rotmat(x[6:10])
+    expected = R_k.T @ (x[0:3] - x[cols[0]])
+    np.testing.assert_allclose(body_displacement(R_c, -r_c, RIG), expected, atol=1e-12)

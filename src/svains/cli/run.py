@@ -322,7 +322,8 @@ def later_turns(rep: dict) -> str:
     though the check turned the state back 8 s later."""
     turns = [t for t in (rep.get("heading_check") or {}).get("turns") or []
              if not t.get("wait")]  # fmt: skip
-    return ", ".join(f"{t['angle_deg']:+.1f}° ± {t['std_deg']:.1f}°" for t in turns)
+    return ", ".join(f"{t['angle_deg']:+.1f}° ± {t['std_deg']:.1f}°"
+                     + (" (camera)" if t.get("witness") == "camera" else "") for t in turns)
 
 
 def _brief(v: object) -> str:

@@ -65,6 +65,17 @@ def clone_camera_motion(
     return C_s.transpose(0, 2, 1) @ dR @ C_s, np.einsum("sji,sj->si", C_s, r_B)
 
 
+def body_displacement(R_Ck_Ckm1: ArrayLike, p_Ck_Ckm1: ArrayLike, rig: RectifiedStereo) -> F64:
+    """The body's displacement k-1 -> k (3,) m in the body frame at k, ``R_k^T (p_k - p_km1)``,
+    from a measured left-camera motion ``T_Ck_Ckm1`` (``R_Ck_Ckm1`` (3, 3), ``p_Ck_Ckm1`` (3,)
+    m): ``clone_camera_motion`` solved for the body's motion, the lever arm ``c_B`` included."""
+    C = np.asarray(rig.R_B_C, dtype=float)
+    c_B = np.asarray(rig.p_B_C, dtype=float)
+    dR = C @ np.asarray(R_Ck_Ckm1, dtype=float) @ C.T  # R_k^T R_km1
+    r_B = -C @ np.asarray(p_Ck_Ckm1, dtype=float)
+    return np.asarray(r_B - c_B + dR @ c_B, dtype=float)
+
+
 def predict_pixels_3d_clone(
     X: ArrayLike, p_Ckm1_F: ArrayLike, clone: tuple[slice, slice], rig: RectifiedStereo,
     calib: slice | None = None, td: tuple[int, ShiftIncrement | ShiftTable] | None = None,

@@ -282,7 +282,6 @@ class _SensorTrack:
     whitened: deque[tuple[int, np.ndarray, np.ndarray | None]] = field(default_factory=deque)
     fix_spacing_ns: int | None = None  # between the last two accepted updates
     lean: deque[np.ndarray] = field(default_factory=deque)  # lean test's whitened innovations
-    filter_blamed: bool = False  # the current run of rejections is the filter's (blame_filter)
 
 
 @dataclass
@@ -350,7 +349,6 @@ class ConsistencyMonitor:
                     s.streak_covs.append(np.array(innovation_cov, float))
             s.last_accepted_ns = int(t_ns)
             s.jump_ns = None
-            s.filter_blamed = False
             return
         if (self.tests_jumps(sensor) and s.consecutive_rejections == 0
                 and s.last_accepted_ns is not None
@@ -593,8 +591,7 @@ class ConsistencyMonitor:
                 "distrust", f"{', '.join(anchors)} jumped (NIS {s.jump_nis:.3g} right after an "
                 "accepted update) and the other sensors agree with the IMU: its updates are "
                 "rejected until they agree again", tuple(anchors))
-        blamed = any(self._sensors[n].filter_blamed for n in anchors)
-        if (not others and anchors and not blamed
+        if (not others and anchors
                 and (erratic := self._erratic_anchor(anchors)) is not None):  # fmt: skip
             if not erratic:
                 return None  # too few rejected fixes yet to tell a trend from scatter
@@ -602,7 +599,7 @@ class ConsistencyMonitor:
                 "distrust", f"{', '.join(anchors)} rejected {o.min_consecutive}+ times in a "
                 "row with innovations that scatter about no trend (multipath?): its updates "
                 "are rejected until they agree again", tuple(anchors))
-        if (not others and anchors and not blamed and o.jump_erratic_probability is not None
+        if (not others and anchors and o.jump_erratic_probability is not None
                 and (speed := self._drifting_anchor(anchors)) is not None):  # fmt: skip
             return RecoveryAction(
                 "distrust", f"{', '.join(anchors)} rejected {o.min_consecutive}+ times in a "
@@ -711,7 +708,7 @@ class ConsistencyMonitor:
         the jump, its hold and its innovations forgotten, so the gate and the ordinary
         recovery judge their next updates. For a state found wrong by other means (a heading
         turned from the GPS velocities), whose anchor had contradicted it. The count of the
-        run is kept (it was the filter's, ``blame_filter``): zeroed, a lost filter waited
+        run is kept (it was the filter's): zeroed, a lost filter waited
         three more refused fixes for its inflation (simulated village, `3d`, magnetometer
         turned 90°, seed 5: 5.6 m against 3.9 m)."""
         out = []
@@ -723,23 +720,6 @@ class ConsistencyMonitor:
             s.jump_track.clear()
             s.streak.clear()
             s.streak_covs.clear()
-            out.append(name)
-        return tuple(out)
-
-    def blame_filter(self) -> tuple[str, ...]:
-        """The anchor sensors in a run of rejections (a jump withdrawn first): that
-        run is the filter's error, found by other means (a heading turned from the GPS
-        velocities: its dead reckoning ran off from the fixes), not the sensor's. Until the
-        sensor is accepted again, its rejections are not tested for scatter or a wandering
-        solution: they make the filter lost. The run straddles the turn, where the state
-        (its velocity set to the fix's) steps, and the scatter test read that step as
-        multipath and distrusted the anchor to the end (simulated village, `3d`, the
-        magnetometer turned 90°, seed 1: 11.6 m)."""
-        out = []
-        for name, s in self._sensors.items():
-            if name not in self.options.anchor_sensors or s.consecutive_rejections == 0:
-                continue
-            s.filter_blamed = True
             out.append(name)
         return tuple(out)
 

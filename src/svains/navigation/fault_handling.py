@@ -574,9 +574,7 @@ class Recovery:
         meanwhile had contradicted the wrong heading's dead reckoning, not jumped
         (``ConsistencyMonitor.withdraw_jumps``); returns their names. A reset from the next
         fix as well was tried and lost elsewhere (its height against the sonar's)."""
-        names = self.monitor.withdraw_jumps()
-        self.monitor.blame_filter()  # its refusals under the wrong heading: the filter's
-        return names
+        return self.monitor.withdraw_jumps()
 
     def reset_from_gps(self, ukf: UKF, cal: GpsCalib, p_W_G: F64, v_W_G: F64 | None) -> None:
         """Position (and velocity, when the fix has one) from the GPS fix; their covariance

@@ -17,16 +17,23 @@ the accelerometer's white noise over the step). It is acted on only when the ste
 enough to pin it (standard deviation at most ``max_std_deg``), it exceeds ``min_error_deg``,
 four of its own standard deviations and four of the filter's yaw standard deviation, and the
 turned steps fit the GPS ones within their noise (a chi-square test): a GPS velocity that jumps
-or scatters is no rotation. :func:`turn_heading` then turns the state about the vertical
-through the current position: attitude, velocity, and every pose clone (rigidly, so the motion
-since each clone is unchanged), with the turn's uncertainty added to the covariance.
+or scatters is no rotation. The same fit runs on the filter's velocities themselves (a vision
+method's, held to the camera's motion in the body frame) and, for a vision method, on the
+camera's own velocities: each frame pair's egomotion turned into the filter's world by its
+attitude at that frame, whether or not the filter fused the frame, against the GPS velocities
+interpolated at the pair's middle. In straight flight the velocity changes are too small to
+show a wrong heading and the frames are refused under it; the camera still shows it.
+:func:`turn_heading` then turns the state about the vertical through the current position:
+attitude, velocity, and every pose clone (rigidly, so the motion since each clone is
+unchanged), with the turn's uncertainty added to the covariance; :func:`widen_position` lets a
+position that the refused fixes did not hold follow the next one.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -73,11 +80,18 @@ class HeadingCheckOptions:
 @dataclass(frozen=True)
 class HeadingError:
     """A heading error found: the filter's world is turned by ``-angle_rad`` about the vertical
-    (turning it by ``angle_rad`` mends it), known to ``std_rad``, over ``steps`` GPS steps."""
+    (turning it by ``angle_rad`` mends it), known to ``std_rad``, over ``steps`` GPS steps;
+    ``witness``: whose vectors against the GPS's showed it."""
 
     angle_rad: float
     std_rad: float
     steps: int
+    witness: str = "gps"  # the filter's velocities or their changes; "camera": the camera's
+
+    def source(self) -> str:
+        """What showed the error, in words."""
+        return ("the camera's velocities against the GPS's" if self.witness == "camera"
+                else "the GPS velocities")  # fmt: skip
 
 
 class HeadingCheck:
@@ -94,8 +108,10 @@ class HeadingCheck:
         self._var_a = float(accel_noise_density) ** 2
         self._steps: deque[tuple[F64, F64, float]] = deque(maxlen=self.options.window)
         self._fixes: deque[tuple[F64, F64, float]] = deque(maxlen=self.options.window)
+        # the camera's velocities (a vision method's egomotion, turned by the filter's attitude)
+        self._vision: deque[tuple[F64, F64, float]] = deque(maxlen=self.options.window)
         self._prev: tuple[int, F64, F64] | None = None  # t_ns, filter v after, GPS v
-        self.turns: list[dict[str, float]] = []
+        self.turns: list[dict[str, float | bool | str]] = []
 
     def _horizontal(self, v: F64) -> F64:
         return horizontal(v, self.up_W)
@@ -104,19 +120,24 @@ class HeadingCheck:
         """Forget the velocities and steps kept (the frame they were compared in has turned)."""
         self._steps.clear()
         self._fixes.clear()
+        self._vision.clear()
         self._prev = None
 
     def before_update(self, t_ns: int, v_pred_W: F64, v_gps_W: F64, yaw_std_rad: float,
-                      v_var: float = 0.0, usable: bool = True,
-                      acquire: bool = False) -> HeadingError | None:  # fmt: skip
+                      v_var: float = 0.0, usable: bool = True, acquire: bool = False,
+                      vision: tuple[int, F64, float] | None = None,
+                      ) -> HeadingError | None:  # fmt: skip
         """At a GPS fix, before its update: the filter's predicted velocity ``v_pred_W`` (3,)
         and its variance per axis ``v_var`` (m²/s²), the fix's ``v_gps_W`` (3,) m/s, the
         filter's yaw standard deviation. ``usable`` False: the interval since the previous fix
         or this fix's velocity cannot be compared (an IMU gap bridged in it, a GPS velocity the
         recovery switched off): the windows start again. ``acquire``: the filter runs in a
         local frame whose heading is sought (a start with neither magnetometer nor course):
-        any sure and fitting estimate is returned, however small. A heading error to mend now,
-        or None."""
+        any sure and fitting estimate is returned, however small. ``vision``: a time (ns)
+        between the previous fix and this one, the antenna's velocity (3,) m/s the camera
+        measured there in the filter's world (turned by its attitude, so by its heading error)
+        and its variance per axis (m²/s²), compared with the two fixes' velocities interpolated
+        at that time; None: no such measurement. A heading error to mend now, or None."""
         o = self.options
         v_pred, v_gps = np.asarray(v_pred_W, float), np.asarray(v_gps_W, float)
         prev = self._prev
@@ -127,6 +148,7 @@ class HeadingCheck:
                 # a local start no heading at all, a user's probe)
                 self._fixes.clear()
             if not usable:
+                self._vision.clear()
                 return None
         else:
             dt = (t_ns - prev[0]) * 1e-9
@@ -135,22 +157,45 @@ class HeadingCheck:
                                 2.0 * self._var_v + self._var_a * dt))  # fmt: skip
         self._fixes.append((self._horizontal(v_pred), self._horizontal(v_gps),
                             self._var_v + float(v_var)))  # fmt: skip
+        if (vision is None or acquire or prev is None or not prev[0] <= vision[0] <= t_ns
+                or (t_ns - prev[0]) * 1e-9 > o.max_step_s):  # fmt: skip
+            self._vision.clear()
+        else:
+            w = (vision[0] - prev[0]) / max(t_ns - prev[0], 1)
+            g = (1.0 - w) * prev[2] + w * v_gps
+            self._vision.append((self._horizontal(vision[1]), self._horizontal(g),
+                                 ((1.0 - w) ** 2 + w**2) * self._var_v + float(vision[2])))
         # Velocities (a vision method's, held to the camera's motion in the body frame, turn
-        # with the heading) and velocity changes (the IMU's, which turn with it too).
-        tests = (self._rotation(self._fixes, yaw_std_rad, acquire),
-                 self._rotation(self._steps, yaw_std_rad, acquire))
-        found = [e for e in tests if e is not None]
-        # The GPS velocity must disagree now too: a filter that has come round mends itself.
-        d = self._fixes[-1][1] - self._fixes[-1][0]
-        if not found or (not acquire and float(d @ d) / self._fixes[-1][2]
-                         <= chi2.ppf(o.fit_probability, 2)):  # fmt: skip
+        # with the heading) and velocity changes (the IMU's, which turn with it too). The GPS
+        # velocity must disagree now too: a filter that has come round mends itself.
+        found: list[HeadingError] = []
+        if acquire or self._disagrees(self._fixes[-1]):
+            tests = (self._rotation(self._fixes, yaw_std_rad, acquire),
+                     self._rotation(self._steps, yaw_std_rad, acquire))
+            found = [e for e in tests if e is not None]
+        # The camera's own velocities, whether or not the filter fused its frames: a wrong
+        # heading has its frames refused, and in straight flight the velocity changes are too
+        # small to show it (simulated village, magnetometer turned 90°, seeds 2 and 6: never
+        # turned). The camera must disagree now too.
+        if self._vision and self._disagrees(self._vision[-1]):
+            seen = self._rotation(self._vision, yaw_std_rad)
+            if seen is not None:
+                found.append(replace(seen, witness="camera"))
+        if not found:
             return None
         error = min(found, key=lambda e: e.std_rad)
         self._steps.clear()
         self._fixes.clear()
+        self._vision.clear()
         self.turns.append({"t_ns": float(t_ns), "angle_deg": math.degrees(error.angle_rad),
-                           "std_deg": math.degrees(error.std_rad), "wait": acquire})  # fmt: skip
+                           "std_deg": math.degrees(error.std_rad), "wait": acquire,
+                           "witness": error.witness})  # fmt: skip
         return error
+
+    def _disagrees(self, row: tuple[F64, F64, float]) -> bool:
+        """Whether a row's filter vector and GPS vector differ beyond their noise."""
+        d = row[1] - row[0]
+        return float(d @ d) / row[2] > chi2.ppf(self.options.fit_probability, 2)
 
     def _rotation(self, rows: deque[tuple[F64, F64, float]], yaw_std_rad: float,
                   acquire: bool = False) -> HeadingError | None:  # fmt: skip
@@ -189,8 +234,10 @@ class HeadingCheck:
         self._prev = (int(t_ns), np.array(v_post_W, float), np.array(v_gps_W, float))
 
     def summary(self) -> dict[str, object]:
-        """The turns made: ``t_ns``, ``angle_deg``, ``std_deg`` each, and ``wait``: the one
-        that ended a start's heading wait (``init.heading_found_s``)."""
+        """The turns made: ``t_ns``, ``angle_deg``, ``std_deg`` each, ``wait``: the one
+        that ended a start's heading wait (``init.heading_found_s``), and ``witness``: "gps"
+        (the filter's velocities or their changes against the GPS's) or "camera" (the camera's
+        velocities against the GPS's)."""
         return {"turns": [dict(t) for t in self.turns]}
 
 
@@ -250,6 +297,23 @@ def turn_heading(ukf: UKF, error: HeadingError, up_W: F64, v_W: F64 | None = Non
     # (written over the state, it was cut there, and the seconds of a heading wait before it
     # kept their forward error: 0.93 m smoothed against 0.05 m with a magnetometer, a probe)
     ukf.resize(ukf.manifold, x, P, transform)
+
+
+def widen_position(ukf: UKF, offset_W: F64) -> None:
+    """Add ``outer(offset_W, offset_W)`` (m²) to the covariance of the current position and of
+    every pose clone's, as one common translation: the motion since each clone stays as sure
+    as it was, the position as unsure as ``offset_W`` (3,) m, the distance to a fix that the
+    state, dead-reckoned under a wrong heading, could not be trusted to be near."""
+    d = np.asarray(offset_W, dtype=float)
+    T = np.zeros((ukf.P.shape[0], 3))
+    T[DP] = np.eye(3)
+    manifold = ukf.manifold
+    if isinstance(manifold, CloneManifold):
+        for i in range(manifold.n_clones):
+            t = manifold.tangent(i)
+            T[t.start:t.start + 3] = np.eye(3)
+    u = T @ d
+    ukf.P = ukf.P + np.outer(u, u)
 
 
 def turn_sensitivity(x: F64, manifold: Manifold, up_W: F64, pivot_W: F64 | None = None) -> F64:

@@ -15,11 +15,13 @@ import math
 from typing import Any
 
 import numpy as np
+from scipy.stats import chi2
 
 from svains.geometry.rotation import quat_to_rotmat, skew
 from svains.models.gps import gps_position, gps_velocity
-from svains.models.state import DP, DTH, DV, Q
+from svains.models.state import DP, DTH, DV, Q, V
 from svains.models.state import P as POS
+from svains.models.vision_clone import body_displacement
 from svains.navigation.base import MeasurementBlock
 from svains.navigation.heading_check import (
     HeadingCheck,
@@ -28,6 +30,7 @@ from svains.navigation.heading_check import (
     horizontal,
     turn_heading,
     turn_sensitivity,
+    widen_position,
     yaw_std,
 )
 from svains.navigation.heading_wait import HEADING_WAIT_MAX_S, FixPathHeading, turn_logged
@@ -35,10 +38,20 @@ from svains.navigation.init import ARBITRARY, HEADING_BANK, HEADING_FROM_GPS, VE
 from svains.navigation.ins import default_imu_calib
 from svains.navigation.options import RunConfig
 from svains.navigation.outputs import FrameTurn
+from svains.navigation.vision import LcUpdater, PixelUpdater
+from svains.navigation.vision_egomotion import tracks_egomotion
 from svains.navigation.yaw_bank import YAW_BANK_MAX_S, YawBank, bank_yaw, level_axis
 from svains.sensors.types import Rig
 
 log = logging.getLogger(__name__)
+
+# RANSAC's egomotion covariance takes the k-1 points as exact: on recorded features its NEES is
+# 18-29 for 6 dof (``VisionOptions.lc_scale``, whose 30 also covers the correlation between
+# consecutive egomotions, which the heading check's velocities a fix apart do not share).
+CAMERA_VELOCITY_COV_SCALE = 4.0
+# A turned state's position this far from the fix (chi-square probability, 3 dof) was not
+# held by the fixes: it is widened to the fix (``widen_position``).
+POSITION_OFF_PROBABILITY = 0.999
 
 
 class HeadingSteps:
@@ -56,6 +69,8 @@ class HeadingSteps:
             and config.faults.heading_check else None
         )  # fmt: skip
         self._heading_fixes: list[Any] = []  # (t, v_W_G) of this group's GPS velocities
+        # the frames since the last fix: tracks, R_W_B (3, 3), lever-arm velocity (3,) m/s
+        self._frames_since_fix: list[tuple[Any, np.ndarray, np.ndarray]] = []
         # position-only fixes during the heading wait: the heading from their path
         check = HeadingCheckOptions()
         self._fix_path = FixPathHeading(
@@ -193,7 +208,7 @@ class HeadingSteps:
             return np.array(x[POS], dtype=float)
         return gps_position(x[None, :], self.rig.gps.p_B_G)[0]
 
-    def _check_heading(self, t: int, v_W_G: Any, use_v: bool) -> None:
+    def _check_heading(self, t: int, p_W_G: Any, v_W_G: Any, use_v: bool) -> None:
         """Before a GPS fix's update: turn the state when the velocities since the last fixes
         show its heading wrong (``navigation.heading_check``), warned. Not across an IMU fault
         (a bridged gap predicts no velocity change) nor with a GPS velocity switched off."""
@@ -207,7 +222,8 @@ class HeadingSteps:
         assert self.rig.gps is not None
         v_W_A = gps_velocity(ukf.x[None, :], self.rig.gps.p_B_G)[0]
         error = self._heading_check.before_update(t, v_W_A, v_W_G, yaw_std(ukf, self._up_W),
-                                                  v_var, usable, acquire)  # fmt: skip
+                                                  v_var, usable, acquire,
+                                                  self._camera_velocity(t))  # fmt: skip
         self._heading_fixes.append((t, np.asarray(v_W_G, float)))
         if error is None:
             return
@@ -220,6 +236,16 @@ class HeadingSteps:
         assert self.rig.gps is not None
         turn_heading(ukf, error, self._up_W, np.asarray(v_W_G, float),
                      self.rig.gps.velocity_noise_std)  # fmt: skip
+        # A position dead-reckoned away from the fixes under the wrong heading (refused, they
+        # did not hold it) is as unsure as its distance from this fix, which the update then
+        # follows (magnetometer turned 90°, `3d` seed 1 without the camera's witness: 9.7 m
+        # from the fix at 0.64 m per axis; left so, the fix was refused, the run of refusals
+        # read as multipath, 11.6 m). A position the fixes held (an INS's, its velocity changes
+        # turned) is left: widened too, `ins` lost 1.13 -> 1.27 m on `bench/mag_mount.py`.
+        offset = np.asarray(p_W_G, float) - self._antenna_W()
+        S = ukf.P[DP, DP] + self.rig.gps.position_noise_std**2 * np.eye(3)
+        if float(offset @ np.linalg.solve(S, offset)) > chi2.ppf(POSITION_OFF_PROBABILITY, 3):
+            widen_position(ukf, offset)
         # A heading the magnetometer held (at the start or since) was its: fused on, it would
         # pull the turned state back once the yaw is uncertain (simulator, `ins`, magnetometer
         # turned 90°: back to 110° off 9 s after the turn).
@@ -236,8 +262,55 @@ class HeadingSteps:
         if recovery is not None and (names := recovery.heading_turned()):
             hint += f"; {', '.join(names)}, refused as jumped meanwhile, is heard again"
         self._warn.warn("heading-turn", t, f"the heading was {np.degrees(error.angle_rad):.1f}° "
-                        f"off (± {np.degrees(error.std_rad):.1f}°, from the GPS velocities "
+                        f"off (± {np.degrees(error.std_rad):.1f}°, from {error.source()} "
                         f"over {error.steps} fixes): the state is turned{hint}")  # fmt: skip
+
+    def _camera_velocity(self, t: int) -> tuple[int, np.ndarray, float] | None:
+        """For the heading check at a fix at ``t``: the GPS antenna's mean velocity (3,) m/s
+        over a frame pair since the previous fix, as the camera measured it (its egomotion) in
+        the filter's world (turned by the filter's attitude at that frame, so by its heading
+        error), the pair's middle (ns) and the velocity's variance per axis (m²/s²; the
+        egomotion's, scaled by ``CAMERA_VELOCITY_COV_SCALE``); of the frames since the previous
+        fix, the pair whose middle is nearest the middle between the fixes (the check compares
+        it with the two fixes' velocities interpolated there). None without a vision method's
+        frame pair or its egomotion."""
+        frames, self._frames_since_fix = self._frames_since_fix, []
+        assert self._heading_check is not None
+        t_prev = self._heading_check.last_fix_ns
+        if not frames or t_prev < 0:
+            return None
+        mid = 0.5 * (t_prev + t)
+        tr, R_W_B, lever_W = min(frames,
+                                 key=lambda f: abs(0.5 * (f[0].t_ns + f[0].t_prev_ns) - mid))
+        updater = self._updater
+        assert isinstance(updater, (PixelUpdater, LcUpdater))
+        ego = tracks_egomotion(tr, updater.rig, seed=0)  # the front end's, or RANSAC's
+        if ego is None:
+            return None
+        var_p = float(np.trace(np.asarray(ego.cov, float)[3:, 3:])) / 3.0
+        if not np.isfinite(var_p):
+            return None
+        dt_s = (tr.t_ns - tr.t_prev_ns) * 1e-9
+        v_W_B = R_W_B @ body_displacement(ego.R_Ck_Ckm1, ego.p_Ck_Ckm1, updater.rig) / dt_s
+        return ((tr.t_ns + tr.t_prev_ns) // 2, v_W_B + lever_W,
+                CAMERA_VELOCITY_COV_SCALE * var_p / dt_s**2)
+
+    def _note_frame(self, t: int) -> None:
+        """After a frame at ``t``: its tracks with the filter's attitude and the antenna's
+        lever-arm velocity there (``_camera_velocity``), while the heading check runs."""
+        updater = self._updater
+        if (self._heading_check is None or self.rig.gps is None
+                or not isinstance(updater, (PixelUpdater, LcUpdater))):  # fmt: skip
+            return
+        tr = updater.last_tracks
+        if tr is None or tr.t_ns != t or tr.t_ns <= tr.t_prev_ns:
+            return
+        x = self.ins.ukf.x
+        lever_W = gps_velocity(x[None, :], self.rig.gps.p_B_G)[0] - x[V]
+        # only pairs a fix step long can be compared (without fixes the list would grow)
+        keep_ns = int(self._heading_check.options.max_step_s * 1e9)
+        self._frames_since_fix = [f for f in self._frames_since_fix if t - f[0].t_ns <= keep_ns]
+        self._frames_since_fix.append((tr, quat_to_rotmat(x[Q]), lever_W))
 
     def _path_contradicts(self, t: int, error: HeadingError) -> bool:
         """Whether the fixes' own path (``FixPathHeading``, their positions) gives a heading

@@ -282,7 +282,7 @@ class Core(HeadingSteps):
                     self._recovery is not None and self._recovery.rate_off("gps", t))
                 if (self._heading_check is not None and payload[1] is not None
                         and self._yaw_bank is None):  # (a bank weighs the headings itself)
-                    self._check_heading(t, payload[1], use_v)
+                    self._check_heading(t, payload[0], payload[1], use_v)
                 # a velocity not fused is not the wait's either: the fixes' path gives it
                 v_wait = payload[1] if cfg.use_gps_velocity else None
                 if self._heading_wait:
@@ -541,6 +541,7 @@ class Core(HeadingSteps):
             self._judge_continuity(updater, ctx, stats, t)
         if hasattr(updater, "after_frame"):
             updater.after_frame(ctx)  # pose clones (rotation="clone")
+        self._note_frame(t)
         if stats is not None:
             self._record(stats, cfg.method, t)
         if stats is None or not stats.accepted:
