@@ -22,7 +22,11 @@ the check made, and per mount the load-time test of the field's turns against th
 refused, and online the magnetometer is left out, ``mag_turn_check``).
 
     python bench/mag_mount.py [--seeds 0-3] [--methods ins,3d] [--init gps] [--no-sonar]
+                              [--camera-turns 30,90]
 
+``--camera-turns`` adds rows with the magnetometer right and the stereo rig turned on its
+mount about the body's vertical (``evaluation.extrinsics.turn_cameras``, the calibration
+unchanged): in straight flight that looks the same to the heading check as a wrong heading.
 ``--no-sonar`` drops the sonar altimeter (most platforms have none; it is the second sensor
 that can tell the consistency monitor that the filter, not the GPS, is wrong).
 """
@@ -42,6 +46,7 @@ from faults import parse_seeds  # bench/faults.py: "0-7", "0,1,5" or "3"
 from svains.datasets import load_dataset
 from svains.datasets.types import MagStream
 from svains.datasets.validate import mag_frame_turn
+from svains.evaluation.extrinsics import turn_cameras
 from svains.evaluation.run import run_method
 from svains.navigation.options import FaultOptions, InitOptions, RunOptions
 from svains.sim import SimConfig, simulate
@@ -60,9 +65,14 @@ def main() -> None:
     ap.add_argument("--methods", default="ins,3d")
     ap.add_argument("--init", default="gps", choices=("gps", "groundtruth"))
     ap.add_argument("--no-sonar", action="store_true", help="drop the sonar altimeter")
+    ap.add_argument("--camera-turns", default="",
+                    help="also rows with the magnetometer right and the stereo rig turned by "
+                         "these angles [deg, comma-separated] about the body's vertical on "
+                         "its mount (the calibration unchanged)")
     args = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    camera_turns = [float(a) for a in args.camera_turns.split(",") if a.strip()]
     on = RunOptions(init=InitOptions(mode=args.init))
     off = replace(on, faults=FaultOptions(heading_check=False))
     rows: dict[tuple[str, str, str], list[tuple[float, float, int]]] = {}
@@ -75,9 +85,13 @@ def main() -> None:
             ds = load_dataset(simulate(cfg, Path(tmp) / f"seed{seed}"))
             if args.no_sonar:
                 ds = replace(ds, sonar=None)
-            assert ds.mag is not None
-            for mount, M in MOUNTS.items():
-                d = replace(ds, mag=MagStream(ds.mag.t_ns, ds.mag.m_S @ M.T))
+            assert ds.mag is not None and ds.cam0 is not None
+            variants = [(mount, replace(ds, mag=MagStream(ds.mag.t_ns, ds.mag.m_S @ M.T)))
+                        for mount, M in MOUNTS.items()]
+            up_C0 = np.asarray(ds.cam0.T_B_C, float)[:3, :3].T @ [0.0, 0.0, 1.0]
+            variants += [(f"camera turned {deg:g}°", turn_cameras(ds, math.radians(deg) * up_C0))
+                         for deg in camera_turns]
+            for mount, d in variants:
                 turn = mag_frame_turn(d)
                 cosines.setdefault(mount, []).append(math.nan if turn is None else turn[0])
                 for method in methods:
@@ -91,7 +105,7 @@ def main() -> None:
           "attitude RMSE [deg] (turns made)\n")
     print("| mount | method | heading check off | heading check on (default) |")
     print("|---|---|---|---|")
-    for mount in MOUNTS:
+    for mount in list(MOUNTS) + [f"camera turned {deg:g}°" for deg in camera_turns]:
         for method in methods:
             cells = []
             for check in ("off", "on"):

@@ -281,4 +281,5 @@ def test_the_camera_turns_a_wrong_heading_on_a_straight_flight(
     turn = rep["heading_check"]["turns"][0]
     assert turn["t_ns"] <= 6e9 and abs(turn["angle_deg"]) > 75.0 and turn["witness"] == "camera"
     assert "from the camera's velocities against the GPS's over 4 fixes" in caplog.text
+    assert "a camera turned about the vertical on its mount would look the same" in caplog.text
     assert rep["position_rmse_m"] < 3.0, rep["position_rmse_m"]

@@ -254,6 +254,11 @@ class HeadingSteps:
             self._mag_off = True
             hint = ("; the magnetometer is not fused from now on (is its T_BS right? "
                     "svains reads its field in the body frame through it)")
+        if error.witness == "camera":
+            # In straight flight a camera turned about the vertical on its mount looks the
+            # same as a wrong heading (simulated village, camera turned 90°: turned 90° wrong)
+            hint += ("; a camera turned about the vertical on its mount would look the same "
+                     "(is the camera's T_BS right?)")
         # A GPS refused as jumped while the heading was wrong (the wrong heading's dead
         # reckoning ran off from it) had not jumped: heard again. Simulated village 30 s,
         # magnetometer turned 90°, `3d`: the fixes stayed refused to the end (seed 3 without
