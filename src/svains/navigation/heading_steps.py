@@ -221,9 +221,9 @@ class HeadingSteps:
         # and with a 1.5 m lever arm the heading was never found (a review)
         assert self.rig.gps is not None
         v_W_A = gps_velocity(ukf.x[None, :], self.rig.gps.p_B_G)[0]
+        camera = None if acquire else self._camera_velocity(t)  # (a wait asks for none)
         error = self._heading_check.before_update(t, v_W_A, v_W_G, yaw_std(ukf, self._up_W),
-                                                  v_var, usable, acquire,
-                                                  self._camera_velocity(t))  # fmt: skip
+                                                  v_var, usable, acquire, camera)  # fmt: skip
         self._heading_fixes.append((t, np.asarray(v_W_G, float)))
         if error is None:
             return
