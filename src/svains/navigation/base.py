@@ -57,6 +57,7 @@ def find_ids(keys: I64, ids: I64) -> tuple[NDArray[np.bool_], I64]:
     index = order[pos]
     return keys[index] == ids, index
 
+
 @dataclass(frozen=True)
 class MeasurementBlock:
     """One measurement for a (possibly stacked) UKF update.

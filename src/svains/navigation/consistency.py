@@ -591,8 +591,7 @@ class ConsistencyMonitor:
                 "distrust", f"{', '.join(anchors)} jumped (NIS {s.jump_nis:.3g} right after an "
                 "accepted update) and the other sensors agree with the IMU: its updates are "
                 "rejected until they agree again", tuple(anchors))
-        if (not others and anchors
-                and (erratic := self._erratic_anchor(anchors)) is not None):  # fmt: skip
+        if not others and anchors and (erratic := self._erratic_anchor(anchors)) is not None:
             if not erratic:
                 return None  # too few rejected fixes yet to tell a trend from scatter
             return RecoveryAction(
@@ -708,9 +707,9 @@ class ConsistencyMonitor:
         the jump, its hold and its innovations forgotten, so the gate and the ordinary
         recovery judge their next updates. For a state found wrong by other means (a heading
         turned from the GPS velocities), whose anchor had contradicted it. The count of the
-        run is kept (it was the filter's): zeroed, a lost filter waited
-        three more refused fixes for its inflation (simulated village, `3d`, magnetometer
-        turned 90°, seed 5: 5.6 m against 3.9 m)."""
+        run is kept (it was the filter's): zeroed, a lost filter waited three more refused
+        fixes for its inflation (simulated village, `3d`, magnetometer turned 90°, seed 5:
+        5.6 m against 3.9 m)."""
         out = []
         for name, s in self._sensors.items():
             if name not in self.options.anchor_sensors or s.jump_ns is None:

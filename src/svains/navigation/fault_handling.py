@@ -569,13 +569,6 @@ class Recovery:
             drop_step(ukf)
         self.monitor.clear_bias_evidence()
 
-    def heading_turned(self) -> tuple[str, ...]:
-        """The state was just turned by the heading check: an anchor refused as jumped
-        meanwhile had contradicted the wrong heading's dead reckoning, not jumped
-        (``ConsistencyMonitor.withdraw_jumps``); returns their names. A reset from the next
-        fix as well was tried and lost elsewhere (its height against the sonar's)."""
-        return self.monitor.withdraw_jumps()
-
     def reset_from_gps(self, ukf: UKF, cal: GpsCalib, p_W_G: F64, v_W_G: F64 | None) -> None:
         """Position (and velocity, when the fix has one) from the GPS fix; their covariance
         from its noise, uncorrelated with the rest of the state.

@@ -264,7 +264,9 @@ class HeadingSteps:
         # magnetometer turned 90°, `3d`: the fixes stayed refused to the end (seed 3 without
         # sonar 10.97 m, seed 5 12.0 / 12.6 m with / without, against about 1 m clean).
         recovery = self._acting_recovery
-        if recovery is not None and (names := recovery.heading_turned()):
+        # (a reset from the next fix as well was tried and lost elsewhere: its height
+        # against the sonar's)
+        if recovery is not None and (names := recovery.monitor.withdraw_jumps()):
             hint += f"; {', '.join(names)}, refused as jumped meanwhile, is heard again"
         self._warn.warn("heading-turn", t, f"the heading was {np.degrees(error.angle_rad):.1f}° "
                         f"off (± {np.degrees(error.std_rad):.1f}°, from {error.source()} "
