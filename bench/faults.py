@@ -42,6 +42,9 @@ return. One run's NEES mean is one draw: its errors are correlated over tens of 
 GPS-aided position error is an average of the last fixes' noise), so a consistent filter
 exceeds 10 on a fair share of seeds; the mean over seeds is the consistency test. ``--set``
 overrides run settings as ``svains run --set`` does (every run, clean ones included).
+``--nees-window 10:12.5`` (repeatable; seconds from the start of the run) adds the mean NEES
+(9 dof) over that window to each row and to the table over the seeds: "after the fault" starts
+at the fault's end, which for all at once is the gyro bias step, the last of its classes.
 
 The Navigator checks every IMU sample itself (``RunConfig.faults``); ``--guard`` also leaves the
 samples a separate ``ImuGuard`` drops out of the faulty copy (it changes nothing now, kept to
@@ -381,21 +384,27 @@ class Outcome:
     ratio: float
     nees_after: tuple[float, float, float, float]
     gps_back_s: float | None
+    nees_windows: tuple[float, ...] = ()
 
 
 def outcome(ds: Dataset, res: RunResult, clean_rmse: float | None, at_s: float,
-            fault: Fault) -> Outcome:  # fmt: skip
-    """The figures of run ``res`` of ``fault`` on ``ds`` (``clean_rmse`` None: the clean run)."""
+            fault: Fault, windows: tuple[tuple[float, float], ...] = ()) -> Outcome:  # fmt: skip
+    """The figures of run ``res`` of ``fault`` on ``ds`` (``clean_rmse`` None: the clean run);
+    ``windows`` (s from the start, ``[a, b)``) each add their mean NEES (9 dof)."""
     rmse = float(res.report["position_rmse_m"])
     end_ns = int((at_s + fault.duration_s) * S)
     assert ds.groundtruth is not None
     inside, p, v, q = interpolate_groundtruth(ds.groundtruth, res.t_ns)
-    after = np.asarray(res.t_ns)[inside] >= end_ns
-    e = navigation_errors(res.x[inside][after], p[after], v[after], q[after])
-    P = res.P9[inside][after]
+    t_ns = np.asarray(res.t_ns)[inside]
+    e_all = navigation_errors(res.x[inside], p, v, q)
+    P_all = res.P9[inside]
+    after = t_ns >= end_ns
+    e, P = e_all[after], P_all[after]
     nees = tuple(float(nees_of(e[:, b], P[:, b, b]).mean()) for b in BLOCKS)
+    in_windows = [(t_ns >= a * S) & (t_ns < b * S) for a, b in windows]
+    nees_windows = tuple(float(nees_of(e_all[w], P_all[w]).mean()) for w in in_windows)
     return Outcome(rmse, rmse / clean_rmse if clean_rmse else 1.0, nees,  # type: ignore[arg-type]
-                   gps_back_after_s(ds, res, end_ns))  # fmt: skip
+                   gps_back_after_s(ds, res, end_ns), nees_windows)  # fmt: skip
 
 
 def row(res: RunResult, out: Outcome, fault: Fault) -> str:
@@ -408,13 +417,15 @@ def row(res: RunResult, out: Outcome, fault: Fault) -> str:
     )
     back_txt = "never" if out.gps_back_s is None else f"{out.gps_back_s:.1f}"
     n9, n_p, n_v, n_a = out.nees_after
+    windows = "".join(f" {n:.3g} |" for n in out.nees_windows)
     return (
         f"| {fault.name} | {rep['method']} | {out.rmse_m:.3f} | {out.ratio:.2f} | {rejected} | "
-        f"{resets} | {n9:.3g} | {n_p:.2f} / {n_v:.2f} / {n_a:.2f} | {back_txt} |"
+        f"{resets} | {n9:.3g} | {n_p:.2f} / {n_v:.2f} / {n_a:.2f} | {back_txt} |{windows}"
     )
 
 
-def summary(results: dict[tuple[str, str], list[Outcome]], seeds: list[int]) -> None:
+def summary(results: dict[tuple[str, str], list[Outcome]], seeds: list[int],
+            windows: tuple[tuple[float, float], ...] = ()) -> None:  # fmt: skip
     """The table over the seeds (one row per fault and method); the GPS step's, the frozen
     GPS's rows also give the RMSE against the same seed's run without those fixes (what no
     estimator can beat: a frozen fix carries nothing, a step that nothing contradicts
@@ -422,8 +433,8 @@ def summary(results: dict[tuple[str, str], list[Outcome]], seeds: list[int]) -> 
     (:func:`data_lost`)."""
     print(f"\nOver seeds {', '.join(map(str, seeds))}:\n")
     print("| fault | method | NEES after: mean (max) | seeds > 12 | x clean: mean (max) | "
-          "x data lost: mean (max) | GPS back, latest [s] |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|")
+          "x data lost: mean (max) | GPS back, latest [s] |" + _window_heads(windows))  # fmt: skip
+    print("|---|---|---|---|---|---|---|" + "---|" * len(windows))
     for (fault, method), outs in results.items():
         nees = np.array([o.nees_after[0] for o in outs])
         ratio = np.array([o.ratio for o in outs])
@@ -440,9 +451,22 @@ def summary(results: dict[tuple[str, str], list[Outcome]], seeds: list[int]) -> 
         if lost is not None and len(lost) == len(outs):
             r = np.array([o.rmse_m / ref.rmse_m for o, ref in zip(outs, lost, strict=True)])
             vs_lost = f"{r.mean():.2f} ({r.max():.2f})"
+        in_windows = np.array([o.nees_windows for o in outs]).reshape(len(outs), -1)
         print(f"| {fault} | {method} | {nees.mean():.2f} ({nees.max():.2f}) | "
               f"{int((nees > 12).sum())}/{nees.size} | {ratio.mean():.2f} ({ratio.max():.2f}) | "
-              f"{vs_lost} | {back_txt} |")
+              f"{vs_lost} | {back_txt} |" + "".join(f" {n:.2f} |" for n in in_windows.mean(0)))
+
+
+def _window_heads(windows: tuple[tuple[float, float], ...]) -> str:
+    return "".join(f" NEES {a:g}-{b:g} s |" for a, b in windows)
+
+
+def parse_window(text: str) -> tuple[float, float]:
+    """``"10:12.5"`` -> (10.0, 12.5) (s from the start of the run)."""
+    a, sep, b = text.partition(":")
+    if not sep or float(b) <= float(a):
+        raise argparse.ArgumentTypeError(f"a window is START:END in seconds, END > START: {text!r}")
+    return float(a), float(b)
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -469,7 +493,8 @@ def run_seed(seed: int, args: argparse.Namespace, options: RunOptions,
             ds = load_dataset(root)
             for method in methods:
                 res = run_method(ds, method, options)
-                out = outcome(ds, res, clean_rmse.get(method), args.at, fault)
+                out = outcome(ds, res, clean_rmse.get(method), args.at, fault,
+                              tuple(args.nees_window))  # fmt: skip
                 if fault.name == "clean":
                     clean_rmse[method] = out.rmse_m
                 results.setdefault((fault.name, method), []).append(out)
@@ -488,20 +513,24 @@ def main() -> None:
                     help="drop the samples ImuGuard rejects before the run (a preview of item 1)")
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="run setting override (repeatable)")
+    ap.add_argument("--nees-window", action="append", default=[], type=parse_window,
+                    metavar="START:END", help="also the mean NEES over this window (s from the "
+                    "start of the run; repeatable)")
     args = ap.parse_args()
     seeds = parse_seeds(args.seeds)
     options = with_settings(RunOptions(init=InitOptions(mode="groundtruth")),
                             dict(parse_setting(item) for item in args.set))  # fmt: skip
     results: dict[tuple[str, str], list[Outcome]] = {}
+    windows = tuple(args.nees_window)
     print("| fault | method | pos RMSE [m] | x clean | rejected | resets/inflations/bias | "
-          "NEES after | p / v / θ | GPS back after [s] |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|")
+          "NEES after | p / v / θ | GPS back after [s] |" + _window_heads(windows))  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|" + "---|" * len(windows))
     for seed in seeds:
         if len(seeds) > 1:
             print(f"| seed {seed} | | | | | | | | |")
         run_seed(seed, args, options, results)
     if len(seeds) > 1:
-        summary(results, seeds)
+        summary(results, seeds, windows)
 
 
 if __name__ == "__main__":
