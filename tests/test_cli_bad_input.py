@@ -96,6 +96,18 @@ def _rescale_stamps(path: Path, divisor: int) -> None:
     path.write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
 
 
+def _slow_imu_in_microseconds(root: Path) -> None:
+    """Every 8th IMU sample (80 ms apart, slower than KITTI raw's OXTS) stamped in µs: 12.5 kHz
+    if read as ns, inside the 50 kHz any spacing allows (a user's probe found it read as
+    such)."""
+    path = root / "mav0/imu0/data.csv"
+    head, *rows = path.read_text().splitlines()
+    kept = [r.split(",") for r in rows[::8]]
+    for r in kept:
+        r[0] = str(int(r[0]) // 1000)
+    path.write_text("\n".join([head, *(",".join(r) for r in kept)]) + "\n")
+
+
 def _stray_imu_row(root: Path) -> None:
     path = root / "mav0/imu0/data.csv"
     last = path.read_text().splitlines()[-1].split(",")
@@ -196,6 +208,12 @@ DATA_CASES: list[tuple[str, Edit, str]] = [
     ("imu stamped in milliseconds",
      lambda r: _rescale_stamps(r / "mav0/imu0/data.csv", 1_000_000),
      "they look like milliseconds"),
+    ("slow imu stamped in microseconds", _slow_imu_in_microseconds,
+     "imu0/data.csv: samples come at 1.25e+04 Hz if the stamps are nanoseconds (125x "
+     "sensor.yaml's rate_hz 100): they look like microseconds (12.5 Hz then)"),
+    ("gps stamped in microseconds", lambda r: _rescale_stamps(r / "mav0/gps0/data.csv", 1000),
+     "gps0/data.csv: samples come at 1e+03 Hz if the stamps are nanoseconds (no GPS receiver "
+     "runs above 200 Hz): they look like microseconds (1 Hz then)"),
     ("imu row 100 years on", _stray_imu_row, "h after the row before"),
     ("accelerometer in g", _scale_columns("imu0/data.csv", slice(4, 7), 1 / 9.80665),
      "looks like g (multiply by 9.81)"),
@@ -282,6 +300,19 @@ def test_bad_data_is_one_error_line_with_exit_1(
     for args in commands:
         _check(runner.invoke(app, args), 1, fragment)
     assert not (tmp_path / "run").exists() and not (tmp_path / "fe").exists()
+
+
+def test_features_stamped_in_microseconds_are_one_error_line(base: Path, tmp_path: Path) -> None:
+    """features0 is read by the methods that fuse it (``ins`` never does): 2 Hz frames in µs
+    read 2 kHz, which no camera pair gives (a user's probe: stamps in µs read as such)."""
+    root = _copy(base, tmp_path, lambda r: _rescale_stamps(r / "mav0/features0/data.csv", 1000))
+    fragment = ("features0/data.csv: samples come at 2e+03 Hz if the stamps are nanoseconds (no "
+                "camera pair runs above 500 Hz): they look like microseconds (2 Hz then)")
+    for args in (["info", str(root)],
+                 ["run", str(root), "--method", "3d", "--out", str(tmp_path / "run"), "--init",
+                  "groundtruth"]):  # fmt: skip
+        _check(runner.invoke(app, args), 1, fragment)
+    assert not (tmp_path / "run").exists()
 
 
 def test_a_reference_on_another_clock_is_dropped_with_a_warning(

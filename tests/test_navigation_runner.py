@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -210,3 +212,20 @@ def test_paper_model_vision_update_treats_omega_white_noise_as_measurement_noise
     shift = ins.ukf.x[10:13] - w0
     np.testing.assert_allclose(shift, 0.1 * P_w / (P_w + white + 1e-6), rtol=0.05)
     assert np.all(np.diag(ins.ukf.P)[DW] < P_w)
+
+
+@pytest.mark.parametrize("missing", ["right", "left"])
+def test_a_rig_with_one_camera_is_told_that_vision_is_stereo(euroc_micro, missing: str) -> None:  # type: ignore[no-untyped-def]
+    """A left camera and an IMU (a user's probe): the refusal spoke of stereo pairs only."""
+    from dataclasses import replace as with_fields
+
+    from svains.datasets import load_dataset
+    from svains.errors import DatasetError
+    from svains.navigation.options import VisionOptions
+
+    ds = with_fields(load_dataset(euroc_micro), **{missing: None})
+    side = "cam1 (right)" if missing == "right" else "cam0 (left)"
+    with pytest.raises(DatasetError, match=rf"0 stereo pair\(s\) with images on disk; image-"
+                       rf"based vision needs at least 2: no {re.escape(side)} images; svains's "
+                       r"vision is stereo \(without a second camera use --method ins\)$"):
+        replay(ds, RunOptions(method="3d", vision=VisionOptions(source="images")))

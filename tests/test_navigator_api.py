@@ -466,6 +466,22 @@ def test_measurements_on_another_clock_are_named_at_close(
                      r"used: on another clock", caplog.text)  # fmt: skip
 
 
+def test_slow_imu_stamps_in_microseconds_are_named_against_the_rigs_rate() -> None:
+    """A 100 Hz IMU kept at 40 ms (KITTI raw's OXTS) stamped in µs steps by 40000, inside the
+    50 kHz any spacing allows: the rig's rate_hz tells it (a user's probe)."""
+    from svains.sensors.types import ImuCalib
+
+    rig = Rig(imu=ImuCalib(np.eye(4), 100.0, 1.7e-4, 2e-5, 2e-3, 3e-3))
+    nav = Navigator(RunConfig(), rig)
+    rng = np.random.default_rng(2)
+    with pytest.raises(ConfigError, match=r"feed_imu: samples come at 2\.5e\+04 Hz if the stamps "
+                       r"are nanoseconds \(250x the rig's IMU rate_hz 100\): they look like "
+                       r"microseconds \(25 Hz then\)"):  # fmt: skip
+        for k in range(40):
+            nav.feed_imu(10**9 + k * 40_000, 1e-3 * rng.standard_normal(3),
+                         [0.0, 0.0, G] + 1e-2 * rng.standard_normal(3))
+
+
 @pytest.mark.parametrize(("step", "unit"), [(5_000, "microseconds"), (5, "milliseconds")])
 def test_imu_stamps_in_another_unit_are_named(step: int, unit: str) -> None:
     """Stamps in µs or ms fed online were blamed on a short static start (a user's probe)."""

@@ -136,6 +136,24 @@ def test_camera_stamps_off_the_imu_clock_are_found_and_warned(
         assert "the camera turns about an axis" not in caplog.text  # the stamps are told
 
 
+def test_the_shift_to_give_adds_the_one_the_calibration_applied(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Stamps 40 ms off after a calibration's timeshift_cam_imu of +0.050 s: the value to write
+    is +0.090, not the +0.040 found on top (a user's probe wrote what it was told, -0.099 for a
+    -0.049, and was told +0.042 next)."""
+    h, frames = _flight(R_B_C, seed=2, offset_s=0.04)
+    check = RotationCheck(h, R_B_C, DENSITY, applied_shift_s=0.05)
+    with caplog.at_level("WARNING", logger="svains.navigation.rotation_check"):
+        for tr in frames:
+            check.observe(tr, None)
+    said = re.search(r"Give timeshift_cam_imu: ([+-]0\.\d{3}) \(t_imu = t_cam \+ shift; the "
+                     r"calibration's \+0\.050 with ([+-]0\.\d{3}) added\)", caplog.text)
+    assert said, caplog.text
+    assert float(said.group(1)) == pytest.approx(0.09, abs=0.005)
+    assert float(said.group(1)) == pytest.approx(0.05 + float(said.group(2)), abs=1.5e-3)
+
+
 @pytest.mark.parametrize("offset_s", [1.0, -2.0])
 def test_camera_stamps_seconds_off_are_warned_with_the_shift_to_give(
     offset_s: float, caplog: pytest.LogCaptureFixture
@@ -154,8 +172,9 @@ def test_camera_stamps_seconds_off_are_warned_with_the_shift_to_give(
         if off == 0.0:
             assert caplog.text == "" and check.far_frames >= 20
             continue
-        said = re.search(r"the IMU about (\d\.\d\d) s (after|before) the camera stamps .*Add "
-                         r"([+-]\d\.\d\d) s to timeshift_cam_imu", caplog.text)  # fmt: skip
+        said = re.search(r"the IMU about (\d\.\d\d) s (after|before) the camera stamps .*Give "
+                         r"timeshift_cam_imu: ([+-]\d\.\d\d) \(t_imu = t_cam \+ shift\)",
+                         caplog.text)  # fmt: skip
         assert said, caplog.text
         assert float(said.group(3)) == pytest.approx(offset_s, abs=0.03)
         assert said.group(2) == ("after" if offset_s > 0 else "before")

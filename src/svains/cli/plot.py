@@ -28,7 +28,7 @@ def plot(
     run estimated the camera-IMU time offset)."""
     from svains.datasets import load_dataset
     from svains.evaluation.plots import plot_run
-    from svains.evaluation.run_record import PLOT_NAMES
+    from svains.evaluation.run_record import PLOT_NAMES, replay_sources
 
     if run_dir.is_file():
         usage_error(f"{run_dir} is a file: give the run's folder ({run_dir.parent})", "RUN_DIR")
@@ -36,7 +36,9 @@ def plot(
         check_out_file((out if out is not None else run_dir) / name, force, "--out")
 
     try:
-        ds = load_dataset(dataset) if dataset is not None else None
+        # the Kalibr files and topics the run read it with (a folder calibrated by a
+        # camchain alone: a user's probe)
+        ds = load_dataset(dataset, **replay_sources(run_dir)) if dataset is not None else None
         files = plot_run(run_dir, ds, out if out is not None else run_dir)
     except SvainsError as exc:
         fail(exc)

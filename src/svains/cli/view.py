@@ -31,13 +31,16 @@ def view(
 ) -> None:
     """Save a rerun recording of a run (.rrd), or show it live with --spawn."""
     from svains.datasets import load_dataset
+    from svains.evaluation.run_record import replay_sources
     from svains.evaluation.viewer import write_recording
 
     if out is None and not spawn:
         raise typer.BadParameter("give --out x.rrd, --spawn, or both")
     check_out_file(out, force, "--out")
     try:
-        ds = load_dataset(dataset) if dataset is not None else None
+        # the Kalibr files and topics the run read it with (a folder calibrated by a
+        # camchain alone: a user's probe)
+        ds = load_dataset(dataset, **replay_sources(run_dir)) if dataset is not None else None
         path = write_recording(run_dir, ds, out, spawn=spawn, image_stride=image_stride)
     except SvainsError as exc:
         fail(exc)

@@ -57,9 +57,11 @@ from svains.datasets.validate import (
     check_sonar_calib,
     check_stereo_rig,
     check_stereo_sync,
+    check_stream_unit,
 )
 from svains.errors import CalibrationError, DatasetError
 from svains.geometry.distortion import canonical_model, check_coefficients
+from svains.sensors.units import MAX_CAMERA_HZ
 
 log = logging.getLogger(__name__)
 
@@ -317,6 +319,7 @@ def read_features(folder: Path, timeshift_cam_imu_s: float = 0.0) -> FeatureStre
         raise DatasetError(f"{path}:{k}: track_id must be an integer (below 2^53)")
     ids = ids_f.astype(np.int64)
     uv = values[:, 1:5]
+    check_stream_unit(t, MAX_CAMERA_HZ, path)
     if t.size > 1:
         order = np.lexsort((ids, t))
         dup = np.flatnonzero((np.diff(t[order]) == 0) & (np.diff(ids[order]) == 0))

@@ -29,6 +29,9 @@ from svains.datasets.types import (
 from svains.errors import CalibrationError, DatasetError
 from svains.sensors.units import (
     GRAVITY_RANGE_M_S2,
+    MAX_CAMERA_HZ,
+    MAX_GPS_HZ,
+    RATE_UNIT_FACTOR,
     accel_units_problem,
     course_turn_problem,
     gps_clock_problem,
@@ -37,6 +40,7 @@ from svains.sensors.units import (
     imu_turn,
     mag_turn_problem,
     mag_turn_vs_gyro,
+    rate_unit_problem,
 )
 
 log = logging.getLogger(__name__)
@@ -300,17 +304,36 @@ IMU_RATE_ABOVE_DECLARED = 1.25
 def check_imu_rate(t_ns: NDArray[np.int64], rate_hz: float, path: Path) -> None:
     """Warn when the IMU's median sample rate exceeds its declared ``rate_hz`` by more than
     ``IMU_RATE_ABOVE_DECLARED``: each sample's white noise is σ²·rate_hz, so too low a rate
-    makes the filter overconfident. A stream slower than the declared rate is a recording that
-    keeps some of the sensor's samples (KITTI raw's OXTS) and is read as such."""
+    makes the filter overconfident; refuse it at ``RATE_UNIT_FACTOR`` times (stamps in another
+    unit, ``sensors.units.rate_unit_problem``). A stream slower than the declared rate is a
+    recording that keeps some of the sensor's samples (KITTI raw's OXTS) and is read as such."""
     u = np.unique(t_ns)
     if u.size < 2 or rate_hz <= 0:
         return
     stream_hz = 1e9 / float(np.median(np.diff(u)))
+    unit = rate_unit_problem(stream_hz, RATE_UNIT_FACTOR * rate_hz,
+                             f"{stream_hz / rate_hz:.3g}x sensor.yaml's rate_hz {rate_hz:g}")
+    if unit is not None:
+        raise DatasetError(f"{path}: {unit} (the ASL layout stamps in integer nanoseconds)")
     if stream_hz > IMU_RATE_ABOVE_DECLARED * rate_hz:
         log.warning("%s: samples come at %.4g Hz but sensor.yaml declares rate_hz %.4g: each "
                     "sample is given the noise of a %.4g Hz sensor, %.2gx too little variance; "
                     "set rate_hz to the sensor's own rate", path, stream_hz, rate_hz, rate_hz,
                     stream_hz / rate_hz)  # fmt: skip
+
+
+def check_stream_unit(t_ns: NDArray[np.int64], limit_hz: float, path: Path) -> None:
+    """DatasetError naming ``path`` when the frames or fixes stamped ``t_ns`` (N,) come faster
+    than ``limit_hz`` (``sensors.units.MAX_CAMERA_HZ`` or ``MAX_GPS_HZ``) if read as
+    nanoseconds: stamped in another unit (``sensors.units.rate_unit_problem``)."""
+    u = np.unique(t_ns)
+    if u.size < 3:
+        return
+    kind = "camera pair" if limit_hz == MAX_CAMERA_HZ else "GPS receiver"
+    unit = rate_unit_problem(1e9 / float(np.median(np.diff(u))), limit_hz,
+                             f"no {kind} runs above {limit_hz:g} Hz")  # fmt: skip
+    if unit is not None:
+        raise DatasetError(f"{path}: {unit} (the ASL layout stamps in integer nanoseconds)")
 
 
 def check_gps_units(t_ns: NDArray[np.int64], p_W_G: NDArray[np.float64],
@@ -621,6 +644,11 @@ def vet_streams(ds: Dataset) -> None:
             ds.gps = replace(ds.gps, v_W_G=np.full_like(ds.gps.v_W_G, np.nan))
     elif ds.gps is not None:  # position-only: the fixes' own steps, per axis
         check_gps_position_units(ds.gps.p_W_G, where("gps0"))
+    for folder, stamped, limit_hz in (("cam0", ds.left, MAX_CAMERA_HZ),
+                                      ("cam1", ds.right, MAX_CAMERA_HZ),
+                                      ("gps0", ds.gps, MAX_GPS_HZ)):  # fmt: skip
+        if stamped is not None:
+            check_stream_unit(stamped.t_ns, limit_hz, where(folder))
     if ds.left is not None and len(ds.left.t_ns):  # (features0 is read when first used)
         jitter = frame_jitter_problem(ds.left.t_ns)
         if jitter is not None:

@@ -104,6 +104,28 @@ def _numeric_columns(path: Path) -> dict[str, NDArray[Any]]:
     return {n: out[n] for n in names}
 
 
+def replay_sources(run_dir: Path | str) -> dict[str, Any]:
+    """The calibration files and bag topics a run read its data set with (its ``config.yaml``'s
+    ``replay.calib``, ``replay.imu_calib`` and ``replay.topics``), as ``load_dataset``'s
+    keywords; none when the run has no readable ``config.yaml`` (a run of the Python API)."""
+    import yaml
+
+    from svains.datasets.rosbag import parse_topic_roles
+
+    try:
+        text = (Path(run_dir) / "config.yaml").read_text(encoding="utf-8")
+        replay = (yaml.safe_load(text) or {}).get("replay") or {}
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, AttributeError):
+        return {}
+    if not isinstance(replay, dict):
+        return {}
+    out: dict[str, Any] = {k: replay[k] for k in ("calib", "imu_calib") if replay.get(k)}
+    topics = replay.get("topics")
+    if isinstance(topics, str) and topics.strip():
+        out["topics"] = parse_topic_roles(topics)
+    return out
+
+
 def read_run(run_dir: Path | str, smoothed: bool = False) -> RunRecord:
     """Read ``states.csv``, ``report.json`` and, when present, ``updates.csv``/``tracks.csv``;
     with ``smoothed``, the smoothed states (``states_smoothed.csv``, ``svains run --smooth``)."""

@@ -97,11 +97,14 @@ class RotationCheck:
     """Collects, frame by frame, the angle between the camera's and the gyro's rotation axes."""
 
     def __init__(self, history: ImuHistory, R_B_C: F64, gyro_noise_density: float,
-                 options: RotationCheckOptions | None = None) -> None:  # fmt: skip
+                 options: RotationCheckOptions | None = None,
+                 applied_shift_s: float = 0.0) -> None:  # fmt: skip
         """``history``: the body-frame IMU samples; ``R_B_C`` (3, 3): the (rectified) left
         camera's rotation on the body, as the calibration gives it; ``gyro_noise_density``
-        rad/s/√Hz."""
+        rad/s/√Hz; ``applied_shift_s``: the calibration's ``timeshift_cam_imu`` (s) already
+        applied to the stamps the check sees, to which a shift it finds adds."""
         self.history = history
+        self.applied_shift_s = float(applied_shift_s)
         self.R_C_B = np.asarray(R_B_C, dtype=float).T
         self.gyro_density = float(gyro_noise_density)
         self.options = options or RotationCheckOptions()
@@ -313,10 +316,10 @@ class RotationCheck:
             log.warning(
                 "the camera's turns match the gyro's best with the IMU %.0f ms %s the camera "
                 "stamps (± %.0f ms, %d turning frames): are the images stamped on the IMU's "
-                "clock? Give timeshift_cam_imu: %+.3f (t_imu = t_cam + shift) in the camera "
+                "clock? Give timeshift_cam_imu: %+.3f (t_imu = t_cam + shift%s) in the camera "
                 "calibration, or let the filter estimate it (vision.estimate_time_offset)",
                 abs(shift) * 1e3, "after" if shift > 0 else "before", std * 1e3,
-                self.offset_frames, shift,
+                self.offset_frames, self.applied_shift_s + shift, self._added(shift, 3),
             )
 
     def _judge_edge(self) -> None:
@@ -362,10 +365,17 @@ class RotationCheck:
             log.warning(
                 "the camera's turns match the gyro's best with the IMU about %.2f s %s the "
                 "camera stamps (%d turning frames): are the images stamped on the IMU's clock? "
-                "Add %+.2f s to timeshift_cam_imu (t_imu = t_cam + shift) in the camera "
+                "Give timeshift_cam_imu: %+.2f (t_imu = t_cam + shift%s) in the camera "
                 "calibration, or measure it", abs(shift), "after" if shift > 0 else "before",
-                self.far_frames, shift,
+                self.far_frames, self.applied_shift_s + shift, self._added(shift, 2),
             )  # fmt: skip
+
+    def _added(self, shift: float, digits: int) -> str:
+        """How the shift to give is made of the one applied and ``shift``, when one was."""
+        if self.applied_shift_s == 0.0:
+            return ""
+        return (f"; the calibration's {self.applied_shift_s:+.{digits}f} with "
+                f"{shift:+.{digits}f} added")
 
     @property
     def _offset_chi2(self) -> F64:
@@ -628,10 +638,11 @@ def _gyro_turns(t_ns: NDArray[np.int64], gyro_B: F64, t0_ns: int, t1_ns: int,
     return np.where(big[:, None], first, second)
 
 
-def rotation_check(history: ImuHistory | None, R_B_C: F64,
-                   imu: ImuCalib | None) -> RotationCheck | None:  # fmt: skip
+def rotation_check(history: ImuHistory | None, R_B_C: F64, imu: ImuCalib | None,
+                   applied_shift_s: float = 0.0) -> RotationCheck | None:  # fmt: skip
     """A check of ``R_B_C`` on ``history``'s gyro (noise from ``imu``, else the filter's
-    default), or None without an IMU."""
+    default; the stamps moved by ``applied_shift_s`` s), or None without an IMU."""
     if history is None:
         return None
-    return RotationCheck(history, R_B_C, (imu or default_imu_calib()).gyro_noise_density)
+    return RotationCheck(history, R_B_C, (imu or default_imu_calib()).gyro_noise_density,
+                         applied_shift_s=applied_shift_s)  # fmt: skip

@@ -66,7 +66,8 @@ def vision_checks(history: ImuHistory | None, stereo: RectifiedStereo,
                   rig: Rig) -> VisionChecks | None:  # fmt: skip
     """The checks of ``stereo`` on ``history`` (noise from ``rig.imu``), or None without an
     IMU."""
-    rotation = rotation_check(history, stereo.R_B_C, rig.imu)
+    shift_s = 0.0 if rig.cam0 is None else float(rig.cam0.timeshift_cam_imu_s)
+    rotation = rotation_check(history, stereo.R_B_C, rig.imu, shift_s)
     scale = scale_check(history, stereo, rig.gravity_W, rig.imu)
     if rotation is None or scale is None:
         return None

@@ -223,8 +223,14 @@ def replay(
         n_pairs = stereo_pairs(ds)[0].size if ds.left is not None and ds.right is not None else 0
         if n_pairs < 2:  # vo too: it wrote an empty trajectory with exit 0
             where = "in the bag" if ds.root.is_file() else "with images on disk"
+            # a rig with one camera was told of pairs only (a user's probe)
+            lacking = [side for side, stream in (("cam0 (left)", ds.left),
+                                                 ("cam1 (right)", ds.right))
+                       if stream is None or len(stream.t_ns) == 0]  # fmt: skip
+            why = (f": no {lacking[0]} images; svains's vision is stereo (without a second "
+                   "camera use --method ins)") if len(lacking) == 1 else ""
             raise DatasetError(f"{ds.root}: {n_pairs} stereo pair(s) {where}; image-based "
-                               "vision needs at least 2")  # fmt: skip
+                               f"vision needs at least 2{why}")  # fmt: skip
     if config.method == "vo":  # stereo only: no IMU needed (KITTI odometry, bare rigs)
         from svains.replay.vo import run as run_vo
 

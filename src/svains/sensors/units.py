@@ -330,3 +330,26 @@ def time_unit_problem(median_spacing: float) -> str | None:
                   if 1e-3 <= med * scale * 1e-9 <= 10.0), "another unit")  # fmt: skip
     return (f"timestamps advance by a median {med:g} per sample, {1e9 / med:.3g} Hz if "
             f"nanoseconds: they look like {guess}")
+
+
+# A stream this many times its sensor's declared rate is stamped in another unit than
+# nanoseconds, not fast: KITTI's 100 Hz OXTS, kept at a median 40 ms, stamped in microseconds
+# reads 25 kHz, inside ``MIN_MEDIAN_SPACING_NS``'s 50 kHz bound.
+RATE_UNIT_FACTOR = 100.0
+# The fastest stereo camera and GPS receiver a navigation rig carries (Hz): faster streams are
+# stamped in another unit (4.84 Hz KITTI frames in microseconds read 4.84 kHz).
+MAX_CAMERA_HZ = 500.0
+MAX_GPS_HZ = 200.0
+
+
+def rate_unit_problem(stream_hz: float, limit_hz: float, why: str) -> str | None:
+    """Why a stream whose median step, read as nanoseconds, gives ``stream_hz`` cannot be
+    stamped in nanoseconds when its sensor gives ``limit_hz`` at most (``why`` says so, e.g.
+    "250x sensor.yaml's rate_hz 100"); None when it can. The unit guessed is the first of
+    microseconds and milliseconds that brings the stream under the limit."""
+    if not (stream_hz > 0 and limit_hz > 0) or stream_hz < limit_hz:
+        return None
+    guess = next((f"they look like {unit} ({stream_hz / scale:.3g} Hz then)"
+                  for unit, scale in (("microseconds", 1e3), ("milliseconds", 1e6))
+                  if stream_hz / scale < limit_hz), "in another unit?")  # fmt: skip
+    return f"samples come at {stream_hz:.3g} Hz if the stamps are nanoseconds ({why}): {guess}"
