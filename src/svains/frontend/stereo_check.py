@@ -40,6 +40,11 @@ MIN_MATCHES = 60  # matches before a verdict (both ways)
 MIN_PAIRS = 3  # pairs before a verdict: one view of a fence or a shop window could mislead
 SWAPPED_FRACTION = 0.8  # of the matches at negative disparity: swapped
 ROW_OFFSET_WARN_PX = 3.0  # median |v_L - v_R| above which rectification does not fit
+# Of the matches at negative disparity, short of a swap: a lens model that does not fit (a
+# fisheye lens declared radial-tangential, KITTI raw's images: 3.8-14.8 % of 660-1100 matches,
+# the run 17x its error, without a word: a user's probe); right calibrations leave 0-0.3 %
+# (shared data, rendered village)
+PARTLY_NEGATIVE_FRACTION = 0.03
 # the rows of the pairs rectified with the two images exchanged fit this well for crossed
 # streams (EuRoC: 0.1 px); cam1's T_BS 3° off about x left 2.5 px exchanged, not a swap
 SWAPPED_ROWS_FIT_PX = 1.0
@@ -119,6 +124,11 @@ class StereoCheck:
             return (f"rectification does not fit the images: left-right matches are "
                     f"{self.row_offset_px:.1f} px apart in rows (median of {self.matches}); "
                     "check the cameras' T_BS and intrinsics")  # fmt: skip
+        if self.decided and self.negative_fraction >= PARTLY_NEGATIVE_FRACTION:
+            return (f"{self.negative} of {self.matches} left-right matches lie at negative "
+                    f"disparity (rows {self.row_offset_px:.1f} px apart): does the lens model "
+                    "fit the cameras (distortion_model, its coefficients, the intrinsics)? A "
+                    "fisheye lens read as radial-tangential does this")  # fmt: skip
         return None
 
     def summary(self) -> dict[str, float | int]:
