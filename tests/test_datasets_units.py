@@ -339,5 +339,7 @@ def test_gravity_with_the_wrong_sign_is_told_from_the_ground_truth() -> None:
     assert said is not None
     assert re.search(r"1[78]\d° from up \(-gravity_W \[0.0, 0.0, -9.81\]\)", said)
     assert "z-down world?" in said
+    # or the IMU's own axes (a user's probe: a forward-right-down IMU given identity)
+    assert "an IMU in other axes than imu0's T_BS says" in said
     # no reference, nothing to say
     assert gravity_reference_problem(replace(flipped, groundtruth=None)) is None

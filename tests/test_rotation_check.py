@@ -74,6 +74,7 @@ def test_a_camera_turned_on_the_body_is_warned_once(caplog: pytest.LogCaptureFix
     s = check.summary()
     assert s["warned"] and s["median_axis_deg"] > 45.0
     assert caplog.text.count("the camera turns about an axis") == 1
+    assert "Or is the IMU in other axes than imu0's T_BS says" in caplog.text  # the other side
     # after the camera stamps' own test has its 10 frames (which leaves the mount to blame)
     assert re.search(r"median of 1\d turning frames", caplog.text)
     assert not s["warned_time_offset"] and s["time_offset_fit"] > 100

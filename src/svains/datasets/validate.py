@@ -604,8 +604,9 @@ def gravity_reference_problem(ds: Dataset, samples: int = 4000) -> str | None:
     up_txt = (np.round(up, 3) + 0.0).tolist()  # + 0.0: no "-0.0"
     return (f"the ground truth's attitudes turn the IMU's mean specific force "
             f"{angle:.0f}° from up (-gravity_W {up_txt}): gravity_W with the wrong sign (a "
-            "z-down world? svains's world has z up, gravity [0, 0, -9.81]) or a reference in "
-            "another frame")
+            "z-down world? svains's world has z up, gravity [0, 0, -9.81]), a reference in "
+            "another frame, or an IMU in other axes than imu0's T_BS says (forward-right-down "
+            "axes given as the identity?)")
 
 
 def vet_streams(ds: Dataset) -> None:

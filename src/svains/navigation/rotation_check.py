@@ -226,7 +226,8 @@ class RotationCheck:
                 log.warning(
                     "the camera turns about an axis %.0f° from the gyro's mapped through cam0's "
                     "T_BS (median of %d turning frames): is T_BS camera-to-body (not its "
-                    "inverse), with the axes of the camera (x right, y down, z forward)?",
+                    "inverse), with the axes of the camera (x right, y down, z forward)? Or is "
+                    "the IMU in other axes than imu0's T_BS says (the body's, often)?",
                     median, len(self.angles_deg),
                 )
         if judged and len(self.angles_deg) >= o.min_frames:
