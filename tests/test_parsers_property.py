@@ -360,7 +360,10 @@ def test_written_streams_read_back_bit_for_bit(data: st.DataObject, n: int) -> N
                            data.draw(FINITE))  # fmt: skip
     ids = np.array(data.draw(st.lists(st.integers(-(2**53) + 1, 2**53 - 1), min_size=n,
                                       max_size=n)), dtype=np.int64)  # fmt: skip
-    feats = FeatureStream(t, ids, _draw_rows(data, n, 2), _draw_rows(data, n, 2),
+    # frames no faster than a camera pair gives (``sensors.units.MAX_CAMERA_HZ``)
+    t_frames = (t0 + np.concatenate([[0], np.cumsum(np.maximum(steps, 4_000_000))])).astype(
+        np.int64)
+    feats = FeatureStream(t_frames, ids, _draw_rows(data, n, 2), _draw_rows(data, n, 2),
                           data.draw(POSITIVE))  # fmt: skip
     gt = GroundTruth(t, _draw_rows(data, n, 3), _draw_unit_quaternions(data, n),
                      *(_draw_rows(data, n, 3) for _ in range(3)))  # fmt: skip
