@@ -65,11 +65,13 @@ def clone_camera_motion(
     return C_s.transpose(0, 2, 1) @ dR @ C_s, np.einsum("sji,sj->si", C_s, r_B)
 
 
-def body_displacement(R_Ck_Ckm1: ArrayLike, p_Ck_Ckm1: ArrayLike, rig: RectifiedStereo) -> F64:
+def body_displacement(R_Ck_Ckm1: ArrayLike, p_Ck_Ckm1: ArrayLike, rig: RectifiedStereo,
+                      R_B_C: ArrayLike | None = None) -> F64:  # fmt: skip
     """The body's displacement k-1 -> k (3,) m in the body frame at k, ``R_k^T (p_k - p_km1)``,
     from a measured left-camera motion ``T_Ck_Ckm1`` (``R_Ck_Ckm1`` (3, 3), ``p_Ck_Ckm1`` (3,)
-    m): ``clone_camera_motion`` solved for the body's motion, the lever arm ``c_B`` included."""
-    C = np.asarray(rig.R_B_C, dtype=float)
+    m): ``clone_camera_motion`` solved for the body's motion, the lever arm ``c_B`` included;
+    ``R_B_C`` (3, 3) replaces the rig's camera rotation (an estimated one)."""
+    C = np.asarray(rig.R_B_C if R_B_C is None else R_B_C, dtype=float)
     c_B = np.asarray(rig.p_B_C, dtype=float)
     dR = C @ np.asarray(R_Ck_Ckm1, dtype=float) @ C.T  # R_k^T R_km1
     r_B = -C @ np.asarray(p_Ck_Ckm1, dtype=float)

@@ -111,6 +111,7 @@ class HeadingCheck:
         # the camera's velocities (a vision method's egomotion, turned by the filter's attitude)
         self._vision: deque[tuple[F64, F64, float]] = deque(maxlen=self.options.window)
         self._prev: tuple[int, F64, F64] | None = None  # t_ns, filter v after, GPS v
+        self._prev2: tuple[int, F64] | None = None  # the fix before it: t_ns, GPS v
         self.turns: list[dict[str, float | bool | str]] = []
 
     def _horizontal(self, v: F64) -> F64:
@@ -122,6 +123,7 @@ class HeadingCheck:
         self._fixes.clear()
         self._vision.clear()
         self._prev = None
+        self._prev2 = None
 
     def before_update(self, t_ns: int, v_pred_W: F64, v_gps_W: F64, yaw_std_rad: float,
                       v_var: float = 0.0, usable: bool = True, acquire: bool = False,
@@ -134,10 +136,11 @@ class HeadingCheck:
         recovery switched off): the windows start again. ``acquire``: the filter runs in a
         local frame whose heading is sought (a start with neither magnetometer nor course):
         any sure and fitting estimate is returned, however small. ``vision``: a time (ns)
-        between the previous fix and this one, the antenna's velocity (3,) m/s the camera
-        measured there in the filter's world (turned by its attitude, so by its heading error)
-        and its variance per axis (m²/s²), compared with the two fixes' velocities interpolated
-        at that time; None: no such measurement. A heading error to mend now, or None."""
+        between the fix before the previous one and this one, the antenna's velocity (3,) m/s
+        the camera measured there in the filter's world (turned by its attitude, so by its
+        heading error) and its variance per axis (m²/s²), compared with the velocities of the
+        two fixes around that time interpolated there (``_gps_at``); None: no such
+        measurement. A heading error to mend now, or None."""
         o = self.options
         v_pred, v_gps = np.asarray(v_pred_W, float), np.asarray(v_gps_W, float)
         prev = self._prev
@@ -157,14 +160,13 @@ class HeadingCheck:
                                 2.0 * self._var_v + self._var_a * dt))  # fmt: skip
         self._fixes.append((self._horizontal(v_pred), self._horizontal(v_gps),
                             self._var_v + float(v_var)))  # fmt: skip
-        if (vision is None or acquire or prev is None or not prev[0] <= vision[0] <= t_ns
-                or (t_ns - prev[0]) * 1e-9 > o.max_step_s):  # fmt: skip
+        at = None if vision is None or acquire else self._gps_at(vision[0], t_ns, v_gps)
+        if at is None or vision is None:
             self._vision.clear()
         else:
-            w = (vision[0] - prev[0]) / max(t_ns - prev[0], 1)
-            g = (1.0 - w) * prev[2] + w * v_gps
+            g, factor = at
             self._vision.append((self._horizontal(vision[1]), self._horizontal(g),
-                                 ((1.0 - w) ** 2 + w**2) * self._var_v + float(vision[2])))
+                                 factor * self._var_v + float(vision[2])))
         # Velocities (a vision method's, held to the camera's motion in the body frame, turn
         # with the heading) and velocity changes (the IMU's, which turn with it too). The GPS
         # velocity must disagree now too: a filter that has come round mends itself.
@@ -191,6 +193,25 @@ class HeadingCheck:
                            "std_deg": math.degrees(error.std_rad), "wait": acquire,
                            "witness": error.witness})  # fmt: skip
         return error
+
+    def _gps_at(self, t: int, t_ns: int, v_gps: F64) -> tuple[F64, float] | None:
+        """The GPS velocity (3,) at ``t`` (ns) interpolated between the two fixes around it
+        (this one at ``t_ns``, the previous one, the one before) and the factor of one fix's
+        variance it carries; None when ``t`` lies outside them or a step is too long. A frame
+        pair ending at the previous fix lies before it: with the camera at the GPS's stamps
+        (the fix handled first) that was every pair, and the camera was never heard (a
+        review: 1 Hz frames and fixes)."""
+        prev, prev2 = self._prev, self._prev2
+        if prev is None or (t_ns - prev[0]) * 1e-9 > self.options.max_step_s:
+            return None
+        spans = [(prev[0], prev[2], t_ns, v_gps)]
+        if prev2 is not None:
+            spans.append((prev2[0], prev2[1], prev[0], prev[2]))
+        for ta, va, tb, vb in spans:
+            if ta <= t <= tb and (tb - ta) * 1e-9 <= self.options.max_step_s:
+                w = (t - ta) / max(tb - ta, 1)
+                return (1.0 - w) * va + w * vb, (1.0 - w) ** 2 + w**2
+        return None
 
     def _disagrees(self, row: tuple[F64, F64, float]) -> bool:
         """Whether a row's filter vector and GPS vector differ beyond their noise."""
@@ -231,6 +252,7 @@ class HeadingCheck:
 
     def after_update(self, t_ns: int, v_post_W: F64, v_gps_W: F64) -> None:
         """After the fix's update (accepted or not): the filter's velocity ``v_post_W`` (3,)."""
+        self._prev2 = None if self._prev is None else (self._prev[0], self._prev[2])
         self._prev = (int(t_ns), np.array(v_post_W, float), np.array(v_gps_W, float))
 
     def summary(self) -> dict[str, object]:

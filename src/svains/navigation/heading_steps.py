@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
-from svains.geometry.rotation import quat_to_rotmat, skew
+from svains.geometry.rotation import quat_to_rotmat, skew, so3_exp
 from svains.models.gps import gps_position, gps_velocity
 from svains.models.state import DP, DTH, DV, Q, V
 from svains.models.state import P as POS
@@ -69,8 +69,9 @@ class HeadingSteps:
             and config.faults.heading_check else None
         )  # fmt: skip
         self._heading_fixes: list[Any] = []  # (t, v_W_G) of this group's GPS velocities
-        # the frames since the last fix: tracks, R_W_B (3, 3), lever-arm velocity (3,) m/s
-        self._frames_since_fix: list[tuple[Any, np.ndarray, np.ndarray]] = []
+        # the frames since the last fix: tracks, R_W_B (3, 3), lever-arm velocity (3,) m/s, the
+        # camera mount the state holds (``_mount``)
+        self._frames_since_fix: list[tuple[Any, np.ndarray, np.ndarray, Any]] = []
         # position-only fixes during the heading wait: the heading from their path
         check = HeadingCheckOptions()
         self._fix_path = FixPathHeading(
@@ -287,8 +288,8 @@ class HeadingSteps:
         if not frames or t_prev < 0:
             return None
         mid = 0.5 * (t_prev + t)
-        tr, R_W_B, lever_W = min(frames,
-                                 key=lambda f: abs(0.5 * (f[0].t_ns + f[0].t_prev_ns) - mid))
+        tr, R_W_B, lever_W, mount = min(
+            frames, key=lambda f: abs(0.5 * (f[0].t_ns + f[0].t_prev_ns) - mid))
         updater = self._updater
         assert isinstance(updater, (PixelUpdater, LcUpdater))
         ego = tracks_egomotion(tr, updater.rig, seed=0)  # the front end's, or RANSAC's
@@ -298,9 +299,16 @@ class HeadingSteps:
         if not np.isfinite(var_p):
             return None
         dt_s = (tr.t_ns - tr.t_prev_ns) * 1e-9
-        v_W_B = R_W_B @ body_displacement(ego.R_Ck_Ckm1, ego.p_Ck_Ckm1, updater.rig) / dt_s
-        return ((tr.t_ns + tr.t_prev_ns) // 2, v_W_B + lever_W,
-                CAMERA_VELOCITY_COV_SCALE * var_p / dt_s**2)
+        # the camera's rotation on the body as the filter holds it, when it estimates (or
+        # considers) one: with the calibration's the velocities of a camera 25° off on its
+        # mount, being estimated, turned a right heading 25° (a review)
+        R_B_C = None if mount is None else updater.rig.R_B_C @ so3_exp(mount[0])
+        v_W_B = R_W_B @ body_displacement(ego.R_Ck_Ckm1, ego.p_Ck_Ckm1, updater.rig,
+                                          R_B_C) / dt_s  # fmt: skip
+        var = CAMERA_VELOCITY_COV_SCALE * var_p / dt_s**2
+        if mount is not None:  # its rotation's spread turns the velocity too
+            var += float(np.trace(mount[1])) / 3.0 * float(v_W_B @ v_W_B)
+        return (tr.t_ns + tr.t_prev_ns) // 2, v_W_B + lever_W, var
 
     def _note_frame(self, t: int) -> None:
         """After a frame at ``t``: its tracks with the filter's attitude and the antenna's
@@ -312,12 +320,24 @@ class HeadingSteps:
         tr = updater.last_tracks
         if tr is None or tr.t_ns != t or tr.t_ns <= tr.t_prev_ns:
             return
-        x = self.ins.ukf.x
+        ukf = self.ins.ukf
+        x = ukf.x
         lever_W = gps_velocity(x[None, :], self.rig.gps.p_B_G)[0] - x[V]
         # only pairs a fix step long can be compared (without fixes the list would grow)
         keep_ns = int(self._heading_check.options.max_step_s * 1e9)
         self._frames_since_fix = [f for f in self._frames_since_fix if t - f[0].t_ns <= keep_ns]
-        self._frames_since_fix.append((tr, quat_to_rotmat(x[Q]), lever_W))
+        self._frames_since_fix.append((tr, quat_to_rotmat(x[Q]), lever_W, self._mount(updater)))
+
+    def _mount(self, updater: PixelUpdater | LcUpdater) -> tuple[np.ndarray, np.ndarray] | None:
+        """The camera rotation correction ``δφ_C`` (3,) rad the state holds and its covariance
+        (3, 3), when a vision method estimates or considers it (``vision_clones``); else None."""
+        clones = getattr(updater, "clones", None)
+        ukf = self.ins.ukf
+        if clones is None or clones.calib(ukf) is None:
+            return None
+        cx, cdx = ukf.manifold.calib  # type: ignore[attr-defined]
+        a, b = cx.start, cdx.start
+        return ukf.x[a:a + 3].copy(), ukf.P[b:b + 3, b:b + 3].copy()
 
     def _path_contradicts(self, t: int, error: HeadingError) -> bool:
         """Whether the fixes' own path (``FixPathHeading``, their positions) gives a heading
