@@ -165,3 +165,22 @@ def test_a_low_rank_noise_term_keeps_the_fast_path_and_matches_the_dense_one() -
         assert low[2] == pytest.approx(dense[2], rel=1e-10)
         for a, b in zip(low[3], dense[3], strict=True):
             np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_an_ill_conditioned_prior_is_repaired_without_a_warning() -> None:
+    """A clone's exact copy direction leaves P with rcond ~1e-17: scipy solved it under a
+    ``LinAlgWarning`` printed on the user's console (a probe's MH_03 at 0.2 Hz). It takes the
+    repaired factorisation, as a failed one does, and gives a finite answer."""
+    import warnings
+
+    from svains.filter.iterated import _solve_psd
+
+    rng = np.random.default_rng(1)
+    A = rng.standard_normal((6, 6))
+    T = np.vstack([np.eye(6), np.eye(6)[:3]])  # three states copied exactly
+    P = T @ (A @ A.T * 1e6) @ T.T + 1e-10 * np.eye(9)  # factorises, rcond below eps
+    B = np.ones((9, 2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        X = _solve_psd(P, B, "test")
+    assert np.all(np.isfinite(X)) and X.shape == (9, 2)
