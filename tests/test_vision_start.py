@@ -66,6 +66,8 @@ def test_a_noise_free_flight_gives_gravity_and_velocity(quiet_flight: Path) -> N
     # 2026-12-05: 0.0074°, 1.7 mm/s (the samples held between IMU stamps), g 9.80999
     assert tilt < 0.05 and np.linalg.norm(dv) < 0.01
     assert init.info["mode"] == "vision" and init.info["frames"] >= 4
+    # the span its frames covered, at least the window asked for (a probe read the option)
+    assert 2.0 <= init.info["window_s"] < 3.0
     assert init.info["gravity_fit_mps2"] == pytest.approx(9.81, abs=0.01)
     # moving: the start is no rest (the speed is the flight's, ~2 m/s)
     assert np.linalg.norm(init.x[3:6]) > 1.0
@@ -134,6 +136,7 @@ def test_the_fit_recovers_a_turned_frame_and_a_gyro_bias() -> None:
     assert fit.R_W_V @ fit.g_V == pytest.approx(g_W, abs=0.02)
     assert R_W_V @ fit.v_V == pytest.approx(v0_W, abs=0.01)
     assert fit.g_fit_mps2 == pytest.approx(9.81, abs=0.02)
+    assert fit.span_s == pytest.approx((t_ns[frames[-1]] - t_ns[frames[0]]) * 1e-9)
     # carried to a later IMU sample, in the world frame (V's yaw is a gauge: compare tilt, speed)
     k = 250
     R_est, v_est = state_at(fit, R_V_B[0], t_ns, gyro, f_B, int(t_ns[k]))
@@ -454,3 +457,22 @@ def test_a_slow_gps_start_without_heading_holds_a_local_frame_until_the_gps_give
     assert rep["ate_rmse_m"] < 1.0 and rep["nees_mean"] < 12.0
     ins = run_method(ds, "ins", replace(config, method="ins")).report
     assert ins["init"]["heading"] == HEADING_BANK and VELOCITY_UNKNOWN not in ins["init"]
+
+
+def test_a_start_over_frames_seconds_apart_is_warned(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """At 0.5 Hz the fit's 4 frames span 6 s (at 0.2 Hz 15 s): the IMU carries it, and a
+    probe's simulated MH_03 flights ended NEES 9-2900 after such starts without a word (and
+    the report gave the 2 s asked for as the window)."""
+    from svains.sim import SimConfig, simulate
+
+    cfg = SimConfig(duration_s=10.0, seed=1)
+    cfg.camera.render_images = False
+    cfg.camera.rate_hz = 0.5
+    ds = load_dataset(simulate(cfg, tmp_path / "sparse"))
+    with caplog.at_level("WARNING", logger="svains.navigation.starter"):
+        res = run_method(ds, "3d", replace(_config(), use_mag=False))
+    assert res.report["init"]["window_s"] == pytest.approx(6.0, abs=0.01)
+    assert ("the in-flight start from vision fitted 4 frames over 6.0 s (init.vision_window_s "
+            "2): with frames this far apart the IMU carries the fit") in caplog.text

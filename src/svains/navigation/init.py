@@ -667,7 +667,9 @@ def from_vision_fit(
         yaw_std = o.yaw_std_unknown if gps_fused else o.yaw_std_local
     P0 = _levelled_covariance(layout, o, R_W_B, up, pos_std, vel_std, tilt_std, yaw_std)
     info: dict[str, object] = {
-        "mode": "vision", "heading": heading, "frames": fit.frames, "window_s": o.vision_window_s,
+        # the span the frames covered: 4 frames 5 s apart cover 15 s, not init.vision_window_s
+        # (a user's probe read 2.0 there)
+        "mode": "vision", "heading": heading, "frames": fit.frames, "window_s": fit.span_s,
         "gravity_fit_mps2": fit.g_fit_mps2, "rms_m": fit.rms_m,
         "tilt_std_deg": float(np.degrees(fit.tilt_std)), "velocity_W": v_W_B.tolist(),
         "gyro_bias": fit.b_g.tolist(),

@@ -45,7 +45,7 @@ class VisionInertialFit:
     ``g_V`` (3,) m/s² in V, the gyro bias ``b_g`` (3,) rad/s, standard deviations of the
     velocity ``v_std`` (3,) m/s and of the tilt ``tilt_std`` rad (least squares, scaled by the
     fit's residual), the residual ``rms_m`` m, the gravity magnitude fitted freely
-    ``g_fit_mps2`` and the ``frames`` used."""
+    ``g_fit_mps2``, the ``frames`` used and the ``span_s`` (s) they cover."""
 
     t0_ns: int
     R_W_V: F64
@@ -57,6 +57,7 @@ class VisionInertialFit:
     rms_m: float
     g_fit_mps2: float
     frames: int
+    span_s: float = 0.0
 
 
 def _rotate_onto(a: F64, b: F64) -> F64:
@@ -170,6 +171,7 @@ def fit_vision_inertial(
         t0_ns=t0, R_W_V=_rotate_onto(g_V, np.asarray(gravity_W, float)), v_V=v_V, g_V=g_V,
         b_g=b_g, v_std=np.sqrt(np.diag(cov[:3, :3])), tilt_std=tilt_std,
         rms_m=float(np.sqrt(np.mean(resid**2))), g_fit_mps2=g_fit_norm, frames=K,
+        span_s=float(dt[-1]),
     )
 
 
