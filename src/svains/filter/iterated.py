@@ -21,11 +21,11 @@ difference, a few degrees at most). Pure numpy/scipy; the filter's conventions (
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable
 
 import numpy as np
 import scipy.linalg
+import scipy.linalg.lapack
 from numpy.typing import NDArray
 
 from svains.filter.manifold import Manifold
@@ -144,14 +144,17 @@ def _low_rank_update(
 
 def _solve_psd(P: F64, B: F64, name: str) -> F64:
     """``P^-1 B`` for a covariance ``P`` (n, n) and ``B`` (n, k)."""
-    try:
-        # ill-conditioned past round-off (an exact clone direction: rcond 1.6e-17 on a
-        # probe's simulated MH_03 at 0.2 Hz) is repaired as a failed factorisation is, not
-        # solved inexactly under a warning on the user's console
-        with warnings.catch_warnings():
-            warnings.simplefilter("error", scipy.linalg.LinAlgWarning)
-            return scipy.linalg.solve(P, B, assume_a="pos", check_finite=False)
-    except (np.linalg.LinAlgError, scipy.linalg.LinAlgWarning):  # PSD to round-off: repaired
-        L = safe_cholesky(P, f"iterated covariance of {name}")
-        return scipy.linalg.cho_solve((L, True), B, check_finite=False)
+    # Factorised and its condition estimated as scipy.linalg.solve does, without its
+    # LinAlgWarning: ill-conditioned past round-off (an exact clone direction, rcond 1.6e-17 on
+    # a probe's simulated MH_03 at 0.2 Hz) is repaired as a failed factorisation is, not
+    # solved inexactly under a warning on the user's console (nor through the process-wide
+    # warning filters, which are no thread's own: a review).
+    c, info = scipy.linalg.lapack.dpotrf(P, lower=True, clean=True)
+    if info == 0:
+        rcond, info = scipy.linalg.lapack.dpocon(c, float(np.max(np.sum(np.abs(P), axis=0))),
+                                                 uplo="L")  # fmt: skip
+        if info == 0 and rcond >= np.finfo(float).eps:
+            return scipy.linalg.cho_solve((c, True), B, check_finite=False)
+    L = safe_cholesky(P, f"iterated covariance of {name}")  # PSD to round-off: repaired
+    return scipy.linalg.cho_solve((L, True), B, check_finite=False)
 
