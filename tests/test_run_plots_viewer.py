@@ -239,3 +239,38 @@ def test_plot_reads_the_data_set_with_the_kalibr_files_of_the_run(tmp_path: Path
     res = runner.invoke(app, ["plot", str(run), "--dataset", str(root), "--out",
                               str(tmp_path / "figs2")])  # fmt: skip
     assert res.exit_code == 1 and "imu0/sensor.yaml" in res.stderr
+
+
+def test_kalibr_files_of_a_run_are_recorded_absolute_and_missing_ones_are_warned(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A review: a relative `--set replay.imu_calib=imu.yaml` was recorded as written, and a
+    file moved since the run stopped `svains plot` on a data set with its own calibration."""
+    from dataclasses import replace
+
+    import yaml
+
+    from svains.datasets.kalibr import write_kalibr_imu
+    from svains.sim import SimConfig, simulate
+
+    cfg = SimConfig(duration_s=3.0, seed=1)
+    cfg.camera.render_images = False
+    root = simulate(cfg, tmp_path / "sim")
+    ds = load_dataset(root)
+    assert ds.imu_calib is not None
+    calib = replace(ds.imu_calib, gyro_random_walk=1e-5, accel_random_walk=1e-4)
+    write_kalibr_imu(tmp_path / "imu.yaml", calib)
+    monkeypatch.chdir(tmp_path)
+    run = tmp_path / "run"
+    res = runner.invoke(app, ["run", str(root), "--method", "ins", "--init", "groundtruth",
+                              "--set", "replay.imu_calib=imu.yaml", "--out", str(run)])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    recorded = yaml.safe_load((run / "config.yaml").read_text())["replay"]["imu_calib"]
+    assert recorded == str((tmp_path / "imu.yaml").resolve())
+    (tmp_path / "imu.yaml").rename(tmp_path / "moved.yaml")
+    with caplog.at_level("WARNING", logger="svains.evaluation.run_record"):
+        res = runner.invoke(app, ["plot", str(run), "--dataset", str(root), "--out",
+                                  str(tmp_path / "figs")])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert "names replay.imu_calib" in caplog.text and "which is not found" in caplog.text
+    assert (tmp_path / "figs" / "errors.png").is_file()

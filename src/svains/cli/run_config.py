@@ -80,13 +80,21 @@ def build_config(
             usage_error(str(exc), "--set")
         given[key] = value
     try:
-        return with_settings(config, given)
+        config = with_settings(config, given)
     except ConfigError as exc:
         if config_file is not None:
             raise  # (the file's: exit 1, as its other errors)
         # options that do not go together on the command line are a usage error, as
         # ``--smooth`` with ``vo`` is (exit 2)
         usage_error(str(exc), None)
+    # Kalibr files however given (--set, a --config file) as absolute paths, read as the run
+    # reads them: OUT/config.yaml then finds them from anywhere (a review: `svains plot` from
+    # another folder missed a relative one)
+    replay = config.replay
+    files = {k: str(Path(v).resolve()) for k in ("calib", "imu_calib")
+             if isinstance(v := getattr(replay, k), str) and not Path(v).is_absolute()}
+    return dataclasses.replace(config, replay=dataclasses.replace(replay, **files)) if files \
+        else config
 
 
 # sections and top-level keys only a filter reads: ``vo`` (a chain of stereo motions) ignores

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import json
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,6 +27,8 @@ from svains.errors import DatasetError
 from svains.evaluation.accuracy import aligned_for_errors, reference_at
 from svains.evaluation.reference_tilt import leveling_rotation
 from svains.replay.groundtruth import navigation_errors
+
+log = logging.getLogger(__name__)
 
 # What ``plot_run`` may write (``time_offset.png`` for runs that estimated the offset).
 PLOT_NAMES = ("errors.png", "nees.png", "measurements.png", "time_offset.png")
@@ -119,7 +122,16 @@ def replay_sources(run_dir: Path | str) -> dict[str, Any]:
         return {}
     if not isinstance(replay, dict):
         return {}
-    out: dict[str, Any] = {k: replay[k] for k in ("calib", "imu_calib") if replay.get(k)}
+    out: dict[str, Any] = {}
+    for key in ("calib", "imu_calib"):
+        name = replay.get(key)
+        if not isinstance(name, str) or not name:
+            continue
+        if Path(name).is_file():
+            out[key] = name
+        else:  # moved since, or relative to where the run was started: the data set's own
+            log.warning("%s names replay.%s %s, which is not found: the data set is read with "
+                        "its own calibration", Path(run_dir) / "config.yaml", key, name)
     topics = replay.get("topics")
     if isinstance(topics, str) and topics.strip():
         out["topics"] = parse_topic_roles(topics)
