@@ -294,6 +294,7 @@ def test_a_lens_that_does_not_fit_is_named(kitti_raw: Path) -> None:
     assert 0.03 <= check.negative_fraction < 0.2
     problem = check.problem()
     assert problem is not None and "does the lens model fit the cameras" in problem
+    assert "is cam1's rotation on cam0 right" in problem  # the other cause (a review)
     assert check_pairs(pairs).problem() is None
 
 

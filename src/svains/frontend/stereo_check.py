@@ -42,8 +42,10 @@ SWAPPED_FRACTION = 0.8  # of the matches at negative disparity: swapped
 ROW_OFFSET_WARN_PX = 3.0  # median |v_L - v_R| above which rectification does not fit
 # Of the matches at negative disparity, short of a swap: a lens model that does not fit (a
 # fisheye lens declared radial-tangential, KITTI raw's images: 3.8-14.8 % of 660-1100 matches,
-# the run 17x its error, without a word: a user's probe); right calibrations leave 0-0.3 %
-# (shared data, rendered village)
+# the run 17x its error, without a word: a user's probe) or cam1 turned on cam0 about the
+# image's vertical (KITTI raw, 0.4°: 2.5 % over the drive, 3 % or more in 62 of 178 windows
+# of 3 pairs, 44 m off; a review); right calibrations leave 0-0.3 % (shared data, rendered
+# village; at most 0.53 % in any window of 3 pairs)
 PARTLY_NEGATIVE_FRACTION = 0.03
 # the rows of the pairs rectified with the two images exchanged fit this well for crossed
 # streams (EuRoC: 0.1 px); cam1's T_BS 3° off about x left 2.5 px exchanged, not a swap
@@ -127,8 +129,11 @@ class StereoCheck:
         if self.decided and self.negative_fraction >= PARTLY_NEGATIVE_FRACTION:
             return (f"{self.negative} of {self.matches} left-right matches lie at negative "
                     f"disparity (rows {self.row_offset_px:.1f} px apart): does the lens model "
-                    "fit the cameras (distortion_model, its coefficients, the intrinsics)? A "
-                    "fisheye lens read as radial-tangential does this")  # fmt: skip
+                    "fit the cameras (distortion_model, its coefficients, the intrinsics), and "
+                    "is cam1's rotation on cam0 right (its T_BS; a turn about the image's "
+                    "vertical shifts every disparity)? A fisheye lens read as "
+                    "radial-tangential, or cam1 turned 0.4° more than its T_BS says, does "
+                    "this")  # fmt: skip
         return None
 
     def summary(self) -> dict[str, float | int]:

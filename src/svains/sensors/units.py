@@ -347,7 +347,7 @@ def rate_unit_problem(stream_hz: float, limit_hz: float, why: str) -> str | None
     stamped in nanoseconds when its sensor gives ``limit_hz`` at most (``why`` says so, e.g.
     "250x sensor.yaml's rate_hz 100"); None when it can. The unit guessed is the first of
     microseconds and milliseconds that brings the stream under the limit."""
-    if not (stream_hz > 0 and limit_hz > 0) or stream_hz < limit_hz:
+    if not (stream_hz > 0 and limit_hz > 0) or stream_hz <= limit_hz:
         return None
     guess = next((f"they look like {unit} ({stream_hz / scale:.3g} Hz then)"
                   for unit, scale in (("microseconds", 1e3), ("milliseconds", 1e6))

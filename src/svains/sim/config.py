@@ -27,6 +27,7 @@ import yaml
 
 from svains.datasets.validate import GRAVITY_RANGE_M_S2
 from svains.errors import ConfigError
+from svains.sensors.units import MAX_GPS_HZ
 from svains.yaml_io import load_yaml
 
 PAPER_GYRO_STD = math.radians(math.sqrt(50.0))  # rad/s per sample (see module docstring)
@@ -240,8 +241,11 @@ class SimConfig:
             raise ConfigError(f"camera.rate_hz must be in (0, {MAX_CAMERA_RATE_HZ:g}], got "
                               f"{self.camera.rate_hz}")  # fmt: skip
         for name in ("imu", "gps", "mag", "sonar"):
-            if not 0 < getattr(self, name).rate_hz <= MAX_RATE_HZ:
-                raise ConfigError(f"{name}.rate_hz must be in (0, {MAX_RATE_HZ:g}]")
+            # a GPS no faster than a receiver gives: the readers take faster fixes for stamps
+            # in another unit (a review: a 250 Hz simulated GPS was written, then refused)
+            most = MAX_GPS_HZ if name == "gps" else MAX_RATE_HZ
+            if not 0 < getattr(self, name).rate_hz <= most:
+                raise ConfigError(f"{name}.rate_hz must be in (0, {most:g}]")
         g = math.sqrt(sum(float(v) ** 2 for v in self.gravity_W)) if len(self.gravity_W) == 3 else 0
         lo, hi = GRAVITY_RANGE_M_S2
         if not lo <= g <= hi:
