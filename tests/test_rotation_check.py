@@ -489,3 +489,23 @@ def test_turns_about_a_moving_axis_read_right_and_a_deg_s_gyro_only_its_ratio(
     else:
         assert s["warned_turn_ratio"] and abs(s["median_turn_ratio"] - 57.3) < 1.0
         assert caplog.text.count("WARNING") == 1 and "is the gyro in rad/s" in caplog.text
+
+
+def test_the_run_hands_the_check_the_offset_its_calibration_applied(euroc_micro) -> None:  # type: ignore[no-untyped-def]
+    """The whole value to give needs the calibration's own (a review: only the check was
+    tested, not the wiring that hands it over)."""
+    from dataclasses import replace
+
+    from svains.datasets import load_dataset
+    from svains.frontend.rectify import StereoRectifier
+    from svains.navigation.imu_history import ImuHistory
+    from svains.navigation.vision_checks import vision_checks
+    from svains.replay.replay import rig_from_dataset
+
+    ds = load_dataset(euroc_micro)
+    assert ds.cam0 is not None and ds.cam1 is not None
+    rig = rig_from_dataset(replace(ds, cam0=replace(ds.cam0, timeshift_cam_imu_s=0.05)))
+    assert rig.cam0 is not None and rig.cam1 is not None
+    stereo = StereoRectifier.from_calibration(rig.cam0, rig.cam1).rig
+    checks = vision_checks(ImuHistory(capacity=16), stereo, rig)
+    assert checks is not None and checks.rotation.applied_shift_s == 0.05

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -62,6 +63,10 @@ def horizontal(v: F64, up_W: F64) -> F64:
     """``v`` (3,) without its part along the unit vertical ``up_W`` (3,)."""
     v = np.asarray(v, dtype=float)
     return v - (v @ up_W) * up_W
+
+
+# Fixes kept to interpolate the GPS velocity at a frame pair's middle: 2 s of a 10 Hz receiver
+RECENT_FIXES = 20
 
 
 @dataclass(frozen=True)
@@ -108,10 +113,12 @@ class HeadingCheck:
         self._var_a = float(accel_noise_density) ** 2
         self._steps: deque[tuple[F64, F64, float]] = deque(maxlen=self.options.window)
         self._fixes: deque[tuple[F64, F64, float]] = deque(maxlen=self.options.window)
-        # the camera's velocities (a vision method's egomotion, turned by the filter's attitude)
-        self._vision: deque[tuple[F64, F64, float]] = deque(maxlen=self.options.window)
+        # the camera's velocities (a vision method's egomotion, turned by the filter's
+        # attitude) against the GPS's, and the time of each (ns)
+        self._vision: deque[tuple[F64, F64, float, int]] = deque(maxlen=self.options.window)
         self._prev: tuple[int, F64, F64] | None = None  # t_ns, filter v after, GPS v
-        self._prev2: tuple[int, F64] | None = None  # the fix before it: t_ns, GPS v
+        # the fixes before it (t_ns, GPS v), to interpolate at a frame pair's middle
+        self._recent: deque[tuple[int, F64]] = deque(maxlen=RECENT_FIXES)
         self.turns: list[dict[str, float | bool | str]] = []
 
     def _horizontal(self, v: F64) -> F64:
@@ -123,7 +130,7 @@ class HeadingCheck:
         self._fixes.clear()
         self._vision.clear()
         self._prev = None
-        self._prev2 = None
+        self._recent.clear()
 
     def before_update(self, t_ns: int, v_pred_W: F64, v_gps_W: F64, yaw_std_rad: float,
                       v_var: float = 0.0, usable: bool = True, acquire: bool = False,
@@ -160,13 +167,24 @@ class HeadingCheck:
                                 2.0 * self._var_v + self._var_a * dt))  # fmt: skip
         self._fixes.append((self._horizontal(v_pred), self._horizontal(v_gps),
                             self._var_v + float(v_var)))  # fmt: skip
-        at = None if vision is None or acquire else self._gps_at(vision[0], t_ns, v_gps)
-        if at is None or vision is None:
+        heard = False
+        if acquire:
             self._vision.clear()
-        else:
-            g, factor = at
-            self._vision.append((self._horizontal(vision[1]), self._horizontal(g),
-                                 factor * self._var_v + float(vision[2])))
+        elif vision is not None:
+            at = self._gps_at(vision[0], t_ns, v_gps)
+            if at is None:
+                self._vision.clear()
+            else:
+                g, factor = at
+                self._vision.append((self._horizontal(vision[1]), self._horizontal(g),
+                                     factor * self._var_v + float(vision[2]), int(vision[0])))
+                heard = True
+        # Fixes without a frame pair keep the rows (a GPS faster than the camera: at 5-10 Hz
+        # against 1-2 Hz frames the rows were cleared at every fix and the camera never
+        # heard, a review), as long as they are recent.
+        oldest = t_ns - int(o.window * o.max_step_s * 1e9)
+        while self._vision and self._vision[0][3] < oldest:
+            self._vision.popleft()
         # Velocities (a vision method's, held to the camera's motion in the body frame, turn
         # with the heading) and velocity changes (the IMU's, which turn with it too). The GPS
         # velocity must disagree now too: a filter that has come round mends itself.
@@ -179,7 +197,7 @@ class HeadingCheck:
         # heading has its frames refused, and in straight flight the velocity changes are too
         # small to show it (simulated village, magnetometer turned 90°, seeds 2 and 6: never
         # turned). The camera must disagree now too.
-        if self._vision and self._disagrees(self._vision[-1]):
+        if heard and self._disagrees(self._vision[-1]):
             seen = self._rotation(self._vision, yaw_std_rad)
             if seen is not None:
                 found.append(replace(seen, witness="camera"))
@@ -195,30 +213,31 @@ class HeadingCheck:
         return error
 
     def _gps_at(self, t: int, t_ns: int, v_gps: F64) -> tuple[F64, float] | None:
-        """The GPS velocity (3,) at ``t`` (ns) interpolated between the two fixes around it
-        (this one at ``t_ns``, the previous one, the one before) and the factor of one fix's
-        variance it carries; None when ``t`` lies outside them or a step is too long. A frame
-        pair ending at the previous fix lies before it: with the camera at the GPS's stamps
-        (the fix handled first) that was every pair, and the camera was never heard (a
-        review: 1 Hz frames and fixes)."""
-        prev, prev2 = self._prev, self._prev2
+        """The GPS velocity (3,) at ``t`` (ns) interpolated between the two fixes around it (of
+        this one at ``t_ns`` and the recent ones) and the factor of one fix's variance it
+        carries; None when ``t`` lies outside them or the step is too long. A frame pair can
+        end a fix or more back: with the camera at the GPS's stamps (the fix handled first) at
+        the previous one, with a GPS faster than the camera several (a review: 1 Hz frames and
+        fixes, the camera never heard)."""
+        prev = self._prev
         if prev is None or (t_ns - prev[0]) * 1e-9 > self.options.max_step_s:
             return None
-        spans = [(prev[0], prev[2], t_ns, v_gps)]
-        if prev2 is not None:
-            spans.append((prev2[0], prev2[1], prev[0], prev[2]))
-        for ta, va, tb, vb in spans:
-            if ta <= t <= tb and (tb - ta) * 1e-9 <= self.options.max_step_s:
+        fixes = [*self._recent, (prev[0], prev[2]), (t_ns, v_gps)]
+        for (ta, va), (tb, vb) in zip(reversed(fixes[:-1]), reversed(fixes[1:]), strict=True):
+            if ta <= t <= tb:
+                if (tb - ta) * 1e-9 > self.options.max_step_s:
+                    return None
                 w = (t - ta) / max(tb - ta, 1)
                 return (1.0 - w) * va + w * vb, (1.0 - w) ** 2 + w**2
         return None
 
-    def _disagrees(self, row: tuple[F64, F64, float]) -> bool:
-        """Whether a row's filter vector and GPS vector differ beyond their noise."""
+    def _disagrees(self, row: tuple[Any, ...]) -> bool:
+        """Whether a row's filter vector and GPS vector (its first two) differ beyond their
+        noise (its third)."""
         d = row[1] - row[0]
         return float(d @ d) / row[2] > chi2.ppf(self.options.fit_probability, 2)
 
-    def _rotation(self, rows: deque[tuple[F64, F64, float]], yaw_std_rad: float,
+    def _rotation(self, rows: deque[Any], yaw_std_rad: float,
                   acquire: bool = False) -> HeadingError | None:  # fmt: skip
         """The turn about the vertical mapping the filter's vectors of ``rows`` onto the GPS's,
         when the window is full and the turn is sure, large and fits (module docstring)."""
@@ -256,7 +275,8 @@ class HeadingCheck:
 
     def after_update(self, t_ns: int, v_post_W: F64, v_gps_W: F64) -> None:
         """After the fix's update (accepted or not): the filter's velocity ``v_post_W`` (3,)."""
-        self._prev2 = None if self._prev is None else (self._prev[0], self._prev[2])
+        if self._prev is not None:
+            self._recent.append((self._prev[0], self._prev[2]))
         self._prev = (int(t_ns), np.array(v_post_W, float), np.array(v_gps_W, float))
 
     def summary(self) -> dict[str, object]:
