@@ -439,7 +439,8 @@ def test_a_slow_gps_start_without_heading_holds_a_local_frame_until_the_gps_give
     a 60 s one with its outages, 11.0 m, NEES 13778). With vision fused it now holds a local
     frame about the antenna, its horizontal velocity's direction unknown there, until the GPS
     velocities give the heading; the fixes held until then, turned, place it (measured 0.840
-    m, NEES 5.5); an unaided INS, which cannot hold that frame, keeps the old start."""
+    m, NEES 5.5; since the turn's spread takes its rows' scatter, one fix later: 4 held, 0.829
+    m, NEES 6.6); an unaided INS, which cannot hold that frame, keeps the old start."""
     from svains.sim import SimConfig, simulate
 
     cfg = SimConfig(duration_s=52.0, seed=3)
@@ -453,7 +454,7 @@ def test_a_slow_gps_start_without_heading_holds_a_local_frame_until_the_gps_give
     assert init["heading"] == HEADING_FROM_GPS and 1.5 < init[VELOCITY_UNKNOWN] < 2.5
     assert init["heading_source"] == "the GPS velocities" and init["heading_found_s"] < 6.0
     assert abs(abs(init["heading_turn_deg"]) - 180.0) < 3.0 * init["heading_std_deg"] < 30.0
-    assert init["held_fixes_fused"] == init["gps_fixes_held"] == 3
+    assert init["held_fixes_fused"] == init["gps_fixes_held"] in (3, 4)
     assert rep["ate_rmse_m"] < 1.0 and rep["nees_mean"] < 12.0
     ins = run_method(ds, "ins", replace(config, method="ins")).report
     assert ins["init"]["heading"] == HEADING_BANK and VELOCITY_UNKNOWN not in ins["init"]
