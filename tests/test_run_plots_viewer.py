@@ -206,11 +206,9 @@ def test_run_errors_follow_the_reports_start_position_frame(tmp_path: Path) -> N
     assert rmse == pytest.approx(res.report["position_rmse_m"], rel=1e-5)
 
 
-def test_plot_reads_the_data_set_with_the_kalibr_files_of_the_run(tmp_path: Path) -> None:
-    """A folder whose IMU is calibrated by a Kalibr imu.yaml alone (docs/own-sensor.md): plot
-    read it without the file the run was given and stopped on the missing sensor.yaml, naming
-    an --imu-calib it does not take (a user's probe); it now reads the run's config.yaml."""
-    import shutil
+def _flight_and_kalibr_imu(tmp_path: Path) -> tuple[Path, Path]:
+    """A 3 s simulated flight (its root) and a Kalibr imu.yaml of its IMU beside it."""
+    from dataclasses import replace
 
     from svains.datasets.kalibr import write_kalibr_imu
     from svains.sim import SimConfig, simulate
@@ -220,11 +218,16 @@ def test_plot_reads_the_data_set_with_the_kalibr_files_of_the_run(tmp_path: Path
     root = simulate(cfg, tmp_path / "sim")
     ds = load_dataset(root)
     assert ds.imu_calib is not None
-    from dataclasses import replace
-
     # the simulator's IMU has no random walk by default; Kalibr's file wants one
     calib = replace(ds.imu_calib, gyro_random_walk=1e-5, accel_random_walk=1e-4)
-    imu_yaml = write_kalibr_imu(tmp_path / "imu.yaml", calib)
+    return root, write_kalibr_imu(tmp_path / "imu.yaml", calib)
+
+
+def test_plot_reads_the_data_set_with_the_kalibr_files_of_the_run(tmp_path: Path) -> None:
+    """A folder whose IMU is calibrated by a Kalibr imu.yaml alone (docs/own-sensor.md): plot
+    read it without the file the run was given and stopped on the missing sensor.yaml, naming
+    an --imu-calib it does not take (a user's probe); it now reads the run's config.yaml."""
+    root, imu_yaml = _flight_and_kalibr_imu(tmp_path)
     (root / "mav0/imu0/sensor.yaml").unlink()
     run = tmp_path / "run"
     res = runner.invoke(app, ["run", str(root), "--method", "ins", "--init", "groundtruth",
@@ -234,8 +237,7 @@ def test_plot_reads_the_data_set_with_the_kalibr_files_of_the_run(tmp_path: Path
                               str(tmp_path / "figs")])  # fmt: skip
     assert res.exit_code == 0, res.output
     assert (tmp_path / "figs" / "errors.png").read_bytes()[:4] == b"\x89PNG"
-    shutil.copy(run / "config.yaml", tmp_path / "config.yaml")  # without it: the plain reading
-    (run / "config.yaml").unlink()
+    (run / "config.yaml").unlink()  # without it: the plain reading
     res = runner.invoke(app, ["plot", str(run), "--dataset", str(root), "--out",
                               str(tmp_path / "figs2")])  # fmt: skip
     assert res.exit_code == 1 and "imu0/sensor.yaml" in res.stderr
@@ -246,20 +248,9 @@ def test_kalibr_files_of_a_run_are_recorded_absolute_and_missing_ones_are_warned
 ) -> None:
     """A review: a relative `--set replay.imu_calib=imu.yaml` was recorded as written, and a
     file moved since the run stopped `svains plot` on a data set with its own calibration."""
-    from dataclasses import replace
-
     import yaml
 
-    from svains.datasets.kalibr import write_kalibr_imu
-    from svains.sim import SimConfig, simulate
-
-    cfg = SimConfig(duration_s=3.0, seed=1)
-    cfg.camera.render_images = False
-    root = simulate(cfg, tmp_path / "sim")
-    ds = load_dataset(root)
-    assert ds.imu_calib is not None
-    calib = replace(ds.imu_calib, gyro_random_walk=1e-5, accel_random_walk=1e-4)
-    write_kalibr_imu(tmp_path / "imu.yaml", calib)
+    root, _ = _flight_and_kalibr_imu(tmp_path)
     monkeypatch.chdir(tmp_path)
     run = tmp_path / "run"
     res = runner.invoke(app, ["run", str(root), "--method", "ins", "--init", "groundtruth",
@@ -273,4 +264,3 @@ def test_kalibr_files_of_a_run_are_recorded_absolute_and_missing_ones_are_warned
                                   str(tmp_path / "figs")])  # fmt: skip
     assert res.exit_code == 0, res.output
     assert "names replay.imu_calib" in caplog.text and "which is not found" in caplog.text
-    assert (tmp_path / "figs" / "errors.png").is_file()

@@ -254,13 +254,18 @@ def test_a_recheck_in_a_dark_stretch_does_not_stop_later_ones(
     assert fe.stereo_check_report().summary()["exchanges"] == 1
 
 
-def test_rows_that_do_not_agree_are_named(euroc_micro: Path) -> None:
-    ds = load_dataset(euroc_micro)
+def _rectified_pairs(root: Path) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Stereo pairs 0, 40 and 80 of the recording at ``root``, rectified."""
+    ds = load_dataset(root)
     assert ds.left is not None and ds.right is not None and ds.cam0 and ds.cam1
     rect = StereoRectifier.from_calibration(ds.cam0, ds.cam1)
     _, il, ir = stereo_pairs(ds)
-    pairs = [rect.rectify_pair(ds.left.load(int(il[k])), ds.right.load(int(ir[k])))
-             for k in (0, 40, 80)]  # fmt: skip
+    return [rect.rectify_pair(ds.left.load(int(il[k])), ds.right.load(int(ir[k])))
+            for k in (0, 40, 80)]  # fmt: skip
+
+
+def test_rows_that_do_not_agree_are_named(euroc_micro: Path) -> None:
+    pairs = _rectified_pairs(euroc_micro)
     assert check_pairs(pairs).problem() is None
     # The right image 6 px lower, as a camera rotation missing from T_BS would leave it.
     lowered = [(left, np.roll(right, 6, axis=0)) for left, right in pairs]
@@ -278,12 +283,7 @@ def test_a_lens_that_does_not_fit_is_named(kitti_raw: Path) -> None:
     r² at the half width), which leaves the same."""
     import cv2
 
-    ds = load_dataset(kitti_raw)
-    assert ds.left is not None and ds.right is not None and ds.cam0 and ds.cam1
-    rect = StereoRectifier.from_calibration(ds.cam0, ds.cam1)
-    _, il, ir = stereo_pairs(ds)
-    pairs = [rect.rectify_pair(ds.left.load(int(il[k])), ds.right.load(int(ir[k])))
-             for k in (0, 40, 80)]  # fmt: skip
+    pairs = _rectified_pairs(kitti_raw)
     h, w = pairs[0][0].shape
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     stretch = 1 + 0.1 * ((xx - w / 2) ** 2 + (yy - h / 2) ** 2) / (0.5 * w) ** 2
