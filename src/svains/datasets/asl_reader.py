@@ -61,7 +61,6 @@ from svains.datasets.validate import (
 )
 from svains.errors import CalibrationError, DatasetError
 from svains.geometry.distortion import canonical_model, check_coefficients
-from svains.sensors.units import MAX_CAMERA_HZ
 
 log = logging.getLogger(__name__)
 
@@ -319,7 +318,7 @@ def read_features(folder: Path, timeshift_cam_imu_s: float = 0.0) -> FeatureStre
         raise DatasetError(f"{path}:{k}: track_id must be an integer (below 2^53)")
     ids = ids_f.astype(np.int64)
     uv = values[:, 1:5]
-    check_stream_unit(t, MAX_CAMERA_HZ, path)
+    check_stream_unit(t, "camera pair", path)
     if t.size > 1:
         order = np.lexsort((ids, t))
         dup = np.flatnonzero((np.diff(t[order]) == 0) & (np.diff(ids[order]) == 0))

@@ -322,14 +322,18 @@ def check_imu_rate(t_ns: NDArray[np.int64], rate_hz: float, path: Path) -> None:
                     stream_hz / rate_hz)  # fmt: skip
 
 
-def check_stream_unit(t_ns: NDArray[np.int64], limit_hz: float, path: Path) -> None:
-    """DatasetError naming ``path`` when the frames or fixes stamped ``t_ns`` (N,) come faster
-    than ``limit_hz`` (``sensors.units.MAX_CAMERA_HZ`` or ``MAX_GPS_HZ``) if read as
-    nanoseconds: stamped in another unit (``sensors.units.rate_unit_problem``)."""
+# The fastest sensor of each kind whose stamps ``check_stream_unit`` judges (Hz).
+STREAM_LIMITS = {"camera pair": MAX_CAMERA_HZ, "GPS receiver": MAX_GPS_HZ}
+
+
+def check_stream_unit(t_ns: NDArray[np.int64], kind: str, path: Path) -> None:
+    """DatasetError naming ``path`` when the frames or fixes stamped ``t_ns`` (N,) of a
+    ``kind`` of ``STREAM_LIMITS`` come faster than it gives if read as nanoseconds: stamped
+    in another unit (``sensors.units.rate_unit_problem``)."""
     u = np.unique(t_ns)
     if u.size < 3:
         return
-    kind = "camera pair" if limit_hz == MAX_CAMERA_HZ else "GPS receiver"
+    limit_hz = STREAM_LIMITS[kind]
     unit = rate_unit_problem(1e9 / float(np.median(np.diff(u))), limit_hz,
                              f"no {kind} runs above {limit_hz:g} Hz")  # fmt: skip
     if unit is not None:
@@ -645,11 +649,11 @@ def vet_streams(ds: Dataset) -> None:
             ds.gps = replace(ds.gps, v_W_G=np.full_like(ds.gps.v_W_G, np.nan))
     elif ds.gps is not None:  # position-only: the fixes' own steps, per axis
         check_gps_position_units(ds.gps.p_W_G, where("gps0"))
-    for folder, stamped, limit_hz in (("cam0", ds.left, MAX_CAMERA_HZ),
-                                      ("cam1", ds.right, MAX_CAMERA_HZ),
-                                      ("gps0", ds.gps, MAX_GPS_HZ)):  # fmt: skip
+    for folder, stamped, kind in (("cam0", ds.left, "camera pair"),
+                                  ("cam1", ds.right, "camera pair"),
+                                  ("gps0", ds.gps, "GPS receiver")):  # fmt: skip
         if stamped is not None:
-            check_stream_unit(stamped.t_ns, limit_hz, where(folder))
+            check_stream_unit(stamped.t_ns, kind, where(folder))
     if ds.left is not None and len(ds.left.t_ns):  # (features0 is read when first used)
         jitter = frame_jitter_problem(ds.left.t_ns)
         if jitter is not None:

@@ -143,7 +143,7 @@ class HeadingCheck:
         recovery switched off): the windows start again. ``acquire``: the filter runs in a
         local frame whose heading is sought (a start with neither magnetometer nor course):
         any sure and fitting estimate is returned, however small. ``vision``: a time (ns)
-        between the fix before the previous one and this one, the antenna's velocity (3,) m/s
+        between a recent fix (``RECENT_FIXES``) and this one, the antenna's velocity (3,) m/s
         the camera measured there in the filter's world (turned by its attitude, so by its
         heading error) and its variance per axis (m²/s²), compared with the velocities of the
         two fixes around that time interpolated there (``_gps_at``); None: no such
