@@ -93,8 +93,9 @@ def build_config(
     replay = config.replay
     files = {k: str(Path(v).resolve()) for k in ("calib", "imu_calib")
              if isinstance(v := getattr(replay, k), str) and not Path(v).is_absolute()}
-    return dataclasses.replace(config, replay=dataclasses.replace(replay, **files)) if files \
-        else config
+    if not files:
+        return config
+    return dataclasses.replace(config, replay=dataclasses.replace(replay, **files))
 
 
 # sections and top-level keys only a filter reads: ``vo`` (a chain of stereo motions) ignores
