@@ -65,8 +65,11 @@ def horizontal(v: F64, up_W: F64) -> F64:
     return v - (v @ up_W) * up_W
 
 
-# Fixes kept to interpolate the GPS velocity at a frame pair's middle: 2 s of a 10 Hz receiver
-RECENT_FIXES = 20
+# At most this many fixes are kept to interpolate the GPS velocity at a frame pair's middle,
+# those of the rows' span (``window`` x ``max_step_s``): 8 s of a 200 Hz receiver. By count
+# alone (20) a 50 Hz GPS kept 0.4 s and a 1 Hz camera's pairs, 0.5 s back, were never heard
+# (a review).
+RECENT_FIXES = 1600
 
 
 @dataclass(frozen=True)
@@ -168,23 +171,22 @@ class HeadingCheck:
         self._fixes.append((self._horizontal(v_pred), self._horizontal(v_gps),
                             self._var_v + float(v_var)))  # fmt: skip
         heard = False
+        at = None if vision is None or acquire else self._gps_at(vision[0], t_ns, v_gps)
         if acquire:
             self._vision.clear()
-        elif vision is not None:
-            at = self._gps_at(vision[0], t_ns, v_gps)
-            if at is None:
-                self._vision.clear()
-            else:
-                g, factor = at
-                self._vision.append((self._horizontal(vision[1]), self._horizontal(g),
-                                     factor * self._var_v + float(vision[2]), int(vision[0])))
-                heard = True
-        # Fixes without a frame pair keep the rows (a GPS faster than the camera: at 5-10 Hz
-        # against 1-2 Hz frames the rows were cleared at every fix and the camera never
-        # heard, a review), as long as they are recent.
+        elif at is not None and vision is not None:
+            g, factor = at
+            self._vision.append((self._horizontal(vision[1]), self._horizontal(g),
+                                 factor * self._var_v + float(vision[2]), int(vision[0])))
+            heard = True
+        # Fixes without a usable frame pair keep the rows (a GPS faster than the camera: at
+        # 5-10 Hz against 1-2 Hz frames the rows were cleared at every fix and the camera never
+        # heard, a review), as long as they are recent; so do the fixes.
         oldest = t_ns - int(o.window * o.max_step_s * 1e9)
         while self._vision and self._vision[0][3] < oldest:
             self._vision.popleft()
+        while self._recent and self._recent[0][0] < oldest:
+            self._recent.popleft()
         # Velocities (a vision method's, held to the camera's motion in the body frame, turn
         # with the heading) and velocity changes (the IMU's, which turn with it too). The GPS
         # velocity must disagree now too: a filter that has come round mends itself.

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
-from svains.geometry.rotation import quat_to_rotmat, skew, so3_exp
+from svains.geometry.rotation import quat_to_rotmat, skew, so3_exp, so3_log
 from svains.models.gps import gps_position, gps_velocity
 from svains.models.state import DP, DTH, DV, Q, V
 from svains.models.state import P as POS
@@ -49,6 +49,11 @@ log = logging.getLogger(__name__)
 # 18-29 for 6 dof (``VisionOptions.lc_scale``, whose 30 also covers the correlation between
 # consecutive egomotions, which the heading check's velocities a fix apart do not share).
 CAMERA_VELOCITY_COV_SCALE = 4.0
+# s: how far a GPS velocity's stamp may be from its instant (a receiver's filter and latency).
+# In a turn the velocity turns by the rate times that: a camera velocity compared with a GPS
+# velocity 0.3 s late in a 150°/s turn read a wrong heading of 21-33° (a review), which the
+# row's variance now holds; straight on it adds nothing.
+GPS_VELOCITY_TIMING_S = 0.2
 # A turned state's position this far from the fix (chi-square probability, 3 dof) was not
 # held by the fixes: it is widened to the fix (``widen_position``).
 POSITION_OFF_PROBABILITY = 0.999
@@ -306,8 +311,11 @@ class HeadingSteps:
         v_W_B = R_W_B @ body_displacement(ego.R_Ck_Ckm1, ego.p_Ck_Ckm1, updater.rig,
                                           R_B_C) / dt_s  # fmt: skip
         var = CAMERA_VELOCITY_COV_SCALE * var_p / dt_s**2
+        speed2 = float(v_W_B @ v_W_B)
         if mount is not None:  # its rotation's spread turns the velocity too
-            var += float(np.trace(mount[1])) / 3.0 * float(v_W_B @ v_W_B)
+            var += float(np.trace(mount[1])) / 3.0 * speed2
+        rate = float(np.linalg.norm(so3_log(ego.R_Ck_Ckm1))) / dt_s
+        var += (GPS_VELOCITY_TIMING_S * rate) ** 2 * speed2
         return (tr.t_ns + tr.t_prev_ns) // 2, v_W_B + lever_W, var
 
     def _note_frame(self, t: int) -> None:
