@@ -31,9 +31,9 @@ from svains.sensors.units import (
     GRAVITY_RANGE_M_S2,
     MAX_CAMERA_HZ,
     MAX_GPS_HZ,
-    RATE_UNIT_FACTOR,
     accel_units_problem,
     course_turn_problem,
+    declared_rate_unit_problem,
     gps_clock_problem,
     gps_clock_shift,
     gps_course_vs_imu_turn,
@@ -311,8 +311,7 @@ def check_imu_rate(t_ns: NDArray[np.int64], rate_hz: float, path: Path) -> None:
     if u.size < 2 or rate_hz <= 0:
         return
     stream_hz = 1e9 / float(np.median(np.diff(u)))
-    unit = rate_unit_problem(stream_hz, RATE_UNIT_FACTOR * rate_hz,
-                             f"{stream_hz / rate_hz:.3g}x sensor.yaml's rate_hz {rate_hz:g}")
+    unit = declared_rate_unit_problem(stream_hz, rate_hz, "sensor.yaml's")
     if unit is not None:
         raise DatasetError(f"{path}: {unit} (the ASL layout stamps in integer nanoseconds)")
     if stream_hz > IMU_RATE_ABOVE_DECLARED * rate_hz:

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, replace
+from itertools import chain
 from typing import Any
 
 import numpy as np
@@ -224,13 +225,17 @@ class HeadingCheck:
         prev = self._prev
         if prev is None or (t_ns - prev[0]) * 1e-9 > self.options.max_step_s:
             return None
-        fixes = [*self._recent, (prev[0], prev[2]), (t_ns, v_gps)]
-        for (ta, va), (tb, vb) in zip(reversed(fixes[:-1]), reversed(fixes[1:]), strict=True):
-            if ta <= t <= tb:
+        tb, vb = t_ns, v_gps
+        # newest first, and no further once past ``t`` (a pair's middle is rarely far back)
+        for ta, va in chain(((prev[0], prev[2]),), reversed(self._recent)):
+            if t > tb:
+                return None
+            if ta <= t:
                 if (tb - ta) * 1e-9 > self.options.max_step_s:
                     return None
                 w = (t - ta) / max(tb - ta, 1)
                 return (1.0 - w) * va + w * vb, (1.0 - w) ** 2 + w**2
+            tb, vb = ta, va
         return None
 
     def _disagrees(self, row: tuple[Any, ...]) -> bool:

@@ -47,9 +47,8 @@ from svains.navigation.zupt import StaticTest
 from svains.sensors.types import Rig
 from svains.sensors.units import (
     GRAVITY_RANGE_M_S2,
-    RATE_UNIT_FACTOR,
     accel_units_problem,
-    rate_unit_problem,
+    declared_rate_unit_problem,
     time_unit_problem,
 )
 
@@ -217,11 +216,9 @@ class Navigator:
             # stamps in µs or ms were blamed on a short static start (a user's probe)
             step = float(np.median(np.diff(self.history.t_ns)))
             unit = time_unit_problem(step)
-            rate_hz = 0.0 if self.rig.imu is None else float(self.rig.imu.rate_hz)
-            if unit is None and step > 0 and rate_hz > 0:
-                unit = rate_unit_problem(1e9 / step, RATE_UNIT_FACTOR * rate_hz,
-                                         f"{1e9 / step / rate_hz:.3g}x the rig's IMU rate_hz "
-                                         f"{rate_hz:g}")  # fmt: skip
+            if unit is None and step > 0 and self.rig.imu is not None:
+                unit = declared_rate_unit_problem(1e9 / step, float(self.rig.imu.rate_hz),
+                                                  "the rig's IMU")  # fmt: skip
             if unit is not None:
                 raise ConfigError(f"feed_imu: {unit} (feed_* take integer nanoseconds)")
         if not self._units_checked:

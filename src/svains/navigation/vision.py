@@ -37,13 +37,12 @@ from svains.navigation.base import FrameContext, MeasurementBlock
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.options import RunConfig, VisionOptions
 from svains.navigation.relocalise import Relocaliser
-from svains.navigation.vision_checks import vision_checks
+from svains.navigation.vision_checks import applied_offset_s, vision_checks
 from svains.navigation.vision_clones import clone_window, next_reference_ns
 from svains.navigation.vision_egomotion import egomotion_noise, tracks_egomotion
 from svains.navigation.vision_pixels import (
     PixelUpdater,
     VisionCounters,
-    applied_offset_s,
     apply_blocks,
     fuse_inflated,
     imu_and_prior,

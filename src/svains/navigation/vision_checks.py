@@ -62,12 +62,16 @@ class VisionChecks:
         return {"rotation_check": self.rotation.summary(), "scale_check": self.scale.summary()}
 
 
+def applied_offset_s(rig: Rig) -> float:
+    """The camera-IMU time offset (s) the data's calibration applied to the image stamps."""
+    return 0.0 if rig.cam0 is None else float(rig.cam0.timeshift_cam_imu_s)
+
+
 def vision_checks(history: ImuHistory | None, stereo: RectifiedStereo,
                   rig: Rig) -> VisionChecks | None:  # fmt: skip
     """The checks of ``stereo`` on ``history`` (noise from ``rig.imu``), or None without an
     IMU."""
-    shift_s = 0.0 if rig.cam0 is None else float(rig.cam0.timeshift_cam_imu_s)
-    rotation = rotation_check(history, stereo.R_B_C, rig.imu, shift_s)
+    rotation = rotation_check(history, stereo.R_B_C, rig.imu, applied_offset_s(rig))
     scale = scale_check(history, stereo, rig.gravity_W, rig.imu)
     if rotation is None or scale is None:
         return None

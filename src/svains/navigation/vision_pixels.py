@@ -28,7 +28,7 @@ from svains.navigation.base import FrameContext, MeasurementBlock, find_ids
 from svains.navigation.fault_handling import scale_motion_covariance
 from svains.navigation.imu_history import ImuHistory
 from svains.navigation.relocalise import Relocaliser
-from svains.navigation.vision_checks import vision_checks
+from svains.navigation.vision_checks import applied_offset_s, vision_checks
 from svains.navigation.vision_clones import clone_window, next_reference_ns
 from svains.navigation.vision_egomotion import egomotion_block, tracks_egomotion
 from svains.navigation.vision_motion import (
@@ -619,11 +619,6 @@ class PixelUpdater:
         if self.relocaliser is not None:
             out.update(self.relocaliser.summary())
         return out
-
-
-def applied_offset_s(rig: Rig) -> float:
-    """The camera-IMU time offset (s) the data's calibration applied to the image stamps."""
-    return 0.0 if rig.cam0 is None else float(rig.cam0.timeshift_cam_imu_s)
 
 
 def _whitened_block(

@@ -353,3 +353,13 @@ def rate_unit_problem(stream_hz: float, limit_hz: float, why: str) -> str | None
                   for unit, scale in (("microseconds", 1e3), ("milliseconds", 1e6))
                   if stream_hz / scale < limit_hz), "in another unit?")  # fmt: skip
     return f"samples come at {stream_hz:.3g} Hz if the stamps are nanoseconds ({why}): {guess}"
+
+
+def declared_rate_unit_problem(stream_hz: float, rate_hz: float, whose: str) -> str | None:
+    """``rate_unit_problem`` for an IMU whose ``rate_hz`` is declared (``whose``: where, e.g.
+    "sensor.yaml's"): ``RATE_UNIT_FACTOR`` times it or more is a unit; None also without a
+    declared rate."""
+    if not rate_hz > 0:
+        return None
+    return rate_unit_problem(stream_hz, RATE_UNIT_FACTOR * rate_hz,
+                             f"{stream_hz / rate_hz:.3g}x {whose} rate_hz {rate_hz:g}")
