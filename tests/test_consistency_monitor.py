@@ -522,3 +522,20 @@ def test_a_magnetometer_whose_accepted_innovations_lean_is_held() -> None:
     off = ConsistencyMonitor(ConsistencyOptions(lean_probability=None))
     feed(off, np.array([3.0, 0.0, 0.0]))
     assert off.leaning(S) is None
+
+
+def test_a_fast_gps_fills_its_bias_window_at_the_test_spacing_only() -> None:
+    """A 50 Hz GPS: 3 fixes 40 ms apart are no window (a test at every fix raised 25 false
+    alarms in 20 s); those at least ``BIAS_WINDOW_MIN_SPACING_S`` apart are."""
+    from svains.navigation.consistency import BIAS_WINDOW_MIN_SPACING_S
+
+    assert BIAS_WINDOW_MIN_SPACING_S == 0.5
+    lean = [2.5, 0.0, 0.0]  # 3 * 6.25 = 18.75 > 11.34: an alarm over any 3 of them
+    m = ConsistencyMonitor(ON)
+    t = _observe_at(m, [1.00, 1.02, 1.04, 1.06, 1.48], lean)
+    assert m.biased(t) is None  # kept: 1.00 only
+    t = _observe_at(m, [1.50, 1.52, 1.98], lean)
+    assert m.biased(t) is None  # kept: 1.00, 1.50
+    t = _observe_at(m, [2.00], lean)
+    action = m.biased(t)
+    assert action is not None and action.window_s == 1.0

@@ -422,6 +422,60 @@ def _from_groundtruth(
     return InitialState(t0, x, P0, {"mode": "groundtruth"})
 
 
+# m/s² per axis: the acceleration noise an in-flight start's fixes with velocities may carry
+# from differencing those velocities (√2 σ_v / Δt; 0.15 tilts the start 0.9°, as 1 Hz fixes
+# of σ_v 0.1 m/s do): the next fix of a 50 Hz GPS (7 m/s² differenced) started a simulated
+# flight 24° tilted and 49° off in heading with a σ of 3°, NEES 160-660 (a probe).
+# ``start_fixes`` spaces them for it.
+START_ACCEL_NOISE_MPS2 = 0.15
+# s: the spacing a start's fixes need for that at most (and that of position-only fixes,
+# whose differenced velocities and acceleration are poor at any spacing a start can wait).
+START_MAX_SPACING_S = 1.0
+# A fix this fraction short of that spacing still serves: a 1 Hz receiver's stamps jitter
+# (KITTI raw: 0.93-1.04 s), and its next fix is the one meant.
+START_SPACING_SLACK = 0.2
+
+
+def start_fix_spacing_s(velocity_noise_std: float, with_velocity: bool) -> float:
+    """The spacing (s) ``start_fixes`` keeps between an in-flight start's fixes: that which
+    brings their differenced velocities' noise ``velocity_noise_std`` (m/s) down to
+    ``START_ACCEL_NOISE_MPS2``, at most ``START_MAX_SPACING_S`` (always, without velocities)."""
+    if not with_velocity:
+        return START_MAX_SPACING_S
+    return min(START_MAX_SPACING_S, np.sqrt(2.0) * velocity_noise_std / START_ACCEL_NOISE_MPS2)
+
+
+def start_fixes(gps: GpsArrays, velocity_noise_std: float) -> tuple[GpsArrays, bool]:
+    """The fixes an in-flight start takes from ``gps`` (time-ordered, its first the start's):
+    the first, then each the one nearest ``start_fix_spacing_s`` after the one before, not
+    more than ``START_SPACING_SLACK`` short of it (the one before it when over twice as far: a fix
+    after an outage is no pair), two with velocities (the first fix's kind), three without;
+    and whether ``gps`` had them. When it had not, the first two (three) fixes as they came."""
+    with_v = bool(np.all(np.isfinite(gps.v_W_G[0]))) if len(gps.t_ns) else True
+    n = 2 if with_v else 3
+    spacing_ns = int(start_fix_spacing_s(velocity_noise_std, with_v) * 1e9)
+    least_ns = int((1.0 - START_SPACING_SLACK) * spacing_ns)
+    usable = np.all(np.isfinite(gps.v_W_G), axis=1) if with_v else np.ones(len(gps.t_ns), bool)
+    picked = [0]
+    while len(picked) < n and len(gps.t_ns):
+        t_prev = int(gps.t_ns[picked[-1]])
+        later = np.flatnonzero(usable & (gps.t_ns > t_prev))
+        reach = later[gps.t_ns[later] >= t_prev + spacing_ns]
+        if reach.size == 0:
+            break
+        j = int(reach[0])
+        before = later[later < j]
+        if before.size:  # the fix before it when nearer the spacing, or when it is far beyond
+            dt_j, dt_b = int(gps.t_ns[j]) - t_prev, int(gps.t_ns[before[-1]]) - t_prev
+            nearer = dt_b >= least_ns and spacing_ns - dt_b < dt_j - spacing_ns
+            if nearer or dt_j > 2 * spacing_ns:
+                j = int(before[-1])
+        picked.append(j)
+    complete = len(picked) == n
+    idx = np.array(picked if complete else range(min(n, len(gps.t_ns))), dtype=int)
+    return GpsArrays(gps.t_ns[idx], gps.p_W_G[idx], gps.v_W_G[idx]), complete
+
+
 def _with_start_velocities(
     gps: GpsArrays, name: str, position_std_m: float, accel_prior_std: float
 ) -> tuple[GpsArrays, float, float]:
@@ -511,6 +565,7 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
             f"{dataset.name}: --init gps needs a GPS stream with at least 2 fixes and its "
             "calibration"
         )
+    gps, _ = start_fixes(gps, dataset.gps_calib.velocity_noise_std)
     gps, accel_std, v0_std = _with_start_velocities(gps, dataset.name,
                                             dataset.gps_calib.position_noise_std,
                                             o.flight_accel_prior_std)
@@ -597,7 +652,10 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
     vel_std = max(o.velocity_std, 3.0 * v_noise)
     # Roll/pitch: the mean over a GPS interval hides the attitude changing inside it; an
     # acceleration from differenced positions tilts the specific force by about σ_a / |f|.
-    tilt_std = max(o.flight_roll_pitch_std, accel_std / float(np.linalg.norm(f_W)))
+    # Velocities differenced add theirs (√2 σ_v / Δt): ``start_fixes`` spaces the fixes for
+    # it, a recording whose first fixes are all close together has it here.
+    accel_noise = accel_std if accel_std > 0 else np.sqrt(2.0) * v_noise / ((tb - ta) * 1e-9)
+    tilt_std = max(o.flight_roll_pitch_std, accel_noise / float(np.linalg.norm(f_W)))
     if accel_std > 0:
         info["gps_acceleration_std"] = accel_std
     P0 = _levelled_covariance(layout, o, R_W_B, up_W, pos_std, vel_std, tilt_std, yaw_std)

@@ -2,12 +2,12 @@
 
 Modes (``InitOptions.mode``): ``static`` (the first ``static_s`` seconds of IMU, magnetometer
 heading, the first GPS fix as position when the rig has a GPS: waits up to ``gps_wait_s`` for
-it), ``gps`` (in flight, from the first two fixes), ``vision`` (in flight, from stereo
-odometry and the IMU; with GPS fused, its position from the nearest fix) and a given state
-(``groundtruth``: the caller computed it). Each waits until the data it averages has been
-released in time order, then calls ``init.initialise`` on exactly that data, so the start
-equals the whole-recording computation. Until then the Navigator keeps the released
-measurements in a backlog.
+it), ``gps`` (in flight, from the first fixes spaced for their noise), ``vision`` (in
+flight, from stereo odometry and the IMU; with GPS fused, its position from the nearest fix)
+and a given state (``groundtruth``: the caller computed it). Each waits until the data it
+averages has been released in time order, then calls ``init.initialise`` on exactly that
+data, so the start equals the whole-recording computation. Until then the Navigator keeps the
+released measurements in a backlog.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from svains.navigation.init import (
     from_vision_fit,
     given_at_sample,
     initialise,
+    start_fixes,
 )
 from svains.navigation.options import InitOptions
 from svains.navigation.vision_start import StartOdometry, fit_vision_inertial, state_at
@@ -109,7 +110,9 @@ class Starter:
         run fuses no GPS at its time (an outage): the ``vision`` start does not take it."""
         fix = (t_ns, p_W_G, np.full(3, np.nan) if v_W_G is None or not self._gps_velocity
                else v_W_G)  # fmt: skip
-        if len(self._gps) < self._gps_needed():
+        if self.options.mode == "gps" and not self._start_fixes()[1]:
+            self._gps.append(fix)  # until ``init.start_fixes`` has the spaced ones
+        elif len(self._gps) < 2:
             self._gps.append(fix)
         if self.odometry is not None and not off:
             recent = self._gps_recent
@@ -164,10 +167,18 @@ class Starter:
         return ((1.0 - w) * np.asarray(pa, float) + w * np.asarray(pb, float), std,
                 f"two position-only GPS fixes, {how}")
 
-    def _gps_needed(self) -> int:
-        if len(self._gps) < 2:
-            return 2
-        return 2 if all(np.all(np.isfinite(v)) for _, _, v in self._gps[:2]) else 3
+    def _gps_arrays(self) -> GpsArrays | None:
+        if not self._gps:
+            return None
+        t, p, v = zip(*self._gps, strict=True)
+        return GpsArrays(np.array(t, np.int64), np.array(p, float), np.array(v, float))
+
+    def _start_fixes(self) -> tuple[GpsArrays | None, bool]:
+        """The ``gps`` start's fixes so far (``init.start_fixes``) and whether they suffice."""
+        gps = self._gps_arrays()
+        if gps is None or self.rig.gps is None:
+            return None, False
+        return start_fixes(gps, self.rig.gps.velocity_noise_std)
 
     def _data(self, history: ImuHistory) -> InitData:
         # The history is already in the body frame: no IMU mount to apply again.
@@ -175,9 +186,7 @@ class Starter:
         if self._mag:
             t, m = zip(*self._mag, strict=True)
             mag = MagArrays(np.array(t, np.int64), np.array(m, float))
-        if self._gps:
-            t, p, v = zip(*self._gps, strict=True)
-            gps = GpsArrays(np.array(t, np.int64), np.array(p, float), np.array(v, float))
+        gps = self._gps_arrays()
         return InitData(
             "navigator", self.rig.gravity_W,
             ImuArrays(history.t_ns.copy(), history.gyro_B.copy(), history.accel_B.copy()),
@@ -198,8 +207,8 @@ class Starter:
         if o.mode == "vision":
             return self._vision_start(history, horizon_ns)
         if o.mode == "gps":
-            n = self._gps_needed()
-            if len(self._gps) < n or horizon_ns <= self._gps[n - 1][0]:
+            fixes, complete = self._start_fixes()
+            if fixes is None or not complete or horizon_ns <= fixes.t_ns[-1]:
                 return None
             try:
                 return initialise(self._data(history), self.layout, o)
@@ -212,7 +221,8 @@ class Starter:
                         f"accelerometer or each other (the last: {self._refused[-1]})"
                     ) from exc  # fmt: skip
                 log.warning("the in-flight start waits for the next GPS fix: %s", exc)
-                self._gps.pop(0)
+                # the next pair starts at the refused pair's second fix
+                self._gps = [f for f in self._gps if f[0] >= fixes.t_ns[1]]
                 return None
         if history.n < 3:
             return None
@@ -242,8 +252,9 @@ class Starter:
             return (f"the given initial state is stamped {self.given.t_ns} ns, after the last "
                     f"IMU sample")  # fmt: skip
         if o.mode == "gps":
-            return (f"init.mode gps needs {self._gps_needed()} GPS fixes (2 with velocities, 3 "
-                    f"positions only), the stream had {len(self._gps)} over {got:.2f} s of IMU")
+            return ("init.mode gps needs 2 GPS fixes with velocities (3 positions only) "
+                    f"spaced for their noise (init.start_fixes), the stream had {len(self._gps)}"
+                    f" over {got:.2f} s of IMU")
         return (f"the static start needs more than init.static_s = {o.static_s:g} s of IMU "
                 f"samples, the stream had {got:.2f} s")  # fmt: skip
 
