@@ -59,7 +59,7 @@ def write_full(root: Path, seed: int = 0) -> dict[str, object]:
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     gt = GroundTruth(t_gt, rng.normal(size=(n, 3)), q, *(rng.normal(size=(n, 3)) for _ in "vba"))
     gps = GpsStream(t_gt, rng.normal(size=(n, 3)) * 100, rng.normal(size=(n, 3)))
-    gps_cal = GpsCalib(np.array([0.1, -0.2, 0.3]), 20.0, 1.5, 0.1)
+    gps_cal = GpsCalib(np.array([0.1, -0.2, 0.3]), 20.0, 1.5, 0.1, position_correlation_s=12.5)
     mag = MagStream(t_gt, rng.normal(size=(n, 3)))
     mag_cal = MagCalib(_T(rng), 20.0, np.array([0.2, 0.0, -0.4]), 1e-3)
     sonar = SonarStream(t_gt, rng.uniform(0.5, 3.0, n))

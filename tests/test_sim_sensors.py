@@ -132,3 +132,25 @@ def test_config_yaml_round_trip_and_errors(tmp_path) -> None:
         SimConfig(scenario="trajectory").validate()
     with pytest.raises(ConfigError, match="scenario must be"):
         SimConfig(scenario="city").validate()
+
+
+def test_gps_position_noise_correlated_over_its_time_constant(truth) -> None:
+    """``gps.position_correlation_s`` τ: a first-order Gauss-Markov noise of the same σ, whose
+    lag-one correlation at 100 Hz is exp(-0.01/τ); 0 keeps the white draws."""
+    t = sample_times_ns(100.0, 60.0)
+    cfg = SimConfig().gps
+    white, _ = simulate_gps(truth, cfg, np.random.default_rng(3), t)
+    e = np.random.default_rng(3).standard_normal((len(t), 3))
+    np.testing.assert_allclose(white - (truth.p_W_B + truth.R_W_B @ np.array(cfg.p_B_G)),
+                               cfg.position_noise_std * e, rtol=0, atol=1e-12)  # fmt: skip
+    cfg.position_correlation_s = 2.0
+    runs = [simulate_gps(truth, cfg, np.random.default_rng(s), t)[0]
+            - (truth.p_W_B + truth.R_W_B @ np.array(cfg.p_B_G)) for s in range(20)]
+    noise = np.concatenate(runs, axis=1)  # (N, 60): 20 runs of 3 axes
+    assert np.std(noise) == pytest.approx(cfg.position_noise_std, rel=0.1)
+    lag1 = np.mean(noise[1:] * noise[:-1]) / np.mean(noise**2)
+    assert lag1 == pytest.approx(math.exp(-0.01 / 2.0), abs=2e-3)
+    lag200 = np.mean(noise[200:] * noise[:-200]) / np.mean(noise**2)  # 2 s: e^-1
+    assert lag200 == pytest.approx(math.exp(-1.0), abs=0.1)
+    with pytest.raises(ValueError, match="needs the fixes' times"):
+        simulate_gps(truth, cfg, np.random.default_rng(0))

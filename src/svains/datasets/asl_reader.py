@@ -268,6 +268,7 @@ def read_gps(folder: Path) -> tuple[GpsStream, GpsCalib]:
         position_noise_std=sigma_p,
         velocity_noise_std=sigma_v,
         timeshift_gps_imu_s=shift,
+        position_correlation_s=yaml_float(y, "position_correlation_s", ypath, default=0.0),
     )
     check_gps_calib(calib, ypath)
     t_imu = t + np.int64(round(shift * 1e9))

@@ -186,6 +186,8 @@ class AslWriter:
                 ("position_noise_std", calib.position_noise_std),
                 ("velocity_noise_std", calib.velocity_noise_std),
                 *shift,
+                *([("position_correlation_s", calib.position_correlation_s)]
+                  if calib.position_correlation_s > 0 else []),
             ],
             comment="svains GPS (local world frame)",
         )

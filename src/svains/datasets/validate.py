@@ -224,6 +224,7 @@ def check_gps_calib(c: GpsCalib, path: Path) -> None:
         raise CalibrationError(f"{path}: field 'T_BS' (lever arm) has non-finite entries")
     check_number(c.position_noise_std, path, "position_noise_std", positive=True)
     check_number(c.velocity_noise_std, path, "velocity_noise_std", positive=True)
+    check_number(c.position_correlation_s, path, "position_correlation_s", non_negative=True)
 
 
 def check_mag_calib(c: MagCalib, path: Path) -> None:

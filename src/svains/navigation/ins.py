@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from svains.errors import ConfigError, FilterError
 from svains.filter.sigma_points import MerweScaledSigmaPoints
 from svains.filter.ukf import UKF, UpdateStats
-from svains.models.gps import gps_position, gps_position_velocity
+from svains.models.gps import correlated_position_scale, gps_position, gps_position_velocity
 from svains.models.imu import (
     MIN_CHORD_TRIPLES,
     ImuChunk,
@@ -338,15 +338,20 @@ class InsFilter:
 
     # ---- measurement blocks -------------------------------------------------------------
     def gps_block(
-        self, cal: GpsCalib, p_W_G: F64, v_W_G: F64 | None, use_velocity: bool = True
+        self, cal: GpsCalib, p_W_G: F64, v_W_G: F64 | None, use_velocity: bool = True,
+        spacing_s: float | None = None,
     ) -> MeasurementBlock:
-        """Antenna position (and velocity, when given and ``use_velocity``), eqs. 4-5."""
+        """Antenna position (and velocity, when given and ``use_velocity``), eqs. 4-5; the
+        position's variance scaled for a noise correlated over ``cal.position_correlation_s``
+        with the previous fix ``spacing_s`` (s) before (``correlated_position_scale``)."""
+        var_p = cal.position_noise_std**2 * correlated_position_scale(
+            cal.position_correlation_s, spacing_s)
         if use_velocity and v_W_G is not None:
             z = np.concatenate([p_W_G, v_W_G])
-            R = np.r_[np.full(3, cal.position_noise_std**2), np.full(3, cal.velocity_noise_std**2)]
+            R = np.r_[np.full(3, var_p), np.full(3, cal.velocity_noise_std**2)]
             return MeasurementBlock("gps", partial(gps_position_velocity, p_B_G=cal.p_B_G), z, R)
-        R = np.full(3, cal.position_noise_std**2)
-        return MeasurementBlock("gps", partial(gps_position, p_B_G=cal.p_B_G), p_W_G, R)
+        return MeasurementBlock("gps", partial(gps_position, p_B_G=cal.p_B_G), p_W_G,
+                                np.full(3, var_p))
 
     def mag_block(self, cal: MagCalib, m_S: F64) -> MeasurementBlock:
         """Magnetic field in the sensor frame (Gauss), eqs. 8-9."""

@@ -33,6 +33,7 @@ from svains.navigation.fault_handling import (
     whitened_correction,
 )
 from svains.navigation.gps_latency import GpsLatencyCheck
+from svains.navigation.gps_whiteness import GpsWhiteness
 from svains.navigation.heading_steps import HeadingSteps
 from svains.navigation.ins import InsFilter, default_imu_calib
 from svains.navigation.options import RunConfig
@@ -106,6 +107,7 @@ class Core(HeadingSteps):
         self.updates: list[UpdateStats] = []
         self.update_log: list[UpdateRecord] = []
         self.gps_outage_skipped = 0
+        self._gps_block_ns: int | None = None  # the last fix offered (its spacing to the next)
         self.held_skipped = 0  # magnetometer samples not fused while it leaned (``hold``)
         self._log_t: list[int] = []
         self._log_x: list[np.ndarray] = []
@@ -159,6 +161,10 @@ class Core(HeadingSteps):
         self.history = history_recorder(config, ins) if config.smoother.enabled else None
         # the GPS frame and the gyro's unit against each other (files are checked on load)
         self._course_check = CourseCheck(ins.history, rig.gravity_W) if gps_used else None
+        # GPS innovations correlated from fix to fix: a wandering noise left undeclared
+        self._gps_whiteness = (
+            GpsWhiteness() if gps_used and rig.gps is not None
+            and rig.gps.position_correlation_s <= 0.0 else None)  # fmt: skip
         # the GPS stamps against the IMU's clock (a receiver's latency)
         imu_calib = rig.imu or default_imu_calib()
         self._gps_latency = (
@@ -293,7 +299,9 @@ class Core(HeadingSteps):
                 if recovery is not None and recovery.reset_pending:
                     v = payload[1] if use_v else None
                     recovery.reset_from_gps(ins.ukf, self.rig.gps, payload[0], v)
-                block = ins.gps_block(self.rig.gps, payload[0], payload[1], use_v)
+                last, self._gps_block_ns = self._gps_block_ns, t
+                block = ins.gps_block(self.rig.gps, payload[0], payload[1], use_v,
+                                      None if last is None else (t - last) * 1e-9)
                 if not self._bank_fix(t, block):
                     blocks.append(block)
             elif kind == MAG:
@@ -656,6 +664,11 @@ class Core(HeadingSteps):
             self._warn.warn("gps-far", t, f"a GPS fix refused {stats.nis / stats.gate:.0f} "
                             f"times beyond its gate (NIS {stats.nis:.3g}): the fix, or the "
                             "estimate, is far off")  # fmt: skip
+        if (key == "gps" and stats.accepted and stats.whitened is not None
+                and self._gps_whiteness is not None):  # fmt: skip
+            said = self._gps_whiteness.observe(t, stats.whitened[:3])
+            if said is not None:
+                self._warn.warn("gps-whiteness", t, said)
         recovery = self._acting_recovery
         if recovery is not None and key != "zupt":
             # A refused zero-velocity update means motion, not a lost filter.
@@ -782,6 +795,8 @@ class Core(HeadingSteps):
             report["gps_course_check"] = self._course_check.summary()
         if self._gps_latency is not None:
             report["gps_latency_check"] = self._gps_latency.summary()
+        if self._gps_whiteness is not None:
+            report["gps_whiteness"] = self._gps_whiteness.summary()
         if self._heading_check is not None:
             report["heading_check"] = self._heading_check.summary()
         if self._mag_turn is not None:

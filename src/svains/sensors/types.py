@@ -77,13 +77,16 @@ class GroundTruth:
 class GpsCalib:
     """GPS antenna lever arm ``p_B_G`` (3,) m and noise standard deviations;
     ``timeshift_gps_imu_s`` (s): ``t_imu = t_gps + timeshift`` (a receiver that stamps its
-    fixes 0.1 s after they hold: -0.1), applied once when the stamps are read."""
+    fixes 0.1 s after they hold: -0.1), applied once when the stamps are read;
+    ``position_correlation_s`` (s): the time over which the positions' noise stays correlated
+    (a receiver's multipath and atmosphere; 0: white from fix to fix)."""
 
     p_B_G: F64
     rate_hz: float
     position_noise_std: float  # m
     velocity_noise_std: float  # m/s
     timeshift_gps_imu_s: float = 0.0
+    position_correlation_s: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -85,6 +85,10 @@ class GpsConfig:
     rate_hz: float = 1.0
     position_noise_std: float = math.sqrt(2.0)  # Table 1: variance 2 m²
     velocity_noise_std: float = 0.1
+    # s: the positions' noise a first-order Gauss-Markov process with this time constant and
+    # ``position_noise_std`` (a real receiver's: seconds to a minute); 0: white. Written to
+    # the calibration as ``position_correlation_s``.
+    position_correlation_s: float = 0.0
     p_B_G: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.15])
     outages: list[list[float]] = field(
         default_factory=lambda: [[15.0, 10.0], [40.0, 10.0], [65.0, 10.0], [90.0, 10.0]]
@@ -259,7 +263,8 @@ class SimConfig:
             part, name = key.split(".")
             if not getattr(getattr(self, part), name) > 0:
                 raise ConfigError(f"{key} must be > 0, got {getattr(getattr(self, part), name)}")
-        for key in ("imu.gyro_random_walk", "imu.accel_random_walk", "camera.image_noise_std"):
+        for key in ("imu.gyro_random_walk", "imu.accel_random_walk", "camera.image_noise_std",
+                    "gps.position_correlation_s"):  # fmt: skip
             part, name = key.split(".")
             if not getattr(getattr(self, part), name) >= 0:
                 raise ConfigError(f"{key} must be >= 0, got {getattr(getattr(self, part), name)}")

@@ -68,15 +68,28 @@ def gps_keep_mask(t_ns: I64, outages: list[list[float]]) -> NDArray[np.bool_]:
 
 
 def simulate_gps(
-    truth: TrajectorySample, cfg: GpsConfig, rng: np.random.Generator
+    truth: TrajectorySample, cfg: GpsConfig, rng: np.random.Generator,
+    t_ns: I64 | None = None,
 ) -> tuple[F64, F64]:
-    """Antenna position/velocity (N, 3): ``p_G = p + R r_BG``, ``v_G = v + R (ω × r_BG)``."""
+    """Antenna position/velocity (N, 3): ``p_G = p + R r_BG``, ``v_G = v + R (ω × r_BG)``,
+    plus noise: the velocity's white, the position's white or, with
+    ``cfg.position_correlation_s`` τ > 0, a first-order Gauss-Markov process of the same
+    standard deviation over the fixes' times ``t_ns`` (N,) (``e_k = a e_(k-1) + √(1-a²) σ n_k``,
+    ``a = exp(-Δt/τ)``: a receiver's multipath and atmosphere wander over seconds)."""
     r = np.asarray(cfg.p_B_G, float)
     p = truth.p_W_B + truth.R_W_B @ r
     v = truth.v_W_B + np.einsum("nij,nj->ni", truth.R_W_B, np.cross(truth.omega_B, r))
     n = len(p)
+    e = rng.standard_normal((n, 3))
+    tau = float(cfg.position_correlation_s)
+    if tau > 0.0 and n > 1:
+        if t_ns is None:
+            raise ValueError("a correlated GPS noise needs the fixes' times t_ns")
+        a = np.exp(-np.diff(np.asarray(t_ns, np.int64)) * 1e-9 / tau)
+        for k in range(1, n):  # a recursion over fixes (N ~ 10^3-10^4), not a hot path
+            e[k] = a[k - 1] * e[k - 1] + np.sqrt(1.0 - a[k - 1] ** 2) * e[k]
     return (
-        p + cfg.position_noise_std * rng.standard_normal((n, 3)),
+        p + cfg.position_noise_std * e,
         v + cfg.velocity_noise_std * rng.standard_normal((n, 3)),
     )
 

@@ -278,9 +278,11 @@ def _write_dataset(scene: Scene, root: Path) -> list[str]:
     if cfg.gps.enabled:
         t = sample_times_ns(cfg.gps.rate_hz, cfg.duration_s)
         t = t[gps_keep_mask(t, cfg.gps.outages)]
-        p, v = simulate_gps(scene.trajectory.evaluate(t * 1e-9), cfg.gps, rngs[1])
-        writer.write_gps(GpsStream(t, p, v), GpsCalib(np.asarray(cfg.gps.p_B_G, float),
-                         cfg.gps.rate_hz, cfg.gps.position_noise_std, cfg.gps.velocity_noise_std))
+        p, v = simulate_gps(scene.trajectory.evaluate(t * 1e-9), cfg.gps, rngs[1], t)
+        writer.write_gps(GpsStream(t, p, v), GpsCalib(
+            np.asarray(cfg.gps.p_B_G, float), cfg.gps.rate_hz, cfg.gps.position_noise_std,
+            cfg.gps.velocity_noise_std,
+            position_correlation_s=cfg.gps.position_correlation_s))
     if cfg.mag.enabled:
         t = sample_times_ns(cfg.mag.rate_hz, cfg.duration_s)
         m = simulate_mag(scene.trajectory.evaluate(t * 1e-9), cfg.mag.m_W, cfg.mag.noise_std,
