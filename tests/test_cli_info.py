@@ -59,7 +59,10 @@ def test_info_shows_how_far_kitti_raw_sits_from_the_unit_and_frame_checks(
             in res.output)  # fmt: skip
     assert ("GPS course against the gyro: cosine 0.99 over 8 turns (77° by the gyro), the "
             "course turning 1.05 times as far" in res.output)  # fmt: skip
-    checks = json.loads((tmp_path / "i.json").read_text())["checks"]
+    summary = json.loads((tmp_path / "i.json").read_text())
+    gps = summary["calibration"]["gps"]
+    assert gps["position_noise_std"] == 0.35 and gps["position_correlation_s"] == 0.0
+    checks = summary["checks"]
     assert checks["gps_course_vs_gyro"]["turns"] == 8
     assert checks["gps_course_vs_gyro"]["course_per_gyro_turn"] == pytest.approx(1.047, abs=1e-3)
 

@@ -91,6 +91,7 @@ def dataset_summary(ds: Dataset) -> dict[str, Any]:
                         "position_noise_std": ds.gps_calib.position_noise_std,
                         "velocity_noise_std": ds.gps_calib.velocity_noise_std,
                         "timeshift_gps_imu_s": ds.gps_calib.timeshift_gps_imu_s,
+                        "position_correlation_s": ds.gps_calib.position_correlation_s,
                         "fixes_with_velocity": None if ds.gps is None
                         else bool(ds.gps.has_velocity.all())}  # fmt: skip
     if ds.mag_calib is not None:
