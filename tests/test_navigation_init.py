@@ -327,16 +327,32 @@ def test_an_in_flight_start_spaces_its_fixes_for_their_noise() -> None:
     for t_s in ([0.0, 1.0, 2.0], [0.0, 0.93, 1.93]):
         got, complete = start_fixes(_fixes(t_s, False), 0.1)
         assert complete and np.allclose(got.t_ns * 1e-9, t_s)
+    got, complete = start_fixes(_fixes([0.0, 0.8, 5.0]), 0.1)
+    assert complete and np.allclose(got.t_ns * 1e-9, [0.0, 0.8])
+    # ... but a fix far short of it is no pair either: the start waits for the fixes after
+    # the gap (20 ms from the first, then an outage: 26-131° tilted, a review)
     got, complete = start_fixes(_fixes([0.0, 0.1, 0.2, 5.0]), 0.1)
-    assert complete and np.allclose(got.t_ns * 1e-9, [0.0, 0.2])
+    assert not complete and np.allclose(got.t_ns * 1e-9, [5.0])
+    got, complete = start_fixes(_fixes([0.0, 0.1, 0.2, 5.0, 5.5, 6.0]), 0.1)
+    assert complete and np.allclose(got.t_ns * 1e-9, [5.0, 6.0])
     # not there yet: the first fixes as they came (and the Starter waits for more)
     got, complete = start_fixes(_fixes([0.0, 0.1, 0.2]), 0.1)
     assert not complete and np.allclose(got.t_ns * 1e-9, [0.0, 0.1])
+    # a first fix with a velocity, the later ones without: three positions (it waited for
+    # ever, a review)
+    mixed = _fixes(list(np.arange(0.0, 2.5, 0.1)), False)
+    mixed.v_W_G[0] = 1.0
+    got, complete = start_fixes(mixed, 0.1)
+    assert complete and np.allclose(got.t_ns * 1e-9, [0.0, 1.0, 2.0])
 
 
-def test_a_fast_gps_starts_in_flight_level_and_consistent(tmp_path) -> None:
+@pytest.mark.parametrize("case", ["fast", "gap after 20 ms", "velocity on the first only"])
+def test_a_fast_gps_starts_in_flight_level_and_consistent(tmp_path, case: str) -> None:
     """A 50 Hz GPS (σ_v 0.1 m/s): its first two fixes started 24° tilted and 49° off in
-    heading with a σ of 3° (NEES 160-660, a probe); spaced fixes start within 3σ."""
+    heading with a σ of 3° (NEES 160-660, a probe); spaced fixes start within 3σ. Two fixes
+    20 ms apart and then a 2 s outage started 26-131° off (a review): the start waits for the
+    fixes after it. A receiver whose later fixes lack the first's velocity never started (a
+    review): three positions start it."""
     from svains.datasets import load_dataset
     from svains.evaluation.run import run_method
     from svains.navigation.options import RunOptions
@@ -344,12 +360,18 @@ def test_a_fast_gps_starts_in_flight_level_and_consistent(tmp_path) -> None:
     from svains.sim import SimConfig, simulate
 
     cfg = SimConfig()
-    cfg = replace(cfg, duration_s=3.0, seed=0, gps=replace(cfg.gps, outages=[], rate_hz=50.0),
+    outages = [[0.03, 2.0]] if case == "gap after 20 ms" else []
+    cfg = replace(cfg, duration_s=4.0, seed=0,
+                  gps=replace(cfg.gps, outages=outages, rate_hz=50.0),
                   camera=replace(cfg.camera, rate_hz=1.0, render_images=False))  # fmt: skip
     ds = load_dataset(simulate(cfg, tmp_path / "ds"))
+    if case == "velocity on the first only":
+        ds.gps.v_W_G[1:] = np.nan
     res = run_method(ds, "ins", RunOptions(init=InitOptions(mode="gps")))
     assert res.report["init"]["heading"] == "magnetometer"
+    if case == "gap after 20 ms":
+        assert res.t_ns[0] >= 2.03e9  # after the outage
     _, _, _, q = interpolate_groundtruth(ds.groundtruth, res.t_ns[:1])
     err = quat_box_minus(res.x[0, 6:10], q[0])
-    assert np.degrees(np.linalg.norm(err)) < 3.0
+    assert np.degrees(np.linalg.norm(err)) < 6.0  # (the faults: 26-131°)
     assert np.all(np.abs(err) < 3.0 * res.std[0, 6:9])

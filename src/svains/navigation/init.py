@@ -446,18 +446,30 @@ def start_fix_spacing_s(velocity_noise_std: float, with_velocity: bool) -> float
 
 
 def start_fixes(gps: GpsArrays, velocity_noise_std: float) -> tuple[GpsArrays, bool]:
-    """The fixes an in-flight start takes from ``gps`` (time-ordered, its first the start's):
-    the first, then each the one nearest ``start_fix_spacing_s`` after the one before, not
-    more than ``START_SPACING_SLACK`` short of it (the one before it when over twice as far: a fix
-    after an outage is no pair), two with velocities (the first fix's kind), three without;
-    and whether ``gps`` had them. When it had not, the first two (three) fixes as they came."""
-    with_v = bool(np.all(np.isfinite(gps.v_W_G[0]))) if len(gps.t_ns) else True
+    """The fixes an in-flight start takes from ``gps`` (time-ordered) and whether ``gps`` had
+    them: two with velocities (when the first fix has one and enough later ones do; else
+    three positions), the first, then each the one nearest ``start_fix_spacing_s`` after the
+    one before, not more than ``START_SPACING_SLACK`` short of it. Past a gap over twice the
+    spacing the fix before the gap serves when it is that near, else the selection starts
+    again after the gap (a fix 20 ms from the first, then an outage, started 26-131° tilted:
+    a review). Not had: the first two (three) fixes from where the selection stands."""
+    if len(gps.t_ns) and np.all(np.isfinite(gps.v_W_G[0])):
+        got = _spaced(gps, velocity_noise_std, True)
+        if got[1]:
+            return got
+        positions = _spaced(gps, velocity_noise_std, False)
+        # a receiver whose later fixes lack the first's velocity waited for ever (a review)
+        return positions if positions[1] else got
+    return _spaced(gps, velocity_noise_std, False)
+
+
+def _spaced(gps: GpsArrays, velocity_noise_std: float, with_v: bool) -> tuple[GpsArrays, bool]:
     n = 2 if with_v else 3
     spacing_ns = int(start_fix_spacing_s(velocity_noise_std, with_v) * 1e9)
     least_ns = int((1.0 - START_SPACING_SLACK) * spacing_ns)
     usable = np.all(np.isfinite(gps.v_W_G), axis=1) if with_v else np.ones(len(gps.t_ns), bool)
-    picked = [0]
-    while len(picked) < n and len(gps.t_ns):
+    picked = [0] if len(gps.t_ns) and usable[0] else []
+    while picked and len(picked) < n:
         t_prev = int(gps.t_ns[picked[-1]])
         later = np.flatnonzero(usable & (gps.t_ns > t_prev))
         reach = later[gps.t_ns[later] >= t_prev + spacing_ns]
@@ -465,14 +477,18 @@ def start_fixes(gps: GpsArrays, velocity_noise_std: float) -> tuple[GpsArrays, b
             break
         j = int(reach[0])
         before = later[later < j]
-        if before.size:  # the fix before it when nearer the spacing, or when it is far beyond
+        if before.size:
             dt_j, dt_b = int(gps.t_ns[j]) - t_prev, int(gps.t_ns[before[-1]]) - t_prev
-            nearer = dt_b >= least_ns and spacing_ns - dt_b < dt_j - spacing_ns
-            if nearer or dt_j > 2 * spacing_ns:
-                j = int(before[-1])
+            if dt_b >= least_ns and (spacing_ns - dt_b < dt_j - spacing_ns
+                                     or dt_j > 2 * spacing_ns):  # fmt: skip
+                j = int(before[-1])  # nearer the spacing, or the last before a gap
+            elif dt_j > 2 * spacing_ns:
+                picked = [j]  # too near before a gap: start again after it
+                continue
         picked.append(j)
     complete = len(picked) == n
-    idx = np.array(picked if complete else range(min(n, len(gps.t_ns))), dtype=int)
+    first = picked[0] if picked else 0
+    idx = np.array(picked if complete else range(first, min(first + n, len(gps.t_ns))), int)
     return GpsArrays(gps.t_ns[idx], gps.p_W_G[idx], gps.v_W_G[idx]), complete
 
 

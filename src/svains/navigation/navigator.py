@@ -515,7 +515,8 @@ class Navigator:
             init.info["start_after_s"] = round(waited_s, 3)
             mode = self.config.init.mode
             if waited_s > START_WAIT_WARN_S and mode in ("gps", "vision"):
-                needs = {"gps": "two GPS fixes", "vision": "linked stereo frames"}[mode]
+                needs = {"gps": "GPS fixes spaced for their noise",
+                         "vision": "linked stereo frames"}[mode]
                 self._warn.warn("start-wait", int(init.t_ns),
                                 f"the {mode} start came {waited_s:.1f} s after the first IMU "
                                 f"sample (it waits for {needs}): nothing before it is "

@@ -110,10 +110,14 @@ class Starter:
         run fuses no GPS at its time (an outage): the ``vision`` start does not take it."""
         fix = (t_ns, p_W_G, np.full(3, np.nan) if v_W_G is None or not self._gps_velocity
                else v_W_G)  # fmt: skip
-        if self.options.mode == "gps" and not self._start_fixes()[1]:
+        if self.options.mode != "gps":
+            if len(self._gps) < 2:
+                self._gps.append(fix)
+        elif not self._start_fixes()[1]:
             self._gps.append(fix)  # until ``init.start_fixes`` has the spaced ones
-        elif len(self._gps) < 2:
-            self._gps.append(fix)
+            fixes, _ = self._start_fixes()
+            if fixes is not None:  # those before a restart after a gap are of no use
+                self._gps = [f for f in self._gps if f[0] >= fixes.t_ns[0]]
         if self.odometry is not None and not off:
             recent = self._gps_recent
             recent.append(fix)
