@@ -79,7 +79,8 @@ class ImuConfig:
 
 @dataclass
 class GpsConfig:
-    """GPS antenna at lever arm ``p_B_G`` (m); outages ``[start_s, duration_s]`` pairs."""
+    """GPS antenna at lever arm ``p_B_G`` (m); outages ``[start_s, duration_s]`` pairs; its
+    position noise white, or correlated over ``position_correlation_s`` (s)."""
 
     enabled: bool = True
     rate_hz: float = 1.0
