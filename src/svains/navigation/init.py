@@ -450,9 +450,10 @@ def start_fixes(gps: GpsArrays, velocity_noise_std: float) -> tuple[GpsArrays, b
     them: two with velocities (when the first fix has one and enough later ones do; else
     three positions), the first, then each the one nearest ``start_fix_spacing_s`` after the
     one before, not more than ``START_SPACING_SLACK`` short of it. Past a gap over twice the
-    spacing the fix before the gap serves when it is that near, else the selection starts
-    again after the gap (a fix 20 ms from the first, then an outage, started 26-131° tilted:
-    a review). Not had: the first two (three) fixes from where the selection stands."""
+    spacing the fix before the gap serves when it is that near, else the one after it, as a
+    slow receiver's next fix does (the fix 20 ms from the first, then an outage, started
+    26-131° tilted; restarting after each gap never started fixes in bursts: reviews). Not
+    had: the first two (three) fixes as they came."""
     if len(gps.t_ns) and np.all(np.isfinite(gps.v_W_G[0])):
         got = _spaced(gps, velocity_noise_std, True)
         if got[1]:
@@ -482,13 +483,9 @@ def _spaced(gps: GpsArrays, velocity_noise_std: float, with_v: bool) -> tuple[Gp
             if dt_b >= least_ns and (spacing_ns - dt_b < dt_j - spacing_ns
                                      or dt_j > 2 * spacing_ns):  # fmt: skip
                 j = int(before[-1])  # nearer the spacing, or the last before a gap
-            elif dt_j > 2 * spacing_ns:
-                picked = [j]  # too near before a gap: start again after it
-                continue
         picked.append(j)
     complete = len(picked) == n
-    first = picked[0] if picked else 0
-    idx = np.array(picked if complete else range(first, min(first + n, len(gps.t_ns))), int)
+    idx = np.array(picked if complete else range(min(n, len(gps.t_ns))), int)
     return GpsArrays(gps.t_ns[idx], gps.p_W_G[idx], gps.v_W_G[idx]), complete
 
 

@@ -115,9 +115,6 @@ class Starter:
                 self._gps.append(fix)
         elif not self._start_fixes()[1]:
             self._gps.append(fix)  # until ``init.start_fixes`` has the spaced ones
-            fixes, _ = self._start_fixes()
-            if fixes is not None:  # those before a restart after a gap are of no use
-                self._gps = [f for f in self._gps if f[0] >= fixes.t_ns[0]]
         if self.odometry is not None and not off:
             recent = self._gps_recent
             recent.append(fix)
