@@ -88,6 +88,9 @@ class Starter:
         self.local_heading_wait = local_heading_wait
         self._mag: list[tuple[int, np.ndarray]] = []
         self._gps: list[tuple[int, np.ndarray, np.ndarray]] = []
+        # the ``gps`` start's fixes chosen from ``_gps`` and whether they suffice
+        # (``init.start_fixes``), kept up to date as fixes come and go
+        self._picked: tuple[GpsArrays | None, bool] = (None, False)
         self._refused: list[str] = []  # the ``gps`` start's pairs of fixes refused so far
         # the latest fixes, for the ``vision`` start's position (``_gps_at``)
         self._gps_recent: collections.deque[tuple[int, np.ndarray, np.ndarray]] = (
@@ -113,8 +116,9 @@ class Starter:
         if self.options.mode != "gps":
             if len(self._gps) < 2:
                 self._gps.append(fix)
-        elif not self._start_fixes()[1]:
+        elif not self._picked[1]:
             self._gps.append(fix)  # until ``init.start_fixes`` has the spaced ones
+            self._picked = self._start_fixes()
         if self.odometry is not None and not off:
             recent = self._gps_recent
             recent.append(fix)
@@ -208,7 +212,7 @@ class Starter:
         if o.mode == "vision":
             return self._vision_start(history, horizon_ns)
         if o.mode == "gps":
-            fixes, complete = self._start_fixes()
+            fixes, complete = self._picked
             if fixes is None or not complete or horizon_ns <= fixes.t_ns[-1]:
                 return None
             try:
@@ -224,6 +228,7 @@ class Starter:
                 log.warning("the in-flight start waits for the next GPS fix: %s", exc)
                 # the next pair starts at the refused pair's second fix
                 self._gps = [f for f in self._gps if f[0] >= fixes.t_ns[1]]
+                self._picked = self._start_fixes()
                 return None
         if history.n < 3:
             return None
