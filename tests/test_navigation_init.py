@@ -288,6 +288,25 @@ def test_a_gps_start_on_a_rig_turning_fast_is_levelled_at_its_own_time() -> None
     assert tilt < 0.5  # the body-axis mean gave 68° here
 
 
+def test_a_gps_start_from_fixes_sharing_a_stamp_is_refused_in_one_line() -> None:
+    """A direct ``initialise`` with the first fixes at one time divided by zero (the
+    Navigator orders its fixes; a caller of the library may not)."""
+    from pathlib import Path
+
+    from svains.datasets.types import Dataset, GpsStream, ImuStream
+
+    t = np.arange(0.0, 3.0, 0.005)
+    ds = Dataset(root=Path("/none"), name="stamps", gravity_W=G_W)
+    ds.imu = ImuStream((t * 1e9).astype(np.int64), np.zeros((t.size, 3)),
+                       np.tile(-G_W, (t.size, 1)))  # fmt: skip
+    ds.gps = GpsStream(np.array([0, 0, 0], np.int64), np.zeros((3, 3)), np.zeros((3, 3)))
+    ds.gps_calib = GpsCalib(np.zeros(3), 1.0, 0.02, 0.01)
+    why = (r"^stamps: --init gps needs its first fixes at distinct, increasing times "
+           r"\(got 0\.000, 0\.000 s\)$")
+    with pytest.raises(InitialisationError, match=why):
+        initialise(ds, BIASED, InitOptions(mode="gps"))
+
+
 def test_one_fix_off_among_those_at_rest_does_not_move_the_start() -> None:
     """An RTK receiver (2 cm) with one fix 3 m off among those at rest: their mean was 1 m off
     with a σ of 2 cm and the right fixes after it were refused as multipath (a user's probe);

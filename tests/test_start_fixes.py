@@ -88,3 +88,34 @@ def test_a_jumped_position_in_the_start_fixes_waits_for_the_next_pair(
     waits = [r.getMessage() for r in caplog.records if "waits for the next GPS fix" in r.message]
     assert len(waits) == 1 and "a fix's position jumped" in waits[0], waits
     assert rep["ate_rmse_m"] < 1.5 and rep["nees_mean"] < 20.0
+
+
+def test_fixes_released_together_start_the_pair_after_a_refused_one(flight: Path) -> None:
+    """Fixes released in one batch (a run fed its GPS ahead of the IMU): the Starter kept
+    only those of the first complete selection, and after that pair was refused the next
+    pair's fixes were gone: the start never came (a review). The glitched fix at 31 s is in
+    two pairs; the third starts the run."""
+    from svains.models.state import BIASED
+    from svains.navigation.imu_history import ImuHistory
+    from svains.navigation.starter import Starter
+    from svains.replay import rig_from_dataset
+
+    ds = load_dataset(flight)
+    assert ds.gps is not None and ds.imu is not None
+    t_s = (ds.gps.t_ns - ds.imu.t_ns[0]) * 1e-9
+    k = int(np.argmin(np.abs(t_s - 31.0)))
+    bad = _velocities_changed(ds, [31.0], [-2.0 * ds.gps.v_W_G[k]])
+    assert bad.gps is not None
+    starter = Starter(InitOptions(mode="gps"), rig_from_dataset(ds), BIASED, None)
+    for j in range(k - 1, k + 5):  # 30-35 s at once
+        starter.add_gps(int(bad.gps.t_ns[j]), bad.gps.p_W_G[j], bad.gps.v_W_G[j])
+    history = ImuHistory()
+    end_ns = int(bad.gps.t_ns[k + 5])
+    sel = np.flatnonzero((ds.imu.t_ns >= bad.gps.t_ns[k - 1] - 10**9) & (ds.imu.t_ns <= end_ns))
+    for i in sel:
+        history.append(int(ds.imu.t_ns[i]), ds.imu.gyro_B[i], ds.imu.accel_B[i])
+    got = [starter.try_start(history, end_ns) for _ in range(3)]
+    assert got[0] is None and got[1] is None and got[2] is not None
+    assert got[2].t_ns >= bad.gps.t_ns[k + 1]
+    np.testing.assert_allclose(got[2].x[:3], ds.groundtruth.p_W_B[
+        np.argmin(np.abs(ds.groundtruth.t_ns - got[2].t_ns))], atol=1.0)

@@ -579,6 +579,10 @@ def _from_gps(dataset: InitData, layout: StateLayout, o: InitOptions) -> Initial
             "calibration"
         )
     gps, _ = start_fixes(gps, dataset.gps_calib.velocity_noise_std)
+    if np.any(np.diff(gps.t_ns) <= 0):  # (a direct call; the Navigator orders its fixes)
+        raise InitialisationError(
+            f"{dataset.name}: --init gps needs its first fixes at distinct, increasing times "
+            f"(got {', '.join(f'{t * 1e-9:.3f}' for t in gps.t_ns)} s)")
     gps, accel_std, v0_std = _with_start_velocities(gps, dataset.name,
                                             dataset.gps_calib.position_noise_std,
                                             o.flight_accel_prior_std)

@@ -588,7 +588,8 @@ class Navigator:
             if why is not None:
                 self.queue.drop("gps", t, why)
                 return
-            self.starter.add_gps(t, *payload, off=self._gps_off_at(t))
+            if self.core is None:  # the start's fixes (all kept until it: ``Starter.add_gps``)
+                self.starter.add_gps(t, *payload, off=self._gps_off_at(t))
             if not (cfg.use_gps and self.rig.gps is not None):
                 return
         elif kind == MAG:

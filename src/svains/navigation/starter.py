@@ -116,9 +116,13 @@ class Starter:
         if self.options.mode != "gps":
             if len(self._gps) < 2:
                 self._gps.append(fix)
-        elif not self._picked[1]:
-            self._gps.append(fix)  # until ``init.start_fixes`` has the spaced ones
-            self._picked = self._start_fixes()
+        else:
+            # every fix until the start: those after a complete selection start the next pair
+            # when the selection is refused (they were dropped, and a run fed its fixes ahead of
+            # the IMU never started: a review)
+            self._gps.append(fix)
+            if not self._picked[1]:
+                self._picked = self._start_fixes()
         if self.odometry is not None and not off:
             recent = self._gps_recent
             recent.append(fix)
