@@ -71,6 +71,11 @@ def test_groundtruth_to_tum(tmp_path: Path, euroc_micro: Path) -> None:
         ("2.0 1 2 3 0 0 0 1\n1.0 1 2 3 0 0 0 1\n", r"x\.tum:2: non-increasing timestamp"),
         ("1.0 1 nan 3 0 0 0 1\n", r"x\.tum:1: NaN"),
         ("# only a comment\n", r"no poses in TUM file"),
+        ("1317045935637923328 1 2 3 0 0 0 1\n",
+         r"x\.tum:1: time 1317045935637923328 s is outside the int64 ns range: a TUM file's "
+         r"stamps are seconds; these look like nanoseconds \(divide by 1e\+09\)$"),
+        ("1317045935637923 1 2 3 0 0 0 1\n", r"these look like microseconds \(divide by 1e\+06\)$"),
+        ("1317045935637 1 2 3 0 0 0 1\n", r"these look like milliseconds \(divide by 1e\+03\)$"),
     ],
 )
 def test_bad_tum(tmp_path: Path, body: str, match: str) -> None:
