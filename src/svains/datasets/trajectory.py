@@ -17,6 +17,7 @@ from svains.datasets._textio import read_text
 from svains.datasets.types import GroundTruth
 from svains.datasets.validate import QUATERNION_NORM_TOL
 from svains.errors import DatasetError
+from svains.sensors.units import seconds_unit_hint
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +96,7 @@ def read_tum(
             raise DatasetError(f"{path}:{k}: malformed number in {line[:80]!r}") from None
         if not -(2**63) <= t[-1] < 2**63:
             raise DatasetError(f"{path}:{k}: time {fields[0]} s is outside the int64 ns range"
-                               f"{_unit_hint(float(fields[0]))}")
+                               f"{seconds_unit_hint(float(fields[0]))}")
         lines.append(k)
     if not rows:
         raise DatasetError(f"{path}: no poses in TUM file")
@@ -142,13 +143,3 @@ def groundtruth_from_poses(
     v = np.gradient(p, (t - t[0]) * 1e-9, axis=0) if t.size > 1 else np.zeros_like(p)
     z = np.zeros_like(p)
     return GroundTruth(t_ns=t, p_W_B=p, q_W_B_wxyz=q, v_W_B=v, bg_B=z, ba_B=z.copy())
-
-
-def _unit_hint(t_s: float) -> str:
-    """For a TUM stamp too large to be seconds: the unit that makes it a time before the year
-    2286 (1e10 s), as a clause (a probe's trajectory stamped in ns named no unit)."""
-    for name, scale in (("milliseconds", 1e3), ("microseconds", 1e6), ("nanoseconds", 1e9)):
-        if abs(t_s) / scale < 1e10:
-            return (f": a TUM file's stamps are seconds; these look like {name} (divide by "
-                    f"{scale:.0e})")
-    return ""

@@ -345,6 +345,16 @@ def time_unit_problem(median_spacing: float) -> str | None:
             f"nanoseconds: they look like {guess}")
 
 
+
+def seconds_unit_hint(t_s: float) -> str:
+    """For a stamp read as seconds (a TUM file's) too large for int64 nanoseconds: the unit
+    that makes it a time before the year 2286 (1e10 s), as a clause; "" when none does."""
+    for name, scale in (("milliseconds", 1e3), ("microseconds", 1e6), ("nanoseconds", 1e9)):
+        if abs(t_s) / scale < 1e10:
+            return (f": a TUM file's stamps are seconds; these look like {name} (divide by "
+                    f"{scale:.0e})")
+    return ""
+
 # A stream this many times its sensor's declared rate is stamped in another unit than
 # nanoseconds, not fast: KITTI's 100 Hz OXTS, kept at a median 40 ms, stamped in microseconds
 # reads 25 kHz, inside ``MIN_MEDIAN_SPACING_NS``'s 50 kHz bound.
